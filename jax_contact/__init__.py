@@ -1,0 +1,84 @@
+"""jax-contact: probabilistic foot contact estimation (Hwangbo et al., IROS 2016) in pure JAX.
+
+The public API is listed in ``__all__``; everything else is private.
+"""
+
+from jax_contact.filter import (
+    init_belief,
+    init_belief_batch,
+    run,
+    sequence_bce,
+    step,
+    step_batch,
+)
+from jax_contact.measurement import (
+    MeasurementTerms,
+    diff_kinematics_llr,
+    dynamics_llr,
+    kinematics_llr,
+    measurement_terms,
+)
+from jax_contact.params import (
+    EstimatorParams,
+    NoiseParams,
+    make_noise,
+    make_params,
+    validate_params,
+)
+from jax_contact.terrain import (
+    FlatTerrain,
+    FootholdMemory,
+    HeightFieldTerrain,
+    flat,
+    foothold_memory,
+    height_field,
+)
+from jax_contact.transition import (
+    log_takeoff,
+    log_touchdown,
+    log_touchdown_monte_carlo,
+    log_touchdown_quadrature,
+    log_transition_matrix,
+)
+from jax_contact.types import (
+    Diagnostics,
+    LegBelief,
+    LegMeasurement,
+    TerrainQuery,
+    validate_measurement,
+)
+
+__all__ = [
+    "Diagnostics",
+    "EstimatorParams",
+    "FlatTerrain",
+    "FootholdMemory",
+    "HeightFieldTerrain",
+    "LegBelief",
+    "LegMeasurement",
+    "MeasurementTerms",
+    "NoiseParams",
+    "TerrainQuery",
+    "diff_kinematics_llr",
+    "dynamics_llr",
+    "flat",
+    "foothold_memory",
+    "height_field",
+    "init_belief",
+    "init_belief_batch",
+    "kinematics_llr",
+    "log_takeoff",
+    "log_touchdown",
+    "log_touchdown_monte_carlo",
+    "log_touchdown_quadrature",
+    "log_transition_matrix",
+    "make_noise",
+    "make_params",
+    "measurement_terms",
+    "run",
+    "sequence_bce",
+    "step",
+    "step_batch",
+    "validate_measurement",
+    "validate_params",
+]

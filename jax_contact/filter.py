@@ -1,0 +1,208 @@
+"""The forward recursion (eq. 1-2) in log space, and its batched and scanned entry points.
+
+One step for one foot::
+
+    prior_t(x)  = sum_x' T_{t-1}(x | x') b_{t-1}(x')              (eq. 1, the sum)
+    b_t(C)      ∝ L_dyn L_dkin L_kin (C) * prior_t(C)              (eq. 1, 3)
+    b_t         = alpha_t / sum alpha_t                            (eq. 2)
+    T_t         from this step's measurement (eq. 11-17)           (applied at t+1)
+
+The belief is carried as a logit, so a million steps neither underflow nor round it to
+exactly 0 or 1. ``step`` is pure and unbatched; ``step_batch`` vmaps it over
+(envs, legs) and ``run`` scans ``step_batch`` over time.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+
+from jax_contact.measurement import measurement_terms
+from jax_contact.params import EstimatorParams
+from jax_contact.transition import log_prior_transition, log_transition_matrix
+from jax_contact.types import Diagnostics, LegBelief, LegMeasurement, measurement_is_finite
+
+
+def init_belief(params: EstimatorParams) -> LegBelief:
+    """The belief of one foot before its first measurement.
+
+    ``P(C) = params.initial_contact``, the gait prior as the first transition, no foothold.
+    """
+    p = params.initial_contact
+    return LegBelief(
+        logit=jnp.log(p) - jnp.log1p(-p),
+        log_transition=log_prior_transition(params),
+        foothold=jnp.zeros(3, jnp.float32),
+        foothold_valid=jnp.array(False),
+    )
+
+
+def init_belief_batch(params: EstimatorParams, n_envs: int, n_legs: int) -> LegBelief:
+    """:func:`init_belief` broadcast to leading axes (n_envs, n_legs)."""
+    one = init_belief(params)
+    return jax.tree.map(lambda x: jnp.broadcast_to(x, (n_envs, n_legs) + x.shape), one)
+
+
+def _sanitize(meas: LegMeasurement, valid: jax.Array) -> LegMeasurement:
+    """Replaces an invalid measurement by a benign one so no NaN enters any computation.
+
+    ``jnp.where`` alone would still propagate NaN into gradients, so the inputs themselves
+    are swapped: zeros everywhere and an identity mass matrix.
+    """
+
+    def fix(x):
+        if not jnp.issubdtype(x.dtype, jnp.floating):
+            return x
+        return jnp.where(valid, x, jnp.zeros_like(x))
+
+    safe = jax.tree.map(fix, meas)
+    eye = jnp.eye(meas.M.shape[0], dtype=meas.M.dtype)
+    return safe.replace(M=jnp.where(valid, meas.M, eye))
+
+
+def step(
+    params: EstimatorParams,
+    terrain,
+    belief: LegBelief,
+    meas: LegMeasurement,
+    *,
+    key: jax.Array,
+) -> tuple[LegBelief, Diagnostics]:
+    """One update of one foot's contact belief.
+
+    Args:
+      params: estimator parameters (shared by every foot).
+      terrain: a terrain model from ``jax_contact.terrain`` (e.g. ``flat()``).
+      belief: this foot's belief after the previous step.
+      meas: this foot's measurement at this step.
+      key: PRNG key for the Monte-Carlo touch-down transition (unused by quadrature).
+
+    Returns:
+      (new belief, this step's diagnostics). If ``meas`` holds a NaN or inf, the belief is
+      the transition-only prediction, the next transition is the gait prior, the foothold
+      is kept, and ``diagnostics.valid`` is False.
+    """
+    valid = measurement_is_finite(meas)
+    meas = _sanitize(meas, valid)
+    tq = terrain.query(meas.p_f, belief.foothold, belief.foothold_valid)
+
+    # eq. 1, the sum over the previous state, in log space.
+    log_b_prev = jnp.stack([jax.nn.log_sigmoid(belief.logit), jax.nn.log_sigmoid(-belief.logit)])
+    log_prior = jax.nn.logsumexp(belief.log_transition + log_b_prev[:, None], axis=0)
+    prior_logit = log_prior[0] - log_prior[1]
+
+    # eq. 3: the product of the terms is the sum of their log-likelihood ratios.
+    terms = measurement_terms(params, meas, tq)
+    llr = terms.dynamics + terms.diff_kinematics + terms.kinematics
+    logit = jnp.where(valid, prior_logit + llr, prior_logit)
+
+    log_t = jnp.where(
+        valid, log_transition_matrix(params, meas, tq, key=key), log_prior_transition(params)
+    )
+
+    on_ground = valid & (logit > 0.0)
+    sole = meas.p_f - meas.foot_radius * tq.normal
+    new_belief = LegBelief(
+        logit=logit,
+        log_transition=log_t,
+        foothold=jnp.where(on_ground, sole, belief.foothold),
+        foothold_valid=belief.foothold_valid | on_ground,
+    )
+    nan = jnp.float32(jnp.nan)
+    diag = Diagnostics(
+        p_contact=jax.nn.sigmoid(logit),
+        p_dynamics=jnp.where(valid, jax.nn.sigmoid(terms.dynamics), nan),
+        p_diff_kinematics=jnp.where(valid, jax.nn.sigmoid(terms.diff_kinematics), nan),
+        p_kinematics=jnp.where(valid, jax.nn.sigmoid(terms.kinematics), nan),
+        p_takeoff=jnp.exp(log_t[0, 1]),
+        p_touchdown=jnp.exp(log_t[1, 0]),
+        force=jnp.where(valid, terms.force, jnp.full(3, nan)),
+        valid=valid,
+    )
+    return new_belief, diag
+
+
+def step_batch(
+    params: EstimatorParams,
+    terrain,
+    belief: LegBelief,
+    meas: LegMeasurement,
+    *,
+    key: jax.Array,
+) -> tuple[LegBelief, Diagnostics]:
+    """:func:`step` over a batch of (n_envs, n_legs) feet sharing params and terrain.
+
+    Every leaf of ``belief`` and ``meas`` has leading axes (n_envs, n_legs); so do the
+    outputs. Each foot gets its own key, split from ``key``.
+    """
+    n_envs, n_legs = belief.logit.shape
+    keys = jax.random.split(key, n_envs * n_legs).reshape(n_envs, n_legs, -1)
+
+    def one(b, m, k):
+        return step(params, terrain, b, m, key=k)
+
+    return jax.vmap(jax.vmap(one))(belief, meas, keys)
+
+
+def run(
+    params: EstimatorParams,
+    terrain,
+    belief: LegBelief,
+    meas_seq: LegMeasurement,
+    *,
+    key: jax.Array,
+) -> tuple[LegBelief, Diagnostics]:
+    """Runs :func:`step_batch` over a time series with ``lax.scan``.
+
+    Args:
+      belief: initial belief, leaves with leading axes (n_envs, n_legs).
+      meas_seq: measurements, leaves with leading axes (T, n_envs, n_legs).
+      key: PRNG key, split once per step.
+
+    Returns:
+      (final belief, diagnostics with leading axes (T, n_envs, n_legs)).
+    """
+
+    def body(carry, meas):
+        b, k = carry
+        k, sub = jax.random.split(k)
+        b, diag = step_batch(params, terrain, b, meas, key=sub)
+        return (b, k), diag
+
+    (belief, _), diags = jax.lax.scan(body, (belief, key), meas_seq)
+    return belief, diags
+
+
+def sequence_bce(
+    params: EstimatorParams,
+    terrain,
+    meas_seq: LegMeasurement,
+    truth: jax.Array,
+    *,
+    key: jax.Array,
+) -> jax.Array:
+    """Mean binary cross-entropy of the filtered belief against ground-truth contact.
+
+    Differentiable with respect to ``params`` (the noise model included), for tuning.
+
+    Args:
+      meas_seq: leaves with leading axes (T, n_envs, n_legs).
+      truth: (T, n_envs, n_legs) bool or {0, 1} ground-truth contact.
+
+    Returns:
+      () mean over time, envs and legs, in nats.
+    """
+    n_envs, n_legs = truth.shape[1:]
+    belief = init_belief_batch(params, n_envs, n_legs)
+
+    def body(carry, inputs):
+        b, k = carry
+        meas, y = inputs
+        k, sub = jax.random.split(k)
+        b, _ = step_batch(params, terrain, b, meas, key=sub)
+        y = y.astype(b.logit.dtype)
+        nll = -(y * jax.nn.log_sigmoid(b.logit) + (1.0 - y) * jax.nn.log_sigmoid(-b.logit))
+        return (b, k), nll
+
+    _, nll = jax.lax.scan(body, (belief, key), (meas_seq, truth))
+    return jnp.mean(nll)

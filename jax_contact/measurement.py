@@ -1,0 +1,175 @@
+"""The measurement model of eq. 3: dynamics, differential kinematics and kinematics terms.
+
+Each term returns the *log-likelihood ratio* ``log L(C) - log L(A)`` of one foot's
+measurement under the contact (C) and air (A) hypotheses, already clipped to the term's
+confidence cap (MODEL.md, "State and recursion"). Only ratios enter the recursion, since
+eq. 2 normalises ``alpha`` over the two states.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+from flax import struct
+from jax.scipy.special import log_ndtr
+
+from jax_contact._math import cap_llr, mvn_logpdf
+from jax_contact.params import EstimatorParams
+from jax_contact.types import LegMeasurement, TerrainQuery
+
+
+@struct.dataclass
+class MeasurementTerms:
+    """Capped log-likelihood ratios of the three terms, and the eq. 6 contact force.
+
+    Attributes:
+      dynamics: () eq. 4-7.
+      diff_kinematics: () eq. 8-9.
+      kinematics: () eq. 10.
+      force: (3,) force the foot exerts on the ground under the contact hypothesis, N.
+    """
+
+    dynamics: jax.Array
+    diff_kinematics: jax.Array
+    kinematics: jax.Array
+    force: jax.Array
+
+
+def _blocks(meas: LegMeasurement):
+    l, b = meas.leg_dofs, meas.other_dofs
+    return l, b, meas.M[l][:, l], meas.M[l][:, b]
+
+
+def dynamics_llr(
+    params: EstimatorParams, meas: LegMeasurement, normal: jax.Array
+) -> tuple[jax.Array, jax.Array]:
+    """Dynamics term (eq. 4-7): is the leg's measured acceleration that of a free or a pinned leg?
+
+    The leg's rows of ``M qdd + h + J^T F = tau`` with the other coordinates' accelerations
+    taken as measured. Air: ``F = 0``. Contact: the foot does not accelerate, which fixes
+    ``F`` (eq. 6). Only the rows of ``J_f`` in ``params.force_rows`` are used (a 2-joint leg
+    spans two), and the operational-space matrix is damped by ``params.inv_damping`` so that
+    a leg at full extension stays finite.
+
+    With ``params.unilateral`` the contact hypothesis is weighted by ``P(e . F < 0)`` under
+    ``F ~ N(F_hat, Sigma_f)``: a foot that the ground would have to *pull* is evidence for air
+    (a documented choice, MODEL.md "Sign").
+
+    Args:
+      params: estimator parameters.
+      meas: one foot's measurement.
+      normal: (3,) terrain normal ``e`` at the foot.
+
+    Returns:
+      (capped log-likelihood ratio (), contact force F (3,) in N).
+    """
+    noise = params.noise
+    l, b, M_l, M_lb = _blocks(meas)
+    rows = jnp.asarray(params.force_rows)
+    J_fl = meas.J[rows][:, l]
+    J_fb = meas.J[rows][:, b]
+    qdd_l, qdd_b = meas.qdd[l], meas.qdd[b]
+
+    chol = jax.scipy.linalg.cho_factor(M_l, lower=True)
+    M_inv = jax.scipy.linalg.cho_solve(chol, jnp.eye(M_l.shape[0], dtype=M_l.dtype))
+    # eq. 5: the leg's acceleration with no contact force, base accelerating as measured.
+    residual = meas.tau[l] - M_lb @ qdd_b - meas.h[l]
+    qdd_air = M_inv @ residual
+    # eq. 6: the force that keeps the foot still, J_fl qdd_l + J_fb qdd_b + Jdot qd = 0.
+    lam_inv = J_fl @ M_inv @ J_fl.T + params.inv_damping * jnp.eye(J_fl.shape[0])
+    force_rows = jnp.linalg.solve(
+        lam_inv, J_fl @ qdd_air + J_fb @ qdd_b + meas.Jdot_qd[rows]
+    )
+    qdd_contact = M_inv @ (residual - J_fl.T @ force_rows)
+
+    # eq. 7: model error, plus the measured base acceleration's noise entering through M_lb.
+    sigma_d = jnp.diag(jnp.square(noise.sigma_d[l])) + M_lb @ (
+        jnp.square(noise.sigma_qdd[b])[:, None] * M_lb.T
+    )
+    sigma_qdd = jnp.diag(jnp.square(noise.sigma_qdd[l]))
+    sigma_f = jnp.diag(jnp.square(noise.sigma_f[rows]))
+    cov_air = M_inv @ sigma_d @ M_inv.T + sigma_qdd
+    cov_contact = M_inv @ (sigma_d + J_fl.T @ sigma_f @ J_fl) @ M_inv.T + sigma_qdd
+    llr = mvn_logpdf(qdd_l, qdd_contact, cov_contact) - mvn_logpdf(qdd_l, qdd_air, cov_air)
+
+    force = jnp.zeros(3, meas.J.dtype).at[rows].set(force_rows)
+    if params.unilateral:
+        e_rows = normal[rows]
+        push = jnp.dot(e_rows, force_rows)
+        push_std = jnp.sqrt(jnp.dot(e_rows * e_rows, jnp.square(noise.sigma_f[rows])) + 1e-12)
+        llr = llr + log_ndtr(-push / push_std)
+    return cap_llr(llr, params.cap_dynamics), force
+
+
+def diff_kinematics_llr(params: EstimatorParams, meas: LegMeasurement) -> jax.Array:
+    """Differential kinematics term (eq. 8-9): is the foot still?
+
+    Contact: ``v_f ~ N(0, J Sigma_qd J^T + Sigma_J)``. Air: the leg's joints move with the
+    zero-mean prior ``Sigma_prior`` while the other coordinates move as measured,
+    ``v_f ~ N(J_fb qd_b, J_fl Sigma_prior J_fl^T + J Sigma_qd J^T + Sigma_J)``.
+
+    Returns:
+      () capped log-likelihood ratio.
+    """
+    noise = params.noise
+    l, b = meas.leg_dofs, meas.other_dofs
+    J = meas.J
+    cov_meas = J @ (jnp.square(noise.sigma_qd)[:, None] * J.T) + jnp.diag(
+        jnp.square(noise.sigma_J)
+    )
+    J_fl = J[:, l]
+    cov_air = J_fl @ (jnp.square(noise.sigma_qd_prior[l])[:, None] * J_fl.T) + cov_meas
+    mean_air = J[:, b] @ meas.qd[b]
+    llr = mvn_logpdf(meas.v_f, jnp.zeros(3, J.dtype), cov_meas) - mvn_logpdf(
+        meas.v_f, mean_air, cov_air
+    )
+    return cap_llr(llr, params.cap_diff_kinematics)
+
+
+def sole_gap(
+    params: EstimatorParams, meas: LegMeasurement, terrain: TerrainQuery
+) -> tuple[jax.Array, jax.Array]:
+    """Mean and std of the gap ``phi = e . (p_f - p_i)`` between sole and terrain (eq. 10).
+
+    The sole is ``p_f - r e`` for a sphere foot of radius r. The terrain point is the one
+    below the foot at the queried height, so ``e . (p_sole - p_i) = e_z (z_sole - height)``.
+    ``sigma_pf^2 = e^T J Sigma_q J^T e``.
+
+    Returns:
+      (mean gap (), foot-position std along e sigma_pf ()), both in m.
+    """
+    e = terrain.normal
+    sole_z = meas.p_f[2] - meas.foot_radius * e[2]
+    gap = e[2] * (sole_z - terrain.height)
+    Je = e @ meas.J
+    sigma_pf = jnp.sqrt(jnp.dot(Je * Je, jnp.square(params.noise.sigma_q)) + 1e-12)
+    return gap, sigma_pf
+
+
+def kinematics_llr(
+    params: EstimatorParams, meas: LegMeasurement, terrain: TerrainQuery
+) -> jax.Array:
+    """Kinematics term (eq. 10): ``L(C) = P(phi <= 0)``, ``L(A) = 1 - P(phi <= 0)``.
+
+    ``phi ~ N(gap, sigma_pf^2 + sigma_pi^2)``. Neutral on the ground, evidence for air when
+    the foot is high above the terrain.
+
+    Returns:
+      () capped log-likelihood ratio.
+    """
+    gap, sigma_pf = sole_gap(params, meas, terrain)
+    z = gap / jnp.sqrt(sigma_pf**2 + terrain.sigma**2)
+    return cap_llr(log_ndtr(-z) - log_ndtr(z), params.cap_kinematics)
+
+
+def measurement_terms(
+    params: EstimatorParams, meas: LegMeasurement, terrain: TerrainQuery
+) -> MeasurementTerms:
+    """All three capped terms of eq. 3 for one foot."""
+    dyn, force = dynamics_llr(params, meas, terrain.normal)
+    return MeasurementTerms(
+        dynamics=dyn,
+        diff_kinematics=diff_kinematics_llr(params, meas),
+        kinematics=kinematics_llr(params, meas, terrain),
+        force=force,
+    )

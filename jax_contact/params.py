@@ -1,0 +1,265 @@
+"""Estimator parameters: noise model (Table II), gait prior, caps and numerical options.
+
+Parameters are frozen pytrees. Array-valued numbers are leaves (so they can be tuned by
+gradient, see ``jax.grad`` over ``NoiseParams``); sizes and mode switches are static
+fields. Build them with :func:`make_params`, which validates everything *before* any
+tracing and names the offending field; never mutate a shared default, use
+``params.replace(...)`` and validate again with :func:`validate_params`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import jax.numpy as jnp
+import numpy as np
+from flax import struct
+
+TOUCHDOWN_MODES = ("monte_carlo", "quadrature")
+
+
+@struct.dataclass
+class NoiseParams:
+    """Standard deviations of the Gaussian noise model (MODEL.md; paper Table II).
+
+    Per-coordinate entries have length ``nv`` and are indexed by each leg's dofs, so one
+    object serves every leg of a robot.
+
+    Attributes:
+      sigma_q: (nv,) position noise ``w_q``, m and rad.
+      sigma_qd: (nv,) velocity noise ``w_qd``, m/s and rad/s.
+      sigma_qdd: (nv,) acceleration noise ``w_qdd`` of the accelerations actually used
+        (a raw difference of ``qd`` at rate 1/dt has std ``sqrt(2) sigma_qd / dt``), m/s^2
+        and rad/s^2.
+      sigma_d: (nv,) generalised disturbance / model error ``w_d``, N and N m.
+      sigma_f: (3,) contact force uncertainty ``Sigma_f`` per world axis, N (Table II's
+        entry is garbled in the paper; 10 N is this library's default choice).
+      sigma_J: (3,) foot velocity noise of the no-slip hypothesis ``Sigma_J``, m/s.
+      sigma_qd_prior: (nv,) prior spread of a swinging leg's joint velocities (eq. 9),
+        rad/s; by default from the joint velocity limits.
+    """
+
+    sigma_q: jnp.ndarray
+    sigma_qd: jnp.ndarray
+    sigma_qdd: jnp.ndarray
+    sigma_d: jnp.ndarray
+    sigma_f: jnp.ndarray
+    sigma_J: jnp.ndarray
+    sigma_qd_prior: jnp.ndarray
+
+
+@struct.dataclass
+class EstimatorParams:
+    """Everything the estimator needs besides the measurements and the terrain.
+
+    Attributes:
+      noise: the Gaussian noise model.
+      dt: () time step between estimator updates, s.
+      stance_time: () mean stance duration ``T_s`` of the gait prior (eq. 12), s.
+      swing_time: () mean swing duration, s; used only for the prior transition out of
+        the air when a step's measurement is invalid (NaN) and at initialisation.
+      takeoff_accel: () ``a_F``, the largest take-off acceleration of the foot along the
+        terrain normal, m/s^2; ``u_max = a_F dt`` (eq. 15).
+      cap_dynamics, cap_diff_kinematics, cap_kinematics: () confidence caps in (0.5, 1]:
+        each term's log-likelihood ratio is clipped to ``+-logit(cap)`` (MODEL.md).
+      inv_damping: () Tikhonov damping of the operational-space inverse of eq. 6, in units
+        of ``1 / kg``, so a leg at full extension stays finite.
+      initial_contact: () belief P(C) before the first measurement.
+      n_samples: static, Monte-Carlo samples of Algorithm 1 (500 in the paper).
+      touchdown: static, ``"monte_carlo"`` (Algorithm 1) or ``"quadrature"`` (the same
+        integral by a deterministic Gauss rule).
+      n_quad: static, nodes per dimension of the quadrature rule.
+      force_rows: static, the world axes of the contact force the leg's joints span
+        (``(0, 1, 2)`` for a 3-dof leg; ``(0, 2)`` for the planar leg; ``(2,)`` keeps the
+        normal only, for slipping feet).
+      unilateral: static; if True the contact hypothesis is also weighed by the
+        probability that the estimated force pushes into the ground (``e . F < 0``), so a
+        foot that would need the ground to pull it counts as evidence for air.
+    """
+
+    noise: NoiseParams
+    dt: jnp.ndarray
+    stance_time: jnp.ndarray
+    swing_time: jnp.ndarray
+    takeoff_accel: jnp.ndarray
+    cap_dynamics: jnp.ndarray
+    cap_diff_kinematics: jnp.ndarray
+    cap_kinematics: jnp.ndarray
+    inv_damping: jnp.ndarray
+    initial_contact: jnp.ndarray
+    n_samples: int = struct.field(pytree_node=False, default=500)
+    touchdown: str = struct.field(pytree_node=False, default="monte_carlo")
+    n_quad: int = struct.field(pytree_node=False, default=8)
+    force_rows: tuple[int, ...] = struct.field(pytree_node=False, default=(0, 1, 2))
+    unilateral: bool = struct.field(pytree_node=False, default=True)
+
+    @property
+    def nv(self) -> int:
+        return int(np.shape(self.noise.sigma_qd)[0])
+
+
+def _per_dof(name: str, value, nv: int) -> jnp.ndarray:
+    arr = np.asarray(value, dtype=np.float64)
+    if arr.ndim == 0:
+        arr = np.full((nv,), float(arr))
+    if arr.shape != (nv,):
+        raise ValueError(f"{name} must be a scalar or have shape ({nv},) (nv), got {arr.shape}")
+    return jnp.asarray(arr, dtype=jnp.float32)
+
+
+def _per_axis(name: str, value) -> jnp.ndarray:
+    arr = np.asarray(value, dtype=np.float64)
+    if arr.ndim == 0:
+        arr = np.full((3,), float(arr))
+    if arr.shape != (3,):
+        raise ValueError(f"{name} must be a scalar or have shape (3,), got {arr.shape}")
+    return jnp.asarray(arr, dtype=jnp.float32)
+
+
+def make_noise(
+    nv: int,
+    *,
+    sigma_q: float | Sequence[float] = 0.02,
+    sigma_qd: float | Sequence[float] = 0.3,
+    sigma_qdd: float | Sequence[float] = 170.0,
+    sigma_d: float | Sequence[float] = 2.0,
+    sigma_f: float | Sequence[float] = 10.0,
+    sigma_J: float | Sequence[float] = 0.05,
+    sigma_qd_prior: float | Sequence[float] = 25.0,
+) -> NoiseParams:
+    """Builds and validates a :class:`NoiseParams` for a model with ``nv`` velocities.
+
+    Scalars are broadcast to every coordinate (or every axis for ``sigma_f``, ``sigma_J``).
+    The defaults are Table II's joint values with ``sigma_qdd`` for a raw 400 Hz difference
+    of ``qd`` (``sqrt(2) * 0.3 / 0.0025`` ~ 170 rad/s^2) and the MODEL.md choices
+    ``Sigma_f`` = 10 N, ``Sigma_J`` = 0.05 m/s, prior 25 rad/s (Table I's joint limit).
+
+    Raises:
+      ValueError: a field has the wrong shape or a non-positive or non-finite entry.
+    """
+    if not isinstance(nv, int | np.integer) or nv < 1:
+        raise ValueError(f"nv must be a positive int, got {nv!r}")
+    noise = NoiseParams(
+        sigma_q=_per_dof("sigma_q", sigma_q, nv),
+        sigma_qd=_per_dof("sigma_qd", sigma_qd, nv),
+        sigma_qdd=_per_dof("sigma_qdd", sigma_qdd, nv),
+        sigma_d=_per_dof("sigma_d", sigma_d, nv),
+        sigma_f=_per_axis("sigma_f", sigma_f),
+        sigma_J=_per_axis("sigma_J", sigma_J),
+        sigma_qd_prior=_per_dof("sigma_qd_prior", sigma_qd_prior, nv),
+    )
+    validate_noise(noise)
+    return noise
+
+
+def validate_noise(noise: NoiseParams) -> None:
+    """Raises ``ValueError`` naming the field if any standard deviation is not > 0."""
+    nv = None
+    for name in NoiseParams.__dataclass_fields__:
+        arr = np.asarray(getattr(noise, name))
+        if name in ("sigma_f", "sigma_J"):
+            if arr.shape != (3,):
+                raise ValueError(f"noise.{name} must have shape (3,), got {arr.shape}")
+        else:
+            if arr.ndim != 1:
+                raise ValueError(f"noise.{name} must have shape (nv,), got {arr.shape}")
+            if nv is None:
+                nv = arr.shape[0]
+            elif arr.shape[0] != nv:
+                raise ValueError(
+                    f"noise.{name} has shape {arr.shape} but other per-dof fields have ({nv},)"
+                )
+        if not np.all(np.isfinite(arr)) or np.any(arr <= 0):
+            raise ValueError(
+                f"noise.{name} must be finite and > 0 everywhere, got min {arr.min()!r}"
+            )
+
+
+def make_params(
+    noise: NoiseParams,
+    *,
+    dt: float = 0.0025,
+    stance_time: float = 0.3,
+    swing_time: float = 0.3,
+    takeoff_accel: float = 200.0,
+    cap_dynamics: float = 0.99,
+    cap_diff_kinematics: float = 0.9,
+    cap_kinematics: float = 0.99,
+    inv_damping: float = 1e-6,
+    initial_contact: float = 0.5,
+    n_samples: int = 500,
+    touchdown: str = "monte_carlo",
+    n_quad: int = 8,
+    force_rows: Sequence[int] = (0, 1, 2),
+    unilateral: bool = True,
+) -> EstimatorParams:
+    """Builds and validates :class:`EstimatorParams`.
+
+    Defaults: 400 Hz (the paper's rate on ANYmal), ``T_s`` = 0.3 s, ``a_F`` = 200 m/s^2,
+    caps 0.99 / 0.9 / 0.99 (dynamics / differential kinematics / kinematics; MODEL.md).
+
+    Raises:
+      ValueError: naming the field, for a non-positive time or acceleration, a cap outside
+        (0.5, 1], ``n_samples`` or ``n_quad`` below 1, an unknown ``touchdown`` mode or
+        invalid ``force_rows``.
+    """
+    params = EstimatorParams(
+        noise=noise,
+        dt=jnp.float32(dt),
+        stance_time=jnp.float32(stance_time),
+        swing_time=jnp.float32(swing_time),
+        takeoff_accel=jnp.float32(takeoff_accel),
+        cap_dynamics=jnp.float32(cap_dynamics),
+        cap_diff_kinematics=jnp.float32(cap_diff_kinematics),
+        cap_kinematics=jnp.float32(cap_kinematics),
+        inv_damping=jnp.float32(inv_damping),
+        initial_contact=jnp.float32(initial_contact),
+        n_samples=n_samples,
+        touchdown=touchdown,
+        n_quad=n_quad,
+        force_rows=tuple(int(r) for r in force_rows),
+        unilateral=bool(unilateral),
+    )
+    validate_params(params)
+    return params
+
+
+def validate_params(params: EstimatorParams) -> None:
+    """Checks every field of ``params``; raises ``ValueError`` naming the first bad one."""
+    validate_noise(params.noise)
+    for name in ("dt", "stance_time", "swing_time", "takeoff_accel"):
+        v = np.asarray(getattr(params, name))
+        if v.shape != () or not np.isfinite(v) or v <= 0:
+            raise ValueError(f"{name} must be a finite scalar > 0, got {v!r}")
+    if float(params.stance_time) <= float(params.dt):
+        raise ValueError(
+            f"stance_time ({float(params.stance_time)}) must exceed dt ({float(params.dt)}):"
+            " the gait prior P(A|C) = dt / T_s must be below 1"
+        )
+    if float(params.swing_time) <= float(params.dt):
+        raise ValueError(
+            f"swing_time ({float(params.swing_time)}) must exceed dt ({float(params.dt)})"
+        )
+    for name in ("cap_dynamics", "cap_diff_kinematics", "cap_kinematics"):
+        v = np.asarray(getattr(params, name))
+        if v.shape != () or not (0.5 < float(v) <= 1.0):
+            raise ValueError(f"{name} must lie in (0.5, 1], got {v!r}")
+    v = np.asarray(params.inv_damping)
+    if v.shape != () or not np.isfinite(v) or v < 0:
+        raise ValueError(f"inv_damping must be a finite scalar >= 0, got {v!r}")
+    v = np.asarray(params.initial_contact)
+    if v.shape != () or not (0.0 < float(v) < 1.0):
+        raise ValueError(f"initial_contact must lie in (0, 1), got {v!r}")
+    if not isinstance(params.n_samples, int | np.integer) or params.n_samples < 1:
+        raise ValueError(f"n_samples must be an int >= 1, got {params.n_samples!r}")
+    if not isinstance(params.n_quad, int | np.integer) or params.n_quad < 1:
+        raise ValueError(f"n_quad must be an int >= 1, got {params.n_quad!r}")
+    if params.touchdown not in TOUCHDOWN_MODES:
+        raise ValueError(f"touchdown must be one of {TOUCHDOWN_MODES}, got {params.touchdown!r}")
+    rows = params.force_rows
+    if (
+        len(rows) == 0
+        or len(set(rows)) != len(rows)
+        or any(r not in (0, 1, 2) for r in rows)
+    ):
+        raise ValueError(f"force_rows must be distinct axes among (0, 1, 2), got {rows!r}")

@@ -1,0 +1,183 @@
+"""Terrain models for the kinematics term and the touch-down transition (eq. 10, 16-17).
+
+A terrain model answers, for a foot at a horizontal position, the mean height of the terrain
+below it, that height's standard deviation (the paper's ``sigma_pi``) and the unit normal
+``e`` that points out of the ground (the impact axis). Every model is a frozen pytree with a
+``query`` method, so it can be passed through ``jit`` and shared by every env of a ``vmap``
+(``in_axes=None``).
+
+Models:
+  * :class:`FlatTerrain`: a plane of known height and a height variance (the paper's choice
+    on ANYmal; ``sigma_pi`` = 0.2 m in its simulation).
+  * :class:`HeightFieldTerrain`: a grid of heights with a variance, bilinearly interpolated.
+  * :class:`FootholdMemory`: the height where the foot last stood, with a variance growing
+    with horizontal distance from that foothold (the paper's "conservative estimate"),
+    falling back to another model before the first foothold.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import struct
+
+from jax_contact.types import TerrainQuery
+
+_UP = (0.0, 0.0, 1.0)
+
+
+@struct.dataclass
+class FlatTerrain:
+    """A horizontal plane.
+
+    Attributes:
+      height: () plane height, m.
+      sigma: () standard deviation of the height, m.
+    """
+
+    height: jax.Array
+    sigma: jax.Array
+
+    def query(self, p: jax.Array, foothold: jax.Array, foothold_valid: jax.Array) -> TerrainQuery:
+        """Answers for a foot at ``p`` (3,); the foothold arguments are unused."""
+        del p, foothold, foothold_valid
+        return TerrainQuery(
+            height=self.height, sigma=self.sigma, normal=jnp.asarray(_UP, dtype=jnp.float32)
+        )
+
+
+@struct.dataclass
+class HeightFieldTerrain:
+    """A regular grid of terrain heights, bilinearly interpolated, clamped at its borders.
+
+    Cell ``heights[iy, ix]`` is at ``origin + (ix * spacing[0], iy * spacing[1])``, the
+    layout of a MuJoCo height field's elevation data (rows along y).
+
+    Attributes:
+      heights: (ny, nx) terrain heights, m.
+      origin: (2,) world x, y of ``heights[0, 0]``, m.
+      spacing: (2,) grid spacing along x and y, m.
+      sigma: () standard deviation of the interpolated height, m.
+    """
+
+    heights: jax.Array
+    origin: jax.Array
+    spacing: jax.Array
+    sigma: jax.Array
+
+    def _height(self, xy: jax.Array) -> jax.Array:
+        ny, nx = self.heights.shape
+        g = (xy - self.origin) / self.spacing
+        gx = jnp.clip(g[0], 0.0, nx - 1.0)
+        gy = jnp.clip(g[1], 0.0, ny - 1.0)
+        ix = jnp.clip(jnp.floor(gx).astype(jnp.int32), 0, max(nx - 2, 0))
+        iy = jnp.clip(jnp.floor(gy).astype(jnp.int32), 0, max(ny - 2, 0))
+        fx = gx - ix
+        fy = gy - iy
+        ix1 = jnp.minimum(ix + 1, nx - 1)
+        iy1 = jnp.minimum(iy + 1, ny - 1)
+        h00 = self.heights[iy, ix]
+        h01 = self.heights[iy, ix1]
+        h10 = self.heights[iy1, ix]
+        h11 = self.heights[iy1, ix1]
+        return (1 - fy) * ((1 - fx) * h00 + fx * h01) + fy * ((1 - fx) * h10 + fx * h11)
+
+    def query(self, p: jax.Array, foothold: jax.Array, foothold_valid: jax.Array) -> TerrainQuery:
+        """Answers for a foot at ``p`` (3,): interpolated height and the surface normal."""
+        del foothold, foothold_valid
+        xy = p[:2]
+        height, grad = jax.value_and_grad(self._height)(xy)
+        normal = jnp.array([-grad[0], -grad[1], 1.0])
+        normal = normal / jnp.linalg.norm(normal)
+        return TerrainQuery(height=height, sigma=self.sigma, normal=normal)
+
+
+@struct.dataclass
+class FootholdMemory:
+    """The height where this foot last stood, trusted less the farther the foot has moved.
+
+    ``sigma^2 = sigma_foothold^2 + (growth * d_xy)^2``, with ``d_xy`` the horizontal distance
+    from the remembered foothold, never more than the fallback's ``sigma``. Before the first
+    foothold, or when the fallback is sharper, the fallback model answers.
+
+    Attributes:
+      fallback: a terrain model (flat or height field) used before the first foothold.
+      sigma_foothold: () height uncertainty at the foothold itself, m.
+      growth: () growth of the height's standard deviation per metre of horizontal
+        distance, m/m (a slope bound of the terrain).
+    """
+
+    fallback: FlatTerrain | HeightFieldTerrain
+    sigma_foothold: jax.Array
+    growth: jax.Array
+
+    def query(self, p: jax.Array, foothold: jax.Array, foothold_valid: jax.Array) -> TerrainQuery:
+        """Answers for a foot at ``p`` (3,) that last stood at ``foothold`` (3,)."""
+        base = self.fallback.query(p, foothold, foothold_valid)
+        d2 = jnp.sum(jnp.square(p[:2] - foothold[:2]))
+        sigma = jnp.sqrt(jnp.square(self.sigma_foothold) + jnp.square(self.growth) * d2)
+        use = foothold_valid & (sigma < base.sigma)
+        return TerrainQuery(
+            height=jnp.where(use, foothold[2], base.height),
+            sigma=jnp.where(use, sigma, base.sigma),
+            normal=base.normal,
+        )
+
+
+def _positive(name: str, value) -> jax.Array:
+    v = np.asarray(value, dtype=np.float64)
+    if v.shape != () or not np.isfinite(v) or v <= 0:
+        raise ValueError(f"{name} must be a finite scalar > 0, got {value!r}")
+    return jnp.float32(v)
+
+
+def flat(height: float = 0.0, sigma: float = 0.2) -> FlatTerrain:
+    """A validated :class:`FlatTerrain` (``sigma`` in m; 0.2 m as in the paper's Section III)."""
+    h = np.asarray(height, dtype=np.float64)
+    if h.shape != () or not np.isfinite(h):
+        raise ValueError(f"height must be a finite scalar, got {height!r}")
+    return FlatTerrain(height=jnp.float32(h), sigma=_positive("sigma", sigma))
+
+
+def height_field(heights, origin, spacing, sigma: float = 0.02) -> HeightFieldTerrain:
+    """A validated :class:`HeightFieldTerrain`.
+
+    Args:
+      heights: (ny, nx) heights, m, ny and nx >= 2, all finite.
+      origin: (2,) world x, y of ``heights[0, 0]``, m.
+      spacing: (2,) positive grid spacing, m.
+      sigma: standard deviation of the interpolated height, m.
+    """
+    h = np.asarray(heights, dtype=np.float64)
+    if h.ndim != 2 or min(h.shape) < 2:
+        raise ValueError(f"heights must have shape (ny, nx) with ny, nx >= 2, got {h.shape}")
+    if not np.all(np.isfinite(h)):
+        raise ValueError("heights must be finite everywhere")
+    o = np.asarray(origin, dtype=np.float64)
+    s = np.asarray(spacing, dtype=np.float64)
+    if o.shape != (2,):
+        raise ValueError(f"origin must have shape (2,), got {o.shape}")
+    if s.shape != (2,) or np.any(s <= 0):
+        raise ValueError(f"spacing must have shape (2,) and be > 0, got {spacing!r}")
+    return HeightFieldTerrain(
+        heights=jnp.asarray(h, jnp.float32),
+        origin=jnp.asarray(o, jnp.float32),
+        spacing=jnp.asarray(s, jnp.float32),
+        sigma=_positive("sigma", sigma),
+    )
+
+
+def foothold_memory(
+    fallback: FlatTerrain | HeightFieldTerrain, sigma_foothold: float = 0.02, growth: float = 0.3
+) -> FootholdMemory:
+    """A validated :class:`FootholdMemory` over ``fallback``."""
+    if not isinstance(fallback, FlatTerrain | HeightFieldTerrain):
+        raise ValueError(
+            f"fallback must be a FlatTerrain or HeightFieldTerrain, got {type(fallback).__name__}"
+        )
+    return FootholdMemory(
+        fallback=fallback,
+        sigma_foothold=_positive("sigma_foothold", sigma_foothold),
+        growth=_positive("growth", growth),
+    )

@@ -1,0 +1,188 @@
+"""The transition model (eq. 11-17, Algorithm 1): take-off and touch-down probabilities.
+
+Both transitions use the measurements of the step *before* the transition, so the filter
+builds the matrix at the end of step ``t`` and applies it at ``t+1``. Rows are the state
+at ``t`` (0 = contact C, 1 = air A), columns the state at ``t+1``; entries are logs.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax.scipy.special import log_ndtr
+
+from jax_contact._math import (
+    log_diff_ndtr,
+    log_mean_exp,
+    normal_logpdf,
+    upper_truncated_normal_icdf,
+)
+from jax_contact.measurement import sole_gap
+from jax_contact.params import EstimatorParams
+from jax_contact.types import LegMeasurement, TerrainQuery
+
+# Transition probabilities are floored here (in log space) so that no state becomes
+# unreachable: a belief can always recover, even after a million steps (MODEL.md).
+LOG_FLOOR = -30.0
+
+
+def normal_velocity(params: EstimatorParams, meas: LegMeasurement, normal: jax.Array):
+    """Foot velocity along the impact axis and its std (eq. 13).
+
+    Returns:
+      (u = e . v_f in m/s (), sigma_v = sqrt(e^T J Sigma_qd J^T e) in m/s ()); u > 0 is
+      moving away from the ground.
+    """
+    Je = normal @ meas.J
+    sigma_v = jnp.sqrt(jnp.dot(Je * Je, jnp.square(params.noise.sigma_qd)) + 1e-12)
+    return jnp.dot(normal, meas.v_f), sigma_v
+
+
+def log_takeoff(params: EstimatorParams, u: jax.Array, sigma_v: jax.Array) -> jax.Array:
+    """(2,) log [P(C | C), P(A | C)] given the normal foot velocity ``u`` (eq. 11-15).
+
+    Gait prior ``P(A | C) = dt / T_s`` (eq. 12). Staying on the ground, the foot is still:
+    ``u ~ N(0, sigma_v^2)`` (eq. 13). Taking off, its velocity is uniform on ``[0, u_max]``,
+    ``u_max = a_F dt``, blurred by the velocity noise (eq. 15 with the ``1 / u_max`` of the
+    uniform density that the printed equation omits). Bayes' rule, normalised over the
+    next state (eq. 11).
+    """
+    u_max = params.takeoff_accel * params.dt
+    p_off = params.dt / params.stance_time
+    log_stay = normal_logpdf(u, 0.0, sigma_v) + jnp.log1p(-p_off)
+    log_leave = (
+        log_diff_ndtr(u / sigma_v, (u - u_max) / sigma_v) - jnp.log(u_max) + jnp.log(p_off)
+    )
+    both = jnp.stack([log_stay, log_leave])
+    return both - jax.nn.logsumexp(both)
+
+
+def log_touchdown_monte_carlo(
+    gap: jax.Array,
+    sigma_pf: jax.Array,
+    sigma_pi: jax.Array,
+    u: jax.Array,
+    sigma_u: jax.Array,
+    dt: jax.Array,
+    n_samples: int,
+    *,
+    key: jax.Array,
+) -> jax.Array:
+    """(2,) log [P(C | A), P(A | A)] by Algorithm 1 (eq. 16-17).
+
+    Draws, ``n_samples`` times, the foot ``p_f ~ N(gap, sigma_pf^2)`` (heights measured from
+    the terrain's mean, so ``mu_pi = 0``) and the terrain ``p_i ~ N(0, sigma_pi^2)``
+    truncated to ``p_i <= p_f`` by inverse CDF, and averages
+    ``Phi((-(p_f - p_i) / dt - u) / sigma_u) = P(u' < -(p_f - p_i) / dt)``: the probability
+    that the gap closes within one step. ``P(A | A)`` averages the complementary CDF, so
+    both entries stay accurate near 0 and 1.
+
+    Args:
+      gap, sigma_pf: mean and std of the sole's height above the terrain mean, m.
+      sigma_pi: std of the terrain height, m.
+      u, sigma_u: normal foot velocity (positive away from the ground) and its std, m/s.
+      dt: time step, s.
+      n_samples: static number of draws.
+      key: PRNG key; draws have shape (n_samples,) for each of p_f and p_i.
+    """
+    key_f, key_i = jax.random.split(key)
+    p_f = gap + sigma_pf * jax.random.normal(key_f, (n_samples,), dtype=gap.dtype)
+    v = jax.random.uniform(key_i, (n_samples,), dtype=gap.dtype, minval=1e-7, maxval=1.0)
+    p_i = sigma_pi * upper_truncated_normal_icdf(v, p_f / sigma_pi)
+    arg = (-(p_f - p_i) / dt - u) / sigma_u
+    return jnp.stack([log_mean_exp(log_ndtr(arg)), log_mean_exp(log_ndtr(-arg))])
+
+
+def _gauss_hermite(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Nodes and weights of the probabilists' Gauss-Hermite rule, E[f(Z)] ~ sum w f(x)."""
+    x, w = np.polynomial.hermite_e.hermegauss(n)
+    return x.astype(np.float32), (w / np.sqrt(2.0 * np.pi)).astype(np.float32)
+
+
+def _gauss_legendre01(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Nodes and weights of the Gauss-Legendre rule on (0, 1)."""
+    x, w = np.polynomial.legendre.leggauss(n)
+    return (0.5 * (x + 1.0)).astype(np.float32), (0.5 * w).astype(np.float32)
+
+
+def log_touchdown_quadrature(
+    gap: jax.Array,
+    sigma_pf: jax.Array,
+    sigma_pi: jax.Array,
+    u: jax.Array,
+    sigma_u: jax.Array,
+    dt: jax.Array,
+    n_quad: int,
+) -> jax.Array:
+    """(2,) log [P(C | A), P(A | A)]: the integral of Algorithm 1 by a deterministic rule.
+
+    Integrating the truncated terrain height out analytically leaves
+    ``P(C | A) = E_{p_f, u'}[1 - Phi(z_f + k u') / Phi(z_f)]^+`` over independent Gaussians
+    ``p_f ~ N(gap, sigma_pf^2)`` and ``u' ~ N(u, sigma_u^2)``, with
+    ``z_f = p_f / sigma_pi`` and ``k = dt / sigma_pi``. Only ``u' < 0`` contributes, so the
+    velocity integral runs over the lower half-line only (Gauss-Legendre in the CDF of the
+    upper-truncated normal, smooth there); the foot position integral is Gauss-Hermite.
+    ``n_quad`` nodes per dimension, ``n_quad^2`` evaluations.
+    """
+    xh, wh = _gauss_hermite(n_quad)
+    xl, wl = _gauss_legendre01(n_quad)
+    z_f = (gap + sigma_pf * xh) / sigma_pi  # (n,)
+    # Mass of u' < 0 and the nodes of u' given u' < 0, standardised then mapped back.
+    z0 = -u / sigma_u
+    log_mass = log_ndtr(z0)
+    u_nodes = u + sigma_u * upper_truncated_normal_icdf(xl, z0)  # (n,) all <= 0
+    k = dt / sigma_pi
+    log_ratio = jnp.minimum(
+        log_ndtr(z_f[:, None] + k * u_nodes[None, :]) - log_ndtr(z_f[:, None]), 0.0
+    )
+    log_hit = jnp.log(-jnp.expm1(jnp.minimum(log_ratio, -1e-30)))
+    log_w = jnp.log(wh)[:, None] + jnp.log(wl)[None, :]
+    log_td = log_mass + jax.nn.logsumexp(log_w + log_hit)
+    # P(A|A) = P(u' >= 0) + P(u' < 0) E[ratio | u' < 0], each part kept in log space.
+    log_stay = jnp.logaddexp(log_ndtr(-z0), log_mass + jax.nn.logsumexp(log_w + log_ratio))
+    return jnp.stack([log_td, log_stay])
+
+
+def log_touchdown(
+    params: EstimatorParams,
+    meas: LegMeasurement,
+    terrain: TerrainQuery,
+    *,
+    key: jax.Array,
+) -> jax.Array:
+    """(2,) log [P(C | A), P(A | A)] from one foot's measurement (eq. 16-17).
+
+    Uses Monte-Carlo (Algorithm 1, ``params.n_samples`` draws from ``key``) or the
+    quadrature (``params.n_quad``), as ``params.touchdown`` selects.
+    """
+    gap, sigma_pf = sole_gap(params, meas, terrain)
+    u, sigma_v = normal_velocity(params, meas, terrain.normal)
+    if params.touchdown == "monte_carlo":
+        return log_touchdown_monte_carlo(
+            gap, sigma_pf, terrain.sigma, u, sigma_v, params.dt, params.n_samples, key=key
+        )
+    return log_touchdown_quadrature(
+        gap, sigma_pf, terrain.sigma, u, sigma_v, params.dt, params.n_quad
+    )
+
+
+def log_transition_matrix(
+    params: EstimatorParams,
+    meas: LegMeasurement,
+    terrain: TerrainQuery,
+    *,
+    key: jax.Array,
+) -> jax.Array:
+    """(2, 2) log transition matrix for the next step, rows from (C, A), floored."""
+    u, sigma_v = normal_velocity(params, meas, terrain.normal)
+    from_contact = log_takeoff(params, u, sigma_v)
+    from_air = log_touchdown(params, meas, terrain, key=key)
+    return jnp.maximum(jnp.stack([from_contact, from_air]), LOG_FLOOR)
+
+
+def log_prior_transition(params: EstimatorParams) -> jax.Array:
+    """(2, 2) log transition matrix of the gait prior alone (eq. 12; swing analogue)."""
+    p_off = params.dt / params.stance_time
+    p_on = params.dt / params.swing_time
+    return jnp.log(jnp.array([[1.0 - p_off, p_off], [p_on, 1.0 - p_on]]))

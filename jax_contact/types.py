@@ -1,0 +1,187 @@
+"""Pytrees that flow through the estimator: one leg's measurement, belief and diagnostics.
+
+All of these are *unbatched*: they describe one foot of one robot at one time step.
+Batches over legs and environments are made with ``jax.vmap`` at the edge (see
+``jax_contact.filter.step_batch``), so every leaf below gains leading axes there.
+
+Notation follows ``MODEL.md``: ``nv`` generalised velocities, ``n_l`` joints of the leg,
+``n_b = nv - n_l`` the other coordinates (base and the other legs).
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+from flax import struct
+
+
+@struct.dataclass
+class LegMeasurement:
+    """What the robot's state estimate and model give for one foot at one time step.
+
+    Everything is expressed in the world frame at the *measured* state; nothing here is
+    ground truth. The leg's coordinate split (eq. 4: ``l`` the leg, ``b`` the rest) is given
+    by two index arrays so that one pytree layout serves every leg of a robot.
+
+    Attributes:
+      q: (nq,) generalised coordinates as estimated (kept for provenance and baselines;
+        the terms use the model quantities below, which were evaluated at ``q``).
+      qd: (nv,) generalised velocities, m/s and rad/s.
+      qdd: (nv,) generalised accelerations, m/s^2 and rad/s^2 (on a robot: the numerical
+        derivative of ``qd``).
+      tau: (nv,) generalised actuation forces (joint torques as the torque sensors give
+        them, zero on unactuated coordinates), N and N m.
+      M: (nv, nv) joint-space mass matrix M(q).
+      h: (nv,) bias forces h(q, qd): Coriolis, centrifugal and gravity, N and N m.
+      J: (3, nv) translational Jacobian of the foot point, world frame.
+      Jdot_qd: (3,) bias acceleration of the foot point, d/dt(J) qd, m/s^2.
+      p_f: (3,) foot point (centre of the foot sphere), world frame, m.
+      v_f: (3,) foot point velocity, ``J @ qd``, m/s.
+      foot_radius: () radius of the foot sphere, m; the sole is ``p_f - foot_radius * e``.
+      leg_dofs: (n_l,) int32 indices into ``nv`` of the leg's joints.
+      other_dofs: (nv - n_l,) int32 indices into ``nv`` of every other coordinate.
+    """
+
+    q: jax.Array
+    qd: jax.Array
+    qdd: jax.Array
+    tau: jax.Array
+    M: jax.Array
+    h: jax.Array
+    J: jax.Array
+    Jdot_qd: jax.Array
+    p_f: jax.Array
+    v_f: jax.Array
+    foot_radius: jax.Array
+    leg_dofs: jax.Array
+    other_dofs: jax.Array
+
+
+@struct.dataclass
+class TerrainQuery:
+    """The terrain model's answer below one foot (the paper's ``p_i`` and impact axis).
+
+    Attributes:
+      height: () mean terrain height below the foot, ``mu_pi``, m.
+      sigma: () standard deviation of that height, ``sigma_pi``, m.
+      normal: (3,) unit terrain normal ``e`` pointing out of the ground.
+    """
+
+    height: jax.Array
+    sigma: jax.Array
+    normal: jax.Array
+
+
+@struct.dataclass
+class LegBelief:
+    """The filter's state for one foot, carried from step to step.
+
+    The belief is kept as a logit so that it never rounds to exactly 0 or 1 (MODEL.md,
+    "State and recursion"). The transition matrix for the *next* step is built from this
+    step's measurements (eq. 11-17 use the measurements at ``t-1``) and stored here.
+
+    Attributes:
+      logit: () log P(C) - log P(A), the filtered contact belief ``b_t`` as a logit.
+      log_transition: (2, 2) log T, rows the state at ``t`` (0 = contact C, 1 = air A),
+        columns the state at ``t+1``; each row sums to one in probability.
+      foothold: (3,) where this foot last stood (sole point), world frame, m; used by the
+        foothold-memory terrain model.
+      foothold_valid: () bool, whether ``foothold`` has been set.
+    """
+
+    logit: jax.Array
+    log_transition: jax.Array
+    foothold: jax.Array
+    foothold_valid: jax.Array
+
+
+@struct.dataclass
+class Diagnostics:
+    """Everything one step computed for one foot, for plots, tuning and evaluation.
+
+    Probabilities are in [0, 1]; term probabilities are normalised, ``L(C) / (L(C) + L(A))``,
+    after each term's cap.
+
+    Attributes:
+      p_contact: () fused posterior ``b_t`` (eq. 2).
+      p_dynamics: () dynamics term (eq. 4-7).
+      p_diff_kinematics: () differential kinematics term (eq. 8-9).
+      p_kinematics: () kinematics term (eq. 10).
+      p_takeoff: () P(A at t+1 | C at t), eq. 11-15.
+      p_touchdown: () P(C at t+1 | A at t), eq. 16-17 and Algorithm 1.
+      force: (3,) contact force the foot exerts on the ground under the contact
+        hypothesis (eq. 6), world frame, N; the ground's reaction is ``-force``.
+      valid: () bool, False when this step's measurement held a NaN or inf and the
+        belief was propagated by the transition model alone.
+    """
+
+    p_contact: jax.Array
+    p_dynamics: jax.Array
+    p_diff_kinematics: jax.Array
+    p_kinematics: jax.Array
+    p_takeoff: jax.Array
+    p_touchdown: jax.Array
+    force: jax.Array
+    valid: jax.Array
+
+
+def measurement_is_finite(meas: LegMeasurement) -> jax.Array:
+    """() bool: every floating-point leaf of ``meas`` is finite."""
+    leaves = [x for x in jax.tree.leaves(meas) if jnp.issubdtype(jnp.asarray(x).dtype, jnp.floating)]
+    return jnp.all(jnp.stack([jnp.all(jnp.isfinite(x)) for x in leaves]))
+
+
+def validate_measurement(meas: LegMeasurement, nv: int | None = None) -> tuple[int, ...]:
+    """Checks the shapes of a (possibly batched) measurement before anything is traced.
+
+    Every leaf may carry the same leading batch axes (e.g. (T, n_envs, n_legs)).
+
+    Args:
+      meas: the measurement pytree, NumPy or JAX arrays.
+      nv: expected number of generalised velocities, if known (e.g. from the params).
+
+    Returns:
+      The leading batch shape.
+
+    Raises:
+      ValueError: naming the field and the shapes when they disagree.
+    """
+    import numpy as np
+
+    qd = np.shape(meas.qd)
+    if len(qd) < 1:
+        raise ValueError(f"qd must have shape (..., nv), got {qd}")
+    batch, n = qd[:-1], qd[-1]
+    if nv is not None and n != nv:
+        raise ValueError(f"qd has nv = {n} but the parameters were built for nv = {nv}")
+    n_l = np.shape(meas.leg_dofs)[-1] if np.ndim(meas.leg_dofs) else -1
+    expected = {
+        "qd": (n,),
+        "qdd": (n,),
+        "tau": (n,),
+        "M": (n, n),
+        "h": (n,),
+        "J": (3, n),
+        "Jdot_qd": (3,),
+        "p_f": (3,),
+        "v_f": (3,),
+        "foot_radius": (),
+        "leg_dofs": (n_l,),
+        "other_dofs": (n - n_l,),
+    }
+    for name, tail in expected.items():
+        shape = np.shape(getattr(meas, name))
+        if shape != batch + tail:
+            raise ValueError(
+                f"measurement field {name!r} has shape {shape}, expected {batch + tail} "
+                f"(batch {batch}, nv = {n}, n_leg_dofs = {n_l})"
+            )
+    q = np.shape(meas.q)
+    if q[:-1] != batch:
+        raise ValueError(f"measurement field 'q' has shape {q}, expected {batch} + (nq,)")
+    for name in ("leg_dofs", "other_dofs"):
+        if not np.issubdtype(np.asarray(getattr(meas, name)).dtype, np.integer):
+            raise ValueError(f"measurement field {name!r} must hold integer indices")
+    if n_l < 1 or n_l > n:
+        raise ValueError(f"leg_dofs must hold between 1 and nv = {n} indices, got {n_l}")
+    return batch
