@@ -13,7 +13,7 @@ import jax.numpy as jnp
 from flax import struct
 from jax.scipy.special import log_ndtr
 
-from jax_contact._math import cap_llr, mvn_logpdf
+from jax_contact._math import cap_llr, mvn_logpdf, spd_solve
 from jax_contact.params import EstimatorParams
 from jax_contact.types import LegMeasurement, TerrainQuery
 
@@ -70,16 +70,13 @@ def dynamics_llr(
     J_fb = meas.J[rows][:, b]
     qdd_l, qdd_b = meas.qdd[l], meas.qdd[b]
 
-    chol = jax.scipy.linalg.cho_factor(M_l, lower=True)
-    M_inv = jax.scipy.linalg.cho_solve(chol, jnp.eye(M_l.shape[0], dtype=M_l.dtype))
+    M_inv = spd_solve(M_l, jnp.eye(M_l.shape[0], dtype=M_l.dtype))
     # eq. 5: the leg's acceleration with no contact force, base accelerating as measured.
     residual = meas.tau[l] - M_lb @ qdd_b - meas.h[l]
     qdd_air = M_inv @ residual
     # eq. 6: the force that keeps the foot still, J_fl qdd_l + J_fb qdd_b + Jdot qd = 0.
     lam_inv = J_fl @ M_inv @ J_fl.T + params.inv_damping * jnp.eye(J_fl.shape[0])
-    force_rows = jnp.linalg.solve(
-        lam_inv, J_fl @ qdd_air + J_fb @ qdd_b + meas.Jdot_qd[rows]
-    )
+    force_rows = spd_solve(lam_inv, J_fl @ qdd_air + J_fb @ qdd_b + meas.Jdot_qd[rows])
     qdd_contact = M_inv @ (residual - J_fl.T @ force_rows)
 
     # eq. 7: model error, plus the measured base acceleration's noise entering through M_lb.
@@ -131,16 +128,16 @@ def sole_gap(
 ) -> tuple[jax.Array, jax.Array]:
     """Mean and std of the gap ``phi = e . (p_f - p_i)`` between sole and terrain (eq. 10).
 
-    The sole is ``p_f - r e`` for a sphere foot of radius r. The terrain point is the one
-    below the foot at the queried height, so ``e . (p_sole - p_i) = e_z (z_sole - height)``.
-    ``sigma_pf^2 = e^T J Sigma_q J^T e``.
+    The sole is ``p_f - r e`` for a sphere foot of radius r, and the terrain point ``p_i``
+    is the one below the foot centre at the queried height, so
+    ``e . (p_f - r e - p_i) = e_z (z_f - height) - r``: the sole's distance from the
+    terrain's tangent plane. ``sigma_pf^2 = e^T J Sigma_q J^T e``.
 
     Returns:
       (mean gap (), foot-position std along e sigma_pf ()), both in m.
     """
     e = terrain.normal
-    sole_z = meas.p_f[2] - meas.foot_radius * e[2]
-    gap = e[2] * (sole_z - terrain.height)
+    gap = e[2] * (meas.p_f[2] - terrain.height) - meas.foot_radius
     Je = e @ meas.J
     sigma_pf = jnp.sqrt(jnp.dot(Je * Je, jnp.square(params.noise.sigma_q)) + 1e-12)
     return gap, sigma_pf

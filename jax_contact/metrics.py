@@ -1,0 +1,476 @@
+"""Evaluation of contact estimates against ground truth: event delays, failures, scores.
+
+Evaluation code, not part of any jitted path: everything here is NumPy in float64, takes
+JAX or NumPy arrays, and pools over every axis after the leading time axis, so a batch of
+shape (T, E, L) (time, envs, legs) gives one row of a results table (Table III).
+
+Inputs, throughout:
+  estimate: (T, ...) contact probability in [0, 1] (float), or a contact flag (bool) for
+    detectors that only give flags (then the probability is 0 or 1).
+  truth: (T, ...) bool ground-truth contact (or 0/1 numbers).
+  valid: optional (T, ...) bool; False steps are ignored (NaN estimates are allowed there).
+    Each maximal run of valid steps of one sequence is evaluated on its own, as if it were
+    a sequence of its own.
+  dt: time step between samples, s.
+
+Event-matching rules (:func:`match_events`), written for touch-downs; lift-offs are the same
+rules applied to the complements (``not truth``, ``not flag``):
+
+1. The estimate's flag is ``estimate > threshold`` (default 0.5). A *run* is a maximal
+   stretch of consecutive flagged steps. A run is *solid* if it lasts at least ``min_on``
+   steps (debounce; default 1, i.e. the raw flag, as a controller would use it); a shorter
+   run is a *blip*. A run cut by the end of a valid stretch counts as solid if it is
+   already ``min_on`` long and as neither otherwise.
+2. A true touch-down is a rising edge of ``truth`` at step ``t0`` (``truth[t0-1]`` off and
+   valid). Let ``a0`` be the first step of the air phase before it and ``t1`` the next
+   true lift-off (or the end of the valid stretch). Its window is ``[w0, t1)`` with
+   ``w0 = max(t0 - early, a0)`` and ``early = round(early_window_s / dt)`` steps (default
+   50 ms): detections may lead the truth by up to ``early`` steps, never into the previous
+   contact phase, and may lag until the next true lift-off.
+3. *Already on*: if the estimate is on at ``w0`` in a solid run that began before ``w0``
+   (or at the start of the valid stretch) and lasts past ``t0``, the touch-down has no
+   edge to time; it is counted as ``already_on``, neither matched nor missed. (The run
+   that caused it is counted elsewhere: a failure if it began in the air, a missed
+   lift-off if it never ended.)
+4. Otherwise the touch-down is *matched* to the first solid run that starts in
+   ``[w0, t1)`` and is still on at ``t0`` (it ends after ``t0``); its delay is
+   ``(start - t0) * dt``, between ``-early * dt`` and the stance duration. A run that
+   starts and ends within the early window, before the true touch-down, is a false
+   contact in the air, not the detection.
+5. Otherwise it is *missed*, if the true lift-off ``t1`` lies in the valid stretch; if the
+   true contact lasts to the end of the valid stretch without a detection, it is not
+   evaluated at all (the detection may come after the data ends).
+6. A touch-down is evaluated only if its early window lies in valid steps: ``t0 - early``
+   is in the valid stretch or the air phase began inside it. Matches are still made for
+   the others, so that their detections are not counted as failures.
+7. A *failure* (the paper's false contact in the air) is a solid run that starts with
+   ``truth`` off and is not the match of a touch-down. *Chatter* is each blip that starts
+   with ``truth`` off; with ``min_on = 1`` there are no blips and every false blip is a
+   failure.
+
+Delays are reported in ms as mean and population standard deviation (ddof 0) over the
+matched, evaluated events pooled over all sequences; NaN when there are none.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+# ----------------------------------------------------------------------------- inputs
+
+
+def _as_bool(name: str, x, valid: np.ndarray | None) -> np.ndarray:
+    arr = np.asarray(x)
+    if arr.dtype == bool:
+        return arr
+    if not np.issubdtype(arr.dtype, np.number):
+        raise ValueError(f"{name} must be bool or 0/1 numbers, got dtype {arr.dtype}")
+    checked = arr if valid is None else arr[valid]
+    if not np.all((checked == 0) | (checked == 1)):
+        raise ValueError(f"{name} must be bool or hold only 0 and 1 (where valid)")
+    return arr == 1
+
+
+def _inputs(estimate, truth, valid, threshold: float):
+    """Validates and returns (prob float64, flag bool, truth bool, valid bool), all (T, ...)."""
+    est = np.asarray(estimate)
+    tru = np.asarray(truth)
+    if est.ndim < 1 or est.shape[0] < 1:
+        raise ValueError(f"estimate must have shape (T, ...) with T >= 1, got {est.shape}")
+    if tru.shape != est.shape:
+        raise ValueError(f"truth has shape {tru.shape}, but estimate has shape {est.shape}")
+    if valid is None:
+        val = np.ones(est.shape, bool)
+    else:
+        val = np.asarray(valid)
+        if val.shape != est.shape:
+            raise ValueError(f"valid has shape {val.shape}, but estimate has shape {est.shape}")
+        val = _as_bool("valid", val, None)
+    tru = _as_bool("truth", tru, val)
+    th = float(threshold)
+    if not 0.0 <= th < 1.0:
+        raise ValueError(f"threshold must lie in [0, 1), got {threshold!r}")
+    if est.dtype == bool:
+        flag = est
+        prob = est.astype(np.float64)
+    else:
+        if not np.issubdtype(est.dtype, np.number):
+            raise ValueError(f"estimate must be float probabilities or bool, got {est.dtype}")
+        prob = est.astype(np.float64)
+        seen = prob[val]
+        if not np.all(np.isfinite(seen)):
+            raise ValueError("estimate holds NaN or inf at valid steps")
+        if np.any(seen < 0.0) or np.any(seen > 1.0):
+            raise ValueError(
+                f"estimate must lie in [0, 1], got values in [{seen.min()}, {seen.max()}]"
+            )
+        flag = prob > th
+    return prob, flag, tru, val
+
+
+def _check_positive(name: str, value, *, allow_zero: bool = False) -> float:
+    v = float(value)
+    if not np.isfinite(v) or v < 0 or (v == 0 and not allow_zero):
+        bound = ">=" if allow_zero else ">"
+        raise ValueError(f"{name} must be finite and {bound} 0, got {value!r}")
+    return v
+
+
+def _check_int(name: str, value, lowest: int) -> int:
+    if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < lowest:
+        raise ValueError(f"{name} must be an int >= {lowest}, got {value!r}")
+    return int(value)
+
+
+def _flat_codes(x: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """(S * (T + 1),) int8: 1 / 0 at valid steps, -1 at invalid ones, time fastest.
+
+    Every sequence (one per trailing index) is laid out in turn, followed by one invalid
+    entry, so runs never cross from one sequence into the next and flat index differences
+    within a valid stretch are step counts.
+    """
+    t = x.shape[0]
+    codes = np.where(valid, x.astype(np.int8), np.int8(-1)).reshape(t, -1).T
+    pad = np.full((codes.shape[0], 1), -1, np.int8)
+    return np.concatenate([codes, pad], axis=1).reshape(-1)
+
+
+def _flip(k: np.ndarray) -> np.ndarray:
+    """Complements the valid entries of ``k``, so lift-offs become rising edges."""
+    return np.where(k == -1, k, 1 - k).astype(np.int8)
+
+
+def _runs(k: np.ndarray):
+    """Maximal runs of equal value over the valid entries of ``k`` (from ``_flat_codes``).
+
+    Returns:
+      start, end (exclusive), value, start_is_edge (the entry before is valid), and
+      end_is_edge (the entry after is valid), each (n_runs,).
+    """
+    n = k.shape[0]
+    change = np.ones(n, bool)
+    change[1:] = k[1:] != k[:-1]
+    start = np.flatnonzero(change)
+    end = np.append(start[1:], n)
+    value = k[start]
+    keep = value != -1
+    start, end, value = start[keep], end[keep], value[keep]
+    start_edge = (start > 0) & (k[np.maximum(start - 1, 0)] != -1)
+    end_edge = (end < n) & (k[np.minimum(end, n - 1)] != -1)
+    return start, end, value, start_edge, end_edge
+
+
+# ----------------------------------------------------------------------------- events
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class EdgeEvents:
+    """Matched edges of one kind (touch-downs, or lift-offs), pooled over sequences.
+
+    Attributes:
+      delays_ms: (n_matched,) detection delay of every matched, evaluated event, ms.
+      n_events: evaluated true events (matched + missed + already).
+      missed: evaluated true events with no detection before the next opposite true edge.
+      already: evaluated true events the estimate had anticipated by more than the early
+        window (rule 3: "already on" for touch-downs, "already off" for lift-offs).
+      false_edges: solid estimated edges in the wrong true phase and matched to no event
+        (touch-downs: failures, false contacts in the air; lift-offs: false lift-offs).
+      chatter: blips (runs shorter than ``min_on``) starting in the wrong true phase.
+    """
+
+    delays_ms: np.ndarray
+    n_events: int
+    missed: int
+    already: int
+    false_edges: int
+    chatter: int
+
+    @property
+    def delay_mean_std_ms(self) -> tuple[float, float]:
+        """(mean, population std) of the delays, ms; NaN for no matched event."""
+        if self.delays_ms.size == 0:
+            return (float("nan"), float("nan"))
+        return (float(np.mean(self.delays_ms)), float(np.std(self.delays_ms)))
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class EventMatch:
+    """Touch-down and lift-off events of :func:`match_events`."""
+
+    touchdown: EdgeEvents
+    liftoff: EdgeEvents
+
+
+def _edge_events(kg: np.ndarray, kf: np.ndarray, early: int, min_on: int, dt: float):
+    """Rules 2-7 of the module docstring for rising edges of ``kg`` (truth) vs ``kf``."""
+    gs, ge, gv, gse, gee = _runs(kg)
+    fs, fe, fv, fse, fee = _runs(kf)
+
+    events = np.flatnonzero((gv == 1) & gse)
+    t0, t1, t1_real = gs[events], ge[events], gee[events]
+    # The run before a rising edge is the (valid) off-phase that it ends.
+    a0, a0_real = gs[events - 1], gse[events - 1]
+    w0 = np.maximum(t0 - early, a0)
+    evaluable = a0_real | (t0 - early >= a0)
+
+    length = fe - fs
+    solid = (fv == 1) & (length >= min_on)
+    cand = np.flatnonzero(solid & fse)
+    cand_start = fs[cand]
+    # Runs are disjoint and ordered, so their ends are sorted too: j is the first candidate
+    # still on at t0 (rule 4); if it started before w0 it is rule 3's run, not a match.
+    j = np.searchsorted(fe[cand], t0, side="right")
+    has = j < cand.size
+    j = np.minimum(j, max(cand.size - 1, 0))
+    if cand.size:
+        matched = has & (cand_start[j] >= w0) & (cand_start[j] < t1)
+    else:
+        matched = np.zeros(events.shape, bool)
+
+    # The estimate's run that holds step w0 (w0 is a valid step, so one always does).
+    r = np.searchsorted(fs, w0, side="right") - 1
+    if events.size:
+        already = solid[r] & (fe[r] > t0) & ~((fs[r] == w0) & fse[r])
+    else:
+        already = np.zeros(0, bool)
+    matched &= ~already
+    missed = ~matched & ~already & t1_real
+
+    delays = (cand_start[j[matched & evaluable]] - t0[matched & evaluable]) * dt * 1e3
+    matched_runs = np.zeros(fs.shape, bool)
+    matched_runs[cand[j[matched]]] = True
+
+    wrong_phase = kg[fs] == 0
+    false_edges = solid & fse & wrong_phase & ~matched_runs
+    chatter = (fv == 1) & (length < min_on) & fse & fee & wrong_phase
+    return EdgeEvents(
+        delays_ms=delays.astype(np.float64),
+        n_events=int(np.sum(evaluable & (matched | already | missed))),
+        missed=int(np.sum(evaluable & missed)),
+        already=int(np.sum(evaluable & already)),
+        false_edges=int(np.sum(false_edges)),
+        chatter=int(np.sum(chatter)),
+    )
+
+
+def match_events(
+    estimate,
+    truth,
+    valid=None,
+    *,
+    dt: float,
+    threshold: float = 0.5,
+    early_window_s: float = 0.05,
+    min_on: int = 1,
+) -> EventMatch:
+    """Matches estimated touch-downs and lift-offs to the true ones (module docstring rules).
+
+    Args:
+      estimate: (T, ...) contact probability in [0, 1], or bool flags.
+      truth: (T, ...) bool true contact.
+      valid: optional (T, ...) bool mask of the steps to evaluate.
+      dt: time step, s.
+      threshold: the flag is ``estimate > threshold``.
+      early_window_s: how far a detection may lead the true edge, s (default 50 ms).
+      min_on: debounce, steps a run must last to count as an edge (default 1: raw flag).
+
+    Returns:
+      :class:`EventMatch`, pooled over every sequence (every index after the time axis).
+
+    Raises:
+      ValueError: naming the argument, for mismatched shapes, probabilities outside [0, 1]
+        or NaN at valid steps, or a bad ``dt``, ``threshold``, ``early_window_s`` or
+        ``min_on``.
+    """
+    dt = _check_positive("dt", dt)
+    early_s = _check_positive("early_window_s", early_window_s, allow_zero=True)
+    min_on = _check_int("min_on", min_on, 1)
+    _, flag, tru, val = _inputs(estimate, truth, valid, threshold)
+    return _match(flag, tru, val, dt, int(round(early_s / dt)), min_on)
+
+
+def _match(flag, tru, val, dt: float, early: int, min_on: int) -> EventMatch:
+    kg = _flat_codes(tru, val)
+    kf = _flat_codes(flag, val)
+    return EventMatch(
+        touchdown=_edge_events(kg, kf, early, min_on, dt),
+        liftoff=_edge_events(_flip(kg), _flip(kf), early, min_on, dt),
+    )
+
+
+# ----------------------------------------------------------------------------- per step
+
+
+@dataclasses.dataclass(frozen=True)
+class StepScores:
+    """Per-step classification scores of the flag ``estimate > threshold``, contact positive.
+
+    Attributes:
+      accuracy, precision, recall, f1: in [0, 1]; NaN where the ratio is 0 / 0.
+      n_steps: number of valid steps.
+    """
+
+    accuracy: float
+    precision: float
+    recall: float
+    f1: float
+    n_steps: int
+
+
+def _ratio(num: int, den: int) -> float:
+    return float(num) / float(den) if den else float("nan")
+
+
+def step_scores(estimate, truth, valid=None, *, threshold: float = 0.5) -> StepScores:
+    """Accuracy, precision, recall and F1 over the valid steps of all sequences.
+
+    Args and raises: as :func:`match_events`.
+    """
+    _, flag, tru, val = _inputs(estimate, truth, valid, threshold)
+    return _step_scores(flag, tru, val)
+
+
+def _step_scores(flag, tru, val) -> StepScores:
+    f, g = flag[val], tru[val]
+    tp = int(np.sum(f & g))
+    fp = int(np.sum(f & ~g))
+    fn = int(np.sum(~f & g))
+    return StepScores(
+        accuracy=_ratio(int(np.sum(f == g)), f.size),
+        precision=_ratio(tp, tp + fp),
+        recall=_ratio(tp, tp + fn),
+        f1=_ratio(2 * tp, 2 * tp + fp + fn),
+        n_steps=int(f.size),
+    )
+
+
+def brier_score(estimate, truth, valid=None) -> float:
+    """Mean squared error of the probability, ``mean (p - truth)^2`` over valid steps.
+
+    Bool estimates count as probabilities 0 and 1. NaN for no valid step.
+    """
+    prob, _, tru, val = _inputs(estimate, truth, valid, 0.5)
+    return _brier(prob, tru, val)
+
+
+def _brier(prob, tru, val) -> float:
+    if not np.any(val):
+        return float("nan")
+    return float(np.mean((prob[val] - tru[val]) ** 2))
+
+
+def expected_calibration_error(estimate, truth, valid=None, *, n_bins: int = 10) -> float:
+    """Expected calibration error with ``n_bins`` equal-width bins on [0, 1].
+
+    Bin ``b`` holds ``b / n_bins <= p < (b + 1) / n_bins`` (the last bin also holds 1);
+    ``ECE = sum_b (n_b / N) |mean(truth in b) - mean(p in b)|`` over the N valid steps.
+    NaN for no valid step.
+    """
+    n_bins = _check_int("n_bins", n_bins, 1)
+    prob, _, tru, val = _inputs(estimate, truth, valid, 0.5)
+    return _ece(prob, tru, val, n_bins)
+
+
+def _ece(prob, tru, val, n_bins: int) -> float:
+    p, g = prob[val], tru[val].astype(np.float64)
+    if p.size == 0:
+        return float("nan")
+    idx = np.minimum((p * n_bins).astype(np.int64), n_bins - 1)
+    count = np.bincount(idx, minlength=n_bins)
+    gap = np.abs(np.bincount(idx, g, n_bins) - np.bincount(idx, p, n_bins))
+    # sum_b n_b/N |mean_g - mean_p| = sum_b |sum_g - sum_p| / N.
+    return float(np.sum(gap[count > 0]) / p.size)
+
+
+# ----------------------------------------------------------------------------- summary
+
+
+@dataclasses.dataclass(frozen=True)
+class ContactMetrics:
+    """All metrics of one estimator on one batch, one row of a results table.
+
+    Attributes:
+      touchdown_delay_ms, liftoff_delay_ms: (mean, std) over matched events, ms.
+      n_touchdowns: evaluated true touch-downs (matched + missed + already on).
+      missed: missed touch-downs.
+      touchdown_already_on: touch-downs the estimate was on for since before the window.
+      failures: false contacts in the air (solid runs, unmatched), the paper's "fail".
+      chatter: blips in the air shorter than ``min_on`` steps.
+      n_liftoffs, missed_liftoffs, liftoff_already_off: as above, for lift-offs.
+      false_liftoffs: false air detections during contact; liftoff_chatter their blips.
+      accuracy, precision, recall, f1: per-step scores of the flag.
+      brier: Brier score; ece: expected calibration error.
+      n_steps: valid steps evaluated.
+    """
+
+    touchdown_delay_ms: tuple[float, float]
+    liftoff_delay_ms: tuple[float, float]
+    n_touchdowns: int
+    missed: int
+    touchdown_already_on: int
+    failures: int
+    chatter: int
+    n_liftoffs: int
+    missed_liftoffs: int
+    liftoff_already_off: int
+    false_liftoffs: int
+    liftoff_chatter: int
+    accuracy: float
+    precision: float
+    recall: float
+    f1: float
+    brier: float
+    ece: float
+    n_steps: int
+
+    def as_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+
+def evaluate(
+    estimate,
+    truth,
+    valid=None,
+    *,
+    dt: float,
+    threshold: float = 0.5,
+    early_window_s: float = 0.05,
+    min_on: int = 1,
+    n_bins: int = 10,
+) -> ContactMetrics:
+    """Every metric of this module for a batch (T, E, L), events pooled over envs and legs.
+
+    Args and raises: as :func:`match_events`; ``n_bins`` as
+    :func:`expected_calibration_error`.
+    """
+    dt = _check_positive("dt", dt)
+    early_s = _check_positive("early_window_s", early_window_s, allow_zero=True)
+    min_on = _check_int("min_on", min_on, 1)
+    n_bins = _check_int("n_bins", n_bins, 1)
+    prob, flag, tru, val = _inputs(estimate, truth, valid, threshold)
+    ev = _match(flag, tru, val, dt, int(round(early_s / dt)), min_on)
+    steps = _step_scores(flag, tru, val)
+    td, lo = ev.touchdown, ev.liftoff
+    return ContactMetrics(
+        touchdown_delay_ms=td.delay_mean_std_ms,
+        liftoff_delay_ms=lo.delay_mean_std_ms,
+        n_touchdowns=td.n_events,
+        missed=td.missed,
+        touchdown_already_on=td.already,
+        failures=td.false_edges,
+        chatter=td.chatter,
+        n_liftoffs=lo.n_events,
+        missed_liftoffs=lo.missed,
+        liftoff_already_off=lo.already,
+        false_liftoffs=lo.false_edges,
+        liftoff_chatter=lo.chatter,
+        accuracy=steps.accuracy,
+        precision=steps.precision,
+        recall=steps.recall,
+        f1=steps.f1,
+        brier=_brier(prob, tru, val),
+        ece=_ece(prob, tru, val, n_bins),
+        n_steps=steps.n_steps,
+    )

@@ -1,0 +1,365 @@
+"""Tests of the evaluation metrics: hand-built sequences and float64 loop oracles."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from jax_contact.metrics import (
+    brier_score,
+    evaluate,
+    expected_calibration_error,
+    match_events,
+    step_scores,
+)
+
+DT = 0.0025  # 400 Hz; the default 50 ms early window is 20 steps
+T = 80
+
+
+def _seq(on, n=T, lo=0.1, hi=0.9):
+    """Probabilities ``lo`` everywhere and ``hi`` on the [start, end) intervals in ``on``."""
+    p = np.full(n, lo)
+    for a, b in on:
+        p[a:b] = hi
+    return p
+
+
+def _truth(on, n=T):
+    return _seq(on, n, 0.0, 1.0) > 0.5
+
+
+# ----------------------------------------------------------------------------- hand cases
+
+
+def test_delay_and_step_scores_by_hand():
+    # Truth on [30, 50), estimate on [33, 52).
+    # Touch-down t0 = 30: window from max(30 - 20, 0) = 10 (evaluable: 10 >= 0) to the
+    # lift-off at 50; first estimate rise at 33 -> delay 3 * 2.5 ms = 7.5 ms.
+    # Lift-off t1 = 50: estimate falls at 52 -> 2 * 2.5 ms = 5 ms.
+    # Steps: TP [33, 50) = 17, FP [50, 52) = 2, FN [30, 33) = 3, TN 80 - 22 = 58.
+    #   accuracy 75/80, precision 17/19, recall 17/20, F1 = 34 / (34 + 2 + 3) = 34/39.
+    # Brier: 75 right steps at (0.1)^2 and 5 wrong at (0.9)^2 -> (0.75 + 4.05) / 80 = 0.06.
+    # ECE (10 bins): bin 1 holds p = 0.1 with 58 TN + 3 FN: |3 - 6.1| / 80;
+    #   bin 9 holds p = 0.9 with 17 TP + 2 FP: |17 - 17.1| / 80; total 3.2 / 80 = 0.04.
+    p, g = _seq([(33, 52)]), _truth([(30, 50)])
+    m = evaluate(p, g, dt=DT)
+    assert m.touchdown_delay_ms == pytest.approx((7.5, 0.0))
+    assert m.liftoff_delay_ms == pytest.approx((5.0, 0.0))
+    assert (m.n_touchdowns, m.missed, m.failures, m.chatter) == (1, 0, 0, 0)
+    assert (m.n_liftoffs, m.missed_liftoffs, m.false_liftoffs) == (1, 0, 0)
+    assert m.accuracy == pytest.approx(75 / 80)
+    assert m.precision == pytest.approx(17 / 19)
+    assert m.recall == pytest.approx(17 / 20)
+    assert m.f1 == pytest.approx(34 / 39)
+    assert m.brier == pytest.approx(0.06)
+    assert m.ece == pytest.approx(0.04)
+    assert m.n_steps == T
+    d = m.as_dict()
+    assert d["touchdown_delay_ms"] == m.touchdown_delay_ms and d["failures"] == 0
+    # The same as flags: the probability is 0 / 1, so every wrong step costs 1 in Brier.
+    mf = evaluate(p > 0.5, g, dt=DT)
+    assert mf.touchdown_delay_ms == m.touchdown_delay_ms
+    assert mf.brier == pytest.approx(5 / 80)
+
+
+def test_blip_in_the_air_is_one_failure_and_chatter_follows_the_debounce():
+    # Truth on [30, 50); estimate on [33, 52) and 1-step blips at 60, 62, 64 (air).
+    # min_on = 1 (raw flag): every blip is a solid run starting in the air, matched to no
+    #   touch-down -> 3 failures, no chatter; the touch-down delay is still 7.5 ms.
+    # min_on = 2: the blips are shorter than 2 steps -> 0 failures, 3 chatter; the real
+    #   run [33, 52) is 19 steps long, so the delay is unchanged. Off-blips at 61 and 63
+    #   start in the air, so they are not false lift-offs either way.
+    g = _truth([(30, 50)])
+    one = match_events(_seq([(33, 52), (65, 66)]), g, dt=DT)
+    assert (one.touchdown.false_edges, one.touchdown.chatter) == (1, 0)
+    p = _seq([(33, 52), (60, 61), (62, 63), (64, 65)])
+    raw = evaluate(p, g, dt=DT, min_on=1)
+    assert (raw.failures, raw.chatter) == (3, 0)
+    deb = evaluate(p, g, dt=DT, min_on=2)
+    assert (deb.failures, deb.chatter) == (0, 3)
+    for m in (raw, deb):
+        assert m.touchdown_delay_ms == pytest.approx((7.5, 0.0))
+        assert m.liftoff_delay_ms == pytest.approx((5.0, 0.0))
+        assert (m.false_liftoffs, m.liftoff_chatter) == (0, 0)
+
+
+def test_early_detection_already_on_and_missed():
+    # (a) Truth on [30, 50), estimate on [26, 50): rises 4 steps early, inside the 20-step
+    #     early window -> delay -10 ms, and it is the match, not a failure.
+    m = evaluate(_seq([(26, 50)]), _truth([(30, 50)]), dt=DT)
+    assert m.touchdown_delay_ms == pytest.approx((-10.0, 0.0))
+    assert (m.failures, m.missed, m.touchdown_already_on) == (0, 0, 0)
+    # (b) Estimate on [5, 50): on since step 5, before the window start 10, and still on at
+    #     t0 = 30 -> "already on": no delay, not missed; the run began in the air -> failure.
+    m = evaluate(_seq([(5, 50)]), _truth([(30, 50)]), dt=DT)
+    assert m.n_touchdowns == 1 and m.touchdown_already_on == 1
+    assert m.missed == 0 and m.failures == 1
+    assert np.isnan(m.touchdown_delay_ms[0])
+    # (c) Truth on [30, 50) and [70, 78); estimate on [72, 80) only.
+    #     Touch-down 30: no rise in [10, 50) -> missed. Its lift-off at 50: the estimate
+    #     has been off since the start, before the window [30, 78) -> "already off".
+    #     Touch-down 70: window [max(50, 50), 78) -> rise at 72, delay 5 ms.
+    #     Lift-off at 78: contact from 70 (window [70, 80)); the estimate stays on to the
+    #     end of the data -> no detection and no next true touch-down: not evaluated.
+    m = evaluate(_seq([(72, 80)]), _truth([(30, 50), (70, 78)]), dt=DT)
+    assert (m.n_touchdowns, m.missed, m.touchdown_already_on) == (2, 1, 0)
+    assert m.touchdown_delay_ms == pytest.approx((5.0, 0.0))
+    assert (m.n_liftoffs, m.missed_liftoffs, m.liftoff_already_off) == (1, 0, 1)
+    # (d) A dropout in stance: truth on [30, 60), estimate on [32, 40) and [45, 62).
+    #     The lift-off at 60 has the window [max(60 - 20, 30), 80) = [40, 80). The fall at
+    #     40 is inside it but the estimate is back on before the true lift-off (45 < 60),
+    #     so it is a false lift-off, not the detection; the fall at 62 is matched: 5 ms.
+    #     The touch-down (rise at 32) is 5 ms late.
+    p, g = _seq([(32, 40), (45, 62)]), _truth([(30, 60)])
+    m = evaluate(p, g, dt=DT)
+    assert m.liftoff_delay_ms == pytest.approx((5.0, 0.0)) and m.false_liftoffs == 1
+    assert m.touchdown_delay_ms == pytest.approx((5.0, 0.0)) and m.failures == 0
+    # (e) The same for touch-downs: truth on [30, 50), estimate on [22, 24) and [33, 52).
+    #     The run [22, 24) starts in the early window [10, 50) but ends before t0 = 30: a
+    #     false contact in the air (1 failure); the rise at 33 is the match, 7.5 ms.
+    m = evaluate(_seq([(22, 24), (33, 52)]), _truth([(30, 50)]), dt=DT)
+    assert m.touchdown_delay_ms == pytest.approx((7.5, 0.0)) and m.failures == 1
+
+
+def test_valid_mask_is_respected():
+    g = _truth([(30, 50)])
+    p = _seq([(33, 52), (65, 66)])
+    valid = np.ones(T, bool)
+    # (a) Steps [0, 20) invalid: the air phase before t0 = 30 starts with the valid data at
+    #     20, and t0 - 20 = 10 < 20, so the 50 ms early window is not all valid: the
+    #     touch-down is not evaluated. A 25 ms window (10 steps) fits: 30 - 10 = 20 -> 7.5 ms.
+    v = valid.copy()
+    v[:20] = False
+    p_nan = p.copy()
+    p_nan[:20] = np.nan  # estimates at invalid steps are ignored, NaN included
+    m = evaluate(p_nan, g, v, dt=DT)
+    assert m.n_touchdowns == 0 and np.isnan(m.touchdown_delay_ms[0])
+    m = evaluate(p_nan, g, v, dt=DT, early_window_s=0.025)
+    assert m.n_touchdowns == 1 and m.touchdown_delay_ms == pytest.approx((7.5, 0.0))
+    assert m.n_steps == 60
+    # (b) The blip at 65 is the only failure; masking step 65 removes it, and the step
+    #     after the gap is the start of a new valid stretch, not an edge.
+    assert evaluate(p, g, dt=DT).failures == 1
+    v = valid.copy()
+    v[65] = False
+    m = evaluate(p, g, v, dt=DT)
+    assert m.failures == 0
+    # Per-step scores drop step 65 (a false positive): 80 steps had 3 FN + 2 FP + the blip
+    # wrong, so 74 of the 79 remaining steps are right.
+    assert m.accuracy == pytest.approx(74 / 79) and m.n_steps == 79
+
+
+def test_batch_pools_events_over_envs_and_legs():
+    # (T, E=2, L=2), truth on [30, 50) everywhere; estimates rise at 33, 26, 31 and 34:
+    # delays 7.5, -10, 2.5 and 10 ms, plus one blip failure at 70. Mean 2.5 ms,
+    # population std sqrt((25 + 156.25 + 0 + 56.25) / 4) = sqrt(59.375) ms.
+    g = _truth([(30, 50)])
+    est = np.stack(
+        [
+            np.stack([_seq([(33, 52)]), _seq([(26, 50)])], -1),
+            np.stack([_seq([(31, 50)]), _seq([(34, 50), (70, 71)])], -1),
+        ],
+        1,
+    )
+    truth = np.broadcast_to(g[:, None, None], est.shape)
+    m = evaluate(est, truth, dt=DT)
+    assert m.n_touchdowns == 4 and m.failures == 1
+    assert m.touchdown_delay_ms == pytest.approx((2.5, np.sqrt(59.375)))
+    # The same numbers come back from one sequence per call, pooled by hand.
+    delays = []
+    for e in range(2):
+        for leg in range(2):
+            delays.extend(match_events(est[:, e, leg], g, dt=DT).touchdown.delays_ms)
+    np.testing.assert_allclose(np.sort(delays), [-10.0, 2.5, 7.5, 10.0])
+
+
+# ----------------------------------------------------------------------------- oracles
+
+
+def _oracle_segment(g, f, early, min_on):
+    """Plain-loop version of the module's rules 2-7 on one valid stretch (0/1 lists)."""
+    n = len(g)
+
+    def runs(x):
+        out, s = [], 0
+        for t in range(1, n + 1):
+            if t == n or x[t] != x[s]:
+                out.append((s, t, x[s]))
+                s = t
+        return out
+
+    gr, fr = runs(g), runs(f)
+    res = {"delays": [], "n": 0, "missed": 0, "already": 0, "false": 0, "chatter": 0}
+    matched = set()
+    for i, (t0, t1, v) in enumerate(gr):
+        if v != 1 or t0 == 0:
+            continue
+        a0 = gr[i - 1][0]
+        w0 = max(t0 - early, a0)
+        evaluable = a0 > 0 or t0 - early >= a0
+        s, e, fv = next(r for r in fr if r[0] <= w0 < r[1])
+        already = fv == 1 and e - s >= min_on and e > t0 and not (s == w0 and s > 0)
+        match = None
+        if not already:
+            for r in fr:
+                solid_edge = r[2] == 1 and r[1] - r[0] >= min_on and r[0] > 0
+                if solid_edge and w0 <= r[0] < t1 and r[1] > t0:
+                    match = r
+                    break
+        if match is not None:
+            matched.add(match)
+        if not evaluable:
+            continue
+        if match is not None:
+            res["n"] += 1
+            res["delays"].append(match[0] - t0)
+        elif already:
+            res["n"] += 1
+            res["already"] += 1
+        elif t1 < n:
+            res["n"] += 1
+            res["missed"] += 1
+    for r in fr:
+        s, e, v = r
+        if v != 1 or s == 0 or g[s] != 0:
+            continue
+        if e - s >= min_on and r not in matched:
+            res["false"] += 1
+        elif e - s < min_on and e < n:
+            res["chatter"] += 1
+    return res
+
+
+def _oracle(est_flag, truth, valid, early, min_on):
+    """Pools ``_oracle_segment`` over sequences (trailing axes) and valid stretches."""
+    tot = {"delays": [], "n": 0, "missed": 0, "already": 0, "false": 0, "chatter": 0}
+    f2, g2, v2 = (x.reshape(x.shape[0], -1) for x in (est_flag, truth, valid))
+    for j in range(f2.shape[1]):
+        t = 0
+        while t < f2.shape[0]:
+            if not v2[t, j]:
+                t += 1
+                continue
+            end = t
+            while end < f2.shape[0] and v2[end, j]:
+                end += 1
+            seg = _oracle_segment(
+                [int(x) for x in g2[t:end, j]], [int(x) for x in f2[t:end, j]], early, min_on
+            )
+            for k in tot:
+                tot[k] = tot[k] + seg[k]
+            t = end
+    return tot
+
+
+def _random_case(rng, shape):
+    """A Markov truth, an estimate that lags it with noise, and a mask with gaps."""
+    n = shape[0]
+    truth = np.zeros(shape, bool)
+    state = rng.random(shape[1:]) < 0.5
+    for t in range(n):
+        state = np.where(rng.random(shape[1:]) < 1 / 12, ~state, state)
+        truth[t] = state
+    lag = rng.integers(-3, 6, size=shape[1:])
+    idx = np.clip(np.arange(n)[:, None, None] - lag, 0, n - 1)
+    est = np.take_along_axis(truth, idx, 0) ^ (rng.random(shape) < 0.06)
+    prob = np.where(est, rng.uniform(0.5, 1.0, shape), rng.uniform(0.0, 0.5, shape))
+    valid = rng.random(shape) > 0.01
+    valid[40:45, 0] = False
+    return prob, truth, valid
+
+
+@pytest.mark.parametrize("min_on", [1, 3])
+def test_event_matching_matches_loop_oracle(min_on):
+    rng = np.random.default_rng(10 + min_on)
+    for _ in range(3):
+        prob, truth, valid = _random_case(rng, (300, 3, 2))
+        ev = match_events(prob, truth, valid, dt=DT, early_window_s=0.02, min_on=min_on)
+        flag = prob > 0.5
+        for kind, f, g in (("touchdown", flag, truth), ("liftoff", ~flag, ~truth)):
+            ref = _oracle(f, g, valid, early=8, min_on=min_on)
+            got = getattr(ev, kind)
+            assert ref["n"] > 20
+            np.testing.assert_allclose(
+                np.sort(got.delays_ms), np.sort(np.array(ref["delays"]) * DT * 1e3)
+            )
+            assert (got.n_events, got.missed, got.already, got.false_edges, got.chatter) == (
+                ref["n"],
+                ref["missed"],
+                ref["already"],
+                ref["false"],
+                ref["chatter"],
+            )
+
+
+def test_brier_ece_and_scores_match_loop_oracle():
+    rng = np.random.default_rng(20)
+    shape = (50, 3, 2)
+    prob = rng.random(shape)
+    truth = rng.random(shape) < prob  # roughly calibrated, so the ECE is small but not 0
+    valid = rng.random(shape) > 0.2
+    n_bins = 7
+    se, n, sum_p, sum_g, cnt = 0.0, 0, np.zeros(n_bins), np.zeros(n_bins), np.zeros(n_bins)
+    tp = fp = fn = right = 0
+    for idx in np.ndindex(*shape):
+        if not valid[idx]:
+            continue
+        p, y = float(prob[idx]), float(truth[idx])
+        se += (p - y) ** 2
+        n += 1
+        for b in range(n_bins):
+            if b / n_bins <= p < (b + 1) / n_bins or (b == n_bins - 1 and p == 1.0):
+                sum_p[b] += p
+                sum_g[b] += y
+                cnt[b] += 1
+        flag = p > 0.5
+        tp += flag and y == 1
+        fp += flag and y == 0
+        fn += (not flag) and y == 1
+        right += flag == (y == 1)
+    ece = sum(
+        cnt[b] / n * abs(sum_g[b] / cnt[b] - sum_p[b] / cnt[b]) for b in range(n_bins) if cnt[b]
+    )
+    assert brier_score(prob, truth, valid) == pytest.approx(se / n, rel=1e-12)
+    got = expected_calibration_error(prob, truth, valid, n_bins=n_bins)
+    assert got == pytest.approx(ece, rel=1e-12) and got > 0
+    s = step_scores(prob, truth, valid)
+    assert s.n_steps == n
+    assert s.accuracy == pytest.approx(right / n)
+    assert s.precision == pytest.approx(tp / (tp + fp))
+    assert s.recall == pytest.approx(tp / (tp + fn))
+    assert s.f1 == pytest.approx(2 * tp / (2 * tp + fp + fn))
+    # ECE of a perfectly calibrated bin: p = 0.25 everywhere, truth on 1 step in 4 -> 0.
+    p = np.full(8, 0.25)
+    y = np.array([1, 0, 0, 0, 0, 1, 0, 0], bool)
+    assert expected_calibration_error(p, y) == pytest.approx(0.0, abs=1e-15)
+
+
+def test_bad_input_raises():
+    p, g = _seq([(33, 52)]), _truth([(30, 50)])
+    with pytest.raises(ValueError, match="truth"):
+        evaluate(p, g[:-1], dt=DT)
+    with pytest.raises(ValueError, match="valid"):
+        evaluate(p, g, np.ones(T - 1, bool), dt=DT)
+    bad = p.copy()
+    bad[3] = 1.2
+    with pytest.raises(ValueError, match="estimate"):
+        evaluate(bad, g, dt=DT)
+    bad[3] = np.nan
+    with pytest.raises(ValueError, match="estimate"):
+        brier_score(bad, g)
+    with pytest.raises(ValueError, match="truth"):
+        step_scores(p, g.astype(int) * 2)
+    with pytest.raises(ValueError, match="dt"):
+        match_events(p, g, dt=0.0)
+    with pytest.raises(ValueError, match="min_on"):
+        match_events(p, g, dt=DT, min_on=0)
+    with pytest.raises(ValueError, match="early_window_s"):
+        match_events(p, g, dt=DT, early_window_s=-0.01)
+    with pytest.raises(ValueError, match="threshold"):
+        step_scores(p, g, threshold=1.0)
+    with pytest.raises(ValueError, match="n_bins"):
+        expected_calibration_error(p, g, n_bins=0)
+    with pytest.raises(ValueError, match="estimate"):
+        evaluate(np.zeros(()), np.zeros((), bool), dt=DT)
