@@ -136,7 +136,8 @@ def step_batch(
     outputs. Each foot gets its own key, split from ``key``.
     """
     n_envs, n_legs = belief.logit.shape
-    keys = jax.random.split(key, n_envs * n_legs).reshape(n_envs, n_legs, -1)
+    keys = jax.random.split(key, n_envs * n_legs)
+    keys = keys.reshape((n_envs, n_legs) + keys.shape[1:])
 
     def one(b, m, k):
         return step(params, terrain, b, m, key=k)

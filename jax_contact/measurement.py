@@ -111,9 +111,7 @@ def diff_kinematics_llr(params: EstimatorParams, meas: LegMeasurement) -> jax.Ar
     noise = params.noise
     l, b = meas.leg_dofs, meas.other_dofs
     J = meas.J
-    cov_meas = J @ (jnp.square(noise.sigma_qd)[:, None] * J.T) + jnp.diag(
-        jnp.square(noise.sigma_J)
-    )
+    cov_meas = J @ (jnp.square(noise.sigma_qd)[:, None] * J.T) + jnp.diag(jnp.square(noise.sigma_J))
     J_fl = J[:, l]
     cov_air = J_fl @ (jnp.square(noise.sigma_qd_prior[l])[:, None] * J_fl.T) + cov_meas
     mean_air = J[:, b] @ meas.qd[b]

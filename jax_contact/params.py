@@ -257,9 +257,5 @@ def validate_params(params: EstimatorParams) -> None:
     if params.touchdown not in TOUCHDOWN_MODES:
         raise ValueError(f"touchdown must be one of {TOUCHDOWN_MODES}, got {params.touchdown!r}")
     rows = params.force_rows
-    if (
-        len(rows) == 0
-        or len(set(rows)) != len(rows)
-        or any(r not in (0, 1, 2) for r in rows)
-    ):
+    if len(rows) == 0 or len(set(rows)) != len(rows) or any(r not in (0, 1, 2) for r in rows):
         raise ValueError(f"force_rows must be distinct axes among (0, 1, 2), got {rows!r}")

@@ -51,9 +51,7 @@ def log_takeoff(params: EstimatorParams, u: jax.Array, sigma_v: jax.Array) -> ja
     u_max = params.takeoff_accel * params.dt
     p_off = params.dt / params.stance_time
     log_stay = normal_logpdf(u, 0.0, sigma_v) + jnp.log1p(-p_off)
-    log_leave = (
-        log_diff_ndtr(u / sigma_v, (u - u_max) / sigma_v) - jnp.log(u_max) + jnp.log(p_off)
-    )
+    log_leave = log_diff_ndtr(u / sigma_v, (u - u_max) / sigma_v) - jnp.log(u_max) + jnp.log(p_off)
     both = jnp.stack([log_stay, log_leave])
     return both - jax.nn.logsumexp(both)
 

@@ -127,7 +127,9 @@ class Diagnostics:
 
 def measurement_is_finite(meas: LegMeasurement) -> jax.Array:
     """() bool: every floating-point leaf of ``meas`` is finite."""
-    leaves = [x for x in jax.tree.leaves(meas) if jnp.issubdtype(jnp.asarray(x).dtype, jnp.floating)]
+    leaves = [
+        x for x in jax.tree.leaves(meas) if jnp.issubdtype(jnp.asarray(x).dtype, jnp.floating)
+    ]
     return jnp.all(jnp.stack([jnp.all(jnp.isfinite(x)) for x in leaves]))
 
 

@@ -1,0 +1,134 @@
+"""Shared pieces of the benchmark scripts: synthetic batches, timing, machine description."""
+
+from __future__ import annotations
+
+import json
+import os
+import platform
+import statistics
+import tempfile
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jax_contact.types import LegMeasurement
+
+
+def synthetic_measurements(
+    n_envs: int, n_legs: int = 4, nv: int = 18, n_l: int = 3, seed: int = 0
+) -> LegMeasurement:
+    """A (n_envs, n_legs) batch of plausible quadruped-sized measurements (float32).
+
+    The estimator's cost does not depend on the values, only on the shapes; the values
+    still look like a robot's (SPD mass matrix, ~0.3 m lever arms, feet near the ground),
+    so no branch of the arithmetic runs on denormals or infinities.
+    """
+    rng = np.random.default_rng(seed)
+    shape = (n_envs, n_legs)
+    a = rng.normal(size=shape + (nv, nv)) * 0.3
+    M = a @ np.swapaxes(a, -1, -2) + 0.5 * np.eye(nv)
+    legs = np.arange(6, 6 + n_legs * n_l).reshape(n_legs, n_l)
+    leg_dofs = np.broadcast_to(legs, shape + (n_l,))
+    others = np.stack([np.setdiff1d(np.arange(nv), legs[i]) for i in range(n_legs)])
+    other_dofs = np.broadcast_to(others, shape + (nv - n_l,))
+    qd = rng.normal(size=shape + (nv,))
+    J = rng.normal(size=shape + (3, nv)) * 0.3
+    p_f = np.concatenate(
+        [rng.normal(size=shape + (2,)), rng.uniform(0.0, 0.1, size=shape + (1,))], axis=-1
+    )
+    f32 = lambda x: jnp.asarray(x, jnp.float32)  # noqa: E731
+    return LegMeasurement(
+        q=f32(rng.normal(size=shape + (nv + 1,))),
+        qd=f32(qd),
+        qdd=f32(rng.normal(size=shape + (nv,)) * 10.0),
+        tau=f32(rng.normal(size=shape + (nv,)) * 5.0),
+        M=f32(M),
+        h=f32(rng.normal(size=shape + (nv,)) * 5.0),
+        J=f32(J),
+        Jdot_qd=f32(rng.normal(size=shape + (3,))),
+        p_f=f32(p_f),
+        v_f=f32(np.einsum("...ij,...j->...i", J, qd)),
+        foot_radius=f32(np.full(shape, 0.02)),
+        leg_dofs=jnp.asarray(leg_dofs, jnp.int32),
+        other_dofs=jnp.asarray(other_dofs, jnp.int32),
+    )
+
+
+def compile_and_time(
+    fn: Callable, args: tuple, *, repeats: int = 20, min_time_s: float = 0.5
+) -> dict:
+    """Compiles ``jax.jit(fn)`` ahead of time, then times calls of the compiled function.
+
+    Returns:
+      dict with ``compile_s`` (lowering and compilation), ``median_s`` and ``p99_s`` per call
+      over at least ``repeats`` calls and ``min_time_s`` seconds, ``calls``, and the
+      compiled executable under ``compiled``.
+    """
+    t0 = time.perf_counter()
+    compiled = jax.jit(fn).lower(*args).compile()
+    compile_s = time.perf_counter() - t0
+    jax.block_until_ready(compiled(*args))  # warm-up: first call allocates
+    times = []
+    start = time.perf_counter()
+    while len(times) < repeats or time.perf_counter() - start < min_time_s:
+        t = time.perf_counter()
+        jax.block_until_ready(compiled(*args))
+        times.append(time.perf_counter() - t)
+        if len(times) > 100_000:
+            break
+    return {
+        "compile_s": compile_s,
+        "median_s": statistics.median(times),
+        "p99_s": float(np.percentile(times, 99)),
+        "calls": len(times),
+        "compiled": compiled,
+    }
+
+
+def machine() -> dict:
+    """What the numbers were measured on."""
+    return {
+        "platform": platform.platform(),
+        "processor": platform.processor() or platform.machine(),
+        "cpu_count": os.cpu_count(),
+        "python": platform.python_version(),
+        "jax": jax.__version__,
+        "backend": jax.default_backend(),
+        "devices": [str(d) for d in jax.devices()],
+        "xla_flags": os.environ.get("XLA_FLAGS", ""),
+    }
+
+
+def write_json(path: str | os.PathLike, payload: dict) -> None:
+    """Writes JSON atomically: a temporary file in the same folder, then a rename."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
+    try:
+        with os.fdopen(fd, "w") as f:
+            json.dump(payload, f, indent=2)
+        os.replace(tmp, path)
+    except BaseException:
+        os.unlink(tmp)
+        raise
+
+
+def format_table(rows: list[dict], columns: list[tuple[str, str, str]]) -> list[str]:
+    """Formats rows as fixed-width lines (header first); columns are (key, header, format)."""
+    headers = [h for _, h, _ in columns]
+    cells = [
+        [fmt.format(r[k]) if r.get(k) is not None else "-" for k, _, fmt in columns] for r in rows
+    ]
+    widths = [max(len(h), 11, *(len(c[i]) for c in cells)) for i, h in enumerate(headers)]
+    lines = ["  ".join(h.rjust(w) for h, w in zip(headers, widths, strict=True))]
+    lines += ["  ".join(x.rjust(w) for x, w in zip(c, widths, strict=True)) for c in cells]
+    return lines
+
+
+def print_table(rows: list[dict], columns: list[tuple[str, str, str]]) -> None:
+    """Prints rows as a fixed-width table."""
+    print("\n".join(format_table(rows, columns)), flush=True)

@@ -1,0 +1,215 @@
+"""Estimator throughput, single-robot latency and memory (issue: benchmarks).
+
+Run::
+
+    python -m benchmarks.estimator --json out/bench/estimator.json [--envs 1 64 1024]
+
+One "update" is the whole step of every foot of every env: all three measurement terms,
+both transitions (take-off and touch-down, Monte-Carlo at ``n_samples`` or quadrature) and
+the recursion, i.e. ``jax_contact.step_batch``. Compilation is timed apart from running.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+import jax_contact as jc
+from benchmarks.common import (
+    compile_and_time,
+    format_table,
+    machine,
+    print_table,
+    synthetic_measurements,
+    write_json,
+)
+
+DEFAULT_ENVS = (1, 64, 256, 1024, 4096, 16384)
+MODES = ("quadrature", "monte_carlo")
+N_LEGS = 4
+NV = 18
+
+
+def make_update(params: jc.EstimatorParams, terrain):
+    """The function that is benchmarked: one batched step."""
+
+    def update(belief, meas, key):
+        return jc.step_batch(params, terrain, belief, meas, key=key)
+
+    return update
+
+
+def params_for(mode: str, n_samples: int = 500) -> jc.EstimatorParams:
+    return jc.make_params(jc.make_noise(NV), touchdown=mode, n_samples=n_samples)
+
+
+def throughput(envs, modes=MODES, n_samples: int = 500) -> list[dict]:
+    """Leg-updates per second of one full update at each batch size and mode."""
+    rows = []
+    terrain = jc.flat()
+    for n in envs:
+        meas = synthetic_measurements(n, N_LEGS, NV)
+        for mode in modes:
+            params = params_for(mode, n_samples)
+            belief = jc.init_belief_batch(params, n, N_LEGS)
+            t = compile_and_time(
+                make_update(params, terrain), (belief, meas, jax.random.key(0)), repeats=10
+            )
+            rows.append(
+                {
+                    "envs": n,
+                    "mode": mode,
+                    "n_samples": n_samples if mode == "monte_carlo" else params.n_quad**2,
+                    "compile_s": t["compile_s"],
+                    "update_ms": 1e3 * t["median_s"],
+                    "leg_updates_per_s": n * N_LEGS / t["median_s"],
+                    "bytes_per_env": _bytes_per_env(t["compiled"], n),
+                }
+            )
+            # Print as we go: the largest batches take a while on a small CPU.
+            print(format_table(rows[-1:], _THROUGHPUT_COLUMNS)[len(rows) > 1], flush=True)
+    return rows
+
+
+def _bytes_per_env(compiled, n_envs: int) -> float | None:
+    """Peak device memory of one call (arguments, outputs, temporaries) per env."""
+    try:
+        mem = compiled.memory_analysis()
+    except Exception:  # noqa: BLE001 - some backends do not report it
+        return None
+    if mem is None:
+        return None
+    total = (
+        mem.argument_size_in_bytes
+        + mem.output_size_in_bytes
+        + mem.temp_size_in_bytes
+        - mem.alias_size_in_bytes
+    )
+    return total / n_envs
+
+
+def latency(n_calls: int = 10_000) -> dict:
+    """Single-robot (4 legs) latency of the jitted step, AOT-compiled and jax.export'ed."""
+    params = params_for("monte_carlo")
+    terrain = jc.flat()
+    meas = synthetic_measurements(1, N_LEGS, NV)
+    belief = jc.init_belief_batch(params, 1, N_LEGS)
+    key = jax.random.key(0)
+    update = make_update(params, terrain)
+    out = {}
+
+    jitted = jax.jit(update)
+    jax.block_until_ready(jitted(belief, meas, key))
+    out["jit"] = _time_calls(lambda: jitted(belief, meas, key), n_calls)
+
+    compiled = jitted.lower(belief, meas, key).compile()
+    out["aot"] = _time_calls(lambda: compiled(belief, meas, key), n_calls)
+
+    # jax.export serialises plain arrays: flatten the pytrees and pass the raw key data,
+    # as a deployment that loads the estimator without this library would.
+    leaves, treedef = jax.tree.flatten((belief, meas))
+    raw_key = jax.random.key_data(key)
+
+    def flat_update(raw, *flat):
+        b, m = jax.tree.unflatten(treedef, flat)
+        return jax.tree.leaves(update(b, m, jax.random.wrap_key_data(raw)))
+
+    exported = jax.export.export(jax.jit(flat_update))(raw_key, *leaves)
+    restored = jax.export.deserialize(exported.serialize())
+    call = jax.jit(restored.call)
+    jax.block_until_ready(call(raw_key, *leaves))
+    out["export"] = _time_calls(lambda: call(raw_key, *leaves), n_calls)
+    return out
+
+
+def _time_calls(fn, n: int) -> dict:
+    times = np.empty(n)
+    for i in range(n):
+        t = time.perf_counter()
+        jax.block_until_ready(fn())
+        times[i] = time.perf_counter() - t
+    return {
+        "median_us": float(1e6 * np.median(times)),
+        "p99_us": float(1e6 * np.percentile(times, 99)),
+        "calls": n,
+    }
+
+
+def linearity(rows: list[dict]) -> dict:
+    """Per-mode cost per env at the largest batch over that at 1024 envs (1 = linear)."""
+    out = {}
+    for mode in MODES:
+        r = {row["envs"]: row["update_ms"] / row["envs"] for row in rows if row["mode"] == mode}
+        if 1024 in r and max(r) > 1024:
+            out[mode] = r[max(r)] / r[1024]
+    return out
+
+
+_THROUGHPUT_COLUMNS = [
+    ("envs", "envs", "{:d}"),
+    ("mode", "mode", "{}"),
+    ("compile_s", "compile s", "{:.2f}"),
+    ("update_ms", "update ms", "{:.3f}"),
+    ("leg_updates_per_s", "leg-updates/s", "{:.3g}"),
+    ("bytes_per_env", "bytes/env", "{:.0f}"),
+]
+
+
+def main(argv=None) -> dict:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--envs", type=int, nargs="+", default=list(DEFAULT_ENVS))
+    parser.add_argument("--samples", type=int, default=500, help="Monte-Carlo samples")
+    parser.add_argument("--latency-calls", type=int, default=10_000)
+    parser.add_argument("--json", default=None, help="write results as JSON here")
+    args = parser.parse_args(argv)
+
+    print(f"# estimator throughput on {jax.default_backend()} ({jax.devices()[0]})")
+    rows = throughput(args.envs, n_samples=args.samples)
+    lat = latency(args.latency_calls)
+    print("\n# single-robot latency (4 legs, Monte-Carlo 500)")
+    print_table(
+        [{"how": k, **v} for k, v in lat.items()],
+        [
+            ("how", "call", "{}"),
+            ("median_us", "median us", "{:.1f}"),
+            ("p99_us", "p99 us", "{:.1f}"),
+        ],
+    )
+    lin = linearity(rows)
+    if lin:
+        print("\n# cost per env at the largest batch / at 1024 envs:", lin)
+    at = [r for r in rows if r["envs"] == 4096 and r["mode"] == "monte_carlo"] or rows[-1:]
+    result = {
+        "machine": machine(),
+        "throughput": [
+            {
+                k: r[k]
+                for k in (
+                    "envs",
+                    "mode",
+                    "n_samples",
+                    "leg_updates_per_s",
+                    "compile_s",
+                    "update_ms",
+                )
+            }
+            for r in rows
+        ],
+        "latency_batch1_us": {"median": lat["jit"]["median_us"], "p99": lat["jit"]["p99_us"]},
+        "latency_batch1_detail": lat,
+        "bytes_per_env": at[0]["bytes_per_env"],
+        "linearity": lin,
+    }
+    if args.json:
+        write_json(args.json, result)
+        print(f"\nwrote {args.json}")
+    return result
+
+
+if __name__ == "__main__":
+    jnp.zeros(())  # initialise the backend before timing anything
+    main()
