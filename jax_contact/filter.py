@@ -93,12 +93,12 @@ def step(
 
     # eq. 3: the product of the terms is the sum of their log-likelihood ratios.
     terms = measurement_terms(params, meas, tq)
-    llr = terms.dynamics + terms.diff_kinematics + terms.kinematics
+    llr = sum(getattr(terms, name) for name in params.terms)
     logit = jnp.where(valid, prior_logit + llr, prior_logit)
 
-    log_t = jnp.where(
-        valid, log_transition_matrix(params, meas, tq, key=key), log_prior_transition(params)
-    )
+    log_t = log_prior_transition(params)
+    if params.transition_model:
+        log_t = jnp.where(valid, log_transition_matrix(params, meas, tq, key=key), log_t)
 
     on_ground = valid & (logit > 0.0)
     sole = meas.p_f - meas.foot_radius * tq.normal

@@ -16,6 +16,7 @@ import numpy as np
 from flax import struct
 
 TOUCHDOWN_MODES = ("monte_carlo", "quadrature")
+TERMS = ("dynamics", "diff_kinematics", "kinematics")
 
 
 @struct.dataclass
@@ -75,6 +76,10 @@ class EstimatorParams:
       unilateral: static; if True the contact hypothesis is also weighed by the
         probability that the estimated force pushes into the ground (``e . F < 0``), so a
         foot that would need the ground to pull it counts as evidence for air.
+      terms: static, the measurement terms that enter eq. 3 (all three by default); a
+        subset is for ablations (diagnostics still report every term).
+      transition_model: static; if False the measurement-dependent transitions (eq.
+        11-17) are replaced by the gait prior alone, for ablations.
     """
 
     noise: NoiseParams
@@ -92,6 +97,8 @@ class EstimatorParams:
     n_quad: int = struct.field(pytree_node=False, default=8)
     force_rows: tuple[int, ...] = struct.field(pytree_node=False, default=(0, 1, 2))
     unilateral: bool = struct.field(pytree_node=False, default=True)
+    terms: tuple[str, ...] = struct.field(pytree_node=False, default=TERMS)
+    transition_model: bool = struct.field(pytree_node=False, default=True)
 
     @property
     def nv(self) -> int:
@@ -192,6 +199,8 @@ def make_params(
     n_quad: int = 8,
     force_rows: Sequence[int] = (0, 1, 2),
     unilateral: bool = True,
+    terms: Sequence[str] = TERMS,
+    transition_model: bool = True,
 ) -> EstimatorParams:
     """Builds and validates :class:`EstimatorParams`.
 
@@ -219,6 +228,8 @@ def make_params(
         n_quad=n_quad,
         force_rows=tuple(int(r) for r in force_rows),
         unilateral=bool(unilateral),
+        terms=tuple(terms),
+        transition_model=bool(transition_model),
     )
     validate_params(params)
     return params
@@ -259,3 +270,6 @@ def validate_params(params: EstimatorParams) -> None:
     rows = params.force_rows
     if len(rows) == 0 or len(set(rows)) != len(rows) or any(r not in (0, 1, 2) for r in rows):
         raise ValueError(f"force_rows must be distinct axes among (0, 1, 2), got {rows!r}")
+    terms = params.terms
+    if len(terms) == 0 or len(set(terms)) != len(terms) or any(t not in TERMS for t in terms):
+        raise ValueError(f"terms must be distinct names among {TERMS}, got {terms!r}")
