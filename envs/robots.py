@@ -1,0 +1,375 @@
+"""Named robot models that load offline, and a rough height-field floor for any of them.
+
+``load_robot(name)`` returns a :class:`Robot`: the compiled ``mujoco.MjModel``, the
+:class:`jax_contact.robot.RobotDescription` derived from it, and the ``MjSpec`` it was
+compiled from (for edits such as :func:`with_terrain`). Nothing is downloaded at run time:
+
+- ``go1``, ``spot``: the MJX scenes that ship with the ``playground`` package
+  (``mujoco_playground/_src/locomotion/{go1,spot}/xmls/scene_mjx_feetonly_flat_terrain.xml``,
+  the feet-only-contact scene of the joystick environments, with its flat floor). They
+  reference Menagerie meshes that the package does not ship; those meshes are visual only
+  (every body has an explicit ``<inertial>`` and every mesh geom has ``contype = conaffinity
+  = 0``), so the mesh geoms and mesh assets are deleted before compiling. Masses,
+  inertias, joints, actuators and collision geoms stay exactly as shipped.
+- ``barkour``: ``mujoco/mjx/test_data/barkour_v0/assets/barkour_v0_mjx.xml`` from the
+  ``mujoco-mjx`` package, meshes included. Its floor is the height field it ships with.
+- ``planar_leg``: the paper's Section III leg, ``envs/assets/planar_leg.xml``.
+- MuJoCo Menagerie names (``anybotics_anymal_c``, ...): from a local Menagerie checkout
+  named by the ``MENAGERIE_ROOT`` environment variable (``$MENAGERIE_ROOT/<name>/scene.xml``),
+  else through the ``mujoco_menagerie`` package, which downloads on first use. When neither
+  works :class:`RobotUnavailableError` says what to do.
+- any path to an MJCF file.
+
+Each call builds a fresh model; mutate it (e.g. ``robot.mj_model.opt.timestep``) freely.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+from collections.abc import Callable, Sequence
+from pathlib import Path
+
+import mujoco
+import numpy as np
+
+from jax_contact.robot import RobotDescription, derive_description
+
+ASSETS_DIR = Path(__file__).resolve().parent / "assets"
+PLANAR_LEG_XML = ASSETS_DIR / "planar_leg.xml"
+
+# Quadrupeds of MuJoCo Menagerie this loader knows by name (loaded from MENAGERIE_ROOT or
+# the mujoco_menagerie package, never bundled).
+MENAGERIE_NAMES = (
+    "anybotics_anymal_b",
+    "anybotics_anymal_c",
+    "boston_dynamics_spot",
+    "google_barkour_v0",
+    "google_barkour_vb",
+    "unitree_a1",
+    "unitree_go1",
+    "unitree_go2",
+)
+
+
+class RobotUnavailableError(ValueError):
+    """A known robot whose model files are not on this machine (and cannot be fetched)."""
+
+
+@dataclasses.dataclass(frozen=True)
+class HeightField:
+    """A height-field floor as compiled into the model.
+
+    The field is centred on the world origin in x, y and spans ``[-size_x, size_x] x
+    [-size_y, size_y]``; row ``r`` of ``heights`` lies at ``y = -size_y + 2 size_y r /
+    (ny - 1)``, column ``c`` at ``x = -size_x + 2 size_x c / (nx - 1)`` (MuJoCo's layout).
+    Between samples MuJoCo's surface is two planar triangles per cell, not a bilinear
+    patch.
+
+    Attributes:
+      heights: (ny, nx) surface height (world z) at each sample, m, as the compiled model
+        holds it (MuJoCo stores normalised samples in float32, so these may differ from the
+        requested heights by about 1e-7 of their range).
+      size_xy: (half-length in x, half-length in y), m.
+      geom_name: name of the floor geom.
+    """
+
+    heights: np.ndarray
+    size_xy: tuple[float, float]
+    geom_name: str
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class Robot:
+    """A compiled robot model and what the estimator needs to know about it.
+
+    Attributes:
+      name: the name it was loaded by (or the MJCF path).
+      mj_model: the compiled model, including the floor.
+      description: feet, legs and dof split derived from ``mj_model``.
+      spec: the ``mujoco.MjSpec`` that ``mj_model`` was compiled from; treat as read-only
+        (``with_terrain`` edits a copy).
+      terrain: the height-field floor added by :func:`with_terrain`, or None.
+    """
+
+    name: str
+    mj_model: mujoco.MjModel
+    description: RobotDescription
+    spec: mujoco.MjSpec = dataclasses.field(repr=False)
+    terrain: HeightField | None = None
+
+    @property
+    def home_qpos(self) -> np.ndarray:
+        """(nq,) standing configuration: the keyframe named ``home`` or ``standing``, else
+        the first keyframe, else ``qpos0``."""
+        m = self.mj_model
+        for key_name in ("home", "standing"):
+            key_id = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_KEY, key_name)
+            if key_id >= 0:
+                return np.array(m.key_qpos[key_id])
+        if m.nkey > 0:
+            return np.array(m.key_qpos[0])
+        return np.array(m.qpos0)
+
+
+def _package_dir(module: str) -> Path:
+    import importlib.util
+
+    spec = importlib.util.find_spec(module)
+    if spec is None or not spec.submodule_search_locations:
+        raise RobotUnavailableError(f"the Python package {module!r} is not installed")
+    return Path(next(iter(spec.submodule_search_locations)))
+
+
+def _playground_xml(robot: str) -> Path:
+    root = _package_dir("mujoco_playground")
+    return root / "_src" / "locomotion" / robot / "xmls" / "scene_mjx_feetonly_flat_terrain.xml"
+
+
+def _barkour_xml() -> Path:
+    root = _package_dir("mujoco")
+    return root / "mjx" / "test_data" / "barkour_v0" / "assets" / "barkour_v0_mjx.xml"
+
+
+def _strip_meshes(spec: mujoco.MjSpec, source: Path) -> None:
+    """Deletes visual-only mesh geoms and every mesh asset, in place.
+
+    Refuses (ValueError) if a mesh geom could collide or could carry mass into a body's
+    inertia, since deleting it would then change the dynamics.
+    """
+    bodies_with_meshes = set()
+    for geom in list(spec.geoms):
+        if geom.type != mujoco.mjtGeom.mjGEOM_MESH:
+            continue
+        if geom.contype != 0 or geom.conaffinity != 0:
+            raise ValueError(
+                f"{source}: mesh geom {geom.name or '<unnamed>'} can collide"
+                f" (contype {geom.contype}, conaffinity {geom.conaffinity}); its mesh file is"
+                " needed, so this model cannot be loaded without the Menagerie assets"
+            )
+        bodies_with_meshes.add(geom.parent.name)
+        spec.delete(geom)
+    inertia_from_geom = spec.compiler.inertiafromgeom
+    for body in spec.bodies:
+        if body.name not in bodies_with_meshes:
+            continue
+        explicit = body.explicitinertial
+        if inertia_from_geom == mujoco.mjtInertiaFromGeom.mjINERTIAFROMGEOM_TRUE or not explicit:
+            raise ValueError(
+                f"{source}: body {body.name!r} takes its inertia from geoms including meshes;"
+                " deleting the meshes would change its mass"
+            )
+    for mesh in list(spec.meshes):
+        spec.delete(mesh)
+
+
+def _load_playground(robot: str) -> mujoco.MjSpec:
+    path = _playground_xml(robot)
+    if not path.is_file():
+        raise RobotUnavailableError(
+            f"{path} not found: the installed playground package does not ship the {robot}"
+            " MJX model (playground==0.2.0 does)"
+        )
+    spec = mujoco.MjSpec.from_file(str(path))
+    _strip_meshes(spec, path)
+    return spec
+
+
+def _load_barkour() -> mujoco.MjSpec:
+    path = _barkour_xml()
+    if not path.is_file():
+        raise RobotUnavailableError(
+            f"{path} not found: the installed mujoco-mjx package does not ship barkour_v0"
+        )
+    return mujoco.MjSpec.from_file(str(path))
+
+
+def _load_menagerie(name: str) -> mujoco.MjSpec:
+    root = os.environ.get("MENAGERIE_ROOT")
+    if root:
+        for scene in ("scene.xml", "scene_mjx.xml"):
+            path = Path(root) / name / scene
+            if path.is_file():
+                return mujoco.MjSpec.from_file(str(path))
+        raise RobotUnavailableError(
+            f"robot {name!r}: MENAGERIE_ROOT={root!r} has no {name}/scene.xml; point"
+            " MENAGERIE_ROOT at a checkout of github.com/google-deepmind/mujoco_menagerie"
+        )
+    try:
+        import mujoco_menagerie  # optional; it downloads models on first use
+    except ImportError as err:
+        raise RobotUnavailableError(
+            f"robot {name!r} comes from MuJoCo Menagerie, which is not available here: set"
+            " MENAGERIE_ROOT to a local checkout of github.com/google-deepmind/"
+            "mujoco_menagerie, or `pip install mujoco-menagerie` on a machine with internet"
+            " access (it downloads the model on first use)"
+        ) from err
+    try:
+        entry = mujoco_menagerie.get(name)
+        return entry.spec(entry.default_scene)  # the scene: robot, floor and lights
+    except Exception as err:  # the package raises its own DownloadError offline
+        raise RobotUnavailableError(
+            f"robot {name!r} could not be loaded through mujoco_menagerie ({err}); the model"
+            " must be downloaded first, or MENAGERIE_ROOT set to a local Menagerie checkout"
+        ) from err
+
+
+_BUILTIN: dict[str, Callable[[], mujoco.MjSpec]] = {
+    "go1": lambda: _load_playground("go1"),
+    "spot": lambda: _load_playground("spot"),
+    "barkour": _load_barkour,
+    "planar_leg": lambda: mujoco.MjSpec.from_file(str(PLANAR_LEG_XML)),
+}
+
+ROBOT_NAMES = tuple(_BUILTIN) + MENAGERIE_NAMES
+
+
+def _looks_like_path(name: str) -> bool:
+    return name.endswith(".xml") or os.sep in name or "/" in name
+
+
+def load_robot(name: str, *, foot_names: Sequence[str] | None = None) -> Robot:
+    """Loads a robot by name (see the module docstring) or from an MJCF path.
+
+    Args:
+      name: one of :data:`ROBOT_NAMES`, or a path to an MJCF file (with its floor).
+      foot_names: passed to :func:`jax_contact.robot.derive_description`; None finds the
+        feet (sphere geoms that can touch the floor).
+
+    Returns:
+      The compiled robot with its description.
+
+    Raises:
+      ValueError: an unknown name (the message lists the valid ones), a path that does not
+        exist, or a model the description refuses.
+      RobotUnavailableError: a known robot whose files are not on this machine.
+    """
+    if not isinstance(name, str):
+        raise ValueError(f"name must be a str, got {type(name).__name__}")
+    if name in _BUILTIN:
+        spec = _BUILTIN[name]()
+    elif name in MENAGERIE_NAMES:
+        spec = _load_menagerie(name)
+    elif _looks_like_path(name):
+        path = Path(name).expanduser()
+        if not path.is_file():
+            raise ValueError(f"name: MJCF file {str(path)!r} does not exist")
+        spec = mujoco.MjSpec.from_file(str(path))
+    else:
+        raise ValueError(
+            f"unknown robot {name!r}; valid names: {', '.join(ROBOT_NAMES)}, or a path to an"
+            " MJCF .xml file"
+        )
+    mj_model = spec.compile()
+    return Robot(
+        name=name,
+        mj_model=mj_model,
+        description=derive_description(mj_model, foot_names),
+        spec=spec,
+    )
+
+
+def with_terrain(
+    robot: Robot,
+    heights: np.ndarray,
+    size_xy: tuple[float, float],
+    *,
+    base_depth: float = 0.1,
+) -> Robot:
+    """Returns a copy of ``robot`` whose floor is a height field with the given heights.
+
+    Every floor geom of the world body (plane or height field that a foot can touch) is
+    replaced by one height-field geom with the first floor's name, contact and friction
+    settings, so contact sensors that name the floor keep working. MuJoCo rescales
+    height-field samples to [0, 1] when it compiles, so the geom is placed at
+    ``z = min(heights)`` with elevation scale ``max(heights) - min(heights)``; the compiled
+    surface then passes through the requested heights.
+
+    Args:
+      robot: the robot whose floor to replace (it is not changed).
+      heights: (ny, nx) surface heights (world z), m; ny, nx >= 2. Row index runs along y,
+        column index along x (see :class:`HeightField`).
+      size_xy: (half-length in x, half-length in y) of the field, m, both > 0.
+      base_depth: thickness of the solid below the lowest sample, m (MuJoCo's ``size[3]``).
+
+    Returns:
+      A new :class:`Robot` with ``terrain`` set to the compiled height field.
+
+    Raises:
+      ValueError: naming the argument, for a bad shape or value, or a robot whose floor
+        geoms are unnamed.
+    """
+    h = np.asarray(heights, dtype=np.float64)
+    if h.ndim != 2 or min(h.shape) < 2:
+        raise ValueError(f"heights must have shape (ny, nx) with ny, nx >= 2, got {h.shape}")
+    if not np.all(np.isfinite(h)):
+        raise ValueError("heights must be finite")
+    sx, sy = (float(v) for v in size_xy)
+    if not (sx > 0 and sy > 0):
+        raise ValueError(f"size_xy must be two half-lengths > 0, got {size_xy!r}")
+    if not base_depth > 0:
+        raise ValueError(f"base_depth must be > 0, got {base_depth!r}")
+
+    floor_ids = robot.description.floor_geom_ids
+    floor_names = [robot.mj_model.geom(i).name for i in floor_ids]
+    spec = robot.spec.copy()
+    floors = [g for g in spec.worldbody.geoms if g.name and g.name in floor_names]
+    if len(floors) != len(floor_ids):
+        raise ValueError(
+            f"robot {robot.name!r}: every floor geom must be named to be replaced, got"
+            f" {floor_names}"
+        )
+    template = floors[0]
+    geom_name = template.name
+    settings = {
+        "contype": template.contype,
+        "conaffinity": template.conaffinity,
+        "condim": template.condim,
+        "priority": template.priority,
+        "friction": np.array(template.friction),
+        "solref": np.array(template.solref),
+        "solimp": np.array(template.solimp),
+        "margin": template.margin,
+        "gap": template.gap,
+    }
+    for g in floors:
+        spec.delete(g)
+
+    field_name = "jax_contact_terrain"
+    while any(f.name == field_name for f in spec.hfields):
+        field_name += "_"
+    low, span = float(h.min()), float(h.max() - h.min())
+    # MuJoCo maps a constant field to all zeros; any positive scale then gives height low.
+    scale = span if span > 0 else 1e-3
+    ny, nx = h.shape
+    spec.add_hfield(
+        name=field_name,
+        nrow=ny,
+        ncol=nx,
+        size=[sx, sy, scale, float(base_depth)],
+        userdata=((h - low) / scale).ravel().tolist(),
+    )
+    spec.worldbody.add_geom(
+        name=geom_name,
+        type=mujoco.mjtGeom.mjGEOM_HFIELD,
+        hfieldname=field_name,
+        pos=[0.0, 0.0, low],
+        **settings,
+    )
+    mj_model = spec.compile()
+    hid = mujoco.mj_name2id(mj_model, mujoco.mjtObj.mjOBJ_HFIELD, field_name)
+    adr = mj_model.hfield_adr[hid]
+    data = np.array(mj_model.hfield_data[adr : adr + ny * nx], dtype=np.float64).reshape(ny, nx)
+    gid = mujoco.mj_name2id(mj_model, mujoco.mjtObj.mjOBJ_GEOM, geom_name)
+    terrain = HeightField(
+        heights=mj_model.geom_pos[gid, 2] + data * mj_model.hfield_size[hid, 2],
+        size_xy=(sx, sy),
+        geom_name=geom_name,
+    )
+    return Robot(
+        name=robot.name,
+        mj_model=mj_model,
+        description=derive_description(mj_model, robot.description.foot_names),
+        spec=spec,
+        terrain=terrain,
+    )

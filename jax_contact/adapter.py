@@ -1,0 +1,212 @@
+"""MJX model and data -> one :class:`LegMeasurement` per foot (leading axis ``n_legs``).
+
+The only module of the library that knows MuJoCo. Usage, inside ``jit`` / ``vmap`` over
+environments::
+
+    d = d.replace(qpos=qpos_measured, qvel=qvel_measured)
+    d = prepare(mjx_model, d)
+    meas = leg_measurements(mjx_model, d, desc, qdd=qdd_measured)   # leaves (n_legs, ...)
+
+``desc`` (a :class:`jax_contact.robot.RobotDescription`) is static: close over it or pass it
+as a static argument. The model must use MJX's JAX implementation (``mjx.put_model(m,
+impl="jax")``; Playground environments default to ``"warp"``).
+
+Where each quantity comes from (all at the state in ``mjx_data``):
+
+- ``M``: ``mjx.full_m`` (includes joint armature, like the C library's ``mj_fullM``).
+- ``h``: ``qfrc_bias`` (Coriolis, centrifugal, gravity: ``mjx.rne`` without acceleration);
+  with ``include_passive`` also minus ``qfrc_passive`` (joint springs and dampers), which
+  the paper's ``h`` does not have but a robot model may know.
+- ``tau``: ``qfrc_actuator`` (what joint torque sensors measure: the generalised actuator
+  force after force limits), unless given.
+- ``qdd``: ``qacc`` of the data (the simulator's true acceleration), unless given.
+- ``J``, ``p_f``, ``v_f``: ``mjx.jac`` at the foot sphere's centre ``geom_xpos``; ``v_f = J
+  qd``.
+- ``Jdot_qd``: the foot centre's acceleration at zero ``qacc`` without gravity, from the
+  velocity-stage quantities ``cvel`` and ``cdof_dot`` (see :func:`foot_bias_acceleration`);
+  it equals the C library's ``mj_jacDot(point) @ qvel``.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+from mujoco import mjx
+
+from jax_contact.robot import RobotDescription
+from jax_contact.types import LegMeasurement
+
+
+def prepare(mjx_model: mjx.Model, mjx_data: mjx.Data) -> mjx.Data:
+    """Runs the pipeline stages that :func:`leg_measurements` reads, at ``qpos``, ``qvel``.
+
+    Position stage: ``kinematics``, ``com_pos``, ``crb`` (mass matrix); velocity stage:
+    ``com_vel`` (``cvel``, ``cdof_dot``), ``passive``, ``rne`` (``qfrc_bias``). Unlike
+    ``mjx.forward`` it runs no collision detection, constraint solver, actuation or
+    sensors, so ``qacc``, ``qfrc_actuator`` and ``sensordata`` keep the values they had
+    (those of the simulation step that produced the data).
+
+    Args:
+      mjx_model: the MJX model (JAX implementation).
+      mjx_data: data whose ``qpos`` and ``qvel`` hold the measured state.
+
+    Returns:
+      The data with the position- and velocity-dependent fields recomputed.
+    """
+    d = mjx.kinematics(mjx_model, mjx_data)
+    d = mjx.com_pos(mjx_model, d)
+    d = mjx.crb(mjx_model, d)
+    d = mjx.com_vel(mjx_model, d)
+    d = mjx.passive(mjx_model, d)
+    return mjx.rne(mjx_model, d)
+
+
+def _motion_cross(u: jax.Array, x: jax.Array) -> jax.Array:
+    """Spatial motion cross product ``u x x`` of 6-vectors ``[angular, linear]``."""
+    w, v = u[:3], u[3:]
+    return jnp.concatenate([jnp.cross(w, x[:3]), jnp.cross(w, x[3:]) + jnp.cross(v, x[:3])])
+
+
+def _chain_dof_mask(mjx_model: mjx.Model, body_id: int) -> np.ndarray:
+    """(nv,) bool: dofs of the joints between ``body_id`` and the world."""
+    chain = set()
+    b = int(body_id)
+    while b != 0:
+        chain.add(b)
+        b = int(mjx_model.body_parentid[b])
+    return np.isin(np.asarray(mjx_model.dof_bodyid), sorted(chain))
+
+
+def _quat_dofs(mjx_model: mjx.Model) -> np.ndarray:
+    """(nv,) bool: rotational dofs of ball and free joints (axes fixed in the child body)."""
+    jnt = np.asarray(mjx_model.dof_jntid)
+    jnt_type = np.asarray(mjx_model.jnt_type)[jnt]
+    dof_adr = np.asarray(mjx_model.jnt_dofadr)[jnt]
+    ball = jnt_type == int(mujoco.mjtJoint.mjJNT_BALL)
+    free = jnt_type == int(mujoco.mjtJoint.mjJNT_FREE)
+    free_rot = free & (np.arange(mjx_model.nv) >= dof_adr + 3)
+    return ball | free_rot
+
+
+def foot_bias_acceleration(
+    mjx_model: mjx.Model,
+    mjx_data: mjx.Data,
+    body_id: jax.Array,
+    point: jax.Array,
+    chain_mask: jax.Array,
+) -> jax.Array:
+    """``d/dt(J) qd``: acceleration of a point fixed to a body when ``qacc = 0``, m/s^2.
+
+    The translational Jacobian column of dof ``i`` at point ``p`` is ``jacp_i = cdof_i[3:]
+    + cdof_i[:3] x (p - c)``, with ``cdof_i`` MuJoCo's motion axis in the world-aligned
+    frame at ``c``, the subtree COM of the root (a point held fixed over the derivative).
+    Differentiating in time,
+
+        d/dt jacp_i = cdof_dot_i[3:] + cdof_dot_i[:3] x (p - c) + cdof_i[:3] x v_p,
+
+    where ``v_p`` is the point's velocity and ``cdof_dot_i`` the axis' rate of change:
+    ``com_vel`` gives ``cvel(parent) x cdof_i`` for hinges and slides; the rotational dofs
+    of free and ball joints turn with their own body, so for them it is ``cvel(body) x
+    cdof_i``. This is the C library's ``mj_jacDot``; the result is ``sum_i d/dt jacp_i
+    qd_i`` over the dofs of the body's chain. It needs only ``cvel``, ``cdof``,
+    ``cdof_dot`` and ``subtree_com``, which :func:`prepare` computes, so it costs a few
+    cross products rather than another pass of kinematics.
+
+    Args:
+      mjx_model: the MJX model.
+      mjx_data: data after :func:`prepare`.
+      body_id: () int, the body the point is fixed to.
+      point: (3,) the point in world coordinates, m.
+      chain_mask: (nv,) bool, the dofs between the body and the world.
+
+    Returns:
+      (3,) bias acceleration of the point, world frame, m/s^2.
+    """
+    d = mjx_data
+    root = jnp.asarray(mjx_model.body_rootid)[body_id]
+    offset = point - d.subtree_com[root]
+    cvel_b = d.cvel[body_id]
+    v_point = cvel_b[3:] - jnp.cross(offset, cvel_b[:3])
+    cdof_dot_quat = jax.vmap(_motion_cross)(d.cvel[jnp.asarray(mjx_model.dof_bodyid)], d.cdof)
+    cdof_dot = jnp.where(_quat_dofs(mjx_model)[:, None], cdof_dot_quat, d.cdof_dot)
+    col = cdof_dot[:, 3:] + jnp.cross(cdof_dot[:, :3], offset) + jnp.cross(d.cdof[:, :3], v_point)
+    return jnp.where(chain_mask, d.qvel, 0.0) @ col
+
+
+def leg_measurements(
+    mjx_model: mjx.Model,
+    mjx_data: mjx.Data,
+    desc: RobotDescription,
+    *,
+    qdd: jax.Array | None = None,
+    tau: jax.Array | None = None,
+    include_passive: bool = False,
+) -> LegMeasurement:
+    """Per-leg measurements at the state of ``mjx_data`` (after :func:`prepare`).
+
+    Args:
+      mjx_model: the MJX model the description was derived from.
+      mjx_data: prepared data at the measured ``qpos``, ``qvel``.
+      desc: the robot description (static).
+      qdd: (nv,) measured generalised accelerations; default ``mjx_data.qacc``.
+      tau: (nv,) measured generalised actuation forces; default
+        ``mjx_data.qfrc_actuator``.
+      include_passive: static; if True, ``h`` also holds the joint spring and damper
+        forces: ``h = qfrc_bias - qfrc_passive``.
+
+    Returns:
+      A :class:`LegMeasurement` whose every leaf has leading axis ``n_legs``: ``q``
+      (n_legs, nq), ``qd``/``qdd``/``tau``/``h`` (n_legs, nv), ``M`` (n_legs, nv, nv),
+      ``J`` (n_legs, 3, nv), ``Jdot_qd``/``p_f``/``v_f`` (n_legs, 3), ``foot_radius``
+      (n_legs,), ``leg_dofs`` (n_legs, n_l) and ``other_dofs`` (n_legs, nv - n_l) int32.
+
+    Raises:
+      ValueError: ``desc`` does not match the model, or ``qdd``/``tau`` have the wrong
+        shape.
+    """
+    m, d = mjx_model, mjx_data
+    if (desc.nv, desc.nq) != (m.nv, m.nq):
+        raise ValueError(
+            f"desc has nv={desc.nv}, nq={desc.nq} but mjx_model has nv={m.nv}, nq={m.nq}:"
+            " derive the description from the same model"
+        )
+    for name, value in (("qdd", qdd), ("tau", tau)):
+        if value is not None and jnp.shape(value) != (m.nv,):
+            raise ValueError(f"{name} must have shape ({m.nv},) (nv), got {jnp.shape(value)}")
+    qdd = d.qacc if qdd is None else jnp.asarray(qdd)
+    tau = d.qfrc_actuator if tau is None else jnp.asarray(tau)
+    h = d.qfrc_bias - d.qfrc_passive if include_passive else d.qfrc_bias
+
+    n_legs = desc.n_legs
+    body_ids = jnp.asarray(desc.foot_body_ids, dtype=jnp.int32)
+    geom_ids = jnp.asarray(desc.foot_geom_ids, dtype=jnp.int32)
+    masks = jnp.asarray(np.stack([_chain_dof_mask(m, b) for b in desc.foot_body_ids]))
+    p_f = d.geom_xpos[geom_ids]
+
+    def per_foot(body_id, point, mask):
+        jacp, _ = mjx.jac(m, d, point, body_id)
+        acc = foot_bias_acceleration(m, d, body_id, point, mask)
+        return jacp.T, acc
+
+    J, Jdot_qd = jax.vmap(per_foot)(body_ids, p_f, masks)
+
+    def tile(x):
+        return jnp.broadcast_to(x, (n_legs,) + jnp.shape(x))
+
+    return LegMeasurement(
+        q=tile(d.qpos),
+        qd=tile(d.qvel),
+        qdd=tile(qdd),
+        tau=tile(tau),
+        M=tile(mjx.full_m(m, d)),
+        h=tile(h),
+        J=J,
+        Jdot_qd=Jdot_qd,
+        p_f=p_f,
+        v_f=J @ d.qvel,
+        foot_radius=m.geom_size[geom_ids, 0],
+        leg_dofs=jnp.asarray(desc.leg_dofs, dtype=jnp.int32),
+        other_dofs=jnp.asarray(desc.other_dofs, dtype=jnp.int32),
+    )

@@ -1,0 +1,238 @@
+"""What the estimator needs to know about a legged robot, derived from its MuJoCo model.
+
+A :class:`RobotDescription` names the feet and splits the generalised velocities into each
+leg's joints and the rest (eq. 4's ``l`` and ``b``). It holds only Python ints, floats,
+strings and tuples, so it is hashable and can be a static argument of ``jax.jit``.
+
+:func:`derive_description` reads a compiled ``mujoco.MjModel`` (C library only, no MJX):
+
+- the floor: geoms of the world body of type plane or height field;
+- the feet: sphere geoms of other bodies that can collide with a floor geom (MuJoCo's
+  contype/conaffinity rule: ``(contype_a & conaffinity_b) | (contype_b & conaffinity_a)``),
+  or the geoms / bodies named by the caller;
+- the base: the body with a free joint on the chain from a foot to the world, else the
+  first body under the world on that chain (e.g. the planar leg's base on its rail);
+- each leg: the dofs of the joints on the chain from the foot's body up to, not including,
+  the base.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Sequence
+
+import mujoco
+
+_FLOOR_TYPES = (int(mujoco.mjtGeom.mjGEOM_PLANE), int(mujoco.mjtGeom.mjGEOM_HFIELD))
+_JOINT_TRANSMISSIONS = (int(mujoco.mjtTrn.mjTRN_JOINT), int(mujoco.mjtTrn.mjTRN_JOINTINPARENT))
+# dofs per joint type, indexed by mjtJoint (free, ball, slide, hinge)
+_JOINT_DOFS = (6, 3, 1, 1)
+
+
+@dataclasses.dataclass(frozen=True)
+class RobotDescription:
+    """Feet, legs and coordinate split of a legged robot. Hashable; all fields static.
+
+    Legs are listed in foot order; every leg has the same number ``n_l`` of dofs.
+
+    Attributes:
+      foot_names: foot geom names (the body name where the geom has none).
+      foot_body_ids: body carrying each foot geom.
+      foot_geom_ids: the foot sphere geoms.
+      foot_offsets: each foot sphere's centre in its body frame, (x, y, z), m.
+      foot_radii: each foot sphere's radius, m.
+      leg_dofs: per leg, the indices into ``nv`` of its joints' dofs, base side first.
+      other_dofs: per leg, the complement of ``leg_dofs`` in ``range(nv)``, ascending.
+      base_dofs: dofs of the base's own joints (6 for a free joint, 1 for the planar
+        leg's rail, empty for a fixed base).
+      base_body_id: the base body.
+      floor_geom_ids: world geoms (plane or height field) that some foot can touch.
+      nq: number of generalised coordinates.
+      nv: number of generalised velocities.
+    """
+
+    foot_names: tuple[str, ...]
+    foot_body_ids: tuple[int, ...]
+    foot_geom_ids: tuple[int, ...]
+    foot_offsets: tuple[tuple[float, float, float], ...]
+    foot_radii: tuple[float, ...]
+    leg_dofs: tuple[tuple[int, ...], ...]
+    other_dofs: tuple[tuple[int, ...], ...]
+    base_dofs: tuple[int, ...]
+    base_body_id: int
+    floor_geom_ids: tuple[int, ...]
+    nq: int
+    nv: int
+
+    @property
+    def n_legs(self) -> int:
+        return len(self.foot_names)
+
+    @property
+    def n_leg_dofs(self) -> int:
+        """``n_l``, the number of dofs of every leg."""
+        return len(self.leg_dofs[0])
+
+
+def _can_collide(m: mujoco.MjModel, a: int, b: int) -> bool:
+    return bool(
+        (m.geom_contype[a] & m.geom_conaffinity[b]) or (m.geom_contype[b] & m.geom_conaffinity[a])
+    )
+
+
+def _geom_label(m: mujoco.MjModel, g: int) -> str:
+    return m.geom(g).name or m.body(m.geom_bodyid[g]).name
+
+
+def _body_chain(m: mujoco.MjModel, body: int) -> list[int]:
+    """Bodies from ``body`` up to (not including) the world, ``body`` first."""
+    chain = []
+    while body != 0:
+        chain.append(body)
+        body = int(m.body_parentid[body])
+    return chain
+
+
+def _body_dofs(m: mujoco.MjModel, body: int) -> list[int]:
+    start, num = int(m.body_dofadr[body]), int(m.body_dofnum[body])
+    return list(range(start, start + num)) if num > 0 else []
+
+
+def _leg(m: mujoco.MjModel, geom: int) -> tuple[int, list[int]]:
+    """(base body, sorted dofs of the joints between the geom's body and the base)."""
+    chain = _body_chain(m, int(m.geom_bodyid[geom]))
+    free = [
+        b
+        for b in chain
+        if any(
+            int(m.jnt_type[j]) == int(mujoco.mjtJoint.mjJNT_FREE)
+            for j in range(m.body_jntadr[b], m.body_jntadr[b] + m.body_jntnum[b])
+        )
+    ]
+    base = free[0] if free else chain[-1]
+    leg_bodies = chain[: chain.index(base)]
+    return base, sorted(d for b in leg_bodies for d in _body_dofs(m, b))
+
+
+def derive_description(
+    mj_model: mujoco.MjModel, foot_names: Sequence[str] | None = None
+) -> RobotDescription:
+    """Derives feet, legs and the coordinate split from a compiled model.
+
+    Args:
+      mj_model: the compiled model, including its floor.
+      foot_names: geom or body names of the feet, in the order the legs should have; None
+        takes every sphere geom that can touch the floor, in geom order.
+
+    Returns:
+      The robot's description.
+
+    Raises:
+      ValueError: with the reason, if the model has no floor, no foot can touch the floor,
+        a name is not a foot (the message lists the valid names), a foot's leg has no
+        actuated joint, or the legs have different numbers of dofs.
+    """
+    m = mj_model
+    floors = [
+        g for g in range(m.ngeom) if m.geom_bodyid[g] == 0 and int(m.geom_type[g]) in _FLOOR_TYPES
+    ]
+    if not floors:
+        raise ValueError("mj_model has no floor: no plane or height-field geom in the world body")
+
+    def touches_floor(g: int) -> bool:
+        return m.geom_bodyid[g] != 0 and any(_can_collide(m, g, f) for f in floors)
+
+    candidates = [
+        g
+        for g in range(m.ngeom)
+        if int(m.geom_type[g]) == int(mujoco.mjtGeom.mjGEOM_SPHERE) and touches_floor(g)
+    ]
+    if not candidates:
+        raise ValueError(
+            "mj_model has no floor contact: no sphere geom outside the world body can collide"
+            " with the floor (check contype/conaffinity)"
+        )
+
+    if foot_names is None:
+        # A sphere on the base itself (a bumper) can touch the floor but is no foot.
+        feet = [g for g in candidates if _leg(m, g)[1]]
+        if not feet:
+            raise ValueError(
+                "mj_model has no floor contact through a leg: the sphere geoms that can touch"
+                " the floor have no joint between them and the base"
+            )
+    else:
+        if isinstance(foot_names, str) or len(foot_names) == 0:
+            raise ValueError(
+                f"foot_names must be a non-empty sequence of names, got {foot_names!r}"
+            )
+        valid = sorted(
+            {m.geom(g).name for g in candidates if m.geom(g).name}
+            | {m.body(m.geom_bodyid[g]).name for g in candidates}
+        )
+        feet = []
+        for name in foot_names:
+            by_geom = [g for g in candidates if m.geom(g).name == name]
+            by_body = [g for g in candidates if m.body(m.geom_bodyid[g]).name == name]
+            if by_geom:
+                feet.append(by_geom[0])
+            elif by_body:
+                feet.append(by_body[0])
+            else:
+                raise ValueError(
+                    f"foot_names: {name!r} is not a sphere geom (or the body of one) that can"
+                    f" touch the floor; valid names: {valid}"
+                )
+        if len(set(feet)) != len(feet):
+            raise ValueError(f"foot_names name the same foot twice: {list(foot_names)}")
+
+    actuated = set()
+    for a in range(m.nu):
+        if int(m.actuator_trntype[a]) in _JOINT_TRANSMISSIONS:
+            j = int(m.actuator_trnid[a, 0])
+            actuated.update(
+                range(int(m.jnt_dofadr[j]), int(m.jnt_dofadr[j]) + _JOINT_DOFS[int(m.jnt_type[j])])
+            )
+
+    legs, bases = [], []
+    for g in feet:
+        base, dofs = _leg(m, g)
+        label = _geom_label(m, g)
+        if not dofs:
+            raise ValueError(f"foot {label!r} has no leg: no joint between it and the base")
+        if not actuated.intersection(dofs):
+            raise ValueError(
+                f"foot {label!r}: none of its leg's joints is actuated (no joint actuator"
+                f" drives dofs {dofs}); the estimator needs joint torques"
+            )
+        legs.append(tuple(dofs))
+        bases.append(base)
+
+    if len({len(d) for d in legs}) != 1:
+        raise ValueError(
+            "every leg must have the same number of dofs, got "
+            + ", ".join(f"{_geom_label(m, g)}: {len(d)}" for g, d in zip(feet, legs, strict=True))
+        )
+    if len(set(bases)) != 1:
+        raise ValueError(
+            "the feet hang from different bases: "
+            + ", ".join(
+                f"{_geom_label(m, g)}: {m.body(b).name}" for g, b in zip(feet, bases, strict=True)
+            )
+        )
+    base = bases[0]
+    used_floors = tuple(f for f in floors if any(_can_collide(m, g, f) for g in feet))
+    return RobotDescription(
+        foot_names=tuple(_geom_label(m, g) for g in feet),
+        foot_body_ids=tuple(int(m.geom_bodyid[g]) for g in feet),
+        foot_geom_ids=tuple(int(g) for g in feet),
+        foot_offsets=tuple(tuple(float(x) for x in m.geom_pos[g]) for g in feet),
+        foot_radii=tuple(float(m.geom_size[g, 0]) for g in feet),
+        leg_dofs=tuple(legs),
+        other_dofs=tuple(tuple(d for d in range(m.nv) if d not in leg) for leg in legs),
+        base_dofs=tuple(_body_dofs(m, base)),
+        base_body_id=int(base),
+        floor_geom_ids=used_floors,
+        nq=int(m.nq),
+        nv=int(m.nv),
+    )

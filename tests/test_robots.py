@@ -1,0 +1,317 @@
+"""Robots that load offline, their descriptions, and the height-field floor.
+
+References are independent of the loader: inertias parsed from the shipped XML with
+ElementTree, hand-derived masses, and the MuJoCo C library (ray casts, contacts).
+"""
+
+from __future__ import annotations
+
+import sys
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+import mujoco
+import numpy as np
+import pytest
+from mujoco import mjx
+
+from envs import robots
+from envs.robots import (
+    PLANAR_LEG_XML,
+    RobotUnavailableError,
+    load_robot,
+    with_terrain,
+)
+from jax_contact.robot import RobotDescription, derive_description
+
+BUILTIN = ("go1", "spot", "barkour", "planar_leg")
+
+
+@pytest.fixture(scope="module")
+def loaded():
+    return {name: load_robot(name) for name in BUILTIN}
+
+
+def _xml_inertials(path: Path) -> dict[str, tuple[float, np.ndarray, np.ndarray]]:
+    """body name -> (mass, COM in body frame, 3x3 inertia about the COM in body frame)."""
+    out = {}
+    for body in ET.parse(path).getroot().iter("body"):
+        inertial = body.find("inertial")
+        if inertial is None:
+            continue
+        quat = np.array([float(x) for x in inertial.get("quat", "1 0 0 0").split()])
+        rot = np.zeros(9)
+        mujoco.mju_quat2Mat(rot, quat / np.linalg.norm(quat))
+        rot = rot.reshape(3, 3)
+        diag = np.array([float(x) for x in inertial.get("diaginertia").split()])
+        out[body.get("name")] = (
+            float(inertial.get("mass")),
+            np.array([float(x) for x in inertial.get("pos").split()]),
+            rot @ np.diag(diag) @ rot.T,
+        )
+    return out
+
+
+def _compiled_inertia(m: mujoco.MjModel, b: int) -> np.ndarray:
+    rot = np.zeros(9)
+    mujoco.mju_quat2Mat(rot, m.body_iquat[b])
+    rot = rot.reshape(3, 3)
+    return rot @ np.diag(m.body_inertia[b]) @ rot.T
+
+
+# Hand sums of the shipped <inertial> masses: trunk + 4 x (hip + thigh + calf).
+#   go1:  5.204 + 4 * (0.68 + 1.009 + 0.195862) = 12.743448 kg
+#   spot: 32.86 + 4 * (1.68 + 2.34 + 0.35)      = 50.34 kg
+TOTAL_MASS = {"go1": 12.743448, "spot": 50.34}
+
+
+@pytest.mark.parametrize("name", ["go1", "spot"])
+def test_playground_robot_dynamics_as_shipped(loaded, name):
+    robot = loaded[name]
+    m = robot.mj_model
+    xml_dir = robots._playground_xml(name).parent
+    reference = _xml_inertials(xml_dir / f"{name}_mjx_feetonly.xml")
+    assert len(reference) == m.nbody - 1  # every body but the world has an <inertial>
+    for body_name, (mass, com, inertia) in reference.items():
+        b = m.body(body_name).id
+        np.testing.assert_allclose(m.body_mass[b], mass, rtol=1e-12, err_msg=body_name)
+        np.testing.assert_allclose(m.body_ipos[b], com, atol=1e-12, err_msg=body_name)
+        np.testing.assert_allclose(
+            _compiled_inertia(m, b), inertia, rtol=1e-9, atol=1e-12, err_msg=body_name
+        )
+    np.testing.assert_allclose(m.body_mass.sum(), TOTAL_MASS[name], rtol=1e-12)
+
+    # Collision geometry: every non-mesh geom of the shipped XML is still there, and no
+    # mesh geom or mesh asset is.
+    assert m.nmesh == 0
+    assert not np.any(m.geom_type == mujoco.mjtGeom.mjGEOM_MESH)
+    n_xml_geoms = sum(
+        1
+        for f in ("scene_mjx_feetonly_flat_terrain.xml", f"{name}_mjx_feetonly.xml")
+        for world in ET.parse(xml_dir / f).getroot().iter("worldbody")
+        for g in world.iter("geom")
+        if g.get("mesh") is None
+    )
+    assert m.ngeom == n_xml_geoms
+
+
+def test_playground_feet_as_shipped(loaded):
+    # Foot spheres from the shipped default classes: go1 size 0.023 at (0, 0, -0.213),
+    # spot size 0.036 at (0, 0, -0.3365).
+    for name, radius, z in (("go1", 0.023, -0.213), ("spot", 0.036, -0.3365)):
+        desc = loaded[name].description
+        assert desc.foot_radii == (radius,) * 4
+        assert desc.foot_offsets == ((0.0, 0.0, z),) * 4
+    assert loaded["go1"].description.foot_names == ("FR", "FL", "RR", "RL")
+    assert loaded["spot"].description.foot_names == ("FL", "FR", "HL", "HR")
+
+
+@pytest.mark.parametrize("name", ["go1", "spot", "barkour"])
+def test_quadruped_descriptions(loaded, name):
+    m = loaded[name].mj_model
+    desc = loaded[name].description
+    assert desc.n_legs == 4 and desc.n_leg_dofs == 3
+    assert desc.base_dofs == (0, 1, 2, 3, 4, 5)
+    assert (desc.nq, desc.nv) == (m.nq, m.nv) == (19, 18)
+    # The twelve leg dofs partition the joints after the free joint.
+    assert sorted(d for leg in desc.leg_dofs for d in leg) == list(range(6, 18))
+    for leg, other in zip(desc.leg_dofs, desc.other_dofs, strict=True):
+        assert sorted(leg + other) == list(range(18))
+    for g, b in zip(desc.foot_geom_ids, desc.foot_body_ids, strict=True):
+        assert m.geom_bodyid[g] == b and m.geom_type[g] == mujoco.mjtGeom.mjGEOM_SPHERE
+        # each leg's last dof is the joint of the foot's own body
+        assert m.dof_bodyid[desc.leg_dofs[desc.foot_body_ids.index(b)][-1]] == b
+    # Description is hashable, so it can be a static jit argument.
+    assert hash(desc) == hash(derive_description(m))
+
+
+@pytest.mark.parametrize("name", ["go1", "spot", "barkour", "planar_leg"])
+def test_only_feet_touch_the_floor(loaded, name):
+    m = loaded[name].mj_model
+    desc = loaded[name].description
+    floors = desc.floor_geom_ids
+    touching = {
+        g
+        for g in range(m.ngeom)
+        if m.geom_bodyid[g] != 0
+        and any(
+            (m.geom_contype[g] & m.geom_conaffinity[f])
+            or (m.geom_contype[f] & m.geom_conaffinity[g])
+            for f in floors
+        )
+    }
+    assert touching == set(desc.foot_geom_ids)
+
+
+def test_planar_leg_matches_table_one(loaded):
+    m = loaded["planar_leg"].mj_model
+    desc = loaded["planar_leg"].description
+    # Table I: base 5.449 kg; thigh 2.48 kg, 3.18e-2 kg m^2, COM 0.043 m; shank 0.31 kg,
+    # 1.383e-2 kg m^2, COM 0.039 m; pitch is the y axis.
+    for body, mass, inertia_y, com in (
+        ("thigh", 2.48, 3.18e-2, 0.043),
+        ("shank", 0.31, 1.383e-2, 0.039),
+    ):
+        b = m.body(body).id
+        np.testing.assert_allclose(m.body_mass[b], mass, rtol=1e-12)
+        np.testing.assert_allclose(_compiled_inertia(m, b)[1, 1], inertia_y, rtol=1e-9)
+        np.testing.assert_allclose(np.linalg.norm(m.body_ipos[b]), com, rtol=1e-12)
+    np.testing.assert_allclose(m.body_mass[m.body("base").id], 5.449, rtol=1e-12)
+    assert m.opt.timestep == 0.0025
+    np.testing.assert_array_equal(m.actuator_ctrlrange, [[-30.0, 30.0], [-30.0, 30.0]])
+    np.testing.assert_array_equal(m.numeric("joint_velocity_limit").data, [25.0, 25.0])
+    assert desc.n_legs == 1 and desc.leg_dofs == ((1, 2),) and desc.other_dofs == ((0,),)
+    assert desc.base_dofs == (0,) and desc.foot_names == ("foot",)
+    # Hinges about y, rail along z: the leg stays in the x-z plane.
+    np.testing.assert_array_equal(m.jnt_axis, [[0, 0, 1], [0, 1, 0], [0, 1, 0]])
+
+
+def test_planar_leg_stands_and_only_the_foot_touches():
+    robot = load_robot("planar_leg")
+    m = robot.mj_model
+    d = mujoco.MjData(m)
+    mujoco.mj_resetDataKeyframe(m, d, m.key("home").id)
+    mujoco.mj_forward(m, d)
+    # Keyframe: 0.4327 - (0.25 cos 0.6 + 0.25 cos 0.6) = 0.0200 m, the foot radius.
+    assert abs(d.geom_xpos[m.geom("foot").id][2] - 0.02) < 1e-4
+    # Fall from 0.1 m higher with the knee folding under zero torque: every contact is
+    # foot-floor.
+    d.qpos[0] += 0.1
+    pairs = set()
+    for _ in range(400):
+        mujoco.mj_step(m, d)
+        pairs |= {tuple(sorted((c.geom1, c.geom2))) for c in d.contact[: d.ncon]}
+    assert pairs == {(m.geom("floor").id, m.geom("foot").id)}
+
+
+def test_unknown_name_lists_valid_ones():
+    with pytest.raises(ValueError, match="unknown robot 'go3'") as err:
+        load_robot("go3")
+    for name in ("go1", "spot", "barkour", "planar_leg", "anybotics_anymal_c"):
+        assert name in str(err.value)
+
+
+def test_menagerie_without_package_or_root(monkeypatch):
+    monkeypatch.delenv("MENAGERIE_ROOT", raising=False)
+    monkeypatch.setitem(sys.modules, "mujoco_menagerie", None)  # import raises ImportError
+    with pytest.raises(RobotUnavailableError, match="MENAGERIE_ROOT") as err:
+        load_robot("anybotics_anymal_c")
+    assert isinstance(err.value, ValueError)
+    assert "anybotics_anymal_c" in str(err.value)
+
+
+def test_menagerie_root(monkeypatch, tmp_path):
+    monkeypatch.setenv("MENAGERIE_ROOT", str(tmp_path))
+    with pytest.raises(RobotUnavailableError, match="no anybotics_anymal_c/scene.xml"):
+        load_robot("anybotics_anymal_c")
+    # A checkout with the model in it loads (the planar leg stands in for ANYmal here).
+    (tmp_path / "anybotics_anymal_c").mkdir()
+    (tmp_path / "anybotics_anymal_c" / "scene.xml").write_text(PLANAR_LEG_XML.read_text())
+    robot = load_robot("anybotics_anymal_c")
+    assert robot.mj_model.nv == 3 and robot.description.foot_names == ("foot",)
+
+
+def test_load_from_path(tmp_path):
+    robot = load_robot(str(PLANAR_LEG_XML))
+    assert robot.description == load_robot("planar_leg").description
+    missing = tmp_path / "nope.xml"
+    with pytest.raises(ValueError, match="nope.xml"):
+        load_robot(str(missing))
+
+
+def test_barkour_foot_names_by_body(loaded):
+    m = loaded["barkour"].mj_model
+    names = ("lower_leg_1to1_hind_left", "lower_leg_1to1_front_right")
+    desc = derive_description(m, names)
+    assert desc.foot_names == names
+    assert [m.body(b).name for b in desc.foot_body_ids] == list(names)
+
+
+def _mjcf(
+    body: str,
+    floor: str = '<geom name="floor" type="plane" size="1 1 .1"/>',
+    actuator: str = '<actuator><motor joint="j"/></actuator>',
+    base: str = "<geom type='box' size='.1 .1 .1' mass='1'/>",
+) -> mujoco.MjModel:
+    """A base on a slide rail, one hinged leg body holding ``body``, a floor."""
+    return mujoco.MjModel.from_xml_string(
+        f"<mujoco><worldbody>{floor}<body name='base'><joint type='slide'/>"
+        f"{base}<body name='b'><joint name='j' type='hinge'/>"
+        "<inertial pos='0 0 -.1' mass='.5' diaginertia='.01 .01 .01'/>"
+        f"{body}</body></body></worldbody>{actuator}</mujoco>"
+    )
+
+
+def test_description_refusals(loaded):
+    foot = '<geom name="toe" type="sphere" size=".02" pos="0 0 -.3"/>'
+    # A sphere on the base (no joint between it and the base) can touch the floor: no foot.
+    with pytest.raises(ValueError, match="no floor contact through a leg"):
+        derive_description(_mjcf("", base="<geom type='sphere' size='.1' mass='1'/>"))
+    with pytest.raises(ValueError, match="no floor"):
+        derive_description(_mjcf(foot, floor=""))
+    with pytest.raises(ValueError, match="no floor contact: no sphere geom"):
+        derive_description(_mjcf(foot.replace("/>", ' contype="0" conaffinity="0"/>')))
+    with pytest.raises(ValueError, match="none of its leg's joints is actuated"):
+        derive_description(_mjcf(foot, actuator=""))
+    assert derive_description(_mjcf(foot)).foot_names == ("toe",)
+    with pytest.raises(ValueError, match=r"'heel'.*valid names: \['FL', 'FL_calf'"):
+        derive_description(loaded["go1"].mj_model, ["FL", "heel"])
+    with pytest.raises(ValueError, match="same foot twice"):
+        derive_description(loaded["go1"].mj_model, ["FL", "FL_calf"])
+
+
+def test_description_is_frozen(loaded):
+    desc = loaded["go1"].description
+    assert isinstance(desc, RobotDescription)
+    with pytest.raises(AttributeError):
+        desc.nv = 3
+
+
+@pytest.fixture(scope="module")
+def rough_go1(loaded):
+    rng = np.random.default_rng(7)
+    heights = rng.uniform(-0.03, 0.05, size=(21, 31))
+    return heights, with_terrain(loaded["go1"], heights, (3.0, 2.0))
+
+
+def test_terrain_heights_as_requested(rough_go1, loaded):
+    heights, robot = rough_go1
+    m = robot.mj_model
+    span = heights.max() - heights.min()
+    np.testing.assert_allclose(robot.terrain.heights, heights, atol=1e-6 * span)
+    # Independent check: cast rays straight down with the C library at sample points.
+    d = mujoco.MjData(m)
+    mujoco.mj_forward(m, d)
+    geom_id = np.zeros(1, np.int32)
+    ny, nx = heights.shape
+    for r, c in ((0, 0), (10, 15), (20, 30), (3, 27)):
+        x = -3.0 + 6.0 * c / (nx - 1)
+        y = -2.0 + 4.0 * r / (ny - 1)
+        floor_group = np.array([1, 0, 0, 0, 0, 0], np.uint8)  # the robot's geoms are group 3
+        dist = mujoco.mj_ray(
+            m, d, np.array([x, y, 1.0]), np.array([0, 0, -1.0]), floor_group, 1, -1, geom_id
+        )
+        assert geom_id[0] == m.geom("floor").id
+        np.testing.assert_allclose(1.0 - dist, heights[r, c], atol=1e-6)
+    # The floor sensors still name the floor, and the input robot is unchanged.
+    assert m.nsensor == loaded["go1"].mj_model.nsensor
+    assert m.geom_type[robot.description.floor_geom_ids[0]] == mujoco.mjtGeom.mjGEOM_HFIELD
+    assert loaded["go1"].mj_model.geom_type[0] == mujoco.mjtGeom.mjGEOM_PLANE
+    assert robot.description.foot_geom_ids == loaded["go1"].description.foot_geom_ids
+
+
+def test_terrain_constant_and_refusals(loaded):
+    robot = with_terrain(loaded["planar_leg"], np.full((3, 4), 0.1), (1.0, 1.0))
+    np.testing.assert_allclose(robot.terrain.heights, 0.1, atol=1e-9)
+    with pytest.raises(ValueError, match="heights must have shape"):
+        with_terrain(loaded["planar_leg"], np.zeros(5), (1.0, 1.0))
+    with pytest.raises(ValueError, match="size_xy"):
+        with_terrain(loaded["planar_leg"], np.zeros((3, 3)), (0.0, 1.0))
+    with pytest.raises(ValueError, match="finite"):
+        with_terrain(loaded["planar_leg"], np.full((3, 3), np.nan), (1.0, 1.0))
+
+
+def test_put_model_smoke(loaded, rough_go1):
+    for robot in (*loaded.values(), rough_go1[1]):
+        mm = mjx.put_model(robot.mj_model)
+        assert (mm.nq, mm.nv) == (robot.mj_model.nq, robot.mj_model.nv)
