@@ -2,19 +2,17 @@
 
 from __future__ import annotations
 
-import json
 import os
 import platform
 import statistics
-import tempfile
 import time
 from collections.abc import Callable
-from pathlib import Path
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jax_contact.io import write_json_atomic
 from jax_contact.types import LegMeasurement
 
 
@@ -104,17 +102,8 @@ def machine() -> dict:
 
 
 def write_json(path: str | os.PathLike, payload: dict) -> None:
-    """Writes JSON atomically: a temporary file in the same folder, then a rename."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w") as f:
-            json.dump(payload, f, indent=2)
-        os.replace(tmp, path)
-    except BaseException:
-        os.unlink(tmp)
-        raise
+    """Writes the results atomically (see ``jax_contact.io.write_json_atomic``)."""
+    write_json_atomic(path, payload)
 
 
 def format_table(rows: list[dict], columns: list[tuple[str, str, str]]) -> list[str]:

@@ -129,3 +129,36 @@ def _decode(value):
     if isinstance(value, np.generic):
         return value.item()
     return value
+
+
+def write_json_atomic(path: str | os.PathLike, payload) -> Path:
+    """Writes ``payload`` as JSON atomically (temporary file in the same folder, then rename).
+
+    NaN and infinity are written as ``null``, so the file is strict JSON.
+    """
+    path = Path(path)
+    text = json.dumps(_finite(payload), indent=2)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "w") as f:
+            f.write(text)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return path
+
+
+def _finite(x):
+    if isinstance(x, dict):
+        return {str(k): _finite(v) for k, v in x.items()}
+    if isinstance(x, list | tuple):
+        return [_finite(v) for v in x]
+    if isinstance(x, np.ndarray):
+        return _finite(x.tolist())
+    if isinstance(x, np.generic):
+        x = x.item()
+    if isinstance(x, float) and not np.isfinite(x):
+        return None
+    return x

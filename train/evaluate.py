@@ -104,7 +104,8 @@ def replay(
     static = dict(desc=desc, dt=float(dt), diagnostics_of=diagnostics_of)
     first = tuple(jnp.asarray(np.nan_to_num(a[0])) for a in (qpos, qvel, qacc, tau))
     beliefs, gm_states = _replay_init(*models, first, **static)
-    carry = (beliefs, gm_states, jax.random.key(seed))
+    # Committed like the chunk's outputs, or jit would compile the chunk a second time.
+    carry = jax.device_put((beliefs, gm_states, jax.random.key(seed)), jax.devices()[0])
     pieces = []
     t_wall = time.perf_counter()
     for start in range(0, n_t, chunk):

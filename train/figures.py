@@ -1,0 +1,75 @@
+"""Figures in the style of the paper's Fig. 5, 7 and 10 (PNG, matplotlib's Agg backend)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+
+def plot_estimate(
+    outputs: dict,
+    rollout,
+    name: str,
+    path: str | Path,
+    *,
+    env: int = 0,
+    leg: int = 0,
+    seconds: float = 2.0,
+    title: str = "",
+    gm: np.ndarray | None = None,
+) -> Path:
+    """Fused estimate, each term, both transition probabilities and ground truth of one foot.
+
+    Args:
+      outputs: from ``train.evaluate.replay`` with ``diagnostics_of=name``.
+      rollout: the simulated rollout (``time``, ``contact``, ``force``).
+      name: the estimator whose diagnostics to plot.
+      path: PNG file to write (its folder must exist).
+      env, leg: which foot.
+      seconds: how much of the start of the run to show.
+      title: figure title.
+      gm: optional (T, E, L) GM contact flag to overlay.
+
+    Returns:
+      The path written.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    t = np.asarray(rollout.time)
+    sl = slice(0, int(min(len(t), max(2, round(seconds / max(t[1] - t[0], 1e-9))))))
+    t = t[sl]
+    truth = np.asarray(rollout.contact)[sl, env, leg].astype(float)
+    fig, ax = plt.subplots(5, 1, figsize=(10, 9), sharex=True)
+    ax[0].plot(t, outputs[name][sl, env, leg], label="fused P(contact)")
+    ax[0].plot(t, truth, "k--", lw=1, label="ground truth")
+    if gm is not None:
+        ax[0].plot(t, 0.95 * gm[sl, env, leg], "r:", lw=1, label="GM (x0.95)")
+    ax[0].set_ylabel("fused")
+    ax[0].legend(loc="lower right", fontsize=8)
+    for field, label in (
+        ("p_dynamics", "dynamics"),
+        ("p_diff_kinematics", "diff. kinematics"),
+        ("p_kinematics", "kinematics"),
+    ):
+        ax[1].plot(t, outputs[f"{name}/{field}"][sl, env, leg], label=label)
+    ax[1].set_ylabel("terms")
+    ax[1].legend(loc="lower right", fontsize=8)
+    ax[2].plot(t, outputs[f"{name}/p_takeoff"][sl, env, leg])
+    ax[2].set_ylabel("P(take-off)")
+    ax[3].plot(t, outputs[f"{name}/p_touchdown"][sl, env, leg])
+    ax[3].set_ylabel("P(touch-down)")
+    ax[4].plot(t, np.asarray(rollout.force)[sl, env, leg])
+    ax[4].set_ylabel("normal force, N")
+    ax[4].set_xlabel("time, s")
+    for a in ax[:3]:
+        a.set_ylim(-0.05, 1.05)
+    fig.suptitle(title)
+    fig.tight_layout()
+    path = Path(path)
+    fig.savefig(path, dpi=80)
+    plt.close(fig)
+    return path
