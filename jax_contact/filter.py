@@ -32,7 +32,8 @@ def init_belief(params: EstimatorParams) -> LegBelief:
     return LegBelief(
         logit=jnp.log(p) - jnp.log1p(-p),
         log_transition=log_prior_transition(params),
-        foothold=jnp.zeros(3, jnp.float32),
+        # The parameters' float type, so a float64 filter keeps a float64 scan carry.
+        foothold=jnp.zeros(3, jnp.result_type(params.dt)),
         foothold_valid=jnp.array(False),
     )
 

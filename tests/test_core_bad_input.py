@@ -1,0 +1,348 @@
+"""Bad input: invalid parameters and shapes raise early and name the field; a NaN or inf in
+one foot's measurement stays in that foot.
+
+Batches use the planar leg (``oracle.random_planar``) and the session-wide jitted entry
+points of ``conftest.py``, with the shapes and static parameters of
+``test_core_properties`` so that the compilations are shared.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import oracle
+import pytest
+
+from jax_contact import (
+    LegMeasurement,
+    flat,
+    init_belief_batch,
+    make_noise,
+    make_params,
+    step,
+    validate_measurement,
+    validate_params,
+)
+
+NOISE_FIELDS = (
+    "sigma_q",
+    "sigma_qd",
+    "sigma_qdd",
+    "sigma_d",
+    "sigma_f",
+    "sigma_J",
+    "sigma_qd_prior",
+)
+MODES = ("quadrature", "monte_carlo")
+PARAMS = {
+    mode: make_params(make_noise(3, **oracle.TABLE_II), force_rows=(0, 2), touchdown=mode)
+    for mode in MODES
+}
+TERRAIN = flat(0.0, 0.05)
+N_ENVS, N_LEGS = 2, 2
+
+
+# --------------------------------------------------------------------------- parameters
+
+
+NV = 4  # distinct from the 3 world axes of sigma_f and sigma_J
+
+
+def _length(field):
+    return 3 if field in ("sigma_f", "sigma_J") else NV
+
+
+@pytest.mark.parametrize("field", NOISE_FIELDS)
+@pytest.mark.parametrize("value", [0.0, -1.0, np.nan, np.inf])
+def test_noise_std_must_be_positive(field, value):
+    with pytest.raises(ValueError, match=field):
+        make_noise(NV, **{field: value})
+    # One bad entry among good ones.
+    arr = np.full(_length(field), 0.5)
+    arr[1] = value
+    with pytest.raises(ValueError, match=field):
+        make_noise(NV, **{field: arr})
+    # A params object edited after construction is caught by validate_params.
+    good = make_params(make_noise(NV))
+    bad_noise = good.noise.replace(**{field: jnp.asarray(arr, jnp.float32)})
+    with pytest.raises(ValueError, match=field):
+        validate_params(good.replace(noise=bad_noise))
+
+
+@pytest.mark.parametrize("field", NOISE_FIELDS)
+def test_noise_shape_is_checked(field):
+    with pytest.raises(ValueError, match=field):
+        make_noise(NV, **{field: np.ones(_length(field) + 1)})
+
+
+@pytest.mark.parametrize("cap", ["cap_dynamics", "cap_diff_kinematics", "cap_kinematics"])
+@pytest.mark.parametrize("value", [0.5, 0.3, 0.0, -0.2, 1.01, np.nan])
+def test_caps_outside_half_open_interval(cap, value):
+    with pytest.raises(ValueError, match=cap):
+        make_params(make_noise(3), **{cap: value})
+
+
+@pytest.mark.parametrize("cap", ["cap_dynamics", "cap_diff_kinematics", "cap_kinematics"])
+def test_caps_inside_interval_are_accepted(cap):
+    for value in (0.500001, 0.9, 1.0):
+        make_params(make_noise(3), **{cap: value})
+
+
+@pytest.mark.parametrize(
+    "kwargs, field",
+    [
+        (dict(n_samples=0), "n_samples"),
+        (dict(n_samples=-3), "n_samples"),
+        (dict(n_samples=2.5), "n_samples"),
+        (dict(n_quad=0), "n_quad"),
+        (dict(touchdown="mc"), "touchdown"),
+        (dict(touchdown=""), "touchdown"),
+        (dict(force_rows=()), "force_rows"),
+        (dict(force_rows=(0, 0)), "force_rows"),
+        (dict(force_rows=(3,)), "force_rows"),
+        (dict(force_rows=(-1, 2)), "force_rows"),
+        (dict(force_rows=(0, 1, 2, 1)), "force_rows"),
+        (dict(dt=0.0), "dt"),
+        (dict(dt=np.nan), "dt"),
+        (dict(stance_time=-0.3), "stance_time"),
+        (dict(stance_time=0.002), "stance_time"),  # not above dt = 0.0025
+        (dict(swing_time=0.0025), "swing_time"),
+        (dict(takeoff_accel=0.0), "takeoff_accel"),
+        (dict(inv_damping=-1e-6), "inv_damping"),
+        (dict(initial_contact=0.0), "initial_contact"),
+        (dict(initial_contact=1.0), "initial_contact"),
+    ],
+)
+def test_bad_scalar_and_static_params(kwargs, field):
+    with pytest.raises(ValueError, match=field):
+        make_params(make_noise(3), **kwargs)
+
+
+def test_bad_static_field_after_replace():
+    params = make_params(make_noise(3))
+    for kwargs, field in [
+        (dict(n_samples=0), "n_samples"),
+        (dict(touchdown="exact"), "touchdown"),
+        (dict(force_rows=(0, 5)), "force_rows"),
+    ]:
+        with pytest.raises(ValueError, match=field):
+            validate_params(params.replace(**kwargs))
+
+
+# --------------------------------------------------------------------------- shapes
+
+
+def _meas_fields(lead=()):
+    fields = oracle.planar_measurement(*oracle.planar_stance())
+    return {k: np.broadcast_to(np.asarray(v), lead + np.shape(v)).copy() for k, v in fields.items()}
+
+
+def _as_meas(fields) -> LegMeasurement:
+    def conv(x):
+        x = np.asarray(x)
+        return jnp.asarray(x, jnp.int32 if np.issubdtype(x.dtype, np.integer) else jnp.float32)
+
+    return LegMeasurement(**{k: conv(v) for k, v in fields.items()})
+
+
+def test_validate_measurement_accepts_good_shapes():
+    assert validate_measurement(LegMeasurement(**_meas_fields())) == ()
+    assert validate_measurement(LegMeasurement(**_meas_fields((4, 2))), nv=3) == (4, 2)
+
+
+@pytest.mark.parametrize(
+    "field, bad_shape",
+    [
+        ("qdd", (4,)),
+        ("tau", (2,)),
+        ("M", (3, 2)),
+        ("M", (3,)),
+        ("h", (3, 1)),
+        ("J", (2, 3)),
+        ("J", (3, 4)),
+        ("Jdot_qd", (2,)),
+        ("p_f", (4,)),
+        ("v_f", ()),
+        ("foot_radius", (1,)),
+        ("other_dofs", (2,)),
+    ],
+)
+@pytest.mark.parametrize("lead", [(), (5,), (2, 3)], ids=["unbatched", "T", "envs_legs"])
+def test_validate_measurement_names_field_and_shapes(field, bad_shape, lead):
+    fields = _meas_fields(lead)
+    fields[field] = np.zeros(lead + bad_shape, fields[field].dtype)
+    with pytest.raises(ValueError, match=field) as info:
+        validate_measurement(LegMeasurement(**fields))
+    assert str(lead + bad_shape) in str(info.value)  # the shape it got
+    if field != "other_dofs":
+        assert "expected" in str(info.value)
+
+
+def test_validate_measurement_other_mistakes():
+    fields = _meas_fields((2, 2))
+    fields["p_f"] = np.zeros((2, 3, 3))  # a batch axis that disagrees with qd's
+    with pytest.raises(ValueError, match="p_f"):
+        validate_measurement(LegMeasurement(**fields))
+    with pytest.raises(ValueError, match="nv"):
+        validate_measurement(LegMeasurement(**_meas_fields()), nv=4)
+    fields = _meas_fields()
+    fields["q"] = np.zeros((2, 3))
+    with pytest.raises(ValueError, match="'q'"):
+        validate_measurement(LegMeasurement(**fields))
+    fields = _meas_fields()
+    fields["leg_dofs"] = fields["leg_dofs"].astype(np.float32)
+    with pytest.raises(ValueError, match="leg_dofs"):
+        validate_measurement(LegMeasurement(**fields))
+    fields = _meas_fields()
+    fields["leg_dofs"] = np.zeros((0,), np.int32)
+    fields["other_dofs"] = np.arange(3, dtype=np.int32)
+    with pytest.raises(ValueError, match="leg_dofs"):
+        validate_measurement(LegMeasurement(**fields))
+
+
+# --------------------------------------------------------------------------- NaN isolation
+
+
+def _batch(seed):
+    rng = np.random.default_rng(seed)
+    cells = [oracle.random_planar(rng) for _ in range(N_ENVS * N_LEGS)]
+    stacked = {k: np.stack([c[k] for c in cells]) for k in cells[0]}
+    return {k: v.reshape((N_ENVS, N_LEGS) + v.shape[1:]) for k, v in stacked.items()}
+
+
+def _belief(params, seed):
+    rng = np.random.default_rng(seed)
+    b = init_belief_batch(params, N_ENVS, N_LEGS)
+    logit = jnp.asarray(rng.normal(scale=3.0, size=(N_ENVS, N_LEGS)), jnp.float32)
+    # A non-trivial transition matrix, as after a real step.
+    p_off = rng.uniform(0.001, 0.5, (N_ENVS, N_LEGS))
+    p_on = rng.uniform(0.001, 0.5, (N_ENVS, N_LEGS))
+    T = np.stack([np.stack([1 - p_off, p_off], -1), np.stack([p_on, 1 - p_on], -1)], -2)
+    return b.replace(logit=logit, log_transition=jnp.asarray(np.log(T), jnp.float32))
+
+
+def _transition_only(belief, e, g):
+    """eq. 1 without the measurement: log sum_x' T(x' -> x) b(x'), as a logit."""
+    l = float(belief.logit[e, g])
+    T = np.exp(np.asarray(belief.log_transition[e, g], np.float64))
+    b = np.array([1.0 / (1.0 + np.exp(-l)), 1.0 / (1.0 + np.exp(l))])
+    prior = b @ T
+    return np.log(prior[0]) - np.log(prior[1])
+
+
+BAD = [("qdd", np.nan), ("M", np.nan), ("J", np.inf), ("p_f", -np.inf), ("q", np.nan),
+       ("tau", np.inf), ("v_f", np.nan), ("foot_radius", np.nan)]  # fmt: skip
+
+
+def _check_isolated(fn, params, field, value, where):
+    fields = _batch(3)
+    belief = _belief(params, 4)
+    key = jax.random.key(9)
+    clean_b, clean_d = fn(params, TERRAIN, belief, _as_meas(fields), key=key)
+    e, g = where
+    bad = {k: v.copy() for k, v in fields.items()}
+    target = bad[field][e, g]
+    if target.ndim:
+        target.flat[min(1, target.size - 1)] = value
+    else:
+        bad[field][e, g] = value
+    got_b, got_d = fn(params, TERRAIN, belief, _as_meas(bad), key=key)
+    for i in range(N_ENVS):
+        for j in range(N_LEGS):
+            if (i, j) == (e, g):
+                continue
+            for x, y in zip(
+                jax.tree.leaves((got_b, got_d)), jax.tree.leaves((clean_b, clean_d)), strict=True
+            ):
+                np.testing.assert_array_equal(np.asarray(x)[i, j], np.asarray(y)[i, j])
+    assert not bool(got_d.valid[e, g]) and bool(clean_d.valid[e, g])
+    logit = float(got_b.logit[e, g])
+    assert np.isfinite(logit)
+    np.testing.assert_allclose(logit, _transition_only(belief, e, g), rtol=1e-5, atol=1e-5)
+    np.testing.assert_allclose(float(got_d.p_contact[e, g]), 1 / (1 + np.exp(-logit)), rtol=1e-6)
+    # Next transition: the gait prior; foothold kept; terms and force flagged as NaN.
+    dt, ts, tsw = (float(params.dt), float(params.stance_time), float(params.swing_time))
+    prior_t = np.log([[1 - dt / ts, dt / ts], [dt / tsw, 1 - dt / tsw]])
+    np.testing.assert_allclose(np.asarray(got_b.log_transition[e, g]), prior_t, rtol=1e-6)
+    np.testing.assert_array_equal(
+        np.asarray(got_b.foothold[e, g]), np.asarray(belief.foothold[e, g])
+    )
+    assert bool(got_b.foothold_valid[e, g]) == bool(belief.foothold_valid[e, g])
+    assert np.isnan(float(got_d.p_dynamics[e, g])) and np.isnan(np.asarray(got_d.force[e, g])).all()
+    for leaf in jax.tree.leaves(got_b):
+        assert np.isfinite(np.asarray(leaf, np.float64)).all()
+
+
+def test_nan_foot_eager():
+    """One foot op by op (no jit): the same transition-only prediction.
+
+    Unbatched, so that it reuses the primitives compiled for test_core_properties'
+    jit-vs-no-jit test; batch isolation is checked jitted, in both modes, below.
+    """
+    params = PARAMS["quadrature"]
+    fields = _batch(3)
+    belief = _belief(params, 4)
+    bad = {k: v[1, 0].copy() for k, v in fields.items()}
+    bad["qdd"][2] = np.nan
+    b = jax.tree.map(lambda x: x[1, 0], belief)
+    got_b, got_d = step(params, TERRAIN, b, _as_meas(bad), key=jax.random.key(0))
+    assert not bool(got_d.valid)
+    np.testing.assert_allclose(
+        float(got_b.logit), _transition_only(belief, 1, 0), rtol=1e-5, atol=1e-5
+    )
+    assert np.isnan(float(got_d.p_dynamics))
+    assert np.isfinite(np.asarray(got_b.log_transition)).all()
+
+
+@pytest.mark.parametrize("mode", MODES)
+@pytest.mark.parametrize("i", range(len(BAD)), ids=[f"{f}-{v}" for f, v in BAD])
+def test_nan_stays_in_its_foot_jit(mode, i, jit_step_batch):
+    field, value = BAD[i]
+    _check_isolated(jit_step_batch, PARAMS[mode], field, value, (i % N_ENVS, (i // 2) % N_LEGS))
+
+
+T_RUN = 6  # as test_core_properties, to share run's compilation
+
+
+def test_nan_in_run_recovers(jit_run):
+    """A NaN at step 2 in one foot of a run: that step is the transition-only prediction,
+    the other feet are untouched, and the foot recovers once its measurements are good."""
+    params = PARAMS["monte_carlo"]
+    rng = np.random.default_rng(21)
+    seq = []
+    for t in range(T_RUN):
+        cells = [oracle.random_planar(rng, stance=(t < 3) != (k % 2 == 0)) for k in range(4)]
+        stacked = {k: np.stack([c[k] for c in cells]) for k in cells[0]}
+        seq.append({k: v.reshape((N_ENVS, N_LEGS) + v.shape[1:]) for k, v in stacked.items()})
+    clean = {k: np.stack([s[k] for s in seq]) for k in seq[0]}
+    bad = {k: v.copy() for k, v in clean.items()}
+    bad["qdd"][2, 0, 1, 1] = np.nan
+    belief = init_belief_batch(params, N_ENVS, N_LEGS)
+    key = jax.random.key(4)
+    clean_b, clean_d = jit_run(params, TERRAIN, belief, _as_meas(clean), key=key)
+    got_b, got_d = jit_run(params, TERRAIN, belief, _as_meas(bad), key=key)
+
+    valid = np.asarray(got_d.valid)
+    assert not valid[2, 0, 1] and valid.sum() == valid.size - 1
+    # The other feet: bitwise the clean run, beliefs (envs, legs, ...) and diagnostics
+    # (T, envs, legs, ...).
+    others = [(e, g) for e in range(N_ENVS) for g in range(N_LEGS) if (e, g) != (0, 1)]
+    for x, y in zip(jax.tree.leaves(got_b), jax.tree.leaves(clean_b), strict=True):
+        for e, g in others:
+            np.testing.assert_array_equal(np.asarray(x)[e, g], np.asarray(y)[e, g])
+    for x, y in zip(jax.tree.leaves(got_d), jax.tree.leaves(clean_d), strict=True):
+        for e, g in others:
+            np.testing.assert_array_equal(np.asarray(x)[:, e, g], np.asarray(y)[:, e, g])
+    # Step 2 of that foot: eq. 1 alone, from step 1's belief and transition.
+    p1 = float(got_d.p_contact[1, 0, 1])
+    to, td = float(got_d.p_takeoff[1, 0, 1]), float(got_d.p_touchdown[1, 0, 1])
+    np.testing.assert_allclose(
+        float(got_d.p_contact[2, 0, 1]), p1 * (1 - to) + (1 - p1) * td, rtol=1e-5
+    )
+    # Recovery: valid again, and back on the clean run's belief.
+    assert valid[3:, 0, 1].all()
+    p_got = np.asarray(got_d.p_contact[:, 0, 1])
+    p_clean = np.asarray(clean_d.p_contact[:, 0, 1])
+    assert abs(p_got[-1] - p_clean[-1]) < 1e-3, (p_got, p_clean)
+    assert np.isfinite(np.asarray(got_b.logit)).all()

@@ -1,0 +1,295 @@
+"""Structural properties of the estimator core: jit, vmap, keys, scan, long runs, gradients.
+
+Everything runs on the planar leg of the paper's Section III (``oracle.planar_leg``, nv = 3,
+force rows x and z) with Table II's noise, through the session-wide jitted entry points of
+``conftest.py`` so that compilations are shared with the other test files.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import oracle
+import pytest
+
+from jax_contact import (
+    LegMeasurement,
+    flat,
+    init_belief,
+    init_belief_batch,
+    log_touchdown_monte_carlo,
+    make_noise,
+    make_params,
+    sequence_bce,
+    step,
+)
+
+MODES = ("quadrature", "monte_carlo")
+PARAMS = {
+    mode: make_params(make_noise(3, **oracle.TABLE_II), force_rows=(0, 2), touchdown=mode)
+    for mode in MODES
+}
+TERRAIN = flat(0.0, 0.05)
+N_ENVS, N_LEGS = 2, 2
+
+# float32, fused (jit) vs op-by-op (eager) or batched vs unbatched: a few ulp apart.
+RTOL, ATOL = 2e-5, 1e-6
+
+
+def _as_meas(fields) -> LegMeasurement:
+    def conv(x):
+        x = np.asarray(x)
+        return jnp.asarray(x, jnp.int32 if np.issubdtype(x.dtype, np.integer) else jnp.float32)
+
+    return LegMeasurement(**{k: conv(v) for k, v in fields.items()})
+
+
+def _stack(dicts):
+    return {k: np.stack([d[k] for d in dicts]) for k in dicts[0]}
+
+
+def _batch_meas(rng, lead, stance=None) -> LegMeasurement:
+    """Random planar-leg measurements with leading axes ``lead``."""
+    n = int(np.prod(lead))
+    flat_ = _stack([oracle.random_planar(rng, stance) for _ in range(n)])
+    return _as_meas({k: v.reshape(lead + v.shape[1:]) for k, v in flat_.items()})
+
+
+def _falling_meas() -> LegMeasurement:
+    """A foot 1 cm above the floor falling at 1.46 m/s: P(C|A) ~ 0.05 (sigma_pi 5 cm)."""
+    return _as_meas(oracle.planar_measurement(*oracle.planar_swing(0.01, 0.3, -1.0, (2.0, 8.0))))
+
+
+def _random_belief(rng, params, lead):
+    b = init_belief_batch(params, *lead) if len(lead) == 2 else init_belief(params)
+    return b.replace(logit=jnp.asarray(rng.normal(scale=4.0, size=lead), jnp.float32))
+
+
+def _assert_trees_close(a, b, rtol=RTOL, atol=ATOL):
+    for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b), strict=True):
+        np.testing.assert_allclose(np.asarray(x), np.asarray(y), rtol=rtol, atol=atol)
+
+
+def _index(tree, *idx):
+    return jax.tree.map(lambda x: x[idx], tree)
+
+
+def test_jit_equals_no_jit(jit_step):
+    """The whole step, op by op and jitted (quadrature), and the Monte-Carlo transition.
+
+    Running a whole step op by op compiles every primitive on its own (~15 s on 2 cores),
+    so the Monte-Carlo mode is checked on the one function that differs between the modes.
+    """
+    rng = np.random.default_rng(1)
+    params = PARAMS["quadrature"]
+    key = jax.random.key(3)
+    meas = _batch_meas(rng, (2,))
+    belief = _random_belief(rng, params, ())
+    for m in [_index(meas, 0), _index(meas, 1), _falling_meas()]:
+        eager = step(params, TERRAIN, belief, m, key=key)
+        jitted = jit_step(params, TERRAIN, belief, m, key=key)
+        _assert_trees_close(eager, jitted)
+    args = (jnp.float32(0.01), jnp.float32(0.04), jnp.float32(0.05), jnp.float32(-1.5),
+            jnp.float32(0.2), jnp.float32(0.0025))  # fmt: skip
+    eager = log_touchdown_monte_carlo(*args, 500, key=key)
+    jitted = jax.jit(log_touchdown_monte_carlo, static_argnums=6)(*args, 500, key=key)
+    np.testing.assert_allclose(np.asarray(eager), np.asarray(jitted), rtol=RTOL, atol=ATOL)
+
+
+@pytest.mark.parametrize("mode", MODES)
+def test_step_batch_equals_per_foot_step(mode, jit_step, jit_step_batch):
+    """vmap over (envs, legs) equals a Python loop of step with the same split keys."""
+    rng = np.random.default_rng(2)
+    params = PARAMS[mode]
+    lead = (N_ENVS, N_LEGS)
+    meas = _batch_meas(rng, lead)
+    belief = _random_belief(rng, params, lead)
+    key = jax.random.key(5)
+    got_b, got_d = jit_step_batch(params, TERRAIN, belief, meas, key=key)
+    keys = jax.random.split(key, N_ENVS * N_LEGS)  # step_batch's documented split
+    for e in range(N_ENVS):
+        for leg in range(N_LEGS):
+            want = jit_step(
+                params,
+                TERRAIN,
+                _index(belief, e, leg),
+                _index(meas, e, leg),
+                key=keys[e * N_LEGS + leg],
+            )
+            _assert_trees_close(_index((got_b, got_d), e, leg), want)
+
+
+def test_keys_reproducible(jit_step):
+    params = PARAMS["monte_carlo"]
+    belief = init_belief(params)
+    meas = _falling_meas()
+    a = jit_step(params, TERRAIN, belief, meas, key=jax.random.key(0))
+    b = jit_step(params, TERRAIN, belief, meas, key=jax.random.key(0))
+    c = jit_step(params, TERRAIN, belief, meas, key=jax.random.key(1))
+    for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b), strict=True):
+        np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
+    p_a, p_c = float(a[1].p_touchdown), float(c[1].p_touchdown)
+    assert 0.01 < p_a < 0.99, p_a
+    assert p_a != p_c  # a different Monte-Carlo estimate
+    assert abs(p_a - p_c) < 0.2  # ... of the same quantity (500 draws)
+    # The quadrature ignores the key.
+    params = PARAMS["quadrature"]
+    q0 = jit_step(params, TERRAIN, belief, meas, key=jax.random.key(0))
+    q1 = jit_step(params, TERRAIN, belief, meas, key=jax.random.key(1))
+    for x, y in zip(jax.tree.leaves(q0), jax.tree.leaves(q1), strict=True):
+        np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
+
+
+T_RUN = 6
+
+
+def _run_inputs(seed, params):
+    rng = np.random.default_rng(seed)
+    lead = (N_ENVS, N_LEGS)
+    seq = [_batch_meas(rng, lead) for _ in range(T_RUN)]
+    meas_seq = jax.tree.map(lambda *xs: jnp.stack(xs), *seq)
+    return init_belief_batch(params, *lead), meas_seq
+
+
+def test_run_equals_loop_of_step_batch(jit_run, jit_step_batch):
+    """run's lax.scan equals a Python loop of step_batch with run's key schedule."""
+    params = PARAMS["monte_carlo"]
+    belief, meas_seq = _run_inputs(7, params)
+    key = jax.random.key(11)
+    got_b, got_d = jit_run(params, TERRAIN, belief, meas_seq, key=key)
+    b, k = belief, key
+    for t in range(T_RUN):
+        k, sub = jax.random.split(k)  # run's documented schedule: split once per step
+        b, d = jit_step_batch(params, TERRAIN, b, _index(meas_seq, t), key=sub)
+        _assert_trees_close(_index(got_d, t), d)
+    _assert_trees_close(got_b, b)
+
+
+# --------------------------------------------------------------------------- a long run
+
+N_LONG = 1_000_000
+PHASE = 100  # steps of stance, then of swing (0.25 s each at 400 Hz)
+# The caps bound each step's evidence, the transition floor bounds the prior:
+# |prior logit| <= 30 + log 2 and |logit| <= that + sum of logit(caps).
+LOGIT_BOUND = 30.0 + np.log(2.0) + 2 * np.log(99.0) + np.log(9.0)
+
+
+def _long_run(params, terrain, stance, swing):
+    def body(carry, t):
+        b, lo, hi = carry
+        on_ground = (t // PHASE) % 2 == 0
+        m = jax.tree.map(lambda a, c: jnp.where(on_ground, a, c), stance, swing)
+        b, d = step(params, terrain, b, m, key=jax.random.key(0))
+        return (b, jnp.minimum(lo, b.logit), jnp.maximum(hi, b.logit)), d.p_contact
+
+    init = (init_belief(params), jnp.float32(jnp.inf), jnp.float32(-jnp.inf))
+    return jax.lax.scan(body, init, jnp.arange(N_LONG, dtype=jnp.int32))
+
+
+@pytest.mark.slow
+def test_million_steps_stay_finite_and_responsive():
+    """10^6 steps of alternating stance and swing in one scan: no NaN, no +-inf logit,
+    the logit stays within its analytic bound, and the belief still switches at the end.
+
+    0.25 s of stance, then 0.25 s of a fast swing 20 cm up, repeated 2500 times. The
+    quadrature has a single node here: the test is about the recursion's numerics, and one
+    node makes a step 2.5 times cheaper than 16 (~25 s for the 10^6 steps on 2 busy cores).
+    """
+    params = PARAMS["quadrature"].replace(n_quad=1)
+    stance = _as_meas(oracle.planar_measurement(*oracle.planar_stance()))
+    swing = _as_meas(oracle.planar_measurement(*oracle.planar_swing()))
+    (belief, lo, hi), p = jax.jit(_long_run)(params, flat(0.0, 0.05), stance, swing)
+    p = np.asarray(p)
+    assert np.isfinite(p).all()
+    assert np.isfinite(float(belief.logit))
+    assert -LOGIT_BOUND < float(lo) and float(hi) < LOGIT_BOUND, (float(lo), float(hi))
+    assert np.isfinite(np.asarray(belief.log_transition)).all()
+    cycles = p.reshape(-1, 2, PHASE)  # (cycle, stance/swing, step)
+    # Every phase ends decided, in the first cycle as in the last.
+    assert (cycles[:, 0, -1] > 0.99).all() and (cycles[:, 1, -1] < 0.01).all()
+    last = cycles[-1]
+    assert last[0].max() > 0.99 and last[1].min() < 0.01
+    # ... and switches within a few steps of the phase change, not stuck.
+    assert (last[0, 5:] > 0.99).all() and (last[1, 5:] < 0.01).all()
+
+
+# --------------------------------------------------------------------------- gradients
+
+T_GRAD = 8
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("mode", MODES)
+def test_grad_of_sequence_bce_is_finite(mode):
+    """d BCE / d noise: finite for every leaf, non-zero for sigma_d, in both modes."""
+    params = PARAMS[mode]
+    rng = np.random.default_rng(13)
+    truth = np.zeros((T_GRAD, 1, N_LEGS), bool)
+    seq = []
+    for t in range(T_GRAD):
+        stance = [(t // 3 + leg) % 2 == 0 for leg in range(N_LEGS)]
+        truth[t, 0] = stance
+        legs = [_batch_meas(rng, (1,), stance[leg]) for leg in range(N_LEGS)]
+        seq.append(jax.tree.map(lambda *xs: jnp.stack(xs, axis=1), *legs))
+    meas_seq = jax.tree.map(lambda *xs: jnp.stack(xs), *seq)
+
+    def loss(noise):
+        return sequence_bce(
+            params.replace(noise=noise),
+            TERRAIN,
+            meas_seq,
+            jnp.asarray(truth),
+            key=jax.random.key(2),
+        )
+
+    value, grads = jax.jit(jax.value_and_grad(loss))(params.noise)
+    assert np.isfinite(float(value))
+    for name in params.noise.__dataclass_fields__:
+        g = np.asarray(getattr(grads, name))
+        assert np.isfinite(g).all(), (name, g)
+    assert np.abs(np.asarray(grads.sigma_d)).max() > 0.0
+
+
+# --------------------------------------------------------------------------- no retracing
+
+
+def test_no_retrace(jit_step, jit_step_batch):
+    """Calls with new values but the same shapes and static parameters reuse the trace.
+
+    The counters are session-wide: this also covers every earlier call through the shared
+    fixtures, in this file and the others.
+    """
+    rng = np.random.default_rng(17)
+    for mode in MODES:
+        params = PARAMS[mode]
+        for i in range(3):
+            p = params.replace(dt=jnp.float32(0.002 + 0.001 * i))  # a new leaf value
+            m = _batch_meas(rng, (1,))
+            jit_step(p, TERRAIN, _random_belief(rng, p, ()), _index(m, 0), key=jax.random.key(i))
+            mb = _batch_meas(rng, (N_ENVS, N_LEGS))
+            b = _random_belief(rng, p, (N_ENVS, N_LEGS))
+            jit_step_batch(p, flat(0.01 * i, 0.1), b, mb, key=jax.random.key(i))
+    for fn in (jit_step, jit_step_batch):
+        assert fn.traces, "nothing traced"
+        assert max(fn.traces.values()) == 1, fn.traces
+
+
+def test_run_and_sequence_bce_trace_under_x64(x64):
+    """float64 params and measurements straight from init_belief (traced only, not run).
+
+    Regression: init_belief once kept the foothold in float32, so under x64 the scan carry
+    of run and sequence_bce changed dtype after the first step (TypeError).
+    """
+    params = jax.tree.map(lambda x: jnp.asarray(x, jnp.float64), PARAMS["quadrature"])
+    terrain = jax.tree.map(lambda x: jnp.asarray(x, jnp.float64), TERRAIN)
+    fields = oracle.planar_measurement(*oracle.planar_stance())
+    meas = LegMeasurement(
+        **{k: jnp.asarray(np.broadcast_to(v, (4, 1, 1) + np.shape(v))) for k, v in fields.items()}
+    )
+    assert meas.qdd.dtype == jnp.float64
+    truth = jnp.ones((4, 1, 1))
+    out = jax.eval_shape(
+        lambda m: sequence_bce(params, terrain, m, truth, key=jax.random.key(0)), meas
+    )
+    assert out.dtype == jnp.float64 and out.shape == ()
