@@ -1,0 +1,274 @@
+"""The estimator side by side with MJX physics, a per-robot NumPy implementation, and sharded.
+
+Run::
+
+    python -m benchmarks.versus --json out/bench/versus.json [--envs 1024 4096]
+
+1. Ratio of one estimator update (with and without the adapter's extraction of the
+   per-leg inputs from ``mjx.Data``) to one ``mjx.step`` of Go1 at the same batch size.
+   Calls are interleaved (physics, estimator, adapter, ...) and medians taken, so load
+   changes on the machine hit every contender alike.
+2. Speed-up over a float64 NumPy implementation (the test oracle, ``tests/oracle.py``,
+   with Algorithm 1 by 500 NumPy draws) that processes one robot at a time, as existing
+   single-robot estimators do: a subset of robots is timed and the time scaled to the batch.
+3. Sharding: the env batch split over 8 simulated CPU devices
+   (``XLA_FLAGS=--xla_force_host_platform_device_count=8``, set in a subprocess) with
+   ``jax.sharding``; the result is compared with the unsharded run.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+import jax_contact as jc
+from benchmarks.common import machine, print_table, synthetic_measurements, write_json
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _timed(fn, *args) -> float:
+    t = time.perf_counter()
+    jax.block_until_ready(fn(*args))
+    return time.perf_counter() - t
+
+
+def ratio_vs_mjx(n_envs: int, repeats: int = 15) -> dict:
+    """Median times of mjx.step, the estimator (both modes) and the adapter, interleaved."""
+    from mujoco import mjx
+
+    from envs.robots import load_robot
+    from jax_contact.adapter import leg_measurements, prepare
+
+    robot = load_robot("go1")
+    robot.mj_model.opt.timestep = 0.0025
+    m = mjx.put_model(robot.mj_model)
+    desc = robot.description
+    d0 = mjx.make_data(m).replace(qpos=jnp.asarray(robot.home_qpos, jnp.float32))
+    data = jax.vmap(lambda _: d0)(jnp.arange(n_envs))
+
+    physics = jax.jit(jax.vmap(lambda d: mjx.step(m, d)))
+
+    def extract(d):
+        return jax.vmap(lambda dd: leg_measurements(m, prepare(m, dd), desc))(d)
+
+    extract = jax.jit(extract)
+    meas = extract(data)
+    contenders = {"mjx_step": (physics, (data,)), "adapter": (extract, (data,))}
+    for mode in ("quadrature", "monte_carlo"):
+        params = jc.make_params(jc.make_noise(desc.nv), touchdown=mode)
+        belief = jc.init_belief_batch(params, n_envs, desc.n_legs)
+
+        def update(b, mm, k, params=params):
+            return jc.step_batch(params, jc.flat(), b, mm, key=k)
+
+        def full(b, d, k, params=params):
+            return jc.step_batch(params, jc.flat(), b, extract(d), key=k)
+
+        contenders[mode] = (jax.jit(update), (belief, meas, jax.random.key(0)))
+        contenders[f"{mode}+adapter"] = (jax.jit(full), (belief, data, jax.random.key(0)))
+
+    compile_s = {}
+    for name, (fn, args) in contenders.items():
+        compile_s[name] = _timed(fn, *args)  # first call: trace + compile + run
+    times = {name: [] for name in contenders}
+    for _ in range(repeats):
+        for name, (fn, args) in contenders.items():
+            times[name].append(_timed(fn, *args))
+    med = {name: statistics.median(v) for name, v in times.items()}
+    return {
+        "envs": n_envs,
+        "median_ms": {k: 1e3 * v for k, v in med.items()},
+        "first_call_s": compile_s,
+        "ratio": {mode: med[mode] / med["mjx_step"] for mode in ("quadrature", "monte_carlo")},
+        "ratio_with_adapter": {
+            mode: med[f"{mode}+adapter"] / med["mjx_step"] for mode in ("quadrature", "monte_carlo")
+        },
+    }
+
+
+def numpy_speedup(n_envs: int = 4096, n_robots_timed: int = 8) -> dict:
+    """JAX batched (Monte-Carlo 500) vs the float64 NumPy oracle, one robot at a time."""
+    sys.path.insert(0, str(ROOT / "tests"))
+    import oracle
+    from scipy import special
+
+    rng = np.random.default_rng(0)
+
+    def td_numpy(gap, s_pf, s_pi, u, s_u, dt, n=500):
+        # Algorithm 1 with NumPy draws: p_i truncated to p_i <= p_f by inverse CDF.
+        p_f = gap + s_pf * rng.standard_normal(n)
+        v = rng.uniform(1e-12, 1.0, n)
+        p_i = s_pi * special.ndtri(v * special.ndtr(p_f / s_pi))
+        arg = (-(p_f - p_i) / dt - u) / s_u
+        return np.array([special.ndtr(arg).mean(), special.ndtr(-arg).mean()])
+
+    meas = synthetic_measurements(n_robots_timed, 4, 18)
+    params = jc.make_params(jc.make_noise(18), touchdown="monte_carlo")
+    p = oracle.Params(
+        **{
+            f: np.asarray(getattr(params.noise, f), np.float64)
+            for f in (
+                "sigma_q",
+                "sigma_qd",
+                "sigma_qdd",
+                "sigma_d",
+                "sigma_f",
+                "sigma_J",
+                "sigma_qd_prior",
+            )
+        },
+        **{
+            f: float(getattr(params, f))
+            for f in (
+                "dt",
+                "stance_time",
+                "swing_time",
+                "takeoff_accel",
+                "cap_dynamics",
+                "cap_diff_kinematics",
+                "cap_kinematics",
+                "inv_damping",
+                "initial_contact",
+            )
+        },
+    )
+    terrain = oracle.Flat(0.0, 0.2)
+    leaves = jax.tree.map(np.asarray, meas)
+    beliefs = [oracle.init_belief(p) for _ in range(4)]
+    t = time.perf_counter()
+    for r in range(n_robots_timed):
+        for leg in range(4):
+            m = oracle.Meas(
+                **{
+                    f: np.asarray(getattr(leaves, f)[r, leg], np.float64)
+                    for f in oracle.Meas.__dataclass_fields__
+                }
+            )
+            oracle.step(p, terrain, beliefs[leg], m, td_fn=td_numpy)
+    per_robot = (time.perf_counter() - t) / n_robots_timed
+
+    big = synthetic_measurements(n_envs, 4, 18)
+    belief = jc.init_belief_batch(params, n_envs, 4)
+    update = jax.jit(lambda b, mm, k: jc.step_batch(params, jc.flat(0.0, 0.2), b, mm, key=k))
+    _timed(update, belief, big, jax.random.key(0))
+    jax_s = statistics.median(_timed(update, belief, big, jax.random.key(0)) for _ in range(7))
+    numpy_s = per_robot * n_envs
+    return {
+        "envs": n_envs,
+        "numpy_robots_timed": n_robots_timed,
+        "numpy_s_per_robot": per_robot,
+        "numpy_s_scaled": numpy_s,
+        "jax_s": jax_s,
+        "speedup": numpy_s / jax_s,
+    }
+
+
+SHARD_SCRIPT = r"""
+import json, statistics, time, jax, jax.numpy as jnp, numpy as np
+from jax.sharding import Mesh, NamedSharding, PartitionSpec as P
+import jax_contact as jc
+from benchmarks.common import synthetic_measurements
+n = int(__import__("sys").argv[1])
+params = jc.make_params(jc.make_noise(18), touchdown="quadrature")
+meas = synthetic_measurements(n, 4, 18)
+belief = jc.init_belief_batch(params, n, 4)
+upd = jax.jit(lambda b, m: jc.step_batch(params, jc.flat(), b, m, key=jax.random.key(0)))
+ref_b, ref_d = upd(belief, meas)
+mesh = Mesh(np.array(jax.devices()), ("envs",))
+shard = NamedSharding(mesh, P("envs"))
+sb, sm = jax.device_put((belief, meas), shard)
+out_b, out_d = upd(sb, sm)
+err = float(jnp.max(jnp.abs(out_d.p_contact - ref_d.p_contact)))
+def t(f, *a):
+    s = time.perf_counter(); jax.block_until_ready(f(*a)); return time.perf_counter() - s
+tu = statistics.median(t(upd, belief, meas) for _ in range(7))
+ts = statistics.median(t(upd, sb, sm) for _ in range(7))
+print(json.dumps({"devices": len(jax.devices()), "envs": n, "max_abs_diff": err,
+  "sharding_of_output": str(out_d.p_contact.sharding.spec),
+  "unsharded_leg_updates_per_s": 4 * n / tu, "sharded_leg_updates_per_s": 4 * n / ts}))
+"""
+
+
+def sharded(n_envs: int = 4096, devices: int = 8) -> dict:
+    """Runs :data:`SHARD_SCRIPT` in a subprocess with ``devices`` simulated CPU devices."""
+    env = dict(os.environ)
+    env["XLA_FLAGS"] = f"--xla_force_host_platform_device_count={devices}"
+    env["PYTHONPATH"] = str(ROOT) + os.pathsep + env.get("PYTHONPATH", "")
+    res = subprocess.run(
+        [sys.executable, "-c", SHARD_SCRIPT, str(n_envs)],
+        env=env,
+        capture_output=True,
+        text=True,
+        check=True,
+        cwd=ROOT,
+    )
+    return json.loads(res.stdout.strip().splitlines()[-1])
+
+
+def main(argv=None) -> dict:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--envs", type=int, nargs="+", default=[1024, 4096])
+    parser.add_argument("--numpy-robots", type=int, default=8)
+    parser.add_argument("--json", default=None)
+    args = parser.parse_args(argv)
+
+    ratios = []
+    for n in args.envs:
+        r = ratio_vs_mjx(n)
+        ratios.append(r)
+        print(f"# {n} envs, median ms per call (interleaved):", flush=True)
+        print_table(
+            [{"what": k, "ms": v} for k, v in r["median_ms"].items()],
+            [("what", "call", "{}"), ("ms", "median ms", "{:.2f}")],
+        )
+        print(
+            "  ratio to mjx.step:",
+            {k: round(v, 3) for k, v in r["ratio"].items()},
+            " with adapter:",
+            {k: round(v, 3) for k, v in r["ratio_with_adapter"].items()},
+        )
+    sp = numpy_speedup(max(args.envs), args.numpy_robots)
+    print(
+        f"# NumPy float64, one robot at a time ({sp['numpy_robots_timed']} robots timed,"
+        f" scaled to {sp['envs']}): {sp['numpy_s_scaled']:.2f} s; JAX batched"
+        f" {sp['jax_s'] * 1e3:.1f} ms; speed-up {sp['speedup']:.0f}x"
+    )
+    sh = sharded(max(args.envs))
+    print(
+        f"# sharded over {sh['devices']} CPU devices: max |diff| {sh['max_abs_diff']:.2g},"
+        f" {sh['sharded_leg_updates_per_s']:.3g} vs unsharded"
+        f" {sh['unsharded_leg_updates_per_s']:.3g} leg-updates/s"
+    )
+    result = {
+        "machine": machine(),
+        "ratio_vs_mjx_step": {
+            str(r["envs"]): {
+                **r["ratio"],
+                "with_adapter": r["ratio_with_adapter"],
+                "median_ms": r["median_ms"],
+            }
+            for r in ratios
+        },
+        "speedup_vs_numpy": sp["speedup"],
+        "numpy": sp,
+        "sharding": sh,
+    }
+    if args.json:
+        write_json(args.json, result)
+        print(f"wrote {args.json}")
+    return result
+
+
+if __name__ == "__main__":
+    main()
