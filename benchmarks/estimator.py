@@ -71,7 +71,8 @@ def throughput(envs, modes=MODES, n_samples: int = 500) -> list[dict]:
                 }
             )
             # Print as we go: the largest batches take a while on a small CPU.
-            print(format_table(rows[-1:], _THROUGHPUT_COLUMNS)[len(rows) > 1], flush=True)
+            lines = format_table(rows[-1:], _THROUGHPUT_COLUMNS)
+            print("\n".join(lines if len(rows) == 1 else lines[1:]), flush=True)
     return rows
 
 
