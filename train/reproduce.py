@@ -108,24 +108,25 @@ def quadruped_estimator_params(desc, dt: float = 0.0025, **overrides) -> jc.Esti
     """Table III's estimator for a quadruped with the ``anymal_like`` sensors.
 
     Per coordinate, as the sensors are (``envs.sensors.sensor_preset``): joints ``q`` 0.02
-    rad, ``qd`` 0.3 rad/s; base linear 0.04 m, 0.2 m/s; base angular 0.01 rad, 0.05 rad/s;
-    ``sigma_qdd = sqrt(2) sigma_qd / dt`` (raw differences). Disturbance ``w_d``: 2 N m on
-    joints (Table II), 5 N / 2 N m on the base. ``T_s`` = 0.3 s, ``a_F`` = 200 m/s^2.
+    rad, ``qd`` 0.3 rad/s, ``qdd`` a raw difference (``sqrt(2) sigma_qd / dt`` = 170
+    rad/s^2); base linear 0.01 m, 0.05 m/s, 0.5 m/s^2 (accelerometer); base angular 0.01
+    rad, 0.01 rad/s, 5.7 rad/s^2 (differentiated gyro). Disturbance ``w_d``: 2 N m on the
+    joints (Table II), 5 N and 2 N m on the base. ``T_s`` = 0.3 s, ``a_F`` = 200 m/s^2.
     """
     nv = desc.nv
     sigma_q = np.full(nv, 0.02)
     sigma_qd = np.full(nv, 0.3)
     sigma_d = np.full(nv, 2.0)
-    if nv - 6 == 3 * desc.n_legs:  # floating base first
-        sigma_q[:3], sigma_q[3:6] = 0.04, 0.01
-        sigma_qd[:3], sigma_qd[3:6] = 0.2, 0.05
+    floating = nv - 6 == desc.n_legs * desc.n_leg_dofs
+    if floating:
+        sigma_q[:3], sigma_q[3:6] = 0.01, 0.01
+        sigma_qd[:3], sigma_qd[3:6] = 0.05, 0.01
         sigma_d[:3] = 5.0
+    sigma_qdd = np.sqrt(2.0) * sigma_qd / dt
+    if floating:
+        sigma_qdd[:3] = 0.5
     noise = jc.make_noise(
-        nv,
-        sigma_q=sigma_q,
-        sigma_qd=sigma_qd,
-        sigma_qdd=np.sqrt(2.0) * sigma_qd / dt,
-        sigma_d=sigma_d,
+        nv, sigma_q=sigma_q, sigma_qd=sigma_qd, sigma_qdd=sigma_qdd, sigma_d=sigma_d
     )
     kw = dict(dt=dt, touchdown="quadrature", stance_time=0.3, swing_time=0.2)
     return jc.make_params(noise, **(kw | overrides))

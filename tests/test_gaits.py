@@ -1,0 +1,243 @@
+"""Tests of envs/gaits.py: kinematics against MuJoCo, actuator inversion, phases, and
+closed-loop walking.
+
+The closed-loop tests step C MuJoCo with the jitted JAX controller: the controller is what
+is under test, and a jitted MJX rollout per gait would cost a minute of compilation each on
+this CPU. ``benchmarks/gait_survival.py`` runs the same controller inside MJX at scale.
+"""
+
+from __future__ import annotations
+
+import types
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+import pytest
+
+from envs.gaits import (
+    gait_control,
+    leg_fk,
+    leg_ik,
+    leg_phases,
+    make_gait,
+    make_gait_robot,
+    torque_to_ctrl,
+)
+from envs.ground_truth import make_truth_layout, with_contact_sensors
+from envs.robots import load_robot
+
+ROBOTS = ("go1", "spot", "barkour", "planar_leg")
+
+
+@pytest.fixture(scope="module")
+def robots():
+    out = {}
+    for name in ROBOTS:
+        robot = with_contact_sensors(load_robot(name))
+        out[name] = (robot, make_gait_robot(robot))
+    return out
+
+
+def _feet_in_base(robot, qpos):
+    """Foot sphere centres in the base frame from C MuJoCo's kinematics (the reference)."""
+    m = robot.mj_model
+    d = mujoco.MjData(m)
+    d.qpos[:] = qpos
+    mujoco.mj_kinematics(m, d)
+    b = robot.description.base_body_id
+    rot = d.xmat[b].reshape(3, 3)
+    return np.stack([rot.T @ (d.geom_xpos[g] - d.xpos[b]) for g in robot.description.foot_geom_ids])
+
+
+@pytest.mark.parametrize("name", ROBOTS)
+def test_leg_fk_matches_mujoco_and_ik_inverts_it(robots, name):
+    robot, gr = robots[name]
+    rng = np.random.default_rng(0)
+    fk = jax.jit(leg_fk, static_argnums=1)
+    ik = jax.jit(leg_ik, static_argnums=1)
+    leg_qpos = np.asarray(gr.leg_qpos)
+    for _ in range(3):
+        qpos = np.array(robot.home_qpos)
+        # Random base pose and joint angles within +-0.3 rad of the standing pose.
+        qpos[0:3] += rng.normal(0, 0.1, 3)
+        if gr.floating_base:
+            quat = rng.normal(size=4)
+            qpos[3:7] = quat / np.linalg.norm(quat)
+        qpos[leg_qpos.ravel()] += rng.uniform(-0.3, 0.3, leg_qpos.size)
+        expected = _feet_in_base(robot, qpos)
+        for leg in range(gr.n_legs):
+            q = jnp.asarray(qpos[leg_qpos[leg]], jnp.float32)
+            np.testing.assert_allclose(fk(gr, leg, q), expected[leg], atol=2e-6)
+            # IK from the standing pose recovers a reachable foot position.
+            q_ik = ik(gr, leg, jnp.asarray(expected[leg], jnp.float32))
+            np.testing.assert_allclose(fk(gr, leg, q_ik), expected[leg], atol=1e-4)
+
+
+@pytest.mark.parametrize("name", ROBOTS)
+def test_torque_to_ctrl_inverts_the_actuators(robots, name):
+    robot, gr = robots[name]
+    m = robot.mj_model
+    rng = np.random.default_rng(1)
+    d = mujoco.MjData(m)
+    d.qpos[:] = robot.home_qpos
+    d.qvel[:] = rng.normal(0, 0.5, m.nv)
+    tau = np.zeros(m.nv)
+    dofs = np.asarray(gr.leg_dof).ravel()
+    tau[dofs] = rng.uniform(-2.0, 2.0, dofs.size)  # small: inside every control range
+    ctrl = torque_to_ctrl(gr, jnp.asarray(tau, jnp.float32), jnp.asarray(d.qpos, jnp.float32),
+                          jnp.asarray(d.qvel, jnp.float32))
+    d.ctrl[:] = np.asarray(ctrl)
+    mujoco.mj_forward(m, d)
+    # MuJoCo's own actuator model maps the controls back to the requested joint torques.
+    np.testing.assert_allclose(d.qfrc_actuator[dofs], tau[dofs], atol=2e-4)
+
+
+def test_phases_trot_pairs_and_walk_sequence(robots):
+    robot, gr = robots["go1"]  # feet FR, FL, RR, RL
+    names = robot.description.foot_names
+    assert names == ("FR", "FL", "RR", "RL")
+    trot = make_gait("trot", period=0.5)
+    ph = np.asarray(leg_phases(trot, gr, jnp.float32(0.1)))
+    idx = {n: i for i, n in enumerate(names)}
+    # Diagonal pairs in phase, the two pairs half a cycle apart.
+    assert ph[idx["FL"]] == pytest.approx(ph[idx["RR"]])
+    assert ph[idx["FR"]] == pytest.approx(ph[idx["RL"]])
+    assert (ph[idx["FR"]] - ph[idx["FL"]]) % 1.0 == pytest.approx(0.5)
+
+    walk = make_gait("walk", period=1.0, duty=0.85)
+    ts = np.arange(0.0, 2.0, 0.001, dtype=np.float32)
+    phases = np.stack([np.asarray(leg_phases(walk, gr, jnp.float32(t))) for t in ts[::10]])
+    swing = phases >= 0.85
+    # A static walk: never more than one foot in the air.
+    assert swing.sum(axis=1).max() == 1
+    # Lift-off order within a cycle: left-hind, left-front, right-hind, right-front,
+    # a quarter cycle apart.
+    lift = {n: float(ts[::10][np.argmax(swing[:, idx[n]])]) for n in names}
+    order = sorted(names, key=lambda n: lift[n])
+    start = order.index("RL")
+    assert order[start:] + order[:start] == ["RL", "FL", "RR", "FR"]  # cyclically
+    np.testing.assert_allclose(np.diff([lift[n] for n in order]), 0.25, atol=0.011)
+
+
+def _rollout(robot, gr, gait, seconds):
+    """C MuJoCo physics, jitted JAX controller; returns per-step time, base z, up-z, x,
+    foot normal forces (N) and foot heights above the floor (m)."""
+    m = robot.mj_model
+    d = mujoco.MjData(m)
+    d.qpos[:] = robot.home_qpos
+    layout = make_truth_layout(robot)
+    ctrl_fn = jax.jit(
+        lambda t, q, v: gait_control(gait, gr, t, types.SimpleNamespace(qpos=q, qvel=v))
+    )
+    n = int(round(seconds / m.opt.timestep))
+    log = np.zeros((n, 4 + 2 * gr.n_legs))
+    feet = list(robot.description.foot_geom_ids)
+    for k in range(n):
+        t = k * m.opt.timestep
+        d.ctrl[:] = np.asarray(ctrl_fn(jnp.float32(t), jnp.asarray(d.qpos, jnp.float32),
+                                       jnp.asarray(d.qvel, jnp.float32)))
+        mujoco.mj_step(m, d)
+        # Normal force: first entry of every contact slot of the foot's sensor.
+        fn = [sum(d.sensordata[a + 9 * s] for a, n_s in zip(row, layout.sensor_slots,
+                                                               strict=True)
+                  for s in range(n_s)) for row in layout.sensor_adr]
+        height = [d.geom_xpos[g][2] - r for g, r in zip(feet, layout.foot_radii, strict=True)]
+        if gr.floating_base:
+            up = 1.0 - 2.0 * (d.qpos[4] ** 2 + d.qpos[5] ** 2)
+            z, x = d.qpos[2], d.qpos[0]
+        else:
+            up, z, x = 1.0, d.qpos[0], 0.0
+        log[k] = [t + m.opt.timestep, z, up, x, *fn, *height]
+    return log
+
+
+def _touchdowns(force, min_air_steps):
+    """Indices where a foot makes contact (> 1 N) after min_air_steps off the ground."""
+    contact = force > 1.0
+    out = []
+    air = 0
+    for k, c in enumerate(contact):
+        if c and air >= min_air_steps:
+            out.append(k)
+        air = 0 if c else air + 1
+    return np.array(out)
+
+
+@pytest.mark.parametrize(
+    ("name", "kind", "speed"), [("go1", "trot", 0.4), ("go1", "walk", 0.1), ("spot", "trot", 0.4)]
+)
+def test_quadruped_gait_stays_upright_and_steps(robots, name, kind, speed):
+    robot, gr = robots[name]
+    gait = make_gait(kind, speed=speed)
+    seconds = 6.0
+    log = _rollout(robot, gr, gait, seconds)
+    t, z, up, x = log[:, 0], log[:, 1], log[:, 2], log[:, 3]
+    n_legs = gr.n_legs
+    forces = log[:, 4 : 4 + n_legs]
+    assert np.all(up > 0.9) and np.all(z > 0.7 * float(gr.base_height))
+    period = float(gait.period)
+    late = t > float(gait.ramp_time) + period
+    dt = t[1] - t[0]
+    for leg in range(n_legs):
+        tds = _touchdowns(forces[:, leg], int(0.02 / dt))
+        tds = tds[late[tds]]
+        # One touch-down per cycle: the gaps between them are one period (+-20 %).
+        gaps = np.diff(t[tds])
+        assert len(tds) >= int((seconds - float(gait.ramp_time) - period) / period) - 1
+        np.testing.assert_allclose(np.median(gaps), period, rtol=0.2)
+        assert gaps.max() < 1.5 * period
+    # It moves forward at about the commanded speed (stance feet slip a little).
+    mean_speed = (x[-1] - x[np.argmax(late)]) / (t[-1] - t[np.argmax(late)])
+    np.testing.assert_allclose(mean_speed, speed, rtol=0.3)
+
+
+def test_planar_leg_hops(robots):
+    robot, gr = robots["planar_leg"]
+    gait = make_gait("hop")
+    log = _rollout(robot, gr, gait, 4.0)
+    t, z = log[:, 0], log[:, 1]
+    force, height = log[:, 4], log[:, 5]
+    late = t > 1.5
+    dt = t[1] - t[0]
+    tds = _touchdowns(force, int(0.02 / dt))
+    tds = tds[late[tds]]
+    # One touch-down per hop period (0.6 s), the foot lifted several cm in between and the
+    # stance taking about `duty` of the cycle.
+    np.testing.assert_allclose(np.diff(t[tds]), float(gait.period), atol=0.03)
+    assert height[late].max() > 0.04
+    np.testing.assert_allclose(np.mean(force[late] > 1.0), float(gait.duty), atol=0.1)
+    # The stance carries the robot: mean normal force over whole cycles = total weight.
+    whole = late & (t <= t[tds[-1]]) & (t > t[tds[0]])
+    weight = float(np.sum(robot.mj_model.body_mass)) * 9.81
+    np.testing.assert_allclose(np.mean(force[whole]), weight, rtol=0.1)
+    assert z[late].min() > 0.25  # never collapses onto the floor
+
+
+def test_gait_control_vmap_matches_loop(robots):
+    robot, gr = robots["go1"]
+    gait = make_gait("trot", speed=0.3)
+    rng = np.random.default_rng(2)
+    qpos = np.stack([robot.home_qpos] * 2).astype(np.float32)
+    qpos[:, 7:] += rng.uniform(-0.1, 0.1, (2, 12))
+    qvel = rng.normal(0, 0.2, (2, 18)).astype(np.float32)
+    data = types.SimpleNamespace(qpos=jnp.asarray(qpos), qvel=jnp.asarray(qvel))
+    t = jnp.float32(1.3)
+    batched = jax.jit(jax.vmap(lambda q, v: gait_control(
+        gait, gr, t, types.SimpleNamespace(qpos=q, qvel=v))))(data.qpos, data.qvel)
+    for i in range(2):
+        single = gait_control(gait, gr, t, types.SimpleNamespace(qpos=data.qpos[i],
+                                                                 qvel=data.qvel[i]))
+        np.testing.assert_allclose(batched[i], single, rtol=1e-4, atol=1e-4)
+
+
+def test_make_gait_rejects_bad_arguments():
+    with pytest.raises(ValueError, match="kind must be one of"):
+        make_gait("gallop")
+    with pytest.raises(ValueError, match="duty"):
+        make_gait("walk", duty=0.6)
+    with pytest.raises(ValueError, match="period"):
+        make_gait("trot", period=0.0)
+    with pytest.raises(ValueError, match="sway"):
+        make_gait("walk", sway=2.0)

@@ -1,0 +1,193 @@
+"""Tests of envs/ground_truth.py against C MuJoCo and hand-derived references."""
+
+from __future__ import annotations
+
+import types
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+import pytest
+from mujoco import mjx
+
+from envs.ground_truth import foot_truth, make_truth_layout, with_contact_sensors
+from envs.robots import load_robot
+
+G = 9.81
+
+
+def _c_view(m: mujoco.MjModel, d: mujoco.MjData):
+    """The fields foot_truth reads, from C MuJoCo data (no MJX, no compile)."""
+    return types.SimpleNamespace(
+        sensordata=jnp.asarray(d.sensordata),
+        geom_xpos=jnp.asarray(d.geom_xpos),
+        geom_xmat=jnp.asarray(d.geom_xmat).reshape(m.ngeom, 3, 3),
+    )
+
+
+@pytest.fixture(scope="module")
+def go1():
+    robot = with_contact_sensors(load_robot("go1"))
+    return robot, make_truth_layout(robot)
+
+
+@pytest.fixture(scope="module")
+def drop_run(go1):
+    """Go1 dropped from 0.25 m above its standing height, servos holding the home pose.
+
+    One jitted MJX rollout of 2 s (500 steps of 4 ms), compiled once and shared by the
+    tests below.
+    """
+    robot, layout = go1
+    m = robot.mj_model
+    mx = mjx.put_model(m)
+    home = np.asarray(robot.home_qpos)
+    qpos0 = home.copy()
+    qpos0[2] += 0.25
+    d0 = mjx.make_data(m).replace(
+        qpos=jnp.asarray(qpos0, jnp.float32), ctrl=jnp.asarray(home[7:], jnp.float32)
+    )
+
+    @jax.jit
+    def rollout(d):
+        def body(d, _):
+            d = mjx.step(mx, d)
+            t = foot_truth(layout, d)
+            return d, (t.normal_force, t.contact, t.distance, t.force, d.geom_xpos, d.qpos[2])
+
+        return jax.lax.scan(body, mjx.forward(mx, d), None, length=500)
+
+    final, out = rollout(d0)
+    out = jax.tree.map(np.asarray, out)
+    runs = dict(zip(("fn", "contact", "dist", "force", "geom_xpos", "z"), out, strict=True))
+    runs["final"] = final
+    return runs
+
+
+def test_feet_in_the_air_have_no_force(go1, drop_run):
+    robot, _ = go1
+    r = drop_run
+    radius = np.asarray(robot.description.foot_radii)
+    # Free fall from 0.25 m above standing: the feet are ~0.25 m up and need
+    # sqrt(2 * 0.25 / 9.81) = 0.23 s to land; the first 40 steps (0.16 s) are in the air.
+    air = slice(0, 40)
+    np.testing.assert_array_equal(r["fn"][air], 0.0)
+    np.testing.assert_array_equal(r["force"][air], 0.0)
+    assert not r["contact"][air].any()
+    # The floor is the plane z = 0: the gap is the sphere centre's height minus its radius.
+    feet = list(robot.description.foot_geom_ids)
+    expected = r["geom_xpos"][air][:, feet, 2] - radius
+    np.testing.assert_allclose(r["dist"][air], expected, atol=1e-6)
+    assert (r["dist"][air] > 0.05).all()
+
+
+def test_dropped_robot_lands_and_force_rises_from_zero(drop_run):
+    r = drop_run
+    for foot in range(4):
+        first = int(np.argmax(r["contact"][:, foot]))
+        assert 40 <= first < 100, first  # lands after ~0.23 s (step ~57)
+        assert r["fn"][first - 1, foot] <= 1.0
+        assert r["fn"][first, foot] > 1.0
+        # Contact forms only once the foot reaches the floor.
+        assert r["dist"][first, foot] < 1e-3
+
+
+def test_standing_feet_carry_the_weight(go1, drop_run):
+    robot, _ = go1
+    r = drop_run
+    # After settling (last 0.4 s), the base is still: the floor carries the total weight,
+    # sum_feet F_n = M g with M = sum of body masses = 12.743 kg (Go1 XML):
+    # 12.743448 * 9.81 = 125.01 N. Averaged over 100 steps to smooth solver ripple.
+    mass = float(np.sum(robot.mj_model.body_mass))
+    np.testing.assert_allclose(mass * G, 125.0132, rtol=1e-5)
+    late = slice(400, 500)
+    assert np.ptp(r["z"][late]) < 2e-3
+    np.testing.assert_allclose(np.mean(r["fn"][late].sum(axis=1)), mass * G, rtol=0.03)
+    # On a horizontal floor the normal is world z: the vertical force is the normal force.
+    np.testing.assert_allclose(r["force"][late][..., 2], r["fn"][late], rtol=1e-4, atol=1e-3)
+    assert r["contact"][late].all()
+    assert (r["dist"][late] < 0).all() and (r["dist"][late] > -5e-3).all()
+
+
+def test_force_matches_mj_contact_force():
+    """The sensor route against C MuJoCo's mj_contactForce, on a plane and a height field."""
+    for name in ("go1", "barkour"):
+        robot = with_contact_sensors(load_robot(name))
+        layout = make_truth_layout(robot)
+        m = robot.mj_model
+        d = mujoco.MjData(m)
+        d.qpos[:] = robot.home_qpos
+        d.ctrl[:] = m.key_ctrl[0]
+        for _ in range(300):
+            mujoco.mj_step(m, d)
+        # Independent reference: each contact's force in its frame (rows: normal, tangents),
+        # acting on geom2; the floor's force on a foot is minus that if the foot is geom1.
+        expected = np.zeros((4, 3))
+        feet = list(robot.description.foot_geom_ids)
+        for i in range(d.ncon):
+            c = d.contact[i]
+            f6 = np.zeros(6)
+            mujoco.mj_contactForce(m, d, i, f6)
+            world = c.frame.reshape(3, 3).T @ f6[:3]
+            if c.geom1 in feet:
+                expected[feet.index(c.geom1)] -= world
+            if c.geom2 in feet:
+                expected[feet.index(c.geom2)] += world
+        truth = foot_truth(layout, _c_view(m, d))
+        np.testing.assert_allclose(truth.force, expected, rtol=1e-4, atol=1e-3)
+        assert (np.linalg.norm(expected, axis=1) > 5.0).all()  # every foot is loaded
+
+
+def test_height_field_gap_matches_mj_ray():
+    """Gap to Barkour's height-field floor against a C MuJoCo ray cast straight down."""
+    robot = with_contact_sensors(load_robot("barkour"))
+    layout = make_truth_layout(robot)
+    m = robot.mj_model
+    d = mujoco.MjData(m)
+    rng = np.random.default_rng(0)
+    floor = robot.description.floor_geom_ids[0]
+    radius = robot.description.foot_radii[0]
+    feet = list(robot.description.foot_geom_ids)
+    geomid = np.zeros(1, np.int32)
+    for _ in range(10):
+        d.qpos[:] = robot.home_qpos
+        d.qpos[0:2] = rng.uniform(-5.0, 5.0, 2)
+        d.qpos[2] = 0.25 + rng.uniform(0.0, 0.1)
+        mujoco.mj_kinematics(m, d)
+        truth = foot_truth(layout, _c_view(m, d))
+        for k, g in enumerate(feet):
+            # Start just below the sole so the ray cannot hit the robot itself.
+            start = d.geom_xpos[g] - np.array([0.0, 0.0, radius + 1e-6])
+            hit = mujoco.mj_ray(m, d, start, np.array([0.0, 0.0, -1.0]), None, 1, -1, geomid)
+            assert geomid[0] == floor
+            np.testing.assert_allclose(truth.distance[k], hit + 1e-6, atol=2e-5)
+            assert hit > 0.01
+
+
+def test_vmap_matches_loop_and_jit(go1, drop_run):
+    robot, layout = go1
+    final = drop_run["final"]  # standing after the drop
+    # A batch of two: the standing state, and the same with the foot geoms 0.1 m higher.
+    feet = jnp.asarray(robot.description.foot_geom_ids)
+    lifted = final.replace(geom_xpos=final.geom_xpos.at[feet, 2].add(0.1))
+    final = jax.tree.map(lambda a, b: jnp.stack([a, b]), final, lifted)
+    batched = jax.jit(jax.vmap(lambda x: foot_truth(layout, x)))(final)
+    for i in range(2):
+        single = foot_truth(layout, jax.tree.map(lambda x, i=i: x[i], final))
+        for a, b in zip(jax.tree.leaves(batched), jax.tree.leaves(single), strict=True):
+            np.testing.assert_allclose(a[i], b, rtol=1e-5, atol=1e-5)
+    assert batched.contact.all()
+    np.testing.assert_allclose(batched.distance[1] - batched.distance[0], 0.1, atol=1e-6)
+
+
+def test_missing_sensors_and_bad_threshold_raise():
+    robot = load_robot("go1")
+    with pytest.raises(ValueError, match="with_contact_sensors"):
+        make_truth_layout(robot)
+    with pytest.raises(ValueError, match="threshold"):
+        make_truth_layout(with_contact_sensors(robot), threshold=-1.0)
+    instrumented = with_contact_sensors(robot)
+    assert with_contact_sensors(instrumented) is instrumented
+    # Sensors are appended: ids and the description are unchanged.
+    assert instrumented.description == robot.description

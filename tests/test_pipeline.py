@@ -1,0 +1,184 @@
+"""The simulated-log pipeline: simulate -> HDF5 log -> replay -> metrics, and the CLI.
+
+One small planar-leg rollout is simulated once per session (two compilations: the rollout
+chunk and the replay chunk) and shared by every test here.
+"""
+
+from __future__ import annotations
+
+import os
+
+import h5py
+import numpy as np
+import pytest
+
+import jax_contact as jc
+from envs.simulate import Rollout, build_world, simulate
+from jax_contact.io import read_log, write_json_atomic, write_log
+from train import cli
+from train.evaluate import delay_one_step, replay, score
+from train.reproduce import ABLATION_ROWS, ROWS, format_table, planar_estimator_params, table3_json
+
+N_ENVS, DURATION = 2, 1.0
+
+
+@pytest.fixture(scope="module")
+def planar():
+    world = build_world("planar_leg")
+    roll = simulate(world, "hop", "anymal_like", N_ENVS, DURATION, 0, chunk_s=0.5, progress=False)
+    return world, roll
+
+
+@pytest.fixture(scope="module")
+def replayed(planar):
+    world, roll = planar
+    params = planar_estimator_params(3, world.dt)
+    out = replay(
+        world.robot,
+        dict(qpos=roll.qpos, qvel=roll.qvel, qacc=roll.qacc, tau=roll.tau),
+        estimators={"probabilistic": params},
+        terrain=jc.flat(0.0, 0.2),
+        gms={"gm": jc.baselines.make_gm_params()},
+        kinematic=jc.baselines.make_kinematic_params(),
+        dt=world.dt,
+        diagnostics_of="probabilistic",
+        chunk=100,
+        progress=False,
+    )
+    return out
+
+
+def test_rollout_shapes_and_truth(planar):
+    world, roll = planar
+    t = int(round(DURATION / world.dt))
+    assert roll.qpos.shape == (t, N_ENVS, 3) and roll.tau.shape == (t, N_ENVS, 3)
+    assert roll.contact.shape == (t, N_ENVS, 1) and roll.valid.shape == (t, N_ENVS)
+    assert roll.valid.all(), "the planar leg on its rail cannot fall"
+    # The hop alternates stance and flight: both states occur, and in flight the sole is
+    # above the floor while the contact force is below the 1 N threshold.
+    assert 0.2 < roll.contact.mean() < 0.95
+    air = ~roll.contact
+    assert (roll.force[air] <= 1.0).all() and np.median(roll.distance[air]) > 0.0
+    np.testing.assert_allclose(roll.time[1] - roll.time[0], world.dt, rtol=1e-6)
+
+
+def test_replay_tracks_truth(planar, replayed):
+    _, roll = planar
+    scores = score(replayed, roll.contact, roll.valid, dt=0.0025)
+    # The estimator tracks the hop (F1 well above the 0.5-ish of always-contact guessing
+    # for this duty cycle); the outputs are probabilities in [0, 1] without NaN.
+    p = replayed["probabilistic"]
+    assert np.isfinite(p).all() and ((p >= 0) & (p <= 1)).all()
+    assert scores["probabilistic"]["f1"] > 0.9
+    assert scores["probabilistic"]["n_touchdowns"] >= 2 * N_ENVS
+    for f in ("p_dynamics", "p_diff_kinematics", "p_kinematics", "p_takeoff", "p_touchdown"):
+        assert replayed[f"probabilistic/{f}"].shape == p.shape
+
+
+def test_delayed_pairing_shifts_state_not_acceleration():
+    a = np.arange(5.0)[:, None]
+    np.testing.assert_array_equal(delay_one_step(a)[:, 0], [0, 0, 1, 2, 3])
+
+
+def test_replay_refuses_unknown_pairing(planar):
+    world, roll = planar
+    with pytest.raises(ValueError, match="pairing"):
+        replay(
+            world.robot,
+            dict(qpos=roll.qpos, qvel=roll.qvel, qacc=roll.qacc, tau=roll.tau),
+            estimators={},
+            terrain=jc.flat(),
+            dt=world.dt,
+            pairing="forward",
+        )
+
+
+def test_log_roundtrip_is_exact(planar, tmp_path):
+    world, roll = planar
+    path = write_log(tmp_path / "log.h5", roll.to_arrays(), {"robot": "planar_leg", "dt": world.dt})
+    arrays, attrs = read_log(path)
+    back = Rollout.from_arrays(arrays)
+    for name in ("qpos", "qvel", "qacc", "tau", "contact", "force", "distance", "valid", "time"):
+        np.testing.assert_array_equal(getattr(back, name), getattr(roll, name))
+    assert attrs["robot"] == "planar_leg" and attrs["dt"] == world.dt
+    assert [p.name for p in tmp_path.iterdir()] == ["log.h5"], "no temporary file left behind"
+
+
+def test_failed_write_leaves_nothing(tmp_path):
+    with pytest.raises(ValueError, match="dtype object"):
+        write_log(tmp_path / "x.h5", {"a": np.array([object()])}, {})
+    with pytest.raises(ValueError, match="attribute 'bad'"):
+        write_log(tmp_path / "y.h5", {"a": np.zeros(3)}, {"bad": object()})
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_read_log_errors(tmp_path):
+    with pytest.raises(FileNotFoundError, match="missing.h5"):
+        read_log(tmp_path / "missing.h5")
+    with h5py.File(tmp_path / "other.h5", "w") as f:
+        f["x"] = np.zeros(2)
+    with pytest.raises(ValueError, match="not a jax-contact log"):
+        read_log(tmp_path / "other.h5")
+    with pytest.raises(ValueError, match="missing arrays"):
+        Rollout.from_arrays({"readings/qpos": np.zeros((1, 1, 3))})
+
+
+def test_json_is_strict_and_atomic(tmp_path):
+    path = write_json_atomic(tmp_path / "r.json", {"a": float("nan"), "b": np.float32(2.5)})
+    assert path.read_text().replace(" ", "").replace("\n", "") == '{"a":null,"b":2.5}'
+    assert os.listdir(tmp_path) == ["r.json"]
+
+
+def test_cli_evaluate_a_log(planar, tmp_path, capsys):
+    world, roll = planar
+    log = write_log(
+        tmp_path / "log.h5",
+        roll.to_arrays(),
+        {"robot": "planar_leg", "dt": world.dt, "gait": "hop", "noise": "anymal_like"},
+    )
+    assert cli.main(["evaluate", str(log), "--json", str(tmp_path / "m.json")]) == 0
+    out = capsys.readouterr().out
+    assert "probabilistic" in out and "gm" in out and "kinematic" in out
+    assert (tmp_path / "m.json").exists()
+
+
+def test_cli_errors_name_the_problem(tmp_path, capsys):
+    assert cli.main(["evaluate", str(tmp_path / "nope.h5")]) == 2
+    assert "nope.h5" in capsys.readouterr().err
+    assert cli.main(["simulate", str(tmp_path / "out.txt"), "--robot", "planar_leg"]) == 2
+    assert "must end in .h5" in capsys.readouterr().err
+    assert not (tmp_path / "out.txt").exists()
+    with pytest.raises(SystemExit) as exc:
+        cli.main(["--help"])
+    assert exc.value.code == 0
+
+
+def test_build_world_refuses_bad_input():
+    with pytest.raises(ValueError, match="terrain must be one of"):
+        build_world("planar_leg", terrain="ice")
+    with pytest.raises(ValueError, match="'no_such_body'"):
+        build_world("planar_leg", added_mass=[("no_such_body", 1.0)])
+
+
+def test_table_shapes():
+    cell = {
+        "touchdown_delay_ms": (5.0, 1.0),
+        "liftoff_delay_ms": (3.0, 2.0),
+        "failures": 1,
+        "missed": 0,
+        "f1": 0.9,
+        "brier": 0.05,
+        "ece": 0.02,
+        "n_touchdowns": 120,
+    }
+    scores = {k: dict(cell) for k in (*ROWS, *ABLATION_ROWS)}
+    payload = table3_json(
+        {
+            "tuned_gm": {"walk": "a", "trot": "b"},
+            "results": {"trot": {"scores": scores, "upright": 1.0}},
+        }
+    )
+    got = payload["scenarios"]["trot"]["gm_walk"]
+    assert got["touchdown_delay_ms"] == [5.0, 1.0] and got["n_touchdowns"] == 120
+    assert set(payload["scenarios"]["trot"]) == set(ROWS)
+    assert "5.0±  1.0 ms" in format_table(payload)
