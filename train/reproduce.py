@@ -48,7 +48,8 @@ class ReproduceConfig:
       robot: the quadruped of Table III.
       n_envs: envs per scenario on the evaluation seeds.
       duration: simulated seconds per env (evaluation).
-      tune_envs: envs per gait on the tuning seeds.
+      tune_envs: envs per gait on the tuning seeds (equal to ``n_envs``, so that the
+        compiled rollout and replay serve both).
       tune_duration: simulated seconds per env (tuning).
       planar_envs: envs of the Section III planar leg.
       planar_duration: its simulated seconds.
@@ -61,7 +62,7 @@ class ReproduceConfig:
     robot: str = "go1"
     n_envs: int = 8
     duration: float = 6.0
-    tune_envs: int = 4
+    tune_envs: int = 8
     tune_duration: float = 4.0
     planar_envs: int = 4
     planar_duration: float = 4.0
@@ -74,7 +75,7 @@ DEMO = ReproduceConfig()
 FULL = ReproduceConfig(
     n_envs=32,
     duration=20.0,
-    tune_envs=16,
+    tune_envs=32,
     tune_duration=10.0,
     planar_envs=16,
     planar_duration=10.0,
