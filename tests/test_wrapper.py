@@ -1,0 +1,426 @@
+"""Tests of the contact observation wrapper (envs/wrapper.py) and the offline Playground route.
+
+Three compiled programs, each built once (module fixtures or one test): the planar leg
+(one foot, position servos) as a Brax ``PipelineEnv`` under Brax's training wrappers
+(substep rate, ideal sensors and the quadrature touch-down rule, so the estimator is
+deterministic and a restarted belief can be compared with a fresh one exactly); the rate
+comparison on the hopping planar leg (anymal_like sensors); Playground's Go1 joystick env,
+offline, under Playground's training wrappers (control rate, anymal_like sensors, dict
+observation, the env's own ``found`` sensors as truth). The rest is not compiled.
+"""
+
+from __future__ import annotations
+
+import re
+import struct
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+import pytest
+from brax.envs.base import PipelineEnv
+from brax.envs.wrappers import training as brax_training
+from brax.io import mjcf as brax_mjcf
+from ml_collections import config_dict
+from mujoco import mjx
+from mujoco_playground._src import mjx_env
+from mujoco_playground._src import wrapper as pg_wrapper
+
+import jax_contact as jc
+from envs import ground_truth, playground_offline, sensors
+from envs import wrapper as W
+from envs.robots import load_robot
+from jax_contact import metrics
+
+N_FRAMES = 4  # planar leg: 2.5 ms physics, 10 ms env step
+HOP_HZ, HOP_AMP = 2.0, 0.7  # knee sinusoid that makes the planar leg hop (feet lift and land)
+
+
+def hop_actions(n_steps: int, dt: float) -> np.ndarray:
+    """(n_steps, 2) hip and knee targets: knee -1.2 + 0.7 sin(2 pi 2 t), hip = -knee / 2
+    (keeps the foot under the hip), starting from the home pose."""
+    t = np.arange(1, n_steps + 1) * dt
+    knee = -1.2 + HOP_AMP * np.sin(2 * np.pi * HOP_HZ * t)
+    return np.stack([-0.5 * knee, knee], axis=-1).astype(np.float32)
+
+
+@pytest.fixture(scope="module")
+def leg_robot():
+    return ground_truth.with_contact_sensors(load_robot("planar_leg"))
+
+
+@pytest.fixture(scope="module")
+def brax_leg(leg_robot):
+    return W.LeggedPipelineEnv(leg_robot, n_frames=N_FRAMES, position_servo=(300.0, 8.0))
+
+
+class PlaygroundLeg(mjx_env.MjxEnv):
+    """The planar leg as a minimal Playground env (dict observation), for the refusals."""
+
+    def __init__(self, mj_model: mujoco.MjModel, n_substeps: int):
+        dt = float(mj_model.opt.timestep)
+        super().__init__(config_dict.create(ctrl_dt=dt * n_substeps, sim_dt=dt))
+        self._mj = mj_model
+        self._mjx = mjx.put_model(mj_model)
+
+    def reset(self, rng):
+        data = mjx.forward(self._mjx, mjx_env.make_data(self._mj, impl="jax"))
+        zero = jnp.zeros(())
+        obs = {"state": jnp.concatenate([data.qpos, data.qvel])}
+        return mjx_env.State(data, obs, zero, zero, {}, {"rng": rng})
+
+    def step(self, state, action):
+        return state.replace(data=mjx_env.step(self._mjx, state.data, action, self.n_substeps))
+
+    @property
+    def xml_path(self) -> str:
+        return ""
+
+    @property
+    def action_size(self) -> int:
+        return self._mj.nu
+
+    @property
+    def mj_model(self):
+        return self._mj
+
+    @property
+    def mjx_model(self):
+        return self._mjx
+
+
+@pytest.fixture(scope="module")
+def pg_leg(brax_leg):
+    return PlaygroundLeg(brax_leg.mj_model, N_FRAMES)
+
+
+IDEAL = dict(sensor="ideal")
+
+
+class Traced:
+    """``jax.jit(fn)`` that counts its traces and returns strongly typed arrays.
+
+    Playground's Go1 returns one weakly typed metric from ``step`` and a strong one from
+    ``reset``, which would compile ``step`` twice; casting the outputs keeps one compile.
+    ``traces`` checks that the wrapped functions do not retrace in a loop.
+    """
+
+    def __init__(self, fn):
+        self.traces = 0
+
+        def counted(*args):
+            self.traces += 1
+            out = fn(*args)
+            return jax.tree.map(lambda x: jax.lax.convert_element_type(x, x.dtype), out)
+
+        self._jitted = jax.jit(counted)
+
+    def __call__(self, *args):
+        return self._jitted(*args)
+
+
+def _logit(state, key="contact_est"):
+    return np.asarray(state.info[key].belief.logit)
+
+
+# ---------------------------------------------------------------- Brax, substep rate
+
+N_ENVS = 2
+EPISODE = 3  # steps; the training wrappers end (truncate) every episode after 3 steps
+
+
+def _batch(a: np.ndarray) -> jax.Array:
+    return jnp.broadcast_to(jnp.asarray(a), (N_ENVS,) + a.shape)
+
+
+@pytest.fixture(scope="module")
+def brax_train(brax_leg):
+    """The wrapped leg under brax.envs.wrappers.training.wrap, jitted once."""
+    env = W.wrap_contact(brax_leg, W.ContactObsConfig(record_substeps=True), **IDEAL)
+    train = brax_training.wrap(env, episode_length=EPISODE)
+    return env, Traced(train.reset), Traced(train.step)
+
+
+def test_brax_substep_observation_and_info(brax_leg, brax_train):
+    env, reset, step = brax_train
+    assert env.contact_rate == "substep"
+    inner_size = brax_leg.observation_size
+    assert env.observation_size == inner_size + 1  # one foot, p_contact only
+    keys = jax.random.split(jax.random.PRNGKey(0), N_ENVS)
+    state = reset(keys)
+    init = jc.init_belief(env.contact_core.params)
+    np.testing.assert_array_equal(_logit(state), np.full((N_ENVS, 1), init.logit))
+    for a in hop_actions(2, float(brax_leg.dt)):
+        state = step(state, _batch(a))
+    assert state.obs.shape == (N_ENVS, inner_size + 1)
+    # The env's own observation (joint positions after the rail, all velocities) comes
+    # first, unchanged; the estimate is appended.
+    ps = state.pipeline_state
+    np.testing.assert_array_equal(
+        state.obs[:, :inner_size], np.concatenate([ps.qpos[:, 1:], ps.qvel], axis=1)
+    )
+    p = jax.nn.sigmoid(state.info["contact_est"].belief.logit)
+    np.testing.assert_allclose(state.obs[:, inner_size:], p, rtol=1e-6)
+    # Standing on the floor at first: the belief has left 0.5 towards contact.
+    assert np.all(np.asarray(state.info["contact_est_truth"]))
+    assert np.all(np.asarray(state.obs[:, -1]) > 0.9)
+    np.testing.assert_array_equal(state.metrics["contact_est/accuracy"], 1.0)
+    subs = state.info["contact_est_substeps"]
+    assert subs["p_contact"].shape == (N_ENVS, N_FRAMES, 1)
+    np.testing.assert_array_equal(
+        subs["p_contact"][:, -1], state.info["contact_est"].diag.p_contact
+    )
+    # reset clears the belief.
+    np.testing.assert_array_equal(_logit(reset(keys)), np.full((N_ENVS, 1), init.logit))
+
+
+def test_brax_feature_options_sizes(brax_leg):
+    cfg = W.ContactObsConfig(include_logit=True, include_terms=True)
+    env = W.wrap_contact(brax_leg, cfg, **IDEAL)
+    shape = jax.eval_shape(env.reset, jax.random.PRNGKey(0)).obs.shape
+    # p_contact + logit + 5 terms per foot.
+    assert env.observation_size == brax_leg.observation_size + 7 == shape[-1]
+
+
+def _check_autoreset(reset, step, acts, obs_of):
+    """Runs one episode to its end and one step more; the belief must restart.
+
+    A fresh episode stepped once with the same action is the reference: with ideal sensors
+    and the quadrature touch-down rule the estimator is deterministic, so a restarted
+    belief and sensor state give exactly its numbers.
+    """
+    keys = jax.random.split(jax.random.PRNGKey(0), N_ENVS)
+    state = reset(keys)
+    for a in acts[:EPISODE]:
+        state = step(state, _batch(a))
+    assert np.all(np.asarray(state.done) == 1.0)  # the auto-reset swapped the state in
+    terminal = _logit(state)
+    state = step(state, _batch(acts[EPISODE]))
+    fresh = step(reset(keys), _batch(acts[EPISODE]))
+    np.testing.assert_allclose(_logit(state), _logit(fresh), rtol=1e-6)
+    np.testing.assert_allclose(obs_of(state), obs_of(fresh), rtol=1e-6)
+    assert np.all(np.abs(terminal - _logit(fresh)) > 0.1)  # the restart is visible
+    # One env step after the restart: one estimator update per physics substep.
+    np.testing.assert_array_equal(state.info["contact_est"].n_updates, N_FRAMES)
+    return state
+
+
+def test_brax_training_wrap_autoreset_restarts_belief(brax_leg, brax_train):
+    _, reset, step = brax_train
+    acts = hop_actions(EPISODE + 1, float(brax_leg.dt))
+    state = _check_autoreset(reset, step, acts, lambda s: s.obs)
+    assert "contact_est/accuracy" in state.info["episode_metrics"]
+    assert (reset.traces, step.traces) == (1, 1)
+
+
+# ------------------------------------------------------------------------- refusals
+
+
+def test_refusals(leg_robot, brax_leg, pg_leg):
+    with pytest.raises(ValueError, match="valid names"):
+        W.wrap_contact(brax_leg, foot_names=["nope"])
+    with pytest.raises(ValueError, match="config.rate must be one of"):
+        W.wrap_contact(brax_leg, W.ContactObsConfig(rate="fast"))
+    with pytest.raises(ValueError, match="use rate='control'"):
+        W.wrap_contact(pg_leg, W.ContactObsConfig(rate="substep"))
+    with pytest.raises(ValueError, match="config.obs_keys"):
+        _ = W.wrap_contact(pg_leg, W.ContactObsConfig(obs_keys=("policy",))).observation_size
+
+    class Generalized(PipelineEnv):
+        reset = step = None
+
+    sys = brax_mjcf.load_model(load_robot("planar_leg").mj_model)
+    with pytest.raises(ValueError, match="valid backend: 'mjx'"):
+        W.wrap_contact(Generalized(sys, backend="generalized"))
+    with pytest.raises(ValueError, match="Brax Env .* or a Playground MjxEnv"):
+        W.wrap_contact(object())
+    with pytest.raises(ValueError, match="one of"):
+        W.wrap_contact(brax_leg, sensor="noisy")
+    with pytest.raises(ValueError, match="with_contact_sensors"):
+        W.wrap_contact(
+            W.LeggedPipelineEnv(load_robot("planar_leg")), W.ContactObsConfig(truth="force_sensors")
+        )
+
+    no_floor = mujoco.MjModel.from_xml_string(
+        "<mujoco><worldbody><body><freejoint/><geom type='sphere' size='0.1'/></body>"
+        "</worldbody></mujoco>"
+    )
+
+    class NoFloor(PlaygroundLeg):
+        def __init__(self):  # only the model matters for the refusal
+            self._mj, self._mjx = no_floor, mjx.put_model(no_floor)
+
+    with pytest.raises(ValueError, match="no floor"):
+        W.wrap_contact(NoFloor())
+    with pytest.raises(ValueError, match="batch of keys"):
+        W.wrap_contact(pg_leg, **IDEAL).reset(jax.random.split(jax.random.PRNGKey(0), 2))
+
+
+# --------------------------------------------------------------- parameter helpers
+
+
+def test_default_estimator_params_follow_the_sensor_model(leg_robot):
+    dt = 0.0025
+    sp = W.default_sensor_params("anymal_like", leg_robot, dt)
+    assert not sp.floating_base and sp.latency == 1  # 1 step = 2.5 ms at 400 Hz
+    params = W.default_estimator_params(leg_robot, dt, sp)
+    assert params.force_rows == (0, 2)  # the planar leg's joints span x and z
+    assert params.touchdown == "quadrature"
+    # Joints: qd 0.3 rad/s white noise differenced at 400 Hz: sqrt(2) 0.3 / 0.0025 = 169.7.
+    np.testing.assert_allclose(params.noise.sigma_qdd[1:], np.sqrt(2) * 0.3 / dt, rtol=1e-6)
+    # Torque noise 0.5 N m folded into the 2 N m disturbance: sqrt(4 + 0.25) = 2.0616.
+    np.testing.assert_allclose(params.noise.sigma_d[1:], np.sqrt(4.25), rtol=1e-6)
+    # Rail: 0.04 m white, 0.01 m/sqrt(s) bias walk over 10 s: sqrt(0.04^2 + 0.001) = 0.0510.
+    np.testing.assert_allclose(params.noise.sigma_q[0], np.sqrt(0.0016 + 0.001), rtol=1e-5)
+    # Control rate (20 ms): the 2.5 ms latency rounds to 0 steps.
+    assert W.default_sensor_params("anymal_like", leg_robot, 0.02).latency == 0
+    with pytest.raises(ValueError, match="force_rows"):
+        W.default_estimator_params(leg_robot.description, dt, sp)
+    with pytest.raises(ValueError, match="must equal dt"):
+        W.default_estimator_params(leg_robot, 0.02, sp)
+    wrong = sensors.sensor_preset("ideal", 3, dt=0.01, floating_base=False)
+    with pytest.raises(ValueError, match="estimator period"):
+        W.default_sensor_params(wrong, leg_robot, dt)
+
+
+# -------------------------------------------------- tracking and the two rates compared
+
+
+def test_substep_belief_tracks_truth_and_rate_comparison(brax_leg):
+    """Hopping planar leg, anymal_like sensors: the substep-rate belief carried in info
+    tracks the truth (F1 > 0.9); the control-rate numbers come from the same rollouts."""
+    n_steps, n_envs = 150, 2
+    acts = np.broadcast_to(hop_actions(n_steps, float(brax_leg.dt))[:, None], (n_steps, n_envs, 2))
+    res = W.compare_rates(brax_leg, acts, key=jax.random.PRNGKey(0), skip_s=0.1)
+    print("\n" + res.table())
+    assert res.substep.n_steps == (n_steps - 10) * n_envs
+    assert res.substep_all.n_steps == res.substep.n_steps * N_FRAMES
+    assert res.substep_all.n_touchdowns >= 2 * n_envs  # the leg really hops
+    assert res.substep.f1 > 0.9
+    assert res.substep_all.f1 > 0.9
+    assert 0.0 <= res.control.f1 <= 1.0
+
+
+# ------------------------------------------------------------ Playground Go1, offline
+
+
+def _dummy_stl() -> bytes:
+    """A binary STL tetrahedron, 1 cm: a placeholder for the Menagerie's visual meshes."""
+    v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], np.float32) * 0.01
+    tris = [(0, 2, 1), (0, 1, 3), (0, 3, 2), (1, 2, 3)]
+    out = b"\0" * 80 + struct.pack("<I", len(tris))
+    for t in tris:
+        out += struct.pack("<3f", 0, 0, 0) + b"".join(struct.pack("<3f", *v[i]) for i in t)
+        out += b"\0\0"
+    return out
+
+
+def test_offline_go1_model_matches_the_shipped_one():
+    from mujoco_playground._src.locomotion.go1 import base as go1_base
+    from mujoco_playground._src.locomotion.go1 import go1_constants as consts
+
+    env = playground_offline.load("Go1JoystickFlatTerrain")
+    m = env.mj_model
+    # The shipped scene compiled with placeholder meshes: the oracle for everything but
+    # the visual meshes (explicit inertials, so the placeholders carry no mass).
+    assets = go1_base.get_assets()
+    robot_xml = (consts.ROOT_PATH / "xmls" / "go1_mjx_feetonly.xml").read_text()
+    for f in set(re.findall(r'file="([^"]+\.stl)"', robot_xml)):
+        assets[f.split("/")[-1]] = _dummy_stl()
+    ref = mujoco.MjModel.from_xml_string(
+        consts.FEET_ONLY_FLAT_TERRAIN_XML.read_text(), assets=assets
+    )
+    for field in (
+        "body_mass",
+        "body_inertia",
+        "body_ipos",
+        "body_pos",
+        "jnt_range",
+        "dof_armature",
+        "actuator_forcerange",
+        "key_qpos",
+    ):
+        np.testing.assert_array_equal(getattr(m, field), getattr(ref, field), err_msg=field)
+
+    def collision(mm):
+        return [
+            (
+                mm.geom(g).name,
+                int(mm.geom_type[g]),
+                tuple(mm.geom_size[g]),
+                tuple(mm.geom_pos[g]),
+                int(mm.geom_contype[g]),
+                int(mm.geom_conaffinity[g]),
+                tuple(mm.geom_friction[g]),
+            )
+            for g in range(mm.ngeom)
+            if mm.geom_contype[g] or mm.geom_conaffinity[g]
+        ]
+
+    assert collision(m) == collision(ref)
+    assert [m.sensor(i).name for i in range(m.nsensor)] == [
+        ref.sensor(i).name for i in range(ref.nsensor)
+    ]
+    assert m.opt.timestep == pytest.approx(0.004)  # Playground's sim_dt applied
+    assert env.mjx_model.impl.value == "jax"
+    with pytest.raises(ValueError, match="valid names"):
+        playground_offline.load("Go1Getup")
+
+
+def test_go1_joystick_offline_smoke():
+    """Go1 joystick (Playground, offline, impl=jax), wrapped with the defaults (control
+    rate, anymal_like sensors) and Playground's training wrappers, jitted once: sizes, no
+    NaN, truth from the env's own foot sensors, reset and auto-reset restart the belief."""
+    go1 = playground_offline.load("Go1JoystickFlatTerrain")
+    env = W.wrap_contact(go1, W.ContactObsConfig(include_logit=True))
+    core = env.contact_core
+    assert env.contact_rate == "control"
+    assert float(core.params.dt) == pytest.approx(0.02)
+    assert core.desc.foot_names == ("FR", "FL", "RR", "RL")
+    assert core.truth is not None  # the <foot>_floor_found sensors
+    sizes, inner = env.observation_size, go1.observation_size
+    n_state = inner["state"][0]
+    assert sizes["state"] == (n_state + 8,)  # p_contact and logit of 4 feet
+    assert sizes["privileged_state"] == inner["privileged_state"]
+
+    train = pg_wrapper.wrap_for_brax_training(env, episode_length=1000)
+    reset, step = Traced(train.reset), Traced(train.step)
+    keys = jax.random.split(jax.random.PRNGKey(0), N_ENVS)
+    state = reset(keys)
+    init = jc.init_belief(core.params)
+    np.testing.assert_array_equal(_logit(state), np.full((N_ENVS, 4), init.logit))
+    assert state.obs["state"].shape == (N_ENVS,) + sizes["state"]
+    np.testing.assert_allclose(state.obs["state"][:, n_state : n_state + 4], 0.5, rtol=1e-6)
+    zero = jnp.zeros((N_ENVS, go1.action_size))
+    probs, truths = [], []
+    for _ in range(15):
+        state = step(state, zero)
+        probs.append(np.asarray(state.info["contact_est"].diag.p_contact))
+        truths.append(np.asarray(state.info["contact_est_truth"]))
+        for leaf in jax.tree.leaves(state.obs):
+            assert np.all(np.isfinite(np.asarray(leaf)))
+    assert not np.any(np.asarray(state.done))
+    est = state.info["contact_est"]
+    np.testing.assert_allclose(
+        state.obs["state"][:, n_state : n_state + 4], jax.nn.sigmoid(est.belief.logit), rtol=1e-6
+    )
+    # Standing in the default pose: every foot on the floor, and the estimate agrees once
+    # it has settled.
+    scores = metrics.step_scores(np.stack(probs)[5:], np.stack(truths)[5:])
+    assert scores.accuracy > 0.9
+    np.testing.assert_array_equal(est.n_updates, 15)
+
+    # Auto-reset: end the episodes now (EpisodeWrapper truncates at 1000 steps).
+    state.info["steps"] = jnp.full((N_ENVS,), 999.0, dtype=jnp.float32)
+    state = step(state, zero)
+    assert np.all(np.asarray(state.done) == 1.0)
+    np.testing.assert_array_equal(state.info["contact_est"].n_updates, 16)  # terminal step
+    # The swapped-in first observation carries the reset belief ...
+    np.testing.assert_allclose(state.obs["state"][:, n_state : n_state + 4], 0.5, rtol=1e-6)
+    state = step(state, zero)
+    # ... and the next step restarts from it, although info was carried over.
+    np.testing.assert_array_equal(state.info["contact_est"].n_updates, 1)
+    again = reset(jax.random.split(jax.random.PRNGKey(1), N_ENVS))
+    np.testing.assert_array_equal(_logit(again), np.full((N_ENVS, 4), init.logit))
+    assert (reset.traces, step.traces) == (1, 1)
