@@ -60,10 +60,10 @@ class ReproduceConfig:
     """
 
     robot: str = "go1"
-    n_envs: int = 8
-    duration: float = 6.0
-    tune_envs: int = 8
-    tune_duration: float = 4.0
+    n_envs: int = 16
+    duration: float = 8.0
+    tune_envs: int = 16
+    tune_duration: float = 5.0
     planar_envs: int = 4
     planar_duration: float = 4.0
     seed: int = 0
