@@ -115,34 +115,17 @@ def numpy_speedup(n_envs: int = 4096, n_robots_timed: int = 8) -> dict:
 
     meas = synthetic_measurements(n_robots_timed, 4, 18)
     params = jc.make_params(jc.make_noise(18), touchdown="monte_carlo")
-    p = oracle.Params(
-        **{
-            f: np.asarray(getattr(params.noise, f), np.float64)
-            for f in (
-                "sigma_q",
-                "sigma_qd",
-                "sigma_qdd",
-                "sigma_d",
-                "sigma_f",
-                "sigma_J",
-                "sigma_qd_prior",
-            )
-        },
-        **{
-            f: float(getattr(params, f))
-            for f in (
-                "dt",
-                "stance_time",
-                "swing_time",
-                "takeoff_accel",
-                "cap_dynamics",
-                "cap_diff_kinematics",
-                "cap_kinematics",
-                "inv_damping",
-                "initial_contact",
-            )
-        },
-    )
+    # The oracle's parameters, field by field from the JAX ones (names are shared).
+    noise = {
+        f: np.asarray(getattr(params.noise, f), np.float64)
+        for f in jc.NoiseParams.__dataclass_fields__
+    }
+    scalars = {
+        f: float(getattr(params, f))
+        for f in oracle.Params.__dataclass_fields__
+        if f not in noise and f not in ("force_rows", "unilateral")
+    }
+    p = oracle.Params(**noise, **scalars)
     terrain = oracle.Flat(0.0, 0.2)
     leaves = jax.tree.map(np.asarray, meas)
     beliefs = [oracle.init_belief(p) for _ in range(4)]
