@@ -12,7 +12,6 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jax_contact.io import write_json_atomic
 from jax_contact.types import LegMeasurement
 
 
@@ -99,11 +98,6 @@ def machine() -> dict:
         "devices": [str(d) for d in jax.devices()],
         "xla_flags": os.environ.get("XLA_FLAGS", ""),
     }
-
-
-def write_json(path: str | os.PathLike, payload: dict) -> None:
-    """Writes the results atomically (see ``jax_contact.io.write_json_atomic``)."""
-    write_json_atomic(path, payload)
 
 
 def format_table(rows: list[dict], columns: list[tuple[str, str, str]]) -> list[str]:

@@ -25,8 +25,8 @@ from benchmarks.common import (
     machine,
     print_table,
     synthetic_measurements,
-    write_json,
 )
+from jax_contact.io import write_json_atomic
 
 DEFAULT_ENVS = (1, 64, 256, 1024, 4096, 16384)
 MODES = ("quadrature", "monte_carlo")
@@ -206,7 +206,7 @@ def main(argv=None) -> dict:
         "linearity": lin,
     }
     if args.json:
-        write_json(args.json, result)
+        write_json_atomic(args.json, result)
         print(f"\nwrote {args.json}")
     return result
 

@@ -8,8 +8,8 @@ controller at every physics step (``jit`` + ``vmap`` + ``lax.scan``, in chunks).
 Definitions (per environment):
 
 - upright: at every physics step the base is above ``0.5 x`` its standing height, the
-  z-component of the base's up-vector exceeds 0.7, and ``qpos`` holds no NaN (Playground's
-  guard). A failure is latched.
+  z-component of the base's up-vector exceeds 0.7, and ``qpos`` is finite (Playground's
+  NaN guard; the same check as ``envs.simulate.upright``). A failure is latched.
 - touch-down of a foot: the ground-truth flag (normal force > 1 N,
   :mod:`envs.ground_truth`) turns on after the foot was off the ground for at least
   ``--min-air`` seconds (so contact chatter during stance does not count).
@@ -26,7 +26,6 @@ Run ``python benchmarks/gait_survival.py --help``.
 from __future__ import annotations
 
 import argparse
-import json
 import time
 from pathlib import Path
 
@@ -41,6 +40,8 @@ from envs.gaits import gait_control, make_gait, make_gait_robot
 from envs.ground_truth import foot_truth, make_truth_layout, with_contact_sensors
 from envs.robots import Robot, load_robot
 from envs.sensors import perturb_qpos
+from envs.simulate import upright as is_upright
+from jax_contact.io import write_json_atomic
 from jax_contact.robot import derive_description
 
 # Forward-speed command ranges (m/s), per gait.
@@ -117,8 +118,10 @@ def run_one(
     dq = dq.at[:, 2].set(jax.random.uniform(k_base, (n_envs,), minval=-0.01, maxval=0.01))
     dq = dq.at[:, 3:6].set(jax.random.uniform(k_rot, (n_envs, 3), minval=-0.05, maxval=0.05))
     qpos0 = jax.vmap(lambda d: perturb_qpos(home, d, floating_base=True))(dq)
-    qvel0 = jnp.zeros((n_envs, nv)).at[:, 0:3].set(
-        jax.random.uniform(k_vel, (n_envs, 3), minval=-0.1, maxval=0.1)
+    qvel0 = (
+        jnp.zeros((n_envs, nv))
+        .at[:, 0:3]
+        .set(jax.random.uniform(k_vel, (n_envs, 3), minval=-0.1, maxval=0.1))
     )
 
     def init(qpos, qvel):
@@ -142,8 +145,7 @@ def run_one(
         d = mjx.step(mx, d.replace(ctrl=ctrl))
         truth = foot_truth(layout, d)
         t_new = t + dt
-        up_z = 1.0 - 2.0 * (d.qpos[4] ** 2 + d.qpos[5] ** 2)
-        bad = (d.qpos[2] < 0.5 * base_height) | (up_z < 0.7) | jnp.any(jnp.isnan(d.qpos))
+        bad = ~is_upright(d.qpos, True, 0.5 * base_height)
         fallen = tl.fallen | bad
         t_fall = jnp.where(bad & ~tl.fallen, t_new, tl.t_fall)
         was_air = tl.air_time >= min_air
@@ -264,8 +266,7 @@ def main(argv=None) -> None:
                 f" {r['compile_s']:>9.1f}",
                 flush=True,
             )
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(results, indent=2))
+    write_json_atomic(args.out, results)
     print(f"wrote {args.out}")
 
 

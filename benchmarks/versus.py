@@ -32,7 +32,8 @@ import jax.numpy as jnp
 import numpy as np
 
 import jax_contact as jc
-from benchmarks.common import machine, print_table, synthetic_measurements, write_json
+from benchmarks.common import machine, print_table, synthetic_measurements
+from jax_contact.io import write_json_atomic
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -248,7 +249,7 @@ def main(argv=None) -> dict:
         "sharding": sh,
     }
     if args.json:
-        write_json(args.json, result)
+        write_json_atomic(args.json, result)
         print(f"wrote {args.json}")
     return result
 

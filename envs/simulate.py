@@ -188,7 +188,9 @@ class Rollout:
         return cls(**{names[v]: np.asarray(arrays[k]) for k, v in keyed.items()})
 
 
-def _upright(qpos: jax.Array, floating_base: bool, min_height: float) -> jax.Array:
+def upright(qpos: jax.Array, floating_base: bool, min_height: float) -> jax.Array:
+    """() bool: finite ``qpos``; with a floating base also base z above ``min_height`` (m)
+    and the base's up-vector z-component above :data:`UPRIGHT_MIN_Z_AXIS`."""
     finite = jnp.all(jnp.isfinite(qpos))
     if not floating_base:
         return finite
@@ -285,7 +287,7 @@ def simulate(
     # apart, and would compile the chunk twice.
     alive = jax.device_put(jnp.ones((n_envs,), bool), jax.devices()[0])
 
-    upright = (world.floating_base, 0.5 * float(world.robot.home_qpos[2]))
+    upright_args = (world.floating_base, 0.5 * float(world.robot.home_qpos[2]))
     pieces = []
     t_wall = time.perf_counter()
     done = 0
@@ -304,7 +306,7 @@ def simulate(
             sub,
             dt=dt,
             chunk=chunk,
-            upright=upright,
+            upright_args=upright_args,
         )
         pieces.append(jax.device_get(outs))
         done += chunk
@@ -346,23 +348,23 @@ def _init_batch(m, sensors, qpos0, qvel0, keys):
     return jax.vmap(one)(qpos0, qvel0, keys)
 
 
-def _env_step(m, grobot, layout, sensors, upright, g, d, s, ok, t, k):
+def _env_step(m, grobot, layout, sensors, upright_args, g, d, s, ok, t, k):
     ctrl = gait_control(g, grobot, t, d)
     d_next = mjx.step(m, d.replace(ctrl=ctrl))
     truth = foot_truth(layout, d_next)
     # Sensors see the state the step started from and the forces computed during it.
     s, readings = sensor_step(sensors, s, d.qpos, d.qvel, d_next.qfrc_actuator, key=k)
-    ok = ok & _upright(d_next.qpos, *upright)
+    ok = ok & upright(d_next.qpos, *upright_args)
     return d_next, s, ok, (readings, truth.contact, truth.normal_force, truth.distance, ok)
 
 
-@functools.partial(jax.jit, static_argnames=("dt", "chunk", "upright"))
+@functools.partial(jax.jit, static_argnames=("dt", "chunk", "upright_args"))
 def _run_chunk(
-    m, grobot, layout, sensors, gaits, data, sstate, alive, t0, key, *, dt, chunk, upright
+    m, grobot, layout, sensors, gaits, data, sstate, alive, t0, key, *, dt, chunk, upright_args
 ):
     n_envs = alive.shape[0]
     batched = jax.vmap(
-        functools.partial(_env_step, m, grobot, layout, sensors, upright),
+        functools.partial(_env_step, m, grobot, layout, sensors, upright_args),
         in_axes=(0, 0, 0, 0, None, 0),
     )
 
