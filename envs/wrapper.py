@@ -14,7 +14,9 @@ Per estimator update (the flow is one way, truth never reaches the observation):
    :func:`jax_contact.adapter.prepare`, :func:`~jax_contact.adapter.leg_measurements` with
    the measured ``qacc`` and torques) on the *nominal* model the env had when it was
    wrapped: domain randomisation changes the simulated robot, never the estimator's model,
-   as on hardware;
+   as on hardware; by default (``ContactObsConfig.pairing="delayed"``) at the readings of
+   the *previous* update, whose state the newly differenced acceleration belongs to (the
+   pairing :mod:`train.evaluate` explains), so the belief is one estimator period late;
 3. :func:`jax_contact.step` updates each foot's belief.
 
 Rates (``ContactObsConfig.rate``):
@@ -52,7 +54,9 @@ Observation features, per foot in the description's foot order, blocks in this o
 ``p_dynamics, p_diff_kinematics, p_kinematics, p_takeoff, p_touchdown`` (5 x n_legs, a term
 without a valid measurement reads 0.5). They are appended to an array observation, or to
 each ``obs_keys`` entry of a dict observation (Playground's policy input is ``"state"``,
-its critic's ``"privileged_state"``).
+its critic's ``"privileged_state"``). ``observe="truth"`` fills the same layout with the
+ground truth (the privileged baseline), ``observe="none"`` adds nothing; the estimator runs
+and its accuracy is in ``metrics`` either way.
 """
 
 from __future__ import annotations
@@ -79,6 +83,8 @@ from jax_contact import adapter, metrics
 from jax_contact.robot import RobotDescription, derive_description
 
 RATES = ("auto", "substep", "control")
+OBSERVE = ("estimate", "truth", "none")
+PAIRINGS = ("delayed", "raw")
 TRUTH_SOURCES = ("auto", "force_sensors", "found_sensors", "none")
 TERM_NAMES = ("p_dynamics", "p_diff_kinematics", "p_kinematics", "p_takeoff", "p_touchdown")
 # The sensor presets' latency is one step at the paper's 400 Hz (2.5 ms); at other rates
@@ -99,6 +105,15 @@ class ContactObsConfig:
 
     Attributes:
       rate: one of :data:`RATES` (module docstring).
+      observe: what the policy sees, one of :data:`OBSERVE`: ``"estimate"`` the estimator's
+        belief; ``"truth"`` the ground-truth contact in the same layout (``p_contact`` 0 or
+        1, the logit +-``logit_clip``), for the privileged baseline a policy trained on it
+        can then be evaluated with ``"estimate"`` (the sim-to-real check); ``"none"`` no
+        features. The estimator runs, and its accuracy is reported, in all three.
+      pairing: ``"delayed"`` (default) or ``"raw"``, as :func:`train.evaluate.replay`: the
+        update emitted after step ``k`` evaluates the model at the readings of ``k-1``
+        with the acceleration differenced over ``[k-1, k]`` (one consistent sample, one
+        estimator period late); ``"raw"`` pairs everything at ``k``.
       include_logit: also observe the belief's logit.
       include_terms: also observe the five per-term probabilities.
       obs_keys: entries of a dict observation that get the features.
@@ -120,6 +135,8 @@ class ContactObsConfig:
     """
 
     rate: str = struct.field(pytree_node=False, default="auto")
+    observe: str = struct.field(pytree_node=False, default="estimate")
+    pairing: str = struct.field(pytree_node=False, default="delayed")
     include_logit: bool = struct.field(pytree_node=False, default=False)
     include_terms: bool = struct.field(pytree_node=False, default=False)
     obs_keys: tuple[str, ...] = struct.field(pytree_node=False, default=("state",))
@@ -132,12 +149,21 @@ class ContactObsConfig:
 
     @property
     def n_per_foot(self) -> int:
+        if self.observe == "none":
+            return 0
         return 1 + int(self.include_logit) + len(TERM_NAMES) * int(self.include_terms)
 
 
 def _validate_config(cfg: ContactObsConfig) -> None:
     if cfg.rate not in RATES:
         raise ValueError(f"config.rate must be one of {RATES}, got {cfg.rate!r}")
+    if cfg.observe not in OBSERVE:
+        raise ValueError(f"config.observe must be one of {OBSERVE}, got {cfg.observe!r}")
+    if cfg.pairing not in PAIRINGS:
+        raise ValueError(f"config.pairing must be one of {PAIRINGS}, got {cfg.pairing!r}")
+    if cfg.observe == "truth" and cfg.include_terms:
+        raise ValueError("config.include_terms has no ground-truth counterpart: observe='truth'"
+                         " takes p_contact and the logit only")
     if cfg.truth not in TRUTH_SOURCES:
         raise ValueError(f"config.truth must be one of {TRUTH_SOURCES}, got {cfg.truth!r}")
     if isinstance(cfg.obs_keys, str) or not all(isinstance(k, str) for k in cfg.obs_keys):
@@ -162,6 +188,7 @@ class ContactEstState:
         (``valid`` False).
       qpos: (nq,) the true ``qpos`` the wrapper last returned (auto-reset detection).
       qvel: (nv,) the true ``qvel`` the wrapper last returned.
+      prev: the previous sensor readings (delayed pairing; at reset the initial reading).
       n_updates: () int32, estimator updates since the belief last (re)started.
     """
 
@@ -171,6 +198,7 @@ class ContactEstState:
     diag: jc.Diagnostics
     qpos: jax.Array
     qvel: jax.Array
+    prev: sensors.Readings
     n_updates: jax.Array
 
 
@@ -473,6 +501,7 @@ class _Core:
             diag=diag,
             qpos=data.qpos,
             qvel=data.qvel,
+            prev=jax.tree.map(lambda b: b[sensor.head], sensor.buffer),
             n_updates=jnp.int32(0),
         )
 
@@ -489,13 +518,15 @@ class _Core:
         sensor, r = sensors.sensor_step(
             self.sensor, est.sensor, data.qpos, data.qvel, data.qfrc_actuator, key=k_sense
         )
-        d = adapter.prepare(self.mjx_model, data.replace(qpos=r.qpos, qvel=r.qvel))
+        # The state and torque the acceleration belongs to (ContactObsConfig.pairing).
+        at = est.prev if self.cfg.pairing == "delayed" else r
+        d = adapter.prepare(self.mjx_model, data.replace(qpos=at.qpos, qvel=at.qvel))
         meas = adapter.leg_measurements(
             self.mjx_model,
             d,
             self.desc,
             qdd=r.qacc,
-            tau=r.tau,
+            tau=at.tau,
             include_passive=self.cfg.include_passive,
         )
         keys = jax.random.split(k_est, self.desc.n_legs)
@@ -509,20 +540,31 @@ class _Core:
             diag=diag,
             qpos=data.qpos,
             qvel=data.qvel,
+            prev=r,
             n_updates=est.n_updates + 1,
         )
 
-    def features(self, est: ContactEstState) -> jax.Array:
+    def features(self, est: ContactEstState, data) -> jax.Array:
         """(n_per_foot * n_legs,) observation features (module docstring for the layout)."""
+        c = self.cfg.logit_clip
+        if self.cfg.observe == "none":
+            return jnp.zeros((0,), jnp.float32)
+        if self.cfg.observe == "truth":
+            truth = self.truth(data)
+            cols = [truth.astype(jnp.float32)]
+            if self.cfg.include_logit:
+                cols.append(jnp.where(truth, c, -c))
+            return jnp.concatenate(cols).astype(jnp.float32)
         cols = [est.diag.p_contact]
         if self.cfg.include_logit:
-            c = self.cfg.logit_clip
             cols.append(jnp.clip(est.belief.logit, -c, c))
         if self.cfg.include_terms:
             cols += [jnp.nan_to_num(getattr(est.diag, n), nan=0.5) for n in TERM_NAMES]
         return jnp.concatenate(cols).astype(jnp.float32)
 
     def add_features(self, obs, feats: jax.Array):
+        if feats.shape[-1] == 0:
+            return obs
         if isinstance(obs, Mapping):
             missing = [k for k in self.cfg.obs_keys if k not in obs]
             if missing:
@@ -537,6 +579,8 @@ class _Core:
 
     def add_size(self, size):
         n = self.cfg.n_per_foot * self.desc.n_legs
+        if n == 0:
+            return size
         if isinstance(size, Mapping):
             out = dict(size)
             for k in self.cfg.obs_keys:
@@ -613,6 +657,12 @@ def _make_core(env, config, foot_names, sensor, params, terrain) -> tuple[_Core,
             )
     if terrain is None:
         terrain = default_terrain(mj_model, desc)
+    truth = _truth_reader(mj_model, desc, cfg)
+    if cfg.observe == "truth" and truth is None:
+        raise ValueError(
+            f"config.observe='truth' needs ground-truth contact, but config.truth={cfg.truth!r}"
+            " finds none for every foot: add sensors (envs.ground_truth.with_contact_sensors)"
+        )
     core = _Core(
         mjx_model=mjx_model,
         desc=desc,
@@ -620,7 +670,7 @@ def _make_core(env, config, foot_names, sensor, params, terrain) -> tuple[_Core,
         sensor=sensor_params,
         terrain=terrain,
         cfg=cfg,
-        truth=_truth_reader(mj_model, desc, cfg),
+        truth=truth,
     )
     return core, rate
 
@@ -681,7 +731,7 @@ class _ContactMixin:
             metrics_[self._metric_key] = jnp.mean(hit.astype(jnp.float32))
         if core.cfg.record_substeps:
             info[self._substeps_key] = subs
-        obs = core.add_features(state.obs, core.features(est))
+        obs = core.add_features(state.obs, core.features(est, data))
         return state.replace(obs=obs, info=info, metrics=metrics_)
 
     def _substep_record(self, est: ContactEstState, data):

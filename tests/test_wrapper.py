@@ -183,6 +183,83 @@ def test_brax_feature_options_sizes(brax_leg):
     assert env.observation_size == brax_leg.observation_size + 7 == shape[-1]
 
 
+def test_observe_options_sizes_and_refusals(brax_leg):
+    def size(cfg):
+        env = W.wrap_contact(brax_leg, cfg, **IDEAL)
+        shape = jax.eval_shape(env.reset, jax.random.PRNGKey(0)).obs.shape
+        assert env.observation_size == shape[-1]
+        return shape[-1] - brax_leg.observation_size
+
+    assert size(W.ContactObsConfig(observe="none", include_logit=True)) == 0
+    assert size(W.ContactObsConfig(observe="truth", include_logit=True)) == 2
+    assert size(W.ContactObsConfig(observe="estimate", pairing="raw")) == 1
+    with pytest.raises(ValueError, match="config.observe must be one of"):
+        W.wrap_contact(brax_leg, W.ContactObsConfig(observe="oracle"))
+    with pytest.raises(ValueError, match="config.pairing must be one of"):
+        W.wrap_contact(brax_leg, W.ContactObsConfig(pairing="forward"))
+    with pytest.raises(ValueError, match="include_terms"):
+        W.wrap_contact(brax_leg, W.ContactObsConfig(observe="truth", include_terms=True))
+    with pytest.raises(ValueError, match="observe='truth' needs ground-truth"):
+        W.wrap_contact(brax_leg, W.ContactObsConfig(observe="truth", truth="none"))
+
+
+def test_observe_truth_features_are_the_truth(brax_leg):
+    """observe='truth': the slots of p_contact and the logit hold the simulator's flag and
+    +-logit_clip; the estimator still runs and is scored."""
+    cfg = W.ContactObsConfig(observe="truth", include_logit=True, logit_clip=7.0)
+    env = W.wrap_contact(brax_leg, cfg, **IDEAL)
+    state = jax.jit(env.reset)(jax.random.PRNGKey(0))
+    step = jax.jit(env.step)
+    seen = []
+    for a in hop_actions(3, float(brax_leg.dt)):
+        truth = bool(np.asarray(state.info["contact_est_truth"])[0])
+        seen.append(truth)
+        np.testing.assert_array_equal(state.obs[-2:], [1.0, 7.0] if truth else [0.0, -7.0])
+        state = step(state, jnp.asarray(a))
+    assert seen[0] is False and seen[-1] is True  # released just above the floor, lands
+    assert "contact_est/accuracy" in state.metrics
+
+
+def test_delayed_pairing_evaluates_the_previous_reading(leg_robot, brax_leg):
+    """One update, ideal sensors: ``delayed`` uses q, qd, tau of the previous reading with
+    the acceleration (qd_1 - qd_0) / dt; ``raw`` uses those of the new one (here the two
+    readings are one env step, N_FRAMES physics steps, apart; the wiring is what counts). The
+    reference composes the adapter and jax_contact.step by hand."""
+    from jax_contact import adapter
+
+    env = W.wrap_contact(brax_leg, W.ContactObsConfig(pairing="delayed"), **IDEAL)
+    raw = W.wrap_contact(brax_leg, W.ContactObsConfig(pairing="raw"), **IDEAL)
+    core, core_raw = env.contact_core, raw.contact_core
+    d0 = jax.jit(brax_leg.reset)(jax.random.PRNGKey(0)).pipeline_state
+    act = jnp.asarray(hop_actions(1, float(brax_leg.dt))[0])
+    d1 = jax.jit(lambda d: brax_leg.pipeline_step(d, act))(d0)  # n_frames physics steps
+    key = jax.random.PRNGKey(3)
+
+    def wrapper_update(c, d_prev, d_new):
+        est = c.init(d_prev, key)  # ideal sensors: the reading is d_prev exactly
+        return c.update(est, d_new).belief.logit
+
+    def by_hand(d_at, qdd):
+        m = core.mjx_model
+        d = adapter.prepare(m, d_at)
+        meas = adapter.leg_measurements(
+            m, d, core.desc, qdd=qdd, tau=d_at.qfrc_actuator, include_passive=True
+        )
+        belief = jax.tree.map(lambda x: x[None], jc.init_belief(core.params))
+        return jax.vmap(lambda b, mm: jc.step(core.params, core.terrain, b, mm, key=key)[0])(
+            belief, meas
+        ).logit
+
+    qdd = (d1.qvel - d0.qvel) / float(core.sensor.dt)
+    got = jax.jit(wrapper_update, static_argnums=0)(core, d0, d1)
+    got_raw = jax.jit(wrapper_update, static_argnums=0)(core_raw, d0, d1)
+    want = jax.jit(by_hand)(d0, qdd)
+    want_raw = jax.jit(by_hand)(d1, qdd)
+    np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-5)
+    np.testing.assert_allclose(got_raw, want_raw, rtol=1e-5, atol=1e-5)
+    assert not np.allclose(want, want_raw, atol=1e-3)  # the pairing matters here
+
+
 def _check_autoreset(reset, step, acts, obs_of):
     """Runs one episode to its end and one step more; the belief must restart.
 
