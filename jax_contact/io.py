@@ -57,21 +57,16 @@ def write_log(path: str | os.PathLike, arrays: Mapping[str, np.ndarray], attrs: 
     for name, arr in arrays.items():
         if np.asarray(arr).dtype == object:
             raise ValueError(f"array {name!r} has dtype object and cannot be written")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    os.close(fd)
-    try:
+
+    def write(tmp: str) -> None:
         with h5py.File(tmp, "w") as f:
             for name, arr in arrays.items():
                 f.create_dataset(name, data=np.asarray(arr), compression="gzip", compression_opts=1)
             f.attrs["format_version"] = FORMAT_VERSION
             for key, value in attrs.items():
                 f.attrs[key] = _attr(key, value)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return path
+
+    return write_atomic(path, write)
 
 
 def _attr(key: str, value):
@@ -131,23 +126,39 @@ def _decode(value):
     return value
 
 
-def write_json_atomic(path: str | os.PathLike, payload) -> Path:
-    """Writes ``payload`` as JSON atomically (temporary file in the same folder, then rename).
+def write_atomic(path: str | os.PathLike, write) -> Path:
+    """Creates ``path`` atomically: ``write(tmp_path)`` fills a temporary file in the same
+    folder, which is then renamed over ``path``; on any error the temporary file is removed
+    and ``path`` is left as it was.
 
-    NaN and infinity are written as ``null``, so the file is strict JSON.
+    Args:
+      path: the file to create or replace (its folder is created).
+      write: callable taking the temporary file's path (a ``str``).
     """
     path = Path(path)
-    text = json.dumps(_finite(payload), indent=2)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    os.close(fd)
     try:
-        with os.fdopen(fd, "w") as f:
-            f.write(text)
+        write(tmp)
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
     return path
+
+
+def write_text_atomic(path: str | os.PathLike, text: str) -> Path:
+    """Writes ``text`` to ``path`` atomically (:func:`write_atomic`)."""
+    return write_atomic(path, lambda tmp: Path(tmp).write_text(text))
+
+
+def write_json_atomic(path: str | os.PathLike, payload) -> Path:
+    """Writes ``payload`` as JSON atomically (:func:`write_atomic`).
+
+    NaN and infinity are written as ``null``, so the file is strict JSON.
+    """
+    return write_text_atomic(path, json.dumps(_finite(payload), indent=2))
 
 
 def _finite(x):

@@ -69,7 +69,49 @@ def plot_estimate(
         a.set_ylim(-0.05, 1.05)
     fig.suptitle(title)
     fig.tight_layout()
-    path = Path(path)
-    fig.savefig(path, dpi=80)
-    plt.close(fig)
-    return path
+    return _save(fig, path)
+
+
+def _save(fig, path: str | Path) -> Path:
+    """Writes ``fig`` as PNG atomically and closes it."""
+    import matplotlib.pyplot as plt
+
+    from jax_contact.io import write_atomic
+
+    try:
+        return write_atomic(path, lambda tmp: fig.savefig(tmp, format="png", dpi=80))
+    finally:
+        plt.close(fig)
+
+
+def plot_reward_curves(curves: dict, path: str | Path, *, title: str = "") -> Path:
+    """Evaluation return against environment steps, one line per training run.
+
+    Args:
+      curves: run name -> rows of :mod:`train.ppo`'s progress CSV (dicts with ``step``,
+        ``eval_reward``, ``eval_reward_std``).
+      path: PNG file to write.
+      title: figure title.
+
+    Returns:
+      The path written.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7, 4))
+    for name, rows in curves.items():
+        x = np.array([r["step"] for r in rows], dtype=float)
+        y = np.array([r["eval_reward"] for r in rows], dtype=float)
+        sd = np.array([r["eval_reward_std"] for r in rows], dtype=float)
+        ax.plot(x, y, marker="o", label=name)
+        ax.fill_between(x, y - sd, y + sd, alpha=0.15)
+    ax.set_xlabel("environment steps")
+    ax.set_ylabel("evaluation episode return")
+    ax.grid(alpha=0.3)
+    ax.legend(title="contact observation")
+    ax.set_title(title)
+    fig.tight_layout()
+    return _save(fig, path)
