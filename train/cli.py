@@ -59,6 +59,44 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_train(args: argparse.Namespace) -> int:
+    import dataclasses
+
+    from train import ppo
+
+    cfg = ppo.CONFIGS[args.config]
+    if args.timesteps:
+        cfg = dataclasses.replace(cfg, num_timesteps=args.timesteps)
+    ppo.train_variants(
+        cfg,
+        args.out,
+        variants=args.variants,
+        seed=args.seed,
+        overwrite=args.overwrite,
+        eval_envs=args.eval_envs,
+        log=ppo.main_log,
+    )
+    return 0
+
+
+def _cmd_policy_eval(args: argparse.Namespace) -> int:
+    from jax_contact.io import write_json_atomic
+    from train import ppo
+
+    res = ppo.evaluate_policy(
+        args.run, observe=args.observe, n_envs=args.envs, seed=args.seed
+    )
+    print(ppo.format_evaluation([res]))
+    c = res["contact"]
+    print(
+        f"contact: touch-down delay {c['touchdown_delay_ms'][0]:.1f} +- "
+        f"{c['touchdown_delay_ms'][1]:.1f} ms, failures {c['failures']}, Brier {c['brier']:.3f}"
+    )
+    if args.json:
+        write_json_atomic(args.json, res)
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="jax-contact",
@@ -93,6 +131,29 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("log", help="an .h5 log written by `jax-contact simulate`")
     p.add_argument("--json", default=None, help="write the metrics here")
     p.set_defaults(func=_cmd_evaluate)
+
+    p = sub.add_parser(
+        "train", help="PPO on Go1 with no / true / estimated contact in the observation"
+    )
+    p.add_argument("--variants", nargs="+", default=["none", "truth", "estimate"],
+                   choices=("none", "truth", "estimate"))
+    p.add_argument("--config", choices=("small", "full"), default="small",
+                   help="small: this 2-core CPU, <= 20 min per variant; full: a GPU")
+    p.add_argument("--timesteps", type=int, default=None, help="override num_timesteps")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--eval-envs", type=int, default=64, help="episodes of the final evaluation")
+    p.add_argument("--out", default="out/train")
+    p.add_argument("--overwrite", action="store_true", help="replace existing run folders")
+    p.set_defaults(func=_cmd_train)
+
+    p = sub.add_parser("policy-eval", help="evaluate a trained policy (returns, contact metrics)")
+    p.add_argument("run", help="a run folder of `jax-contact train`, e.g. out/train/estimate")
+    p.add_argument("--observe", choices=("none", "truth", "estimate"), default=None,
+                   help="contact the policy sees now (default: what it was trained with)")
+    p.add_argument("--envs", type=int, default=64)
+    p.add_argument("--seed", type=int, default=12345)
+    p.add_argument("--json", default=None)
+    p.set_defaults(func=_cmd_policy_eval)
 
     p = sub.add_parser("bench", help="estimator throughput, latency and memory")
     p.add_argument("--json", default=None)

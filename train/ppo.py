@@ -1,0 +1,554 @@
+"""PPO on a quadruped with three contact observations: none, ground truth, estimated.
+
+The task is MuJoCo Playground's Go1 joystick on flat terrain (track a random base velocity
+command; Playground's own rewards, terminations and observation noise), built offline by
+:mod:`envs.playground_offline` with MJX's JAX implementation. The contact wrapper
+(:mod:`envs.wrapper`, control rate: Playground hides the physics substeps) appends one
+number per foot to the policy's ``"state"`` observation:
+
+- ``"none"``: nothing (the policy Playground trains);
+- ``"truth"``: the simulator's contact flag (the privileged baseline no robot has);
+- ``"estimate"``: the estimator's P(contact) from simulated, noisy proprioception
+  (``anymal_like`` sensors), what the policy will also see on the robot.
+
+The estimator runs in all three, so the training cost is the same and its accuracy is in the
+metrics. The critic sees Playground's ``"privileged_state"`` in all three (it already holds
+the true contact; the critic is not deployed). The sim-to-real check
+(:func:`train_variants`) evaluates the policy trained on ``"truth"`` with ``"estimate"``
+features in the same slots, next to the policy trained on ``"estimate"``.
+
+Training is ``brax.training.agents.ppo.train`` with Playground's training wrappers; only the
+configuration is ours: :data:`SMALL` (this 2-core CPU, under 20 minutes per variant) and
+:data:`FULL` (Playground's published Go1 configuration, for a GPU).
+
+A run folder ``<out>/<variant>/`` holds ``run.json`` (variant and configuration),
+``progress.csv`` (one row per evaluation, rewritten atomically after each),
+``reward.png`` and ``checkpoints/<step>/`` (Brax's orbax checkpoints with their network
+configuration, loadable by :func:`brax.training.agents.ppo.checkpoint.load_policy`).
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import functools
+import io
+import json
+import shutil
+import sys
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+VARIANTS = ("none", "truth", "estimate")
+ENV_NAME = "Go1JoystickFlatTerrain"
+INFO_KEY = "contact_est"
+CSV_FIELDS = (
+    "step",
+    "wall_s",
+    "eval_reward",
+    "eval_reward_std",
+    "eval_episode_length",
+    "eval_contact_accuracy",
+)
+
+
+@dataclasses.dataclass(frozen=True)
+class PPOConfig:
+    """A PPO run: ``brax.training.agents.ppo.train``'s arguments, the networks and the env.
+
+    Attributes:
+      num_timesteps: environment steps of training.
+      num_envs: parallel training environments.
+      batch_size, num_minibatches, unroll_length, num_updates_per_batch: Brax PPO's batch
+        layout: one training step collects ``batch_size * num_minibatches * unroll_length``
+        env steps.
+      num_evals: evaluations (the first before any training), each a row of the CSV and a
+        checkpoint.
+      num_eval_envs: environments per evaluation (one episode each).
+      episode_length: env steps per episode (Go1: 20 ms each).
+      learning_rate, entropy_cost, discounting, reward_scaling, max_grad_norm,
+      clipping_epsilon, normalize_observations: PPO's.
+      policy_hidden, value_hidden: MLP layer sizes.
+      num_resets_per_eval: Brax's host-side resets per evaluation epoch.
+      sensor: sensor preset of the estimator's inputs (:data:`envs.sensors.PRESETS`).
+    """
+
+    num_timesteps: int
+    num_envs: int
+    batch_size: int
+    num_minibatches: int
+    unroll_length: int
+    num_updates_per_batch: int
+    num_evals: int
+    num_eval_envs: int
+    episode_length: int = 1000
+    learning_rate: float = 3e-4
+    entropy_cost: float = 1e-2
+    discounting: float = 0.97
+    reward_scaling: float = 1.0
+    max_grad_norm: float = 1.0
+    clipping_epsilon: float = 0.3
+    normalize_observations: bool = True
+    policy_hidden: tuple[int, ...] = (512, 256, 128)
+    value_hidden: tuple[int, ...] = (512, 256, 128)
+    num_resets_per_eval: int = 0
+    sensor: str = "anymal_like"
+
+    @property
+    def steps_per_training_step(self) -> int:
+        return self.batch_size * self.num_minibatches * self.unroll_length
+
+    def validate(self) -> None:
+        """Raises ValueError naming the field if Brax PPO would refuse or misbehave."""
+        for f in ("num_timesteps", "num_envs", "batch_size", "num_minibatches",
+                  "unroll_length", "num_updates_per_batch", "num_evals", "num_eval_envs",
+                  "episode_length"):
+            v = getattr(self, f)
+            if not (isinstance(v, int) and v >= 1):
+                raise ValueError(f"PPOConfig.{f} must be an int >= 1, got {v!r}")
+        if (self.batch_size * self.num_minibatches) % self.num_envs:
+            raise ValueError(
+                f"PPOConfig: batch_size * num_minibatches ({self.batch_size} *"
+                f" {self.num_minibatches}) must be a multiple of num_envs ({self.num_envs})"
+            )
+        if self.num_timesteps < self.steps_per_training_step:
+            raise ValueError(
+                f"PPOConfig.num_timesteps ({self.num_timesteps}) is less than one training"
+                f" step ({self.steps_per_training_step} env steps)"
+            )
+
+
+# Sized for the 2-core CPU (docs/training.md has the measured times): the wrapped env runs
+# ~6.7k env steps/s at 256 envs on its own; compiling the training step and the evaluation
+# takes ~4 min. 2.46 M steps = 6 epochs of 10 training steps of 40,960 env steps. Smaller
+# networks than Playground's; the PPO hyper-parameters are Playground's Go1 values.
+SMALL = PPOConfig(
+    num_timesteps=2_457_600,
+    num_envs=256,
+    batch_size=256,
+    num_minibatches=8,
+    unroll_length=20,
+    num_updates_per_batch=4,
+    num_evals=7,
+    num_eval_envs=64,
+    policy_hidden=(128, 128, 128),
+    value_hidden=(256, 256, 256),
+)
+
+# Playground's published configuration for Go1JoystickFlatTerrain
+# (mujoco_playground.config.locomotion_params.brax_ppo_config; tests check it still is),
+# for one GPU: 200 M steps over 8192 envs.
+FULL = PPOConfig(
+    num_timesteps=200_000_000,
+    num_envs=8192,
+    batch_size=256,
+    num_minibatches=32,
+    unroll_length=20,
+    num_updates_per_batch=4,
+    num_evals=10,
+    num_eval_envs=128,
+    policy_hidden=(512, 256, 128),
+    value_hidden=(512, 256, 128),
+    num_resets_per_eval=10,
+)
+
+CONFIGS = {"small": SMALL, "full": FULL}
+
+
+# ---------------------------------------------------------------------------- pieces
+
+
+def make_env(observe: str, *, sensor: str = "anymal_like", env_name: str = ENV_NAME):
+    """The unbatched Go1 joystick env with the contact wrapper, observing ``observe``.
+
+    Args:
+      observe: one of :data:`VARIANTS`.
+      sensor: sensor preset of the estimator's inputs.
+      env_name: a name of :data:`envs.playground_offline.ENV_NAMES`.
+    """
+    from envs import playground_offline
+    from envs import wrapper as W
+
+    if observe not in VARIANTS:
+        raise ValueError(f"observe must be one of {VARIANTS}, got {observe!r}")
+    env = playground_offline.load(env_name)
+    cfg = W.ContactObsConfig(observe=observe, obs_keys=("state",), info_key=INFO_KEY)
+    return W.wrap_contact(env, cfg, sensor=sensor)
+
+
+def network_factory(cfg: PPOConfig):
+    """Brax's PPO networks for the dict observation: policy on ``state``, critic on
+    ``privileged_state``."""
+    from brax.training.agents.ppo import networks as ppo_networks
+
+    return functools.partial(
+        ppo_networks.make_ppo_networks,
+        policy_hidden_layer_sizes=tuple(cfg.policy_hidden),
+        value_hidden_layer_sizes=tuple(cfg.value_hidden),
+        policy_obs_key="state",
+        value_obs_key="privileged_state",
+    )
+
+
+def _csv_text(rows: Sequence[dict]) -> str:
+    buf = io.StringIO()
+    w = csv.DictWriter(buf, fieldnames=CSV_FIELDS, lineterminator="\n")
+    w.writeheader()
+    for r in rows:
+        w.writerow({k: r[k] for k in CSV_FIELDS})
+    return buf.getvalue()
+
+
+def read_progress(run_dir: str | Path) -> list[dict]:
+    """The rows of a run's ``progress.csv`` as dicts of floats."""
+    path = Path(run_dir) / "progress.csv"
+    if not path.is_file():
+        raise FileNotFoundError(f"no progress.csv in {run_dir}")
+    with path.open() as f:
+        return [{k: float(v) for k, v in row.items()} for row in csv.DictReader(f)]
+
+
+def load_policy(ckpt: str | Path, *, deterministic: bool = True):
+    """A checkpoint's policy ``(obs, key) -> (action, extras)`` and its observation shapes.
+
+    Brax 0.14.2's ``ppo.checkpoint.load_policy`` cannot read the configuration its own
+    ``save`` writes when a kernel-initialiser argument is None (``KeyError: None``), which
+    is the default for ``mean_kernel_init_fn``; this reads the same files (the network
+    configuration JSON and the orbax parameters) and builds the same network.
+
+    Returns:
+      (policy, {observation key: shape}).
+    """
+    from brax.training import networks as brax_networks
+    from brax.training.acme import running_statistics
+    from brax.training.agents.ppo import checkpoint as ppo_checkpoint
+    from brax.training.agents.ppo import networks as ppo_networks
+
+    ckpt = Path(ckpt)
+    path = ckpt / "ppo_network_config.json"
+    if not path.is_file():
+        raise FileNotFoundError(f"no ppo_network_config.json in {ckpt}: not a Brax PPO checkpoint")
+    cfg = json.loads(path.read_text())
+    kwargs = {k: v for k, v in cfg["network_factory_kwargs"].items() if v is not None}
+    if "activation" in kwargs:
+        kwargs["activation"] = brax_networks.ACTIVATION[kwargs["activation"]]
+    for k, v in kwargs.items():
+        if k.endswith("kernel_init_fn"):
+            kwargs[k] = brax_networks.KERNEL_INITIALIZER[v]
+    sizes = {
+        k: tuple(v["shape"] if isinstance(v, dict) else v)
+        for k, v in cfg["observation_size"].items()
+    }
+    net = ppo_networks.make_ppo_networks(
+        sizes,
+        cfg["action_size"],
+        preprocess_observations_fn=(
+            running_statistics.normalize
+            if cfg["normalize_observations"]
+            else lambda x, _: x
+        ),
+        **kwargs,
+    )
+    params = ppo_checkpoint.load(ckpt)
+    return ppo_networks.make_inference_fn(net)(params, deterministic=deterministic), sizes
+
+
+def latest_checkpoint(run_dir: str | Path) -> Path:
+    """The checkpoint folder with the most steps in ``<run_dir>/checkpoints``."""
+    folder = Path(run_dir) / "checkpoints"
+    steps = sorted(p for p in folder.glob("*") if p.is_dir() and p.name.isdigit())
+    if not steps:
+        raise FileNotFoundError(f"no checkpoint in {folder}: train first (jax-contact train)")
+    return steps[-1]
+
+
+# ----------------------------------------------------------------------------- train
+
+
+@dataclasses.dataclass(frozen=True)
+class RunResult:
+    """What :func:`train` measured.
+
+    Attributes:
+      run_dir: the run folder.
+      rows: the progress rows (:data:`CSV_FIELDS`).
+      wall_s: training wall time, compilation and evaluations included, s.
+      first_eval_s: wall time to the first evaluation (mostly compilation), s.
+    """
+
+    run_dir: Path
+    rows: list[dict]
+    wall_s: float
+    first_eval_s: float
+
+
+def train(
+    variant: str,
+    cfg: PPOConfig,
+    out_dir: str | Path,
+    *,
+    seed: int = 0,
+    overwrite: bool = False,
+    log: Callable[[str], None] = print,
+) -> RunResult:
+    """Trains one variant with Brax PPO; writes the run folder (module docstring).
+
+    Args:
+      variant: one of :data:`VARIANTS`.
+      cfg: the configuration.
+      out_dir: parent folder; the run goes to ``out_dir/variant``.
+      seed: PPO's seed (networks, env keys).
+      overwrite: replace an existing run folder; otherwise one is refused.
+      log: where progress lines go.
+
+    Returns:
+      The :class:`RunResult`.
+
+    Raises:
+      ValueError: an unknown variant, a bad configuration, or an existing run folder.
+    """
+    from brax.training.agents.ppo import train as ppo_train
+    from mujoco_playground._src import wrapper as pg_wrapper
+
+    from jax_contact.io import write_json_atomic, write_text_atomic
+    from train import figures
+
+    if variant not in VARIANTS:
+        raise ValueError(f"variant must be one of {VARIANTS}, got {variant!r}")
+    cfg.validate()
+    run_dir = Path(out_dir) / variant
+    if run_dir.exists() and any(run_dir.iterdir()):
+        if not overwrite:
+            raise ValueError(f"run folder {run_dir} exists and is not empty: pass overwrite")
+        shutil.rmtree(run_dir)
+    run_dir.mkdir(parents=True, exist_ok=True)
+    write_json_atomic(
+        run_dir / "run.json",
+        {"variant": variant, "env": ENV_NAME, "seed": seed, "config": dataclasses.asdict(cfg)},
+    )
+
+    env = make_env(variant, sensor=cfg.sensor)
+    eval_env = make_env(variant, sensor=cfg.sensor)
+    rows: list[dict] = []
+    t0 = time.perf_counter()
+    acc_key = f"eval/episode_{INFO_KEY}/accuracy"
+
+    def progress(step: int, m: dict) -> None:
+        wall = time.perf_counter() - t0
+        length = float(m["eval/avg_episode_length"])
+        row = {
+            "step": int(step),
+            "wall_s": round(wall, 1),
+            "eval_reward": float(m["eval/episode_reward"]),
+            "eval_reward_std": float(m["eval/episode_reward_std"]),
+            "eval_episode_length": length,
+            # The metric is summed over each episode by Brax's evaluator.
+            "eval_contact_accuracy": float(m.get(acc_key, np.nan)) / max(length, 1.0),
+        }
+        rows.append(row)
+        write_text_atomic(run_dir / "progress.csv", _csv_text(rows))
+        log(
+            f"[{variant}] step {row['step']:>10,d}/{cfg.num_timesteps:,d}"
+            f"  return {row['eval_reward']:8.2f} +- {row['eval_reward_std']:6.2f}"
+            f"  episode {length:6.1f} steps  contact acc {row['eval_contact_accuracy']:.3f}"
+            f"  wall {wall:7.1f} s"
+        )
+
+    log(
+        f"[{variant}] training {ENV_NAME}, {cfg.num_timesteps:,d} steps over {cfg.num_envs}"
+        f" envs ({cfg.steps_per_training_step:,d} per training step); compiling ..."
+    )
+    ppo_train.train(
+        environment=env,
+        eval_env=eval_env,
+        wrap_env_fn=pg_wrapper.wrap_for_brax_training,
+        num_timesteps=cfg.num_timesteps,
+        num_evals=cfg.num_evals,
+        num_eval_envs=cfg.num_eval_envs,
+        episode_length=cfg.episode_length,
+        num_envs=cfg.num_envs,
+        batch_size=cfg.batch_size,
+        num_minibatches=cfg.num_minibatches,
+        unroll_length=cfg.unroll_length,
+        num_updates_per_batch=cfg.num_updates_per_batch,
+        learning_rate=cfg.learning_rate,
+        entropy_cost=cfg.entropy_cost,
+        discounting=cfg.discounting,
+        reward_scaling=cfg.reward_scaling,
+        max_grad_norm=cfg.max_grad_norm,
+        clipping_epsilon=cfg.clipping_epsilon,
+        normalize_observations=cfg.normalize_observations,
+        num_resets_per_eval=cfg.num_resets_per_eval,
+        network_factory=network_factory(cfg),
+        seed=seed,
+        progress_fn=progress,
+        save_checkpoint_path=str((run_dir / "checkpoints").resolve()),
+    )
+    wall = time.perf_counter() - t0
+    figures.plot_reward_curves({variant: rows}, run_dir / "reward.png", title=f"Go1 joystick, {variant}")
+    log(f"[{variant}] done in {wall:.0f} s; {run_dir}")
+    return RunResult(run_dir=run_dir, rows=rows, wall_s=wall, first_eval_s=rows[0]["wall_s"])
+
+
+# -------------------------------------------------------------------------- evaluate
+
+
+def evaluate_policy(
+    run_dir: str | Path,
+    *,
+    observe: str | None = None,
+    n_envs: int = 64,
+    episode_length: int | None = None,
+    seed: int = 12345,
+) -> dict:
+    """Runs a run's latest checkpoint (deterministic policy) for one episode per env.
+
+    Args:
+      run_dir: a run folder written by :func:`train`.
+      observe: the contact the policy sees now (:data:`VARIANTS`); None: the one it was
+        trained with. ``"estimate"`` for a ``"truth"`` run is the sim-to-real check.
+      n_envs: episodes, run in parallel.
+      episode_length: env steps per episode; None: the training configuration's.
+      seed: seeds the episodes (commands, noise, the estimator's sensors).
+
+    Returns:
+      ``return_mean``, ``return_std``, ``episode_length_mean`` (steps before termination or
+      the end), ``fell`` (fraction of episodes that terminated early), and ``contact``: the
+      estimator's metrics (:func:`jax_contact.metrics.evaluate`) against the simulator's
+      contact over the steps alive, plus the checkpoint and both observation sources.
+
+    Raises:
+      FileNotFoundError: no run.json or checkpoint.
+      ValueError: an observation the checkpoint's network cannot take.
+    """
+    from mujoco_playground._src import wrapper as pg_wrapper
+
+    from jax_contact import metrics
+
+    run_dir = Path(run_dir)
+    if not (run_dir / "run.json").is_file():
+        raise FileNotFoundError(f"no run.json in {run_dir}: not a run folder of jax-contact train")
+    run = json.loads((run_dir / "run.json").read_text())
+    cfg = PPOConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in run["config"].items()})
+    observe = observe or run["variant"]
+    ckpt = latest_checkpoint(run_dir)
+    env = make_env(observe, sensor=cfg.sensor)
+    policy, sizes = load_policy(ckpt, deterministic=True)
+    have = tuple(env.observation_size["state"])
+    if sizes["state"] != have:
+        raise ValueError(
+            f"observe={observe!r} gives a policy observation of shape {have}; the checkpoint"
+            f" {ckpt} (trained with {run['variant']!r}) takes {sizes['state']}"
+        )
+    t_len = int(episode_length or cfg.episode_length)
+    benv = pg_wrapper.wrap_for_brax_training(env, episode_length=t_len)
+
+    @jax.jit
+    def rollout(key):
+        k_reset, k_act = jax.random.split(key)
+        state = benv.reset(jax.random.split(k_reset, n_envs))
+
+        def body(carry, k):
+            s, alive, ret = carry
+            act, _ = policy(s.obs, k)
+            s = benv.step(s, act)
+            out = (s.info[INFO_KEY].diag.p_contact, s.info[INFO_KEY + "_truth"], alive)
+            ret = ret + jnp.where(alive, s.reward, 0.0)
+            terminated = (s.done > 0) & (s.info["truncation"] == 0)
+            return (s, alive & ~(s.done > 0), ret), out + (alive & terminated,)
+
+        carry = (state, jnp.ones(n_envs, bool), jnp.zeros(n_envs))
+        (_, _, ret), outs = jax.lax.scan(body, carry, jax.random.split(k_act, t_len))
+        return ret, outs
+
+    t0 = time.perf_counter()
+    ret, (p, truth, alive, fell) = jax.device_get(rollout(jax.random.PRNGKey(seed)))
+    wall = time.perf_counter() - t0
+    alive = np.asarray(alive)
+    valid = np.broadcast_to(alive[..., None], np.shape(p))
+    m = metrics.evaluate(np.asarray(p), np.asarray(truth, bool), valid, dt=float(env.dt))
+    return {
+        "run": str(run_dir),
+        "checkpoint": str(ckpt),
+        "trained_with": run["variant"],
+        "observed": observe,
+        "n_episodes": n_envs,
+        "return_mean": float(np.mean(ret)),
+        "return_std": float(np.std(ret)),
+        "episode_length_mean": float(np.mean(alive.sum(axis=0))),
+        "fell": float(np.mean(np.asarray(fell).any(axis=0))),
+        "contact": m.as_dict(),
+        "wall_s": round(wall, 1),
+    }
+
+
+def format_evaluation(results: Sequence[dict]) -> str:
+    """A table of :func:`evaluate_policy` results."""
+    lines = [
+        f"{'trained with':>12s} {'observed':>9s} {'return':>16s} {'ep. length':>10s}"
+        f" {'fell':>5s} {'contact acc':>11s} {'F1':>6s}"
+    ]
+    for r in results:
+        c = r["contact"]
+        lines.append(
+            f"{r['trained_with']:>12s} {r['observed']:>9s}"
+            f" {r['return_mean']:8.2f} +- {r['return_std']:5.2f} {r['episode_length_mean']:10.1f}"
+            f" {r['fell']:5.2f} {c['accuracy']:11.3f} {c['f1']:6.3f}"
+        )
+    return "\n".join(lines)
+
+
+def train_variants(
+    cfg: PPOConfig,
+    out_dir: str | Path,
+    *,
+    variants: Sequence[str] = VARIANTS,
+    seed: int = 0,
+    overwrite: bool = False,
+    eval_envs: int = 64,
+    log: Callable[[str], None] = print,
+) -> dict:
+    """Trains each variant, evaluates each policy, and runs the sim-to-real check.
+
+    Writes ``out_dir/summary.json`` (wall times, curves, evaluations),
+    ``out_dir/reward_curves.csv`` (all runs, a ``variant`` column) and
+    ``out_dir/reward_curves.png``.
+    """
+    from jax_contact.io import write_json_atomic, write_text_atomic
+    from train import figures
+
+    out_dir = Path(out_dir)
+    results = {v: train(v, cfg, out_dir, seed=seed, overwrite=overwrite, log=log) for v in variants}
+    curves = {v: r.rows for v, r in results.items()}
+    lines = ["variant," + ",".join(CSV_FIELDS)]
+    for v, rows in curves.items():
+        lines += [v + "," + ",".join(str(r[k]) for k in CSV_FIELDS) for r in rows]
+    write_text_atomic(out_dir / "reward_curves.csv", "\n".join(lines) + "\n")
+    figures.plot_reward_curves(curves, out_dir / "reward_curves.png", title="Go1 joystick, PPO")
+
+    evals = [evaluate_policy(results[v].run_dir, n_envs=eval_envs) for v in variants]
+    if "truth" in results:  # the sim-to-real check
+        evals.append(evaluate_policy(results["truth"].run_dir, observe="estimate", n_envs=eval_envs))
+    log(format_evaluation(evals))
+    summary = {
+        "env": ENV_NAME,
+        "config": dataclasses.asdict(cfg),
+        "seed": seed,
+        "machine": {"backend": jax.default_backend(), "devices": [str(d) for d in jax.devices()]},
+        "runs": {
+            v: {"wall_s": round(r.wall_s, 1), "first_eval_s": r.first_eval_s, "curve": r.rows}
+            for v, r in results.items()
+        },
+        "evaluation": evals,
+    }
+    write_json_atomic(out_dir / "summary.json", summary)
+    return summary
+
+
+def main_log(msg: str) -> None:
+    print(msg, file=sys.stderr, flush=True)
