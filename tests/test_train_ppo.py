@@ -111,6 +111,31 @@ def test_checkpoint_round_trip_gives_the_same_policy(saved):
         ppo_checkpoint.load_config(ckpt)
 
 
+def test_zero_initialised_mean_round_trips_and_holds_the_default_pose(tmp_path):
+    """SMALL's policy starts with a zero mean layer: the saved configuration names the
+    'constant' initialiser with its kwargs, loads back, and the untrained deterministic
+    action is tanh(0) = 0 (the default pose) for any observation."""
+    cfg = dataclasses.replace(TINY, distribution="normal", zero_init_mean=True, init_noise_std=0.5)
+    factory = ppo.network_factory(cfg)
+    net = factory(SIZES, 12, preprocess_observations_fn=running_statistics.normalize)
+    spec = {k: jax.ShapeDtypeStruct(v, jnp.float32) for k, v in SIZES.items()}
+    k1, k2 = jax.random.split(jax.random.PRNGKey(0))
+    params = (
+        running_statistics.init_state(spec),
+        net.policy_network.init(k1),
+        net.value_network.init(k2),
+    )
+    ppo_checkpoint.save(tmp_path, 0, params, ppo_checkpoint.network_config(SIZES, 12, True, factory))
+    config = json.loads((tmp_path / f"{0:012d}" / "ppo_network_config.json").read_text())
+    kw = config["network_factory_kwargs"]
+    assert kw["mean_kernel_init_fn"] == "constant"
+    assert kw["mean_kernel_init_kwargs"] == {"value": 0.0}
+    assert (kw["init_noise_std"], kw["distribution_type"]) == (0.5, "normal")
+    policy, _ = ppo.load_policy(tmp_path / f"{0:012d}")
+    obs = {k: 3.0 * jax.random.normal(jax.random.PRNGKey(5), (4,) + v) for k, v in SIZES.items()}
+    np.testing.assert_array_equal(policy(obs, jax.random.PRNGKey(0))[0], np.zeros((4, 12)))
+
+
 def test_evaluate_refuses_an_observation_the_network_cannot_take(saved, tmp_path):
     run, _, _ = saved
     with pytest.raises(ValueError, match=r"shape \(48,\); the checkpoint .* takes \(52,\)"):

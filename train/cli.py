@@ -97,6 +97,16 @@ def _cmd_policy_eval(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_rates(args: argparse.Namespace) -> int:
+    from jax_contact.io import write_json_atomic
+    from train import rates
+
+    out = rates.run(args.scenes, seed=args.seed)
+    if args.json:
+        write_json_atomic(args.json, out)
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="jax-contact",
@@ -154,6 +164,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=12345)
     p.add_argument("--json", default=None)
     p.set_defaults(func=_cmd_policy_eval)
+
+    p = sub.add_parser(
+        "rates", help="estimator at every physics step vs once per control step, same rollouts"
+    )
+    p.add_argument("--scenes", nargs="+", default=["planar_leg", "go1"],
+                   choices=("planar_leg", "go1"))
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--json", default=None)
+    p.set_defaults(func=_cmd_rates)
 
     p = sub.add_parser("bench", help="estimator throughput, latency and memory")
     p.add_argument("--json", default=None)
