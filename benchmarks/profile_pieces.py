@@ -1,0 +1,111 @@
+"""Where one estimator update spends its time: each piece jitted alone, XLA's cost analysis.
+
+Run::
+
+    python -m benchmarks.profile_pieces [--envs 1024] [--modes quadrature monte_carlo]
+
+Every piece is ``vmap``-ed over (envs, 4 legs) of :func:`benchmarks.common.synthetic_measurements`
+and compiled ahead of time; it prints the median (and min) ms per call over ``--repeats``
+calls and, per leg, the flops, transcendental calls and bytes that
+``compiled.cost_analysis()`` reports. Pieces fused into one update cost less than alone.
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import time
+
+import jax
+import jax.numpy as jnp
+
+import jax_contact as jc
+from benchmarks.common import synthetic_measurements
+from jax_contact import filter as filter_
+from jax_contact import measurement, transition
+from jax_contact.types import measurement_is_finite
+
+N_LEGS, NV = 4, 18
+
+
+def _time(name: str, fn, args, n_legs: int, repeats: int) -> dict:
+    compiled = jax.jit(fn).lower(*args).compile()
+    cost = compiled.cost_analysis()
+    cost = (cost[0] if isinstance(cost, list) else cost) or {}
+    jax.block_until_ready(compiled(*args))
+    times = []
+    for _ in range(repeats):
+        t = time.perf_counter()
+        jax.block_until_ready(compiled(*args))
+        times.append(time.perf_counter() - t)
+    row = {
+        "piece": name,
+        "median_ms": 1e3 * statistics.median(times),
+        "min_ms": 1e3 * min(times),
+        "flops_per_leg": cost.get("flops", 0.0) / n_legs,
+        "transcendentals_per_leg": cost.get("transcendentals", 0.0) / n_legs,
+        "bytes_per_leg": cost.get("bytes accessed", 0.0) / n_legs,
+    }
+    print(
+        f"{name:24s} {row['median_ms']:8.2f} ms (min {row['min_ms']:7.2f})"
+        f"  flops/leg {row['flops_per_leg']:8.0f}  transc/leg {row['transcendentals_per_leg']:6.0f}"
+        f"  bytes/leg {row['bytes_per_leg']:7.0f}",
+        flush=True,
+    )
+    return row
+
+
+def main(argv=None) -> list[dict]:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--envs", type=int, default=1024)
+    parser.add_argument("--modes", nargs="+", default=["quadrature", "monte_carlo"])
+    parser.add_argument("--repeats", type=int, default=20)
+    args = parser.parse_args(argv)
+    n, legs = args.envs, args.envs * N_LEGS
+    meas = synthetic_measurements(n, N_LEGS, NV)
+    terrain = jc.flat()
+
+    def per_leg(f):
+        return jax.vmap(jax.vmap(f))
+
+    def query(m):
+        return terrain.query(m.p_f, jnp.zeros(3), jnp.array(False))
+
+    rows = []
+    keys = jax.random.split(jax.random.key(0), legs).reshape(n, N_LEGS)
+    for mode in args.modes:
+        params = jc.make_params(jc.make_noise(NV), touchdown=mode)
+        belief = jc.init_belief_batch(params, n, N_LEGS)
+
+        def update(b, m, k, params=params):
+            return jc.step_batch(params, terrain, b, m, key=k)
+
+        def touchdown(m, k, params=params):
+            return transition.log_touchdown(params, m, query(m), key=k)
+
+        rows.append(
+            _time(
+                f"step_batch {mode}", update, (belief, meas, jax.random.key(0)), legs, args.repeats
+            )
+        )
+        rows.append(
+            _time(f"touch-down {mode}", per_leg(touchdown), (meas, keys), legs, args.repeats)
+        )
+    params = jc.make_params(jc.make_noise(NV), touchdown="quadrature")
+    pieces = {
+        "dynamics": lambda m: measurement.dynamics_llr(params, m, query(m).normal),
+        "diff. kinematics": lambda m: measurement.diff_kinematics_llr(params, m),
+        "kinematics": lambda m: measurement.kinematics_llr(params, m, query(m)),
+        "take-off": lambda m: transition.log_takeoff(
+            params, *transition.normal_velocity(params, m, query(m).normal)
+        ),
+        "finiteness check": measurement_is_finite,
+        "sanitize": lambda m: filter_._sanitize(m, measurement_is_finite(m)),
+    }
+    for name, f in pieces.items():
+        rows.append(_time(name, per_leg(f), (meas,), legs, args.repeats))
+    return rows
+
+
+if __name__ == "__main__":
+    main()
