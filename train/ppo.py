@@ -400,6 +400,7 @@ def train(
         num_timesteps=cfg.num_timesteps,
         num_evals=cfg.num_evals,
         num_eval_envs=cfg.num_eval_envs,
+        deterministic_eval=True,  # the curve of the policy as deployed (and policy-eval)
         episode_length=cfg.episode_length,
         num_envs=cfg.num_envs,
         batch_size=cfg.batch_size,
