@@ -14,9 +14,11 @@ Per estimator update (the flow is one way, truth never reaches the observation):
    :func:`jax_contact.adapter.prepare`, :func:`~jax_contact.adapter.leg_measurements` with
    the measured ``qacc`` and torques) on the *nominal* model the env had when it was
    wrapped: domain randomisation changes the simulated robot, never the estimator's model,
-   as on hardware; by default (``ContactObsConfig.pairing="delayed"``) at the readings of
-   the *previous* update, whose state the newly differenced acceleration belongs to (the
-   pairing :mod:`train.evaluate` explains), so the belief is one estimator period late;
+   as on hardware; by default (``ContactObsConfig.pairing="delayed"``) at the state read
+   at the *previous* update, which the newly differenced acceleration belongs to (the
+   pairing :mod:`train.evaluate` explains), with the torque read now (after ``mjx.step``,
+   ``qfrc_actuator`` is the force applied over the step just taken), so the belief is one
+   estimator period late;
 3. :func:`jax_contact.step` updates each foot's belief.
 
 Rates (``ContactObsConfig.rate``):
@@ -111,9 +113,11 @@ class ContactObsConfig:
         can then be evaluated with ``"estimate"`` (the sim-to-real check); ``"none"`` no
         features. The estimator runs, and its accuracy is reported, in all three.
       pairing: ``"delayed"`` (default) or ``"raw"``, as :func:`train.evaluate.replay`: the
-        update emitted after step ``k`` evaluates the model at the readings of ``k-1``
-        with the acceleration differenced over ``[k-1, k]`` (one consistent sample, one
-        estimator period late); ``"raw"`` pairs everything at ``k``.
+        update emitted after step ``k`` evaluates the model at the state read at ``k-1``
+        with the acceleration differenced over ``[k-1, k]`` and the torque read at ``k``
+        (``qfrc_actuator`` after ``mjx.step`` is the force applied over ``[k-1, k]``): one
+        consistent sample, one estimator period late; ``"raw"`` takes the state read at
+        ``k``.
       include_logit: also observe the belief's logit.
       include_terms: also observe the five per-term probabilities.
       obs_keys: entries of a dict observation that get the features.
@@ -518,7 +522,9 @@ class _Core:
         sensor, r = sensors.sensor_step(
             self.sensor, est.sensor, data.qpos, data.qvel, data.qfrc_actuator, key=k_sense
         )
-        # The state and torque the acceleration belongs to (ContactObsConfig.pairing).
+        # The state the acceleration belongs to (ContactObsConfig.pairing). The torque is
+        # always this reading's: ``data.qfrc_actuator`` after ``mjx.step`` is the force
+        # computed at the step's start and applied over it, the interval ``qacc`` spans.
         at = est.prev if self.cfg.pairing == "delayed" else r
         d = adapter.prepare(self.mjx_model, data.replace(qpos=at.qpos, qvel=at.qvel))
         meas = adapter.leg_measurements(
@@ -526,7 +532,7 @@ class _Core:
             d,
             self.desc,
             qdd=r.qacc,
-            tau=at.tau,
+            tau=r.tau,
             include_passive=self.cfg.include_passive,
         )
         keys = jax.random.split(k_est, self.desc.n_legs)
