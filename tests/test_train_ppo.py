@@ -41,10 +41,23 @@ def test_full_config_is_playgrounds_published_go1_config():
 
     ref = locomotion_params.brax_ppo_config(ppo.ENV_NAME)
     full = ppo.FULL
-    for f in ("num_timesteps", "num_envs", "batch_size", "num_minibatches", "unroll_length",
-              "num_updates_per_batch", "num_evals", "episode_length", "learning_rate",
-              "entropy_cost", "discounting", "reward_scaling", "max_grad_norm",
-              "normalize_observations", "num_resets_per_eval"):
+    for f in (
+        "num_timesteps",
+        "num_envs",
+        "batch_size",
+        "num_minibatches",
+        "unroll_length",
+        "num_updates_per_batch",
+        "num_evals",
+        "episode_length",
+        "learning_rate",
+        "entropy_cost",
+        "discounting",
+        "reward_scaling",
+        "max_grad_norm",
+        "normalize_observations",
+        "num_resets_per_eval",
+    ):
         assert getattr(full, f) == ref[f], f
     net = ref.network_factory
     assert full.policy_hidden == tuple(net.policy_hidden_layer_sizes)
@@ -99,8 +112,10 @@ def test_checkpoint_round_trip_gives_the_same_policy(saved):
     policy, sizes = ppo.load_policy(ckpt)
     assert sizes == SIZES
     ref = ppo_networks.make_inference_fn(net)(params, deterministic=True)
-    obs = {k: jax.random.normal(jax.random.PRNGKey(i), (3,) + v)
-           for i, (k, v) in enumerate(SIZES.items())}
+    obs = {
+        k: jax.random.normal(jax.random.PRNGKey(i), (3,) + v)
+        for i, (k, v) in enumerate(SIZES.items())
+    }
     got = policy(obs, jax.random.PRNGKey(1))[0]
     want = ref(obs, jax.random.PRNGKey(1))[0]
     assert got.shape == (3, 12)
@@ -125,7 +140,9 @@ def test_zero_initialised_mean_round_trips_and_holds_the_default_pose(tmp_path):
         net.policy_network.init(k1),
         net.value_network.init(k2),
     )
-    ppo_checkpoint.save(tmp_path, 0, params, ppo_checkpoint.network_config(SIZES, 12, True, factory))
+    ppo_checkpoint.save(
+        tmp_path, 0, params, ppo_checkpoint.network_config(SIZES, 12, True, factory)
+    )
     config = json.loads((tmp_path / f"{0:012d}" / "ppo_network_config.json").read_text())
     kw = config["network_factory_kwargs"]
     assert kw["mean_kernel_init_fn"] == "constant"
@@ -157,14 +174,67 @@ def test_train_refuses_an_existing_run_folder(tmp_path):
 
 def test_progress_csv_and_curve_files(tmp_path):
     rows = [
-        {"step": 0, "wall_s": 10.0, "eval_reward": 0.5, "eval_reward_std": 0.1,
-         "eval_episode_length": 30.0, "eval_contact_accuracy": 0.7},
-        {"step": 40960, "wall_s": 70.5, "eval_reward": 2.5, "eval_reward_std": 0.4,
-         "eval_episode_length": 300.0, "eval_contact_accuracy": 0.9},
+        {
+            "step": 0,
+            "wall_s": 10.0,
+            "eval_reward": 0.5,
+            "eval_reward_std": 0.1,
+            "eval_episode_length": 30.0,
+            "eval_contact_accuracy": 0.7,
+        },
+        {
+            "step": 40960,
+            "wall_s": 70.5,
+            "eval_reward": 2.5,
+            "eval_reward_std": 0.4,
+            "eval_episode_length": 300.0,
+            "eval_contact_accuracy": 0.9,
+        },
     ]
     (tmp_path / "progress.csv").write_text(ppo._csv_text(rows))
     back = ppo.read_progress(tmp_path)
     assert back == [{k: float(v) for k, v in r.items()} for r in rows]
-    png = figures.plot_reward_curves({"estimate": back}, tmp_path / "curve.png")
+    train_rows = [
+        {"step": 81920, "wall_s": 30.0, "train_episode_return": -1.5, "train_episode_length": 40.0}
+    ]
+    (tmp_path / "training.csv").write_text(ppo._csv_text(train_rows, ppo.TRAIN_FIELDS))
+    assert ppo.read_progress(tmp_path, "training.csv") == train_rows
+    png = figures.plot_reward_curves(
+        {"estimate": back}, tmp_path / "curve.png", training={"estimate": train_rows}
+    )
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == []  # no temp left
+
+
+def test_unclipped_reward_is_the_sum_of_the_scaled_terms():
+    """Playground's Go1 reward is clip(sum(scaled terms) * dt, 0); the wrapper drops the
+    clip: terms 2.0 and -5.0 at dt 0.02 give (2 - 5) * 0.02 = -0.06 where the env says 0."""
+    from mujoco_playground._src import mjx_env
+
+    class Fake:
+        dt = 0.02
+
+        @property
+        def unwrapped(self):
+            return self
+
+        def step(self, state, action):
+            metrics = {
+                "reward/tracking": jnp.float32(2.0),
+                "reward/orientation": jnp.float32(-5.0),
+                "swing_peak": jnp.float32(7.0),
+            }
+            return state.replace(reward=jnp.float32(0.0), metrics=metrics)
+
+    state = mjx_env.State(None, jnp.zeros(3), jnp.float32(0.0), jnp.float32(0.0), {}, {})
+    out = ppo.UnclippedReward(Fake()).step(state, jnp.zeros(2))
+    np.testing.assert_allclose(out.reward, -0.06, rtol=1e-6)
+
+    class Silent(Fake):
+        def step(self, state, action):
+            return state
+
+    with pytest.raises(ValueError, match="no reward/<term> metrics"):
+        ppo.UnclippedReward(Silent()).step(state, jnp.zeros(2))
+    with pytest.raises(ValueError, match="PPOConfig.reward"):
+        dataclasses.replace(TINY, reward="shaped").validate()

@@ -83,9 +83,7 @@ def _cmd_policy_eval(args: argparse.Namespace) -> int:
     from jax_contact.io import write_json_atomic
     from train import ppo
 
-    res = ppo.evaluate_policy(
-        args.run, observe=args.observe, n_envs=args.envs, seed=args.seed
-    )
+    res = ppo.evaluate_policy(args.run, observe=args.observe, n_envs=args.envs, seed=args.seed)
     print(ppo.format_evaluation([res]))
     c = res["contact"]
     print(
@@ -145,10 +143,18 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser(
         "train", help="PPO on Go1 with no / true / estimated contact in the observation"
     )
-    p.add_argument("--variants", nargs="+", default=["none", "truth", "estimate"],
-                   choices=("none", "truth", "estimate"))
-    p.add_argument("--config", choices=("small", "full"), default="small",
-                   help="small: this 2-core CPU, <= 20 min per variant; full: a GPU")
+    p.add_argument(
+        "--variants",
+        nargs="+",
+        default=["none", "truth", "estimate"],
+        choices=("none", "truth", "estimate"),
+    )
+    p.add_argument(
+        "--config",
+        choices=("small", "full"),
+        default="small",
+        help="small: this 2-core CPU, <= 20 min per variant; full: a GPU",
+    )
     p.add_argument("--timesteps", type=int, default=None, help="override num_timesteps")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--eval-envs", type=int, default=64, help="episodes of the final evaluation")
@@ -158,8 +164,12 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("policy-eval", help="evaluate a trained policy (returns, contact metrics)")
     p.add_argument("run", help="a run folder of `jax-contact train`, e.g. out/train/estimate")
-    p.add_argument("--observe", choices=("none", "truth", "estimate"), default=None,
-                   help="contact the policy sees now (default: what it was trained with)")
+    p.add_argument(
+        "--observe",
+        choices=("none", "truth", "estimate"),
+        default=None,
+        help="contact the policy sees now (default: what it was trained with)",
+    )
     p.add_argument("--envs", type=int, default=64)
     p.add_argument("--seed", type=int, default=12345)
     p.add_argument("--json", default=None)
@@ -168,8 +178,9 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser(
         "rates", help="estimator at every physics step vs once per control step, same rollouts"
     )
-    p.add_argument("--scenes", nargs="+", default=["planar_leg", "go1"],
-                   choices=("planar_leg", "go1"))
+    p.add_argument(
+        "--scenes", nargs="+", default=["planar_leg", "go1"], choices=("planar_leg", "go1")
+    )
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--json", default=None)
     p.set_defaults(func=_cmd_rates)

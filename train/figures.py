@@ -84,14 +84,18 @@ def _save(fig, path: str | Path) -> Path:
         plt.close(fig)
 
 
-def plot_reward_curves(curves: dict, path: str | Path, *, title: str = "") -> Path:
-    """Evaluation return against environment steps, one line per training run.
+def plot_reward_curves(
+    curves: dict, path: str | Path, *, title: str = "", training: dict | None = None
+) -> Path:
+    """Return against environment steps, one line per training run.
 
     Args:
-      curves: run name -> rows of :mod:`train.ppo`'s progress CSV (dicts with ``step``,
-        ``eval_reward``, ``eval_reward_std``).
+      curves: run name -> rows of :mod:`train.ppo`'s ``progress.csv`` (dicts with ``step``,
+        ``eval_reward``, ``eval_reward_std``): the deterministic policy's evaluations.
       path: PNG file to write.
       title: figure title.
+      training: run name -> rows of ``training.csv`` (``step``,
+        ``train_episode_return``): drawn in a second panel when given.
 
     Returns:
       The path written.
@@ -101,17 +105,28 @@ def plot_reward_curves(curves: dict, path: str | Path, *, title: str = "") -> Pa
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(figsize=(7, 4))
+    n = 2 if training else 1
+    fig, axes = plt.subplots(1, n, figsize=(6 * n, 4), squeeze=False)
+    ax = axes[0, 0]
     for name, rows in curves.items():
         x = np.array([r["step"] for r in rows], dtype=float)
         y = np.array([r["eval_reward"] for r in rows], dtype=float)
         sd = np.array([r["eval_reward_std"] for r in rows], dtype=float)
         ax.plot(x, y, marker="o", label=name)
         ax.fill_between(x, y - sd, y + sd, alpha=0.15)
-    ax.set_xlabel("environment steps")
-    ax.set_ylabel("evaluation episode return")
-    ax.grid(alpha=0.3)
-    ax.legend(title="contact observation")
-    ax.set_title(title)
+    ax.set_title("evaluation (deterministic policy), mean +- std")
+    ax.set_ylabel("episode return")
+    if training:
+        ax = axes[0, 1]
+        for name, rows in training.items():
+            x = np.array([r["step"] for r in rows], dtype=float)
+            y = np.array([r["train_episode_return"] for r in rows], dtype=float)
+            ax.plot(x, y, label=name)
+        ax.set_title("training episodes (stochastic policy), running mean")
+    for ax in axes[0]:
+        ax.set_xlabel("environment steps")
+        ax.grid(alpha=0.3)
+        ax.legend(title="contact observation")
+    fig.suptitle(title)
     fig.tight_layout()
     return _save(fig, path)

@@ -43,8 +43,10 @@ from pathlib import Path
 import jax
 import jax.numpy as jnp
 import numpy as np
+from mujoco_playground._src import wrapper as pg_wrapper
 
 VARIANTS = ("none", "truth", "estimate")
+REWARDS = ("playground", "unclipped")
 ENV_NAME = "Go1JoystickFlatTerrain"
 INFO_KEY = "contact_est"
 CSV_FIELDS = (
@@ -55,6 +57,9 @@ CSV_FIELDS = (
     "eval_episode_length",
     "eval_contact_accuracy",
 )
+# training.csv: Brax's running means over the last 100 finished training episodes
+# (stochastic policy, exploration noise included): the objective PPO climbs.
+TRAIN_FIELDS = ("step", "wall_s", "train_episode_return", "train_episode_length")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -83,6 +88,9 @@ class PPOConfig:
         untrained deterministic policy holds the default pose instead of falling over.
       num_resets_per_eval: Brax's host-side resets per evaluation epoch.
       sensor: sensor preset of the estimator's inputs (:data:`envs.sensors.PRESETS`).
+      reward: ``"playground"`` (the env's reward: the scaled terms summed, times ``dt``,
+        clipped below at 0) or ``"unclipped"`` (the same sum without the clip,
+        :class:`UnclippedReward`).
     """
 
     num_timesteps: int
@@ -108,6 +116,7 @@ class PPOConfig:
     zero_init_mean: bool = False
     num_resets_per_eval: int = 0
     sensor: str = "anymal_like"
+    reward: str = "playground"
 
     @property
     def steps_per_training_step(self) -> int:
@@ -115,9 +124,17 @@ class PPOConfig:
 
     def validate(self) -> None:
         """Raises ValueError naming the field if Brax PPO would refuse or misbehave."""
-        for f in ("num_timesteps", "num_envs", "batch_size", "num_minibatches",
-                  "unroll_length", "num_updates_per_batch", "num_evals", "num_eval_envs",
-                  "episode_length"):
+        for f in (
+            "num_timesteps",
+            "num_envs",
+            "batch_size",
+            "num_minibatches",
+            "unroll_length",
+            "num_updates_per_batch",
+            "num_evals",
+            "num_eval_envs",
+            "episode_length",
+        ):
             v = getattr(self, f)
             if not (isinstance(v, int) and v >= 1):
                 raise ValueError(f"PPOConfig.{f} must be an int >= 1, got {v!r}")
@@ -126,6 +143,8 @@ class PPOConfig:
                 f"PPOConfig.distribution must be 'tanh_normal' or 'normal', got"
                 f" {self.distribution!r}"
             )
+        if self.reward not in REWARDS:
+            raise ValueError(f"PPOConfig.reward must be one of {REWARDS}, got {self.reward!r}")
         if (self.batch_size * self.num_minibatches) % self.num_envs:
             raise ValueError(
                 f"PPOConfig: batch_size * num_minibatches ({self.batch_size} *"
@@ -138,13 +157,13 @@ class PPOConfig:
             )
 
 
-# Sized for the 2-core CPU (docs/training.md has the measured times): the wrapped env runs
-# ~6.7k env steps/s at 256 envs on its own; compiling the training step and the evaluation
-# takes ~4 min. 2.46 M steps = 6 epochs of 10 training steps of 40,960 env steps. Smaller
-# networks than Playground's; the PPO hyper-parameters are Playground's Go1 values. With
-# Playground's initial policy (random mean layer, exploration std 1) the robot fell within
-# ~40 steps and the clipped reward stayed 0 for the first 0.8 M steps (measured): starting
-# from the default pose with less exploration noise gives the CPU budget a signal.
+# Sized for the 2-core CPU (docs/training.md has the measured times): ~4k env steps/s in
+# training at 256 envs with the machine otherwise idle, ~2 min of compilation. 2.46 M steps =
+# 6 epochs of 10 training steps of 40,960 env steps. Smaller networks than Playground's; the
+# PPO hyper-parameters are Playground's Go1 values. The reward is unclipped: Playground's
+# clip at 0 hides every improvement while the robot still falls (measured: with it, the
+# random initial policy fell within ~40 steps and the reward stayed 0 for the first 0.8 M
+# steps; a policy started at the default pose stood at a return of ~18 and stayed there).
 SMALL = PPOConfig(
     num_timesteps=2_457_600,
     num_envs=256,
@@ -156,9 +175,7 @@ SMALL = PPOConfig(
     num_eval_envs=64,
     policy_hidden=(128, 128, 128),
     value_hidden=(256, 256, 256),
-    distribution="normal",
-    init_noise_std=0.5,
-    zero_init_mean=True,
+    reward="unclipped",
 )
 
 # Playground's published configuration for Go1JoystickFlatTerrain
@@ -184,12 +201,34 @@ CONFIGS = {"small": SMALL, "full": FULL}
 # ---------------------------------------------------------------------------- pieces
 
 
-def make_env(observe: str, *, sensor: str = "anymal_like", env_name: str = ENV_NAME):
+class UnclippedReward(pg_wrapper.Wrapper):
+    """Playground env wrapper: the reward is the sum of the env's scaled reward terms (its
+    ``metrics["reward/<term>"]``) times ``dt``, without the env's clip at 0."""
+
+    def step(self, state, action):
+        state = self.env.step(state, action)
+        terms = [v for k, v in state.metrics.items() if k.startswith("reward/")]
+        if not terms:
+            raise ValueError(
+                f"{type(self.env.unwrapped).__name__} puts no reward/<term> metrics in its"
+                " state: reward='unclipped' needs them"
+            )
+        return state.replace(reward=sum(terms) * self.env.dt)
+
+
+def make_env(
+    observe: str,
+    *,
+    sensor: str = "anymal_like",
+    reward: str = "playground",
+    env_name: str = ENV_NAME,
+):
     """The unbatched Go1 joystick env with the contact wrapper, observing ``observe``.
 
     Args:
       observe: one of :data:`VARIANTS`.
       sensor: sensor preset of the estimator's inputs.
+      reward: one of :data:`REWARDS` (:class:`PPOConfig`).
       env_name: a name of :data:`envs.playground_offline.ENV_NAMES`.
     """
     from envs import playground_offline
@@ -197,7 +236,11 @@ def make_env(observe: str, *, sensor: str = "anymal_like", env_name: str = ENV_N
 
     if observe not in VARIANTS:
         raise ValueError(f"observe must be one of {VARIANTS}, got {observe!r}")
+    if reward not in REWARDS:
+        raise ValueError(f"reward must be one of {REWARDS}, got {reward!r}")
     env = playground_offline.load(env_name)
+    if reward == "unclipped":
+        env = UnclippedReward(env)
     cfg = W.ContactObsConfig(observe=observe, obs_keys=("state",), info_key=INFO_KEY)
     return W.wrap_contact(env, cfg, sensor=sensor)
 
@@ -225,20 +268,20 @@ def network_factory(cfg: PPOConfig):
     )
 
 
-def _csv_text(rows: Sequence[dict]) -> str:
+def _csv_text(rows: Sequence[dict], fields: Sequence[str] = CSV_FIELDS) -> str:
     buf = io.StringIO()
-    w = csv.DictWriter(buf, fieldnames=CSV_FIELDS, lineterminator="\n")
+    w = csv.DictWriter(buf, fieldnames=fields, lineterminator="\n")
     w.writeheader()
     for r in rows:
-        w.writerow({k: r[k] for k in CSV_FIELDS})
+        w.writerow({k: r[k] for k in fields})
     return buf.getvalue()
 
 
-def read_progress(run_dir: str | Path) -> list[dict]:
-    """The rows of a run's ``progress.csv`` as dicts of floats."""
-    path = Path(run_dir) / "progress.csv"
+def read_progress(run_dir: str | Path, name: str = "progress.csv") -> list[dict]:
+    """The rows of a run's ``progress.csv`` (or ``training.csv``) as dicts of floats."""
+    path = Path(run_dir) / name
     if not path.is_file():
-        raise FileNotFoundError(f"no progress.csv in {run_dir}")
+        raise FileNotFoundError(f"no {name} in {run_dir}")
     with path.open() as f:
         return [{k: float(v) for k, v in row.items()} for row in csv.DictReader(f)]
 
@@ -278,9 +321,7 @@ def load_policy(ckpt: str | Path, *, deterministic: bool = True):
         sizes,
         cfg["action_size"],
         preprocess_observations_fn=(
-            running_statistics.normalize
-            if cfg["normalize_observations"]
-            else lambda x, _: x
+            running_statistics.normalize if cfg["normalize_observations"] else lambda x, _: x
         ),
         **kwargs,
     )
@@ -307,12 +348,14 @@ class RunResult:
     Attributes:
       run_dir: the run folder.
       rows: the progress rows (:data:`CSV_FIELDS`).
+      train_rows: the training-episode rows (:data:`TRAIN_FIELDS`).
       wall_s: training wall time, compilation and evaluations included, s.
       first_eval_s: wall time to the first evaluation (mostly compilation), s.
     """
 
     run_dir: Path
     rows: list[dict]
+    train_rows: list[dict]
     wall_s: float
     first_eval_s: float
 
@@ -343,7 +386,6 @@ def train(
       ValueError: an unknown variant, a bad configuration, or an existing run folder.
     """
     from brax.training.agents.ppo import train as ppo_train
-    from mujoco_playground._src import wrapper as pg_wrapper
 
     from jax_contact.io import write_json_atomic, write_text_atomic
     from train import figures
@@ -362,14 +404,26 @@ def train(
         {"variant": variant, "env": ENV_NAME, "seed": seed, "config": dataclasses.asdict(cfg)},
     )
 
-    env = make_env(variant, sensor=cfg.sensor)
-    eval_env = make_env(variant, sensor=cfg.sensor)
+    env = make_env(variant, sensor=cfg.sensor, reward=cfg.reward)
+    eval_env = make_env(variant, sensor=cfg.sensor, reward=cfg.reward)
     rows: list[dict] = []
+    train_rows: list[dict] = []
     t0 = time.perf_counter()
     acc_key = f"eval/episode_{INFO_KEY}/accuracy"
 
     def progress(step: int, m: dict) -> None:
         wall = time.perf_counter() - t0
+        if "eval/episode_reward" not in m:  # Brax's training-episode metrics
+            train_rows.append(
+                {
+                    "step": int(step),
+                    "wall_s": round(wall, 1),
+                    "train_episode_return": float(m.get("episode/sum_reward", np.nan)),
+                    "train_episode_length": float(m.get("episode/length", np.nan)),
+                }
+            )
+            write_text_atomic(run_dir / "training.csv", _csv_text(train_rows, TRAIN_FIELDS))
+            return
         length = float(m["eval/avg_episode_length"])
         row = {
             "step": int(step),
@@ -381,7 +435,7 @@ def train(
             "eval_contact_accuracy": float(m.get(acc_key, np.nan)) / max(length, 1.0),
         }
         rows.append(row)
-        write_text_atomic(run_dir / "progress.csv", _csv_text(rows))
+        write_text_atomic(run_dir / "progress.csv", _csv_text(rows, CSV_FIELDS))
         log(
             f"[{variant}] step {row['step']:>10,d}/{cfg.num_timesteps:,d}"
             f"  return {row['eval_reward']:8.2f} +- {row['eval_reward_std']:6.2f}"
@@ -401,6 +455,8 @@ def train(
         num_evals=cfg.num_evals,
         num_eval_envs=cfg.num_eval_envs,
         deterministic_eval=True,  # the curve of the policy as deployed (and policy-eval)
+        log_training_metrics=True,
+        training_metrics_steps=2 * cfg.steps_per_training_step,
         episode_length=cfg.episode_length,
         num_envs=cfg.num_envs,
         batch_size=cfg.batch_size,
@@ -421,9 +477,20 @@ def train(
         save_checkpoint_path=str((run_dir / "checkpoints").resolve()),
     )
     wall = time.perf_counter() - t0
-    figures.plot_reward_curves({variant: rows}, run_dir / "reward.png", title=f"Go1 joystick, {variant}")
+    figures.plot_reward_curves(
+        {variant: rows},
+        run_dir / "reward.png",
+        title=f"Go1 joystick, {variant}",
+        training={variant: train_rows},
+    )
     log(f"[{variant}] done in {wall:.0f} s; {run_dir}")
-    return RunResult(run_dir=run_dir, rows=rows, wall_s=wall, first_eval_s=rows[0]["wall_s"])
+    return RunResult(
+        run_dir=run_dir,
+        rows=rows,
+        train_rows=train_rows,
+        wall_s=wall,
+        first_eval_s=rows[0]["wall_s"],
+    )
 
 
 # -------------------------------------------------------------------------- evaluate
@@ -457,8 +524,6 @@ def evaluate_policy(
       FileNotFoundError: no run.json or checkpoint.
       ValueError: an observation the checkpoint's network cannot take.
     """
-    from mujoco_playground._src import wrapper as pg_wrapper
-
     from jax_contact import metrics
 
     run_dir = Path(run_dir)
@@ -468,7 +533,7 @@ def evaluate_policy(
     cfg = PPOConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in run["config"].items()})
     observe = observe or run["variant"]
     ckpt = latest_checkpoint(run_dir)
-    env = make_env(observe, sensor=cfg.sensor)
+    env = make_env(observe, sensor=cfg.sensor, reward=cfg.reward)
     policy, sizes = load_policy(ckpt, deterministic=True)
     have = tuple(env.observation_size["state"])
     if sizes["state"] != have:
@@ -547,8 +612,8 @@ def train_variants(
     """Trains each variant, evaluates each policy, and runs the sim-to-real check.
 
     Writes ``out_dir/summary.json`` (wall times, curves, evaluations),
-    ``out_dir/reward_curves.csv`` (all runs, a ``variant`` column) and
-    ``out_dir/reward_curves.png``.
+    ``out_dir/reward_curves.csv`` and ``training_curves.csv`` (all runs, a ``variant``
+    column) and ``out_dir/reward_curves.png``.
     """
     from jax_contact.io import write_json_atomic, write_text_atomic
     from train import figures
@@ -556,15 +621,24 @@ def train_variants(
     out_dir = Path(out_dir)
     results = {v: train(v, cfg, out_dir, seed=seed, overwrite=overwrite, log=log) for v in variants}
     curves = {v: r.rows for v, r in results.items()}
-    lines = ["variant," + ",".join(CSV_FIELDS)]
-    for v, rows in curves.items():
-        lines += [v + "," + ",".join(str(r[k]) for k in CSV_FIELDS) for r in rows]
-    write_text_atomic(out_dir / "reward_curves.csv", "\n".join(lines) + "\n")
-    figures.plot_reward_curves(curves, out_dir / "reward_curves.png", title="Go1 joystick, PPO")
+    training = {v: r.train_rows for v, r in results.items()}
+    for name, data, fields in (
+        ("reward_curves.csv", curves, CSV_FIELDS),
+        ("training_curves.csv", training, TRAIN_FIELDS),
+    ):
+        lines = ["variant," + ",".join(fields)]
+        for v, rows in data.items():
+            lines += [v + "," + ",".join(str(r[k]) for k in fields) for r in rows]
+        write_text_atomic(out_dir / name, "\n".join(lines) + "\n")
+    figures.plot_reward_curves(
+        curves, out_dir / "reward_curves.png", title="Go1 joystick, PPO", training=training
+    )
 
     evals = [evaluate_policy(results[v].run_dir, n_envs=eval_envs) for v in variants]
     if "truth" in results:  # the sim-to-real check
-        evals.append(evaluate_policy(results["truth"].run_dir, observe="estimate", n_envs=eval_envs))
+        evals.append(
+            evaluate_policy(results["truth"].run_dir, observe="estimate", n_envs=eval_envs)
+        )
     log(format_evaluation(evals))
     summary = {
         "env": ENV_NAME,
@@ -572,7 +646,12 @@ def train_variants(
         "seed": seed,
         "machine": {"backend": jax.default_backend(), "devices": [str(d) for d in jax.devices()]},
         "runs": {
-            v: {"wall_s": round(r.wall_s, 1), "first_eval_s": r.first_eval_s, "curve": r.rows}
+            v: {
+                "wall_s": round(r.wall_s, 1),
+                "first_eval_s": r.first_eval_s,
+                "curve": r.rows,
+                "training_curve": r.train_rows,
+            }
             for v, r in results.items()
         },
         "evaluation": evals,
