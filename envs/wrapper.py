@@ -1019,6 +1019,7 @@ def compare_rates(
     params_kwargs: Mapping | None = None,
     control_params_kwargs: Mapping | None = None,
     skip_s: float = 0.0,
+    pairing: str = "delayed",
 ) -> RateComparison:
     """Measures the accuracy lost by the control-rate mode against the substep mode.
 
@@ -1038,6 +1039,7 @@ def compare_rates(
       control_params_kwargs: more of them for the control rate only (e.g.
         ``sigma_qdd_model``), applied last.
       skip_s: time at the start of every rollout left out of the scores (settling), s.
+      pairing: :attr:`ContactObsConfig.pairing` of both estimators.
 
     Returns:
       The metrics of :func:`jax_contact.metrics.evaluate` for both, over the steps before
@@ -1058,9 +1060,15 @@ def compare_rates(
         sp = default_sensor_params(sensor, robot, dt)
         return default_estimator_params(robot, dt, sp, **{**extra, **more})
 
-    ctrl_cfg = ContactObsConfig(rate="control", info_key="contact_control", truth="auto")
+    ctrl_cfg = ContactObsConfig(
+        rate="control", info_key="contact_control", truth="auto", pairing=pairing
+    )
     sub_cfg = ContactObsConfig(
-        rate="substep", info_key="contact_substep", truth="auto", record_substeps=True
+        rate="substep",
+        info_key="contact_substep",
+        truth="auto",
+        record_substeps=True,
+        pairing=pairing,
     )
     inner = BraxContactWrapper(env, ctrl_cfg, foot_names=foot_names, sensor=sensor,
                                params=make_params(dt_ctrl, dict(control_params_kwargs or {})))

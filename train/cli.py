@@ -99,7 +99,7 @@ def _cmd_rates(args: argparse.Namespace) -> int:
     from jax_contact.io import write_json_atomic
     from train import rates
 
-    out = rates.run(args.scenes, seed=args.seed)
+    out = rates.run(args.scenes, seed=args.seed, pairing=args.pairing)
     if args.json:
         write_json_atomic(args.json, out)
     return 0
@@ -182,6 +182,12 @@ def build_parser() -> argparse.ArgumentParser:
         "--scenes", nargs="+", default=["planar_leg", "go1"], choices=("planar_leg", "go1")
     )
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument(
+        "--pairing",
+        default="delayed",
+        choices=("delayed", "raw"),
+        help="state the differenced acceleration is paired with (ContactObsConfig.pairing)",
+    )
     p.add_argument("--json", default=None)
     p.set_defaults(func=_cmd_rates)
 

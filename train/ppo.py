@@ -23,8 +23,9 @@ configuration is ours: :data:`SMALL` (this 2-core CPU, under 20 minutes per vari
 
 A run folder ``<out>/<variant>/`` holds ``run.json`` (variant and configuration),
 ``progress.csv`` (one row per evaluation, rewritten atomically after each),
-``reward.png`` and ``checkpoints/<step>/`` (Brax's orbax checkpoints with their network
-configuration, loadable by :func:`brax.training.agents.ppo.checkpoint.load_policy`).
+``training.csv`` (Brax's training-episode means), ``reward.png`` and
+``checkpoints/<step>/`` (Brax's orbax checkpoints with their network configuration, loaded
+by :func:`load_policy`; Brax 0.14.2's own loader cannot read them, see there).
 """
 
 from __future__ import annotations
@@ -302,7 +303,7 @@ def load_policy(ckpt: str | Path, *, deterministic: bool = True):
     from brax.training.agents.ppo import checkpoint as ppo_checkpoint
     from brax.training.agents.ppo import networks as ppo_networks
 
-    ckpt = Path(ckpt)
+    ckpt = Path(ckpt).resolve()  # orbax refuses relative paths
     path = ckpt / "ppo_network_config.json"
     if not path.is_file():
         raise FileNotFoundError(f"no ppo_network_config.json in {ckpt}: not a Brax PPO checkpoint")

@@ -54,24 +54,30 @@ def scene(name: str, n_steps: int = N_STEPS, n_rollouts: int = N_ROLLOUTS):
     return env, acts.astype(np.float32)
 
 
-def run(scenes=SCENES, *, seed: int = 0, log=print) -> dict:
-    """Runs :func:`envs.wrapper.compare_rates` on each scene; returns name -> metrics."""
+def run(scenes=SCENES, *, seed: int = 0, pairing: str = "delayed", log=print) -> dict:
+    """Runs :func:`envs.wrapper.compare_rates` on each scene; returns name -> metrics.
+
+    ``pairing`` is :attr:`envs.wrapper.ContactObsConfig.pairing` of both estimators.
+    """
     from envs import wrapper as W
 
     out = {}
     for name in scenes:
         env, acts = scene(name)
         t0 = time.perf_counter()
-        res = W.compare_rates(env, acts, key=jax.random.PRNGKey(seed), skip_s=0.2)
+        res = W.compare_rates(
+            env, acts, key=jax.random.PRNGKey(seed), skip_s=0.2, pairing=pairing
+        )
         wall = time.perf_counter() - t0
         log(
             f"{name}: {acts.shape[0]} env steps x {acts.shape[1]} rollouts, anymal_like"
-            f" sensors, {res.dt_substep * 1e3:g} ms physics, {res.dt_control * 1e3:g} ms"
-            f" control ({wall:.0f} s)\n{res.table()}"
+            f" sensors, {pairing} pairing, {res.dt_substep * 1e3:g} ms physics,"
+            f" {res.dt_control * 1e3:g} ms control ({wall:.0f} s)\n{res.table()}"
         )
         out[name] = {
             "dt_substep": res.dt_substep,
             "dt_control": res.dt_control,
+            "pairing": pairing,
             "substep": res.substep.as_dict(),
             "control": res.control.as_dict(),
             "substep_every_physics_step": res.substep_all.as_dict(),
