@@ -330,9 +330,9 @@ def default_estimator_params(
       quadrature with ``sigma_qdd_model``, an acceleration model error for the control
       rate, where ``qacc`` is the mean over a control period but the dynamics term predicts
       the instantaneous acceleration. Default 0: measured with :func:`compare_rates` (16
-      rollouts, 20 ms control period), 1000 rad/s^2 raised the control-rate accuracy of the
-      hopping planar leg (stiff servos) from 0.858 to 0.905 but lowered the stepping Go1's
-      from 0.882 to 0.824. Floor 1 rad/s^2.
+      rollouts, 20 ms control period, ``pairing="raw"``), 1000 rad/s^2 raised the
+      control-rate accuracy of the hopping planar leg (stiff servos) from 0.858 to 0.905
+      but lowered the stepping Go1's from 0.882 to 0.824. Floor 1 rad/s^2.
     - ``sigma_d = sqrt(sigma_d**2 + sigma_tau**2)``: Table II's 2 N m disturbance plus the
       torque sensors' noise, which enters the equation of motion the same way.
     - ``sigma_f`` 10 N, ``sigma_J`` 0.05 m/s, swing prior 25 rad/s: MODEL.md's choices.
