@@ -3,6 +3,9 @@ PYTHON ?= python3
 VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
+# Two pytest-xdist workers, one per core here; each file runs whole on one worker, so its
+# module fixtures compile once. `make test TEST_WORKERS=0` runs it in one process.
+TEST_WORKERS ?= 2
 
 .PHONY: demo test install lint clean
 
@@ -18,7 +21,7 @@ demo: $(STAMP)
 	$(VENV)/bin/jax-contact demo --out out/demo
 
 test: $(STAMP)
-	$(PY) -m pytest -q -p no:cacheprovider
+	$(PY) -m pytest -q -p no:cacheprovider -n $(TEST_WORKERS) --dist loadfile
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check jax_contact envs train tests benchmarks
