@@ -55,6 +55,12 @@ def _time(name: str, fn, args, n_legs: int, repeats: int) -> dict:
     return row
 
 
+def _read_once(m) -> jax.Array:
+    """() the sum of every floating-point input of a batch: one pass over its bytes."""
+    leaves = [x for x in jax.tree.leaves(m) if jnp.issubdtype(x.dtype, jnp.floating)]
+    return sum(jnp.sum(x) for x in leaves)
+
+
 def main(argv=None) -> list[dict]:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--envs", type=int, default=1024)
@@ -104,6 +110,9 @@ def main(argv=None) -> list[dict]:
     }
     for name, f in pieces.items():
         rows.append(_time(name, per_leg(f), (meas,), legs, args.repeats))
+    # The floor for any update that reads this layout: one pass over every input byte of the
+    # whole batch (the per-leg copy of the mass matrix dominates), no arithmetic to speak of.
+    rows.append(_time("read inputs once", _read_once, (meas,), legs, args.repeats))
     return rows
 
 
