@@ -7,6 +7,7 @@ deterministic and a restarted belief can be compared with a fresh one exactly); 
 comparison on the hopping planar leg (anymal_like sensors). The rest is not compiled.
 Playground's Go1 joystick env, offline, is in tests/test_wrapper_go1.py.
 """
+
 from __future__ import annotations
 
 import jax
