@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 import platform
+import re
 import statistics
 import time
 from collections.abc import Callable
@@ -86,8 +87,35 @@ def compile_and_time(
     }
 
 
+def kernel_count(compiled) -> int:
+    """Kernels one call of a compiled XLA:CPU executable launches (its entry's fusions,
+    dots, copies and library calls; parameters, constants and bitcasts launch nothing)."""
+    text = compiled.as_text()
+    entry = text[text.index("\nENTRY") :]
+    entry = entry[: entry.index("\n}")]
+    free = ("parameter", "constant", "bitcast", "get-tuple-element", "tuple")
+    ops = re.findall(r"^\s*(?:ROOT )?%?\S+ = \S+ ([\w-]+)\(", entry, re.M)
+    return sum(op not in free for op in ops)
+
+
+def pin_to_cpu(cpu: int) -> None:
+    """Restricts this process to one CPU core; call before JAX creates its CPU client.
+
+    Raises:
+      ValueError: naming ``cpu`` when it is not one this process may run on, or when the
+        platform cannot set the affinity (not Linux).
+    """
+    if not hasattr(os, "sched_setaffinity"):
+        raise ValueError(f"cpu={cpu}: setting the CPU affinity needs Linux")
+    allowed = sorted(os.sched_getaffinity(0))
+    if cpu not in allowed:
+        raise ValueError(f"cpu={cpu} is not one of this process's CPUs {allowed}")
+    os.sched_setaffinity(0, {cpu})
+
+
 def machine() -> dict:
     """What the numbers were measured on."""
+    affinity = sorted(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else None
     return {
         "platform": platform.platform(),
         "processor": platform.processor() or platform.machine(),
@@ -97,6 +125,7 @@ def machine() -> dict:
         "backend": jax.default_backend(),
         "devices": [str(d) for d in jax.devices()],
         "xla_flags": os.environ.get("XLA_FLAGS", ""),
+        "cpu_affinity": affinity,
     }
 
 

@@ -22,7 +22,9 @@ import jax_contact as jc
 from benchmarks.common import (
     compile_and_time,
     format_table,
+    kernel_count,
     machine,
+    pin_to_cpu,
     print_table,
     synthetic_measurements,
 )
@@ -93,25 +95,31 @@ def _bytes_per_env(compiled, n_envs: int) -> float | None:
     return total / n_envs
 
 
-def latency(n_calls: int = 10_000) -> dict:
-    """Single-robot (4 legs) latency of the jitted step, AOT-compiled and jax.export'ed."""
-    params = params_for("monte_carlo")
-    terrain = jc.flat()
+def _batch1(mode: str):
+    """A single robot's (4 legs) update in ``mode``: (update, args, jitted, compiled)."""
+    params = params_for(mode)
     meas = synthetic_measurements(1, N_LEGS, NV)
-    belief = jc.init_belief_batch(params, 1, N_LEGS)
-    key = jax.random.key(0)
-    update = make_update(params, terrain)
-    out = {}
-
+    args = (jc.init_belief_batch(params, 1, N_LEGS), meas, jax.random.key(0))
+    update = make_update(params, jc.flat())
     jitted = jax.jit(update)
-    jax.block_until_ready(jitted(belief, meas, key))
-    out["jit"] = _time_calls(lambda: jitted(belief, meas, key), n_calls)
+    jax.block_until_ready(jitted(*args))
+    return update, args, jitted, jitted.lower(*args).compile()
 
-    compiled = jitted.lower(belief, meas, key).compile()
-    out["aot"] = _time_calls(lambda: compiled(belief, meas, key), n_calls)
+
+def latency(n_calls: int = 10_000) -> dict:
+    """Single-robot (4 legs) latency: Monte-Carlo jitted, AOT-compiled and jax.export'ed,
+    and the quadrature jitted; with the number of kernels each executable launches."""
+    _, q_args, q_jitted, q_compiled = _batch1("quadrature")
+    update, args, jitted, compiled = _batch1("monte_carlo")
+    out = {
+        "jit": _time_calls(lambda: jitted(*args), n_calls),
+        "aot": _time_calls(lambda: compiled(*args), n_calls),
+    }
+    out["jit"]["kernels"] = out["aot"]["kernels"] = kernel_count(compiled)
 
     # jax.export serialises plain arrays: flatten the pytrees and pass the raw key data,
     # as a deployment that loads the estimator without this library would.
+    belief, meas, key = args
     leaves, treedef = jax.tree.flatten((belief, meas))
     raw_key = jax.random.key_data(key)
 
@@ -124,6 +132,8 @@ def latency(n_calls: int = 10_000) -> dict:
     call = jax.jit(restored.call)
     jax.block_until_ready(call(raw_key, *leaves))
     out["export"] = _time_calls(lambda: call(raw_key, *leaves), n_calls)
+    out["quadrature_jit"] = _time_calls(lambda: q_jitted(*q_args), n_calls)
+    out["quadrature_jit"]["kernels"] = kernel_count(q_compiled)
     return out
 
 
@@ -165,25 +175,38 @@ def main(argv=None) -> dict:
     parser.add_argument("--envs", type=int, nargs="+", default=list(DEFAULT_ENVS))
     parser.add_argument("--samples", type=int, default=500, help="Monte-Carlo samples")
     parser.add_argument("--latency-calls", type=int, default=10_000)
+    parser.add_argument("--latency-only", action="store_true", help="skip the throughput")
+    parser.add_argument(
+        "--cpu",
+        type=int,
+        default=None,
+        help="run on this one CPU core only (Linux): XLA:CPU then sizes its thread pool to "
+        "one core, as on a robot whose estimator process is pinned",
+    )
     parser.add_argument("--json", default=None, help="write results as JSON here")
     args = parser.parse_args(argv)
+    if args.cpu is not None:
+        pin_to_cpu(args.cpu)
+    jnp.zeros(())  # initialise the backend (after any pinning) before timing anything
 
-    print(f"# estimator throughput on {jax.default_backend()} ({jax.devices()[0]})")
-    rows = throughput(args.envs, n_samples=args.samples)
+    print(f"# estimator on {jax.default_backend()} ({jax.devices()[0]})")
+    rows = [] if args.latency_only else throughput(args.envs, n_samples=args.samples)
     lat = latency(args.latency_calls)
-    print("\n# single-robot latency (4 legs, Monte-Carlo 500)")
+    print("\n# single-robot latency (4 legs; Monte-Carlo 500 unless named)")
     print_table(
         [{"how": k, **v} for k, v in lat.items()],
         [
             ("how", "call", "{}"),
             ("median_us", "median us", "{:.1f}"),
             ("p99_us", "p99 us", "{:.1f}"),
+            ("kernels", "kernels", "{:d}"),
         ],
     )
     lin = linearity(rows)
     if lin:
         print("\n# cost per env at the largest batch / at 1024 envs:", lin)
     at = [r for r in rows if r["envs"] == 4096 and r["mode"] == "monte_carlo"] or rows[-1:]
+    at = at or [{"bytes_per_env": None}]
     result = {
         "machine": machine(),
         "throughput": [
@@ -212,5 +235,4 @@ def main(argv=None) -> dict:
 
 
 if __name__ == "__main__":
-    jnp.zeros(())  # initialise the backend before timing anything
     main()

@@ -8,6 +8,7 @@ Every piece is ``vmap``-ed over (envs, 4 legs) of :func:`benchmarks.common.synth
 and compiled ahead of time; it prints the median (and min) ms per call over ``--repeats``
 calls and, per leg, the flops, transcendental calls and bytes that
 ``compiled.cost_analysis()`` reports. Pieces fused into one update cost less than alone.
+Last, the cost of launching one (nearly empty) kernel, which bounds a small batch's latency.
 """
 
 from __future__ import annotations
@@ -20,7 +21,7 @@ import jax
 import jax.numpy as jnp
 
 import jax_contact as jc
-from benchmarks.common import synthetic_measurements
+from benchmarks.common import kernel_count, synthetic_measurements
 from jax_contact import filter as filter_
 from jax_contact import measurement, transition
 from jax_contact.types import measurement_is_finite
@@ -59,6 +60,39 @@ def _read_once(m) -> jax.Array:
     """() the sum of every floating-point input of a batch: one pass over its bytes."""
     leaves = [x for x in jax.tree.leaves(m) if jnp.issubdtype(x.dtype, jnp.floating)]
     return sum(jnp.sum(x) for x in leaves)
+
+
+def _kernel_chain(x: jax.Array, n: int = 100) -> jax.Array:
+    """``n`` dependent kernels on 4 floats: each reduction ends one (XLA fuses none of them)."""
+    for _ in range(n):
+        x = x + jnp.sum(jnp.sin(x))
+    return x
+
+
+def launch_cost(repeats: int) -> dict:
+    """What XLA:CPU spends per kernel when there is next to no work in it: the floor of a
+    small batch's latency, which is (kernels launched) x (this) + the call's dispatch."""
+    x = jnp.ones(4, jnp.float32)
+    compiled = jax.jit(_kernel_chain).lower(x).compile()
+    kernels = kernel_count(compiled)
+    jax.block_until_ready(compiled(x))
+    times = []
+    for _ in range(max(repeats, 200)):
+        t = time.perf_counter()
+        jax.block_until_ready(compiled(x))
+        times.append(time.perf_counter() - t)
+    row = {
+        "piece": "kernel launch",
+        "kernels": kernels,
+        "median_ms": 1e3 * statistics.median(times),
+        "us_per_kernel": 1e6 * statistics.median(times) / kernels,
+    }
+    print(
+        f"{'kernel launch':24s} {row['us_per_kernel']:8.2f} us per kernel"
+        f" ({kernels} dependent 4-float kernels, {row['median_ms']:.3f} ms per call)",
+        flush=True,
+    )
+    return row
 
 
 def main(argv=None) -> list[dict]:
@@ -113,6 +147,7 @@ def main(argv=None) -> list[dict]:
     # The floor for any update that reads this layout: one pass over every input byte of the
     # whole batch (the per-leg copy of the mass matrix dominates), no arithmetic to speak of.
     rows.append(_time("read inputs once", _read_once, (meas,), legs, args.repeats))
+    rows.append(launch_cost(args.repeats))
     return rows
 
 
