@@ -50,12 +50,14 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
 
 
 def _cmd_bench(args: argparse.Namespace) -> int:
-    from benchmarks import estimator
+    from benchmarks import suite
 
     argv = ["--json", args.json] if args.json else []
     if args.envs:
         argv += ["--envs", *map(str, args.envs)]
-    estimator.main(argv)
+    if args.versus_envs:
+        argv += ["--versus-envs", *map(str, args.versus_envs)]
+    suite.main(argv)
     return 0
 
 
@@ -191,9 +193,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", default=None)
     p.set_defaults(func=_cmd_rates)
 
-    p = sub.add_parser("bench", help="estimator throughput, latency and memory")
-    p.add_argument("--json", default=None)
-    p.add_argument("--envs", type=int, nargs="+", default=None)
+    p = sub.add_parser(
+        "bench",
+        help="estimator throughput, latency and memory; ratio to mjx.step, NumPy, sharding",
+    )
+    p.add_argument("--json", default=None, help="write every result as one JSON here")
+    p.add_argument("--envs", type=int, nargs="+", default=None, help="throughput batch sizes")
+    p.add_argument(
+        "--versus-envs", type=int, nargs="+", default=None, help="batch sizes vs mjx.step"
+    )
     p.set_defaults(func=_cmd_bench)
     return parser
 

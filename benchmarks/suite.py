@@ -1,0 +1,45 @@
+"""Every number of the benchmarks issue in one run and one JSON: the estimator, then versus.
+
+Run::
+
+    python -m benchmarks.suite --json out/bench.json [--envs 1 1024 4096] [--versus-envs 1024]
+
+``jax-contact bench`` runs this. It runs :mod:`benchmarks.estimator` (throughput at each
+batch size, single-robot latency, memory) and then :mod:`benchmarks.versus` (ratio to
+``mjx.step``, speed-up over per-robot NumPy, sharding), prints both sets of tables, and
+writes one JSON holding the keys of both: ``machine``, ``throughput``,
+``latency_batch1_us``, ``bytes_per_env``, ``ratio_vs_mjx_step``, ``speedup_vs_numpy``,
+``sharding`` and their details.
+"""
+
+from __future__ import annotations
+
+import argparse
+
+from benchmarks import estimator, versus
+from jax_contact.io import write_json_atomic
+
+
+def main(argv=None) -> dict:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--envs", type=int, nargs="+", default=list(estimator.DEFAULT_ENVS))
+    parser.add_argument("--versus-envs", type=int, nargs="+", default=[1024, 4096])
+    parser.add_argument("--latency-calls", type=int, default=10_000)
+    parser.add_argument("--json", default=None, help="write all results as one JSON here")
+    args = parser.parse_args(argv)
+
+    est = estimator.main(
+        ["--envs", *map(str, args.envs), "--latency-calls", str(args.latency_calls)]
+    )
+    print()
+    vs = versus.main(["--envs", *map(str, args.versus_envs)])
+    # Both measured on the same machine in this process; the estimator's description stands.
+    result = {**est, **{k: v for k, v in vs.items() if k != "machine"}}
+    if args.json:
+        write_json_atomic(args.json, result)
+        print(f"\nwrote {args.json}")
+    return result
+
+
+if __name__ == "__main__":
+    main()
