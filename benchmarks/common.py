@@ -13,7 +13,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jax_contact.types import LegMeasurement
+from jax_contact.types import LegMeasurement, RobotMeasurement
 
 
 def synthetic_measurements(
@@ -54,6 +54,30 @@ def synthetic_measurements(
         leg_dofs=jnp.asarray(leg_dofs, jnp.int32),
         other_dofs=jnp.asarray(other_dofs, jnp.int32),
     )
+
+
+def synthetic_robot_measurements(
+    n_envs: int, n_legs: int = 4, nv: int = 18, n_l: int = 3, seed: int = 0
+) -> RobotMeasurement:
+    """:func:`synthetic_measurements` in the per-robot layout (leaves with axis (n_envs,)).
+
+    The robot-level fields are the first leg's; the per-foot ones every leg's.
+    """
+    lm = synthetic_measurements(n_envs, n_legs, nv, n_l, seed)
+    return RobotMeasurement(
+        **{f: getattr(lm, f)[:, 0] for f in ("q", "qd", "qdd", "tau", "M", "h")},
+        **{f: getattr(lm, f) for f in ("J", "Jdot_qd", "p_f", "v_f", "foot_radius")},
+        leg_dofs=tuple(tuple(int(i) for i in row) for row in np.asarray(lm.leg_dofs[0])),
+    )
+
+
+def synthetic(n_envs: int, layout: str, n_legs: int = 4, nv: int = 18):
+    """A synthetic batch in ``layout``: "robot" (RobotMeasurement) or "per_foot"."""
+    if layout == "robot":
+        return synthetic_robot_measurements(n_envs, n_legs, nv)
+    if layout == "per_foot":
+        return synthetic_measurements(n_envs, n_legs, nv)
+    raise ValueError(f"layout must be 'robot' or 'per_foot', got {layout!r}")
 
 
 def compile_and_time(

@@ -6,7 +6,9 @@ Run::
 
 One "update" is the whole step of every foot of every env: all three measurement terms,
 both transitions (take-off and touch-down, Monte-Carlo at ``n_samples`` or quadrature) and
-the recursion, i.e. ``jax_contact.step_batch``. Compilation is timed apart from running.
+the recursion, i.e. ``jax_contact.step_batch`` on one ``RobotMeasurement`` per env (what
+the observation wrapper runs; ``--layout per_foot``: on per-foot ``LegMeasurement``
+copies). Compilation is timed apart from running.
 """
 
 from __future__ import annotations
@@ -26,7 +28,7 @@ from benchmarks.common import (
     machine,
     pin_to_cpu,
     print_table,
-    synthetic_measurements,
+    synthetic,
 )
 from jax_contact.io import write_json_atomic
 
@@ -49,12 +51,12 @@ def params_for(mode: str, n_samples: int = 500) -> jc.EstimatorParams:
     return jc.make_params(jc.make_noise(NV), touchdown=mode, n_samples=n_samples)
 
 
-def throughput(envs, modes=MODES, n_samples: int = 500) -> list[dict]:
+def throughput(envs, modes=MODES, n_samples: int = 500, layout: str = "robot") -> list[dict]:
     """Leg-updates per second of one full update at each batch size and mode."""
     rows = []
     terrain = jc.flat()
     for n in envs:
-        meas = synthetic_measurements(n, N_LEGS, NV)
+        meas = synthetic(n, layout, N_LEGS, NV)
         for mode in modes:
             params = params_for(mode, n_samples)
             belief = jc.init_belief_batch(params, n, N_LEGS)
@@ -95,10 +97,10 @@ def _bytes_per_env(compiled, n_envs: int) -> float | None:
     return total / n_envs
 
 
-def _batch1(mode: str):
+def _batch1(mode: str, layout: str):
     """A single robot's (4 legs) update in ``mode``: (update, args, jitted, compiled)."""
     params = params_for(mode)
-    meas = synthetic_measurements(1, N_LEGS, NV)
+    meas = synthetic(1, layout, N_LEGS, NV)
     args = (jc.init_belief_batch(params, 1, N_LEGS), meas, jax.random.key(0))
     update = make_update(params, jc.flat())
     jitted = jax.jit(update)
@@ -108,9 +110,12 @@ def _batch1(mode: str):
 
 def latency(n_calls: int = 10_000) -> dict:
     """Single-robot (4 legs) latency: Monte-Carlo jitted, AOT-compiled and jax.export'ed,
-    and the quadrature jitted; with the number of kernels each executable launches."""
-    _, q_args, q_jitted, q_compiled = _batch1("quadrature")
-    update, args, jitted, compiled = _batch1("monte_carlo")
+    and the quadrature jitted, on per-foot copies; with the number of kernels each
+    executable launches. Also the Monte-Carlo jitted on the per-robot layout, whose legs
+    are unrolled (four times the kernels: faster in a batch, slower alone)."""
+    _, q_args, q_jitted, q_compiled = _batch1("quadrature", "per_foot")
+    _, r_args, r_jitted, r_compiled = _batch1("monte_carlo", "robot")
+    update, args, jitted, compiled = _batch1("monte_carlo", "per_foot")
     out = {
         "jit": _time_calls(lambda: jitted(*args), n_calls),
         "aot": _time_calls(lambda: compiled(*args), n_calls),
@@ -134,6 +139,8 @@ def latency(n_calls: int = 10_000) -> dict:
     out["export"] = _time_calls(lambda: call(raw_key, *leaves), n_calls)
     out["quadrature_jit"] = _time_calls(lambda: q_jitted(*q_args), n_calls)
     out["quadrature_jit"]["kernels"] = kernel_count(q_compiled)
+    out["robot_layout_jit"] = _time_calls(lambda: r_jitted(*r_args), n_calls)
+    out["robot_layout_jit"]["kernels"] = kernel_count(r_compiled)
     return out
 
 
@@ -183,6 +190,12 @@ def main(argv=None) -> dict:
         help="run on this one CPU core only (Linux): XLA:CPU then sizes its thread pool to "
         "one core, as on a robot whose estimator process is pinned",
     )
+    parser.add_argument(
+        "--layout",
+        choices=("robot", "per_foot"),
+        default="robot",
+        help="measurement layout: one RobotMeasurement per env (the wrapper's) or per-foot copies",
+    )
     parser.add_argument("--json", default=None, help="write results as JSON here")
     args = parser.parse_args(argv)
     if args.cpu is not None:
@@ -190,9 +203,14 @@ def main(argv=None) -> dict:
     jnp.zeros(())  # initialise the backend (after any pinning) before timing anything
 
     print(f"# estimator on {jax.default_backend()} ({jax.devices()[0]})")
-    rows = [] if args.latency_only else throughput(args.envs, n_samples=args.samples)
+    print(f"# measurement layout: {args.layout}")
+    rows = (
+        []
+        if args.latency_only
+        else throughput(args.envs, n_samples=args.samples, layout=args.layout)
+    )
     lat = latency(args.latency_calls)
-    print("\n# single-robot latency (4 legs; Monte-Carlo 500 unless named)")
+    print("\n# single-robot latency (4 legs; Monte-Carlo 500 and per-foot unless named)")
     print_table(
         [{"how": k, **v} for k, v in lat.items()],
         [
@@ -209,6 +227,7 @@ def main(argv=None) -> dict:
     at = at or [{"bytes_per_env": None}]
     result = {
         "machine": machine(),
+        "layout": args.layout,
         "throughput": [
             {
                 k: r[k]

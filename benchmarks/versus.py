@@ -4,8 +4,9 @@ Run::
 
     python -m benchmarks.versus --json out/bench/versus.json [--envs 1024 4096]
 
-1. Ratio of one estimator update (with and without the adapter's extraction of the
-   per-leg inputs from ``mjx.Data``) to one ``mjx.step`` of Go1 at the same batch size.
+1. Ratio of one estimator update (with and without the adapter's extraction of its
+   inputs from ``mjx.Data``) to one ``mjx.step`` of Go1 at the same batch size, with the
+   per-robot measurement (the wrapper's) and with per-foot copies.
    Calls are interleaved (physics, estimator, adapter, ...) and medians taken, so load
    changes on the machine hit every contender alike.
 2. Speed-up over a float64 NumPy implementation (the test oracle, ``tests/oracle.py``,
@@ -36,6 +37,7 @@ from benchmarks.common import machine, print_table, synthetic_measurements
 from jax_contact.io import write_json_atomic
 
 ROOT = Path(__file__).resolve().parents[1]
+MODES = ("quadrature", "monte_carlo")
 
 
 def _timed(fn, *args) -> float:
@@ -45,11 +47,16 @@ def _timed(fn, *args) -> float:
 
 
 def ratio_vs_mjx(n_envs: int, repeats: int = 15) -> dict:
-    """Median times of mjx.step, the estimator (both modes) and the adapter, interleaved."""
+    """Median times of mjx.step, the estimator (both modes, both measurement layouts) and
+    the adapter, interleaved.
+
+    ``quadrature`` and ``monte_carlo`` are the per-robot layout (``RobotMeasurement``, what
+    the observation wrapper runs); ``..._per_foot`` the per-foot copies (``LegMeasurement``).
+    """
     from mujoco import mjx
 
     from envs.robots import load_robot
-    from jax_contact.adapter import leg_measurements, prepare
+    from jax_contact.adapter import leg_measurements, prepare, robot_measurement
 
     robot = load_robot("go1")
     robot.mj_model.opt.timestep = 0.0025
@@ -59,25 +66,29 @@ def ratio_vs_mjx(n_envs: int, repeats: int = 15) -> dict:
     data = jax.vmap(lambda _: d0)(jnp.arange(n_envs))
 
     physics = jax.jit(jax.vmap(lambda d: mjx.step(m, d)))
+    extractors = {
+        "": jax.jit(jax.vmap(lambda dd: robot_measurement(m, prepare(m, dd), desc))),
+        "_per_foot": jax.jit(jax.vmap(lambda dd: leg_measurements(m, prepare(m, dd), desc))),
+    }
+    contenders = {"mjx_step": (physics, (data,))}
+    for layout, extract in extractors.items():
+        meas = extract(data)
+        contenders[f"adapter{layout}"] = (extract, (data,))
+        for mode in MODES:
+            params = jc.make_params(jc.make_noise(desc.nv), touchdown=mode)
+            belief = jc.init_belief_batch(params, n_envs, desc.n_legs)
 
-    def extract(d):
-        return jax.vmap(lambda dd: leg_measurements(m, prepare(m, dd), desc))(d)
+            def update(b, mm, k, params=params):
+                return jc.step_batch(params, jc.flat(), b, mm, key=k)
 
-    extract = jax.jit(extract)
-    meas = extract(data)
-    contenders = {"mjx_step": (physics, (data,)), "adapter": (extract, (data,))}
-    for mode in ("quadrature", "monte_carlo"):
-        params = jc.make_params(jc.make_noise(desc.nv), touchdown=mode)
-        belief = jc.init_belief_batch(params, n_envs, desc.n_legs)
+            def full(b, d, k, params=params, extract=extract):
+                return jc.step_batch(params, jc.flat(), b, extract(d), key=k)
 
-        def update(b, mm, k, params=params):
-            return jc.step_batch(params, jc.flat(), b, mm, key=k)
-
-        def full(b, d, k, params=params):
-            return jc.step_batch(params, jc.flat(), b, extract(d), key=k)
-
-        contenders[mode] = (jax.jit(update), (belief, meas, jax.random.key(0)))
-        contenders[f"{mode}+adapter"] = (jax.jit(full), (belief, data, jax.random.key(0)))
+            contenders[f"{mode}{layout}"] = (jax.jit(update), (belief, meas, jax.random.key(0)))
+            contenders[f"{mode}{layout}+adapter"] = (
+                jax.jit(full),
+                (belief, data, jax.random.key(0)),
+            )
 
     compile_s = {}
     for name, (fn, args) in contenders.items():
@@ -87,14 +98,13 @@ def ratio_vs_mjx(n_envs: int, repeats: int = 15) -> dict:
         for name, (fn, args) in contenders.items():
             times[name].append(_timed(fn, *args))
     med = {name: statistics.median(v) for name, v in times.items()}
+    runs = [f"{mode}{layout}" for layout in extractors for mode in MODES]
     return {
         "envs": n_envs,
         "median_ms": {k: 1e3 * v for k, v in med.items()},
         "first_call_s": compile_s,
-        "ratio": {mode: med[mode] / med["mjx_step"] for mode in ("quadrature", "monte_carlo")},
-        "ratio_with_adapter": {
-            mode: med[f"{mode}+adapter"] / med["mjx_step"] for mode in ("quadrature", "monte_carlo")
-        },
+        "ratio": {r: med[r] / med["mjx_step"] for r in runs},
+        "ratio_with_adapter": {r: med[f"{r}+adapter"] / med["mjx_step"] for r in runs},
     }
 
 

@@ -11,7 +11,7 @@ Per estimator update (the flow is one way, truth never reaches the observation):
    sensor model (:mod:`envs.sensors`: noise, bias, outliers, latency, ``qacc`` by
    differencing the noisy velocity);
 2. the adapter evaluates the model at the *measured* state (``d.replace(qpos=..., qvel=...)``,
-   :func:`jax_contact.adapter.prepare`, :func:`~jax_contact.adapter.leg_measurements` with
+   :func:`jax_contact.adapter.prepare`, :func:`~jax_contact.adapter.robot_measurement` with
    the measured ``qacc`` and torques) on the *nominal* model the env had when it was
    wrapped: domain randomisation changes the simulated robot, never the estimator's model,
    as on hardware; by default (``ContactObsConfig.pairing="delayed"``) at the state read
@@ -19,7 +19,7 @@ Per estimator update (the flow is one way, truth never reaches the observation):
    pairing :mod:`train.evaluate` explains), with the torque read now (after ``mjx.step``,
    ``qfrc_actuator`` is the force applied over the step just taken), so the belief is one
    estimator period late;
-3. :func:`jax_contact.step` updates each foot's belief.
+3. :func:`jax_contact.step_robot` updates each foot's belief.
 
 Rates (``ContactObsConfig.rate``):
 
@@ -166,8 +166,10 @@ def _validate_config(cfg: ContactObsConfig) -> None:
     if cfg.pairing not in PAIRINGS:
         raise ValueError(f"config.pairing must be one of {PAIRINGS}, got {cfg.pairing!r}")
     if cfg.observe == "truth" and cfg.include_terms:
-        raise ValueError("config.include_terms has no ground-truth counterpart: observe='truth'"
-                         " takes p_contact and the logit only")
+        raise ValueError(
+            "config.include_terms has no ground-truth counterpart: observe='truth'"
+            " takes p_contact and the logit only"
+        )
     if cfg.truth not in TRUTH_SOURCES:
         raise ValueError(f"config.truth must be one of {TRUTH_SOURCES}, got {cfg.truth!r}")
     if isinstance(cfg.obs_keys, str) or not all(isinstance(k, str) for k in cfg.obs_keys):
@@ -272,9 +274,7 @@ def default_sensor_params(
     """
     desc = _desc_of(robot_or_desc)
     mj_model = _mj_model_of(robot_or_desc)
-    floating = (
-        _floating_base(mj_model) if mj_model is not None else desc.nq == desc.nv + 1
-    )
+    floating = _floating_base(mj_model) if mj_model is not None else desc.nq == desc.nv + 1
     if desc.nq != desc.nv + (1 if floating else 0):
         raise ValueError(
             f"the sensor model handles a free joint first and hinges/slides otherwise; this"
@@ -455,7 +455,7 @@ def _truth_reader(mj_model: mujoco.MjModel, desc: RobotDescription, cfg: Contact
         if adr is None and cfg.truth == "found_sensors":
             raise ValueError(
                 "config.truth='found_sensors': the model has no contact sensor with"
-                " data=\"found\" between every foot geom and the floor; feet:"
+                ' data="found" between every foot geom and the floor; feet:'
                 f" {list(desc.foot_names)}"
             )
     if adr is not None:
@@ -527,7 +527,7 @@ class _Core:
         # computed at the step's start and applied over it, the interval ``qacc`` spans.
         at = est.prev if self.cfg.pairing == "delayed" else r
         d = adapter.prepare(self.mjx_model, data.replace(qpos=at.qpos, qvel=at.qvel))
-        meas = adapter.leg_measurements(
+        meas = adapter.robot_measurement(
             self.mjx_model,
             d,
             self.desc,
@@ -535,10 +535,7 @@ class _Core:
             tau=r.tau,
             include_passive=self.cfg.include_passive,
         )
-        keys = jax.random.split(k_est, self.desc.n_legs)
-        belief, diag = jax.vmap(
-            lambda b, m, k: jc.step(self.params, self.terrain, b, m, key=k)
-        )(est.belief, meas, keys)
+        belief, diag = jc.step_robot(self.params, self.terrain, est.belief, meas, key=k_est)
         return ContactEstState(
             belief=belief,
             sensor=sensor,
@@ -816,8 +813,9 @@ class BraxContactWrapper(_ContactMixin, brax_base.Wrapper):
 
     _DATA = "pipeline_state"
 
-    def __init__(self, env, config=None, *, foot_names=None, sensor="anymal_like",
-                 params=None, terrain=None):
+    def __init__(
+        self, env, config=None, *, foot_names=None, sensor="anymal_like", params=None, terrain=None
+    ):
         super().__init__(env)
         self._init_contact(config, foot_names, sensor, params, terrain)
 
@@ -827,8 +825,9 @@ class PlaygroundContactWrapper(_ContactMixin, pg_wrapper.Wrapper):
 
     _DATA = "data"
 
-    def __init__(self, env, config=None, *, foot_names=None, sensor="anymal_like",
-                 params=None, terrain=None):
+    def __init__(
+        self, env, config=None, *, foot_names=None, sensor="anymal_like", params=None, terrain=None
+    ):
         super().__init__(env)
         self._init_contact(config, foot_names, sensor, params, terrain)
 
@@ -994,8 +993,10 @@ class RateComparison:
             (f"control ({self.dt_control * 1e3:g} ms), at env steps", self.control),
             (f"substep ({self.dt_substep * 1e3:g} ms), every substep", self.substep_all),
         ]
-        lines = [f"{'estimator':42s} {'acc':>6s} {'F1':>6s} {'prec':>6s} {'rec':>6s}"
-                 f" {'TD delay ms':>14s} {'fails':>5s} {'steps':>7s}"]
+        lines = [
+            f"{'estimator':42s} {'acc':>6s} {'F1':>6s} {'prec':>6s} {'rec':>6s}"
+            f" {'TD delay ms':>14s} {'fails':>5s} {'steps':>7s}"
+        ]
         for name, m in rows:
             td = f"{m.touchdown_delay_ms[0]:.1f}+-{m.touchdown_delay_ms[1]:.1f}"
             lines.append(
@@ -1070,10 +1071,16 @@ def compare_rates(
         record_substeps=True,
         pairing=pairing,
     )
-    inner = BraxContactWrapper(env, ctrl_cfg, foot_names=foot_names, sensor=sensor,
-                               params=make_params(dt_ctrl, dict(control_params_kwargs or {})))
-    outer = BraxContactWrapper(inner, sub_cfg, foot_names=foot_names, sensor=sensor,
-                               params=make_params(dt_sub, {}))
+    inner = BraxContactWrapper(
+        env,
+        ctrl_cfg,
+        foot_names=foot_names,
+        sensor=sensor,
+        params=make_params(dt_ctrl, dict(control_params_kwargs or {})),
+    )
+    outer = BraxContactWrapper(
+        inner, sub_cfg, foot_names=foot_names, sensor=sensor, params=make_params(dt_sub, {})
+    )
     if inner.contact_core.truth is None:
         raise ValueError("env's model has no ground-truth contact sensors for every foot")
 

@@ -10,6 +10,7 @@ from jax_contact.filter import (
     sequence_bce,
     step,
     step_batch,
+    step_robot,
 )
 from jax_contact.measurement import (
     MeasurementTerms,
@@ -44,8 +45,10 @@ from jax_contact.types import (
     Diagnostics,
     LegBelief,
     LegMeasurement,
+    RobotMeasurement,
     TerrainQuery,
     validate_measurement,
+    validate_robot_measurement,
 )
 
 __all__ = [
@@ -58,6 +61,7 @@ __all__ = [
     "LegMeasurement",
     "MeasurementTerms",
     "NoiseParams",
+    "RobotMeasurement",
     "TerrainQuery",
     "diff_kinematics_llr",
     "dynamics_llr",
@@ -79,6 +83,8 @@ __all__ = [
     "sequence_bce",
     "step",
     "step_batch",
+    "step_robot",
     "validate_measurement",
     "validate_params",
+    "validate_robot_measurement",
 ]

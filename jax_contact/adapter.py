@@ -1,4 +1,4 @@
-"""MJX model and data -> one :class:`LegMeasurement` per foot (leading axis ``n_legs``).
+"""MJX model and data -> the estimator's measurement: per robot or one per foot.
 
 The only module of the library that knows MuJoCo. Usage, inside ``jit`` / ``vmap`` over
 environments::
@@ -6,6 +6,7 @@ environments::
     d = d.replace(qpos=qpos_measured, qvel=qvel_measured)
     d = prepare(mjx_model, d)
     meas = leg_measurements(mjx_model, d, desc, qdd=qdd_measured)   # leaves (n_legs, ...)
+    meas = robot_measurement(mjx_model, d, desc, qdd=qdd_measured)  # per robot, same values
 
 ``desc`` (a :class:`jax_contact.robot.RobotDescription`) is static: close over it or pass it
 as a static argument. The model must use MJX's JAX implementation (``mjx.put_model(m,
@@ -36,7 +37,7 @@ import numpy as np
 from mujoco import mjx
 
 from jax_contact.robot import RobotDescription
-from jax_contact.types import LegMeasurement
+from jax_contact.types import LegMeasurement, RobotMeasurement
 
 
 def prepare(mjx_model: mjx.Model, mjx_data: mjx.Data) -> mjx.Data:
@@ -135,7 +136,7 @@ def foot_bias_acceleration(
     return jnp.where(chain_mask, d.qvel, 0.0) @ col
 
 
-def leg_measurements(
+def robot_measurement(
     mjx_model: mjx.Model,
     mjx_data: mjx.Data,
     desc: RobotDescription,
@@ -143,8 +144,8 @@ def leg_measurements(
     qdd: jax.Array | None = None,
     tau: jax.Array | None = None,
     include_passive: bool = False,
-) -> LegMeasurement:
-    """Per-leg measurements at the state of ``mjx_data`` (after :func:`prepare`).
+) -> RobotMeasurement:
+    """The robot's measurement at the state of ``mjx_data`` (after :func:`prepare`).
 
     Args:
       mjx_model: the MJX model the description was derived from.
@@ -157,10 +158,9 @@ def leg_measurements(
         forces: ``h = qfrc_bias - qfrc_passive``.
 
     Returns:
-      A :class:`LegMeasurement` whose every leaf has leading axis ``n_legs``: ``q``
-      (n_legs, nq), ``qd``/``qdd``/``tau``/``h`` (n_legs, nv), ``M`` (n_legs, nv, nv),
-      ``J`` (n_legs, 3, nv), ``Jdot_qd``/``p_f``/``v_f`` (n_legs, 3), ``foot_radius``
-      (n_legs,), ``leg_dofs`` (n_legs, n_l) and ``other_dofs`` (n_legs, nv - n_l) int32.
+      A :class:`RobotMeasurement`: ``q`` (nq,), ``qd``/``qdd``/``tau``/``h`` (nv,), ``M``
+      (nv, nv), ``J`` (n_legs, 3, nv), ``Jdot_qd``/``p_f``/``v_f`` (n_legs, 3),
+      ``foot_radius`` (n_legs,), ``leg_dofs`` from ``desc``.
 
     Raises:
       ValueError: ``desc`` does not match the model, or ``qdd``/``tau`` have the wrong
@@ -179,7 +179,6 @@ def leg_measurements(
     tau = d.qfrc_actuator if tau is None else jnp.asarray(tau)
     h = d.qfrc_bias - d.qfrc_passive if include_passive else d.qfrc_bias
 
-    n_legs = desc.n_legs
     body_ids = jnp.asarray(desc.foot_body_ids, dtype=jnp.int32)
     geom_ids = jnp.asarray(desc.foot_geom_ids, dtype=jnp.int32)
     masks = jnp.asarray(np.stack([_chain_dof_mask(m, b) for b in desc.foot_body_ids]))
@@ -191,22 +190,45 @@ def leg_measurements(
         return jacp.T, acc
 
     J, Jdot_qd = jax.vmap(per_foot)(body_ids, p_f, masks)
-
-    def tile(x):
-        return jnp.broadcast_to(x, (n_legs,) + jnp.shape(x))
-
-    return LegMeasurement(
-        q=tile(d.qpos),
-        qd=tile(d.qvel),
-        qdd=tile(qdd),
-        tau=tile(tau),
-        M=tile(mjx.full_m(m, d)),
-        h=tile(h),
+    return RobotMeasurement(
+        q=d.qpos,
+        qd=d.qvel,
+        qdd=qdd,
+        tau=tau,
+        M=mjx.full_m(m, d),
+        h=h,
         J=J,
         Jdot_qd=Jdot_qd,
         p_f=p_f,
         v_f=J @ d.qvel,
         foot_radius=m.geom_size[geom_ids, 0],
-        leg_dofs=jnp.asarray(desc.leg_dofs, dtype=jnp.int32),
-        other_dofs=jnp.asarray(desc.other_dofs, dtype=jnp.int32),
+        leg_dofs=tuple(tuple(int(i) for i in leg) for leg in desc.leg_dofs),
     )
+
+
+def leg_measurements(
+    mjx_model: mjx.Model,
+    mjx_data: mjx.Data,
+    desc: RobotDescription,
+    *,
+    qdd: jax.Array | None = None,
+    tau: jax.Array | None = None,
+    include_passive: bool = False,
+) -> LegMeasurement:
+    """Per-leg measurements at the state of ``mjx_data`` (after :func:`prepare`).
+
+    :func:`robot_measurement` in the per-foot layout (its ``legs()``); same arguments.
+
+    Returns:
+      A :class:`LegMeasurement` whose every leaf has leading axis ``n_legs``: ``q``
+      (n_legs, nq), ``qd``/``qdd``/``tau``/``h`` (n_legs, nv), ``M`` (n_legs, nv, nv),
+      ``J`` (n_legs, 3, nv), ``Jdot_qd``/``p_f``/``v_f`` (n_legs, 3), ``foot_radius``
+      (n_legs,), ``leg_dofs`` (n_legs, n_l) and ``other_dofs`` (n_legs, nv - n_l) int32.
+
+    Raises:
+      ValueError: ``desc`` does not match the model, or ``qdd``/``tau`` have the wrong
+        shape.
+    """
+    return robot_measurement(
+        mjx_model, mjx_data, desc, qdd=qdd, tau=tau, include_passive=include_passive
+    ).legs()

@@ -8,8 +8,9 @@ One step for one foot::
     T_t         from this step's measurement (eq. 11-17)           (applied at t+1)
 
 The belief is carried as a logit, so a million steps neither underflow nor round it to
-exactly 0 or 1. ``step`` is pure and unbatched; ``step_batch`` vmaps it over
-(envs, legs) and ``run`` scans ``step_batch`` over time.
+exactly 0 or 1. ``step`` is pure and unbatched; ``step_robot`` runs it for every foot of
+one robot from a per-robot measurement; ``step_batch`` vmaps either over the envs (and
+legs) and ``run`` scans ``step_batch`` over time.
 """
 
 from __future__ import annotations
@@ -20,7 +21,13 @@ import jax.numpy as jnp
 from jax_contact.measurement import measurement_terms
 from jax_contact.params import EstimatorParams
 from jax_contact.transition import log_prior_transition, log_transition_matrix
-from jax_contact.types import Diagnostics, LegBelief, LegMeasurement, measurement_is_finite
+from jax_contact.types import (
+    Diagnostics,
+    LegBelief,
+    LegMeasurement,
+    RobotMeasurement,
+    measurement_is_finite,
+)
 
 
 def init_belief(params: EstimatorParams) -> LegBelief:
@@ -123,22 +130,60 @@ def step(
     return new_belief, diag
 
 
+def _step_legs(params, terrain, belief, meas: RobotMeasurement, keys):
+    """:func:`step` of each foot of one robot, the legs unrolled with constant indices."""
+    outs = [
+        step(params, terrain, jax.tree.map(lambda x, i=i: x[i], belief), meas.leg(i), key=keys[i])
+        for i in range(meas.n_legs)
+    ]
+    return jax.tree.map(lambda *xs: jnp.stack(xs), *outs)
+
+
+def step_robot(
+    params: EstimatorParams,
+    terrain,
+    belief: LegBelief,
+    meas: RobotMeasurement,
+    *,
+    key: jax.Array,
+) -> tuple[LegBelief, Diagnostics]:
+    """:func:`step` for every foot of one robot, from its per-robot measurement.
+
+    Args:
+      belief: the robot's feet's beliefs, leaves with leading axis (n_legs,).
+      meas: the robot's measurement (unbatched).
+      key: PRNG key, split into one per foot.
+
+    Returns:
+      (new beliefs, diagnostics), leaves with leading axis (n_legs,); the same as
+      :func:`step` of each foot on ``meas.leg(i)`` with the i-th of
+      ``jax.random.split(key, n_legs)``.
+    """
+    return _step_legs(params, terrain, belief, meas, jax.random.split(key, meas.n_legs))
+
+
 def step_batch(
     params: EstimatorParams,
     terrain,
     belief: LegBelief,
-    meas: LegMeasurement,
+    meas: LegMeasurement | RobotMeasurement,
     *,
     key: jax.Array,
 ) -> tuple[LegBelief, Diagnostics]:
     """:func:`step` over a batch of (n_envs, n_legs) feet sharing params and terrain.
 
-    Every leaf of ``belief`` and ``meas`` has leading axes (n_envs, n_legs); so do the
-    outputs. Each foot gets its own key, split from ``key``.
+    Every leaf of ``belief`` has leading axes (n_envs, n_legs); so do the outputs. ``meas``
+    is either per foot (a :class:`LegMeasurement`, leaves with leading axes (n_envs,
+    n_legs)) or per robot (a :class:`RobotMeasurement`, leaves with leading axis
+    (n_envs,)); both give the same result, the second reads less. Each foot gets its own
+    key, split from ``key``.
     """
     n_envs, n_legs = belief.logit.shape
     keys = jax.random.split(key, n_envs * n_legs)
     keys = keys.reshape((n_envs, n_legs) + keys.shape[1:])
+
+    if isinstance(meas, RobotMeasurement):
+        return jax.vmap(lambda b, m, k: _step_legs(params, terrain, b, m, k))(belief, meas, keys)
 
     def one(b, m, k):
         return step(params, terrain, b, m, key=k)
@@ -150,7 +195,7 @@ def run(
     params: EstimatorParams,
     terrain,
     belief: LegBelief,
-    meas_seq: LegMeasurement,
+    meas_seq: LegMeasurement | RobotMeasurement,
     *,
     key: jax.Array,
 ) -> tuple[LegBelief, Diagnostics]:
@@ -158,7 +203,8 @@ def run(
 
     Args:
       belief: initial belief, leaves with leading axes (n_envs, n_legs).
-      meas_seq: measurements, leaves with leading axes (T, n_envs, n_legs).
+      meas_seq: measurements, leaves with leading axes (T, n_envs, n_legs), or a
+        :class:`RobotMeasurement` with leading axes (T, n_envs).
       key: PRNG key, split once per step.
 
     Returns:
@@ -178,7 +224,7 @@ def run(
 def sequence_bce(
     params: EstimatorParams,
     terrain,
-    meas_seq: LegMeasurement,
+    meas_seq: LegMeasurement | RobotMeasurement,
     truth: jax.Array,
     *,
     key: jax.Array,

@@ -1,0 +1,152 @@
+"""The per-robot measurement layout (``RobotMeasurement``) against the per-foot one.
+
+Both layouts hold the same numbers; ``step_batch`` must give the same beliefs and
+diagnostics from either (the per-foot path is the one the oracle tests check against the
+float64 NumPy reference), keep a NaN where it was, and ``run`` must scan either. The
+robot is synthetic and well conditioned (nv = 9: a 3-dof base and two 3-dof legs), so the
+two compiled programs, which round differently, agree to float32 precision.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import jax_contact as jc
+
+NV, LEGS = 9, ((3, 4, 5), (8, 6, 7))  # the second leg's dofs deliberately not ascending
+N_ENVS, N_LEGS = 3, len(LEGS)
+MODES = ("quadrature", "monte_carlo")
+PARAMS = {mode: jc.make_params(jc.make_noise(NV), touchdown=mode) for mode in MODES}
+TERRAIN = jc.flat(0.0, 0.05)
+
+
+def _robot(rng, lead=(N_ENVS,)) -> jc.RobotMeasurement:
+    """Random well-conditioned robot measurements with leading axes ``lead``."""
+    a = rng.normal(size=lead + (NV, NV)) * 0.3
+    J = rng.normal(size=lead + (N_LEGS, 3, NV)) * 0.3
+    qd = rng.normal(size=lead + (NV,))
+    height = rng.uniform(0.0, 0.1, size=lead + (N_LEGS, 1))
+    f32 = lambda x: jnp.asarray(x, jnp.float32)  # noqa: E731
+    return jc.RobotMeasurement(
+        q=f32(rng.normal(size=lead + (NV + 1,))),
+        qd=f32(qd),
+        qdd=f32(rng.normal(size=lead + (NV,)) * 5.0),
+        tau=f32(rng.normal(size=lead + (NV,)) * 5.0),
+        M=f32(a @ np.swapaxes(a, -1, -2) + NV * 0.1 * np.eye(NV)),
+        h=f32(rng.normal(size=lead + (NV,)) * 5.0),
+        J=f32(J),
+        Jdot_qd=f32(rng.normal(size=lead + (N_LEGS, 3))),
+        p_f=f32(np.concatenate([rng.normal(size=lead + (N_LEGS, 2)), height], axis=-1)),
+        v_f=f32(np.einsum("...lij,...j->...li", J, qd)),
+        foot_radius=f32(np.full(lead + (N_LEGS,), 0.02)),
+        leg_dofs=LEGS,
+    )
+
+
+def _close(got, want, what):
+    """Leaf by leaf: float32 rounding of two differently compiled programs."""
+    for name, g, w in zip(
+        type(want).__dataclass_fields__, jax.tree.leaves(got), jax.tree.leaves(want), strict=True
+    ):
+        g, w = np.asarray(g), np.asarray(w)
+        if g.dtype == bool:
+            np.testing.assert_array_equal(g, w, err_msg=f"{what}: {name}")
+        else:
+            scale = np.nanmax(np.abs(w)) if np.isfinite(w).any() else 1.0
+            np.testing.assert_allclose(
+                g, w, rtol=1e-4, atol=1e-5 * max(scale, 1.0), err_msg=f"{what}: {name}"
+            )
+
+
+def test_legs_is_the_per_foot_layout(np_rng):
+    """``legs()`` tiles the shared fields and fills in each leg's complement, ascending."""
+    robot = _robot(np_rng)
+    legs = robot.legs()
+    jc.validate_robot_measurement(robot, NV)
+    assert jc.validate_measurement(legs, NV) == (N_ENVS, N_LEGS)
+    for i, leg in enumerate(LEGS):
+        other = [j for j in range(NV) if j not in leg]
+        np.testing.assert_array_equal(legs.leg_dofs[:, i], np.broadcast_to(leg, (N_ENVS, 3)))
+        np.testing.assert_array_equal(legs.other_dofs[:, i], np.broadcast_to(other, (N_ENVS, 6)))
+        np.testing.assert_array_equal(legs.M[:, i], robot.M)
+        np.testing.assert_array_equal(legs.J[:, i], robot.J[:, i])
+        one = jax.tree.map(lambda x, i=i: x[0], robot).leg(i)
+        np.testing.assert_array_equal(one.other_dofs, other)
+        np.testing.assert_array_equal(one.qdd, robot.qdd[0])
+
+
+@pytest.mark.parametrize("mode", MODES)
+def test_step_batch_same_from_either_layout(mode, np_rng, jit_step_batch):
+    """Same beliefs, transitions and diagnostics from one robot measurement or per-foot
+    copies, Monte-Carlo included (each foot draws from the same key in both)."""
+    robot = _robot(np_rng)
+    params = PARAMS[mode]
+    belief = jc.init_belief_batch(params, N_ENVS, N_LEGS)
+    key = jax.random.key(5)
+    got = jit_step_batch(params, TERRAIN, belief, robot, key=key)
+    want = jit_step_batch(params, TERRAIN, belief, robot.legs(), key=key)
+    _close(got[0], want[0], f"{mode} belief")
+    _close(got[1], want[1], f"{mode} diagnostics")
+    # Not a vacuous comparison: the feet disagree and the terms are not all at their caps.
+    p = np.asarray(want[1].p_contact)
+    assert p.max() - p.min() > 0.1
+    # step_robot on one robot = step of each foot on its leg(i), keys split from its key.
+    one, b1 = jax.tree.map(lambda x: x[1], (robot, belief))
+    k1 = jax.random.key(8)
+    got1 = jax.jit(lambda b, m, k: jc.step_robot(params, TERRAIN, b, m, key=k))(b1, one, k1)
+    want1 = jax.jit(jax.vmap(lambda b, m, k: jc.step(params, TERRAIN, b, m, key=k)))(
+        b1, one.legs(), jax.random.split(k1, N_LEGS)
+    )
+    _close(got1[1], want1[1], f"{mode} step_robot")
+
+
+def test_nan_stays_where_it_was(np_rng, jit_step_batch):
+    """A NaN in one foot's Jacobian invalidates that foot; one in a robot's mass matrix,
+    every foot of that robot (as per-foot copies of it would); the rest is untouched."""
+    params = PARAMS["quadrature"]
+    robot = _robot(np_rng)
+    belief = jc.init_belief_batch(params, N_ENVS, N_LEGS)
+    key = jax.random.key(0)
+    clean = jit_step_batch(params, TERRAIN, belief, robot, key=key)
+    bad = robot.replace(J=robot.J.at[0, 1, 2, 4].set(jnp.nan), M=robot.M.at[2, 3, 3].set(jnp.nan))
+    b, d = jit_step_batch(params, TERRAIN, belief, bad, key=key)
+    valid = np.asarray(d.valid)
+    np.testing.assert_array_equal(valid, [[True, False], [True, True], [False, False]])
+    assert np.isfinite(np.asarray(b.logit)).all()
+    assert np.isfinite(np.asarray(b.log_transition)).all()
+    np.testing.assert_array_equal(
+        np.asarray(d.p_contact)[valid], np.asarray(clean[1].p_contact)[valid]
+    )
+    np.testing.assert_array_equal(np.asarray(b.logit)[1], np.asarray(clean[0].logit)[1])
+
+
+def test_run_scans_either_layout(np_rng, jit_run):
+    """``run`` over a (T, n_envs) sequence of robot measurements = over its per-foot copies."""
+    params = PARAMS["quadrature"]
+    seq = _robot(np_rng, lead=(4, N_ENVS))
+    belief = jc.init_belief_batch(params, N_ENVS, N_LEGS)
+    got = jit_run(params, TERRAIN, belief, seq, key=jax.random.key(1))
+    want = jit_run(params, TERRAIN, belief, seq.legs(), key=jax.random.key(1))
+    assert want[1].p_contact.shape == (4, N_ENVS, N_LEGS)
+    _close(got[1], want[1], "run diagnostics")
+
+
+@pytest.mark.parametrize(
+    "change, match",
+    [
+        (dict(J=jnp.zeros((N_ENVS, N_LEGS, 3, NV - 1))), "'J'"),
+        (dict(M=jnp.zeros((N_ENVS, NV, NV + 1))), "'M'"),
+        (dict(foot_radius=jnp.zeros((N_ENVS, N_LEGS + 1))), "'foot_radius'"),
+        (dict(q=jnp.zeros((N_ENVS + 1, NV + 1))), "'q'"),
+        (dict(leg_dofs=((3, 4, 5), (6, 7))), "leg_dofs"),
+        (dict(leg_dofs=((3, 4, 5), (6, 7, 9))), r"leg_dofs\[1\]"),
+        (dict(leg_dofs=((3, 3, 5), (6, 7, 8))), r"leg_dofs\[0\]"),
+    ],
+)
+def test_validate_robot_measurement_names_the_problem(change, match, np_rng):
+    robot = _robot(np_rng).replace(**change)
+    with pytest.raises(ValueError, match=match):
+        jc.validate_robot_measurement(robot, NV)
