@@ -4,8 +4,10 @@ Run::
 
     python -m benchmarks.profile_pieces [--envs 1024] [--modes quadrature monte_carlo]
 
-Every piece is ``vmap``-ed over (envs, 4 legs) of :func:`benchmarks.common.synthetic_measurements`
-and compiled ahead of time; it prints the median (and min) ms per call over ``--repeats``
+``step_batch`` runs on :func:`benchmarks.common.synthetic_robot_measurements` (the
+per-robot layout); every other piece is ``vmap``-ed over (envs, 4 legs) of those robots'
+:class:`jax_contact.LegBlocks` (split beforehand, except in the "split" piece) and compiled
+ahead of time; it prints the median (and min) ms per call over ``--repeats``
 calls and, per leg, the flops, transcendental calls and bytes that
 ``compiled.cost_analysis()`` reports. Pieces fused into one update cost less than alone.
 Last, the cost of launching one (nearly empty) kernel, which bounds a small batch's latency.
@@ -21,10 +23,10 @@ import jax
 import jax.numpy as jnp
 
 import jax_contact as jc
-from benchmarks.common import kernel_count, synthetic_measurements
+from benchmarks.common import kernel_count, synthetic_robot_measurements
 from jax_contact import filter as filter_
 from jax_contact import measurement, transition
-from jax_contact.types import measurement_is_finite
+from jax_contact.types import feet_are_finite
 
 N_LEGS, NV = 4, 18
 
@@ -102,8 +104,11 @@ def main(argv=None) -> list[dict]:
     parser.add_argument("--repeats", type=int, default=20)
     args = parser.parse_args(argv)
     n, legs = args.envs, args.envs * N_LEGS
-    meas = synthetic_measurements(n, N_LEGS, NV)
+    meas = synthetic_robot_measurements(n, N_LEGS, NV)
     terrain = jc.flat()
+    params = jc.make_params(jc.make_noise(NV), touchdown="quadrature")
+    blocks = jax.jit(jax.vmap(lambda m: jc.robot_leg_blocks(params, m)))(meas)
+    valid = jax.jit(jax.vmap(feet_are_finite))(meas)
 
     def per_leg(f):
         return jax.vmap(jax.vmap(f))
@@ -129,9 +134,19 @@ def main(argv=None) -> list[dict]:
             )
         )
         rows.append(
-            _time(f"touch-down {mode}", per_leg(touchdown), (meas, keys), legs, args.repeats)
+            _time(f"touch-down {mode}", per_leg(touchdown), (blocks, keys), legs, args.repeats)
         )
-    params = jc.make_params(jc.make_noise(NV), touchdown="quadrature")
+    rows.append(
+        _time(
+            "split (robot_leg_blocks)",
+            jax.vmap(lambda m: jc.robot_leg_blocks(params, m)),
+            (meas,),
+            legs,
+            args.repeats,
+        )
+    )
+    rows.append(_time("finiteness check", jax.vmap(feet_are_finite), (meas,), legs, args.repeats))
+    rows.append(_time("sanitize", per_leg(filter_._sanitize), (blocks, valid), legs, args.repeats))
     pieces = {
         "dynamics": lambda m: measurement.dynamics_llr(params, m, query(m).normal),
         "diff. kinematics": lambda m: measurement.diff_kinematics_llr(params, m),
@@ -139,13 +154,11 @@ def main(argv=None) -> list[dict]:
         "take-off": lambda m: transition.log_takeoff(
             params, *transition.normal_velocity(params, m, query(m).normal)
         ),
-        "finiteness check": measurement_is_finite,
-        "sanitize": lambda m: filter_._sanitize(m, measurement_is_finite(m)),
     }
     for name, f in pieces.items():
-        rows.append(_time(name, per_leg(f), (meas,), legs, args.repeats))
+        rows.append(_time(name, per_leg(f), (blocks,), legs, args.repeats))
     # The floor for any update that reads this layout: one pass over every input byte of the
-    # whole batch (the per-leg copy of the mass matrix dominates), no arithmetic to speak of.
+    # whole batch, no arithmetic to speak of.
     rows.append(_time("read inputs once", _read_once, (meas,), legs, args.repeats))
     rows.append(launch_cost(args.repeats))
     return rows

@@ -17,7 +17,9 @@ from jax_contact.measurement import (
     diff_kinematics_llr,
     dynamics_llr,
     kinematics_llr,
+    leg_blocks,
     measurement_terms,
+    robot_leg_blocks,
 )
 from jax_contact.params import (
     EstimatorParams,
@@ -44,6 +46,7 @@ from jax_contact.transition import (
 from jax_contact.types import (
     Diagnostics,
     LegBelief,
+    LegBlocks,
     LegMeasurement,
     RobotMeasurement,
     TerrainQuery,
@@ -58,6 +61,7 @@ __all__ = [
     "FootholdMemory",
     "HeightFieldTerrain",
     "LegBelief",
+    "LegBlocks",
     "LegMeasurement",
     "MeasurementTerms",
     "NoiseParams",
@@ -71,6 +75,7 @@ __all__ = [
     "init_belief",
     "init_belief_batch",
     "kinematics_llr",
+    "leg_blocks",
     "log_takeoff",
     "log_touchdown",
     "log_touchdown_monte_carlo",
@@ -79,6 +84,7 @@ __all__ = [
     "make_noise",
     "make_params",
     "measurement_terms",
+    "robot_leg_blocks",
     "run",
     "sequence_bce",
     "step",

@@ -18,14 +18,16 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from jax_contact.measurement import measurement_terms
+from jax_contact.measurement import leg_blocks, measurement_terms, robot_leg_blocks
 from jax_contact.params import EstimatorParams
 from jax_contact.transition import log_prior_transition, log_transition_matrix
 from jax_contact.types import (
     Diagnostics,
     LegBelief,
+    LegBlocks,
     LegMeasurement,
     RobotMeasurement,
+    feet_are_finite,
     measurement_is_finite,
 )
 
@@ -51,21 +53,20 @@ def init_belief_batch(params: EstimatorParams, n_envs: int, n_legs: int) -> LegB
     return jax.tree.map(lambda x: jnp.broadcast_to(x, (n_envs, n_legs) + x.shape), one)
 
 
-def _sanitize(meas: LegMeasurement, valid: jax.Array) -> LegMeasurement:
+def _sanitize(leg: LegBlocks, valid: jax.Array) -> LegBlocks:
     """Replaces an invalid measurement by a benign one so no NaN enters any computation.
 
     ``jnp.where`` alone would still propagate NaN into gradients, so the inputs themselves
-    are swapped: zeros everywhere and an identity mass matrix.
+    are swapped: zeros everywhere and an identity mass matrix (its leg block; the
+    coupling block of an identity is zero). The noise model's fields are kept.
     """
-
-    def fix(x):
-        if not jnp.issubdtype(x.dtype, jnp.floating):
-            return x
-        return jnp.where(valid, x, jnp.zeros_like(x))
-
-    safe = jax.tree.map(fix, meas)
-    eye = jnp.eye(meas.M.shape[0], dtype=meas.M.dtype)
-    return safe.replace(M=jnp.where(valid, meas.M, eye))
+    measured = {
+        name: jnp.where(valid, x, jnp.zeros_like(x))
+        for name, x in vars(leg).items()
+        if name not in LegBlocks.NOISE_FIELDS
+    }
+    eye = jnp.eye(leg.M_l.shape[0], dtype=leg.M_l.dtype)
+    return leg.replace(**measured).replace(M_l=jnp.where(valid, leg.M_l, eye))
 
 
 def step(
@@ -91,8 +92,20 @@ def step(
       is kept, and ``diagnostics.valid`` is False.
     """
     valid = measurement_is_finite(meas)
-    meas = _sanitize(meas, valid)
-    tq = terrain.query(meas.p_f, belief.foothold, belief.foothold_valid)
+    return _update(params, terrain, belief, leg_blocks(params, meas), valid, key)
+
+
+def _update(
+    params: EstimatorParams,
+    terrain,
+    belief: LegBelief,
+    leg: LegBlocks,
+    valid: jax.Array,
+    key: jax.Array,
+) -> tuple[LegBelief, Diagnostics]:
+    """:func:`step` from the foot's split measurement and whether all of it was finite."""
+    leg = _sanitize(leg, valid)
+    tq = terrain.query(leg.p_f, belief.foothold, belief.foothold_valid)
 
     # eq. 1, the sum over the previous state, in log space.
     log_b_prev = jnp.stack([jax.nn.log_sigmoid(belief.logit), jax.nn.log_sigmoid(-belief.logit)])
@@ -100,16 +113,16 @@ def step(
     prior_logit = log_prior[0] - log_prior[1]
 
     # eq. 3: the product of the terms is the sum of their log-likelihood ratios.
-    terms = measurement_terms(params, meas, tq)
+    terms = measurement_terms(params, leg, tq)
     llr = sum(getattr(terms, name) for name in params.terms)
     logit = jnp.where(valid, prior_logit + llr, prior_logit)
 
     log_t = log_prior_transition(params)
     if params.transition_model:
-        log_t = jnp.where(valid, log_transition_matrix(params, meas, tq, key=key), log_t)
+        log_t = jnp.where(valid, log_transition_matrix(params, leg, tq, key=key), log_t)
 
     on_ground = valid & (logit > 0.0)
-    sole = meas.p_f - meas.foot_radius * tq.normal
+    sole = leg.p_f - leg.foot_radius * tq.normal
     new_belief = LegBelief(
         logit=logit,
         log_transition=log_t,
@@ -131,12 +144,14 @@ def step(
 
 
 def _step_legs(params, terrain, belief, meas: RobotMeasurement, keys):
-    """:func:`step` of each foot of one robot, the legs unrolled with constant indices."""
-    outs = [
-        step(params, terrain, jax.tree.map(lambda x, i=i: x[i], belief), meas.leg(i), key=keys[i])
-        for i in range(meas.n_legs)
-    ]
-    return jax.tree.map(lambda *xs: jnp.stack(xs), *outs)
+    """:func:`step` of each foot of one robot: the legs' blocks sliced with constant
+    indices, then one program vmapped over the legs."""
+
+    def one(b, leg, valid, k):
+        return _update(params, terrain, b, leg, valid, k)
+
+    legs = robot_leg_blocks(params, meas)
+    return jax.vmap(one)(belief, legs, feet_are_finite(meas), keys)
 
 
 def step_robot(

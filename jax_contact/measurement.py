@@ -15,7 +15,7 @@ from jax.scipy.special import log_ndtr
 
 from jax_contact._math import cap_llr, mvn_logpdf, spd_solve
 from jax_contact.params import EstimatorParams
-from jax_contact.types import LegMeasurement, TerrainQuery
+from jax_contact.types import LegBlocks, LegMeasurement, RobotMeasurement, TerrainQuery
 
 
 @struct.dataclass
@@ -35,13 +35,79 @@ class MeasurementTerms:
     force: jax.Array
 
 
-def _blocks(meas: LegMeasurement):
-    l, b = meas.leg_dofs, meas.other_dofs
-    return l, b, meas.M[l][:, l], meas.M[l][:, b]
+def _taker(indices):
+    """``take(x, axis)``: the entries ``indices`` of ``x`` along ``axis``.
+
+    Static indices (a tuple of ints) become slices of their ascending runs, so a leg whose
+    joints are contiguous costs one slice; an index array becomes a gather.
+    """
+    if isinstance(indices, tuple):
+        runs = []  # [start, stop) of each run of consecutive ascending indices
+        for i in indices:
+            if runs and runs[-1][1] == i:
+                runs[-1][1] = i + 1
+            else:
+                runs.append([i, i + 1])
+
+        def take(x, axis):
+            parts = [jax.lax.slice_in_dim(x, a, b, axis=axis) for a, b in runs]
+            return parts[0] if len(parts) == 1 else jnp.concatenate(parts, axis=axis)
+
+        return take
+    return lambda x, axis: x[(slice(None),) * axis + (indices,)]
+
+
+def _split(params: EstimatorParams, robot, J, foot, take_l, take_b) -> LegBlocks:
+    """The eq. 4 split of one foot's quantities: ``robot`` holds q, qd, qdd, tau, M, h."""
+    noise = params.noise
+    M_rows = take_l(robot.M, 0)
+    return LegBlocks(
+        M_l=take_l(M_rows, 1),
+        M_lb=take_b(M_rows, 1),
+        tau_l=take_l(robot.tau, 0),
+        h_l=take_l(robot.h, 0),
+        qdd_l=take_l(robot.qdd, 0),
+        qd_b=take_b(robot.qd, 0),
+        qdd_b=take_b(robot.qdd, 0),
+        J=J,
+        J_l=take_l(J, 1),
+        J_b=take_b(J, 1),
+        sigma_d_l=take_l(noise.sigma_d, 0),
+        sigma_qdd_l=take_l(noise.sigma_qdd, 0),
+        sigma_qd_prior_l=take_l(noise.sigma_qd_prior, 0),
+        sigma_qdd_b=take_b(noise.sigma_qdd, 0),
+        **foot,
+    )
+
+
+def leg_blocks(params: EstimatorParams, meas: LegMeasurement | LegBlocks) -> LegBlocks:
+    """One foot's :class:`LegBlocks`, split with its own index arrays (eq. 4).
+
+    A :class:`LegBlocks` is returned as it is, so the terms below take either.
+    """
+    if isinstance(meas, LegBlocks):
+        return meas
+    foot = {f: getattr(meas, f) for f in ("Jdot_qd", "p_f", "v_f", "foot_radius")}
+    return _split(params, meas, meas.J, foot, _taker(meas.leg_dofs), _taker(meas.other_dofs))
+
+
+def robot_leg_blocks(params: EstimatorParams, meas: RobotMeasurement) -> LegBlocks:
+    """Every foot's :class:`LegBlocks` of one robot, leaves with leading axis (n_legs,).
+
+    Each leg's indices are constants, so its blocks are slices of the robot's mass matrix,
+    forces and state, read once per robot; the feet then run as one vmapped program.
+    Equal to :func:`leg_blocks` of ``meas.leg(i)`` for every leg ``i``.
+    """
+    legs = []
+    for i in range(meas.n_legs):
+        foot = {f: getattr(meas, f)[i] for f in ("Jdot_qd", "p_f", "v_f", "foot_radius")}
+        take_l, take_b = _taker(meas.leg_dofs[i]), _taker(meas.other_dofs(i))
+        legs.append(_split(params, meas, meas.J[i], foot, take_l, take_b))
+    return jax.tree.map(lambda *xs: jnp.stack(xs), *legs)
 
 
 def dynamics_llr(
-    params: EstimatorParams, meas: LegMeasurement, normal: jax.Array
+    params: EstimatorParams, meas: LegMeasurement | LegBlocks, normal: jax.Array
 ) -> tuple[jax.Array, jax.Array]:
     """Dynamics term (eq. 4-7): is the leg's measured acceleration that of a free or a pinned leg?
 
@@ -57,39 +123,39 @@ def dynamics_llr(
 
     Args:
       params: estimator parameters.
-      meas: one foot's measurement.
+      meas: one foot's measurement, or its :class:`LegBlocks`.
       normal: (3,) terrain normal ``e`` at the foot.
 
     Returns:
       (capped log-likelihood ratio (), contact force F (3,) in N).
     """
     noise = params.noise
-    l, b, M_l, M_lb = _blocks(meas)
+    leg = leg_blocks(params, meas)
+    M_l, M_lb, qdd_l, qdd_b = leg.M_l, leg.M_lb, leg.qdd_l, leg.qdd_b
     rows = jnp.asarray(params.force_rows)
-    J_fl = meas.J[rows][:, l]
-    J_fb = meas.J[rows][:, b]
-    qdd_l, qdd_b = meas.qdd[l], meas.qdd[b]
+    J_fl = leg.J_l[rows]
+    J_fb = leg.J_b[rows]
 
     M_inv = spd_solve(M_l, jnp.eye(M_l.shape[0], dtype=M_l.dtype))
     # eq. 5: the leg's acceleration with no contact force, base accelerating as measured.
-    residual = meas.tau[l] - M_lb @ qdd_b - meas.h[l]
+    residual = leg.tau_l - M_lb @ qdd_b - leg.h_l
     qdd_air = M_inv @ residual
     # eq. 6: the force that keeps the foot still, J_fl qdd_l + J_fb qdd_b + Jdot qd = 0.
     lam_inv = J_fl @ M_inv @ J_fl.T + params.inv_damping * jnp.eye(J_fl.shape[0])
-    force_rows = spd_solve(lam_inv, J_fl @ qdd_air + J_fb @ qdd_b + meas.Jdot_qd[rows])
+    force_rows = spd_solve(lam_inv, J_fl @ qdd_air + J_fb @ qdd_b + leg.Jdot_qd[rows])
     qdd_contact = M_inv @ (residual - J_fl.T @ force_rows)
 
     # eq. 7: model error, plus the measured base acceleration's noise entering through M_lb.
-    sigma_d = jnp.diag(jnp.square(noise.sigma_d[l])) + M_lb @ (
-        jnp.square(noise.sigma_qdd[b])[:, None] * M_lb.T
+    sigma_d = jnp.diag(jnp.square(leg.sigma_d_l)) + M_lb @ (
+        jnp.square(leg.sigma_qdd_b)[:, None] * M_lb.T
     )
-    sigma_qdd = jnp.diag(jnp.square(noise.sigma_qdd[l]))
+    sigma_qdd = jnp.diag(jnp.square(leg.sigma_qdd_l))
     sigma_f = jnp.diag(jnp.square(noise.sigma_f[rows]))
     cov_air = M_inv @ sigma_d @ M_inv.T + sigma_qdd
     cov_contact = M_inv @ (sigma_d + J_fl.T @ sigma_f @ J_fl) @ M_inv.T + sigma_qdd
     llr = mvn_logpdf(qdd_l, qdd_contact, cov_contact) - mvn_logpdf(qdd_l, qdd_air, cov_air)
 
-    force = jnp.zeros(3, meas.J.dtype).at[rows].set(force_rows)
+    force = jnp.zeros(3, leg.J.dtype).at[rows].set(force_rows)
     if params.unilateral:
         e_rows = normal[rows]
         push = jnp.dot(e_rows, force_rows)
@@ -98,7 +164,7 @@ def dynamics_llr(
     return cap_llr(llr, params.cap_dynamics), force
 
 
-def diff_kinematics_llr(params: EstimatorParams, meas: LegMeasurement) -> jax.Array:
+def diff_kinematics_llr(params: EstimatorParams, meas: LegMeasurement | LegBlocks) -> jax.Array:
     """Differential kinematics term (eq. 8-9): is the foot still?
 
     Contact: ``v_f ~ N(0, J Sigma_qd J^T + Sigma_J)``. Air: the leg's joints move with the
@@ -109,20 +175,19 @@ def diff_kinematics_llr(params: EstimatorParams, meas: LegMeasurement) -> jax.Ar
       () capped log-likelihood ratio.
     """
     noise = params.noise
-    l, b = meas.leg_dofs, meas.other_dofs
-    J = meas.J
+    leg = leg_blocks(params, meas)
+    J, J_fl = leg.J, leg.J_l
     cov_meas = J @ (jnp.square(noise.sigma_qd)[:, None] * J.T) + jnp.diag(jnp.square(noise.sigma_J))
-    J_fl = J[:, l]
-    cov_air = J_fl @ (jnp.square(noise.sigma_qd_prior[l])[:, None] * J_fl.T) + cov_meas
-    mean_air = J[:, b] @ meas.qd[b]
-    llr = mvn_logpdf(meas.v_f, jnp.zeros(3, J.dtype), cov_meas) - mvn_logpdf(
-        meas.v_f, mean_air, cov_air
+    cov_air = J_fl @ (jnp.square(leg.sigma_qd_prior_l)[:, None] * J_fl.T) + cov_meas
+    mean_air = leg.J_b @ leg.qd_b
+    llr = mvn_logpdf(leg.v_f, jnp.zeros(3, J.dtype), cov_meas) - mvn_logpdf(
+        leg.v_f, mean_air, cov_air
     )
     return cap_llr(llr, params.cap_diff_kinematics)
 
 
 def sole_gap(
-    params: EstimatorParams, meas: LegMeasurement, terrain: TerrainQuery
+    params: EstimatorParams, meas: LegMeasurement | LegBlocks, terrain: TerrainQuery
 ) -> tuple[jax.Array, jax.Array]:
     """Mean and std of the gap ``phi = e . (p_f - p_i)`` between sole and terrain (eq. 10).
 
@@ -142,7 +207,7 @@ def sole_gap(
 
 
 def kinematics_llr(
-    params: EstimatorParams, meas: LegMeasurement, terrain: TerrainQuery
+    params: EstimatorParams, meas: LegMeasurement | LegBlocks, terrain: TerrainQuery
 ) -> jax.Array:
     """Kinematics term (eq. 10): ``L(C) = P(phi <= 0)``, ``L(A) = 1 - P(phi <= 0)``.
 
@@ -158,9 +223,10 @@ def kinematics_llr(
 
 
 def measurement_terms(
-    params: EstimatorParams, meas: LegMeasurement, terrain: TerrainQuery
+    params: EstimatorParams, meas: LegMeasurement | LegBlocks, terrain: TerrainQuery
 ) -> MeasurementTerms:
     """All three capped terms of eq. 3 for one foot."""
+    meas = leg_blocks(params, meas)
     dyn, force = dynamics_llr(params, meas, terrain.normal)
     return MeasurementTerms(
         dynamics=dyn,

@@ -22,14 +22,14 @@ from jax_contact._math import (
 )
 from jax_contact.measurement import sole_gap
 from jax_contact.params import EstimatorParams
-from jax_contact.types import LegMeasurement, TerrainQuery
+from jax_contact.types import LegBlocks, LegMeasurement, TerrainQuery
 
 # Transition probabilities are floored here (in log space) so that no state becomes
 # unreachable: a belief can always recover, even after a million steps (MODEL.md).
 LOG_FLOOR = -30.0
 
 
-def normal_velocity(params: EstimatorParams, meas: LegMeasurement, normal: jax.Array):
+def normal_velocity(params: EstimatorParams, meas: LegMeasurement | LegBlocks, normal: jax.Array):
     """Foot velocity along the impact axis and its std (eq. 13).
 
     Returns:
@@ -189,7 +189,7 @@ def log_touchdown_quadrature(
 
 def log_touchdown(
     params: EstimatorParams,
-    meas: LegMeasurement,
+    meas: LegMeasurement | LegBlocks,
     terrain: TerrainQuery,
     *,
     key: jax.Array,
@@ -212,7 +212,7 @@ def log_touchdown(
 
 def log_transition_matrix(
     params: EstimatorParams,
-    meas: LegMeasurement,
+    meas: LegMeasurement | LegBlocks,
     terrain: TerrainQuery,
     *,
     key: jax.Array,

@@ -157,6 +157,55 @@ class RobotMeasurement:
 
 
 @struct.dataclass
+class LegBlocks:
+    """One foot's measurement as the terms read it: split by its leg's coordinates (eq. 4).
+
+    The robot's quantities are split once into the leg's joints ``l`` and the other
+    coordinates ``b`` (base and the other legs), and the noise model's per-coordinate
+    standard deviations with them, so that no term indexes with the leg's coordinates:
+    :func:`jax_contact.measurement.leg_blocks` splits a :class:`LegMeasurement` with its
+    index arrays, :func:`jax_contact.measurement.robot_leg_blocks` a
+    :class:`RobotMeasurement` with each leg's constant indices (every leaf then gains a
+    leading ``n_legs`` axis, and the legs are vmapped like per-foot measurements).
+
+    Attributes:
+      M_l: (n_l, n_l) the leg's block of the mass matrix.
+      M_lb: (n_l, n_b) its coupling to the other coordinates.
+      tau_l, h_l, qdd_l: (n_l,) the leg's torques, bias forces and measured accelerations.
+      qd_b, qdd_b: (n_b,) the other coordinates' velocities and accelerations.
+      J: (3, nv) the foot point's Jacobian, every column.
+      J_l: (3, n_l) its columns of the leg's joints; J_b: (3, n_b) the others.
+      Jdot_qd, p_f, v_f: (3,) as in :class:`LegMeasurement`.
+      foot_radius: () m.
+      sigma_d_l, sigma_qdd_l, sigma_qd_prior_l: (n_l,) the noise model's ``sigma_d``,
+        ``sigma_qdd`` and ``sigma_qd_prior`` of the leg's joints.
+      sigma_qdd_b: (n_b,) ``sigma_qdd`` of the other coordinates.
+    """
+
+    M_l: jax.Array
+    M_lb: jax.Array
+    tau_l: jax.Array
+    h_l: jax.Array
+    qdd_l: jax.Array
+    qd_b: jax.Array
+    qdd_b: jax.Array
+    J: jax.Array
+    J_l: jax.Array
+    J_b: jax.Array
+    Jdot_qd: jax.Array
+    p_f: jax.Array
+    v_f: jax.Array
+    foot_radius: jax.Array
+    sigma_d_l: jax.Array
+    sigma_qdd_l: jax.Array
+    sigma_qd_prior_l: jax.Array
+    sigma_qdd_b: jax.Array
+
+    # The fields that come from the noise model, not from the measurement.
+    NOISE_FIELDS = ("sigma_d_l", "sigma_qdd_l", "sigma_qd_prior_l", "sigma_qdd_b")
+
+
+@struct.dataclass
 class TerrainQuery:
     """The terrain model's answer below one foot (the paper's ``p_i`` and impact axis).
 
@@ -230,6 +279,18 @@ def measurement_is_finite(meas: LegMeasurement) -> jax.Array:
         x for x in jax.tree.leaves(meas) if jnp.issubdtype(jnp.asarray(x).dtype, jnp.floating)
     ]
     return jnp.all(jnp.stack([jnp.all(jnp.isfinite(x)) for x in leaves]))
+
+
+def feet_are_finite(meas: RobotMeasurement) -> jax.Array:
+    """(n_legs,) bool: per foot, :func:`measurement_is_finite` of ``meas.leg(i)``.
+
+    The robot's shared fields are checked once, each foot's own fields per foot.
+    """
+    shared = [meas.q, meas.qd, meas.qdd, meas.tau, meas.M, meas.h]
+    feet = [meas.J, meas.Jdot_qd, meas.p_f, meas.v_f, meas.foot_radius]
+    robot_ok = jnp.all(jnp.stack([jnp.all(jnp.isfinite(x)) for x in shared]))
+    feet_ok = [jnp.all(jnp.isfinite(x.reshape(meas.n_legs, -1)), axis=1) for x in feet]
+    return robot_ok & jnp.all(jnp.stack(feet_ok), axis=0)
 
 
 def validate_measurement(meas: LegMeasurement, nv: int | None = None) -> tuple[int, ...]:

@@ -78,6 +78,37 @@ def test_legs_is_the_per_foot_layout(np_rng):
         np.testing.assert_array_equal(one.qdd, robot.qdd[0])
 
 
+def test_robot_leg_blocks_are_each_legs_blocks(np_rng):
+    """The per-robot split (constant indices as slices of ascending runs; the second leg's
+    (8, 6, 7) is two runs) equals the per-foot split (gathers with index arrays), exactly:
+    both only copy entries. Checked against NumPy indexing of the robot's arrays."""
+    params = PARAMS["quadrature"]
+    one = jax.tree.map(lambda x: x[0], _robot(np_rng))
+    got = jax.jit(lambda m: jc.robot_leg_blocks(params, m))(one)
+    M, J = np.asarray(one.M), np.asarray(one.J)
+    for i, leg in enumerate(LEGS):
+        per_foot = jc.leg_blocks(params, one.leg(i))
+        other = [j for j in range(NV) if j not in leg]
+        want = {
+            "M_l": M[np.ix_(leg, leg)],
+            "M_lb": M[np.ix_(leg, other)],
+            "qdd_l": np.asarray(one.qdd)[list(leg)],
+            "qd_b": np.asarray(one.qd)[other],
+            "J_l": J[i][:, list(leg)],
+            "J_b": J[i][:, other],
+            "sigma_qdd_b": np.asarray(params.noise.sigma_qdd)[other],
+        }
+        for name, value in want.items():
+            np.testing.assert_array_equal(getattr(got, name)[i], value, err_msg=name)
+        for name, g, w in zip(
+            jc.LegBlocks.__dataclass_fields__,
+            jax.tree.leaves(jax.tree.map(lambda x, i=i: x[i], got)),
+            jax.tree.leaves(per_foot),
+            strict=True,
+        ):
+            np.testing.assert_array_equal(g, w, err_msg=f"leg {i}: {name}")
+
+
 @pytest.mark.parametrize("mode", MODES)
 def test_step_batch_same_from_either_layout(mode, np_rng, jit_step_batch):
     """Same beliefs, transitions and diagnostics from one robot measurement or per-foot
