@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
-from jax.scipy.special import log_ndtr, ndtri
+import numpy as np
+from jax.scipy.special import log_ndtr
 
 LOG_2PI = 1.8378770664093453
 
@@ -156,6 +157,113 @@ def log_mean_exp(x: jax.Array, axis=None) -> jax.Array:
     """log(mean(exp(x))) along ``axis``."""
     n = x.size if axis is None else x.shape[axis]
     return jax.nn.logsumexp(x, axis=axis) - jnp.log(n)
+
+
+# The float32 inverse normal CDF below writes ndtri(p) = (2p - 1) g(w), w = -log(4 p (1 - p)):
+# g is smooth and the same for p and 1 - p, and 4 p (1 - p) keeps both tails' precision (the
+# product 4 p (1 - p) has no cancellation where 2p - 1 would round to -1). g is fitted in three
+# pieces, w in [0, 5) as a polynomial in w and [5, 17), [17, 52] in sqrt(w), each by Chebyshev
+# least squares with relative weights against scipy's float64 ndtri at 4000 Chebyshev nodes
+# (degrees 9, 9, 7; fit errors 6.5e-9, 1.3e-8, 4.9e-9 relative), then written as monomials
+# in the piece's variable mapped onto [-1, 1]; highest degree first, for jnp.polyval.
+_NDTRI_PIECES = (0.0, 5.0, 17.0, 52.0)  # the pieces' bounds in w
+_NDTRI_COEFFS = tuple(
+    np.array(c[::-1])
+    for c in (
+        (
+            2.1233134789945147,
+            0.872005067137522,
+            -0.03692324646913269,
+            -0.027681578216145673,
+            0.012062020092291285,
+            -0.0006868147040824664,
+            -0.0011956916959809227,
+            0.00040419281270987156,
+            5.0203545919277984e-05,
+            -4.8237110281808946e-05,
+        ),
+        (
+            4.261209420570249,
+            1.34026583449672,
+            0.00786333924547902,
+            -0.005398538786063959,
+            0.0035202808744581545,
+            -0.0022461381193109747,
+            0.001194050991566146,
+            -0.0003393274347462789,
+            -0.00011257128996674991,
+            9.324783648134315e-05,
+        ),
+        (
+            7.811789288140979,
+            2.205165382266394,
+            -0.0013929321861146419,
+            -0.00040968882002627113,
+            0.000257993736125116,
+            -9.821144542845775e-05,
+            3.978671890983849e-05,
+            -1.2848170416420182e-05,
+        ),
+    )
+)
+
+
+def _horner(coeffs, x: jax.Array) -> jax.Array:
+    """The polynomial with ``coeffs`` (highest degree first) at ``x``, unrolled at trace time.
+
+    ``jnp.polyval`` evaluates it in a ``lax.scan``, which XLA:CPU keeps out of the
+    surrounding fusion: inside the Monte-Carlo draws that was 1.6x slower overall.
+    """
+    acc = jnp.full_like(x, coeffs[0])
+    for c in coeffs[1:]:
+        acc = acc * x + c
+    return acc
+
+
+def ndtri(p: jax.Array) -> jax.Array:
+    """Inverse of the standard normal CDF, ``Phi^-1(p)``, for ``p`` in (0, 1).
+
+    float64 (and any type but float32) uses ``jax.scipy.special.ndtri``. float32 uses the
+    fitted rule above: one ``log``, one ``sqrt`` and three polynomials, no division, about
+    half the time of ``jax.scipy.special.ndtri`` (a Cephes rule built for float64: three
+    rational functions, two logs) and as accurate (max relative error 2.0e-7 against
+    3.8e-7, both against scipy's float64, for p from 1e-22 to 1 - 6e-8). The rule covers
+    ``p >= 6.5e-24`` (``w <= 52``); smaller ``p`` give ``Phi^-1(6.5e-24) = -10.0`` instead of
+    less, and ``p = 0`` or ``1`` give -10.0 or 10.0 rather than infinities (the estimator
+    never passes them: draws are clipped to [1e-7, 1 - 1e-7] and scaled by at least
+    ``Phi(-8)``).
+
+    Args:
+      p: probabilities, any shape.
+
+    Returns:
+      Standard normal quantiles, the shape and type of ``p``.
+    """
+    p = jnp.asarray(p)
+    if p.dtype != jnp.float32:
+        return jax.scipy.special.ndtri(p)
+    w0, w1, w2, w3 = _NDTRI_PIECES
+    w = jnp.minimum(-jnp.log(4.0 * p * (1.0 - p)), w3)
+    # sqrt is only read where w >= w1; the floor keeps its gradient finite at w = 0.
+    r = jnp.sqrt(jnp.maximum(w, w1))
+
+    def scaled(x, lo, hi):  # [lo, hi] -> [-1, 1]
+        return (x - lo) * (2.0 / (hi - lo)) - 1.0
+
+    central, tail, deep = (
+        _horner(c, x)
+        for c, x in zip(
+            _NDTRI_COEFFS,
+            (
+                scaled(w, w0, w1),
+                scaled(r, np.sqrt(w1), np.sqrt(w2)),
+                scaled(r, np.sqrt(w2), np.sqrt(w3)),
+            ),
+            strict=True,
+        )
+    )
+    g = jnp.where(w < w1, central, jnp.where(w < w2, tail, deep))
+    return (2.0 * p - 1.0) * g
 
 
 def upper_truncated_normal_icdf(v: jax.Array, upper: jax.Array) -> jax.Array:

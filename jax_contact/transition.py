@@ -10,12 +10,13 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jax.scipy.special import log_ndtr, ndtri
+from jax.scipy.special import log_ndtr
 
 from jax_contact._math import (
     log_diff_ndtr,
     ndtr_ratio_pair,
     ndtr_small_side,
+    ndtri,
     normal_logpdf,
     stack,
     upper_truncated_normal_icdf,
