@@ -57,6 +57,10 @@ def _taker(indices):
     return lambda x, axis: x[(slice(None),) * axis + (indices,)]
 
 
+# The fields of a foot's measurement that are its own (the rest are the robot's).
+_FOOT_FIELDS = ("Jdot_qd", "p_f", "v_f", "foot_radius")
+
+
 def _split(params: EstimatorParams, robot, J, foot, take_l, take_b) -> LegBlocks:
     """The eq. 4 split of one foot's quantities: ``robot`` holds q, qd, qdd, tau, M, h."""
     noise = params.noise
@@ -87,7 +91,7 @@ def leg_blocks(params: EstimatorParams, meas: LegMeasurement | LegBlocks) -> Leg
     """
     if isinstance(meas, LegBlocks):
         return meas
-    foot = {f: getattr(meas, f) for f in ("Jdot_qd", "p_f", "v_f", "foot_radius")}
+    foot = {f: getattr(meas, f) for f in _FOOT_FIELDS}
     return _split(params, meas, meas.J, foot, _taker(meas.leg_dofs), _taker(meas.other_dofs))
 
 
@@ -100,7 +104,7 @@ def robot_leg_blocks(params: EstimatorParams, meas: RobotMeasurement) -> LegBloc
     """
     legs = []
     for i in range(meas.n_legs):
-        foot = {f: getattr(meas, f)[i] for f in ("Jdot_qd", "p_f", "v_f", "foot_radius")}
+        foot = {f: getattr(meas, f)[i] for f in _FOOT_FIELDS}
         take_l, take_b = _taker(meas.leg_dofs[i]), _taker(meas.other_dofs(i))
         legs.append(_split(params, meas, meas.J[i], foot, take_l, take_b))
     return jax.tree.map(lambda *xs: jnp.stack(xs), *legs)

@@ -65,9 +65,10 @@ class RobotMeasurement:
     mass matrix and the forces once, the foot quantities once per foot, and each leg's
     coordinate split as compile-time constants. :func:`jax_contact.step_batch` accepts it
     in place of per-foot copies and gives the same result; it reads a quarter of the mass
-    matrix bytes of a quadruped and indexes each leg's blocks with constants
-    (docs/performance.md: the quadrature update 1.16-1.19x faster in a batch, at 2.5x the
-    compile time; for a single robot the per-foot layout launches fewer kernels).
+    matrix bytes of a quadruped and slices each leg's blocks with constant indices
+    (:func:`jax_contact.robot_leg_blocks`) before the legs run as one vmapped program
+    (docs/performance.md: the quadrature update 1.2x faster in a batch than on per-foot
+    copies; for a single robot about the same).
 
     Attributes:
       q: (nq,) generalised coordinates as estimated.
