@@ -265,8 +265,10 @@ def make_gait_robot(
     home = np.asarray(robot.home_qpos, dtype=np.float64)
     floating = any(
         int(m.jnt_type[j]) == int(mujoco.mjtJoint.mjJNT_FREE)
-        for j in range(m.body_jntadr[desc.base_body_id],
-                       m.body_jntadr[desc.base_body_id] + m.body_jntnum[desc.base_body_id])
+        for j in range(
+            m.body_jntadr[desc.base_body_id],
+            m.body_jntadr[desc.base_body_id] + m.body_jntnum[desc.base_body_id],
+        )
     )
     n_legs, n_l = desc.n_legs, desc.n_leg_dofs
     chains = [_leg_chain(m, b, desc.base_body_id) for b in desc.foot_body_ids]
@@ -310,9 +312,7 @@ def make_gait_robot(
     mujoco.mj_kinematics(m, d)
     base_pos = d.xpos[desc.base_body_id]
     base_rot = d.xmat[desc.base_body_id].reshape(3, 3)
-    foot_home = np.stack(
-        [base_rot.T @ (d.geom_xpos[g] - base_pos) for g in desc.foot_geom_ids]
-    )
+    foot_home = np.stack([base_rot.T @ (d.geom_xpos[g] - base_pos) for g in desc.foot_geom_ids])
     q_home = home[leg_qpos]
 
     # Leg roles from the standing feet: front is +x, left is +y of the base.
@@ -342,7 +342,8 @@ def make_gait_robot(
         if int(m.actuator_gaintype[a]) != int(mujoco.mjtGain.mjGAIN_FIXED):
             raise ValueError(f"actuator {m.actuator(a).name!r} has a non-fixed gain")
         if int(m.actuator_biastype[a]) not in (
-            int(mujoco.mjtBias.mjBIAS_NONE), int(mujoco.mjtBias.mjBIAS_AFFINE)
+            int(mujoco.mjtBias.mjBIAS_NONE),
+            int(mujoco.mjtBias.mjBIAS_AFFINE),
         ):
             raise ValueError(f"actuator {m.actuator(a).name!r} has a non-affine bias")
         act_dof[a] = m.jnt_dofadr[m.actuator_trnid[a, 0]]
@@ -405,9 +406,7 @@ def make_gait_robot(
 
 def _axis_rot(axis: jax.Array, angle: jax.Array) -> jax.Array:
     """(3, 3) rotation by ``angle`` about the unit ``axis`` (Rodrigues)."""
-    k = jnp.array(
-        [[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]]
-    )
+    k = jnp.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
     return jnp.eye(3) + jnp.sin(angle) * k + (1.0 - jnp.cos(angle)) * (k @ k)
 
 
@@ -451,6 +450,7 @@ def leg_ik(
     leg of fewer than three joints the solution is the least-squares one. The result is
     clipped to the joint ranges.
     """
+
     def body(_, q):
         err = target - leg_fk(robot, leg, q)
         jac = jax.jacfwd(lambda x: leg_fk(robot, leg, x))(q)
@@ -533,8 +533,9 @@ def _walk_sway(gait: GaitParams, robot: GaitRobot, t: jax.Array) -> jax.Array:
     left = home[:, 1] > centre[1]
     # Middle of each leg's swing in cycle time (phase = t / period + offset).
     mid = 2.0 * jnp.pi * (0.5 * (1.0 + gait.duty) - robot.phase_offset[_kind_index("walk")])
-    tau_left = jnp.arctan2(jnp.sum(jnp.where(left, jnp.sin(mid), 0.0)),
-                           jnp.sum(jnp.where(left, jnp.cos(mid), 0.0)))
+    tau_left = jnp.arctan2(
+        jnp.sum(jnp.where(left, jnp.sin(mid), 0.0)), jnp.sum(jnp.where(left, jnp.cos(mid), 0.0))
+    )
     half_width = jnp.mean(jnp.abs(home[:, 1] - centre[1]))
     # Linear inverted pendulum: a body swaying as A cos(w t) at height h moves its zero-
     # moment point by A (1 + w^2 h / g), so the amplitude that puts the ZMP at ``sway``
@@ -620,9 +621,7 @@ def _base_frames(robot: GaitRobot, qpos: jax.Array, qvel: jax.Array):
     return rot, rot_yaw.T @ qvel[0:3]
 
 
-def gait_control(
-    gait: GaitParams, robot: GaitRobot, t: jax.Array, data: mjx.Data
-) -> jax.Array:
+def gait_control(gait: GaitParams, robot: GaitRobot, t: jax.Array, data: mjx.Data) -> jax.Array:
     """The control input of one step (unbatched; ``vmap`` over envs).
 
     Args:
@@ -669,9 +668,7 @@ def gait_control(
     return torque_to_ctrl(robot, tau, qpos, qvel)
 
 
-def torque_to_ctrl(
-    robot: GaitRobot, tau: jax.Array, qpos: jax.Array, qvel: jax.Array
-) -> jax.Array:
+def torque_to_ctrl(robot: GaitRobot, tau: jax.Array, qpos: jax.Array, qvel: jax.Array) -> jax.Array:
     """(nu,) controls that make the actuators apply the joint torques ``tau`` (nv,), N m.
 
     Inverts each actuator's affine law ``force = gain ctrl + b0 + b1 L + b2 dL`` with

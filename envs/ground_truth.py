@@ -112,8 +112,18 @@ def with_contact_sensors(robot: Robot) -> Robot:
             )
     mj_model = spec.compile()
     # Keep the caller's physics options (e.g. a changed timestep or solver iterations).
-    for field in ("timestep", "iterations", "ls_iterations", "tolerance", "ls_tolerance",
-                  "integrator", "cone", "solver", "disableflags", "enableflags"):
+    for field in (
+        "timestep",
+        "iterations",
+        "ls_iterations",
+        "tolerance",
+        "ls_tolerance",
+        "integrator",
+        "cone",
+        "solver",
+        "disableflags",
+        "enableflags",
+    ):
         setattr(mj_model.opt, field, getattr(m.opt, field))
     return dataclasses.replace(
         robot,

@@ -86,8 +86,12 @@ def test_torque_to_ctrl_inverts_the_actuators(robots, name):
     tau = np.zeros(m.nv)
     dofs = np.asarray(gr.leg_dof).ravel()
     tau[dofs] = rng.uniform(-2.0, 2.0, dofs.size)  # small: inside every control range
-    ctrl = torque_to_ctrl(gr, jnp.asarray(tau, jnp.float32), jnp.asarray(d.qpos, jnp.float32),
-                          jnp.asarray(d.qvel, jnp.float32))
+    ctrl = torque_to_ctrl(
+        gr,
+        jnp.asarray(tau, jnp.float32),
+        jnp.asarray(d.qpos, jnp.float32),
+        jnp.asarray(d.qvel, jnp.float32),
+    )
     d.ctrl[:] = np.asarray(ctrl)
     mujoco.mj_forward(m, d)
     # MuJoCo's own actuator model maps the controls back to the requested joint torques.
@@ -136,13 +140,21 @@ def _rollout(robot, gr, gait, seconds):
     feet = list(robot.description.foot_geom_ids)
     for k in range(n):
         t = k * m.opt.timestep
-        d.ctrl[:] = np.asarray(ctrl_fn(jnp.float32(t), jnp.asarray(d.qpos, jnp.float32),
-                                       jnp.asarray(d.qvel, jnp.float32)))
+        d.ctrl[:] = np.asarray(
+            ctrl_fn(
+                jnp.float32(t), jnp.asarray(d.qpos, jnp.float32), jnp.asarray(d.qvel, jnp.float32)
+            )
+        )
         mujoco.mj_step(m, d)
         # Normal force: first entry of every contact slot of the foot's sensor.
-        fn = [sum(d.sensordata[a + 9 * s] for a, n_s in zip(row, layout.sensor_slots,
-                                                               strict=True)
-                  for s in range(n_s)) for row in layout.sensor_adr]
+        fn = [
+            sum(
+                d.sensordata[a + 9 * s]
+                for a, n_s in zip(row, layout.sensor_slots, strict=True)
+                for s in range(n_s)
+            )
+            for row in layout.sensor_adr
+        ]
         height = [d.geom_xpos[g][2] - r for g, r in zip(feet, layout.foot_radii, strict=True)]
         if gr.floating_base:
             up = 1.0 - 2.0 * (d.qpos[4] ** 2 + d.qpos[5] ** 2)
@@ -224,11 +236,13 @@ def test_gait_control_vmap_matches_loop(robots):
     qvel = rng.normal(0, 0.2, (2, 18)).astype(np.float32)
     data = types.SimpleNamespace(qpos=jnp.asarray(qpos), qvel=jnp.asarray(qvel))
     t = jnp.float32(1.3)
-    batched = jax.jit(jax.vmap(lambda q, v: gait_control(
-        gait, gr, t, types.SimpleNamespace(qpos=q, qvel=v))))(data.qpos, data.qvel)
+    batched = jax.jit(
+        jax.vmap(lambda q, v: gait_control(gait, gr, t, types.SimpleNamespace(qpos=q, qvel=v)))
+    )(data.qpos, data.qvel)
     for i in range(2):
-        single = gait_control(gait, gr, t, types.SimpleNamespace(qpos=data.qpos[i],
-                                                                 qvel=data.qvel[i]))
+        single = gait_control(
+            gait, gr, t, types.SimpleNamespace(qpos=data.qpos[i], qvel=data.qvel[i])
+        )
         np.testing.assert_allclose(batched[i], single, rtol=1e-4, atol=1e-4)
 
 

@@ -65,9 +65,7 @@ def run(scenes=SCENES, *, seed: int = 0, pairing: str = "delayed", log=print) ->
     for name in scenes:
         env, acts = scene(name)
         t0 = time.perf_counter()
-        res = W.compare_rates(
-            env, acts, key=jax.random.PRNGKey(seed), skip_s=0.2, pairing=pairing
-        )
+        res = W.compare_rates(env, acts, key=jax.random.PRNGKey(seed), skip_s=0.2, pairing=pairing)
         wall = time.perf_counter() - t0
         log(
             f"{name}: {acts.shape[0]} env steps x {acts.shape[1]} rollouts, anymal_like"
