@@ -11,11 +11,22 @@ ahead of time; it prints the median (and min) ms per call over ``--repeats``
 calls and, per leg, the flops, transcendental calls and bytes that
 ``compiled.cost_analysis()`` reports. Pieces fused into one update cost less than alone.
 Last, the cost of launching one (nearly empty) kernel, which bounds a small batch's latency.
+
+``--trace DIR`` also runs the whole ``step_batch`` under ``jax.profiler.trace`` (the trace is
+left in DIR for TensorBoard or Perfetto) and sums its kernels' times by the library function
+they come from (the functions are ``jax.named_call``-scoped), so the split is measured
+inside the fused update rather than piece by piece.
 """
 
 from __future__ import annotations
 
 import argparse
+import collections
+import glob
+import gzip
+import json
+import os
+import re
 import statistics
 import time
 
@@ -97,11 +108,101 @@ def launch_cost(repeats: int) -> dict:
     return row
 
 
+# The library's jax.named_call scopes a kernel can belong to (the innermost one counts).
+SCOPES = (
+    "robot_leg_blocks",
+    "leg_blocks",
+    "feet_are_finite",
+    "measurement_is_finite",
+    "_sanitize",
+    "dynamics_llr",
+    "diff_kinematics_llr",
+    "kinematics_llr",
+    "log_takeoff",
+    "log_touchdown",
+)
+_OTHER = "other (recursion, terrain, keys, stacking)"
+
+
+def _scope(op_name: str) -> str:
+    found = [m.group(1) for m in re.finditer(r"\b(" + "|".join(SCOPES) + r")\b", op_name)]
+    return found[-1] if found else _OTHER
+
+
+def trace_step(fn, args, out_dir: str, calls: int = 10) -> list[dict]:
+    """Runs ``fn`` (jitted) ``calls`` times under ``jax.profiler.trace(out_dir)`` and sums
+    the time of each kernel it launched by :data:`SCOPES`.
+
+    Returns:
+      rows of ``scope``, ``kernels``, ``ms_per_call`` and ``share`` of the kernel time; a
+      last row ``all kernels`` with ``wall_ms_per_call``, the calls' median outside the
+      trace (the kernels' times are summed over the threads that ran them concurrently,
+      and taken under the profiler, so their sum can exceed it).
+    """
+    compiled = jax.jit(fn).lower(*args).compile()
+    text = compiled.as_text()
+    module = re.match(r"HloModule (\S+?),", text).group(1)
+    entry = text[text.index("\nENTRY") :]
+    op_names = dict(
+        re.findall(r'^\s*(?:ROOT )?%?([\w.\-]+) = [^\n]*?metadata=\{op_name="([^"]*)"', entry, re.M)
+    )
+    jax.block_until_ready(compiled(*args))
+    wall = []
+    for _ in range(calls):
+        t = time.perf_counter()
+        jax.block_until_ready(compiled(*args))
+        wall.append(time.perf_counter() - t)
+    pattern = os.path.join(out_dir, "**", "*.trace.json.gz")
+    before = set(glob.glob(pattern, recursive=True))
+    with jax.profiler.trace(out_dir):
+        for _ in range(calls):
+            jax.block_until_ready(compiled(*args))
+    (path,) = set(glob.glob(pattern, recursive=True)) - before
+    with gzip.open(path) as f:
+        events = json.load(f)["traceEvents"]
+    us = collections.Counter()
+    kernels = collections.defaultdict(set)
+    for e in events:
+        a = e.get("args", {})
+        if e.get("ph") == "X" and a.get("hlo_module") == module and "hlo_op" in a:
+            scope = _scope(op_names.get(a["hlo_op"], ""))
+            us[scope] += e["dur"]
+            kernels[scope].add(a["hlo_op"])
+    total = sum(us.values())
+    rows = [
+        {
+            "scope": scope,
+            "kernels": len(kernels[scope]),
+            "ms_per_call": t / 1e3 / calls,
+            "share": t / total,
+        }
+        for scope, t in us.most_common()
+    ]
+    rows.append(
+        {
+            "scope": "all kernels",
+            "kernels": sum(len(k) for k in kernels.values()),
+            "ms_per_call": total / 1e3 / calls,
+            "share": 1.0,
+            "wall_ms_per_call": 1e3 * statistics.median(wall),
+        }
+    )
+    for r in rows:
+        extra = f"  (call: {r['wall_ms_per_call']:.3f} ms)" if "wall_ms_per_call" in r else ""
+        print(
+            f"  {r['scope']:44s} {r['kernels']:4d} kernels {r['ms_per_call']:8.3f} ms"
+            f" {100 * r['share']:5.1f} %{extra}",
+            flush=True,
+        )
+    return rows
+
+
 def main(argv=None) -> list[dict]:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--envs", type=int, default=1024)
     parser.add_argument("--modes", nargs="+", default=["quadrature", "monte_carlo"])
     parser.add_argument("--repeats", type=int, default=20)
+    parser.add_argument("--trace", metavar="DIR", help="also profile step_batch into DIR")
     args = parser.parse_args(argv)
     n, legs = args.envs, args.envs * N_LEGS
     meas = synthetic_robot_measurements(n, N_LEGS, NV)
@@ -119,20 +220,21 @@ def main(argv=None) -> list[dict]:
     rows = []
     keys = jax.random.split(jax.random.key(0), legs).reshape(n, N_LEGS)
     for mode in args.modes:
-        params = jc.make_params(jc.make_noise(NV), touchdown=mode)
-        belief = jc.init_belief_batch(params, n, N_LEGS)
+        mode_params = jc.make_params(jc.make_noise(NV), touchdown=mode)
+        belief = jc.init_belief_batch(mode_params, n, N_LEGS)
 
-        def update(b, m, k, params=params):
-            return jc.step_batch(params, terrain, b, m, key=k)
+        def update(b, m, k, p=mode_params):
+            return jc.step_batch(p, terrain, b, m, key=k)
 
-        def touchdown(m, k, params=params):
-            return transition.log_touchdown(params, m, query(m), key=k)
+        def touchdown(m, k, p=mode_params):
+            return transition.log_touchdown(p, m, query(m), key=k)
 
-        rows.append(
-            _time(
-                f"step_batch {mode}", update, (belief, meas, jax.random.key(0)), legs, args.repeats
-            )
-        )
+        update_args = (belief, meas, jax.random.key(0))
+        rows.append(_time(f"step_batch {mode}", update, update_args, legs, args.repeats))
+        if args.trace:
+            print(f"# step_batch {mode}: kernel time by library function (jax.profiler)")
+            traced = trace_step(update, update_args, args.trace)
+            rows.extend({"piece": f"trace {mode}", **r} for r in traced)
         rows.append(
             _time(f"touch-down {mode}", per_leg(touchdown), (blocks, keys), legs, args.repeats)
         )

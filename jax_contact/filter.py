@@ -53,6 +53,7 @@ def init_belief_batch(params: EstimatorParams, n_envs: int, n_legs: int) -> LegB
     return jax.tree.map(lambda x: jnp.broadcast_to(x, (n_envs, n_legs) + x.shape), one)
 
 
+@jax.named_call
 def _sanitize(leg: LegBlocks, valid: jax.Array) -> LegBlocks:
     """Replaces an invalid measurement by a benign one so no NaN enters any computation.
 

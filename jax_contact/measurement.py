@@ -84,6 +84,7 @@ def _split(params: EstimatorParams, robot, J, foot, take_l, take_b) -> LegBlocks
     )
 
 
+@jax.named_call
 def leg_blocks(params: EstimatorParams, meas: LegMeasurement | LegBlocks) -> LegBlocks:
     """One foot's :class:`LegBlocks`, split with its own index arrays (eq. 4).
 
@@ -95,6 +96,7 @@ def leg_blocks(params: EstimatorParams, meas: LegMeasurement | LegBlocks) -> Leg
     return _split(params, meas, meas.J, foot, _taker(meas.leg_dofs), _taker(meas.other_dofs))
 
 
+@jax.named_call
 def robot_leg_blocks(params: EstimatorParams, meas: RobotMeasurement) -> LegBlocks:
     """Every foot's :class:`LegBlocks` of one robot, leaves with leading axis (n_legs,).
 
@@ -110,6 +112,7 @@ def robot_leg_blocks(params: EstimatorParams, meas: RobotMeasurement) -> LegBloc
     return jax.tree.map(lambda *xs: jnp.stack(xs), *legs)
 
 
+@jax.named_call
 def dynamics_llr(
     params: EstimatorParams, meas: LegMeasurement | LegBlocks, normal: jax.Array
 ) -> tuple[jax.Array, jax.Array]:
@@ -168,6 +171,7 @@ def dynamics_llr(
     return cap_llr(llr, params.cap_dynamics), force
 
 
+@jax.named_call
 def diff_kinematics_llr(params: EstimatorParams, meas: LegMeasurement | LegBlocks) -> jax.Array:
     """Differential kinematics term (eq. 8-9): is the foot still?
 
@@ -210,6 +214,7 @@ def sole_gap(
     return gap, sigma_pf
 
 
+@jax.named_call
 def kinematics_llr(
     params: EstimatorParams, meas: LegMeasurement | LegBlocks, terrain: TerrainQuery
 ) -> jax.Array:

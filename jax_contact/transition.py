@@ -42,6 +42,7 @@ def normal_velocity(params: EstimatorParams, meas: LegMeasurement | LegBlocks, n
     return jnp.dot(normal, meas.v_f), sigma_v
 
 
+@jax.named_call
 def log_takeoff(params: EstimatorParams, u: jax.Array, sigma_v: jax.Array) -> jax.Array:
     """(2,) log [P(C | C), P(A | C)] given the normal foot velocity ``u`` (eq. 11-15).
 
@@ -188,6 +189,7 @@ def log_touchdown_quadrature(
     return stack([log_td, log_stay])
 
 
+@jax.named_call
 def log_touchdown(
     params: EstimatorParams,
     meas: LegMeasurement | LegBlocks,

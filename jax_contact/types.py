@@ -274,6 +274,7 @@ class Diagnostics:
     valid: jax.Array
 
 
+@jax.named_call
 def measurement_is_finite(meas: LegMeasurement) -> jax.Array:
     """() bool: every floating-point leaf of ``meas`` is finite."""
     leaves = [
@@ -282,6 +283,7 @@ def measurement_is_finite(meas: LegMeasurement) -> jax.Array:
     return jnp.all(jnp.stack([jnp.all(jnp.isfinite(x)) for x in leaves]))
 
 
+@jax.named_call
 def feet_are_finite(meas: RobotMeasurement) -> jax.Array:
     """(n_legs,) bool: per foot, :func:`measurement_is_finite` of ``meas.leg(i)``.
 

@@ -1,0 +1,41 @@
+"""The library's profiler scopes: every piece of the paper's update is named in the compiled
+program, so a ``jax.profiler`` trace (and ``benchmarks.profile_pieces --trace``) can charge
+each kernel to the function it came from."""
+
+from __future__ import annotations
+
+import re
+
+import jax
+import pytest
+
+import jax_contact as jc
+from benchmarks.common import synthetic
+from benchmarks.profile_pieces import SCOPES, _scope
+
+# In the per-robot layout the split and the finiteness check are the robot's own.
+PER_LAYOUT = {
+    "robot": set(SCOPES) - {"leg_blocks", "measurement_is_finite"},
+    "per_foot": set(SCOPES) - {"robot_leg_blocks", "feet_are_finite"},
+}
+
+
+@pytest.mark.parametrize("layout", sorted(PER_LAYOUT))
+def test_every_piece_is_named_in_the_compiled_step(layout):
+    params = jc.make_params(jc.make_noise(18), touchdown="quadrature")
+    meas = synthetic(2, layout)
+    belief = jc.init_belief_batch(params, 2, 4)
+
+    def update(b, m, k):
+        return jc.step_batch(params, jc.flat(), b, m, key=k)
+
+    text = jax.jit(update).lower(belief, meas, jax.random.key(0)).compile().as_text()
+    op_names = re.findall(r'op_name="([^"]*)"', text)
+    assert {_scope(name) for name in op_names} >= PER_LAYOUT[layout]
+
+
+def test_scope_is_the_innermost_library_function():
+    assert _scope("jit(f)/vmap(vmap(dynamics_llr))/jit(_where)/select_n") == "dynamics_llr"
+    assert _scope("jit(f)/vmap(diff_kinematics_llr)/dot_general") == "diff_kinematics_llr"
+    assert _scope("jit(f)/log_touchdown/kinematics_llr/x") == "kinematics_llr"
+    assert _scope("jit(f)/vmap()/concatenate").startswith("other")
