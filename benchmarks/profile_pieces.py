@@ -42,16 +42,22 @@ from jax_contact.types import feet_are_finite
 N_LEGS, NV = 4, 18
 
 
+def _call_times(compiled, args, calls: int) -> list[float]:
+    """Seconds per call of ``compiled(*args)``, ``calls`` times after one warm-up call."""
+    jax.block_until_ready(compiled(*args))
+    times = []
+    for _ in range(calls):
+        t = time.perf_counter()
+        jax.block_until_ready(compiled(*args))
+        times.append(time.perf_counter() - t)
+    return times
+
+
 def _time(name: str, fn, args, n_legs: int, repeats: int) -> dict:
     compiled = jax.jit(fn).lower(*args).compile()
     cost = compiled.cost_analysis()
     cost = (cost[0] if isinstance(cost, list) else cost) or {}
-    jax.block_until_ready(compiled(*args))
-    times = []
-    for _ in range(repeats):
-        t = time.perf_counter()
-        jax.block_until_ready(compiled(*args))
-        times.append(time.perf_counter() - t)
+    times = _call_times(compiled, args, repeats)
     row = {
         "piece": name,
         "median_ms": 1e3 * statistics.median(times),
@@ -88,12 +94,7 @@ def launch_cost(repeats: int) -> dict:
     x = jnp.ones(4, jnp.float32)
     compiled = jax.jit(_kernel_chain).lower(x).compile()
     kernels = kernel_count(compiled)
-    jax.block_until_ready(compiled(x))
-    times = []
-    for _ in range(max(repeats, 200)):
-        t = time.perf_counter()
-        jax.block_until_ready(compiled(x))
-        times.append(time.perf_counter() - t)
+    times = _call_times(compiled, (x,), max(repeats, 200))
     row = {
         "piece": "kernel launch",
         "kernels": kernels,
@@ -146,12 +147,7 @@ def trace_step(fn, args, out_dir: str, calls: int = 10) -> list[dict]:
     op_names = dict(
         re.findall(r'^\s*(?:ROOT )?%?([\w.\-]+) = [^\n]*?metadata=\{op_name="([^"]*)"', entry, re.M)
     )
-    jax.block_until_ready(compiled(*args))
-    wall = []
-    for _ in range(calls):
-        t = time.perf_counter()
-        jax.block_until_ready(compiled(*args))
-        wall.append(time.perf_counter() - t)
+    wall = _call_times(compiled, args, calls)
     pattern = os.path.join(out_dir, "**", "*.trace.json.gz")
     before = set(glob.glob(pattern, recursive=True))
     with jax.profiler.trace(out_dir):
