@@ -165,7 +165,7 @@ def log_mean_exp(x: jax.Array, axis=None) -> jax.Array:
 # pieces, w in [0, 5) as a polynomial in w and [5, 17), [17, 52] in sqrt(w), each by Chebyshev
 # least squares with relative weights against scipy's float64 ndtri at 4000 Chebyshev nodes
 # (degrees 9, 9, 7; fit errors 6.5e-9, 1.3e-8, 4.9e-9 relative), then written as monomials
-# in the piece's variable mapped onto [-1, 1]; highest degree first, for jnp.polyval.
+# in the piece's variable mapped onto [-1, 1]; stored highest degree first, for _horner.
 _NDTRI_PIECES = (0.0, 5.0, 17.0, 52.0)  # the pieces' bounds in w
 _NDTRI_COEFFS = tuple(
     np.array(c[::-1])

@@ -66,8 +66,8 @@ def _sanitize(leg: LegBlocks, valid: jax.Array) -> LegBlocks:
         for name, x in vars(leg).items()
         if name not in LegBlocks.NOISE_FIELDS
     }
-    eye = jnp.eye(leg.M_l.shape[0], dtype=leg.M_l.dtype)
-    return leg.replace(**measured).replace(M_l=jnp.where(valid, leg.M_l, eye))
+    measured["M_l"] = jnp.where(valid, leg.M_l, jnp.eye(leg.M_l.shape[0], dtype=leg.M_l.dtype))
+    return leg.replace(**measured)
 
 
 def step(

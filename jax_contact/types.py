@@ -291,9 +291,7 @@ def feet_are_finite(meas: RobotMeasurement) -> jax.Array:
     """
     shared = [meas.q, meas.qd, meas.qdd, meas.tau, meas.M, meas.h]
     feet = [meas.J, meas.Jdot_qd, meas.p_f, meas.v_f, meas.foot_radius]
-    robot_ok = jnp.all(jnp.stack([jnp.all(jnp.isfinite(x)) for x in shared]))
-    feet_ok = [jnp.all(jnp.isfinite(x.reshape(meas.n_legs, -1)), axis=1) for x in feet]
-    return robot_ok & jnp.all(jnp.stack(feet_ok), axis=0)
+    return measurement_is_finite(shared) & jax.vmap(measurement_is_finite)(feet)
 
 
 def validate_measurement(meas: LegMeasurement, nv: int | None = None) -> tuple[int, ...]:
