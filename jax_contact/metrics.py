@@ -46,10 +46,37 @@ rules applied to the complements (``not truth``, ``not flag``):
 7. A *failure* (the paper's false contact in the air) is a solid run that starts with
    ``truth`` off and is not the match of a touch-down. *Chatter* is each blip that starts
    with ``truth`` off; with ``min_on = 1`` there are no blips and every false blip is a
-   failure.
+   failure. A run that begins at the first step of a valid stretch has no edge (the step
+   before is not valid; the flag may have risen before the data), so it is neither, and
+   it is never a match either.
 
 Delays are reported in ms as mean and population standard deviation (ddof 0) over the
 matched, evaluated events pooled over all sequences; NaN when there are none.
+
+Phase and step rates (:func:`evaluate`), the false contacts seen per air phase and per
+step rather than as a bare count:
+
+8. An *air phase* is a maximal run of valid steps with ``truth`` off in one sequence, i.e.
+   a maximal off-run inside one valid stretch. Every such run counts, including the ones
+   cut by the start or end of a valid stretch: an invalid step inside a true air phase
+   splits it into two air phases, one in each stretch, and a stretch that is all air is
+   one air phase. ``n_air_phases`` counts them over all sequences.
+9. Each failure (rule 7) is attributed to the air phase that holds its first step (truth
+   is off there by rule 7, so there is exactly one). ``air_phases_with_failure`` counts the
+   air phases to which at least one failure is attributed, and ``air_phase_failure_rate =
+   air_phases_with_failure / n_air_phases`` (NaN for no air phase). A failure that stays
+   on through the next stance into the following air phase counts for the phase it began
+   in only, and a flag that is already on at the first step of a valid stretch is no
+   failure (it has no edge, rule 7); both still show in the step rate below.
+10. ``air_false_contact_rate`` = (valid steps with ``truth`` off and the flag on) / (valid
+    steps with ``truth`` off), NaN for none: the per-step false-positive rate
+    (1 - specificity), independent of ``min_on`` and of the event matching.
+11. *Persistent* delays are the delays of the same rules with ``min_on = persist_steps``
+    (default 3): the touch-down is timed by the first run of the flag that lasts
+    ``persist_steps`` steps, the lift-off by the first such run of its complement. They
+    are pooled over the events matched and evaluated under that debounce, which may be a
+    different set from the ``min_on`` one (a touch-down seen only by a 2-step run is
+    matched with ``min_on = 1`` but not with ``persist_steps = 3``).
 """
 
 from __future__ import annotations
@@ -203,8 +230,15 @@ class EventMatch:
     liftoff: EdgeEvents
 
 
-def _edge_events(kg: np.ndarray, kf: np.ndarray, early: int, min_on: int, dt: float):
-    """Rules 2-7 of the module docstring for rising edges of ``kg`` (truth) vs ``kf``."""
+def _edge_events(
+    kg: np.ndarray, kf: np.ndarray, early: int, min_on: int, dt: float
+) -> tuple[EdgeEvents, np.ndarray]:
+    """Rules 2-7 of the module docstring for rising edges of ``kg`` (truth) vs ``kf``.
+
+    Returns:
+      The :class:`EdgeEvents`, and the flat indices (into ``kg``) of the first steps of the
+      false edges, so that callers can attribute them to true phases (rule 9).
+    """
     gs, ge, gv, gse, gee = _runs(kg)
     fs, fe, fv, fse, fee = _runs(kf)
 
@@ -245,7 +279,7 @@ def _edge_events(kg: np.ndarray, kf: np.ndarray, early: int, min_on: int, dt: fl
     wrong_phase = kg[fs] == 0
     false_edges = solid & fse & wrong_phase & ~matched_runs
     chatter = (fv == 1) & (length < min_on) & fse & fee & wrong_phase
-    return EdgeEvents(
+    events_out = EdgeEvents(
         delays_ms=delays.astype(np.float64),
         n_events=int(np.sum(evaluable & (matched | already | missed))),
         missed=int(np.sum(evaluable & missed)),
@@ -253,6 +287,7 @@ def _edge_events(kg: np.ndarray, kf: np.ndarray, early: int, min_on: int, dt: fl
         false_edges=int(np.sum(false_edges)),
         chatter=int(np.sum(chatter)),
     )
+    return events_out, fs[false_edges]
 
 
 def match_events(
@@ -292,12 +327,32 @@ def match_events(
 
 
 def _match(flag, tru, val, dt: float, early: int, min_on: int) -> EventMatch:
-    kg = _flat_codes(tru, val)
-    kf = _flat_codes(flag, val)
-    return EventMatch(
-        touchdown=_edge_events(kg, kf, early, min_on, dt),
-        liftoff=_edge_events(_flip(kg), _flip(kf), early, min_on, dt),
-    )
+    return _match_codes(_flat_codes(tru, val), _flat_codes(flag, val), dt, early, min_on)[0]
+
+
+def _match_codes(
+    kg: np.ndarray, kf: np.ndarray, dt: float, early: int, min_on: int
+) -> tuple[EventMatch, np.ndarray]:
+    """:func:`_match` on flat codes; also returns the failures' first steps (flat)."""
+    touchdown, failure_starts = _edge_events(kg, kf, early, min_on, dt)
+    liftoff, _ = _edge_events(_flip(kg), _flip(kf), early, min_on, dt)
+    return EventMatch(touchdown=touchdown, liftoff=liftoff), failure_starts
+
+
+def _air_phase_failures(kg: np.ndarray, failure_starts: np.ndarray) -> tuple[int, int]:
+    """(n_air_phases, air_phases_with_failure) of rules 8-9, from flat truth codes.
+
+    The truth runs of ``_runs`` are exactly the maximal runs within one valid stretch, so
+    its off-runs are the air phases of rule 8 and a phase cut by an invalid step is two.
+    """
+    gs, _, gv, _, _ = _runs(kg)
+    # Runs are disjoint and ordered by start, so the run that holds a failure's first step
+    # is the last one starting at or before it; rule 7 puts that step at truth off.
+    holder = np.searchsorted(gs, failure_starts, side="right") - 1
+    hit = np.zeros(gs.shape, bool)
+    hit[holder] = True
+    air = gv == 0
+    return int(np.sum(air)), int(np.sum(hit & air))
 
 
 # ----------------------------------------------------------------------------- per step
@@ -391,14 +446,29 @@ def _ece(prob, tru, val, n_bins: int) -> float:
 class ContactMetrics:
     """All metrics of one estimator on one batch, one row of a results table.
 
+    Rule numbers refer to the module docstring.
+
     Attributes:
       touchdown_delay_ms, liftoff_delay_ms: (mean, std) over matched events, ms.
+      touchdown_delay_persist_ms, liftoff_delay_persist_ms: (mean, std) in ms of the
+        delays under the debounce ``min_on = persist_steps`` (rule 11): the first run that
+        lasts ``persist_steps`` steps; over the events matched under that debounce.
       n_touchdowns: evaluated true touch-downs (matched + missed + already on).
       missed: missed touch-downs.
-      touchdown_already_on: touch-downs the estimate was on for since before the window.
+      touchdown_already_on: evaluated touch-downs the estimate was on for since before the
+        early window (rule 3): no edge to time, neither matched nor missed.
       failures: false contacts in the air (solid runs, unmatched), the paper's "fail".
       chatter: blips in the air shorter than ``min_on`` steps.
-      n_liftoffs, missed_liftoffs, liftoff_already_off: as above, for lift-offs.
+      n_air_phases: maximal truth-off runs within valid stretches, over all sequences
+        (rule 8; one cut by an invalid step counts once on each side).
+      air_phases_with_failure: air phases in which at least one failure starts (rule 9).
+      air_phase_failure_rate: ``air_phases_with_failure / n_air_phases``; NaN for none.
+      air_false_contact_rate: fraction of the valid truth-off steps with the flag on
+        (rule 10); NaN for none.
+      n_liftoffs, liftoff_already_off: as above, for lift-offs.
+      missed_liftoffs: evaluated true lift-offs, not already off, with no solid fall of
+        the flag matched before the next true touch-down inside the valid stretch (rules
+        3-5 for the complements).
       false_liftoffs: false air detections during contact; liftoff_chatter their blips.
       accuracy, precision, recall, f1: per-step scores of the flag.
       brier: Brier score; ece: expected calibration error.
@@ -407,11 +477,17 @@ class ContactMetrics:
 
     touchdown_delay_ms: tuple[float, float]
     liftoff_delay_ms: tuple[float, float]
+    touchdown_delay_persist_ms: tuple[float, float]
+    liftoff_delay_persist_ms: tuple[float, float]
     n_touchdowns: int
     missed: int
     touchdown_already_on: int
     failures: int
     chatter: int
+    n_air_phases: int
+    air_phases_with_failure: int
+    air_phase_failure_rate: float
+    air_false_contact_rate: float
     n_liftoffs: int
     missed_liftoffs: int
     liftoff_already_off: int
@@ -439,28 +515,43 @@ def evaluate(
     early_window_s: float = 0.05,
     min_on: int = 1,
     n_bins: int = 10,
+    persist_steps: int = 3,
 ) -> ContactMetrics:
     """Every metric of this module for a batch (T, E, L), events pooled over envs and legs.
 
     Args and raises: as :func:`match_events`; ``n_bins`` as
-    :func:`expected_calibration_error`.
+    :func:`expected_calibration_error`; ``persist_steps`` (an int >= 1, independent of
+    ``min_on``) is the debounce of the persistent delays (rule 11).
     """
     dt = _check_positive("dt", dt)
     early_s = _check_positive("early_window_s", early_window_s, allow_zero=True)
     min_on = _check_int("min_on", min_on, 1)
     n_bins = _check_int("n_bins", n_bins, 1)
+    persist_steps = _check_int("persist_steps", persist_steps, 1)
     prob, flag, tru, val = _inputs(estimate, truth, valid, threshold)
-    ev = _match(flag, tru, val, dt, int(round(early_s / dt)), min_on)
+    early = int(round(early_s / dt))
+    kg, kf = _flat_codes(tru, val), _flat_codes(flag, val)
+    ev, failure_starts = _match_codes(kg, kf, dt, early, min_on)
+    # The persistent matching is a second pass of the same rules, skipped when it is the same.
+    persist = ev if persist_steps == min_on else _match_codes(kg, kf, dt, early, persist_steps)[0]
+    n_air, air_failed = _air_phase_failures(kg, failure_starts)
+    air_steps = val & ~tru
     steps = _step_scores(flag, tru, val)
     td, lo = ev.touchdown, ev.liftoff
     return ContactMetrics(
         touchdown_delay_ms=td.delay_mean_std_ms,
         liftoff_delay_ms=lo.delay_mean_std_ms,
+        touchdown_delay_persist_ms=persist.touchdown.delay_mean_std_ms,
+        liftoff_delay_persist_ms=persist.liftoff.delay_mean_std_ms,
         n_touchdowns=td.n_events,
         missed=td.missed,
         touchdown_already_on=td.already,
         failures=td.false_edges,
         chatter=td.chatter,
+        n_air_phases=n_air,
+        air_phases_with_failure=air_failed,
+        air_phase_failure_rate=_ratio(air_failed, n_air),
+        air_false_contact_rate=_ratio(int(np.sum(flag & air_steps)), int(np.sum(air_steps))),
         n_liftoffs=lo.n_events,
         missed_liftoffs=lo.missed,
         liftoff_already_off=lo.already,

@@ -174,6 +174,166 @@ def test_batch_pools_events_over_envs_and_legs():
     np.testing.assert_allclose(np.sort(delays), [-10.0, 2.5, 7.5, 10.0])
 
 
+def test_air_phase_failure_rate_by_hand():
+    # (a) Truth on [20, 30) and [45, 55): air phases [0, 20), [30, 45), [55, 80) -> 3,
+    #     with 20 + 15 + 25 = 60 air steps. Estimate on [22, 32), [38, 39), [46, 57),
+    #     [60, 61) and [63, 65); min_on = 1, early window 20 steps.
+    #     Touch-down 20: window [0, 30), the run from 22 is the match (5 ms); touch-down 45:
+    #     window [max(25, 30), 55) = [30, 55); the blip [38, 39) is off again before 45, so
+    #     the run from 46 is the match (2.5 ms). The runs from 22 and 46 start in stance.
+    #     Failures: the blip at 38 (phase 2) and the runs at 60 and 63 (both phase 3) -> 3
+    #     failures in 2 of the 3 phases: rate 2/3. Flag on at air steps: 30, 31 (late
+    #     lift-off), 38, 55, 56, 60, 63, 64 -> 8 of 60 = 2/15.
+    g = _truth([(20, 30), (45, 55)])
+    p = _seq([(22, 32), (38, 39), (46, 57), (60, 61), (63, 65)])
+    m = evaluate(p, g, dt=DT)
+    assert m.touchdown_delay_ms == pytest.approx((3.75, 1.25))
+    assert (m.failures, m.n_air_phases, m.air_phases_with_failure) == (3, 3, 2)
+    assert m.air_phase_failure_rate == 2 / 3
+    assert m.air_false_contact_rate == 8 / 60
+    # Flags and probabilities give the same rates. min_on = 2 debounces the 1-step blips
+    # at 38 and 60 (chatter, not failures); the 2-step run at 63 stays a failure, so only
+    # phase 3 has one: 1/3. The step rate is the raw flag's either way.
+    assert evaluate(p > 0.5, g, dt=DT).air_phase_failure_rate == 2 / 3
+    deb = evaluate(p, g, dt=DT, min_on=2)
+    assert (deb.failures, deb.chatter, deb.air_phases_with_failure) == (1, 2, 1)
+    assert deb.air_phase_failure_rate == 1 / 3 and deb.air_false_contact_rate == 8 / 60
+    # (b) A solid false run spanning a stance: truth on [40, 50) and [60, 70) (air phases
+    #     [0, 40), [50, 60), [70, 80): 40 + 10 + 10 = 60 steps); estimate on [5, 55) and
+    #     [62, 72). Touch-down 40: window [20, 50); the flag has been on since 5 < 20 and
+    #     stays on past 40 -> already on, and the run [5, 55) began in the air unmatched ->
+    #     1 failure, attributed to phase 1 only, although it is still on in phase 2 until
+    #     55. Lift-off 50: window [40, 60), the fall at 55 is the match (12.5 ms), so it is
+    #     not a missed lift-off. Touch-down 60: window [50, 70), the run from 62 (5 ms);
+    #     lift-off 70: the fall at 72 (5 ms) -> lift-off delays (8.75, 3.75) ms.
+    #     Rate 1/3; the step rate sees phase 2: air steps on [5, 40), [50, 55), [70, 72)
+    #     -> 35 + 5 + 2 = 42 of 60 = 0.7.
+    g = _truth([(40, 50), (60, 70)])
+    m = evaluate(_seq([(5, 55), (62, 72)]), g, dt=DT)
+    assert (m.n_touchdowns, m.touchdown_already_on, m.failures) == (2, 1, 1)
+    assert m.touchdown_delay_ms == pytest.approx((5.0, 0.0))
+    assert m.liftoff_delay_ms == pytest.approx((8.75, 3.75)) and m.missed_liftoffs == 0
+    assert (m.n_air_phases, m.air_phases_with_failure) == (3, 1)
+    assert m.air_phase_failure_rate == 1 / 3 and m.air_false_contact_rate == 42 / 60
+    # (c) No air phase at all (truth on throughout): both rates are 0 / 0 -> NaN.
+    m = evaluate(_seq([(0, T)]), np.ones(T, bool), dt=DT)
+    assert m.n_air_phases == 0 and m.air_phases_with_failure == 0
+    assert np.isnan(m.air_phase_failure_rate) and np.isnan(m.air_false_contact_rate)
+
+
+def test_air_phase_cut_by_an_invalid_step_counts_twice():
+    # Truth on [20, 30) and [60, 70); estimate on [22, 32), [45, 46), [50, 51), [62, 72).
+    # All valid: air phases [0, 20), [30, 60), [70, 80) -> 3. The blips at 45 and 50 are
+    #   2 failures, both in phase 2 -> rate 1/3; flag on at air steps 30, 31, 45, 50, 70,
+    #   71 -> 6 of 60 = 0.1.
+    # Step 45 invalid (NaN there): stretches [0, 45) and [46, 80). The air phase [30, 60)
+    #   is cut into [30, 45) and [46, 60) -> 4 air phases. The blip at 45 is dropped; the
+    #   blip at 50 is a failure in [46, 60) (the touch-down at 60 is not evaluated, as its
+    #   air phase starts with the stretch at 46 > 60 - 20, but the run from 62 is still
+    #   its match) -> 1 failure, 1 of 4 phases. Air steps 20 + 15 + 14 + 10 = 59, flag on
+    #   at 30, 31, 50, 70, 71 -> 5 / 59.
+    g = _truth([(20, 30), (60, 70)])
+    p = _seq([(22, 32), (45, 46), (50, 51), (62, 72)])
+    m = evaluate(p, g, dt=DT)
+    assert (m.failures, m.n_air_phases, m.air_phases_with_failure) == (2, 3, 1)
+    assert m.air_phase_failure_rate == 1 / 3 and m.air_false_contact_rate == 0.1
+    valid = np.ones(T, bool)
+    valid[45] = False
+    p[45] = np.nan
+    m = evaluate(p, g, valid, dt=DT)
+    assert (m.failures, m.n_air_phases, m.air_phases_with_failure) == (1, 4, 1)
+    assert m.n_touchdowns == 1
+    assert m.air_phase_failure_rate == 1 / 4 and m.air_false_contact_rate == 5 / 59
+    # A flag already on where a stretch starts has no edge, so it is no failure (rule 7),
+    # but the step rate counts it: estimate also on [46, 48) -> 7 / 59, phases unchanged.
+    p[46:48] = 0.9
+    m = evaluate(p, g, valid, dt=DT)
+    assert (m.failures, m.air_phases_with_failure) == (1, 1)
+    assert m.air_false_contact_rate == 7 / 59
+
+
+def test_air_phase_rates_pool_over_envs_and_legs():
+    # (T, E=2, L=2), one sequence per (env, leg), counts pooled:
+    #   [0, 0]: case (a) of the hand test: 3 phases, 2 with a failure, 8 of 60 air steps.
+    #   [0, 1]: case (b): 3 phases, 1 with a failure, 42 of 60.
+    #   [1, 0]: truth on [30, 50), estimate on [33, 52): phases [0, 30), [50, 80), no
+    #           failure, air steps 50, 51 on -> 2 of 60.
+    #   [1, 1]: truth off throughout, a blip at 40: 1 phase, 1 failure, 1 of 80.
+    # Pooled: 9 phases, 4 with a failure -> 4/9; (8 + 42 + 2 + 1) / 260 = 53/260.
+    cases = [
+        ([(20, 30), (45, 55)], [(22, 32), (38, 39), (46, 57), (60, 61), (63, 65)]),
+        ([(40, 50), (60, 70)], [(5, 55), (62, 72)]),
+        ([(30, 50)], [(33, 52)]),
+        ([], [(40, 41)]),
+    ]
+    truth = np.stack([_truth(g) for g, _ in cases], -1).reshape(T, 2, 2)
+    est = np.stack([_seq(f) for _, f in cases], -1).reshape(T, 2, 2)
+    m = evaluate(est, truth, dt=DT)
+    assert (m.n_air_phases, m.air_phases_with_failure, m.failures) == (9, 4, 5)
+    assert m.air_phase_failure_rate == 4 / 9
+    assert m.air_false_contact_rate == 53 / 260
+    # The same counts come back from one sequence per call, added up by hand.
+    singles = [evaluate(est[:, e, leg], truth[:, e, leg], dt=DT) for e in (0, 1) for leg in (0, 1)]
+    assert [(s.n_air_phases, s.air_phases_with_failure) for s in singles] == [
+        (3, 2),
+        (3, 1),
+        (2, 0),
+        (1, 1),
+    ]
+
+
+def test_persistent_delays_by_hand():
+    # Truth on [30, 50); estimate on [31, 32), [33, 52) and [53, 56).
+    # min_on = 1: the 1-step run at 31 is on at t0 = 30's window and still on after 30,
+    #   so it is the touch-down match: 2.5 ms. Lift-off 50: the 1-step fall at 52 is the
+    #   match, 5 ms (the fall at 32 is back on before 50: a false lift-off), and the run
+    #   [53, 56) that starts in the air is a failure.
+    # persist_steps = 3: the runs at 31 and the fall at 52 are blips; the first run of 3
+    #   steps is [33, 52) -> 7.5 ms, the first fall of 3 steps is at 56 -> 15 ms.
+    # A second sequence, estimate on [33, 52) only, gives 7.5 / 5 ms for both, so the
+    # pooled raw touch-down delays are (2.5, 7.5): mean 5, std 2.5; persistent (7.5, 7.5).
+    g = _truth([(30, 50)])
+    est = np.stack([_seq([(31, 32), (33, 52), (53, 56)]), _seq([(33, 52)])], -1)
+    truth = np.stack([g, g], -1)
+    m = evaluate(est, truth, dt=DT)
+    assert m.touchdown_delay_ms == pytest.approx((5.0, 2.5))
+    assert m.touchdown_delay_persist_ms == pytest.approx((7.5, 0.0))
+    assert m.liftoff_delay_ms == pytest.approx((5.0, 0.0))
+    assert m.liftoff_delay_persist_ms == pytest.approx((10.0, 5.0))
+    assert m.failures == 1
+    # The persistent numbers are match_events with min_on = persist_steps, and equal the
+    # plain delays when the two debounces agree.
+    ev = match_events(est, truth, dt=DT, min_on=3)
+    assert m.touchdown_delay_persist_ms == pytest.approx(ev.touchdown.delay_mean_std_ms)
+    assert m.liftoff_delay_persist_ms == pytest.approx(ev.liftoff.delay_mean_std_ms)
+    m2 = evaluate(est, truth, dt=DT, persist_steps=2)
+    assert m2.touchdown_delay_persist_ms == pytest.approx((7.5, 0.0))
+    m1 = evaluate(est, truth, dt=DT, persist_steps=1)
+    assert m1.touchdown_delay_persist_ms == m1.touchdown_delay_ms
+    assert m1.liftoff_delay_persist_ms == m1.liftoff_delay_ms
+    # No persistent run at all: NaN, like the plain delays without a match.
+    short = evaluate(_seq([(31, 32)]), g, dt=DT)
+    assert np.isnan(short.touchdown_delay_persist_ms[0])
+
+
+def test_summary_holds_the_new_and_the_kept_fields():
+    d = evaluate(_seq([(33, 52)]), _truth([(30, 50)]), dt=DT).as_dict()
+    for key in (
+        "missed_liftoffs",
+        "touchdown_already_on",
+        "touchdown_delay_persist_ms",
+        "liftoff_delay_persist_ms",
+        "n_air_phases",
+        "air_phases_with_failure",
+        "air_phase_failure_rate",
+        "air_false_contact_rate",
+    ):
+        assert key in d
+    assert d["touchdown_delay_persist_ms"] == pytest.approx((7.5, 0.0))
+    assert (d["n_air_phases"], d["air_phases_with_failure"]) == (2, 0)
+    assert d["air_false_contact_rate"] == 2 / 60
+
+
 # ----------------------------------------------------------------------------- oracles
 
 
@@ -191,6 +351,7 @@ def _oracle_segment(g, f, early, min_on):
 
     gr, fr = runs(g), runs(f)
     res = {"delays": [], "n": 0, "missed": 0, "already": 0, "false": 0, "chatter": 0}
+    res["false_starts"] = []
     matched = set()
     for i, (t0, t1, v) in enumerate(gr):
         if v != 1 or t0 == 0:
@@ -226,6 +387,7 @@ def _oracle_segment(g, f, early, min_on):
             continue
         if e - s >= min_on and r not in matched:
             res["false"] += 1
+            res["false_starts"].append(s)
         elif e - s < min_on and e < n:
             res["chatter"] += 1
     return res
@@ -293,6 +455,102 @@ def test_event_matching_matches_loop_oracle(min_on):
             )
 
 
+def _air_oracle(flag, truth, valid, early, min_on):
+    """Loop version of rules 8-10: air phases, the ones a failure starts in, air steps.
+
+    Walks every sequence and valid stretch step by step; the failures come from
+    ``_oracle_segment`` (rules 2-7), and each is put in the air phase holding its start.
+    """
+    f2, g2, v2 = (x.reshape(x.shape[0], -1) for x in (flag, truth, valid))
+    n_phases = with_failure = air_steps = air_on = 0
+    for j in range(f2.shape[1]):
+        for t in range(f2.shape[0]):
+            if v2[t, j] and not g2[t, j]:
+                air_steps += 1
+                air_on += bool(f2[t, j])
+        t = 0
+        while t < f2.shape[0]:
+            if not v2[t, j]:
+                t += 1
+                continue
+            end = t
+            while end < f2.shape[0] and v2[end, j]:
+                end += 1
+            g = [int(x) for x in g2[t:end, j]]
+            starts = _oracle_segment(g, [int(x) for x in f2[t:end, j]], early, min_on)[
+                "false_starts"
+            ]
+            a = 0
+            while a < len(g):
+                b = a
+                while b < len(g) and g[b] == g[a]:
+                    b += 1
+                if g[a] == 0:
+                    n_phases += 1
+                    with_failure += any(a <= s < b for s in starts)
+                a = b
+            t = end
+    return n_phases, with_failure, air_steps, air_on
+
+
+def _random_air_case(rng, shape):
+    """Markov truth, a lagged noisy estimate with false bursts and dropouts, masked steps.
+
+    Any ndim: the trailing axes are the sequences. Bursts of 1-4 steps make solid false
+    runs (and, with a debounce, blips), and masked runs cut air phases.
+    """
+    n, rest = shape[0], shape[1:]
+    truth = np.zeros(shape, bool)
+    state = rng.random(rest) < 0.5
+    for t in range(n):
+        state = np.where(rng.random(rest) < 1 / 15, ~state, state)
+        truth[t] = state
+    lag = rng.integers(-3, 6, size=rest)
+    idx = np.clip(np.arange(n).reshape((n,) + (1,) * len(rest)) - lag, 0, n - 1)
+    est = np.take_along_axis(truth, np.broadcast_to(idx, shape), 0)
+    est = est ^ (rng.random(shape) < 0.04)
+    starts, dropout = rng.random(shape) < 0.04, rng.random(shape) < 0.01
+    length = rng.integers(1, 8, size=shape)
+    burst = np.zeros(shape, bool)
+    for k in range(min(7, n)):
+        burst[k:] |= starts[: n - k] & (length[: n - k] > k)
+    est = (est | burst) & ~dropout
+    prob = np.where(est, rng.uniform(0.5, 1.0, shape), rng.uniform(0.0, 0.5, shape))
+    valid = rng.random(shape) > 0.03
+    valid[n // 3 : n // 3 + 4] = False
+    prob[~valid] = np.nan
+    return prob, truth, valid
+
+
+@pytest.mark.parametrize("min_on", [1, 3])
+@pytest.mark.parametrize("shape", [(400,), (200, 5), (150, 3, 2), (60, 2, 2, 2), (4, 6)])
+def test_air_rates_match_loop_oracle(shape, min_on):
+    rng = np.random.default_rng([min_on, *shape])
+    phases = hit = failures = 0
+    for _ in range(3):
+        prob, truth, valid = _random_air_case(rng, shape)
+        m = evaluate(prob, truth, valid, dt=DT, early_window_s=0.02, min_on=min_on)
+        n_phases, with_failure, air_steps, air_on = _air_oracle(
+            prob > 0.5, truth, valid, early=8, min_on=min_on
+        )
+        assert (m.n_air_phases, m.air_phases_with_failure) == (n_phases, with_failure)
+        phases, hit, failures = phases + n_phases, hit + with_failure, failures + m.failures
+        if n_phases:
+            assert m.air_phase_failure_rate == with_failure / n_phases
+        else:
+            assert np.isnan(m.air_phase_failure_rate)
+        if air_steps:
+            assert m.air_false_contact_rate == air_on / air_steps
+        else:
+            assert np.isnan(m.air_false_contact_rate)
+    if shape[0] > 50:
+        # Enough happens for the agreement to mean something: phases with and without a
+        # failure, and (raw flag) phases with several, so the per-phase count is no
+        # restatement of the failure count.
+        assert phases > 30 and 0 < hit < phases
+        assert failures > hit or min_on > 1
+
+
 def test_brier_ece_and_scores_match_loop_oracle():
     rng = np.random.default_rng(20)
     shape = (50, 3, 2)
@@ -355,6 +613,9 @@ def test_bad_input_raises():
         match_events(p, g, dt=0.0)
     with pytest.raises(ValueError, match="min_on"):
         match_events(p, g, dt=DT, min_on=0)
+    for bad_persist in (0, 2.5, True):
+        with pytest.raises(ValueError, match="persist_steps"):
+            evaluate(p, g, dt=DT, persist_steps=bad_persist)
     with pytest.raises(ValueError, match="early_window_s"):
         match_events(p, g, dt=DT, early_window_s=-0.01)
     with pytest.raises(ValueError, match="threshold"):
