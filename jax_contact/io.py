@@ -3,7 +3,8 @@
 A log is a flat set of named arrays whose first axis is time, plus metadata. Writes are
 atomic: the file is written under a temporary name in the destination folder and renamed
 into place only when complete, so an interrupted or failed write never leaves a partial
-file behind.
+file behind. Files get the mode any new file gets (``0o666`` less the user's umask), not
+the ``0o600`` of :func:`tempfile.mkstemp`.
 
 Schema of a rollout log (``jax-contact simulate``), all arrays with leading axes
 ``(T, n_envs)``::
@@ -29,6 +30,7 @@ from __future__ import annotations
 import json
 import os
 import tempfile
+import threading
 from collections.abc import Mapping
 from pathlib import Path
 
@@ -36,6 +38,12 @@ import h5py
 import numpy as np
 
 FORMAT_VERSION = 1
+
+# Temporary files of writes in progress, so that a process stopped from another thread (the
+# CLI on Ctrl-C, :func:`abort_writes`) can remove them. The lock makes "create and
+# register" and "rename and unregister" each indivisible with respect to the abort.
+_PENDING: set[str] = set()
+_LOCK = threading.Lock()
 
 
 def write_log(path: str | os.PathLike, arrays: Mapping[str, np.ndarray], attrs: Mapping) -> Path:
@@ -88,13 +96,22 @@ def read_log(path: str | os.PathLike) -> tuple[dict[str, np.ndarray], dict]:
 
     Raises:
       FileNotFoundError: no such file.
-      ValueError: the file is not a jax-contact log (no ``format_version``) or a newer one.
+      ValueError: one line naming the file: not an HDF5 file, truncated or otherwise
+        unreadable (naming the array that could not be read), not a jax-contact log (no
+        ``format_version``) or a newer one.
     """
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"log file {str(path)!r} does not exist")
     arrays: dict[str, np.ndarray] = {}
-    with h5py.File(path, "r") as f:
+    try:
+        f = h5py.File(path, "r")
+    except OSError as err:  # h5py's messages name neither the file nor what was expected
+        raise ValueError(
+            f"log file {str(path)!r} cannot be read as HDF5 ({_h5_reason(err)}); expected an"
+            " .h5 file written by `jax-contact simulate` (jax_contact.io.write_log)"
+        ) from None
+    with f:
         version = f.attrs.get("format_version")
         if version is None:
             raise ValueError(f"{str(path)!r} is not a jax-contact log (no format_version)")
@@ -106,11 +123,29 @@ def read_log(path: str | os.PathLike) -> tuple[dict[str, np.ndarray], dict]:
 
         def visit(name, obj):
             if isinstance(obj, h5py.Dataset):
-                arrays[name] = obj[()]
+                try:
+                    arrays[name] = obj[()]
+                except (OSError, KeyError, RuntimeError) as err:  # truncated / corrupt data
+                    raise ValueError(
+                        f"log file {str(path)!r}: array {name!r} cannot be read"
+                        f" ({_h5_reason(err)}); the file is truncated or corrupt"
+                    ) from None
 
-        f.visititems(visit)
-        attrs = {k: _decode(v) for k, v in f.attrs.items()}
+        try:
+            f.visititems(visit)
+            attrs = {k: _decode(v) for k, v in f.attrs.items()}
+        except (OSError, KeyError, RuntimeError) as err:
+            raise ValueError(
+                f"log file {str(path)!r} cannot be read ({_h5_reason(err)}); the file is"
+                " truncated or corrupt"
+            ) from None
     return arrays, attrs
+
+
+def _h5_reason(err: BaseException) -> str:
+    """The informative part of an h5py error, on one line."""
+    text = " ".join(str(err).split())
+    return text[:200] or type(err).__name__
 
 
 def _decode(value):
@@ -131,21 +166,75 @@ def write_atomic(path: str | os.PathLike, write) -> Path:
     folder, which is then renamed over ``path``; on any error the temporary file is removed
     and ``path`` is left as it was.
 
+    The file gets mode ``0o666 & ~umask`` (what ``open(path, "w")`` gives a new file),
+    also when it replaces an existing file.
+
     Args:
       path: the file to create or replace (its folder is created).
       write: callable taking the temporary file's path (a ``str``).
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    with _LOCK:
+        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+        _PENDING.add(tmp)
     os.close(fd)
     try:
         write(tmp)
-        os.replace(tmp, path)
+        # After write(): a writer may delete and recreate the file (the mode would go).
+        os.chmod(tmp, 0o666 & ~_umask())
+        with _LOCK:
+            os.replace(tmp, path)
+            _PENDING.discard(tmp)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
+        with _LOCK:
+            _PENDING.discard(tmp)
         raise
     return path
+
+
+def abort_writes() -> list[str]:
+    """Removes the temporary file of every write in progress, for a process about to exit.
+
+    Called from another thread than the writer's (the CLI's Ctrl-C handler, just before
+    ``os._exit``). Returns with the internal lock *held*, so that no write in progress
+    can rename its (removed) file into place or report the failure: every later
+    :func:`write_atomic` in this process blocks. Each destination is then either as it
+    was or completely written, never partial.
+
+    Returns:
+      The temporary files removed.
+    """
+    # A timeout, not a plain acquire: the lock is only held for a rename, so failing to get
+    # it in a second means something is badly wrong, and exiting beats hanging.
+    _LOCK.acquire(timeout=1.0)
+    removed = []
+    for tmp in list(_PENDING):
+        try:
+            os.unlink(tmp)
+            removed.append(tmp)
+        except OSError:
+            pass
+    _PENDING.clear()
+    return removed
+
+
+def _umask() -> int:
+    """The process's umask, read without changing it where the OS allows."""
+    # Linux >= 4.7 reports it in /proc; os.umask can only read it by setting it.
+    try:
+        with open("/proc/self/status") as f:
+            for line in f:
+                if line.startswith("Umask:"):
+                    return int(line.split()[1], 8)
+    except (OSError, ValueError, IndexError):
+        pass
+    # Elsewhere: set and restore. For that instant the umask of every thread is 0o077, so a
+    # file another thread creates meanwhile is too private rather than too public.
+    old = os.umask(0o077)
+    os.umask(old)
+    return old
 
 
 def write_text_atomic(path: str | os.PathLike, text: str) -> Path:
@@ -173,3 +262,117 @@ def _finite(x):
     if isinstance(x, float) and not np.isfinite(x):
         return None
     return x
+
+
+# ----------------------------------------------------------------------- parameter files
+
+PARAMS_FORMAT = "jax-contact-params"
+PARAMS_VERSION = 1
+
+
+def params_to_dict(params, provenance: Mapping | None = None) -> dict:
+    """:class:`~jax_contact.EstimatorParams` as the versioned JSON payload of a params file.
+
+    Layout: ``format``, ``version``, ``library_version``, ``nv``, ``noise`` (field -> list
+    of floats), ``values`` (scalar field -> float), ``options`` (the static fields) and
+    ``provenance`` (free-form: how the values were obtained).
+    """
+    import dataclasses as _dc
+    from importlib.metadata import PackageNotFoundError, version
+
+    from jax_contact.params import EstimatorParams, NoiseParams
+
+    try:
+        lib = version("jax-contact")
+    except PackageNotFoundError:  # running from a source tree that was never installed
+        lib = "unknown"
+    noise = {f: np.asarray(getattr(params.noise, f)).tolist() for f in NoiseParams.__dataclass_fields__}
+    values, options = {}, {}
+    for f in _dc.fields(EstimatorParams):
+        if f.name == "noise":
+            continue
+        v = getattr(params, f.name)
+        if f.metadata.get("pytree_node", True):
+            values[f.name] = float(np.asarray(v))
+        else:
+            options[f.name] = list(v) if isinstance(v, tuple) else v
+    return {
+        "format": PARAMS_FORMAT,
+        "version": PARAMS_VERSION,
+        "library_version": lib,
+        "nv": params.nv,
+        "noise": noise,
+        "values": values,
+        "options": options,
+        "provenance": dict(provenance or {}),
+    }
+
+
+def params_from_dict(payload: Mapping, *, source: str = "params"):
+    """The inverse of :func:`params_to_dict`, validated; errors name ``source`` and the field.
+
+    Raises:
+      ValueError: not a params payload, an unknown version, a missing or extra field, or
+        a value that :func:`jax_contact.make_params` / ``make_noise`` rejects.
+    """
+    import dataclasses as _dc
+
+    from jax_contact.params import EstimatorParams, NoiseParams, make_noise, make_params
+
+    if not isinstance(payload, Mapping) or payload.get("format") != PARAMS_FORMAT:
+        raise ValueError(f"{source}: not a jax-contact parameter file (no format {PARAMS_FORMAT!r})")
+    if payload.get("version") != PARAMS_VERSION:
+        raise ValueError(
+            f"{source}: version {payload.get('version')!r} is not supported (this library reads"
+            f" version {PARAMS_VERSION})"
+        )
+    for section in ("noise", "values", "options"):
+        if not isinstance(payload.get(section), Mapping):
+            raise ValueError(f"{source}: missing section {section!r}")
+    want = {
+        "noise": set(NoiseParams.__dataclass_fields__),
+        "values": {
+            f.name
+            for f in _dc.fields(EstimatorParams)
+            if f.name != "noise" and f.metadata.get("pytree_node", True)
+        },
+        "options": {
+            f.name for f in _dc.fields(EstimatorParams) if not f.metadata.get("pytree_node", True)
+        },
+    }
+    for section, names in want.items():
+        have = set(payload[section])
+        if have - names:
+            raise ValueError(f"{source}: unknown field(s) {sorted(have - names)} in {section!r}")
+        if names - have:
+            raise ValueError(f"{source}: missing field(s) {sorted(names - have)} in {section!r}")
+    nv = payload.get("nv")
+    if not isinstance(nv, int) or nv < 1:
+        raise ValueError(f"{source}: nv must be a positive int, got {nv!r}")
+    try:
+        noise = make_noise(nv, **payload["noise"])
+        params = make_params(noise, **payload["values"], **payload["options"])
+    except (TypeError, ValueError) as err:
+        raise ValueError(f"{source}: {err}") from None
+    return params
+
+
+def save_params(path: str | os.PathLike, params, provenance: Mapping | None = None) -> Path:
+    """Writes ``params`` as a versioned JSON file (atomically); returns the path."""
+    return write_json_atomic(path, params_to_dict(params, provenance))
+
+
+def load_params(path: str | os.PathLike):
+    """Reads a parameter file written by :func:`save_params`.
+
+    Raises:
+      ValueError: the file is missing, is not JSON, or a field is wrong (named).
+    """
+    path = Path(path)
+    try:
+        payload = json.loads(path.read_text())
+    except FileNotFoundError:
+        raise ValueError(f"parameter file {str(path)!r} does not exist") from None
+    except (json.JSONDecodeError, UnicodeDecodeError) as err:
+        raise ValueError(f"parameter file {str(path)!r} is not JSON: {err}") from None
+    return params_from_dict(payload, source=f"parameter file {str(path)!r}")
