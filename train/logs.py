@@ -56,50 +56,176 @@ def simulate_to_file(
     return path
 
 
+READINGS = ("readings/qpos", "readings/qvel", "readings/qacc", "readings/tau")
+TRUTH_CONTACT = "truth/contact"
+
+
 def evaluate_file(path: str | Path, *, json_path: str | Path | None = None) -> dict:
-    """Runs the estimator, GM observer and kinematic detector on a log; prints the metrics."""
+    """Runs the estimator, GM observer and kinematic detector on a log; prints the metrics.
+
+    A log without ground truth (no ``truth/contact``, e.g. one recorded on a robot) has no
+    metrics: the estimator's P(contact) per foot is then printed as a mean per foot and,
+    with ``json_path``, written per step and env under ``"p_contact"``.
+
+    Returns:
+      ``log``, ``attrs``, ``scores`` (detector -> metrics; empty without ground truth),
+      ``has_truth``, ``foot_names``, and ``p_contact`` (foot -> (T, E) nested lists) when
+      the log has no ground truth.
+
+    Raises:
+      FileNotFoundError: no such file.
+      ValueError: one line naming the file, the field and what was expected: unreadable
+        file, a missing attribute or array, an array of the wrong shape, a robot whose
+        model does not fit the readings.
+    """
     import jax_contact as jc
     from envs.robots import load_robot
-    from envs.simulate import Rollout
     from jax_contact.baselines import make_gm_params, make_kinematic_params
     from train.evaluate import replay, score
     from train.reproduce import TERRAIN_SIGMA, planar_estimator_params, quadruped_estimator_params
 
     arrays, attrs = read_log(path)
-    roll = Rollout.from_arrays(arrays)
-    robot = load_robot(attrs["robot"])
+    name = f"log {str(path)!r}"
+    robot_name, dt = _log_attrs(name, attrs)
+    readings, truth, valid = _log_arrays(name, arrays)
+    robot = load_robot(robot_name)
     desc = robot.description
-    if roll.qvel.shape[-1] != desc.nv:
+    for key, size, what in (("qpos", desc.nq, "nq"), ("qvel", desc.nv, "nv")):
+        if readings[key].shape[-1] != size:
+            raise ValueError(
+                f"{name}: array 'readings/{key}' has {readings[key].shape[-1]} columns but"
+                f" robot {robot_name!r} has {what} = {size}"
+            )
+    if truth is not None and truth.shape[-1] != desc.n_legs:
         raise ValueError(
-            f"log {str(path)!r} has nv = {roll.qvel.shape[-1]} but robot {attrs['robot']!r} has"
-            f" nv = {desc.nv}"
+            f"{name}: array {TRUTH_CONTACT!r} has {truth.shape[-1]} feet but robot"
+            f" {robot_name!r} has {desc.n_legs}"
         )
-    dt = float(attrs["dt"])
     if desc.n_leg_dofs == 2:
         params, terrain = planar_estimator_params(desc.nv, dt), jc.flat(0.0, 0.2)
     else:
         params, terrain = quadruped_estimator_params(desc, dt), jc.flat(0.0, TERRAIN_SIGMA)
     out = replay(
         robot,
-        dict(qpos=roll.qpos, qvel=roll.qvel, qacc=roll.qacc, tau=roll.tau),
+        readings,
         estimators={"probabilistic": params},
         terrain=terrain,
-        gms={"gm": make_gm_params()},
-        kinematic=make_kinematic_params(),
+        # Without ground truth only the estimator's P(contact) is reported.
+        gms={"gm": make_gm_params()} if truth is not None else None,
+        kinematic=make_kinematic_params() if truth is not None else None,
         dt=dt,
     )
-    scores = score(out, roll.contact, roll.valid, dt=dt)
-    for name, s in scores.items():
-        td = s["touchdown_delay_ms"]
+    feet = [str(f) for f in attrs.get("foot_names") or desc.foot_names]
+    result = {"log": str(path), "attrs": attrs, "has_truth": truth is not None, "foot_names": feet}
+    if truth is None:
+        p = np.asarray(out["probabilistic"])  # (T, E, L)
+        means = "  ".join(f"{f} {np.nanmean(p[..., i]):.3f}" for i, f in enumerate(feet))
         print(
-            f"{name:14s} touch-down {td[0]:6.1f}±{td[1]:5.1f} ms  failures {s['failures']:4d}"
-            f"  missed {s['missed']:4d}  F1 {s['f1']:.3f}  Brier {s['brier']:.3f}"
-            f"  ECE {s['ece']:.3f}  ({s['n_touchdowns']} touch-downs)"
+            f"{name} has no ground truth ({TRUTH_CONTACT!r}): no metrics can be computed."
+            f"\nmean P(contact) per foot over {p.shape[0]} steps x {p.shape[1]} envs: {means}"
         )
-    result = {"log": str(path), "attrs": attrs, "scores": scores}
+        print(
+            f"P(contact) per foot, step and env written to {json_path}"
+            if json_path
+            else "pass --json FILE to write P(contact) per foot, step and env"
+        )
+        result["scores"] = {}
+        result["p_contact"] = {f: p[..., i] for i, f in enumerate(feet)}
+    else:
+        scores = score(out, truth, valid, dt=dt)
+        print(format_scores(scores))
+        result["scores"] = scores
     if json_path:
         write_json_atomic(json_path, json.loads(json.dumps(result, default=_plain)))
     return result
+
+
+def format_scores(scores: dict[str, dict]) -> str:
+    """The metrics table of :func:`evaluate_file`, with a header and a legend."""
+    lines = [
+        f"{'detector':14s} {'touch-down delay ms':>20s} {'failures':>8s} {'missed':>6s}"
+        f" {'F1':>5s} {'Brier':>5s} {'ECE':>5s} {'touch-downs':>11s}"
+    ]
+    for det, s in scores.items():
+        td = s["touchdown_delay_ms"]
+        lines.append(
+            f"{det:14s} {td[0]:11.1f} +- {td[1]:5.1f} {s['failures']:8d} {s['missed']:6d}"
+            f" {s['f1']:5.3f} {s['brier']:5.3f} {s['ece']:5.3f} {s['n_touchdowns']:11d}"
+        )
+    lines += [
+        "delay: true touch-down to detection, mean +- std; failures: false contacts in the"
+        " air (the paper's 'fail');",
+        "missed: touch-downs not detected before the lift-off; F1 of the flag P > 0.5;"
+        " Brier, ECE: calibration of P(contact) (definitions: jax_contact.metrics)",
+    ]
+    return "\n".join(lines)
+
+
+def _log_attrs(name: str, attrs: dict) -> tuple[str, float]:
+    """The robot name and the period of a log, or a ValueError naming the attribute."""
+    robot = attrs.get("robot")
+    if not isinstance(robot, str) or not robot:
+        raise ValueError(
+            f"{name} has no attribute 'robot' (expected the robot's name, e.g. 'go1', or an"
+            " MJCF path)"
+            if robot is None
+            else f"{name}: attribute 'robot' is {robot!r}; expected a robot name such as 'go1'"
+        )
+    dt = attrs.get("dt")
+    try:
+        dt = float(dt)
+    except (TypeError, ValueError):
+        dt = None
+    if dt is None or not (np.isfinite(dt) and dt > 0):
+        raise ValueError(
+            f"{name}: attribute 'dt' is {attrs.get('dt')!r}; expected the readings' period,"
+            " a float > 0 in s"
+        )
+    return robot, dt
+
+
+def _log_arrays(name: str, arrays: dict) -> tuple[dict, np.ndarray | None, np.ndarray]:
+    """(readings, truth contact or None, valid) of a log, each shape checked."""
+    missing = [k for k in READINGS if k not in arrays]
+    if missing:
+        raise ValueError(f"{name} is missing arrays {missing}; every log needs {list(READINGS)}")
+    readings = {k.split("/")[1]: np.asarray(arrays[k]) for k in READINGS}
+    qpos = readings["qpos"]
+    if qpos.ndim != 3:
+        raise ValueError(
+            f"{name}: array 'readings/qpos' has shape {qpos.shape}; expected (T, n_envs, nq)"
+            " (time, env, coordinate: a single robot's log needs an env axis of length 1)"
+        )
+    n_t, n_envs = qpos.shape[:2]
+    for key in ("qvel", "qacc", "tau"):
+        a = readings[key]
+        if a.ndim != 3 or a.shape[:2] != (n_t, n_envs):
+            raise ValueError(
+                f"{name}: array 'readings/{key}' has shape {a.shape}; expected ({n_t},"
+                f" {n_envs}, nv) like readings/qpos's (T, n_envs)"
+            )
+    if n_t < 2:
+        raise ValueError(f"{name}: the readings have {n_t} time step(s); expected at least 2")
+    truth = arrays.get(TRUTH_CONTACT)
+    if truth is not None:
+        truth = np.asarray(truth)
+        if truth.ndim != 3 or truth.shape[:2] != (n_t, n_envs):
+            raise ValueError(
+                f"{name}: array {TRUTH_CONTACT!r} has shape {truth.shape}; expected ({n_t},"
+                f" {n_envs}, n_feet)"
+            )
+        truth = truth.astype(bool)
+    valid = arrays.get("valid")
+    if valid is None:  # e.g. a robot's log: every step counts
+        valid = np.ones((n_t, n_envs), bool)
+    else:
+        valid = np.asarray(valid)
+        if valid.shape != (n_t, n_envs):
+            raise ValueError(
+                f"{name}: array 'valid' has shape {valid.shape}; expected ({n_t}, {n_envs})"
+            )
+        valid = valid.astype(bool)
+    return readings, truth, valid
 
 
 def _plain(x):
