@@ -158,6 +158,75 @@ class PPOConfig:
             )
 
 
+def brax_timesteps(cfg: PPOConfig) -> int:
+    """The env steps ``brax.training.agents.ppo.train`` actually trains for ``cfg``.
+
+    Brax (0.14) trains ``num_evals - 1`` epochs (at least 1), each of ``max(1,
+    num_resets_per_eval)`` blocks of ``ceil(num_timesteps / (epochs * blocks *
+    steps_per_training_step))`` training steps, so ``num_timesteps`` is rounded *up* to a
+    multiple of ``epochs * blocks * steps_per_training_step``: 40,960 steps with SMALL's 6
+    epochs of 40,960-step training steps train 245,760.
+    """
+    epochs = max(cfg.num_evals - 1, 1)
+    blocks = max(cfg.num_resets_per_eval, 1)
+    per_block = -(-cfg.num_timesteps // (epochs * blocks * cfg.steps_per_training_step))
+    return epochs * blocks * per_block * cfg.steps_per_training_step
+
+
+def fit_timesteps(cfg: PPOConfig, requested: int) -> tuple[PPOConfig, str | None]:
+    """``cfg`` with ``num_timesteps`` set so that Brax trains ``requested`` steps exactly.
+
+    Brax rounds up to whole epochs (:func:`brax_timesteps`); to train what was asked, this
+    lowers ``num_evals`` to the most evaluations (at most ``cfg``'s) that split the
+    training steps evenly. Only when ``requested`` is not a whole number of training
+    steps (``steps_per_training_step``, times ``num_resets_per_eval`` if set) is it
+    rounded up to the next one.
+
+    Args:
+      cfg: the configuration.
+      requested: env steps to train, an int >= 1.
+
+    Returns:
+      (the configuration, for which ``brax_timesteps`` is the number trained; a one-line
+      note of what differs from the request, or None when nothing does).
+
+    Raises:
+      ValueError: ``requested`` is not an int >= 1.
+    """
+    if isinstance(requested, bool) or not isinstance(requested, int) or requested < 1:
+        raise ValueError(f"timesteps must be an int >= 1, got {requested!r}")
+    step = cfg.steps_per_training_step
+    blocks = max(cfg.num_resets_per_eval, 1)
+    n_steps = -(-requested // step)  # training steps
+    n_steps = -(-n_steps // blocks) * blocks  # each epoch holds `blocks` of them
+    most = max(cfg.num_evals - 1, 1)
+    epochs = max(e for e in range(1, most + 1) if n_steps % (e * blocks) == 0)
+    trained = n_steps * step
+    num_evals = cfg.num_evals if epochs == most else epochs + 1
+    fitted = dataclasses.replace(cfg, num_timesteps=trained, num_evals=num_evals)
+    if trained == requested and num_evals == cfg.num_evals:
+        return fitted, None
+    note = f"training {trained:,d} env steps"
+    if trained != requested:
+        note += (
+            f" ({requested:,d} rounded up to a multiple of {step * blocks:,d}, Brax PPO's"
+            " training step)"
+        )
+    if num_evals != cfg.num_evals:
+        unfitted = brax_timesteps(dataclasses.replace(cfg, num_timesteps=requested))
+        note += (
+            f" with {num_evals} evaluations instead of {cfg.num_evals}: Brax PPO trains the"
+            f" same whole number of training steps between evaluations, and"
+            f" {_plural(n_steps, 'training step')} cannot be split into {most} ({cfg.num_evals}"
+            f" evaluations would train {unfitted:,d})"
+        )
+    return fitted, note
+
+
+def _plural(n: int, noun: str) -> str:
+    return f"{n:,d} {noun}{'' if n == 1 else 's'}"
+
+
 # Sized for the 2-core CPU (docs/training.md has the measured times): ~4k env steps/s in
 # training at 256 envs with the machine otherwise idle, ~2 min of compilation. 2.46 M steps =
 # 6 epochs of 10 training steps of 40,960 env steps. Smaller networks than Playground's; the
@@ -438,14 +507,17 @@ def train(
         rows.append(row)
         write_text_atomic(run_dir / "progress.csv", _csv_text(rows, CSV_FIELDS))
         log(
-            f"[{variant}] step {row['step']:>10,d}/{cfg.num_timesteps:,d}"
+            f"[{variant}] step {row['step']:>10,d}/{brax_timesteps(cfg):,d}"
             f"  return {row['eval_reward']:8.2f} +- {row['eval_reward_std']:6.2f}"
             f"  episode {length:6.1f} steps  contact acc {row['eval_contact_accuracy']:.3f}"
             f"  wall {wall:7.1f} s"
         )
 
+    total = brax_timesteps(cfg)  # what Brax trains: num_timesteps rounded up to epochs
+    rounded = f" (num_timesteps {cfg.num_timesteps:,d} rounded up to whole epochs)"
     log(
-        f"[{variant}] training {ENV_NAME}, {cfg.num_timesteps:,d} steps over {cfg.num_envs}"
+        f"[{variant}] training {ENV_NAME}, {total:,d} steps"
+        f"{rounded if total != cfg.num_timesteps else ''} over {cfg.num_envs}"
         f" envs ({cfg.steps_per_training_step:,d} per training step); compiling ..."
     )
     ppo_train.train(
