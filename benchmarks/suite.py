@@ -9,7 +9,8 @@ batch size, single-robot latency, memory) and then :mod:`benchmarks.versus` (rat
 ``mjx.step``, speed-up over per-robot NumPy, sharding), prints both sets of tables, and
 writes one JSON holding the keys of both: ``machine``, ``throughput``,
 ``latency_batch1_us``, ``bytes_per_env``, ``ratio_vs_mjx_step``, ``speedup_vs_numpy``,
-``sharding`` and their details.
+``sharding`` and their details. When a part fails, the JSON holds what finished and an
+``error`` key.
 """
 
 from __future__ import annotations
@@ -20,24 +21,50 @@ from benchmarks import estimator, versus
 from jax_contact.io import write_json_atomic
 
 
+def _positive_int(text: str) -> int:
+    try:
+        n = int(text)
+    except ValueError:
+        n = 0
+    if n < 1:
+        raise argparse.ArgumentTypeError(f"must be an int >= 1, got {text!r}")
+    return n
+
+
 def main(argv=None) -> dict:
+    """Runs both benchmarks; with ``--json``, writes what finished even when a part fails
+    (then with an ``"error"`` key saying what stopped it)."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--envs", type=int, nargs="+", default=list(estimator.DEFAULT_ENVS))
-    parser.add_argument("--versus-envs", type=int, nargs="+", default=[1024, 4096])
-    parser.add_argument("--latency-calls", type=int, default=10_000)
+    # Sizes are checked here, before minutes of benchmarks run on them.
+    parser.add_argument(
+        "--envs", type=_positive_int, nargs="+", default=list(estimator.DEFAULT_ENVS)
+    )
+    parser.add_argument("--versus-envs", type=_positive_int, nargs="+", default=[1024, 4096])
+    parser.add_argument("--latency-calls", type=_positive_int, default=10_000)
     parser.add_argument("--json", default=None, help="write all results as one JSON here")
     args = parser.parse_args(argv)
 
-    est = estimator.main(
-        ["--envs", *map(str, args.envs), "--latency-calls", str(args.latency_calls)]
-    )
-    print()
-    vs = versus.main(["--envs", *map(str, args.versus_envs)])
-    # Both measured on the same machine in this process; the estimator's description stands.
-    result = {**est, **{k: v for k, v in vs.items() if k != "machine"}}
-    if args.json:
-        write_json_atomic(args.json, result)
-        print(f"\nwrote {args.json}")
+    result: dict = {}
+    try:
+        est = estimator.main(
+            ["--envs", *map(str, args.envs), "--latency-calls", str(args.latency_calls)]
+        )
+        result.update(est)
+        print()
+        vs: dict = {}
+        try:
+            versus.run(args.versus_envs, into=vs)
+        finally:
+            # Both measured on the same machine in this process; the estimator's description
+            # stands.
+            result.update({k: v for k, v in vs.items() if k != "machine"})
+    except BaseException as err:
+        result["error"] = f"{type(err).__name__}: {err}"
+        raise
+    finally:
+        if args.json:
+            write_json_atomic(args.json, result)
+            print(f"\nwrote {args.json}{' (incomplete)' if 'error' in result else ''}")
     return result
 
 

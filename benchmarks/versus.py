@@ -12,9 +12,9 @@ Run::
 2. Speed-up over a float64 NumPy implementation (the test oracle, ``tests/oracle.py``,
    with Algorithm 1 by 500 NumPy draws) that processes one robot at a time, as existing
    single-robot estimators do: a subset of robots is timed and the time scaled to the batch.
-3. Sharding: the env batch split over 8 simulated CPU devices
-   (``XLA_FLAGS=--xla_force_host_platform_device_count=8``, set in a subprocess) with
-   ``jax.sharding``; the result is compared with the unsharded run.
+3. Sharding: the env batch (rounded up to a multiple of 8) split over 8 simulated CPU
+   devices (``XLA_FLAGS=--xla_force_host_platform_device_count=8``, set in a subprocess)
+   with ``jax.sharding``; the result is compared with the unsharded run.
 """
 
 from __future__ import annotations
@@ -194,33 +194,82 @@ print(json.dumps({"devices": len(jax.devices()), "envs": n, "max_abs_diff": err,
 """
 
 
-def sharded(n_envs: int = 4096, devices: int = 8) -> dict:
-    """Runs :data:`SHARD_SCRIPT` in a subprocess with ``devices`` simulated CPU devices."""
+def shard_batch(n_envs: int, devices: int) -> int:
+    """The batch of the sharding check: ``n_envs`` rounded up to a multiple of ``devices``,
+    since ``jax.sharding`` splits the env axis into equal parts (4 envs cannot go on 8
+    devices)."""
+    if n_envs < 1 or devices < 1:
+        raise ValueError(f"n_envs and devices must be >= 1, got {n_envs} and {devices}")
+    return -(-n_envs // devices) * devices
+
+
+def sharded(n_envs: int = 4096, devices: int = 8, *, script: str | None = None) -> dict:
+    """Runs :data:`SHARD_SCRIPT` in a subprocess with ``devices`` simulated CPU devices.
+
+    The batch is ``n_envs`` rounded up to a multiple of ``devices`` (:func:`shard_batch`);
+    the result holds both under ``envs`` and ``envs_requested``.
+
+    Raises:
+      RuntimeError: the subprocess failed; the message holds the end of its stderr.
+    """
+    n = shard_batch(n_envs, devices)
     env = dict(os.environ)
     env["XLA_FLAGS"] = f"--xla_force_host_platform_device_count={devices}"
     env["PYTHONPATH"] = str(ROOT) + os.pathsep + env.get("PYTHONPATH", "")
     res = subprocess.run(
-        [sys.executable, "-c", SHARD_SCRIPT, str(n_envs)],
+        [sys.executable, "-c", script or SHARD_SCRIPT, str(n)],
         env=env,
         capture_output=True,
         text=True,
-        check=True,
         cwd=ROOT,
     )
-    return json.loads(res.stdout.strip().splitlines()[-1])
+    if res.returncode != 0:
+        tail = "\n".join(res.stderr.strip().splitlines()[-15:])
+        raise RuntimeError(
+            f"the sharding check ({n} envs over {devices} CPU devices, in a subprocess) exited"
+            f" with code {res.returncode}; the end of its stderr:\n{tail}"
+        )
+    return {**json.loads(res.stdout.strip().splitlines()[-1]), "envs_requested": n_envs}
 
 
-def main(argv=None) -> dict:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--envs", type=int, nargs="+", default=[1024, 4096])
-    parser.add_argument("--numpy-robots", type=int, default=8)
-    parser.add_argument("--json", default=None)
-    args = parser.parse_args(argv)
+def check_sizes(envs, numpy_robots: int = 1) -> None:
+    """Raises ValueError naming the size if a batch size is not an int >= 1, before
+    anything is compiled (a bad size used to fail only after minutes of benchmarks)."""
+    for n in envs:
+        if isinstance(n, bool) or not isinstance(n, int) or n < 1:
+            raise ValueError(f"--envs: every batch size must be an int >= 1, got {n!r}")
+    if not envs:
+        raise ValueError("--envs: give at least one batch size")
+    if isinstance(numpy_robots, bool) or not isinstance(numpy_robots, int) or numpy_robots < 1:
+        raise ValueError(f"--numpy-robots must be an int >= 1, got {numpy_robots!r}")
 
-    ratios = []
-    for n in args.envs:
+
+def run(envs, numpy_robots: int = 8, *, into: dict | None = None) -> dict:
+    """Runs the three benchmarks (module docstring) and prints their tables.
+
+    Args:
+      envs: batch sizes of the ratio to ``mjx.step``; the largest is also the size of the
+        NumPy comparison and (rounded up to a multiple of 8) of the sharding check.
+      numpy_robots: robots the NumPy implementation is timed on.
+      into: a dict filled with each result as soon as it is measured, so that a caller
+        still has what finished when a later part fails.
+
+    Returns:
+      ``into`` (or a new dict) with ``machine``, ``ratio_vs_mjx_step``,
+      ``speedup_vs_numpy``, ``numpy`` and ``sharding``.
+    """
+    envs = list(envs)
+    check_sizes(envs, numpy_robots)
+    result = {} if into is None else into
+    result["machine"] = machine()
+    ratios = result.setdefault("ratio_vs_mjx_step", {})
+    for n in envs:
         r = ratio_vs_mjx(n)
-        ratios.append(r)
+        ratios[str(n)] = {
+            **r["ratio"],
+            "with_adapter": r["ratio_with_adapter"],
+            "median_ms": r["median_ms"],
+        }
         print(f"# {n} envs, median ms per call (interleaved):", flush=True)
         print_table(
             [{"what": k, "ms": v} for k, v in r["median_ms"].items()],
@@ -232,35 +281,46 @@ def main(argv=None) -> dict:
             " with adapter:",
             {k: round(v, 3) for k, v in r["ratio_with_adapter"].items()},
         )
-    sp = numpy_speedup(max(args.envs), args.numpy_robots)
+    sp = numpy_speedup(max(envs), numpy_robots)
+    result["speedup_vs_numpy"] = sp["speedup"]
+    result["numpy"] = sp
     print(
         f"# NumPy float64, one robot at a time ({sp['numpy_robots_timed']} robots timed,"
         f" scaled to {sp['envs']}): {sp['numpy_s_scaled']:.2f} s; JAX batched"
         f" {sp['jax_s'] * 1e3:.1f} ms; speed-up {sp['speedup']:.0f}x"
     )
-    sh = sharded(max(args.envs))
+    sh = sharded(max(envs))
+    result["sharding"] = sh
     print(
-        f"# sharded over {sh['devices']} CPU devices: max |diff| {sh['max_abs_diff']:.2g},"
-        f" {sh['sharded_leg_updates_per_s']:.3g} vs unsharded"
+        f"# sharded over {sh['devices']} CPU devices ({sh['envs']} envs): max |diff|"
+        f" {sh['max_abs_diff']:.2g}, {sh['sharded_leg_updates_per_s']:.3g} vs unsharded"
         f" {sh['unsharded_leg_updates_per_s']:.3g} leg-updates/s"
     )
-    result = {
-        "machine": machine(),
-        "ratio_vs_mjx_step": {
-            str(r["envs"]): {
-                **r["ratio"],
-                "with_adapter": r["ratio_with_adapter"],
-                "median_ms": r["median_ms"],
-            }
-            for r in ratios
-        },
-        "speedup_vs_numpy": sp["speedup"],
-        "numpy": sp,
-        "sharding": sh,
-    }
-    if args.json:
-        write_json_atomic(args.json, result)
-        print(f"wrote {args.json}")
+    return result
+
+
+def main(argv=None) -> dict:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--envs", type=int, nargs="+", default=[1024, 4096])
+    parser.add_argument("--numpy-robots", type=int, default=8)
+    parser.add_argument("--json", default=None)
+    args = parser.parse_args(argv)
+    try:
+        check_sizes(args.envs, args.numpy_robots)
+    except ValueError as err:
+        parser.error(str(err))
+
+    result: dict = {}
+    try:
+        run(args.envs, args.numpy_robots, into=result)
+    except BaseException as err:
+        # What finished is still worth its JSON; the error says why the rest is missing.
+        result["error"] = f"{type(err).__name__}: {err}"
+        raise
+    finally:
+        if args.json:
+            write_json_atomic(args.json, result)
+            print(f"wrote {args.json}{' (incomplete)' if 'error' in result else ''}")
     return result
 
 
