@@ -1,9 +1,75 @@
-"""The ``jax-contact`` command line: a thin layer that parses arguments and calls library code."""
+"""The ``jax-contact`` command line: a thin layer that parses arguments and calls library code.
+
+Three things here are about the command line itself, not the library:
+
+- **Arguments are checked before JAX is imported.** Importing JAX, MuJoCo MJX and Brax
+  takes seconds (up to a minute on a loaded machine), so this module imports only the
+  standard library; every number, choice, input file and output folder is checked by
+  :func:`main` first, and the library is imported inside each command function. A test
+  checks that ``import train.cli`` does not import JAX. The names the checks need from
+  modules that import JAX (:data:`ROBOT_NAMES`, the gaits, noise presets, ...) are copied
+  here; tests check that each copy equals the library's list.
+- **XLA's C++ log lines are silenced.** XLA logs to stderr from C++, e.g. ``E1201 ...
+  slow_operation_alarm.cc ... Very slow compile? If you want to file a bug...`` whenever a
+  compilation takes long, which on a 2-core CPU is every large one. These look like errors
+  but are not the user's concern; a failure that matters raises a Python exception as
+  well. :func:`main` sets ``TF_CPP_MIN_LOG_LEVEL=3`` (which XLA reads when JAX loads it,
+  and which drops C++ INFO, WARNING and ERROR lines) unless the variable is already set:
+  run with ``TF_CPP_MIN_LOG_LEVEL=0`` to see everything.
+- **Ctrl-C stops a command at once** (:class:`_StopOnInterrupt`): it exits with code 130,
+  prints one line, ``jax-contact <command>: interrupted``, and leaves no partial output
+  file. Python's own ``KeyboardInterrupt`` does not do this in a JAX program: the
+  exception is raised only when the main thread next runs Python code, which during an
+  XLA compilation can be minutes later, and when that code is the garbage collector's
+  callback into XLA the exception is printed as ``Exception ignored in: <function
+  _xla_gc_callback ...>`` and lost, so the run carries on. Instead, the signal's arrival
+  is read from :func:`signal.set_wakeup_fd` by a watcher thread, which Python's C-level
+  handler wakes immediately whatever the main thread is doing; the watcher removes the
+  temporary files of writes in progress (:func:`jax_contact.io.abort_writes`, every
+  output goes through ``jax_contact.io``'s atomic writes) and ends the process with
+  ``os._exit(130)``. Output written completely before the signal (e.g. the run folders of
+  earlier ``train`` variants) stays.
+"""
 
 from __future__ import annotations
 
 import argparse
+import math
+import os
+import signal
 import sys
+import tempfile
+import threading
+from pathlib import Path
+
+# Copies of the library's lists (importing those modules imports JAX); tests/test_cli.py
+# checks that each equals its original.
+ROBOT_NAMES = (  # envs.robots.ROBOT_NAMES
+    "go1",
+    "spot",
+    "barkour",
+    "planar_leg",
+    "anybotics_anymal_b",
+    "anybotics_anymal_c",
+    "boston_dynamics_spot",
+    "google_barkour_v0",
+    "google_barkour_vb",
+    "unitree_a1",
+    "unitree_go1",
+    "unitree_go2",
+)
+GAITS = ("trot", "walk", "hop")  # envs.gaits.KINDS
+NOISES = ("ideal", "anymal_like", "harsh")  # envs.sensors.PRESETS
+TERRAINS = ("flat", "rough")  # envs.simulate.TERRAINS
+VARIANTS = ("none", "truth", "estimate")  # train.ppo.VARIANTS
+SCENES = ("planar_leg", "go1")  # train.rates.SCENES
+LOG_SUFFIXES = (".h5", ".hdf5")
+
+EXIT_USAGE = 2
+EXIT_INTERRUPTED = 130  # 128 + SIGINT, what a shell reports for a command stopped by Ctrl-C
+
+
+# ----------------------------------------------------------------------------- commands
 
 
 def _cmd_demo(args: argparse.Namespace) -> int:
@@ -62,13 +128,15 @@ def _cmd_bench(args: argparse.Namespace) -> int:
 
 
 def _cmd_train(args: argparse.Namespace) -> int:
-    import dataclasses
-
     from train import ppo
 
     cfg = ppo.CONFIGS[args.config]
     if args.timesteps:
-        cfg = dataclasses.replace(cfg, num_timesteps=args.timesteps)
+        # Brax PPO rounds num_timesteps up to whole epochs (6x the request at 40,960 steps);
+        # fit_timesteps makes it train exactly what was asked, or says what it trains.
+        cfg, note = ppo.fit_timesteps(cfg, args.timesteps)
+        if note:
+            print(f"jax-contact train: --timesteps {args.timesteps}: {note}", file=sys.stderr)
     ppo.train_variants(
         cfg,
         args.out,
@@ -107,49 +175,232 @@ def _cmd_rates(args: argparse.Namespace) -> int:
     return 0
 
 
+# ------------------------------------------------------------------------ argument checks
+# Types raise argparse.ArgumentTypeError (argparse names the argument); the per-command
+# checks raise ValueError with the argument's name, printed by main().
+
+
+def _positive_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be an int >= 1, got {text!r}")
+    return value
+
+
+def _positive_float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"must be a finite number > 0, got {text!r}")
+    return value
+
+
+def check_robot(arg: str, name: str | None) -> None:
+    """Raises ValueError unless ``name`` is a known robot or an existing MJCF file."""
+    if name is None or name in ROBOT_NAMES:
+        return
+    if name.endswith(".xml") or os.sep in name or "/" in name:  # envs.robots' rule
+        if not Path(name).expanduser().is_file():
+            raise ValueError(f"argument {arg}: MJCF file {name!r} does not exist")
+        return
+    raise ValueError(
+        f"argument {arg}: unknown robot {name!r}; valid names: {', '.join(ROBOT_NAMES)}, or a"
+        " path to an MJCF .xml file"
+    )
+
+
+def check_input_file(arg: str, path: str) -> None:
+    """Raises ValueError unless ``path`` is an existing file."""
+    p = Path(path)
+    if not p.exists():
+        raise ValueError(f"argument {arg}: file {path!r} does not exist")
+    if not p.is_file():
+        raise ValueError(f"argument {arg}: {path!r} is not a file")
+
+
+def check_output_folder(arg: str, folder: str | os.PathLike) -> None:
+    """Raises ValueError unless files can be created in ``folder`` (once created).
+
+    The nearest existing ancestor is probed by creating and removing a file in it, as the
+    atomic writes do: permission bits alone are no answer for root, nor for folders such
+    as ``/proc``.
+    """
+    p = Path(folder).expanduser().absolute()
+    if p.exists() and not p.is_dir():
+        raise ValueError(f"argument {arg}: {str(p)!r} exists and is not a folder")
+    existing = p
+    while not existing.exists():
+        existing = existing.parent
+    if not existing.is_dir():
+        raise ValueError(
+            f"argument {arg}: cannot create folder {str(p)!r}: {str(existing)!r} is a file"
+        )
+    try:
+        fd, probe = tempfile.mkstemp(dir=existing, prefix=".jax-contact-check.", suffix=".tmp")
+        os.close(fd)
+        os.unlink(probe)
+    except OSError as err:
+        raise ValueError(
+            f"argument {arg}: cannot create files in folder {str(existing)!r}"
+            f" ({err.strerror or err})"
+        ) from None
+
+
+def check_output_file(arg: str, path: str | None, suffixes: tuple[str, ...] = ()) -> None:
+    """Raises ValueError unless ``path`` (None: none) can be written: the suffix, not a
+    folder, a writable folder."""
+    if path is None:
+        return
+    p = Path(path)
+    if suffixes and p.suffix not in suffixes:
+        raise ValueError(f"argument {arg}: {path!r} must end in {' or '.join(suffixes)}")
+    if p.is_dir():
+        raise ValueError(f"argument {arg}: {path!r} is a folder; expected a file name")
+    check_output_folder(arg, p.parent)
+
+
+def _check_demo(args: argparse.Namespace) -> None:
+    check_output_folder("--out", args.out)
+
+
+def _check_reproduce(args: argparse.Namespace) -> None:
+    check_robot("--robot", args.robot)
+    check_output_folder("--out", args.out)
+
+
+def _check_simulate(args: argparse.Namespace) -> None:
+    check_output_file("output", args.output, LOG_SUFFIXES)
+    check_robot("--robot", args.robot)
+
+
+def _check_evaluate(args: argparse.Namespace) -> None:
+    check_input_file("log", args.log)
+    check_output_file("--json", args.json)
+
+
+def _check_train(args: argparse.Namespace) -> None:
+    check_output_folder("--out", args.out)
+
+
+def _check_policy_eval(args: argparse.Namespace) -> None:
+    run = Path(args.run)
+    if not run.is_dir():
+        raise ValueError(f"argument run: folder {args.run!r} does not exist")
+    if not (run / "run.json").is_file():
+        raise ValueError(
+            f"argument run: {args.run!r} is not a run folder of `jax-contact train` (no run.json)"
+        )
+    check_output_file("--json", args.json)
+
+
+def _check_json(args: argparse.Namespace) -> None:
+    check_output_file("--json", args.json)
+
+
+# -------------------------------------------------------------------------------- parser
+
+
+class _HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
+    """Shows each option's default, except the uninformative None and False."""
+
+    def _get_help_string(self, action):
+        if action.default is None or action.default is False:
+            return action.help
+        return super()._get_help_string(action)
+
+
 def build_parser() -> argparse.ArgumentParser:
+    """The ``jax-contact`` parser; each command has ``func`` (run) and ``check`` (validate)."""
     parser = argparse.ArgumentParser(
         prog="jax-contact",
         description="Probabilistic foot contact estimation (Hwangbo et al., IROS 2016) in JAX.",
+        formatter_class=_HelpFormatter,
     )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
 
-    p = sub.add_parser("demo", help="the reproduction at its default size (what `make demo` runs)")
-    p.add_argument("--out", default="out/demo", help="output folder (default: out/demo)")
-    p.add_argument("--seed", type=int, default=0, help="evaluation seed (default: 0)")
-    p.set_defaults(func=_cmd_demo)
+    def command(name, help, func, check, description=None):
+        p = sub.add_parser(
+            name, help=help, description=description or help, formatter_class=_HelpFormatter
+        )
+        p.set_defaults(func=func, check=check)
+        return p
 
-    p = sub.add_parser("reproduce", help="Section III, Table III and the ablation in simulation")
-    p.add_argument("--size", choices=("demo", "full"), default="demo")
-    p.add_argument("--robot", default=None, help="quadruped of Table III (default: go1)")
-    p.add_argument("--seed", type=int, default=None)
-    p.add_argument("--out", default="out/reproduce")
-    p.set_defaults(func=_cmd_reproduce)
+    robots = f"one of {', '.join(ROBOT_NAMES)}, or a path to an MJCF .xml file"
+    p = command(
+        "demo",
+        "the reproduction at its default size (what `make demo` runs)",
+        _cmd_demo,
+        _check_demo,
+    )
+    p.add_argument("--out", default="out/demo", help="output folder")
+    p.add_argument("--seed", type=int, default=0, help="evaluation seed")
 
-    p = sub.add_parser("simulate", help="simulate scripted robots and save the logs as HDF5")
+    p = command(
+        "reproduce",
+        "Section III, Table III and the ablation in simulation",
+        _cmd_reproduce,
+        _check_reproduce,
+        description="Reproduces the paper in simulation: Section III's planar leg, Table III's"
+        " comparison of the estimator with the generalized-momentum observer and a kinematic"
+        " detector on a quadruped, and an ablation of the estimator's terms. Prints the tables"
+        " and writes figures and table3.json into --out. `--size demo` is what `jax-contact"
+        " demo` runs; `--size full` is larger (more envs, longer, Monte-Carlo touch-down too).",
+    )
+    p.add_argument("--size", choices=("demo", "full"), default="demo", help="run size")
+    p.add_argument(
+        "--robot",
+        default=None,
+        metavar="ROBOT",
+        help=f"quadruped of Table III (default: go1): {robots}",
+    )
+    p.add_argument("--seed", type=int, default=None, help="evaluation seed (default: 0)")
+    p.add_argument("--out", default="out/reproduce", help="output folder")
+
+    p = command(
+        "simulate",
+        "simulate scripted robots and save the logs as HDF5",
+        _cmd_simulate,
+        _check_simulate,
+    )
     p.add_argument("output", help="the .h5 file to write (atomically)")
-    p.add_argument("--robot", default="go1")
-    p.add_argument("--gait", default="trot", choices=("trot", "walk", "hop"))
-    p.add_argument("--noise", default="anymal_like", choices=("ideal", "anymal_like", "harsh"))
-    p.add_argument("--terrain", default="flat", choices=("flat", "rough"))
-    p.add_argument("--envs", type=int, default=16)
-    p.add_argument("--duration", type=float, default=10.0, help="simulated seconds")
-    p.add_argument("--seed", type=int, default=0)
-    p.set_defaults(func=_cmd_simulate)
+    p.add_argument("--robot", default="go1", metavar="ROBOT", help=robots)
+    p.add_argument("--gait", default="trot", choices=GAITS, help="scripted gait")
+    p.add_argument("--noise", default="anymal_like", choices=NOISES, help="sensor noise preset")
+    p.add_argument("--terrain", default="flat", choices=TERRAINS, help="floor")
+    p.add_argument("--envs", type=_positive_int, default=16, help="robots simulated at once")
+    p.add_argument("--duration", type=_positive_float, default=10.0, help="simulated seconds")
+    p.add_argument("--seed", type=int, default=0, help="seeds states, commands and noise")
 
-    p = sub.add_parser("evaluate", help="run the estimator and baselines on a saved log")
+    p = command(
+        "evaluate",
+        "run the estimator and baselines on a saved log",
+        _cmd_evaluate,
+        _check_evaluate,
+        description="Runs the estimator, the generalized-momentum observer and a kinematic"
+        " detector on a log and prints their metrics against the log's ground truth. A log"
+        " without ground truth (no truth/contact) has no metrics: then the estimator's mean"
+        " P(contact) per foot is printed, and --json gets it per step and env.",
+    )
     p.add_argument("log", help="an .h5 log written by `jax-contact simulate`")
-    p.add_argument("--json", default=None, help="write the metrics here")
-    p.set_defaults(func=_cmd_evaluate)
+    p.add_argument("--json", default=None, help="write the metrics (or P(contact)) here")
 
-    p = sub.add_parser(
-        "train", help="PPO on Go1 with no / true / estimated contact in the observation"
+    p = command(
+        "train",
+        "PPO on Go1 with no / true / estimated contact in the observation",
+        _cmd_train,
+        _check_train,
     )
     p.add_argument(
         "--variants",
         nargs="+",
-        default=["none", "truth", "estimate"],
-        choices=("none", "truth", "estimate"),
+        default=list(VARIANTS),
+        choices=VARIANTS,
+        help="contact observations to train with",
     )
     p.add_argument(
         "--config",
@@ -157,66 +408,188 @@ def build_parser() -> argparse.ArgumentParser:
         default="small",
         help="small: this 2-core CPU, <= 20 min per variant; full: a GPU",
     )
-    p.add_argument("--timesteps", type=int, default=None, help="override num_timesteps")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--eval-envs", type=int, default=64, help="episodes of the final evaluation")
-    p.add_argument("--out", default="out/train")
+    p.add_argument(
+        "--timesteps",
+        type=_positive_int,
+        default=None,
+        help="env steps to train (default: the configuration's); trained exactly, with fewer"
+        " evaluations if needed, or rounded up to a whole training step (a message says so)",
+    )
+    p.add_argument("--seed", type=int, default=0, help="PPO seed")
+    p.add_argument(
+        "--eval-envs", type=_positive_int, default=64, help="episodes of the final evaluation"
+    )
+    p.add_argument("--out", default="out/train", help="output folder (a run folder per variant)")
     p.add_argument("--overwrite", action="store_true", help="replace existing run folders")
-    p.set_defaults(func=_cmd_train)
 
-    p = sub.add_parser("policy-eval", help="evaluate a trained policy (returns, contact metrics)")
+    p = command(
+        "policy-eval",
+        "evaluate a trained policy (returns, contact metrics)",
+        _cmd_policy_eval,
+        _check_policy_eval,
+    )
     p.add_argument("run", help="a run folder of `jax-contact train`, e.g. out/train/estimate")
     p.add_argument(
         "--observe",
-        choices=("none", "truth", "estimate"),
+        choices=VARIANTS,
         default=None,
         help="contact the policy sees now (default: what it was trained with)",
     )
-    p.add_argument("--envs", type=int, default=64)
-    p.add_argument("--seed", type=int, default=12345)
-    p.add_argument("--json", default=None)
-    p.set_defaults(func=_cmd_policy_eval)
+    p.add_argument("--envs", type=_positive_int, default=64, help="episodes, run in parallel")
+    p.add_argument("--seed", type=int, default=12345, help="seeds the episodes")
+    p.add_argument("--json", default=None, help="write the evaluation here")
 
-    p = sub.add_parser(
-        "rates", help="estimator at every physics step vs once per control step, same rollouts"
+    p = command(
+        "rates",
+        "estimator at every physics step vs once per control step, same rollouts",
+        _cmd_rates,
+        _check_json,
     )
-    p.add_argument(
-        "--scenes", nargs="+", default=["planar_leg", "go1"], choices=("planar_leg", "go1")
-    )
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--scenes", nargs="+", default=list(SCENES), choices=SCENES, help="scenes")
+    p.add_argument("--seed", type=int, default=0, help="seed of the rollouts")
     p.add_argument(
         "--pairing",
         default="delayed",
         choices=("delayed", "raw"),
         help="state the differenced acceleration is paired with (ContactObsConfig.pairing)",
     )
-    p.add_argument("--json", default=None)
-    p.set_defaults(func=_cmd_rates)
+    p.add_argument("--json", default=None, help="write the results here")
 
-    p = sub.add_parser(
+    p = command(
         "bench",
-        help="estimator throughput, latency and memory; ratio to mjx.step, NumPy, sharding",
+        "estimator throughput, latency and memory; ratio to mjx.step, NumPy, sharding",
+        _cmd_bench,
+        _check_json,
     )
     p.add_argument("--json", default=None, help="write every result as one JSON here")
-    p.add_argument("--envs", type=int, nargs="+", default=None, help="throughput batch sizes")
     p.add_argument(
-        "--versus-envs", type=int, nargs="+", default=None, help="batch sizes vs mjx.step"
+        "--envs",
+        type=_positive_int,
+        nargs="+",
+        default=None,
+        help="throughput batch sizes (default: benchmarks.estimator's)",
     )
-    p.set_defaults(func=_cmd_bench)
+    p.add_argument(
+        "--versus-envs",
+        type=_positive_int,
+        nargs="+",
+        default=None,
+        help="batch sizes vs mjx.step; the largest, rounded up to a multiple of 8, is also"
+        " the sharding check's (default: 1024 4096)",
+    )
     return parser
 
 
+# ------------------------------------------------------------------------------- Ctrl-C
+
+
+class _StopOnInterrupt:
+    """Context manager: while active, SIGINT ends the process at once (module docstring).
+
+    Outside the main thread (where Python cannot install signal handlers) it does nothing
+    and Python's ``KeyboardInterrupt`` applies.
+    """
+
+    def __init__(self, prog: str):
+        self.prog = prog
+        self._active = False
+
+    def __enter__(self):
+        if threading.current_thread() is not threading.main_thread():
+            return self
+        self._read, self._write = os.pipe()
+        os.set_blocking(self._write, False)  # set_wakeup_fd requires it
+        self._watcher = threading.Thread(target=self._watch, name="jax-contact-sigint", daemon=True)
+        self._watcher.start()
+        # Wake-up fd first: a SIGINT between the two calls then still reaches the watcher.
+        self._old_fd = signal.set_wakeup_fd(self._write, warn_on_full_buffer=False)
+        self._old_handler = signal.signal(signal.SIGINT, self._note)
+        self._active = True
+        return self
+
+    @staticmethod
+    def _note(signum, frame) -> None:
+        # Runs in the main thread whenever it next runs Python code (possibly inside a GC
+        # callback, where an exception would be swallowed): nothing to do here, the
+        # watcher has already been woken by the C-level handler through the wake-up fd.
+        del signum, frame
+
+    def _watch(self) -> None:
+        while True:
+            try:
+                data = os.read(self._read, 64)
+            except OSError:
+                return
+            if not data:  # the write end was closed: the command finished
+                return
+            if signal.SIGINT in data:
+                self._stop()
+
+    def _stop(self) -> None:
+        io = sys.modules.get("jax_contact.io")  # not imported: nothing was being written
+        if io is not None:
+            io.abort_writes()  # holds io's lock from here on: no rename can follow
+        # Flush what was printed, but never wait on a main thread stuck mid-write.
+        flusher = threading.Thread(target=_flush_std, daemon=True)
+        flusher.start()
+        flusher.join(0.5)
+        try:
+            os.write(2, f"{self.prog}: interrupted\n".encode())
+        finally:
+            os._exit(EXIT_INTERRUPTED)
+
+    def __exit__(self, *exc) -> None:
+        if not self._active:
+            return
+        signal.signal(signal.SIGINT, self._old_handler)
+        signal.set_wakeup_fd(self._old_fd)
+        os.close(self._write)
+        self._watcher.join(1.0)
+        os.close(self._read)
+        self._active = False
+
+
+def _flush_std() -> None:
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except Exception:  # a closed or broken stream: nothing more to save
+            pass
+
+
+# ---------------------------------------------------------------------------------- main
+
+
+def _quiet_xla_logs() -> None:
+    """Silences XLA's C++ log lines (module docstring) unless the user chose a level."""
+    if "jax" not in sys.modules:  # read when JAX loads XLA; later changes do nothing
+        os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "3")
+
+
 def main(argv: list[str] | None = None) -> int:
+    """Runs ``jax-contact`` with ``argv`` (default: ``sys.argv[1:]``); returns the exit code:
+    0, 2 for a bad argument or input (one line on stderr), 130 when interrupted."""
     parser = build_parser()
     args = parser.parse_args(argv)
     if not getattr(args, "func", None):
         parser.print_help()
-        return 2
+        return EXIT_USAGE
+    prog = f"jax-contact {args.command}"
     try:
-        return int(args.func(args) or 0)
-    except (ValueError, FileNotFoundError) as err:
-        print(f"jax-contact {args.command}: error: {err}", file=sys.stderr)
-        return 2
+        args.check(args)  # before any import of JAX: a bad argument is reported at once
+    except ValueError as err:
+        print(f"{prog}: error: {err}", file=sys.stderr)
+        return EXIT_USAGE
+    _quiet_xla_logs()
+    try:
+        with _StopOnInterrupt(prog):
+            return int(args.func(args) or 0)
+    except KeyboardInterrupt:  # raised before the watcher ran, or outside the main thread
+        print(f"{prog}: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    except (ValueError, OSError) as err:
+        print(f"{prog}: error: {err}", file=sys.stderr)
+        return EXIT_USAGE
 
 
 if __name__ == "__main__":

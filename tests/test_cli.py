@@ -1,0 +1,417 @@
+"""The ``jax-contact`` command line as a user meets it (issue 18).
+
+Fast answers to bad arguments (before JAX is imported), ``--help``, Ctrl-C, ``--timesteps``,
+``bench``'s sizes and partial JSON, one-line errors for bad logs, logs without ground
+truth, and the mode of written files. Subprocess tests run the installed entry point or
+``python -c``; nothing here trains, benchmarks or simulates beyond a few compiled steps.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from jax_contact import io
+from train import cli
+
+ROOT = Path(__file__).resolve().parents[1]
+# The installed entry point, as a user runs it (``python -m train.cli`` where it is missing).
+_ENTRY = Path(sys.executable).parent / "jax-contact"
+CLI = [str(_ENTRY)] if _ENTRY.exists() else [sys.executable, "-m", "train.cli"]
+
+
+def _run(args, *, timeout=60, **kwargs):
+    t0 = time.perf_counter()
+    res = subprocess.run(args, capture_output=True, text=True, timeout=timeout, cwd=ROOT, **kwargs)
+    return res, time.perf_counter() - t0
+
+
+# --------------------------------------------------------------- arguments, before JAX
+
+
+def test_importing_the_cli_does_not_import_jax():
+    code = (
+        "import sys, train.cli; heavy = [m for m in ('jax', 'jaxlib', 'mujoco', 'h5py',"
+        " 'numpy', 'brax') if m in sys.modules]; print(heavy)"
+    )
+    res, _ = _run([sys.executable, "-c", code])
+    assert res.returncode == 0, res.stderr
+    assert res.stdout.strip() == "[]"
+
+
+@pytest.mark.parametrize(
+    "argv, names",
+    [
+        (["simulate", "/proc/x.h5"], ["argument output", "'/proc'"]),
+        (["simulate", "out.h5", "--envs", "0"], ["argument --envs", "'0'"]),
+        (["simulate", "out.h5", "--duration", "-1"], ["argument --duration"]),
+        (["simulate", "out.h5", "--duration", "nan"], ["argument --duration"]),
+        (["simulate", "out.txt"], ["argument output", "must end in .h5"]),
+        (["simulate", "out.h5", "--robot", "dog"], ["argument --robot", "'dog'", "go1"]),
+        (["simulate", "out.h5", "--robot", "no/such.xml"], ["argument --robot", "no/such.xml"]),
+        (["evaluate", "no_such_log.h5"], ["argument log", "no_such_log.h5"]),
+        (["evaluate", "README.md", "--json", "/proc/m.json"], ["argument --json", "'/proc'"]),
+        (["train", "--timesteps", "0"], ["argument --timesteps"]),
+        (["train", "--out", "README.md"], ["argument --out", "README.md"]),
+        (["policy-eval", "docs"], ["argument run", "run.json"]),
+        (["policy-eval", "docs", "--envs", "-3"], ["argument --envs"]),
+        (["bench", "--versus-envs", "0"], ["argument --versus-envs"]),
+        (["demo", "--out", "/proc/demo"], ["argument --out", "'/proc'"]),
+        (["reproduce", "--robot", "cat"], ["argument --robot", "'cat'"]),
+    ],
+)
+def test_bad_arguments_are_reported_at_once(argv, names):
+    """Each bad argument: exit code 2, one error line naming the argument, in a second or
+    so (JAX's imports used to come first: 45-65 s on a loaded machine)."""
+    res, elapsed = _run(CLI + argv, timeout=30)
+    assert res.returncode == 2, (res.stdout, res.stderr)
+    assert elapsed < 10, f"{argv}: {elapsed:.1f} s"
+    errors = [line for line in res.stderr.splitlines() if "error:" in line]
+    assert len(errors) == 1 and errors[0].startswith(f"jax-contact {argv[0]}: error:"), res.stderr
+    for name in names:
+        assert name in errors[0], (name, errors[0])
+    assert "Traceback" not in res.stderr
+    assert not (ROOT / "out.h5").exists() and not (ROOT / "out.txt").exists()
+
+
+def test_output_folder_check_creates_nothing(tmp_path):
+    cli.check_output_folder("--out", tmp_path / "a" / "b")
+    assert list(tmp_path.iterdir()) == []
+    (tmp_path / "file").write_text("x")
+    with pytest.raises(ValueError, match="is a file"):
+        cli.check_output_folder("--out", tmp_path / "file" / "sub")
+    with pytest.raises(ValueError, match="not a folder"):
+        cli.check_output_folder("--out", tmp_path / "file")
+
+
+def test_static_lists_equal_the_librarys():
+    """cli.py copies lists whose modules import JAX; the copies must not drift."""
+    from envs import gaits, robots, sensors, simulate
+    from train import ppo, rates
+
+    assert cli.ROBOT_NAMES == robots.ROBOT_NAMES
+    assert cli.GAITS == gaits.KINDS
+    assert cli.NOISES == sensors.PRESETS
+    assert cli.TERRAINS == simulate.TERRAINS
+    assert cli.VARIANTS == ppo.VARIANTS
+    assert cli.SCENES == rates.SCENES
+
+
+def test_help_shows_defaults_robot_names_and_every_command(capsys):
+    parser = cli.build_parser()
+    with pytest.raises(SystemExit):
+        parser.parse_args(["simulate", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    assert "(default: 16)" in text and "(default: go1)" in text and "(default: 10.0)" in text
+    for name in cli.ROBOT_NAMES:
+        assert name in text
+    assert "(default: None)" not in text
+    with pytest.raises(SystemExit):
+        parser.parse_args(["--help"])
+    top = capsys.readouterr().out
+    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    for name, choice in sub.choices.items():
+        assert choice.description, name
+        assert name in top
+    assert "Table III" in sub.choices["reproduce"].format_help()
+
+
+def test_xla_log_lines_are_silenced_unless_the_user_set_a_level():
+    code = (
+        "import os, train.cli as c; c._quiet_xla_logs(); print(os.environ['TF_CPP_MIN_LOG_LEVEL'])"
+    )
+    env = {k: v for k, v in os.environ.items() if k != "TF_CPP_MIN_LOG_LEVEL"}
+    res, _ = _run([sys.executable, "-c", code], env=env)
+    assert res.stdout.strip() == "3", res.stderr
+    res, _ = _run([sys.executable, "-c", code], env={**env, "TF_CPP_MIN_LOG_LEVEL": "0"})
+    assert res.stdout.strip() == "0", res.stderr
+
+
+# ------------------------------------------------------------------------------ Ctrl-C
+
+
+def _interrupt(args, *, wait_s, cwd):
+    proc = subprocess.Popen(
+        args, cwd=cwd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )
+    time.sleep(wait_s)
+    assert proc.poll() is None, proc.communicate()
+    t0 = time.perf_counter()
+    proc.send_signal(signal.SIGINT)
+    try:
+        out, err = proc.communicate(timeout=30)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        out, err = proc.communicate()
+        pytest.fail(f"still running 30 s after SIGINT; stderr: {err[-2000:]}")
+    return proc.returncode, time.perf_counter() - t0, out, err
+
+
+def test_ctrl_c_stops_simulate_at_once_and_leaves_nothing(tmp_path):
+    """SIGINT during imports or compilation (a 30 s rollout takes minutes here): exit 130
+    within seconds, one line on stderr, no output file and no temporary file."""
+    code, after, out, err = _interrupt(
+        [*CLI, "simulate", "out.h5", "--envs", "2", "--duration", "30"],
+        wait_s=8.0,
+        cwd=tmp_path,
+    )
+    env_note = f"stdout {out!r}, stderr {err!r}"
+    assert code == 130, env_note
+    assert after < 10, f"{after:.1f} s after SIGINT; {env_note}"
+    assert err.strip().splitlines()[-1] == "jax-contact simulate: interrupted", env_note
+    assert "Traceback" not in err and "Exception ignored" not in err, env_note
+    assert len(err.strip().splitlines()) <= 3, env_note
+    assert list(tmp_path.iterdir()) == [], "no output, no temporary file"
+
+
+def test_ctrl_c_during_a_write_removes_the_temporary_file(tmp_path):
+    """The watcher removes the temporary file of a write in progress (and no rename can
+    follow), even when the writer is stuck in C code."""
+    script = (
+        "import os, signal, sys, time\n"
+        "from train import cli\n"
+        "from jax_contact.io import write_atomic\n"
+        "def write(tmp):\n"
+        "    open(tmp, 'w').write('partial')\n"
+        "    os.kill(os.getpid(), signal.SIGINT)\n"
+        "    time.sleep(20)\n"
+        "with cli._StopOnInterrupt('jax-contact test'):\n"
+        "    write_atomic(sys.argv[1], write)\n"
+        "print('not reached')\n"
+    )
+    res, elapsed = _run([sys.executable, "-c", script, str(tmp_path / "out.json")])
+    assert res.returncode == 130, res.stderr
+    assert elapsed < 15
+    assert res.stderr == "jax-contact test: interrupted\n"
+    assert "not reached" not in res.stdout
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_the_interrupt_handler_is_removed_afterwards():
+    before = signal.getsignal(signal.SIGINT)
+    with cli._StopOnInterrupt("x"):
+        assert signal.getsignal(signal.SIGINT) is not before
+    assert signal.getsignal(signal.SIGINT) is before
+    assert signal.set_wakeup_fd(-1) == -1
+
+
+# ------------------------------------------------------------------------- --timesteps
+
+
+def test_timesteps_are_trained_as_asked():
+    """Brax PPO rounds num_timesteps up to whole epochs: SMALL with 40,960 steps trained
+    245,760 (6 epochs of one 40,960-step training step). fit_timesteps trains 40,960."""
+    from train import ppo
+
+    small = ppo.SMALL
+    step = small.steps_per_training_step
+    assert step == 40_960
+    assert ppo.brax_timesteps(dataclasses.replace(small, num_timesteps=step)) == 245_760
+    cfg, note = ppo.fit_timesteps(small, 40_960)
+    assert ppo.brax_timesteps(cfg) == cfg.num_timesteps == 40_960
+    assert cfg.num_evals == 2 and "40,960" in note and "2 evaluations instead of 7" in note
+    assert ppo.fit_timesteps(small, small.num_timesteps) == (small, None)
+    cfg, note = ppo.fit_timesteps(small, 50_000)
+    assert ppo.brax_timesteps(cfg) == 81_920 and "81,920" in note and "rounded up" in note
+    with pytest.raises(ValueError, match="timesteps"):
+        ppo.fit_timesteps(small, 0)
+
+
+@pytest.mark.parametrize("name", ["small", "full"])
+def test_fitted_timesteps_are_exact_or_the_next_training_step(name):
+    from train import ppo
+
+    base = ppo.CONFIGS[name]
+    unit = base.steps_per_training_step * max(base.num_resets_per_eval, 1)
+    for requested in [1, unit - 1, unit, unit + 1, 7 * unit, 12 * unit, 13 * unit + 5, 10**7]:
+        cfg, note = ppo.fit_timesteps(base, requested)
+        trained = ppo.brax_timesteps(cfg)
+        assert trained == cfg.num_timesteps
+        assert requested <= trained < requested + unit
+        assert 2 <= cfg.num_evals <= base.num_evals
+        cfg.validate()
+        if note is None:
+            assert trained == requested and cfg.num_evals == base.num_evals
+        else:
+            assert f"{trained:,d}" in note
+
+
+def test_brax_timesteps_mirrors_brax():
+    """The formula is Brax's; this fails loudly if Brax's source changes it."""
+    import inspect
+
+    from brax.training.agents.ppo import train as ppo_train
+
+    src = inspect.getsource(ppo_train.train)
+    assert "num_evals_after_init = max(num_evals - 1, 1)" in src
+    assert "max(num_resets_per_eval, 1)" in src and "np.ceil(" in src
+
+
+# ------------------------------------------------------------------------------- bench
+
+
+def test_sharding_batch_is_rounded_to_the_devices():
+    from benchmarks import versus
+
+    assert versus.shard_batch(4, 8) == 8
+    assert versus.shard_batch(4096, 8) == 4096
+    assert versus.shard_batch(4097, 8) == 4104
+    with pytest.raises(ValueError):
+        versus.shard_batch(0, 8)
+    with pytest.raises(ValueError, match="--envs"):
+        versus.check_sizes([4, 0])
+
+
+def test_a_failed_sharding_subprocess_shows_its_stderr():
+    from benchmarks import versus
+
+    script = "import sys; sys.stderr.write('the real cause\\n'); sys.exit(3)"
+    with pytest.raises(RuntimeError, match="(?s)exited with code 3.*the real cause"):
+        versus.sharded(4, 8, script=script)
+
+
+def test_bench_writes_what_finished_when_a_part_fails(tmp_path, monkeypatch):
+    from benchmarks import estimator, suite, versus
+
+    monkeypatch.setattr(estimator, "main", lambda argv: {"machine": "m", "throughput": [1]})
+    monkeypatch.setattr(
+        versus,
+        "ratio_vs_mjx",
+        lambda n: {"ratio": {"q": 1.0}, "ratio_with_adapter": {"q": 2.0}, "median_ms": {"q": 3.0}},
+    )
+    monkeypatch.setattr(versus, "print_table", lambda *a: None)
+    monkeypatch.setattr(versus, "machine", lambda: "m")
+
+    def fail(*a, **k):
+        raise RuntimeError("numpy part broke")
+
+    monkeypatch.setattr(versus, "numpy_speedup", fail)
+    path = tmp_path / "bench.json"
+    with pytest.raises(RuntimeError, match="numpy part broke"):
+        suite.main(["--json", str(path), "--envs", "4", "--versus-envs", "4"])
+    got = json.loads(path.read_text())
+    assert got["throughput"] == [1] and got["ratio_vs_mjx_step"]["4"]["q"] == 1.0
+    assert "numpy part broke" in got["error"] and "sharding" not in got
+
+
+# ------------------------------------------------------------------------- file modes
+
+
+@pytest.fixture
+def umask_027():
+    old = os.umask(0o027)
+    yield 0o027
+    os.umask(old)
+
+
+def test_written_files_get_the_umask(tmp_path, umask_027):
+    want = 0o666 & ~umask_027
+    paths = [
+        io.write_json_atomic(tmp_path / "a.json", {"a": 1}),
+        io.write_text_atomic(tmp_path / "b.txt", "b"),
+        io.write_log(tmp_path / "c.h5", {"x": np.zeros(3)}, {"robot": "go1"}),
+    ]
+    (tmp_path / "d.txt").write_text("old")
+    os.chmod(tmp_path / "d.txt", 0o600)
+    paths.append(io.write_text_atomic(tmp_path / "d.txt", "new"))
+    for p in paths:
+        assert os.stat(p).st_mode & 0o777 == want, (p, oct(os.stat(p).st_mode))
+    assert io._umask() == umask_027
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.json", "b.txt", "c.h5", "d.txt"]
+
+
+# ---------------------------------------------------------------------------- bad logs
+
+
+def _planar_log(path, n_t=12, n_envs=1, *, truth=True, attrs=None, **override):
+    rng = np.random.default_rng(0)
+    arrays = {
+        "readings/qpos": np.zeros((n_t, n_envs, 3), np.float32),
+        "readings/qvel": rng.normal(size=(n_t, n_envs, 3)).astype(np.float32) * 0.01,
+        "readings/qacc": np.zeros((n_t, n_envs, 3), np.float32),
+        "readings/tau": np.zeros((n_t, n_envs, 3), np.float32),
+        "valid": np.ones((n_t, n_envs), bool),
+        "time": np.arange(n_t, dtype=np.float32) * 0.0025,
+    }
+    if truth:
+        arrays["truth/contact"] = np.ones((n_t, n_envs, 1), bool)
+    arrays.update(override)
+    arrays = {k: v for k, v in arrays.items() if v is not None}
+    meta = {"robot": "planar_leg", "dt": 0.0025} if attrs is None else attrs
+    return io.write_log(path, arrays, meta)
+
+
+def _evaluate_error(capsys, path) -> str:
+    assert cli.main(["evaluate", str(path)]) == 2
+    err = capsys.readouterr().err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("jax-contact evaluate: error:"), err
+    assert str(path) in lines[0]
+    return lines[0]
+
+
+def test_a_non_hdf5_log_is_one_line(tmp_path, capsys):
+    path = tmp_path / "text.h5"
+    path.write_text("not an HDF5 file\n")
+    with pytest.raises(ValueError, match="cannot be read as HDF5"):
+        io.read_log(path)
+    assert "expected an .h5 file" in _evaluate_error(capsys, path)
+
+
+def test_a_truncated_log_is_one_line(tmp_path, capsys):
+    path = _planar_log(tmp_path / "log.h5", n_t=2000)
+    data = path.read_bytes()
+    path.write_bytes(data[: len(data) // 2])
+    with pytest.raises(ValueError, match=str(path)):
+        io.read_log(path)
+    line = _evaluate_error(capsys, path)
+    assert "truncated" in line or "HDF5" in line
+
+
+def test_a_log_without_robot_attribute_is_one_line(tmp_path, capsys):
+    path = _planar_log(tmp_path / "log.h5", attrs={"dt": 0.0025})
+    assert "no attribute 'robot'" in _evaluate_error(capsys, path)
+    path = _planar_log(tmp_path / "log2.h5", attrs={"robot": "planar_leg"})
+    assert "attribute 'dt'" in _evaluate_error(capsys, path)
+
+
+def test_arrays_without_the_env_axis_are_one_line(tmp_path, capsys):
+    path = _planar_log(
+        tmp_path / "log.h5",
+        **{k: np.zeros((12, 3), np.float32) for k in ("readings/qpos", "readings/qvel")},
+    )
+    line = _evaluate_error(capsys, path)
+    assert "'readings/qpos'" in line and "(12, 3)" in line and "(T, n_envs, nq)" in line
+    path = _planar_log(tmp_path / "log2.h5", **{"readings/tau": np.zeros((12, 3), np.float32)})
+    line = _evaluate_error(capsys, path)
+    assert "'readings/tau'" in line and "(12, 1, nv)" in line
+    path = _planar_log(tmp_path / "log3.h5", **{"readings/tau": None})
+    assert "missing arrays ['readings/tau']" in _evaluate_error(capsys, path)
+    path = _planar_log(tmp_path / "log4.h5", **{"readings/qvel": np.zeros((12, 1, 5), "f4")})
+    line = _evaluate_error(capsys, path)
+    assert "'readings/qvel'" in line and "nv = 3" in line
+
+
+def test_a_log_without_ground_truth_gives_p_contact(tmp_path, capsys):
+    """No truth/contact: no metrics, the estimator's P(contact) per foot (issue 18)."""
+    path = _planar_log(tmp_path / "log.h5", truth=False)
+    out_json = tmp_path / "p.json"
+    assert cli.main(["evaluate", str(path), "--json", str(out_json)]) == 0
+    out = capsys.readouterr().out
+    assert "no ground truth" in out and "no metrics" in out and "P(contact)" in out
+    got = json.loads(out_json.read_text())
+    assert got["has_truth"] is False and got["scores"] == {}
+    (foot,) = got["foot_names"]
+    p = np.array(got["p_contact"][foot], dtype=float)
+    assert p.shape == (12, 1)
+    assert np.all((p[np.isfinite(p)] >= 0) & (p[np.isfinite(p)] <= 1))
