@@ -198,11 +198,14 @@ def test_ctrl_c_during_a_write_removes_the_temporary_file(tmp_path):
 
 
 def test_the_interrupt_handler_is_removed_afterwards():
+    """In-process callers of cli.main (tests) get their SIGINT handler and wake-up fd back."""
     before = signal.getsignal(signal.SIGINT)
+    fd_before = signal.set_wakeup_fd(-1)  # reading it means setting it; put it back at once
+    signal.set_wakeup_fd(fd_before)
     with cli._StopOnInterrupt("x"):
         assert signal.getsignal(signal.SIGINT) is not before
     assert signal.getsignal(signal.SIGINT) is before
-    assert signal.set_wakeup_fd(-1) == -1
+    assert signal.set_wakeup_fd(fd_before) == fd_before
 
 
 # ------------------------------------------------------------------------- --timesteps
