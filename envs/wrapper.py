@@ -308,47 +308,31 @@ def default_estimator_params(
     dt: float,
     sensor_params: sensors.SensorParams,
     *,
-    sigma_d: float = 2.0,
-    sigma_f: float = 10.0,
-    sigma_J: float = 0.05,
-    sigma_qd_prior: float = 25.0,
     sigma_qdd_model: float = 0.0,
-    bias_horizon_s: float = 10.0,
     force_rows: Sequence[int] | None = None,
-    **make_params_kwargs,
+    **params_for_kwargs,
 ) -> jc.EstimatorParams:
-    """Estimator parameters consistent with a sensor model, for a robot, at period ``dt``.
+    """Estimator parameters consistent with a sensor model: :func:`jax_contact.params_for`.
 
-    Noise, per coordinate, from ``sensor_params`` (choices, documented here):
-
-    - ``sigma_q``, ``sigma_qd``: the sensors' white noise combined in quadrature with the
-      spread their bias random walk reaches in ``bias_horizon_s`` (``rw * sqrt(T)``, 10 s
-      by default: half a typical 20 s episode); floors of 1 mm / 1 mrad and 0.01 m/s or
-      rad/s keep ideal sensors from making the filter infinitely confident.
-    - ``sigma_qdd = sqrt(2) * sigma_qd_white / dt``: ``qacc`` is the backward difference of
-      the noisy velocity (MODEL.md); the bias cancels in the difference; combined in
-      quadrature with ``sigma_qdd_model``, an acceleration model error for the control
-      rate, where ``qacc`` is the mean over a control period but the dynamics term predicts
-      the instantaneous acceleration. Default 0: measured with :func:`compare_rates` (16
-      rollouts, 20 ms control period, ``pairing="raw"``), 1000 rad/s^2 raised the
-      control-rate accuracy of the hopping planar leg (stiff servos) from 0.858 to 0.905
-      but lowered the stepping Go1's from 0.882 to 0.824. Floor 1 rad/s^2.
-    - ``sigma_d = sqrt(sigma_d**2 + sigma_tau**2)``: Table II's 2 N m disturbance plus the
-      torque sensors' noise, which enters the equation of motion the same way.
-    - ``sigma_f`` 10 N, ``sigma_J`` 0.05 m/s, swing prior 25 rad/s: MODEL.md's choices.
-
-    Velocity outliers are not modelled: the caps (0.99 / 0.9 / 0.99) bound their effect.
+    The one source of parameters (its docstring lists the rules), with two things only a
+    simulated env knows: the force axes of legs with fewer than three joints, read from the
+    model, and ``sigma_qdd_model``, an acceleration model error for the control rate, where
+    ``qacc`` is the mean over a control period but the dynamics term predicts the
+    instantaneous acceleration, combined in quadrature with the sensor-derived
+    ``sigma_qdd``. Default 0: measured with :func:`compare_rates` (16 rollouts, 20 ms
+    control period, ``pairing="raw"``), 1000 rad/s^2 raised the control-rate accuracy of
+    the hopping planar leg (stiff servos) from 0.858 to 0.905 but lowered the stepping
+    Go1's from 0.882 to 0.824.
 
     Args:
       robot_or_desc: an :class:`envs.robots.Robot` or a ``RobotDescription``.
       dt: estimator period, s (physics step in the substep mode, control period else).
       sensor_params: the sensor model (its ``dt`` must be ``dt``).
-      sigma_d, sigma_f, sigma_J, sigma_qd_prior, sigma_qdd_model: see above.
-      bias_horizon_s: time over which the sensor bias is folded into the noise, s.
+      sigma_qdd_model: see above, rad/s^2.
       force_rows: world axes of the contact force; None: all three for legs of three or
         more joints, else read from the model (a ``Robot`` is then needed).
-      **make_params_kwargs: passed to :func:`jax_contact.make_params` (``stance_time``,
-        ``takeoff_accel``, caps, ...); ``touchdown`` defaults to ``"quadrature"``.
+      **params_for_kwargs: passed to :func:`jax_contact.params_for` (``gait``,
+        ``disturbance``, ``bias_horizon_s``, and any ``make_params`` argument).
 
     Raises:
       ValueError: a bad argument, naming it.
@@ -367,8 +351,6 @@ def default_estimator_params(
         raise ValueError(f"sensor_params.dt ({float(sensor_params.dt)}) must equal dt ({dt})")
     if not (np.isfinite(sigma_qdd_model) and sigma_qdd_model >= 0):
         raise ValueError(f"sigma_qdd_model must be >= 0, got {sigma_qdd_model!r}")
-    if not (np.isfinite(bias_horizon_s) and bias_horizon_s >= 0):
-        raise ValueError(f"bias_horizon_s must be >= 0, got {bias_horizon_s!r}")
     if force_rows is None:
         mj_model = _mj_model_of(robot_or_desc)
         if desc.n_leg_dofs < 3 and mj_model is None:
@@ -377,22 +359,11 @@ def default_estimator_params(
                 " force_rows, or a Robot so that they can be read from the model"
             )
         force_rows = (0, 1, 2) if desc.n_leg_dofs >= 3 else _force_rows(mj_model, desc)
-
-    sp = jax.tree.map(np.asarray, sensor_params)
-    sigma_q = np.sqrt(sp.sigma_q**2 + sp.bias_rw_q**2 * bias_horizon_s)
-    sigma_qd = np.sqrt(sp.sigma_qd**2 + sp.bias_rw_qd**2 * bias_horizon_s)
-    noise = jc.make_noise(
-        desc.nv,
-        sigma_q=np.maximum(sigma_q, 1e-3),
-        sigma_qd=np.maximum(sigma_qd, 1e-2),
-        sigma_qdd=np.maximum(np.hypot(np.sqrt(2.0) * sp.sigma_qd / dt, sigma_qdd_model), 1.0),
-        sigma_d=np.sqrt(sigma_d**2 + sp.sigma_tau**2),
-        sigma_f=sigma_f,
-        sigma_J=sigma_J,
-        sigma_qd_prior=sigma_qd_prior,
-    )
-    make_params_kwargs.setdefault("touchdown", "quadrature")
-    return jc.make_params(noise, dt=dt, force_rows=force_rows, **make_params_kwargs)
+    params = jc.params_for(desc, sensor_params, dt, force_rows=force_rows, **params_for_kwargs)
+    if sigma_qdd_model > 0:
+        qdd = np.hypot(np.asarray(params.noise.sigma_qdd), sigma_qdd_model)
+        params = params.replace(noise=params.noise.replace(sigma_qdd=jnp.asarray(qdd, jnp.float32)))
+    return params
 
 
 def default_terrain(mj_model: mujoco.MjModel, desc: RobotDescription, sigma: float = 0.05):

@@ -3,6 +3,7 @@
 The public API is listed in ``__all__``; everything else is private.
 """
 
+from jax_contact.defaults import GaitPrior, params_for
 from jax_contact.filter import (
     init_belief,
     init_belief_batch,
@@ -12,6 +13,7 @@ from jax_contact.filter import (
     step_batch,
     step_robot,
 )
+from jax_contact.io import load_params, save_params
 from jax_contact.measurement import (
     MeasurementTerms,
     diff_kinematics_llr,
@@ -59,6 +61,7 @@ __all__ = [
     "EstimatorParams",
     "FlatTerrain",
     "FootholdMemory",
+    "GaitPrior",
     "HeightFieldTerrain",
     "LegBelief",
     "LegBlocks",
@@ -76,6 +79,7 @@ __all__ = [
     "init_belief_batch",
     "kinematics_llr",
     "leg_blocks",
+    "load_params",
     "log_takeoff",
     "log_touchdown",
     "log_touchdown_monte_carlo",
@@ -84,8 +88,10 @@ __all__ = [
     "make_noise",
     "make_params",
     "measurement_terms",
+    "params_for",
     "robot_leg_blocks",
     "run",
+    "save_params",
     "sequence_bce",
     "step",
     "step_batch",

@@ -144,13 +144,50 @@ def logit(p: jax.Array) -> jax.Array:
     return jnp.log(p) - jnp.log1p(-p)
 
 
-def cap_llr(llr: jax.Array, cap: jax.Array) -> jax.Array:
+def cap_bound(cap: jax.Array) -> jax.Array:
+    """``logit(cap)``, or inf for a cap of 1 (no bound)."""
+    return jnp.where(cap >= 1.0, jnp.inf, logit(jnp.minimum(cap, 1.0 - 1e-7)))
+
+
+def cap_llr(llr: jax.Array, cap: jax.Array, cap_contact: jax.Array | None = None) -> jax.Array:
     """Clips a log-likelihood ratio to +-logit(cap): the term's confidence cap (MODEL.md).
 
-    A cap of exactly 1 leaves the ratio unbounded.
+    With ``cap_contact`` the contact side (positive ratios) is clipped to
+    ``logit(cap_contact)`` instead. A cap of exactly 1 leaves that side unbounded.
     """
-    bound = jnp.where(cap >= 1.0, jnp.inf, logit(jnp.minimum(cap, 1.0 - 1e-7)))
-    return jnp.clip(llr, -bound, bound)
+    upper = cap_bound(cap if cap_contact is None else cap_contact)
+    return jnp.clip(llr, -cap_bound(cap), upper)
+
+
+def log_outlier_weight(eps: jax.Array, log_density: jax.Array) -> jax.Array:
+    """``log(eps * U)``, the log weight of a shared outlier component, ``-inf`` for eps = 0.
+
+    Args:
+      eps: () mixture weight of the outlier component in [0, 1).
+      log_density: () log of the outlier component's density at the measurement.
+    """
+    on = eps > 0.0
+    safe = jnp.where(on, eps, 1.0)  # no log(0) in the gradient of the disabled branch
+    return jnp.where(on, jnp.log(safe) + log_density, -jnp.inf)
+
+
+def robust_llr(
+    log_c: jax.Array, log_a: jax.Array, eps: jax.Array, log_outlier: jax.Array
+) -> jax.Array:
+    """Log-likelihood ratio of two hypotheses that share an outlier component.
+
+    Each hypothesis' density is ``(1 - eps) p_h(x) + eps U(x)`` with the same ``U``, so the
+    ratio tends to 0 (no evidence) when ``x`` is far from both ``p_C`` and ``p_A``, and to
+    ``log p_C - log p_A`` where either explains ``x`` far better than an outlier would.
+
+    Args:
+      log_c, log_a: () log densities of the measurement under contact and air.
+      eps: () outlier probability in [0, 1); 0 gives ``log_c - log_a`` exactly.
+      log_outlier: () ``log U(x)``, the outlier density at the measurement.
+    """
+    log_b = log_outlier_weight(eps, log_outlier)
+    keep = jnp.log1p(-eps)
+    return jnp.logaddexp(keep + log_c, log_b) - jnp.logaddexp(keep + log_a, log_b)
 
 
 def log_mean_exp(x: jax.Array, axis=None) -> jax.Array:

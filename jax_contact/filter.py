@@ -18,6 +18,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
+from jax_contact._math import logit as logit_of
 from jax_contact.measurement import leg_blocks, measurement_terms, robot_leg_blocks
 from jax_contact.params import EstimatorParams
 from jax_contact.transition import log_prior_transition, log_transition_matrix
@@ -122,7 +123,11 @@ def _update(
     if params.transition_model:
         log_t = jnp.where(valid, log_transition_matrix(params, leg, tq, key=key), log_t)
 
-    on_ground = valid & (logit > 0.0)
+    # The foothold memory stores only confident, still stance: a false contact in the air
+    # would otherwise write the swing height as terrain.
+    on_ground = valid & (logit > logit_of(params.foothold_confidence))
+    if params.foothold_still:
+        on_ground = on_ground & (terms.diff_kinematics > 0.0)
     sole = leg.p_f - leg.foot_radius * tq.normal
     new_belief = LegBelief(
         logit=logit,

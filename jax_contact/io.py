@@ -262,3 +262,121 @@ def _finite(x):
     if isinstance(x, float) and not np.isfinite(x):
         return None
     return x
+
+
+# ----------------------------------------------------------------------- parameter files
+
+PARAMS_FORMAT = "jax-contact-params"
+PARAMS_VERSION = 1
+
+
+def params_to_dict(params, provenance: Mapping | None = None) -> dict:
+    """:class:`~jax_contact.EstimatorParams` as the versioned JSON payload of a params file.
+
+    Layout: ``format``, ``version``, ``library_version``, ``nv``, ``noise`` (field -> list
+    of floats), ``values`` (scalar field -> float), ``options`` (the static fields) and
+    ``provenance`` (free-form: how the values were obtained).
+    """
+    import dataclasses as _dc
+    from importlib.metadata import PackageNotFoundError, version
+
+    from jax_contact.params import EstimatorParams, NoiseParams
+
+    try:
+        lib = version("jax-contact")
+    except PackageNotFoundError:  # running from a source tree that was never installed
+        lib = "unknown"
+    noise = {
+        f: np.asarray(getattr(params.noise, f)).tolist() for f in NoiseParams.__dataclass_fields__
+    }
+    values, options = {}, {}
+    for f in _dc.fields(EstimatorParams):
+        if f.name == "noise":
+            continue
+        v = getattr(params, f.name)
+        if f.metadata.get("pytree_node", True):
+            values[f.name] = float(np.asarray(v))
+        else:
+            options[f.name] = list(v) if isinstance(v, tuple) else v
+    return {
+        "format": PARAMS_FORMAT,
+        "version": PARAMS_VERSION,
+        "library_version": lib,
+        "nv": params.nv,
+        "noise": noise,
+        "values": values,
+        "options": options,
+        "provenance": dict(provenance or {}),
+    }
+
+
+def params_from_dict(payload: Mapping, *, source: str = "params"):
+    """The inverse of :func:`params_to_dict`, validated; errors name ``source`` and the field.
+
+    Raises:
+      ValueError: not a params payload, an unknown version, a missing or extra field, or
+        a value that :func:`jax_contact.make_params` / ``make_noise`` rejects.
+    """
+    import dataclasses as _dc
+
+    from jax_contact.params import EstimatorParams, NoiseParams, make_noise, make_params
+
+    if not isinstance(payload, Mapping) or payload.get("format") != PARAMS_FORMAT:
+        raise ValueError(
+            f"{source}: not a jax-contact parameter file (no format {PARAMS_FORMAT!r})"
+        )
+    if payload.get("version") != PARAMS_VERSION:
+        raise ValueError(
+            f"{source}: version {payload.get('version')!r} is not supported (this library reads"
+            f" version {PARAMS_VERSION})"
+        )
+    for section in ("noise", "values", "options"):
+        if not isinstance(payload.get(section), Mapping):
+            raise ValueError(f"{source}: missing section {section!r}")
+    want = {
+        "noise": set(NoiseParams.__dataclass_fields__),
+        "values": {
+            f.name
+            for f in _dc.fields(EstimatorParams)
+            if f.name != "noise" and f.metadata.get("pytree_node", True)
+        },
+        "options": {
+            f.name for f in _dc.fields(EstimatorParams) if not f.metadata.get("pytree_node", True)
+        },
+    }
+    for section, names in want.items():
+        have = set(payload[section])
+        if have - names:
+            raise ValueError(f"{source}: unknown field(s) {sorted(have - names)} in {section!r}")
+        if names - have:
+            raise ValueError(f"{source}: missing field(s) {sorted(names - have)} in {section!r}")
+    nv = payload.get("nv")
+    if not isinstance(nv, int) or nv < 1:
+        raise ValueError(f"{source}: nv must be a positive int, got {nv!r}")
+    try:
+        noise = make_noise(nv, **payload["noise"])
+        params = make_params(noise, **payload["values"], **payload["options"])
+    except (TypeError, ValueError) as err:
+        raise ValueError(f"{source}: {err}") from None
+    return params
+
+
+def save_params(path: str | os.PathLike, params, provenance: Mapping | None = None) -> Path:
+    """Writes ``params`` as a versioned JSON file (atomically); returns the path."""
+    return write_json_atomic(path, params_to_dict(params, provenance))
+
+
+def load_params(path: str | os.PathLike):
+    """Reads a parameter file written by :func:`save_params`.
+
+    Raises:
+      ValueError: the file is missing, is not JSON, or a field is wrong (named).
+    """
+    path = Path(path)
+    try:
+        payload = json.loads(path.read_text())
+    except FileNotFoundError:
+        raise ValueError(f"parameter file {str(path)!r} does not exist") from None
+    except (json.JSONDecodeError, UnicodeDecodeError) as err:
+        raise ValueError(f"parameter file {str(path)!r} is not JSON: {err}") from None
+    return params_from_dict(payload, source=f"parameter file {str(path)!r}")

@@ -13,7 +13,7 @@ import jax.numpy as jnp
 from flax import struct
 from jax.scipy.special import log_ndtr
 
-from jax_contact._math import cap_llr, mvn_logpdf, spd_solve
+from jax_contact._math import cap_llr, mvn_logpdf, robust_llr, spd_solve
 from jax_contact.params import EstimatorParams
 from jax_contact.types import LegBlocks, LegMeasurement, RobotMeasurement, TerrainQuery
 
@@ -160,7 +160,17 @@ def dynamics_llr(
     sigma_f = jnp.diag(jnp.square(noise.sigma_f[rows]))
     cov_air = M_inv @ sigma_d @ M_inv.T + sigma_qdd
     cov_contact = M_inv @ (sigma_d + J_fl.T @ sigma_f @ J_fl) @ M_inv.T + sigma_qdd
-    llr = mvn_logpdf(qdd_l, qdd_contact, cov_contact) - mvn_logpdf(qdd_l, qdd_air, cov_air)
+    # Both hypotheses share a broad outlier component (uniform over +-outlier_qdd per
+    # joint): an acceleration spike far from both predictions (a differentiated velocity
+    # outlier) is evidence for neither, where the narrower Sigma_A would have lost to
+    # Sigma_C.
+    log_outlier = -M_l.shape[0] * jnp.log(2.0 * params.outlier_qdd)
+    llr = robust_llr(
+        mvn_logpdf(qdd_l, qdd_contact, cov_contact),
+        mvn_logpdf(qdd_l, qdd_air, cov_air),
+        params.outlier_prob,
+        log_outlier,
+    )
 
     force = jnp.zeros(3, leg.J.dtype).at[rows].set(force_rows)
     if params.unilateral:
@@ -188,10 +198,15 @@ def diff_kinematics_llr(params: EstimatorParams, meas: LegMeasurement | LegBlock
     cov_meas = J @ (jnp.square(noise.sigma_qd)[:, None] * J.T) + jnp.diag(jnp.square(noise.sigma_J))
     cov_air = J_fl @ (jnp.square(leg.sigma_qd_prior_l)[:, None] * J_fl.T) + cov_meas
     mean_air = leg.J_b @ leg.qd_b
-    llr = mvn_logpdf(leg.v_f, jnp.zeros(3, J.dtype), cov_meas) - mvn_logpdf(
-        leg.v_f, mean_air, cov_air
+    llr = robust_llr(
+        mvn_logpdf(leg.v_f, jnp.zeros(3, J.dtype), cov_meas),
+        mvn_logpdf(leg.v_f, mean_air, cov_air),
+        params.outlier_prob,
+        -3.0 * jnp.log(2.0 * params.outlier_v),
     )
-    return cap_llr(llr, params.cap_diff_kinematics)
+    # A still foot is weaker evidence for contact than a moving one is for air: a swing
+    # foot is slow at lift-off and near its apex (docs/model_choices.md).
+    return cap_llr(llr, params.cap_diff_kinematics, params.cap_diff_kinematics_still)
 
 
 def sole_gap(
@@ -228,7 +243,12 @@ def kinematics_llr(
     """
     gap, sigma_pf = sole_gap(params, meas, terrain)
     z = gap / jnp.sqrt(sigma_pf**2 + terrain.sigma**2)
-    return cap_llr(log_ndtr(-z) - log_ndtr(z), params.cap_kinematics)
+    llr = log_ndtr(-z) - log_ndtr(z)
+    if params.kinematics_neutral_below:
+        # Neutral on and below the terrain: a sole estimated below the plane (base height
+        # drift, terrain error) says nothing about contact, only a high foot says "air".
+        llr = jnp.minimum(llr, 0.0)
+    return cap_llr(llr, params.cap_kinematics)
 
 
 def measurement_terms(

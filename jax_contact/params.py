@@ -63,6 +63,28 @@ class EstimatorParams:
         terrain normal, m/s^2; ``u_max = a_F dt`` (eq. 15).
       cap_dynamics, cap_diff_kinematics, cap_kinematics: () confidence caps in (0.5, 1]:
         each term's log-likelihood ratio is clipped to ``+-logit(cap)`` (MODEL.md).
+      cap_diff_kinematics_still: () cap of the differential-kinematics term on the
+        contact side only: a still foot is weaker evidence for contact than a moving foot
+        is for air, since a swinging foot is slow near its apex and at lift-off
+        (docs/model_choices.md, "Robust likelihoods"); equal to ``cap_diff_kinematics``
+        for the paper's symmetric cap.
+      cap_transition: () cap in (0.5, 1] on each transition's log-odds against staying,
+        ``log P(A|C) / P(C|C)`` and ``log P(C|A) / P(A|A)`` clipped to ``+-logit(cap)``:
+        one velocity sample alone never moves a confident belief past this
+        probability (1: unbounded, the paper's transitions).
+      outlier_prob: () probability ``eps`` of the broad outlier component that the
+        contact and the air hypotheses share, in the dynamics and differential-kinematics
+        terms and in the take-off velocity model: each hypothesis' density is
+        ``(1 - eps) N(...) + eps U``, so a gross outlier is evidence for neither (0: the
+        paper's pure Gaussians).
+      outlier_qdd: () half-width of the uniform outlier density of a joint's measured
+        acceleration, rad/s^2 (m/s^2 for prismatic joints).
+      outlier_v: () half-width of the uniform outlier density of each foot velocity
+        component, m/s.
+      foothold_confidence: () P(C) above which a step writes the foothold memory; it is
+        written only where the differential-kinematics term also says the foot is still
+        (``foothold_still``), so a false contact in the air does not store the swing
+        height as terrain.
       inv_damping: () Tikhonov damping of the operational-space inverse of eq. 6, in units
         of ``1 / kg``, so a leg at full extension stays finite.
       initial_contact: () belief P(C) before the first measurement.
@@ -80,6 +102,12 @@ class EstimatorParams:
         subset is for ablations (diagnostics still report every term).
       transition_model: static; if False the measurement-dependent transitions (eq.
         11-17) are replaced by the gait prior alone, for ablations.
+      kinematics_neutral_below: static; if True (default) the kinematics term is neutral
+        wherever the sole is at or below the terrain (MODEL.md: "neutral on the ground and
+        only gives evidence for air"); False is the two-sided ratio
+        ``P(phi <= 0) / P(phi > 0)``, which reads a sole estimated below the plane (base
+        height drift) as contact evidence.
+      foothold_still: static; see ``foothold_confidence``.
     """
 
     noise: NoiseParams
@@ -90,6 +118,12 @@ class EstimatorParams:
     cap_dynamics: jnp.ndarray
     cap_diff_kinematics: jnp.ndarray
     cap_kinematics: jnp.ndarray
+    cap_diff_kinematics_still: jnp.ndarray
+    cap_transition: jnp.ndarray
+    outlier_prob: jnp.ndarray
+    outlier_qdd: jnp.ndarray
+    outlier_v: jnp.ndarray
+    foothold_confidence: jnp.ndarray
     inv_damping: jnp.ndarray
     initial_contact: jnp.ndarray
     n_samples: int = struct.field(pytree_node=False, default=500)
@@ -99,6 +133,8 @@ class EstimatorParams:
     unilateral: bool = struct.field(pytree_node=False, default=True)
     terms: tuple[str, ...] = struct.field(pytree_node=False, default=TERMS)
     transition_model: bool = struct.field(pytree_node=False, default=True)
+    kinematics_neutral_below: bool = struct.field(pytree_node=False, default=True)
+    foothold_still: bool = struct.field(pytree_node=False, default=True)
 
     @property
     def nv(self) -> int:
@@ -192,6 +228,12 @@ def make_params(
     cap_dynamics: float = 0.99,
     cap_diff_kinematics: float = 0.9,
     cap_kinematics: float = 0.99,
+    cap_diff_kinematics_still: float | None = None,
+    cap_transition: float = 1.0,
+    outlier_prob: float = 0.0,
+    outlier_qdd: float = 8000.0,
+    outlier_v: float = 4.0,
+    foothold_confidence: float = 0.5,
     inv_damping: float = 1e-6,
     initial_contact: float = 0.5,
     n_samples: int = 500,
@@ -201,6 +243,8 @@ def make_params(
     unilateral: bool = True,
     terms: Sequence[str] = TERMS,
     transition_model: bool = True,
+    kinematics_neutral_below: bool = True,
+    foothold_still: bool = True,
 ) -> EstimatorParams:
     """Builds and validates :class:`EstimatorParams`.
 
@@ -221,6 +265,14 @@ def make_params(
         cap_dynamics=jnp.float32(cap_dynamics),
         cap_diff_kinematics=jnp.float32(cap_diff_kinematics),
         cap_kinematics=jnp.float32(cap_kinematics),
+        cap_diff_kinematics_still=jnp.float32(
+            cap_diff_kinematics if cap_diff_kinematics_still is None else cap_diff_kinematics_still
+        ),
+        cap_transition=jnp.float32(cap_transition),
+        outlier_prob=jnp.float32(outlier_prob),
+        outlier_qdd=jnp.float32(outlier_qdd),
+        outlier_v=jnp.float32(outlier_v),
+        foothold_confidence=jnp.float32(foothold_confidence),
         inv_damping=jnp.float32(inv_damping),
         initial_contact=jnp.float32(initial_contact),
         n_samples=n_samples,
@@ -230,6 +282,8 @@ def make_params(
         unilateral=bool(unilateral),
         terms=tuple(terms),
         transition_model=bool(transition_model),
+        kinematics_neutral_below=bool(kinematics_neutral_below),
+        foothold_still=bool(foothold_still),
     )
     validate_params(params)
     return params
@@ -251,10 +305,26 @@ def validate_params(params: EstimatorParams) -> None:
         raise ValueError(
             f"swing_time ({float(params.swing_time)}) must exceed dt ({float(params.dt)})"
         )
-    for name in ("cap_dynamics", "cap_diff_kinematics", "cap_kinematics"):
+    for name in (
+        "cap_dynamics",
+        "cap_diff_kinematics",
+        "cap_kinematics",
+        "cap_diff_kinematics_still",
+        "cap_transition",
+    ):
         v = np.asarray(getattr(params, name))
         if v.shape != () or not (0.5 < float(v) <= 1.0):
             raise ValueError(f"{name} must lie in (0.5, 1], got {v!r}")
+    v = np.asarray(params.outlier_prob)
+    if v.shape != () or not (0.0 <= float(v) < 1.0):
+        raise ValueError(f"outlier_prob must lie in [0, 1), got {v!r}")
+    for name in ("outlier_qdd", "outlier_v"):
+        v = np.asarray(getattr(params, name))
+        if v.shape != () or not np.isfinite(v) or v <= 0:
+            raise ValueError(f"{name} must be a finite scalar > 0, got {v!r}")
+    v = np.asarray(params.foothold_confidence)
+    if v.shape != () or not (0.0 < float(v) < 1.0):
+        raise ValueError(f"foothold_confidence must lie in (0, 1), got {v!r}")
     v = np.asarray(params.inv_damping)
     if v.shape != () or not np.isfinite(v) or v < 0:
         raise ValueError(f"inv_damping must be a finite scalar >= 0, got {v!r}")

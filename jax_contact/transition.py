@@ -13,7 +13,9 @@ import numpy as np
 from jax.scipy.special import log_ndtr
 
 from jax_contact._math import (
+    cap_bound,
     log_diff_ndtr,
+    log_outlier_weight,
     ndtr_ratio_pair,
     ndtr_small_side,
     ndtri,
@@ -54,10 +56,37 @@ def log_takeoff(params: EstimatorParams, u: jax.Array, sigma_v: jax.Array) -> ja
     """
     u_max = params.takeoff_accel * params.dt
     p_off = params.dt / params.stance_time
-    log_stay = normal_logpdf(u, 0.0, sigma_v) + jnp.log1p(-p_off)
-    log_leave = log_diff_ndtr(u / sigma_v, (u - u_max) / sigma_v) - jnp.log(u_max) + jnp.log(p_off)
+    log_still = normal_logpdf(u, 0.0, sigma_v)
+    log_rising = log_diff_ndtr(u / sigma_v, (u - u_max) / sigma_v) - jnp.log(u_max)
+    # The broad outlier component the measurement terms use (uniform over +-outlier_v),
+    # shared by both hypotheses: one velocity outlier leaves the gait prior in charge
+    # instead of deciding the transition alone.
+    log_b = log_outlier_weight(params.outlier_prob, -jnp.log(2.0 * params.outlier_v))
+    keep = jnp.log1p(-params.outlier_prob)
+    log_stay = jnp.logaddexp(keep + log_still, log_b) + jnp.log1p(-p_off)
+    log_leave = jnp.logaddexp(keep + log_rising, log_b) + jnp.log(p_off)
     both = stack([log_stay, log_leave])
     return both - jax.nn.logsumexp(both)
+
+
+def cap_leaving(log_row: jax.Array, leave: int, cap: jax.Array) -> jax.Array:
+    """A transition row ``log [P(to C), P(to A)]`` with its leaving log-odds capped.
+
+    The log-odds of leaving the current state, ``log P(leave) - log P(stay)``, are clipped
+    from above to ``logit(cap)`` (``params.cap_transition``), like each measurement term's
+    cap: no single step's velocity makes a transition more certain than ``cap``. Staying
+    is not bounded (the floor ``LOG_FLOOR`` bounds it). A cap of 1 leaves the row as is.
+
+    Args:
+      log_row: (2,) normalised log transition probabilities.
+      leave: static index of the leaving entry (1 from contact, 0 from air).
+      cap: () cap in (0.5, 1].
+    """
+    odds = log_row[leave] - log_row[1 - leave]
+    odds = jnp.minimum(odds, cap_bound(cap))
+    log_leave, log_stay = jax.nn.log_sigmoid(odds), jax.nn.log_sigmoid(-odds)
+    capped = stack([log_stay, log_leave] if leave == 1 else [log_leave, log_stay])
+    return jnp.where(cap >= 1.0, log_row, capped)
 
 
 def _lattice(n: int) -> np.ndarray:
@@ -222,8 +251,8 @@ def log_transition_matrix(
 ) -> jax.Array:
     """(2, 2) log transition matrix for the next step, rows from (C, A), floored."""
     u, sigma_v = normal_velocity(params, meas, terrain.normal)
-    from_contact = log_takeoff(params, u, sigma_v)
-    from_air = log_touchdown(params, meas, terrain, key=key)
+    from_contact = cap_leaving(log_takeoff(params, u, sigma_v), 1, params.cap_transition)
+    from_air = cap_leaving(log_touchdown(params, meas, terrain, key=key), 0, params.cap_transition)
     return jnp.maximum(stack([from_contact, from_air]), LOG_FLOOR)
 
 

@@ -67,8 +67,16 @@ class Params:
     cap_kinematics: float
     inv_damping: float
     initial_contact: float
+    cap_diff_kinematics_still: float = 0.9
+    cap_transition: float = 1.0
+    outlier_prob: float = 0.0
+    outlier_qdd: float = 8000.0
+    outlier_v: float = 4.0
+    foothold_confidence: float = 0.5
     force_rows: tuple[int, ...] = (0, 1, 2)
     unilateral: bool = True
+    kinematics_neutral_below: bool = True
+    foothold_still: bool = True
 
 
 @dataclasses.dataclass
@@ -141,12 +149,20 @@ def _logit(p: float) -> float:
     return math.log(p) - math.log1p(-p)
 
 
-def cap(llr: float, c: float) -> float:
-    """Clip a log-likelihood ratio to +-logit(c); c = 1 leaves it unbounded."""
-    if c >= 1.0:
-        return llr
-    bound = _logit(c)
-    return min(max(llr, -bound), bound)
+def cap(llr: float, c: float, c_contact: float | None = None) -> float:
+    """Clip a log-likelihood ratio to [-logit(c), logit(c_contact or c)]; 1 is unbounded."""
+    lo = math.inf if c >= 1.0 else _logit(c)
+    c_up = c if c_contact is None else c_contact
+    hi = math.inf if c_up >= 1.0 else _logit(c_up)
+    return min(max(llr, -lo), hi)
+
+
+def robust(log_c: float, log_a: float, eps: float, log_u: float) -> float:
+    """log[(1-eps) p_C + eps U] - log[(1-eps) p_A + eps U] (the shared outlier component)."""
+    if eps <= 0.0:
+        return log_c - log_a
+    keep, out = math.log1p(-eps), math.log(eps) + log_u
+    return float(np.logaddexp(keep + log_c, out) - np.logaddexp(keep + log_a, out))
 
 
 def _sub(A, rows, cols):
@@ -225,8 +241,11 @@ def dynamics(p: Params, m: Meas, e: np.ndarray):
     cov_contact = M_inv @ (Sd + Sf) @ M_inv.T + Sqdd
     cov_air = 0.5 * (cov_air + cov_air.T)
     cov_contact = 0.5 * (cov_contact + cov_contact.T)
-    llr = stats.multivariate_normal.logpdf(qdd_l, qdd_contact, cov_contact) - (
-        stats.multivariate_normal.logpdf(qdd_l, qdd_air, cov_air)
+    llr = robust(
+        stats.multivariate_normal.logpdf(qdd_l, qdd_contact, cov_contact),
+        stats.multivariate_normal.logpdf(qdd_l, qdd_air, cov_air),
+        p.outlier_prob,
+        -nl * math.log(2.0 * p.outlier_qdd),
     )
     force = np.zeros(3)
     for k, r in enumerate(rows):
@@ -258,10 +277,13 @@ def diff_kinematics(p: Params, m: Meas) -> float:
     for i in range(3):
         for k in base:
             mean_air[i] += m.J[i, k] * m.qd[k]
-    llr = stats.multivariate_normal.logpdf(m.v_f, np.zeros(3), S) - (
-        stats.multivariate_normal.logpdf(m.v_f, mean_air, S + P)
+    llr = robust(
+        stats.multivariate_normal.logpdf(m.v_f, np.zeros(3), S),
+        stats.multivariate_normal.logpdf(m.v_f, mean_air, S + P),
+        p.outlier_prob,
+        -3.0 * math.log(2.0 * p.outlier_v),
     )
-    return cap(llr, p.cap_diff_kinematics)
+    return cap(llr, p.cap_diff_kinematics, p.cap_diff_kinematics_still)
 
 
 def _along(e, J, sigma):
@@ -293,6 +315,8 @@ def kinematics(p: Params, m: Meas, tq: Query) -> float:
     gap, s_pf = sole_gap(p, m, tq)
     s = math.sqrt(s_pf**2 + tq.sigma**2)
     llr = stats.norm.logcdf(0.0, loc=gap, scale=s) - stats.norm.logsf(0.0, loc=gap, scale=s)
+    if p.kinematics_neutral_below:
+        llr = min(llr, 0.0)  # neutral on and below the terrain (MODEL.md)
     return cap(llr, p.cap_kinematics)
 
 
@@ -308,11 +332,13 @@ def takeoff_joint(p: Params, u: float, sigma_v: float) -> np.ndarray:
     """(2,) log [P(u, C|C), P(u, A|C)]: eq. 13 and eq. 15 (with 1/u_max) times the prior."""
     u_max = p.takeoff_accel * p.dt
     prior = p.dt / p.stance_time
-    log_stay = stats.norm.logpdf(u, 0.0, sigma_v) + math.log1p(-prior)
-    log_leave = (
-        _log_phi_diff(u / sigma_v, (u - u_max) / sigma_v) - math.log(u_max) + math.log(prior)
-    )
-    return np.array([log_stay, log_leave])
+    still = stats.norm.logpdf(u, 0.0, sigma_v)
+    rising = _log_phi_diff(u / sigma_v, (u - u_max) / sigma_v) - math.log(u_max)
+    if p.outlier_prob > 0.0:  # the shared outlier component, uniform on +-outlier_v
+        keep = math.log1p(-p.outlier_prob)
+        out = math.log(p.outlier_prob) - math.log(2.0 * p.outlier_v)
+        still, rising = np.logaddexp(keep + still, out), np.logaddexp(keep + rising, out)
+    return np.array([still + math.log1p(-prior), rising + math.log(prior)])
 
 
 def takeoff(p: Params, u: float, sigma_v: float) -> np.ndarray:
@@ -447,6 +473,13 @@ def transition(p: Params, m: Meas, tq: Query, td_fn=touchdown) -> np.ndarray:
     rows[0] = takeoff(p, u, s_v)
     with np.errstate(divide="ignore"):
         rows[1] = np.log(td_fn(gap, s_pf, tq.sigma, u, s_v, p.dt))
+    if p.cap_transition < 1.0:
+        # Each row's log-odds of leaving its state clipped from above to logit(cap).
+        bound = _logit(p.cap_transition)
+        for i, leave in ((0, 1), (1, 0)):
+            odds = min(rows[i, leave] - rows[i, 1 - leave], bound)
+            rows[i, leave] = -np.logaddexp(0.0, -odds)
+            rows[i, 1 - leave] = -np.logaddexp(0.0, odds)
     for i in range(2):
         for j in range(2):
             rows[i, j] = max(rows[i, j], LOG_FLOOR)
@@ -508,7 +541,8 @@ def step(p: Params, terrain, b: Belief, m: Meas, td_fn=touchdown):
     log_t = transition(p, m, tq, td_fn)
     u, s_v = normal_velocity(p, m, tq.normal)
     takeoff_scale = float(np.abs(takeoff_joint(p, u, s_v)).max())
-    if logit > 0.0:
+    still = (not p.foothold_still) or l_dk > 0.0
+    if logit > _logit(p.foothold_confidence) and still:
         foothold, fvalid = m.p_f - m.foot_radius * tq.normal, True
     else:
         foothold, fvalid = b.foothold.copy(), b.foothold_valid
@@ -700,6 +734,19 @@ def random_case(rng, nv: int, n_l: int, force_rows=(0, 1, 2), stance: bool | Non
     _, _, info = dynamics(probe, Meas(**meas), normal)
     pred = info["qdd_contact"] if stance else info["qdd_air"]
     meas["qdd"][leg] = pred + rng.normal(size=n_l) * noise["sigma_qdd"][leg] * 0.7
+    # The robust model's parameters, from a generator seeded by this case's own values so
+    # that ``rng`` (and every later case) draws as it did before they existed; half the
+    # cases switch the outlier component off.
+    sub = np.random.default_rng([int(abs(x) * 1e9) % 2**32 for x in p_f])
+    robust_on = bool(sub.integers(2))
+    scalars.update(
+        cap_diff_kinematics_still=float(sub.uniform(0.55, 0.99)) if capped else 1.0,
+        cap_transition=float(sub.uniform(0.6, 0.99)) if robust_on else 1.0,
+        outlier_prob=float(_logu(sub, 1e-3, 0.1)) if robust_on else 0.0,
+        outlier_qdd=float(_logu(sub, 500.0, 2e4)),
+        outlier_v=float(_logu(sub, 0.5, 10.0)),
+        foothold_confidence=float(sub.uniform(0.5, 0.999)),
+    )
     return dict(meas=meas, terrain=terrain, noise=noise, scalars=scalars)
 
 

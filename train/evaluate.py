@@ -8,9 +8,12 @@ with the state and torques of ``k`` mixes two instants: a swinging leg under PD 
 changes its torque by several N m per 2.5 ms step, and the dynamics term then called most
 air phases contact (ideal sensors, planar leg: 79 % vs 99.9 % accuracy of the term alone).
 So the estimate emitted at step ``k`` uses ``qpos, qvel, tau`` of ``k-1`` with the
-acceleration of ``k``: one consistent sample, one step (2.5 ms) late. Outputs are indexed by
-the step at which they are available, and scored against the truth of that step, so this
-delay counts in every reported figure. ``pairing="raw"`` pairs everything at ``k``.
+acceleration of ``k``: one consistent sample, one step (2.5 ms) late. The baselines (GM
+observer, kinematic detector) read no differenced acceleration and get the readings of
+``k`` at ``k``: each detector is scored on the readings at the time it would use them.
+Outputs are indexed by the step at which they are available, and scored against the truth
+of that step, so this delay counts in every reported figure. ``pairing="raw"`` pairs
+everything at ``k``.
 
 :func:`replay` recomputes the estimator's inputs from the readings and the robot's nominal
 model with the MJX adapter, one estimator step per reading, and runs, on the same inputs
@@ -94,6 +97,9 @@ def replay(
     if pairing not in ("delayed", "raw"):
         raise ValueError(f"pairing must be 'delayed' or 'raw', got {pairing!r}")
     qpos, qvel, qacc, tau = (np.asarray(readings[k]) for k in ("qpos", "qvel", "qacc", "tau"))
+    # The baselines read no differenced acceleration, so they get each reading when it
+    # arrives (no delayed pairing): scored on what they would use on the robot.
+    raw = (qpos, qvel, qacc, tau)
     if pairing == "delayed":
         qpos, qvel, tau = (delay_one_step(a) for a in (qpos, qvel, tau))
     n_t, n_envs = qpos.shape[:2]
@@ -102,6 +108,8 @@ def replay(
     template = mjx.make_data(m)
     models = (m, template, dict(estimators), terrain, gms, kinematic)
     static = dict(desc=desc, dt=float(dt), diagnostics_of=diagnostics_of)
+    separate = pairing != "raw" and bool(gms or kinematic is not None)
+    static["separate_baselines"] = separate
     first = tuple(jnp.asarray(np.nan_to_num(a[0])) for a in (qpos, qvel, qacc, tau))
     beliefs, gm_states = _replay_init(*models, first, **static)
     # Committed like the chunk's outputs, or jit would compile the chunk a second time.
@@ -110,7 +118,8 @@ def replay(
     t_wall = time.perf_counter()
     for start in range(0, n_t, chunk):
         stop = min(start + chunk, n_t)
-        xs = tuple(jnp.asarray(_pad(a[start:stop], chunk)) for a in (qpos, qvel, qacc, tau))
+        arrays = (qpos, qvel, qacc, tau) + (raw if separate else ())
+        xs = tuple(jnp.asarray(_pad(a[start:stop], chunk)) for a in arrays)
         carry, out = _replay_chunk(*models, carry, xs, **static)
         pieces.append({k: np.asarray(v)[: stop - start] for k, v in out.items()})
         if progress:
@@ -132,12 +141,25 @@ def _measure_batch(m, template, desc, qpos, qvel, qacc, tau):
     return jax.vmap(one)(qpos, qvel, qacc, tau)
 
 
-_STATIC = ("desc", "dt", "diagnostics_of")
+_STATIC = ("desc", "dt", "diagnostics_of", "separate_baselines")
 
 
 @functools.partial(jax.jit, static_argnames=_STATIC)
-def _replay_init(m, template, estimators, terrain, gms, kinematic, x0, *, desc, dt, diagnostics_of):
-    del terrain, kinematic, dt, diagnostics_of
+def _replay_init(
+    m,
+    template,
+    estimators,
+    terrain,
+    gms,
+    kinematic,
+    x0,
+    *,
+    desc,
+    dt,
+    diagnostics_of,
+    separate_baselines,
+):
+    del terrain, kinematic, dt, diagnostics_of, separate_baselines
     meas0 = _measure_batch(m, template, desc, *x0)
     n_envs, n_legs = meas0.p_f.shape[:2]
     beliefs = {n: jc.init_belief_batch(p, n_envs, n_legs) for n, p in estimators.items()}
@@ -147,13 +169,26 @@ def _replay_init(m, template, estimators, terrain, gms, kinematic, x0, *, desc, 
 
 @functools.partial(jax.jit, static_argnames=_STATIC)
 def _replay_chunk(
-    m, template, estimators, terrain, gms, kinematic, carry, xs, *, desc, dt, diagnostics_of
+    m,
+    template,
+    estimators,
+    terrain,
+    gms,
+    kinematic,
+    carry,
+    xs,
+    *,
+    desc,
+    dt,
+    diagnostics_of,
+    separate_baselines,
 ):
     normal = jnp.array([0.0, 0.0, 1.0])
 
     def one_step(carry, inputs):
         beliefs, gm_states, key = carry
-        meas = _measure_batch(m, template, desc, *inputs)
+        meas = _measure_batch(m, template, desc, *inputs[:4])
+        base_meas = _measure_batch(m, template, desc, *inputs[4:]) if separate_baselines else meas
         out = {}
         new_beliefs = {}
         for name, params in estimators.items():
@@ -168,7 +203,7 @@ def _replay_chunk(
         new_gm = {}
         for name, gp in gms.items():
             s, o = jax.vmap(jax.vmap(lambda st, ms, gp=gp: gm_step(gp, st, ms, dt, normal)))(
-                gm_states[name], meas
+                gm_states[name], base_meas
             )
             new_gm[name] = s
             out[name] = o.contact.astype(jnp.float32)
@@ -179,7 +214,7 @@ def _replay_chunk(
                 tq = terrain.query(ms.p_f, jnp.zeros(3), jnp.array(False))
                 return kinematic_detect(kinematic, ms, tq).contact
 
-            out["kinematic"] = jax.vmap(jax.vmap(kin_one))(meas).astype(jnp.float32)
+            out["kinematic"] = jax.vmap(jax.vmap(kin_one))(base_meas).astype(jnp.float32)
         return (new_beliefs, new_gm, key), out
 
     return jax.lax.scan(one_step, carry, xs)

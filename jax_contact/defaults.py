@@ -1,0 +1,177 @@
+"""One source of estimator parameters: every value derived from the robot, sensors and gait.
+
+:func:`params_for` is what the reproduction, the observation wrapper, offline evaluation
+and the README use, so one robot with one sensor model gets one noise model everywhere.
+Its rules (choices, documented in docs/model_choices.md):
+
+Noise, per generalised coordinate, from the sensor model (``sensors``: any object with the
+(nv,) fields ``sigma_q, sigma_qd, sigma_tau, sigma_acc, bias_rw_q, bias_rw_qd,
+outlier_size`` and the scalar ``outlier_prob``, e.g. ``envs.sensors.SensorParams``):
+
+- ``sigma_q``, ``sigma_qd``: white noise combined in quadrature with the spread the bias
+  random walk reaches in ``bias_horizon_s`` (``rw * sqrt(T)``), floored at 1 mm (mrad) and
+  0.01 m/s (rad/s) so ideal sensors never make the filter infinitely sure.
+- ``sigma_qdd``: where a coordinate's acceleration is measured directly (``sigma_acc > 0``,
+  an IMU's accelerometer) that noise; else the raw backward difference of the noisy
+  velocity, ``sqrt(2) sigma_qd_white / dt`` (MODEL.md; the bias cancels in the
+  difference); floor 0.1.
+- ``sigma_d = sqrt(disturbance^2 + sigma_tau^2)``: Table II's 2 N m model error plus the
+  torque sensors' noise, which enters the equation of motion the same way.
+- the swing prior of eq. 9 from the gait (:class:`GaitPrior`, ``swing_joint_speed``).
+
+Robustness (docs/model_choices.md, "Robust likelihoods"): the outlier component's weight
+``eps = clip(2 n_l p, 0.01, 0.5)`` from the sensors' per-sample outlier probability ``p``
+(an outlier of any of the leg's ``n_l`` joints spikes two differenced accelerations),
+never below 1 % because a real robot's outliers are never known exactly; its widths from
+the outlier spike (``2 size / dt`` for accelerations, 8000 rad/s^2 when the sensors model
+none) and 4 m/s for foot velocities. Caps: 0.99 dynamics, 0.9 / 0.75 differential
+kinematics (air / still), 0.99 kinematics, 0.9 transitions.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from jax_contact.params import EstimatorParams, make_noise, make_params
+
+_SENSOR_VECTORS = (
+    "sigma_q",
+    "sigma_qd",
+    "sigma_tau",
+    "sigma_acc",
+    "bias_rw_q",
+    "bias_rw_qd",
+    "outlier_size",
+)
+
+
+@dataclasses.dataclass(frozen=True)
+class GaitPrior:
+    """What the estimator assumes about the gait (eq. 9, 12, 15).
+
+    Attributes:
+      stance_time: ``T_s``, mean stance duration of the gait prior (eq. 12), s.
+      swing_time: mean swing duration, s (the prior out of the air on invalid steps).
+      swing_joint_speed: std of a swinging leg's joint velocities, the air prior of the
+        differential-kinematics term (eq. 9), rad/s (m/s for prismatic joints).
+      takeoff_accel: ``a_F``, the largest take-off acceleration of the foot along the
+        terrain normal (eq. 15), m/s^2. 100 m/s^2 was chosen on the reproduction's
+        tuning seed (Go1 trot and walk, seed 1000; 200 m/s^2, MODEL.md's figure for the
+        planar leg, lifted off 0.7 ms later there), never on an evaluation seed.
+
+    The defaults (``T_s`` 0.3 s, swing 0.2 s, 25 rad/s: Table I's joint limit) describe a
+    quadruped's trot; pass the gait's own numbers where they are known.
+    """
+
+    stance_time: float = 0.3
+    swing_time: float = 0.2
+    swing_joint_speed: float = 25.0
+    takeoff_accel: float = 100.0
+
+    def __post_init__(self):
+        for f in dataclasses.fields(self):
+            v = getattr(self, f.name)
+            if not (isinstance(v, int | float) and np.isfinite(v) and v > 0):
+                raise ValueError(f"GaitPrior.{f.name} must be a finite number > 0, got {v!r}")
+
+
+def _sensor_fields(sensors, nv: int) -> dict[str, np.ndarray]:
+    out = {}
+    for name in _SENSOR_VECTORS + ("outlier_prob",):
+        if not hasattr(sensors, name):
+            raise ValueError(
+                f"sensors has no field {name!r}: pass an envs.sensors.SensorParams or an"
+                f" object with the fields {_SENSOR_VECTORS + ('outlier_prob',)}"
+            )
+        arr = np.asarray(getattr(sensors, name), dtype=np.float64)
+        want = () if name == "outlier_prob" else (nv,)
+        if arr.shape != want:
+            raise ValueError(
+                f"sensors.{name} has shape {arr.shape}, expected {want} for a robot with nv={nv}"
+            )
+        if not np.all(np.isfinite(arr)) or np.any(arr < 0):
+            raise ValueError(f"sensors.{name} must be finite and >= 0")
+        out[name] = arr
+    return out
+
+
+def params_for(
+    desc,
+    sensors,
+    dt: float,
+    *,
+    gait: GaitPrior | None = None,
+    disturbance: float = 2.0,
+    bias_horizon_s: float = 10.0,
+    force_rows=None,
+    **overrides,
+) -> EstimatorParams:
+    """Estimator parameters for a robot with a sensor model, at period ``dt``.
+
+    Args:
+      desc: the robot's ``jax_contact.robot.RobotDescription`` (nv, legs).
+      sensors: the sensor model (module docstring); its noise is per coordinate.
+      dt: estimator period, s.
+      gait: the gait prior; default :class:`GaitPrior` ().
+      disturbance: ``w_d``, the model error of the joints' equation of motion, N m.
+      bias_horizon_s: time over which the sensor bias drift is folded into the noise, s.
+      force_rows: world axes of the contact force; default all three, which needs legs of
+        three or more joints (pass them for shorter legs, see ``envs.wrapper``).
+      **overrides: any argument of :func:`jax_contact.make_params` (caps, ``touchdown``,
+        ...), applied last.
+
+    Returns:
+      Validated :class:`EstimatorParams`.
+
+    Raises:
+      ValueError: naming the argument or field that is wrong.
+    """
+    gait = GaitPrior() if gait is None else gait
+    if not isinstance(gait, GaitPrior):
+        raise ValueError(f"gait must be a GaitPrior, got {type(gait).__name__}")
+    if not (np.isfinite(dt) and dt > 0):
+        raise ValueError(f"dt must be a finite float > 0 (s), got {dt!r}")
+    for name, v in (("disturbance", disturbance), ("bias_horizon_s", bias_horizon_s)):
+        if not (np.isfinite(v) and v >= 0):
+            raise ValueError(f"{name} must be a finite number >= 0, got {v!r}")
+    nv, n_l = int(desc.nv), int(desc.n_leg_dofs)
+    if force_rows is None:
+        if n_l < 3:
+            raise ValueError(
+                f"legs of {n_l} joints span only some force axes: pass force_rows"
+                " (e.g. (0, 2) for a leg in the x-z plane)"
+            )
+        force_rows = (0, 1, 2)
+    s = _sensor_fields(sensors, nv)
+
+    sigma_q = np.sqrt(s["sigma_q"] ** 2 + s["bias_rw_q"] ** 2 * bias_horizon_s)
+    sigma_qd = np.sqrt(s["sigma_qd"] ** 2 + s["bias_rw_qd"] ** 2 * bias_horizon_s)
+    sigma_qdd = np.where(s["sigma_acc"] > 0, s["sigma_acc"], np.sqrt(2.0) * s["sigma_qd"] / dt)
+    noise = make_noise(
+        nv,
+        sigma_q=np.maximum(sigma_q, 1e-3),
+        sigma_qd=np.maximum(sigma_qd, 1e-2),
+        sigma_qdd=np.maximum(sigma_qdd, 0.1),
+        sigma_d=np.sqrt(disturbance**2 + s["sigma_tau"] ** 2),
+        sigma_qd_prior=gait.swing_joint_speed,
+    )
+    spike = float(np.max(s["outlier_size"]))
+    kw = dict(
+        dt=dt,
+        stance_time=gait.stance_time,
+        swing_time=gait.swing_time,
+        takeoff_accel=gait.takeoff_accel,
+        force_rows=tuple(force_rows),
+        touchdown="quadrature",
+        cap_dynamics=0.99,
+        cap_diff_kinematics=0.9,
+        cap_diff_kinematics_still=0.75,
+        cap_kinematics=0.99,
+        cap_transition=0.9,
+        outlier_prob=float(np.clip(2 * n_l * float(s["outlier_prob"]), 0.01, 0.5)),
+        outlier_qdd=2.0 * spike / dt if spike > 0 else 8000.0,
+        outlier_v=4.0,
+    )
+    return make_params(noise, **(kw | overrides))
