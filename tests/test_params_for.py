@@ -1,0 +1,108 @@
+"""One source of parameters (jax_contact.params_for) and the versioned parameter file."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+import jax_contact as jc
+from envs.robots import load_robot
+from envs.sensors import sensor_preset
+
+DT = 0.0025
+
+
+@pytest.fixture(scope="module")
+def go1():
+    return load_robot("go1").description
+
+
+def test_params_for_derives_the_noise_from_the_sensors(go1):
+    """Hand derivation for Go1 with the anymal_like sensors at 400 Hz (envs.sensors):
+    joints q 0.02 rad white, no drift -> 0.02; base linear q 0.01 m white with a 0.01
+    m/sqrt(s) drift over 10 s -> sqrt(0.01^2 + 0.01^2 * 10) = 0.0332 m; joint qd 0.3 ->
+    qdd sqrt(2) 0.3 / 0.0025 = 169.7 rad/s^2; base linear qdd is the accelerometer's 0.5
+    m/s^2, not a differenced velocity; sigma_d = sqrt(2^2 + 0.5^2) = 2.062 N m on the
+    joints (torque noise 0.5 N m). Outliers 1e-3 per sample on 3-joint legs: eps =
+    clip(2 * 3 * 1e-3, 0.01, 0.5) = 0.01; width 2 * 10 rad/s / dt = 8000 rad/s^2."""
+    sp = sensor_preset("anymal_like", go1.nv, dt=DT)
+    p = jc.params_for(go1, sp, DT)
+    n = p.noise
+    joint = 6
+    np.testing.assert_allclose(n.sigma_q[joint], 0.02, rtol=1e-6)
+    np.testing.assert_allclose(n.sigma_q[2], math.sqrt(0.01**2 + 0.01**2 * 10), rtol=1e-6)
+    np.testing.assert_allclose(n.sigma_qdd[joint], math.sqrt(2) * 0.3 / DT, rtol=1e-6)
+    np.testing.assert_allclose(n.sigma_qdd[0], 0.5, rtol=1e-6)
+    np.testing.assert_allclose(n.sigma_d[joint], math.hypot(2.0, 0.5), rtol=1e-6)
+    np.testing.assert_allclose(float(p.outlier_prob), 0.01, rtol=1e-6)
+    np.testing.assert_allclose(float(p.outlier_qdd), 8000.0, rtol=1e-6)
+    assert float(p.dt) == pytest.approx(DT) and p.touchdown == "quadrature"
+
+
+def test_wrapper_and_reproduction_use_the_same_parameters(go1):
+    from envs.wrapper import default_estimator_params
+    from train.reproduce import quadruped_estimator_params
+
+    sp = sensor_preset("anymal_like", go1.nv, dt=DT)
+    a = default_estimator_params(go1, DT, sp)
+    b = quadruped_estimator_params(go1, DT)
+    for x, y in zip(
+        jc.io.params_to_dict(a)["noise"].values(),
+        jc.io.params_to_dict(b)["noise"].values(),
+        strict=True,
+    ):
+        np.testing.assert_array_equal(x, y)
+    assert jc.io.params_to_dict(a)["values"] == jc.io.params_to_dict(b)["values"]
+
+
+def test_params_for_names_bad_input(go1):
+    sp = sensor_preset("anymal_like", 12, dt=DT, floating_base=False)
+    with pytest.raises(ValueError, match=r"sensors.sigma_q has shape \(12,\), expected \(18,\)"):
+        jc.params_for(go1, sp, DT)
+    with pytest.raises(ValueError, match="sensors has no field 'sigma_q'"):
+        jc.params_for(go1, object(), DT)
+    with pytest.raises(ValueError, match="GaitPrior.stance_time"):
+        jc.GaitPrior(stance_time=-1.0)
+    planar = load_robot("planar_leg").description
+    sp = sensor_preset("anymal_like", planar.nv, dt=DT, floating_base=False, base_dofs=(0,))
+    with pytest.raises(ValueError, match="pass force_rows"):
+        jc.params_for(planar, sp, DT)
+
+
+def test_params_file_round_trip(go1, tmp_path):
+    sp = sensor_preset("anymal_like", go1.nv, dt=DT)
+    p = jc.params_for(go1, sp, DT, touchdown="monte_carlo", n_samples=64)
+    path = jc.save_params(tmp_path / "go1.json", p, provenance={"by": "test"})
+    q = jc.load_params(path)
+    da, db = jc.io.params_to_dict(p), jc.io.params_to_dict(q)
+    assert da["noise"] == db["noise"] and da["values"] == db["values"]
+    assert da["options"] == db["options"] and q.n_samples == 64
+    assert json.loads(path.read_text())["provenance"] == {"by": "test"}
+
+
+def test_bad_params_file_names_the_field(go1, tmp_path):
+    sp = sensor_preset("anymal_like", go1.nv, dt=DT)
+    payload = jc.io.params_to_dict(jc.params_for(go1, sp, DT))
+    cases = {
+        "missing": (lambda d: d["values"].pop("cap_transition"), "missing field.*cap_transition"),
+        "extra": (lambda d: d["noise"].update(sigma_x=[1.0]), "unknown field.*sigma_x"),
+        "bad value": (lambda d: d["values"].update(cap_transition=2.0), "cap_transition"),
+        "bad shape": (lambda d: d["noise"].update(sigma_qd=[0.3] * 3), "sigma_qd"),
+        "version": (lambda d: d.update(version=99), "version 99"),
+    }
+    for name, (mutate, pattern) in cases.items():
+        d = json.loads(json.dumps(payload))
+        mutate(d)
+        path = tmp_path / f"{name}.json"
+        path.write_text(json.dumps(d))
+        with pytest.raises(ValueError, match=pattern) as err:
+            jc.load_params(path)
+        assert str(path) in str(err.value), name
+    (tmp_path / "not.json").write_text("{")
+    with pytest.raises(ValueError, match="is not JSON"):
+        jc.load_params(tmp_path / "not.json")
+    with pytest.raises(ValueError, match="does not exist"):
+        jc.load_params(tmp_path / "absent.json")
