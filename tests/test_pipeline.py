@@ -164,12 +164,21 @@ def test_table_shapes():
     cell = {
         "touchdown_delay_ms": (5.0, 1.0),
         "liftoff_delay_ms": (3.0, 2.0),
+        "touchdown_delay_persist_ms": (7.5, 1.0),
+        "liftoff_delay_persist_ms": (5.5, 2.0),
         "failures": 1,
+        "air_phase_failure_rate": 0.25,
+        "air_false_contact_rate": 0.01,
         "missed": 0,
+        "missed_liftoffs": 2,
+        "touchdown_already_on": 0,
+        "false_liftoffs": 3,
+        "accuracy": 0.95,
         "f1": 0.9,
         "brier": 0.05,
         "ece": 0.02,
         "n_touchdowns": 120,
+        "n_air_phases": 4,
     }
     scores = {k: dict(cell) for k in (*ROWS, *ABLATION_ROWS)}
     payload = table3_json(
@@ -181,4 +190,8 @@ def test_table_shapes():
     got = payload["scenarios"]["trot"]["gm_walk"]
     assert got["touchdown_delay_ms"] == [5.0, 1.0] and got["n_touchdowns"] == 120
     assert set(payload["scenarios"]["trot"]) == set(ROWS)
-    assert "5.0±  1.0 ms" in format_table(payload)
+    got = payload["scenarios"]["trot"]["probabilistic"]
+    assert got["air_phase_failure_rate"] == 0.25 and got["missed_liftoffs"] == 2
+    assert got["accuracy"] == 0.95 and got["liftoff_delay_ms"] == [3.0, 2.0]
+    text = format_table(payload)
+    assert "5.0±1.0" in text and "25.0%" in text and "0.950" in text

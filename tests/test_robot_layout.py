@@ -123,7 +123,9 @@ def test_step_batch_same_from_either_layout(mode, np_rng, jit_step_batch):
     _close(got[1], want[1], f"{mode} diagnostics")
     # Not a vacuous comparison: the feet disagree and the terms are not all at their caps.
     p = np.asarray(want[1].p_contact)
-    assert p.max() - p.min() > 0.1
+    # The random feet give beliefs orders of magnitude apart, so equality is not vacuous
+    # (with the kinematics term neutral on the ground they all lean to air here).
+    assert p.max() / p.min() > 10.0
     # step_robot on one robot = step of each foot on its leg(i), keys split from its key.
     one, b1 = jax.tree.map(lambda x: x[1], (robot, belief))
     k1 = jax.random.key(8)
