@@ -171,6 +171,17 @@ def log_outlier_weight(eps: jax.Array, log_density: jax.Array) -> jax.Array:
     return jnp.where(on, jnp.log(safe) + log_density, -jnp.inf)
 
 
+def mixed_logpdf(log_p: jax.Array, eps: jax.Array, log_outlier: jax.Array) -> jax.Array:
+    """``log[(1 - eps) p(x) + eps U(x)]``: a density with a broad outlier component.
+
+    Args:
+      log_p: () log density of the measurement under the inlier model.
+      eps: () outlier probability in [0, 1); 0 gives ``log_p`` exactly.
+      log_outlier: () ``log U(x)``, the outlier density at the measurement.
+    """
+    return jnp.logaddexp(jnp.log1p(-eps) + log_p, log_outlier_weight(eps, log_outlier))
+
+
 def robust_llr(
     log_c: jax.Array, log_a: jax.Array, eps: jax.Array, log_outlier: jax.Array
 ) -> jax.Array:
@@ -185,9 +196,7 @@ def robust_llr(
       eps: () outlier probability in [0, 1); 0 gives ``log_c - log_a`` exactly.
       log_outlier: () ``log U(x)``, the outlier density at the measurement.
     """
-    log_b = log_outlier_weight(eps, log_outlier)
-    keep = jnp.log1p(-eps)
-    return jnp.logaddexp(keep + log_c, log_b) - jnp.logaddexp(keep + log_a, log_b)
+    return mixed_logpdf(log_c, eps, log_outlier) - mixed_logpdf(log_a, eps, log_outlier)
 
 
 def log_mean_exp(x: jax.Array, axis=None) -> jax.Array:

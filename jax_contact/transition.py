@@ -15,7 +15,7 @@ from jax.scipy.special import log_ndtr
 from jax_contact._math import (
     cap_bound,
     log_diff_ndtr,
-    log_outlier_weight,
+    mixed_logpdf,
     ndtr_ratio_pair,
     ndtr_small_side,
     ndtri,
@@ -61,10 +61,9 @@ def log_takeoff(params: EstimatorParams, u: jax.Array, sigma_v: jax.Array) -> ja
     # The broad outlier component the measurement terms use (uniform over +-outlier_v),
     # shared by both hypotheses: one velocity outlier leaves the gait prior in charge
     # instead of deciding the transition alone.
-    log_b = log_outlier_weight(params.outlier_prob, -jnp.log(2.0 * params.outlier_v))
-    keep = jnp.log1p(-params.outlier_prob)
-    log_stay = jnp.logaddexp(keep + log_still, log_b) + jnp.log1p(-p_off)
-    log_leave = jnp.logaddexp(keep + log_rising, log_b) + jnp.log(p_off)
+    eps, log_outlier = params.outlier_prob, -jnp.log(2.0 * params.outlier_v)
+    log_stay = mixed_logpdf(log_still, eps, log_outlier) + jnp.log1p(-p_off)
+    log_leave = mixed_logpdf(log_rising, eps, log_outlier) + jnp.log(p_off)
     both = stack([log_stay, log_leave])
     return both - jax.nn.logsumexp(both)
 

@@ -157,12 +157,16 @@ def cap(llr: float, c: float, c_contact: float | None = None) -> float:
     return min(max(llr, -lo), hi)
 
 
+def mixed(log_p: float, eps: float, log_u: float) -> float:
+    """log[(1-eps) p + eps U]: a density with the broad outlier component."""
+    if eps <= 0.0:
+        return log_p
+    return float(np.logaddexp(math.log1p(-eps) + log_p, math.log(eps) + log_u))
+
+
 def robust(log_c: float, log_a: float, eps: float, log_u: float) -> float:
     """log[(1-eps) p_C + eps U] - log[(1-eps) p_A + eps U] (the shared outlier component)."""
-    if eps <= 0.0:
-        return log_c - log_a
-    keep, out = math.log1p(-eps), math.log(eps) + log_u
-    return float(np.logaddexp(keep + log_c, out) - np.logaddexp(keep + log_a, out))
+    return mixed(log_c, eps, log_u) - mixed(log_a, eps, log_u)
 
 
 def _sub(A, rows, cols):
@@ -334,10 +338,9 @@ def takeoff_joint(p: Params, u: float, sigma_v: float) -> np.ndarray:
     prior = p.dt / p.stance_time
     still = stats.norm.logpdf(u, 0.0, sigma_v)
     rising = _log_phi_diff(u / sigma_v, (u - u_max) / sigma_v) - math.log(u_max)
-    if p.outlier_prob > 0.0:  # the shared outlier component, uniform on +-outlier_v
-        keep = math.log1p(-p.outlier_prob)
-        out = math.log(p.outlier_prob) - math.log(2.0 * p.outlier_v)
-        still, rising = np.logaddexp(keep + still, out), np.logaddexp(keep + rising, out)
+    # The shared outlier component, uniform on +-outlier_v.
+    log_u = -math.log(2.0 * p.outlier_v)
+    still, rising = mixed(still, p.outlier_prob, log_u), mixed(rising, p.outlier_prob, log_u)
     return np.array([still + math.log1p(-prior), rising + math.log(prior)])
 
 
