@@ -26,6 +26,7 @@ import sys
 import time
 from pathlib import Path
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -117,35 +118,37 @@ def quadruped_estimator_params(desc, dt: float = 0.0025, **overrides) -> jc.Esti
     return jc.params_for(desc, sp, dt, **overrides)
 
 
+def _f32(x) -> jax.Array:
+    return jnp.asarray(x, jnp.float32)
+
+
 def paper_model(params: jc.EstimatorParams) -> jc.EstimatorParams:
     """``params`` with every robustness change of docs/model_choices.md undone: pure
     Gaussian terms, uncapped transitions, the symmetric 0.9 cap on differential kinematics,
     the two-sided kinematics ratio, the foothold written whenever P(C) > 0.5, and MODEL.md's
     a_F = 200 m/s^2 (the paper's model with this library's noise)."""
-    f32 = lambda x: jnp.asarray(x, jnp.float32)  # noqa: E731
     return params.replace(
-        outlier_prob=f32(0.0),
-        cap_transition=f32(1.0),
+        outlier_prob=_f32(0.0),
+        cap_transition=_f32(1.0),
         cap_diff_kinematics_still=params.cap_diff_kinematics,
         kinematics_neutral_below=False,
         foothold_still=False,
-        foothold_confidence=f32(0.5),
-        takeoff_accel=f32(200.0),
+        foothold_confidence=_f32(0.5),
+        takeoff_accel=_f32(200.0),
     )
 
 
 def ablation_variants(base: jc.EstimatorParams) -> dict[str, jc.EstimatorParams]:
     """The fused estimator, each robustness change undone alone, the paper's model, and
     the single-term and no-transition ablations, all on the same inputs."""
-    f32 = lambda x: jnp.asarray(x, jnp.float32)  # noqa: E731
     return {
         "probabilistic": base,
         "paper_model": paper_model(base),
-        "no_outlier_model": base.replace(outlier_prob=f32(0.0)),
-        "uncapped_transitions": base.replace(cap_transition=f32(1.0)),
+        "no_outlier_model": base.replace(outlier_prob=_f32(0.0)),
+        "uncapped_transitions": base.replace(cap_transition=_f32(1.0)),
         "symmetric_dkin_cap": base.replace(cap_diff_kinematics_still=base.cap_diff_kinematics),
         "two_sided_kinematics": base.replace(kinematics_neutral_below=False),
-        "a_F_200": base.replace(takeoff_accel=f32(200.0)),
+        "a_F_200": base.replace(takeoff_accel=_f32(200.0)),
         "no_transition_model": base.replace(transition_model=False),
         "dynamics_only": base.replace(terms=("dynamics",)),
         "diff_kinematics_only": base.replace(terms=("diff_kinematics",)),
