@@ -8,6 +8,7 @@ import re
 import statistics
 import time
 from collections.abc import Callable
+from contextlib import contextmanager
 
 import jax
 import jax.numpy as jnp
@@ -168,3 +169,23 @@ def format_table(rows: list[dict], columns: list[tuple[str, str, str]]) -> list[
 def print_table(rows: list[dict], columns: list[tuple[str, str, str]]) -> None:
     """Prints rows as a fixed-width table."""
     print("\n".join(format_table(rows, columns)), flush=True)
+
+
+@contextmanager
+def json_of_what_finished(path: str | None, result: dict):
+    """Writes ``result`` as JSON to ``path`` (if given) when the block ends, however it ends.
+
+    What finished is still worth its JSON: if the block raises, ``result["error"]`` says
+    why the rest is missing, the file is written, and the exception goes on.
+    """
+    from jax_contact.io import write_json_atomic
+
+    try:
+        yield result
+    except BaseException as err:
+        result["error"] = f"{type(err).__name__}: {err}"
+        raise
+    finally:
+        if path:
+            write_json_atomic(path, result)
+            print(f"\nwrote {path}{' (incomplete)' if 'error' in result else ''}")

@@ -18,17 +18,8 @@ from __future__ import annotations
 import argparse
 
 from benchmarks import estimator, versus
-from jax_contact.io import write_json_atomic
-
-
-def _positive_int(text: str) -> int:
-    try:
-        n = int(text)
-    except ValueError:
-        n = 0
-    if n < 1:
-        raise argparse.ArgumentTypeError(f"must be an int >= 1, got {text!r}")
-    return n
+from benchmarks.common import json_of_what_finished
+from train.cli import _positive_int  # the CLI's argument type: one rule for sizes
 
 
 def main(argv=None) -> dict:
@@ -45,7 +36,7 @@ def main(argv=None) -> dict:
     args = parser.parse_args(argv)
 
     result: dict = {}
-    try:
+    with json_of_what_finished(args.json, result):
         est = estimator.main(
             ["--envs", *map(str, args.envs), "--latency-calls", str(args.latency_calls)]
         )
@@ -58,13 +49,6 @@ def main(argv=None) -> dict:
             # Both measured on the same machine in this process; the estimator's description
             # stands.
             result.update({k: v for k, v in vs.items() if k != "machine"})
-    except BaseException as err:
-        result["error"] = f"{type(err).__name__}: {err}"
-        raise
-    finally:
-        if args.json:
-            write_json_atomic(args.json, result)
-            print(f"\nwrote {args.json}{' (incomplete)' if 'error' in result else ''}")
     return result
 
 

@@ -33,8 +33,12 @@ import jax.numpy as jnp
 import numpy as np
 
 import jax_contact as jc
-from benchmarks.common import machine, print_table, synthetic_measurements
-from jax_contact.io import write_json_atomic
+from benchmarks.common import (
+    json_of_what_finished,
+    machine,
+    print_table,
+    synthetic_measurements,
+)
 
 ROOT = Path(__file__).resolve().parents[1]
 MODES = ("quadrature", "monte_carlo")
@@ -311,16 +315,8 @@ def main(argv=None) -> dict:
         parser.error(str(err))
 
     result: dict = {}
-    try:
+    with json_of_what_finished(args.json, result):
         run(args.envs, args.numpy_robots, into=result)
-    except BaseException as err:
-        # What finished is still worth its JSON; the error says why the rest is missing.
-        result["error"] = f"{type(err).__name__}: {err}"
-        raise
-    finally:
-        if args.json:
-            write_json_atomic(args.json, result)
-            print(f"wrote {args.json}{' (incomplete)' if 'error' in result else ''}")
     return result
 
 
