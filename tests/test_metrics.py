@@ -393,10 +393,12 @@ def _oracle_segment(g, f, early, min_on):
     return res
 
 
-def _oracle(est_flag, truth, valid, early, min_on):
-    """Pools ``_oracle_segment`` over sequences (trailing axes) and valid stretches."""
-    tot = {"delays": [], "n": 0, "missed": 0, "already": 0, "false": 0, "chatter": 0}
-    f2, g2, v2 = (x.reshape(x.shape[0], -1) for x in (est_flag, truth, valid))
+def _stretches(flag, truth, valid):
+    """Yields (truth, flag) as int lists for every valid stretch of every sequence.
+
+    Sequences are the trailing axes; a stretch is a maximal run of valid steps.
+    """
+    f2, g2, v2 = (x.reshape(x.shape[0], -1) for x in (flag, truth, valid))
     for j in range(f2.shape[1]):
         t = 0
         while t < f2.shape[0]:
@@ -406,12 +408,17 @@ def _oracle(est_flag, truth, valid, early, min_on):
             end = t
             while end < f2.shape[0] and v2[end, j]:
                 end += 1
-            seg = _oracle_segment(
-                [int(x) for x in g2[t:end, j]], [int(x) for x in f2[t:end, j]], early, min_on
-            )
-            for k in tot:
-                tot[k] = tot[k] + seg[k]
+            yield [int(x) for x in g2[t:end, j]], [int(x) for x in f2[t:end, j]]
             t = end
+
+
+def _oracle(est_flag, truth, valid, early, min_on):
+    """Pools ``_oracle_segment`` over sequences (trailing axes) and valid stretches."""
+    tot = {"delays": [], "n": 0, "missed": 0, "already": 0, "false": 0, "chatter": 0}
+    for g, f in _stretches(est_flag, truth, valid):
+        seg = _oracle_segment(g, f, early, min_on)
+        for k in tot:
+            tot[k] = tot[k] + seg[k]
     return tot
 
 
@@ -461,35 +468,22 @@ def _air_oracle(flag, truth, valid, early, min_on):
     Walks every sequence and valid stretch step by step; the failures come from
     ``_oracle_segment`` (rules 2-7), and each is put in the air phase holding its start.
     """
-    f2, g2, v2 = (x.reshape(x.shape[0], -1) for x in (flag, truth, valid))
     n_phases = with_failure = air_steps = air_on = 0
-    for j in range(f2.shape[1]):
-        for t in range(f2.shape[0]):
-            if v2[t, j] and not g2[t, j]:
+    for g, f in _stretches(flag, truth, valid):
+        for gt, ft in zip(g, f, strict=True):
+            if not gt:
                 air_steps += 1
-                air_on += bool(f2[t, j])
-        t = 0
-        while t < f2.shape[0]:
-            if not v2[t, j]:
-                t += 1
-                continue
-            end = t
-            while end < f2.shape[0] and v2[end, j]:
-                end += 1
-            g = [int(x) for x in g2[t:end, j]]
-            starts = _oracle_segment(g, [int(x) for x in f2[t:end, j]], early, min_on)[
-                "false_starts"
-            ]
-            a = 0
-            while a < len(g):
-                b = a
-                while b < len(g) and g[b] == g[a]:
-                    b += 1
-                if g[a] == 0:
-                    n_phases += 1
-                    with_failure += any(a <= s < b for s in starts)
-                a = b
-            t = end
+                air_on += bool(ft)
+        starts = _oracle_segment(g, f, early, min_on)["false_starts"]
+        a = 0
+        while a < len(g):
+            b = a
+            while b < len(g) and g[b] == g[a]:
+                b += 1
+            if g[a] == 0:
+                n_phases += 1
+                with_failure += any(a <= s < b for s in starts)
+            a = b
     return n_phases, with_failure, air_steps, air_on
 
 
