@@ -270,6 +270,21 @@ PARAMS_FORMAT = "jax-contact-params"
 PARAMS_VERSION = 1
 
 
+def _param_sections() -> dict[str, tuple[str, ...]]:
+    """The field names of each section of a params file: ``noise`` (the NoiseParams),
+    ``values`` (EstimatorParams' array leaves) and ``options`` (its static fields)."""
+    import dataclasses
+
+    from jax_contact.params import EstimatorParams, NoiseParams
+
+    fields = [f for f in dataclasses.fields(EstimatorParams) if f.name != "noise"]
+    return {
+        "noise": tuple(NoiseParams.__dataclass_fields__),
+        "values": tuple(f.name for f in fields if f.metadata.get("pytree_node", True)),
+        "options": tuple(f.name for f in fields if not f.metadata.get("pytree_node", True)),
+    }
+
+
 def params_to_dict(params, provenance: Mapping | None = None) -> dict:
     """:class:`~jax_contact.EstimatorParams` as the versioned JSON payload of a params file.
 
@@ -277,27 +292,18 @@ def params_to_dict(params, provenance: Mapping | None = None) -> dict:
     of floats), ``values`` (scalar field -> float), ``options`` (the static fields) and
     ``provenance`` (free-form: how the values were obtained).
     """
-    import dataclasses as _dc
     from importlib.metadata import PackageNotFoundError, version
-
-    from jax_contact.params import EstimatorParams, NoiseParams
 
     try:
         lib = version("jax-contact")
     except PackageNotFoundError:  # running from a source tree that was never installed
         lib = "unknown"
-    noise = {
-        f: np.asarray(getattr(params.noise, f)).tolist() for f in NoiseParams.__dataclass_fields__
+    names = _param_sections()
+    noise = {f: np.asarray(getattr(params.noise, f)).tolist() for f in names["noise"]}
+    values = {f: float(np.asarray(getattr(params, f))) for f in names["values"]}
+    options = {
+        f: list(v) if isinstance(v := getattr(params, f), tuple) else v for f in names["options"]
     }
-    values, options = {}, {}
-    for f in _dc.fields(EstimatorParams):
-        if f.name == "noise":
-            continue
-        v = getattr(params, f.name)
-        if f.metadata.get("pytree_node", True):
-            values[f.name] = float(np.asarray(v))
-        else:
-            options[f.name] = list(v) if isinstance(v, tuple) else v
     return {
         "format": PARAMS_FORMAT,
         "version": PARAMS_VERSION,
@@ -317,9 +323,7 @@ def params_from_dict(payload: Mapping, *, source: str = "params"):
       ValueError: not a params payload, an unknown version, a missing or extra field, or
         a value that :func:`jax_contact.make_params` / ``make_noise`` rejects.
     """
-    import dataclasses as _dc
-
-    from jax_contact.params import EstimatorParams, NoiseParams, make_noise, make_params
+    from jax_contact.params import make_noise, make_params
 
     if not isinstance(payload, Mapping) or payload.get("format") != PARAMS_FORMAT:
         raise ValueError(
@@ -333,17 +337,7 @@ def params_from_dict(payload: Mapping, *, source: str = "params"):
     for section in ("noise", "values", "options"):
         if not isinstance(payload.get(section), Mapping):
             raise ValueError(f"{source}: missing section {section!r}")
-    want = {
-        "noise": set(NoiseParams.__dataclass_fields__),
-        "values": {
-            f.name
-            for f in _dc.fields(EstimatorParams)
-            if f.name != "noise" and f.metadata.get("pytree_node", True)
-        },
-        "options": {
-            f.name for f in _dc.fields(EstimatorParams) if not f.metadata.get("pytree_node", True)
-        },
-    }
+    want = {section: set(names) for section, names in _param_sections().items()}
     for section, names in want.items():
         have = set(payload[section])
         if have - names:
