@@ -1,0 +1,655 @@
+"""Tuning the estimator's continuous parameters by gradient on logs with ground truth.
+
+The filter (eq. 1-3, 11-17) is differentiable end to end, so its noise model, caps and gait
+constants can be fitted to a few seconds of data with ground-truth contact instead of by
+hand. Everything here is arrays in, arrays out: the measurements of each log are
+precomputed once (``train.tune_cmd`` runs the MJX adapter over a log's readings), and the
+tuning loop only runs the estimator.
+
+What is tuned (a documented choice, :data:`DEFAULT_FIELDS`), through an unconstrained
+vector ``theta``:
+
+- the noise standard deviations (``NoiseParams``), in log space, *relative to their
+  physically derived values* ``sigma^0`` (:func:`jax_contact.params_for`: the sensor
+  model, Table II's model error): ``sigma_i = sigma^0_i exp(theta_g(i))``. The ``nv``
+  coordinates are tied in groups (:func:`robot_space`): the base's linear and rotational
+  coordinates, and each joint position along the legs (the j-th joint of every leg
+  shares one value, since the legs are alike); ``sigma_f`` has a horizontal and a normal
+  group, ``sigma_J`` one. Tying keeps the tuned values interpretable and the problem far
+  smaller than the data (5 groups x 7 fields for a quadruped).
+- the five confidence caps, in logit space on their allowed interval (0.5, 1):
+  ``cap = (1 + sigmoid(theta)) / 2``;
+- ``T_s`` (``stance_time``, eq. 12) and ``a_F`` (``takeoff_accel``, eq. 15), in log space.
+
+Not tuned: ``dt``, the swing time (used only on invalid steps), the outlier model (from the
+sensors' outlier rate), the foothold threshold, the damping and the static switches.
+
+Loss (minimised with ``optax``: Adam after clipping the gradient's global norm)::
+
+    L(theta) = (1 / N) sum_{t,e,l} m_tel BCE(l_tel(theta), y_tel)                 (data)
+             + (lambda_sigma / 2) sum_{noise groups g} theta_g^2                 (prior)
+             + (lambda_other / 2) sum_{caps, T_s, a_F} (theta_k - theta^0_k)^2
+
+    BCE(l, y) = -y log sigmoid(l) - (1 - y) log sigmoid(-l)
+
+where ``l_tel`` is the filtered belief ``b_t`` of foot ``l`` of env ``e`` as a logit (eq.
+1-2, after the measurement update at ``t``), ``y`` the ground-truth contact, ``m`` the mask
+of valid steps (env upright, finite) and ``N = sum m``. The prior is a Gaussian on each
+log multiplier: it keeps every standard deviation near its physically derived value
+(``theta_g = 0``) unless the data pay for moving it; ``lambda_sigma = 1e-3`` per group means
+that doubling a std must lower the mean BCE by 2.4e-4 nats per foot-step.
+
+Sequences are long (16 envs x 8 s x 400 Hz), so the gradient is truncated
+backpropagation through time: each log is cut into windows of ``chunk`` steps; each
+window's loss is differentiated through its scan (with ``jax.checkpoint`` per step, so
+only the beliefs are stored and each step is recomputed in the backward pass) and gives
+one optimizer update; the belief at the end of a window starts the next one, without
+gradient. The filter forgets its past in a few tens of steps (every step's evidence is
+capped), so little is lost. An *epoch* is one pass over every tuning log. After each
+epoch the validation log (another seed) is filtered with the current parameters: its
+mean BCE decides early stopping (``patience`` epochs without improving by ``min_delta``),
+and the parameters returned are those of the best validation epoch (epoch 0, the
+untuned parameters, included, so tuning never returns worse validation BCE than the
+defaults).
+
+Randomness: the key ``jax.random.key(config.seed)`` is folded with the epoch, log and
+window numbers, so a run is reproducible (the key only feeds the Monte-Carlo touch-down;
+the quadrature mode is deterministic).
+
+Calibration (:func:`fit_calibration`): a temperature and a bias on the fused logit,
+``l' = l / T + c``, fitted by maximum likelihood (Newton's method in float64) on the
+tuning logs' logits and applied after the recursion (the filter itself runs on ``l``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import time
+from collections.abc import Callable, Sequence
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+from flax import struct
+
+from jax_contact.filter import init_belief_batch, step_batch
+from jax_contact.params import EstimatorParams, NoiseParams, validate_params
+from jax_contact.types import LegMeasurement, RobotMeasurement
+
+NOISE_FIELDS = tuple(NoiseParams.__dataclass_fields__)
+CAP_FIELDS = (
+    "cap_dynamics",
+    "cap_diff_kinematics",
+    "cap_diff_kinematics_still",
+    "cap_kinematics",
+    "cap_transition",
+)
+LOG_FIELDS = ("stance_time", "takeoff_accel")
+DEFAULT_FIELDS = NOISE_FIELDS + CAP_FIELDS + LOG_FIELDS
+# Axis groups of the per-axis noise fields: sigma_f horizontal (x, y) and normal (z).
+AXIS_GROUPS = {"sigma_f": ((0, 0, 1), ("horizontal", "normal")), "sigma_J": ((0, 0, 0), ("xyz",))}
+# Where a cap of exactly 1 (unbounded) is the starting point, it starts just below.
+_CAP_MAX = 1.0 - 1e-6
+
+
+# ----------------------------------------------------------------------- the search space
+
+
+@dataclasses.dataclass(frozen=True)
+class ParamSpace:
+    """Which parameters are tuned and how the ``nv`` coordinates are tied (static).
+
+    Attributes:
+      fields: names of tuned fields, among :data:`DEFAULT_FIELDS`.
+      dof_groups: (nv,) the group of each generalised coordinate.
+      group_names: a name per coordinate group (for reports).
+    """
+
+    fields: tuple[str, ...]
+    dof_groups: tuple[int, ...]
+    group_names: tuple[str, ...]
+
+    def __post_init__(self):
+        bad = [f for f in self.fields if f not in DEFAULT_FIELDS]
+        if bad or not self.fields or len(set(self.fields)) != len(self.fields):
+            raise ValueError(f"fields must be distinct names among {DEFAULT_FIELDS}, got {bad}")
+        n = len(self.group_names)
+        if sorted(set(self.dof_groups)) != list(range(n)):
+            raise ValueError(
+                f"dof_groups must use every group 0..{n - 1} of group_names, got {self.dof_groups}"
+            )
+
+    @property
+    def nv(self) -> int:
+        return len(self.dof_groups)
+
+    def groups_of(self, field: str) -> tuple[tuple[int, ...], tuple[str, ...]]:
+        """(index of each entry's group, group names) of a noise field."""
+        if field in AXIS_GROUPS:
+            return AXIS_GROUPS[field]
+        return self.dof_groups, self.group_names
+
+
+def make_space(
+    nv: int,
+    *,
+    dof_groups: Sequence[int] | None = None,
+    group_names: Sequence[str] | None = None,
+    fields: Sequence[str] = DEFAULT_FIELDS,
+) -> ParamSpace:
+    """A :class:`ParamSpace` for ``nv`` coordinates; by default all in one group."""
+    groups = tuple(int(g) for g in (dof_groups if dof_groups is not None else (0,) * nv))
+    if len(groups) != nv:
+        raise ValueError(f"dof_groups must have nv={nv} entries, got {len(groups)}")
+    n = max(groups) + 1
+    names = tuple(group_names) if group_names is not None else tuple(f"g{i}" for i in range(n))
+    return ParamSpace(fields=tuple(fields), dof_groups=groups, group_names=names)
+
+
+def robot_space(desc, fields: Sequence[str] = DEFAULT_FIELDS) -> ParamSpace:
+    """The coordinate groups of a legged robot (``jax_contact.robot.RobotDescription``).
+
+    A free-joint base gives ``base_linear`` (coordinates 0-2) and ``base_rotational``
+    (3-5); any other base joints one ``base`` group; the j-th joint of every leg
+    ``joint<j>`` (hip abduction, hip flexion, knee on a quadruped); coordinates in no leg
+    and not the base ``other``.
+    """
+    nv = int(desc.nv)
+    names: list[str] = []
+    groups = [-1] * nv
+
+    def group(name: str) -> int:
+        if name not in names:
+            names.append(name)
+        return names.index(name)
+
+    base = tuple(desc.base_dofs)
+    floating = len(base) == 6 and base == tuple(range(6)) and desc.nq == desc.nv + 1
+    for i in base:
+        groups[i] = group(("base_linear" if i < 3 else "base_rotational") if floating else "base")
+    for leg in desc.leg_dofs:
+        for j, i in enumerate(leg):
+            groups[i] = group(f"joint{j}")
+    for i in range(nv):
+        if groups[i] < 0:
+            groups[i] = group("other")
+    return ParamSpace(fields=tuple(fields), dof_groups=tuple(groups), group_names=tuple(names))
+
+
+def _cap_to_theta(cap) -> np.ndarray:
+    c = np.clip(np.asarray(cap, np.float64), 0.5 + 1e-6, _CAP_MAX)
+    x = 2.0 * c - 1.0
+    return np.log(x) - np.log1p(-x)
+
+
+def init_theta(space: ParamSpace, base: EstimatorParams) -> dict[str, jax.Array]:
+    """The unconstrained values of ``base``: zeros for the noise log multipliers, the caps'
+    logits and the log of ``T_s`` and ``a_F`` (module docstring)."""
+    theta = {}
+    for f in space.fields:
+        if f in NOISE_FIELDS:
+            theta[f] = jnp.zeros(len(space.groups_of(f)[1]), jnp.float32)
+        elif f in CAP_FIELDS:
+            theta[f] = jnp.asarray(_cap_to_theta(getattr(base, f)), jnp.float32)
+        else:
+            theta[f] = jnp.asarray(np.log(float(getattr(base, f))), jnp.float32)
+    return theta
+
+
+def to_params(space: ParamSpace, base: EstimatorParams, theta: dict) -> EstimatorParams:
+    """``base`` with the tuned fields set from ``theta`` (differentiable, traceable)."""
+    noise = {}
+    for f in NOISE_FIELDS:
+        ref = getattr(base.noise, f)
+        if f in theta:
+            idx = np.asarray(space.groups_of(f)[0])
+            ref = ref * jnp.exp(theta[f][idx]).astype(ref.dtype)
+        noise[f] = ref
+    values = {}
+    for f in CAP_FIELDS + LOG_FIELDS:
+        if f not in theta:
+            continue
+        dtype = jnp.result_type(getattr(base, f))
+        if f in CAP_FIELDS:
+            values[f] = (0.5 + 0.5 * jax.nn.sigmoid(theta[f])).astype(dtype)
+        else:
+            values[f] = jnp.exp(theta[f]).astype(dtype)
+    return base.replace(noise=base.noise.replace(**noise), **values)
+
+
+@dataclasses.dataclass(frozen=True)
+class TuneConfig:
+    """Settings of one tuning run (frozen: override with ``dataclasses.replace``).
+
+    Attributes:
+      learning_rate: Adam's step size, in units of theta (log or logit) per update.
+      clip_norm: the gradient's global norm is clipped to this before Adam.
+      max_epochs: passes over the tuning logs at most.
+      patience: epochs without a validation improvement before stopping.
+      min_delta: the improvement of validation BCE that counts, nats per foot-step.
+      chunk: steps per truncated-BPTT window (one optimizer update each).
+      prior_noise: ``lambda_sigma``, weight of the prior on the noise log multipliers.
+      prior_other: ``lambda_other``, weight of the prior on caps, ``T_s``, ``a_F``.
+      seed: the run's key, ``jax.random.key(seed)``.
+    """
+
+    learning_rate: float = 0.05
+    clip_norm: float = 1.0
+    max_epochs: int = 12
+    patience: int = 3
+    min_delta: float = 1e-4
+    chunk: int = 400
+    prior_noise: float = 1e-3
+    prior_other: float = 1e-3
+    seed: int = 0
+
+    def __post_init__(self):
+        for name in ("learning_rate", "clip_norm"):
+            v = getattr(self, name)
+            if not (np.isfinite(v) and v > 0):
+                raise ValueError(f"TuneConfig.{name} must be a finite number > 0, got {v!r}")
+        for name in ("prior_noise", "prior_other", "min_delta"):
+            v = getattr(self, name)
+            if not (np.isfinite(v) and v >= 0):
+                raise ValueError(f"TuneConfig.{name} must be a finite number >= 0, got {v!r}")
+        for name, low in (("max_epochs", 0), ("patience", 1), ("chunk", 1)):
+            v = getattr(self, name)
+            if not isinstance(v, int) or v < low:
+                raise ValueError(f"TuneConfig.{name} must be an int >= {low}, got {v!r}")
+
+
+def prior_penalty(space: ParamSpace, theta: dict, theta0: dict, config: TuneConfig) -> jax.Array:
+    """() the regulariser of the module docstring."""
+    total = jnp.float32(0.0)
+    for f in space.fields:
+        d = theta[f] - theta0[f]
+        w = config.prior_noise if f in NOISE_FIELDS else config.prior_other
+        total = total + 0.5 * w * jnp.sum(d * d)
+    return total
+
+
+# ---------------------------------------------------------------------------- the data
+
+
+@struct.dataclass
+class TuningData:
+    """One log's precomputed estimator inputs and ground truth (NumPy or JAX leaves).
+
+    Attributes:
+      meas: a :class:`RobotMeasurement` with leaves of leading axes (T, E) (or a
+        :class:`LegMeasurement` with (T, E, L)): the inputs of each step, paired as the
+        estimator would see them.
+      truth: (T, E, L) bool ground-truth contact at each step.
+      mask: (T, E, L) bool, the steps that count (env valid).
+    """
+
+    meas: RobotMeasurement | LegMeasurement
+    truth: jax.Array
+    mask: jax.Array
+
+    @property
+    def n_steps(self) -> int:
+        return int(self.truth.shape[0])
+
+
+def _window(data: TuningData, start: int, length: int) -> TuningData:
+    """Steps [start, start + length) as device arrays, padded with masked copies of the
+    last step so every window has one shape (one compilation)."""
+    stop = min(start + length, data.n_steps)
+    pad = length - (stop - start)
+
+    def take(x):
+        x = np.asarray(x[start:stop])
+        if pad:
+            x = np.concatenate([x, np.repeat(x[-1:], pad, axis=0)], axis=0)
+        return jnp.asarray(x)
+
+    out = jax.tree.map(take, data)
+    if pad:
+        keep = np.arange(length) < stop - start
+        out = out.replace(mask=out.mask & jnp.asarray(keep)[:, None, None])
+    return out
+
+
+def _bce(logit: jax.Array, y: jax.Array) -> jax.Array:
+    y = y.astype(logit.dtype)
+    return -(y * jax.nn.log_sigmoid(logit) + (1.0 - y) * jax.nn.log_sigmoid(-logit))
+
+
+def filter_logits(
+    params: EstimatorParams, terrain, belief, meas, *, key: jax.Array, remat: bool = False
+):
+    """Runs the filter over a window; returns (final belief, (T, E, L) logits).
+
+    ``belief`` has leaves of leading axes (E, L); ``meas`` leading axes (T, E[, L]).
+    With ``remat`` each step is recomputed in the backward pass (memory: beliefs only).
+    """
+
+    def body(carry, m):
+        b, k = carry
+        k, sub = jax.random.split(k)
+        b, _ = step_batch(params, terrain, b, m, key=sub)
+        return (b, k), b.logit
+
+    if remat:
+        body = jax.checkpoint(body)
+    (belief, _), logits = jax.lax.scan(body, (belief, key), meas)
+    return belief, logits
+
+
+def window_bce(
+    params: EstimatorParams, terrain, belief, window: TuningData, *, key: jax.Array
+) -> tuple[jax.Array, tuple]:
+    """Masked BCE of one window: (sum of BCE, (final belief, number of counted steps))."""
+    belief, logits = filter_logits(params, terrain, belief, window.meas, key=key, remat=True)
+    nll = jnp.where(window.mask, _bce(logits, window.truth), 0.0)
+    return jnp.sum(nll), (belief, jnp.sum(window.mask))
+
+
+def tuning_loss(
+    theta: dict,
+    space: ParamSpace,
+    base: EstimatorParams,
+    theta0: dict,
+    terrain,
+    belief,
+    window: TuningData,
+    config: TuneConfig,
+    *,
+    key: jax.Array,
+):
+    """The loss of the module docstring on one window.
+
+    Returns:
+      (loss (), (final belief, mean BCE of the window (), counted steps ())).
+    """
+    params = to_params(space, base, theta)
+    total, (belief, n) = window_bce(params, terrain, belief, window, key=key)
+    data = total / jnp.maximum(n, 1).astype(total.dtype)
+    return data + prior_penalty(space, theta, theta0, config), (belief, data, n)
+
+
+def _optimizer(config: TuneConfig) -> optax.GradientTransformation:
+    return optax.chain(
+        optax.clip_by_global_norm(config.clip_norm), optax.adam(config.learning_rate)
+    )
+
+
+@functools.partial(jax.jit, static_argnames=("space", "config"))
+def _train_window(theta, opt_state, space, base, theta0, terrain, belief, window, config, key):
+    grad_fn = jax.value_and_grad(tuning_loss, has_aux=True)
+    (loss, (belief, data, n)), grads = grad_fn(
+        theta, space, base, theta0, terrain, belief, window, config, key=key
+    )
+    updates, opt_state = _optimizer(config).update(grads, opt_state, theta)
+    theta = optax.apply_updates(theta, updates)
+    return theta, opt_state, belief, loss, data, n, optax.global_norm(grads)
+
+
+@jax.jit
+def _forward_window(params, terrain, belief, meas, key):
+    return filter_logits(params, terrain, belief, meas, key=key)
+
+
+def predict_logits(
+    params: EstimatorParams,
+    terrain,
+    data: TuningData,
+    *,
+    key: jax.Array,
+    chunk: int = 400,
+) -> np.ndarray:
+    """(T, E, L) float32 filtered logits of a whole log, in windows of ``chunk`` steps."""
+    n_envs, n_legs = data.truth.shape[1:]
+    belief = init_belief_batch(params, n_envs, n_legs)
+    out = []
+    for w, start in enumerate(range(0, data.n_steps, chunk)):
+        win = _window(data, start, chunk)
+        belief, logits = _forward_window(
+            params, terrain, belief, win.meas, jax.random.fold_in(key, w)
+        )
+        out.append(np.asarray(logits)[: min(chunk, data.n_steps - start)])
+    return np.concatenate(out, axis=0)
+
+
+def sigmoid_np(logit) -> np.ndarray:
+    """P = sigmoid(logit) in float64 NumPy (no overflow)."""
+    x = np.asarray(logit, np.float64)
+    return np.exp(-np.logaddexp(0.0, -x))
+
+
+def score_logits(logits, data: TuningData) -> dict[str, float]:
+    """Mean BCE, F1 (flag P > 0.5) and ECE (10 bins) of logits over the masked steps."""
+    from jax_contact.metrics import expected_calibration_error, step_scores
+
+    mask = np.asarray(data.mask, bool)
+    truth = np.asarray(data.truth, bool)
+    x = np.asarray(logits, np.float64)
+    bce = np.logaddexp(0.0, -x) * truth + np.logaddexp(0.0, x) * ~truth
+    p = sigmoid_np(x)
+    return {
+        "bce": float(bce[mask].mean()) if mask.any() else float("nan"),
+        "f1": step_scores(p, truth, mask).f1,
+        "ece": expected_calibration_error(p, truth, mask),
+    }
+
+
+# ------------------------------------------------------------------------------ tuning
+
+
+@dataclasses.dataclass(frozen=True)
+class TuneResult:
+    """What :func:`tune` returns.
+
+    Attributes:
+      params: the parameters of the best validation epoch (validated).
+      theta: their unconstrained values.
+      history: one dict per epoch (epoch 0: before any update): ``epoch``, ``train_loss``
+        (mean over the epoch's windows of the loss, NaN for epoch 0), ``train_bce``,
+        ``val_bce``, ``val_f1``, ``val_ece``, ``grad_norm``, ``wall_s``.
+      best_epoch: the epoch whose parameters are returned.
+      stopped_early: whether patience ran out before ``max_epochs``.
+      wall_s: total wall time, s (compilation included).
+    """
+
+    params: EstimatorParams
+    theta: dict
+    history: tuple[dict, ...]
+    best_epoch: int
+    stopped_early: bool
+    wall_s: float
+
+
+def tune(
+    base: EstimatorParams,
+    terrain,
+    train: Sequence[TuningData],
+    validation: TuningData,
+    space: ParamSpace,
+    config: TuneConfig = TuneConfig(),
+    *,
+    progress: Callable[[dict], None] | None = None,
+) -> TuneResult:
+    """Fits the fields of ``space`` to the tuning logs (module docstring).
+
+    Args:
+      base: the untuned parameters; their noise is the prior's centre.
+      terrain: the estimator's terrain model (e.g. ``jax_contact.flat(0.0, 0.05)``).
+      train: the tuning logs, each a :class:`TuningData` (NumPy leaves are fine: windows
+        are moved to the device one at a time).
+      validation: the log that decides early stopping (another seed).
+      space: what is tuned.
+      config: optimiser, windows, prior, seed.
+      progress: called with each epoch's history dict as it completes.
+
+    Returns:
+      :class:`TuneResult`.
+
+    Raises:
+      ValueError: no tuning log, or parameters that fail validation.
+    """
+    if not train:
+        raise ValueError("tune needs at least one tuning log")
+    t_start = time.perf_counter()
+    key = jax.random.key(config.seed)
+    theta = init_theta(space, base)
+    theta0 = theta
+    opt_state = _optimizer(config).init(theta)
+    val_key = jax.random.fold_in(key, 10**6)
+
+    def validate(th) -> dict:
+        return score_logits(
+            predict_logits(
+                to_params(space, base, th), terrain, validation, key=val_key, chunk=config.chunk
+            ),
+            validation,
+        )
+
+    history = []
+    first = dict(epoch=0, train_loss=float("nan"), train_bce=float("nan"), grad_norm=float("nan"))
+    first.update({f"val_{k}": v for k, v in validate(theta).items()})
+    first["wall_s"] = time.perf_counter() - t_start
+    history.append(first)
+    if progress:
+        progress(first)
+    best, best_theta, best_epoch, bad = first["val_bce"], theta, 0, 0
+    stopped = False
+    for epoch in range(1, config.max_epochs + 1):
+        losses, bces, norms, counts = [], [], [], []
+        for i, data in enumerate(train):
+            n_envs, n_legs = data.truth.shape[1:]
+            belief = init_belief_batch(to_params(space, base, theta), n_envs, n_legs)
+            for w, start in enumerate(range(0, data.n_steps, config.chunk)):
+                win = _window(data, start, config.chunk)
+                k = jax.random.fold_in(jax.random.fold_in(jax.random.fold_in(key, epoch), i), w)
+                theta, opt_state, belief, loss, bce, n, gn = _train_window(
+                    theta, opt_state, space, base, theta0, terrain, belief, win, config, k
+                )
+                losses.append(float(loss))
+                bces.append(float(bce))
+                counts.append(float(n))
+                norms.append(float(gn))
+        w = np.asarray(counts) / max(sum(counts), 1.0)
+        row = dict(
+            epoch=epoch,
+            train_loss=float(np.mean(losses)),
+            train_bce=float(np.dot(w, bces)),
+            grad_norm=float(np.mean(norms)),
+        )
+        row.update({f"val_{k}": v for k, v in validate(theta).items()})
+        row["wall_s"] = time.perf_counter() - t_start
+        history.append(row)
+        if progress:
+            progress(row)
+        if row["val_bce"] < best - config.min_delta:
+            best, best_theta, best_epoch, bad = row["val_bce"], theta, epoch, 0
+        else:
+            bad += 1
+            if bad >= config.patience:
+                stopped = epoch < config.max_epochs
+                break
+    params = jax.tree.map(np.asarray, to_params(space, base, best_theta))
+    params = jax.tree.map(jnp.asarray, params)
+    validate_params(params)
+    return TuneResult(
+        params=params,
+        theta={k: np.asarray(v) for k, v in best_theta.items()},
+        history=tuple(history),
+        best_epoch=best_epoch,
+        stopped_early=stopped,
+        wall_s=time.perf_counter() - t_start,
+    )
+
+
+def describe(space: ParamSpace, base: EstimatorParams, tuned: EstimatorParams) -> list[dict]:
+    """One row per tuned value: ``field``, ``group``, ``default``, ``tuned``, ``ratio``.
+
+    For the noise fields the value shown is the group's first coordinate (every coordinate
+    of a group is scaled by the same factor, ``ratio``).
+    """
+    rows = []
+    for f in space.fields:
+        if f in NOISE_FIELDS:
+            idx, names = space.groups_of(f)
+            a, b = np.asarray(getattr(base.noise, f)), np.asarray(getattr(tuned.noise, f))
+            for g, name in enumerate(names):
+                i = list(idx).index(g)
+                rows.append(
+                    dict(
+                        field=f,
+                        group=name,
+                        default=float(a[i]),
+                        tuned=float(b[i]),
+                        ratio=float(b[i] / a[i]),
+                    )
+                )
+        else:
+            a, b = float(getattr(base, f)), float(getattr(tuned, f))
+            rows.append(dict(field=f, group="", default=a, tuned=b, ratio=b / a))
+    return rows
+
+
+# ------------------------------------------------------------------------- calibration
+
+
+@dataclasses.dataclass(frozen=True)
+class Calibration:
+    """The map ``l' = l / temperature + bias`` on the fused logit, applied after the
+    recursion (the identity: temperature 1, bias 0)."""
+
+    temperature: float = 1.0
+    bias: float = 0.0
+
+    def __post_init__(self):
+        if not (np.isfinite(self.temperature) and self.temperature > 0):
+            raise ValueError(f"temperature must be a finite number > 0, got {self.temperature!r}")
+        if not np.isfinite(self.bias):
+            raise ValueError(f"bias must be finite, got {self.bias!r}")
+
+    def as_dict(self) -> dict:
+        return {"temperature": float(self.temperature), "bias": float(self.bias)}
+
+    @classmethod
+    def from_dict(cls, d) -> Calibration:
+        return cls(temperature=float(d["temperature"]), bias=float(d["bias"]))
+
+
+def apply_calibration(logit, calibration: Calibration):
+    """The calibrated logit ``logit / T + bias`` (JAX or NumPy arrays, any shape)."""
+    return logit / calibration.temperature + calibration.bias
+
+
+def fit_calibration(logits, truth, mask, *, iterations: int = 50) -> Calibration:
+    """Maximum-likelihood temperature and bias (logistic regression on the logit).
+
+    Newton's method in float64 on ``a = 1 / T`` and ``c``: the BCE of ``sigmoid(a l + c)``
+    is convex in ``(a, c)``.
+
+    Args:
+      logits, truth, mask: (T, E, L) arrays; only masked steps count.
+
+    Raises:
+      ValueError: no masked step, only one class, or a non-positive fitted temperature.
+    """
+    m = np.asarray(mask, bool)
+    x = np.asarray(logits, np.float64)[m]
+    y = np.asarray(truth, bool)[m].astype(np.float64)
+    if x.size == 0 or y.min() == y.max():
+        raise ValueError("fit_calibration needs masked steps of both classes")
+    x = np.clip(x, -50.0, 50.0)
+    a, c = 1.0, 0.0
+    for _ in range(iterations):
+        p = sigmoid_np(a * x + c)
+        r = p - y
+        g = np.array([np.mean(r * x), np.mean(r)])
+        w = p * (1.0 - p)
+        h = np.array([[np.mean(w * x * x), np.mean(w * x)], [np.mean(w * x), np.mean(w)]])
+        step = np.linalg.solve(h + 1e-9 * np.eye(2), g)
+        a, c = a - step[0], c - step[1]
+        if np.max(np.abs(step)) < 1e-10:
+            break
+    if not a > 0:
+        raise ValueError(f"the fitted inverse temperature is {a}; the logits anti-correlate")
+    return Calibration(temperature=1.0 / a, bias=c)
