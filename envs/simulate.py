@@ -5,9 +5,17 @@ time, in chunks so progress can be shown) and returns time x env x leg arrays of
 readings and ground truth. The physics runs at the estimator's rate (``dt``, 400 Hz by
 default, as on ANYmal), so every physics step yields one reading.
 
-Per step ``k`` (MuJoCo's ``mj_step`` computes forces and sensors at the state it starts
-from, then integrates), the consistent set is: the true state ``(qpos_k, qvel_k)`` before
-the step, and the actuator forces, accelerations and contact forces computed during it.
+Timing convention (the same in the wrapper, :mod:`envs.wrapper`, and in the offline
+replay, :func:`train.evaluate.replay`): reading ``k`` is what the sensors give *after*
+physics step ``k``, as on a robot at the end of a control period: the state at the end of
+the step ``(qpos_{k+1}, qvel_{k+1})``, the acceleration over the step (the backward
+difference ``(qvel_{k+1} - qvel_k) / dt``) and the actuation force applied during it
+(``qfrc_actuator`` of ``mj_step``, computed at the state the step starts from). The ground
+truth of step ``k`` is the contact MuJoCo resolved during the step (at ``qpos_k``, where
+``mj_step`` computes its forces). Reading ``k`` thus arrives at the end of the interval its
+truth describes, for every detector; the estimator's delayed pairing (acceleration and
+torque of reading ``k`` with the state of reading ``k - 1``, i.e. ``qpos_k``) describes
+exactly that interval.
 
 The simulated robot may carry mass the estimator's model does not know
 (:class:`World.sim_model`, the paper's robustness test); everything the estimator uses
@@ -352,8 +360,10 @@ def _env_step(m, grobot, layout, sensors, upright_args, g, d, s, ok, t, k):
     ctrl = gait_control(g, grobot, t, d)
     d_next = mjx.step(m, d.replace(ctrl=ctrl))
     truth = foot_truth(layout, d_next)
-    # Sensors see the state the step started from and the forces computed during it.
-    s, readings = sensor_step(sensors, s, d.qpos, d.qvel, d_next.qfrc_actuator, key=k)
+    # Reading k: the state after the step and the force applied during it (module docstring).
+    s, readings = sensor_step(
+        sensors, s, d_next.qpos, d_next.qvel, d_next.qfrc_actuator, key=k
+    )
     ok = ok & upright(d_next.qpos, *upright_args)
     return d_next, s, ok, (readings, truth.contact, truth.normal_force, truth.distance, ok)
 

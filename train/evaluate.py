@@ -1,19 +1,26 @@
 """Offline evaluation: replay sensor readings (simulated or logged) through the detectors.
 
-Pairing of readings (``pairing="delayed"``, the default): the acceleration of step ``k`` is
-the backward difference ``(qd_k - qd_{k-1}) / dt``, which describes the interval *ending*
-at ``k``, i.e. the dynamics evaluated at ``k-1`` (MuJoCo's semi-implicit Euler step,
-``qd_k = qd_{k-1} + dt qdd_{k-1}``; on a robot the same half-step offset holds). Pairing it
-with the state and torques of ``k`` mixes two instants: a swinging leg under PD control
-changes its torque by several N m per 2.5 ms step, and the dynamics term then called most
-air phases contact (ideal sensors, planar leg: 79 % vs 99.9 % accuracy of the term alone).
-So the estimate emitted at step ``k`` uses ``qpos, qvel, tau`` of ``k-1`` with the
-acceleration of ``k``: one consistent sample, one step (2.5 ms) late. The baselines (GM
-observer, kinematic detector) read no differenced acceleration and get the readings of
-``k`` at ``k``: each detector is scored on the readings at the time it would use them.
-Outputs are indexed by the step at which they are available, and scored against the truth
-of that step, so this delay counts in every reported figure. ``pairing="raw"`` pairs
-everything at ``k``.
+Timing (one convention for :mod:`envs.simulate`, the wrapper and this replay): reading
+``k`` is what the sensors give at the end of physics step ``k``: the state after the step
+``(q_{k+1}, qd_{k+1})``, the acceleration over it, ``(qd_{k+1} - qd_k) / dt``, and the
+actuation torque applied during it, ``tau_k``. The truth of step ``k`` is the contact
+during that step. Every detector's output at ``k`` is available when reading ``k``
+arrives and is scored against the truth of step ``k``; sensor latency (readings that are
+``latency`` steps old, :mod:`envs.sensors`) is the only input lag, and it counts in every
+reported delay.
+
+Pairing of readings (``pairing="delayed"``, the default): the differenced acceleration of
+reading ``k`` describes the interval that *starts* at ``q_k``, the state of reading
+``k - 1`` (MuJoCo's semi-implicit Euler step ``qd_{k+1} = qd_k + dt qdd_k``; on a robot the
+same half-step offset holds), and so does the torque of reading ``k``. The estimator's
+dynamics at ``k`` are therefore evaluated at the state of reading ``k - 1`` with the
+acceleration and torque of reading ``k``: one consistent sample of eq. (1). Pairing the
+acceleration with the state of reading ``k`` instead (``pairing="raw"``) mixes two
+instants: a swinging leg under PD control changes its velocity-dependent forces within a
+step, and the dynamics term then called most air phases contact (ideal sensors, planar
+leg: 79 % vs 99.9 % accuracy of the term alone). The baselines (GM observer, kinematic
+detector) read no differenced acceleration and get reading ``k`` whole: the GM observer's
+momentum change to ``qd_{k+1}`` is driven by ``tau_k``, the same interval.
 
 :func:`replay` recomputes the estimator's inputs from the readings and the robot's nominal
 model with the MJX adapter, one estimator step per reading, and runs, on the same inputs
@@ -67,6 +74,7 @@ def replay(
     seed: int = 0,
     diagnostics_of: str | None = None,
     pairing: str = "delayed",
+    previous: Mapping[str, np.ndarray] | None = None,
     chunk: int = 400,
     progress: bool = True,
 ) -> dict[str, np.ndarray]:
@@ -82,8 +90,11 @@ def replay(
       dt: period of the readings, s.
       seed: seeds the Monte-Carlo touch-down draws.
       diagnostics_of: an estimator name whose per-term diagnostics are also returned.
-      pairing: ``"delayed"`` (consistent, one step late; see the module docstring) or
-        ``"raw"``.
+      pairing: ``"delayed"`` (the acceleration and torque of each reading with the state
+        of the reading before; see the module docstring) or ``"raw"``.
+      previous: ``qpos`` (E, nq) and ``qvel`` (E, nv) of the reading before ``readings[0]``
+        (e.g. the sensors' reading of the initial state), the state the delayed pairing
+        gives the first acceleration. Without it the first reading's own state is used.
       chunk: readings per compiled scan.
       progress: print progress to stderr.
 
@@ -101,7 +112,17 @@ def replay(
     # arrives (no delayed pairing): scored on what they would use on the robot.
     raw = (qpos, qvel, qacc, tau)
     if pairing == "delayed":
-        qpos, qvel, tau = (delay_one_step(a) for a in (qpos, qvel, tau))
+        first = None
+        if previous is not None:
+            first = {k: np.asarray(previous[k])[None] for k in ("qpos", "qvel")}
+            for k in ("qpos", "qvel"):
+                if first[k].shape[1:] != readings[k].shape[1:]:
+                    raise ValueError(
+                        f"previous[{k!r}] has shape {first[k].shape[1:]}, expected"
+                        f" {readings[k].shape[1:]} (one reading of every env)"
+                    )
+        qpos = delay_one_step(qpos, None if first is None else first["qpos"])
+        qvel = delay_one_step(qvel, None if first is None else first["qvel"])
     n_t, n_envs = qpos.shape[:2]
     m = mjx.put_model(robot.mj_model)
     desc = robot.description
@@ -220,9 +241,10 @@ def _replay_chunk(
     return jax.lax.scan(one_step, carry, xs)
 
 
-def delay_one_step(a: np.ndarray) -> np.ndarray:
-    """``a`` shifted one step later along time; the first entry is repeated."""
-    return np.concatenate([a[:1], a[:-1]], axis=0)
+def delay_one_step(a: np.ndarray, first: np.ndarray | None = None) -> np.ndarray:
+    """``a`` shifted one step later along time; ``first`` (1, ...) or else ``a[:1]`` leads."""
+    lead = a[:1] if first is None else np.asarray(first, a.dtype)
+    return np.concatenate([lead, a[:-1]], axis=0)
 
 
 def _pad(a: np.ndarray, n: int) -> np.ndarray:

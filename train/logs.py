@@ -8,6 +8,7 @@ a recorded robot log.
 from __future__ import annotations
 
 import json
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -47,6 +48,7 @@ def simulate_to_file(
         "rate_hz": 1.0 / world.dt,
         "n_envs": n_envs,
         "foot_names": list(world.robot.description.foot_names),
+        "reading_timing": READING_TIMING,
     }
     write_log(path, roll.to_arrays(), attrs)
     n_valid = int(roll.valid[-1].sum())
@@ -57,6 +59,11 @@ def simulate_to_file(
 
 
 READINGS = ("readings/qpos", "readings/qvel", "readings/qacc", "readings/tau")
+# Reading k is taken at the end of physics step k (train.evaluate's module docstring). Logs
+# without the attribute were written before this convention, with reading k taken at the
+# start of step k (state q_k, torque tau_k, acceleration over step k - 1).
+READING_TIMING = "end_of_step"
+_OLD_TIMING = "start_of_step"
 TRUTH_CONTACT = "truth/contact"
 
 
@@ -88,6 +95,18 @@ def evaluate_file(path: str | Path, *, json_path: str | Path | None = None) -> d
     name = f"log {str(path)!r}"
     robot_name, dt = _log_attrs(name, attrs)
     readings, truth, valid = _log_arrays(name, arrays)
+    timing = attrs.get("reading_timing", _OLD_TIMING)
+    if timing == _OLD_TIMING:
+        print(
+            f"{name} has readings taken at the start of each step (written before"
+            f" 'reading_timing' existed): re-aligned to {READING_TIMING!r}, one step shorter",
+            file=sys.stderr,
+        )
+        readings, truth, valid = to_end_of_step(readings, truth, valid)
+    elif timing != READING_TIMING:
+        raise ValueError(
+            f"{name}: attribute 'reading_timing' is {timing!r}; expected {READING_TIMING!r}"
+        )
     robot = load_robot(robot_name)
     desc = robot.description
     for key, size, what in (("qpos", desc.nq, "nq"), ("qvel", desc.nv, "nv")):
@@ -159,6 +178,20 @@ def format_scores(scores: dict[str, dict]) -> str:
         " Brier, ECE: calibration of P(contact) (definitions: jax_contact.metrics)",
     ]
     return "\n".join(lines)
+
+
+def to_end_of_step(readings: dict, truth: np.ndarray | None, valid: np.ndarray):
+    """Start-of-step readings (old logs) re-aligned to the end-of-step convention.
+
+    A start-of-step reading ``k`` holds ``q_k, qd_k``, the acceleration over step ``k - 1``
+    and the torque of step ``k``; the end-of-step reading ``k`` is ``q_{k+1}, qd_{k+1}``,
+    the acceleration over step ``k`` (the old reading ``k + 1``'s) and ``tau_k``. The truth
+    of step ``k`` is unchanged; the last step is dropped (its end state was never read).
+    """
+    out = {k: readings[k][1:] for k in ("qpos", "qvel", "qacc")}
+    out["tau"] = readings["tau"][:-1]
+    ok = valid[:-1] & valid[1:]
+    return out, None if truth is None else truth[:-1], ok
 
 
 def _log_attrs(name: str, attrs: dict) -> tuple[str, float]:
