@@ -1,0 +1,276 @@
+"""Gradient tuning (jax_contact.tune): the loss's gradient, a recovery, the calibration map.
+
+Compile cost is kept small: one float64 program (loss and gradient) on a 10-step sequence,
+one float32 training program on a one-leg synthetic problem.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import subprocess
+import sys
+
+import jax
+import jax.flatten_util
+import jax.numpy as jnp
+import numpy as np
+import oracle
+import pytest
+
+from jax_contact import LegMeasurement, flat, init_belief_batch, make_noise, make_params
+from jax_contact import tune as jt
+
+# Central differences in float64 with step H: truncation ~H^2 |L'''| and round-off
+# ~eps |L| / H, both far below GRAD_TOL's atol for H = 1e-5 and |L| ~ 1.
+GRAD_H = 1e-5
+GRAD_TOL = (1e-7, 1e-5)  # (atol, rtol): |autodiff - central difference| <= atol + rtol |fd|
+
+# --------------------------------------------------------------------- gradient vs FD
+
+T_STEPS, N_ENVS, N_LEGS, NV, N_L = 10, 1, 2, 8, 3
+
+
+@functools.cache
+def _fd_problem():
+    """A short random sequence of stance-like and air-like steps (NumPy, float64)."""
+    rng = np.random.default_rng(15)
+    base = oracle.random_case(rng, NV, N_L)
+    legs = [np.array([0, 1, 2]), np.array([3, 4, 5])]
+    seq, truth = [], np.zeros((T_STEPS, N_ENVS, N_LEGS), bool)
+    for t in range(T_STEPS):
+        cells = []
+        for g in range(N_LEGS):
+            stance = ((t + 3 * g) // 4) % 2 == 0
+            truth[t, 0, g] = stance
+            cells.append(oracle.random_case(rng, NV, N_L, stance=stance, leg=legs[g])["meas"])
+        seq.append([cells])
+    stack = lambda trees: jax.tree.map(lambda *xs: np.stack(xs), *trees)  # noqa: E731
+    meas = stack([stack([stack(row) for row in env]) for env in seq])
+    scalars = dict(base["scalars"])
+    # Caps inside (0.5, 1) so that every tuned value has an effect.
+    scalars.update(
+        cap_dynamics=0.97,
+        cap_diff_kinematics=0.9,
+        cap_diff_kinematics_still=0.8,
+        cap_kinematics=0.95,
+        cap_transition=0.9,
+        outlier_prob=0.02,
+        dt=0.0025,
+    )
+    return base["noise"], scalars, meas, truth
+
+
+def _fd_setup():
+    """Float64 params, space, data and a flat-vector loss (call under enable_x64)."""
+    noise, scalars, meas, truth = _fd_problem()
+    base = make_params(make_noise(NV, **noise), **scalars, touchdown="quadrature")
+    base = jax.tree.map(lambda x: jnp.asarray(x, jnp.float64), base)
+    space = jt.make_space(NV, dof_groups=(0, 0, 1, 1, 1, 2, 2, 2))
+    theta0 = jax.tree.map(lambda x: jnp.asarray(x, jnp.float64), jt.init_theta(space, base))
+    meas = LegMeasurement(
+        **{
+            k: jnp.asarray(v, jnp.float64)
+            if np.issubdtype(np.asarray(v).dtype, np.floating)
+            else jnp.asarray(v)
+            for k, v in meas.items()
+        }
+    )
+    data = jt.TuningData(meas=meas, truth=jnp.asarray(truth), mask=jnp.ones(truth.shape, bool))
+    terrain = jax.tree.map(lambda x: jnp.asarray(x, jnp.float64), flat(0.0, 0.05))
+    belief = init_belief_batch(base, N_ENVS, N_LEGS)
+    belief = belief.replace(foothold=belief.foothold.astype(jnp.float64))
+    config = jt.TuneConfig(prior_noise=1e-2, prior_other=1e-2)
+    flat0, unravel = jax.flatten_util.ravel_pytree(theta0)
+    # Start away from the prior's centre so that its gradient is not zero.
+    start = flat0 + 0.1 * jnp.asarray(np.random.default_rng(3).normal(size=flat0.shape))
+
+    def loss(x):
+        return jt.tuning_loss(
+            unravel(x), space, base, theta0, terrain, belief, data, config, key=jax.random.key(0)
+        )[0]
+
+    return jax.jit(loss), jax.jit(jax.grad(loss)), start
+
+
+def test_gradient_matches_central_differences(x64):
+    loss, grad, x = _fd_setup()
+    assert loss(x).dtype == jnp.float64
+    g = np.asarray(grad(x))
+    fd = np.zeros_like(g)
+    for i in range(x.shape[0]):
+        e = jnp.zeros_like(x).at[i].set(GRAD_H)
+        fd[i] = (float(loss(x + e)) - float(loss(x - e))) / (2 * GRAD_H)
+    atol, rtol = GRAD_TOL
+    bad = np.abs(g - fd) > atol + rtol * np.abs(fd)
+    assert np.all(np.isfinite(g))
+    assert not bad.any(), f"entries {np.flatnonzero(bad)}: autodiff {g[bad]}, fd {fd[bad]}"
+    # The check is not vacuous: most entries have a gradient well above the tolerance.
+    assert np.sum(np.abs(g) > 1e-4) >= x.shape[0] // 2
+
+
+# ---------------------------------------------------------------- recovery of a std
+
+SIGMA_J_TRUE, SIGMA_J_WRONG = 0.05, 0.2
+SIGMA_QD, SIGMA_PRIOR = 0.01, 0.5
+DT, DWELL = 0.0025, 0.1  # s; the gait prior's mean stance and swing, as simulated
+RECOVERY_RTOL = 0.2  # the tuned sigma_J within 20 % of the truth (4x off at the start)
+
+
+def _synthetic(seed: int, n_t: int = 1200, n_envs: int = 8) -> jt.TuningData:
+    """One foot per env whose states follow the gait prior's Markov chain and whose foot
+    velocity follows eq. 8-9 exactly: J = [0 | I3] (the base column has no lever), so
+    contact: v ~ N(0, (sigma_qd^2 + sigma_J^2) I), air: v ~ N(0, (prior^2 + ...) I)."""
+    rng = np.random.default_rng(seed)
+    p_switch = DT / DWELL
+    state = np.zeros((n_t, n_envs), bool)
+    s = rng.random(n_envs) < 0.5
+    for t in range(n_t):
+        s = np.where(rng.random(n_envs) < p_switch, ~s, s)
+        state[t] = s
+    std_c = np.hypot(SIGMA_QD, SIGMA_J_TRUE)
+    std_a = np.sqrt(SIGMA_PRIOR**2 + std_c**2)
+    v = rng.normal(size=(n_t, n_envs, 3)) * np.where(state, std_c, std_a)[..., None]
+    shape = (n_t, n_envs, 1)
+    J = np.zeros((3, 4))
+    J[:, 1:] = np.eye(3)
+    f32 = np.float32
+
+    def tile(x):
+        return np.broadcast_to(np.asarray(x, f32), shape + np.shape(x)).copy()
+
+    meas = LegMeasurement(
+        q=tile(np.zeros(5)),
+        qd=tile(np.zeros(4)),
+        qdd=tile(np.zeros(4)),
+        tau=tile(np.zeros(4)),
+        M=tile(np.eye(4)),
+        h=tile(np.zeros(4)),
+        J=tile(J),
+        Jdot_qd=tile(np.zeros(3)),
+        p_f=tile(np.array([0.0, 0.0, 0.3])),
+        v_f=v[:, :, None, :].astype(f32),
+        foot_radius=tile(0.02),
+        leg_dofs=np.broadcast_to(np.arange(1, 4, dtype=np.int32), shape + (3,)).copy(),
+        other_dofs=np.zeros(shape + (1,), np.int32),
+    )
+    return jt.TuningData(meas=meas, truth=state[..., None], mask=np.ones(shape, bool))
+
+
+def _synthetic_params(sigma_J: float):
+    noise = make_noise(
+        4, sigma_qd=SIGMA_QD, sigma_J=sigma_J, sigma_qd_prior=SIGMA_PRIOR, sigma_q=1e-3
+    )
+    return make_params(
+        noise,
+        dt=DT,
+        stance_time=DWELL,
+        swing_time=DWELL,
+        cap_dynamics=1.0,
+        cap_diff_kinematics=1.0,
+        cap_kinematics=1.0,
+        terms=("diff_kinematics",),
+        transition_model=False,
+        touchdown="quadrature",
+        initial_contact=0.5,
+    )
+
+
+def test_tuning_recovers_a_mis_set_noise_std():
+    train, val = _synthetic(1), _synthetic(2)
+    space = jt.make_space(4, fields=("sigma_J",))
+    config = jt.TuneConfig(
+        learning_rate=0.1, max_epochs=25, patience=5, chunk=300, prior_noise=0.0, seed=0
+    )
+    wrong = _synthetic_params(SIGMA_J_WRONG)
+    res = jt.tune(wrong, flat(0.0, 0.05), [train], val, space, config)
+    got = float(res.params.noise.sigma_J[0])
+    assert abs(got / SIGMA_J_TRUE - 1.0) < RECOVERY_RTOL, (got, res.history)
+    hist = res.history
+    assert hist[res.best_epoch]["val_bce"] < hist[0]["val_bce"]
+    # Everything else is as it was: only the tuned field moved.
+    assert float(res.params.noise.sigma_qd[0]) == pytest.approx(SIGMA_QD, rel=1e-6)
+    # The right value is (near) a minimum: the loss at the truth is at most the tuned one's
+    # plus a little, and far below the mis-set one's.
+    truth = jt.score_logits(
+        jt.predict_logits(_synthetic_params(SIGMA_J_TRUE), flat(0.0, 0.05), val,
+                          key=jax.random.key(0), chunk=300),
+        val,
+    )  # fmt: skip
+    assert truth["bce"] < hist[0]["val_bce"]
+    assert abs(hist[res.best_epoch]["val_bce"] - truth["bce"]) < 0.05 * truth["bce"]
+
+
+# ----------------------------------------------------------------------- cheap checks
+
+
+def test_init_theta_maps_back_to_the_base_params():
+    base = make_params(make_noise(8), cap_transition=0.9, cap_diff_kinematics_still=0.75)
+    space = jt.make_space(8, dof_groups=(0, 0, 1, 1, 1, 2, 2, 2))
+    back = jt.to_params(space, base, jt.init_theta(space, base))
+    for a, b in zip(jax.tree.leaves(back), jax.tree.leaves(base), strict=True):
+        np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-6)
+    # A log multiplier of log 2 doubles every std of its group and no other.
+    theta = jt.init_theta(space, base)
+    theta["sigma_d"] = theta["sigma_d"].at[1].set(np.log(2.0))
+    got = np.asarray(jt.to_params(space, base, theta).noise.sigma_d)
+    np.testing.assert_allclose(got / np.asarray(base.noise.sigma_d), [1, 1, 2, 2, 2, 1, 1, 1],
+                               rtol=1e-6)  # fmt: skip
+
+
+def test_caps_stay_in_their_interval():
+    base = make_params(make_noise(3))
+    space = jt.make_space(3, fields=("cap_dynamics",))
+    for z in (-30.0, 0.0, 30.0):
+        cap = float(jt.to_params(space, base, {"cap_dynamics": jnp.float32(z)}).cap_dynamics)
+        assert 0.5 <= cap <= 1.0
+
+
+def test_robot_space_groups_go1_like():
+    desc = dataclasses.make_dataclass("Desc", ["nv", "nq", "base_dofs", "leg_dofs"])(
+        18, 19, tuple(range(6)), tuple(tuple(range(6 + 3 * i, 9 + 3 * i)) for i in range(4))
+    )
+    space = jt.robot_space(desc)
+    assert space.group_names == ("base_linear", "base_rotational", "joint0", "joint1", "joint2")
+    assert space.dof_groups == (0, 0, 0, 1, 1, 1) + (2, 3, 4) * 4
+
+
+def test_fit_calibration_recovers_temperature_and_bias(np_rng):
+    # Truth drawn from sigmoid(l / T + c) with T = 2, c = -0.5: maximum likelihood on 2e5
+    # samples recovers both to ~1e-2 (standard errors ~5e-3).
+    logits = np_rng.normal(scale=4.0, size=200_000)
+    p = 1.0 / (1.0 + np.exp(-(logits / 2.0 - 0.5)))
+    truth = np_rng.random(p.shape) < p
+    cal = jt.fit_calibration(logits, truth, np.ones_like(truth))
+    assert cal.temperature == pytest.approx(2.0, abs=0.05)
+    assert cal.bias == pytest.approx(-0.5, abs=0.03)
+    assert jt.Calibration.from_dict(cal.as_dict()) == cal
+    got = jt.apply_calibration(np.array([2.0]), cal)
+    np.testing.assert_allclose(got, 2.0 / cal.temperature + cal.bias)
+
+
+def test_config_rejects_bad_values():
+    with pytest.raises(ValueError, match="learning_rate"):
+        jt.TuneConfig(learning_rate=0.0)
+    with pytest.raises(ValueError, match="chunk"):
+        jt.TuneConfig(chunk=0)
+    with pytest.raises(ValueError, match="fields"):
+        jt.make_space(3, fields=("dt",))
+
+
+def test_tune_cmd_checks_arguments_without_jax(tmp_path):
+    log = tmp_path / "a.h5"
+    log.write_bytes(b"")
+    code = (
+        "import sys, train.tune_cmd as t, argparse\n"
+        "assert 'jax' not in sys.modules\n"
+        "p = argparse.ArgumentParser(); s = p.add_subparsers(); t.add_parser(s)\n"
+        f"a = p.parse_args(['tune', {str(log)!r}, '--validate', {str(log)!r}, '--out', 'x.json'])\n"
+        "try:\n    a.check(a)\nexcept ValueError as e:\n    print(e)\n"
+        f"a = p.parse_args(['tune', {str(log)!r}, '--validate', 'missing.h5', '--out', 'x.json'])\n"
+        "try:\n    a.check(a)\nexcept ValueError as e:\n    print(e)\n"
+        "assert 'jax' not in sys.modules\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert "also a tuning log" in out.stdout
+    assert "--validate" in out.stdout and "does not exist" in out.stdout
