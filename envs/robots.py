@@ -15,10 +15,21 @@ compiled from (for edits such as :func:`with_terrain`). Nothing is downloaded at
   ``mujoco-mjx`` package, meshes included. Its floor is the height field it ships with.
 - ``planar_leg``: the paper's Section III leg, ``envs/assets/planar_leg.xml``.
 - MuJoCo Menagerie names (``anybotics_anymal_c``, ...): from a local Menagerie checkout
-  named by the ``MENAGERIE_ROOT`` environment variable (``$MENAGERIE_ROOT/<name>/scene.xml``),
-  else through the ``mujoco_menagerie`` package, which downloads on first use. When neither
-  works :class:`RobotUnavailableError` says what to do.
-- any path to an MJCF file.
+  named by the ``MENAGERIE_ROOT`` environment variable, the MJX variant
+  ``$MENAGERIE_ROOT/<name>/scene_mjx.xml`` where the model ships one, else
+  ``$MENAGERIE_ROOT/<name>/scene.xml``; else through the ``mujoco_menagerie`` package,
+  which downloads on first use. When neither works :class:`RobotUnavailableError` says
+  what to do. As for the Playground robots, visual meshes (mesh geoms that cannot
+  collide) and their assets are deleted before compiling, so the mesh files need not be on
+  disk; masses and inertias are unchanged (a body whose inertia would come from a deleted
+  mesh is refused). A mesh geom that can collide is kept and needs its file.
+- any path to an MJCF file: its visual meshes are deleted in the same way where every
+  body that holds one has an explicit ``<inertial>``; otherwise it is loaded as it is.
+
+Menagerie models and MJCF paths are checked against MJX's collision functions: a pair of
+geoms that can touch but whose types MJX cannot collide (e.g. a cylinder and a box in
+ANYmal C's full ``anymal_c.xml``) is refused with a ValueError naming both geoms and the
+file, rather than failing later in ``mjx.put_model``.
 
 Each call builds a fresh model; mutate it (e.g. ``robot.mj_model.opt.timestep``) freely.
 """
@@ -27,6 +38,7 @@ from __future__ import annotations
 
 import dataclasses
 import os
+import re
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
@@ -131,17 +143,23 @@ def _barkour_xml() -> Path:
     return root / "mjx" / "test_data" / "barkour_v0" / "assets" / "barkour_v0_mjx.xml"
 
 
-def _strip_meshes(spec: mujoco.MjSpec, source: Path) -> None:
-    """Deletes visual-only mesh geoms and every mesh asset, in place.
+def _strip_meshes(spec: mujoco.MjSpec, source: Path, *, keep_colliding: bool = False) -> None:
+    """Deletes visual-only mesh geoms and the mesh assets no geom uses any more, in place.
 
-    Refuses (ValueError) if a mesh geom could collide or could carry mass into a body's
-    inertia, since deleting it would then change the dynamics.
+    A mesh geom that can collide is refused (ValueError), or kept with ``keep_colliding``
+    (its mesh file is then needed to compile). Refuses (ValueError) if a deleted mesh
+    geom could carry mass into a body's inertia, since deleting it would then change the
+    dynamics.
     """
     bodies_with_meshes = set()
+    kept_meshes = set()
     for geom in list(spec.geoms):
         if geom.type != mujoco.mjtGeom.mjGEOM_MESH:
             continue
         if geom.contype != 0 or geom.conaffinity != 0:
+            if keep_colliding:
+                kept_meshes.add(geom.meshname)
+                continue
             raise ValueError(
                 f"{source}: mesh geom {geom.name or '<unnamed>'} can collide"
                 f" (contype {geom.contype}, conaffinity {geom.conaffinity}); its mesh file is"
@@ -160,7 +178,54 @@ def _strip_meshes(spec: mujoco.MjSpec, source: Path) -> None:
                 " deleting the meshes would change its mass"
             )
     for mesh in list(spec.meshes):
-        spec.delete(mesh)
+        if mesh.name not in kept_meshes:
+            spec.delete(mesh)
+
+
+def check_mjx_collisions(mj_model: mujoco.MjModel, source: str | Path) -> None:
+    """Raises ValueError naming two geoms and ``source`` if MJX cannot collide them.
+
+    ``mjx.put_model`` refuses a model with a pair of geoms that can touch (contype /
+    conaffinity, explicit ``<pair>``) whose types have no MJX collision function, with a
+    message that names only the two types; this names the first such pair.
+    """
+    from mujoco import mjx
+
+    try:
+        mjx.put_model(mj_model)
+    except NotImplementedError as err:
+        message = str(err)
+        found = re.search(r"(mjGEOM_\w+), (?:mjtGeom\.)?(mjGEOM_\w+)\) collisions not", message)
+        pair = None
+        if found:
+            want = {
+                getattr(mujoco.mjtGeom, found.group(1)),
+                getattr(mujoco.mjtGeom, found.group(2)),
+            }
+            try:  # MJX's own enumeration of candidate pairs (private; only on this error path)
+                from mujoco.mjx._src.collision_driver import geom_pairs
+
+                for g1, g2, _ in geom_pairs(mj_model):
+                    types = {mujoco.mjtGeom(int(mj_model.geom_type[g])) for g in (g1, g2)}
+                    if types == want:
+                        pair = (g1, g2)
+                        break
+            except ImportError:
+                pass
+        if pair is None:
+            raise ValueError(f"{source}: MJX cannot load this model ({message})") from None
+
+        def label(g: int) -> str:
+            kind = mujoco.mjtGeom(int(mj_model.geom_type[g])).name.removeprefix("mjGEOM_")
+            body = mj_model.body(mj_model.geom_bodyid[g]).name
+            return f"{mj_model.geom(g).name or '<unnamed>'} ({kind.lower()}, body {body})"
+
+        names = [label(g) for g in pair]
+        raise ValueError(
+            f"{source}: geoms {names[0]} and {names[1]} can collide, but MJX has no collision"
+            f" function for that pair of types ({message.rstrip('.')}); use the model's MJX"
+            " variant (scene_mjx.xml) or set contype/conaffinity so they cannot touch"
+        ) from None
 
 
 def _load_playground(robot: str) -> mujoco.MjSpec:
@@ -184,16 +249,23 @@ def _load_barkour() -> mujoco.MjSpec:
     return mujoco.MjSpec.from_file(str(path))
 
 
-def _load_menagerie(name: str) -> mujoco.MjSpec:
+MENAGERIE_SCENES = ("scene_mjx.xml", "scene.xml")  # the MJX variant first
+
+
+def _load_menagerie(name: str) -> tuple[mujoco.MjSpec, Path | str]:
+    """The spec of a Menagerie model (visual meshes deleted) and the file it came from."""
     root = os.environ.get("MENAGERIE_ROOT")
     if root:
-        for scene in ("scene.xml", "scene_mjx.xml"):
+        for scene in MENAGERIE_SCENES:
             path = Path(root) / name / scene
             if path.is_file():
-                return mujoco.MjSpec.from_file(str(path))
+                spec = mujoco.MjSpec.from_file(str(path))
+                _strip_meshes(spec, path, keep_colliding=True)
+                return spec, path
         raise RobotUnavailableError(
-            f"robot {name!r}: MENAGERIE_ROOT={root!r} has no {name}/scene.xml; point"
-            " MENAGERIE_ROOT at a checkout of github.com/google-deepmind/mujoco_menagerie"
+            f"robot {name!r}: MENAGERIE_ROOT={root!r} has no {name}/scene.xml (nor"
+            f" {name}/scene_mjx.xml); point MENAGERIE_ROOT at a checkout of"
+            " github.com/google-deepmind/mujoco_menagerie"
         )
     try:
         import mujoco_menagerie  # optional; it downloads models on first use
@@ -206,12 +278,22 @@ def _load_menagerie(name: str) -> mujoco.MjSpec:
         ) from err
     try:
         entry = mujoco_menagerie.get(name)
-        return entry.spec(entry.default_scene)  # the scene: robot, floor and lights
+        spec = entry.spec(entry.default_scene)  # the scene: robot, floor and lights
     except Exception as err:  # the package raises its own DownloadError offline
         raise RobotUnavailableError(
             f"robot {name!r} could not be loaded through mujoco_menagerie ({err}); the model"
             " must be downloaded first, or MENAGERIE_ROOT set to a local Menagerie checkout"
         ) from err
+    source = f"mujoco_menagerie {name}"
+    _strip_meshes(spec, Path(source), keep_colliding=True)
+    return spec, source
+
+
+def _compile(spec: mujoco.MjSpec, source) -> mujoco.MjModel:
+    try:
+        return spec.compile()
+    except ValueError as err:  # MuJoCo's compiler errors, e.g. a missing collision mesh
+        raise ValueError(f"{source}: {' '.join(str(err).split())}") from None
 
 
 _BUILTIN: dict[str, Callable[[], mujoco.MjSpec]] = {
@@ -246,21 +328,28 @@ def load_robot(name: str, *, foot_names: Sequence[str] | None = None) -> Robot:
     """
     if not isinstance(name, str):
         raise ValueError(f"name must be a str, got {type(name).__name__}")
+    source = None  # the file whose collisions MJX must support (Menagerie, paths)
     if name in _BUILTIN:
         spec = _BUILTIN[name]()
     elif name in MENAGERIE_NAMES:
-        spec = _load_menagerie(name)
+        spec, source = _load_menagerie(name)
     elif _looks_like_path(name):
         path = Path(name).expanduser()
         if not path.is_file():
             raise ValueError(f"name: MJCF file {str(path)!r} does not exist")
-        spec = mujoco.MjSpec.from_file(str(path))
+        spec, source = mujoco.MjSpec.from_file(str(path)), path
+        try:
+            _strip_meshes(spec, path, keep_colliding=True)
+        except ValueError:  # some inertia comes from a mesh: the model needs its files
+            spec = mujoco.MjSpec.from_file(str(path))
     else:
         raise ValueError(
             f"unknown robot {name!r}; valid names: {', '.join(ROBOT_NAMES)}, or a path to an"
             " MJCF .xml file"
         )
-    mj_model = spec.compile()
+    mj_model = _compile(spec, source or name)
+    if source is not None:
+        check_mjx_collisions(mj_model, source)
     return Robot(
         name=name,
         mj_model=mj_model,
