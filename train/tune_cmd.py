@@ -1,0 +1,517 @@
+"""``jax-contact tune LOG [LOG ...] --validate LOG --out params.json``: gradient tuning.
+
+Fits the estimator's continuous parameters to logs with ground truth
+(:mod:`jax_contact.tune` states the loss, what is tuned and how), prints one progress line
+per epoch (loss, validation BCE, F1 and ECE) and writes the tuned parameters as the
+versioned parameter JSON of :func:`jax_contact.save_params`, with their provenance: the
+logs (path, robot, gait, terrain, noise, seed), the tuning settings and seed, the loss and
+validation metrics of every epoch, the epoch kept, the tuned values next to the defaults,
+the wall time, the library and JAX versions and, with ``--calibrate``, the calibration map
+fitted on the tuning logs (``provenance["calibration"]``, see
+:class:`jax_contact.tune.Calibration`).
+
+Like ``train/cli.py``, this module imports no JAX at module level: :func:`check`
+validates the arguments first, and :func:`run` imports the library. Register it in the
+CLI with ``tune_cmd.add_parser(sub)``; ``python -m train.tune_cmd ...`` runs it alone.
+
+The default parameters that tuning starts from (and that the prior is centred on) are
+the ones ``jax-contact evaluate`` uses for the log's robot: ``params_for`` with the log's
+sensor preset (``anymal_like`` unless the log says otherwise) and the default gait prior.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import time
+from pathlib import Path
+
+LOG_SUFFIXES = (".h5", ".hdf5")
+
+
+# -------------------------------------------------------------------------- arguments
+
+
+def _positive_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be an int >= 1, got {text!r}")
+    return value
+
+
+def _positive_float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"must be a finite number > 0, got {text!r}")
+    return value
+
+
+def _nonnegative_float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not (math.isfinite(value) and value >= 0):
+        raise argparse.ArgumentTypeError(f"must be a finite number >= 0, got {text!r}")
+    return value
+
+
+def add_parser(subparsers) -> argparse.ArgumentParser:
+    """Adds the ``tune`` command to an argparse subparsers object; returns its parser.
+
+    The parser's defaults carry ``func=run`` and ``check=check``, as ``train/cli.py``'s
+    commands do.
+    """
+    p = subparsers.add_parser(
+        "tune",
+        help="tune the estimator's parameters by gradient on logs with ground truth",
+        description="Fits the estimator's noise standard deviations (log space, with a prior"
+        " at their physically derived values), confidence caps (logit space), T_s and a_F to"
+        " the binary cross-entropy of P(contact) against the logs' ground truth, with Adam,"
+        " gradient clipping and early stopping on --validate (a log of another seed). Writes"
+        " a versioned parameter JSON with its provenance, which `jax_contact.load_params`"
+        " reads.",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    )
+    p.add_argument("logs", nargs="+", metavar="LOG", help="tuning logs (.h5 with truth/contact)")
+    p.add_argument(
+        "--validate",
+        required=True,
+        nargs="+",
+        metavar="LOG",
+        help="validation log(s) of other seeds (.h5): early stopping on their pooled BCE",
+    )
+    p.add_argument("--out", required=True, help="parameter file to write (.json)")
+    p.add_argument("--epochs", type=_positive_int, default=12, help="passes over the logs at most")
+    p.add_argument("--patience", type=_positive_int, default=3, help="epochs without improvement")
+    p.add_argument("--lr", type=_positive_float, default=0.05, help="Adam step size")
+    p.add_argument("--clip", type=_positive_float, default=1.0, help="gradient norm clip")
+    p.add_argument("--chunk", type=_positive_int, default=400, help="steps per BPTT window")
+    p.add_argument(
+        "--prior", type=_nonnegative_float, default=1e-3, help="weight of the prior on the stds"
+    )
+    p.add_argument(
+        "--prior-other",
+        type=_nonnegative_float,
+        default=1e-3,
+        help="weight of the prior on caps, T_s, a_F",
+    )
+    p.add_argument("--seed", type=int, default=0, help="the run's key")
+    p.add_argument(
+        "--calibrate",
+        action="store_true",
+        help="also fit a temperature and bias on the fused logit (stored in the provenance)",
+    )
+    p.set_defaults(func=run, check=check)
+    return p
+
+
+def check(args: argparse.Namespace) -> None:
+    """Raises ValueError naming the argument unless the inputs exist and --out can be
+    written (no JAX imported)."""
+    validate = [args.validate] if isinstance(args.validate, str) else list(args.validate)
+    for arg, path in [("LOG", p) for p in args.logs] + [("--validate", v) for v in validate]:
+        p = Path(path)
+        if not p.is_file():
+            raise ValueError(f"argument {arg}: file {path!r} does not exist")
+        if p.suffix not in LOG_SUFFIXES:
+            raise ValueError(f"argument {arg}: {path!r} must end in {' or '.join(LOG_SUFFIXES)}")
+    tuning = {str(Path(p).resolve()) for p in args.logs}
+    if any(str(Path(v).resolve()) in tuning for v in validate):
+        raise ValueError("argument --validate: a validation log is also a tuning log")
+    out = Path(args.out)
+    if out.suffix != ".json":
+        raise ValueError(f"argument --out: {args.out!r} must end in .json")
+    if out.is_dir():
+        raise ValueError(f"argument --out: {args.out!r} is a folder; expected a file name")
+    parent = out.parent.expanduser().absolute()
+    while not parent.exists():
+        parent = parent.parent
+    if not parent.is_dir():
+        raise ValueError(f"argument --out: cannot create {args.out!r} ({str(parent)!r} is a file)")
+
+
+# ------------------------------------------------------------------------ measurements
+
+
+def measure_readings(robot, readings: dict, *, pairing: str = "delayed", chunk: int = 400):
+    """The estimator's inputs of every step of a (T, E) batch of readings, computed once.
+
+    Pairing as ``train.evaluate.replay`` (``"delayed"``: the acceleration and torque of
+    reading ``k`` with the state of reading ``k - 1``, scored against the truth of step
+    ``k``; the first reading is paired with its own state). The result is a
+    :class:`jax_contact.RobotMeasurement` with NumPy float32 leaves
+    of leading axes (T, E): the mass matrix once per robot and step, not once per leg
+    (Go1: 671 floats, 2.7 kB per robot-step; 16 envs x 8 s: 137 MB).
+
+    Args:
+      robot: the nominal :class:`envs.robots.Robot` (the estimator's model).
+      readings: ``qpos`` (T, E, nq), ``qvel``/``qacc``/``tau`` (T, E, nv).
+      pairing: ``"delayed"`` or ``"raw"``.
+      chunk: steps computed per compiled call.
+    """
+    import jax
+    import jax.numpy as jnp
+    import numpy as np
+    from mujoco import mjx
+
+    from jax_contact.adapter import prepare, robot_measurement
+    from train.evaluate import delay_one_step
+
+    if pairing not in ("delayed", "raw"):
+        raise ValueError(f"pairing must be 'delayed' or 'raw', got {pairing!r}")
+    qpos, qvel, qacc, tau = (np.asarray(readings[k]) for k in ("qpos", "qvel", "qacc", "tau"))
+    if pairing == "delayed":  # only the state is delayed (train.evaluate's convention)
+        qpos, qvel = delay_one_step(qpos), delay_one_step(qvel)
+    m = mjx.put_model(robot.mj_model)
+    template = mjx.make_data(m)
+    desc = robot.description
+
+    @jax.jit
+    def measure(qp, qv, qa, ta):
+        def one(qp, qv, qa, ta):
+            d = prepare(m, template.replace(qpos=qp, qvel=qv))
+            return robot_measurement(m, d, desc, qdd=qa, tau=ta, include_passive=True)
+
+        return jax.vmap(jax.vmap(one))(qp, qv, qa, ta)
+
+    n_t = qpos.shape[0]
+    pieces = []
+    for start in range(0, n_t, chunk):
+        stop = min(start + chunk, n_t)
+        xs = [a[start:stop] for a in (qpos, qvel, qacc, tau)]
+        if stop - start < chunk:  # one shape, one compilation
+            xs = [np.concatenate([x, np.repeat(x[-1:], chunk - x.shape[0], 0)]) for x in xs]
+        out = measure(*(jnp.asarray(x) for x in xs))
+        pieces.append(jax.tree.map(lambda a, n=stop - start: np.asarray(a)[:n], out))
+    return jax.tree.map(lambda *xs: np.concatenate(xs, axis=0), *pieces)
+
+
+def load_tuning_log(path: str | Path):
+    """A log file -> (TuningData, robot, attrs, default params, terrain).
+
+    Raises:
+      ValueError: the log has no ground truth, or any error of ``train.logs``' checks.
+    """
+    import numpy as np
+
+    from envs.robots import load_robot
+    from jax_contact.io import read_log
+    from jax_contact.tune import TuningData
+    from train.logs import READING_TIMING, _log_arrays, _log_attrs, to_end_of_step
+
+    arrays, attrs = read_log(path)
+    name = f"log {str(path)!r}"
+    robot_name, dt = _log_attrs(name, attrs)
+    readings, truth, valid = _log_arrays(name, arrays)
+    timing = attrs.get("reading_timing", "start_of_step")
+    if timing == "start_of_step":  # a log written before the convention: as evaluate does
+        readings, truth, valid = to_end_of_step(readings, truth, valid)
+    elif timing != READING_TIMING:
+        raise ValueError(f"{name}: attribute 'reading_timing' is {timing!r}")
+    if truth is None:
+        raise ValueError(f"{name} has no ground truth ('truth/contact'): it cannot be tuned on")
+    robot = load_robot(robot_name)
+    desc = robot.description
+    if readings["qvel"].shape[-1] != desc.nv or truth.shape[-1] != desc.n_legs:
+        raise ValueError(
+            f"{name}: readings of {readings['qvel'].shape[-1]} velocities and {truth.shape[-1]}"
+            f" feet do not fit robot {robot_name!r} (nv {desc.nv}, {desc.n_legs} feet)"
+        )
+    params, terrain = default_params(robot, dt, str(attrs.get("noise", "anymal_like")))
+    meas = measure_readings(robot, readings)
+    mask = np.broadcast_to(valid[..., None], truth.shape)
+    return TuningData(meas=meas, truth=truth, mask=np.array(mask)), robot, attrs, params, terrain
+
+
+def default_params(robot, dt: float, noise: str = "anymal_like"):
+    """(params, terrain) of ``jax-contact evaluate`` for this robot; other sensor presets
+    than ``anymal_like`` get ``params_for`` with that preset."""
+    import jax_contact as jc
+    from envs.sensors import sensor_preset
+    from train.reproduce import TERRAIN_SIGMA, planar_estimator_params, quadruped_estimator_params
+
+    desc = robot.description
+    if desc.n_leg_dofs == 2:
+        return planar_estimator_params(desc.nv, dt), jc.flat(0.0, 0.2)
+    if noise == "anymal_like":
+        return quadruped_estimator_params(desc, dt), jc.flat(0.0, TERRAIN_SIGMA)
+    sp = sensor_preset(noise, desc.nv, dt=dt)
+    return jc.params_for(desc, sp, dt), jc.flat(0.0, TERRAIN_SIGMA)
+
+
+# ------------------------------------------------------------------ presets, logs
+
+
+# The scenarios of train.reproduce (Table III): gait, terrain and added mass of each.
+SCENARIOS = {
+    "trot": ("trot", "flat", False),
+    "walk": ("walk", "flat", False),
+    "walk_added_mass": ("walk", "flat", True),
+    "rough": ("walk", "rough", False),
+}
+PRESET_ROBOTS = ("go1", "spot", "barkour")
+PRESET_TUNE = (("trot", 1000), ("walk", 1000))  # (scenario, seed) of the tuning logs
+PRESET_VALIDATE = (("trot", 1001), ("walk", 1001))
+
+
+def simulate_log(
+    path: str | Path,
+    robot: str,
+    scenario: str,
+    seed: int,
+    *,
+    n_envs: int = 16,
+    duration: float = 8.0,
+    noise: str = "anymal_like",
+) -> Path:
+    """Simulates one scenario of ``train.reproduce`` (its world, gait, speed range and
+    sensors) and writes it as a log (the schema of ``jax-contact simulate``)."""
+    from envs.gaits import make_gait
+    from envs.simulate import simulate
+    from jax_contact.io import write_log
+    from train import reproduce
+    from train.logs import READING_TIMING
+
+    gait, _, _ = SCENARIOS[scenario]
+    cfg = reproduce.ReproduceConfig(robot=robot)
+    world = reproduce._scenario_world(scenario, cfg)
+    speeds = reproduce.SPEEDS.get(gait, (0.0, 0.0))
+    roll = simulate(world, make_gait(gait), noise, n_envs, duration, seed, speed_range=speeds)
+    attrs = {
+        "robot": robot,
+        "gait": gait,
+        "scenario": scenario,
+        "noise": noise,
+        "terrain": world.terrain,
+        "roughness": world.roughness,
+        "added_mass": [list(x) for x in world.added_mass],
+        "speed_range": list(speeds),
+        "seed": seed,
+        "dt": world.dt,
+        "rate_hz": 1.0 / world.dt,
+        "n_envs": n_envs,
+        "foot_names": list(world.robot.description.foot_names),
+        "reading_timing": READING_TIMING,
+    }
+    return write_log(path, roll.to_arrays(), attrs)
+
+
+def regenerate_preset(
+    robot: str,
+    out: str | Path | None = None,
+    *,
+    workdir: str | Path = "/tmp/jax-contact-presets",
+    n_envs: int = 16,
+    duration: float = 8.0,
+) -> int:
+    """Rebuilds a shipped preset: simulates the tuning and validation logs (Go1-style
+    trot and walk, seeds 1000 and 1001, never the evaluation seed 0) into ``workdir``, tunes
+    with the default settings and ``--calibrate``, and writes
+    ``jax_contact/presets/<robot>.json`` (or ``out``).
+
+    ``python -c "from train.tune_cmd import regenerate_preset as r; r('go1')"``
+    """
+    workdir = Path(workdir)
+    logs = {}
+    for scenario, seed in PRESET_TUNE + PRESET_VALIDATE:
+        path = workdir / f"{robot}_{scenario}_s{seed}.h5"
+        if not path.is_file():
+            simulate_log(path, robot, scenario, seed, n_envs=n_envs, duration=duration)
+        logs[(scenario, seed)] = str(path)
+    if out is None:
+        out = Path(__file__).resolve().parents[1] / "jax_contact" / "presets" / f"{robot}.json"
+    argv = [logs[k] for k in PRESET_TUNE] + ["--validate"] + [logs[k] for k in PRESET_VALIDATE]
+    return main([*argv, "--out", str(out), "--calibrate"])
+
+
+def _log_info(path, attrs, data) -> dict:
+    keys = ("robot", "gait", "terrain", "noise", "seed", "n_envs", "dt", "roughness")
+    info = {"path": str(path), **{k: attrs[k] for k in keys if k in attrs}}
+    info["steps"] = int(data.n_steps)
+    return info
+
+
+# ---------------------------------------------------------------------------------- run
+
+
+def _bar(done: int, total: int, width: int = 20) -> str:
+    n = int(round(width * done / max(total, 1)))
+    return "[" + "#" * n + "-" * (width - n) + "]"
+
+
+def run(args: argparse.Namespace) -> int:
+    """Runs ``jax-contact tune`` (arguments already checked); returns 0."""
+    import importlib.metadata
+
+    import jax
+    import numpy as np
+
+    import jax_contact as jc
+    from jax_contact import tune as jt
+
+    t0 = time.perf_counter()
+    train, infos = [], []
+    base = terrain = robot_name = None
+    for path in args.logs:
+        data, robot, attrs, params, terr = load_tuning_log(path)
+        if robot_name is not None and attrs["robot"] != robot_name:
+            raise ValueError(
+                f"log {path!r} is of robot {attrs['robot']!r}; the first log's is {robot_name!r}"
+            )
+        robot_name, base, terrain = attrs["robot"], params, terr
+        train.append(data)
+        infos.append(_log_info(path, attrs, data))
+        print(f"loaded {path}: {data.truth.shape} (T, envs, feet)", file=sys.stderr)
+    vals, vinfos = [], []
+    validate = [args.validate] if isinstance(args.validate, str) else list(args.validate)
+    for path in validate:
+        val, _, vattrs, _, _ = load_tuning_log(path)
+        if vattrs["robot"] != robot_name:
+            raise ValueError(
+                f"argument --validate: log {path!r} is of robot {vattrs['robot']!r}, the"
+                f" tuning logs' is {robot_name!r}"
+            )
+        vals.append(val)
+        vinfos.append(_log_info(path, vattrs, val))
+    t_load = time.perf_counter() - t0
+    print(f"measurements precomputed in {t_load:.1f} s", file=sys.stderr)
+
+    from envs.robots import load_robot
+
+    space = jt.robot_space(load_robot(robot_name).description)
+    config = jt.TuneConfig(
+        learning_rate=args.lr,
+        clip_norm=args.clip,
+        max_epochs=args.epochs,
+        patience=args.patience,
+        chunk=args.chunk,
+        prior_noise=args.prior,
+        prior_other=args.prior_other,
+        seed=args.seed,
+    )
+
+    def progress(row: dict) -> None:
+        e = row["epoch"]
+        loss = "  (untuned)" if e == 0 else f"  loss {row['train_loss']:.4f}"
+        print(
+            f"tune {_bar(e, config.max_epochs)} epoch {e:2d}/{config.max_epochs}{loss}"
+            f"  val BCE {row['val_bce']:.4f}  F1 {row['val_f1']:.4f}  ECE {row['val_ece']:.4f}"
+            f"  {row['wall_s']:6.1f} s",
+            file=sys.stderr,
+            flush=True,
+        )
+
+    result = jt.tune(base, terrain, train, vals, space, config, progress=progress)
+    best = result.history[result.best_epoch]
+    print(
+        f"best epoch {result.best_epoch} (val BCE {best['val_bce']:.4f});"
+        f" tuning {result.wall_s:.1f} s, total {time.perf_counter() - t0:.1f} s",
+        file=sys.stderr,
+    )
+    table = jt.describe(space, base, result.params)
+    for r in table:
+        print(
+            f"  {r['field']:26s} {r['group']:16s} {r['default']:10.4g} -> {r['tuned']:10.4g}"
+            f"  (x{r['ratio']:.3g})",
+            file=sys.stderr,
+        )
+    try:
+        lib = importlib.metadata.version("jax-contact")
+    except importlib.metadata.PackageNotFoundError:
+        lib = "unknown"
+    provenance = {
+        "tool": "jax-contact tune",
+        "argv": list(sys.argv),
+        "library_version": lib,
+        "jax_version": jax.__version__,
+        "robot": robot_name,
+        "logs": infos,
+        "validation": vinfos,
+        "seeds": {
+            "tuning_logs": [i.get("seed") for i in infos],
+            "validation_logs": [i.get("seed") for i in vinfos],
+            "tune": args.seed,
+        },
+        "config": {k: getattr(config, k) for k in jt.TuneConfig.__dataclass_fields__},
+        "fields": list(space.fields),
+        "groups": dict(
+            zip(
+                space.group_names,
+                [
+                    [i for i, g in enumerate(space.dof_groups) if g == k]
+                    for k in range(len(space.group_names))
+                ],
+                strict=True,
+            )
+        ),
+        "loss": "mean BCE of P(contact) vs truth over valid foot-steps + Gaussian prior on log"
+        " std multipliers (jax_contact.tune)",
+        "epochs": len(result.history) - 1,
+        "best_epoch": result.best_epoch,
+        "stopped_early": result.stopped_early,
+        "history": list(result.history),
+        "final": dict(result.history[result.best_epoch]),
+        "tuned_vs_default": table,
+        "wall_s": {"load": t_load, "tune": result.wall_s},
+    }
+    if args.calibrate:
+        logits = [
+            jt.predict_logits(result.params, terrain, d, key=jax.random.key(args.seed))
+            for d in train
+        ]
+        cal = jt.fit_calibration(
+            np.concatenate([lg.reshape(-1) for lg in logits]),
+            np.concatenate([np.asarray(d.truth).reshape(-1) for d in train]),
+            np.concatenate([np.asarray(d.mask).reshape(-1) for d in train]),
+        )
+        vl = np.concatenate(
+            [
+                jt.predict_logits(result.params, terrain, v, key=jax.random.key(args.seed)).reshape(
+                    -1
+                )
+                for v in vals
+            ]
+        )
+        after = jt.score_logits(jt.apply_calibration(vl, cal), jt.pooled(vals))
+        provenance["calibration"] = {
+            **cal.as_dict(),
+            "fitted_on": [i["path"] for i in infos],
+            "validation_after": after,
+        }
+        print(
+            f"calibration: T {cal.temperature:.3f}, bias {cal.bias:+.3f}; validation ECE"
+            f" {result.history[result.best_epoch]['val_ece']:.4f} -> {after['ece']:.4f}",
+            file=sys.stderr,
+        )
+    jc.save_params(args.out, result.params, provenance)
+    print(f"wrote {args.out}")
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m train.tune_cmd ...``: the command without the rest of the CLI."""
+    parser = argparse.ArgumentParser(prog="jax-contact")
+    add_parser(parser.add_subparsers(dest="command"))
+    args = parser.parse_args(["tune", *(sys.argv[1:] if argv is None else argv)])
+    try:
+        args.check(args)
+    except ValueError as err:
+        print(f"jax-contact tune: error: {err}", file=sys.stderr)
+        return 2
+    try:
+        return args.func(args)
+    except (ValueError, OSError) as err:
+        print(f"jax-contact tune: error: {err}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())
