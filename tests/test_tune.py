@@ -274,3 +274,19 @@ def test_tune_cmd_checks_arguments_without_jax(tmp_path):
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert "also a tuning log" in out.stdout
     assert "--validate" in out.stdout and "does not exist" in out.stdout
+
+
+def test_reliability_bins_agree_with_metrics_ece_and_the_png_is_written(np_rng, tmp_path):
+    from jax_contact.metrics import expected_calibration_error
+    from train.calibration import reliability_bins, reliability_diagram
+
+    p = np_rng.random((50, 2, 4))
+    truth = np_rng.random(p.shape) < p**2  # over-confident in contact
+    valid = np_rng.random((50, 2)) < 0.9
+    v3 = np.broadcast_to(valid[..., None], p.shape)
+    b = reliability_bins(p, truth, v3)
+    assert float(b["ece"]) == pytest.approx(expected_calibration_error(p, truth, v3), abs=1e-12)
+    assert b["count"].sum() == v3.sum()
+    out = reliability_diagram({"a": p, "b": np.sqrt(p), "a/diag": p}, truth, valid,
+                              tmp_path / "fig" / "rel.png", title="test")  # fmt: skip
+    assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

@@ -1,0 +1,125 @@
+"""Calibration of P(contact): reliability diagrams, one curve per detector.
+
+A detector is calibrated when, among the steps where it says P(contact) = p, the foot is
+in contact a fraction p of the time. The diagram bins the valid steps by the predicted
+probability (the 10 equal-width bins of :func:`jax_contact.metrics.expected_calibration_error`)
+and plots each bin's observed contact frequency against its mean prediction; the diagonal
+is perfect calibration. The legend gives each detector's ECE (the bins' gaps weighted by
+their share of the steps), so the plot and the number agree by construction.
+
+Used by ``jax-contact tune`` (docs/tuning.md) and meant for the reproduction's figures and
+``jax-contact evaluate --plots DIR``: :func:`reliability_diagram` takes the ``replay``
+outputs as they are.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from pathlib import Path
+
+import numpy as np
+
+
+def reliability_bins(prob, truth, valid=None, *, n_bins: int = 10) -> dict[str, np.ndarray]:
+    """Per-bin statistics of the reliability diagram.
+
+    Args:
+      prob: (T, ...) P(contact) in [0, 1] (or bool flags).
+      truth: (T, ...) bool ground truth.
+      valid: optional (T, ...) bool mask (broadcast against ``prob``).
+      n_bins: equal-width bins on [0, 1].
+
+    Returns:
+      ``count`` (n_bins,) steps per bin, ``mean_p`` mean prediction and ``freq`` observed
+      contact frequency per bin (NaN for an empty bin), and ``ece`` (a () array), equal to
+      :func:`jax_contact.metrics.expected_calibration_error`.
+    """
+    p = np.asarray(prob, np.float64)
+    g = np.asarray(truth, bool)
+    v = (
+        np.ones(p.shape, bool)
+        if valid is None
+        else np.broadcast_to(np.asarray(valid, bool), p.shape)
+    )
+    p, g = p[v], g[v].astype(np.float64)
+    idx = np.minimum((p * n_bins).astype(np.int64), n_bins - 1)
+    count = np.bincount(idx, minlength=n_bins).astype(np.float64)
+    sum_p = np.bincount(idx, p, n_bins)
+    sum_g = np.bincount(idx, g, n_bins)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean_p = np.where(count > 0, sum_p / count, np.nan)
+        freq = np.where(count > 0, sum_g / count, np.nan)
+    ece = np.sum(np.abs(sum_g - sum_p)) / max(p.size, 1)
+    return {"count": count, "mean_p": mean_p, "freq": freq, "ece": np.asarray(ece)}
+
+
+def reliability_diagram(
+    outputs: Mapping[str, np.ndarray],
+    truth,
+    valid,
+    path: str | Path,
+    *,
+    names: list[str] | None = None,
+    n_bins: int = 10,
+    title: str | None = None,
+) -> Path:
+    """Writes a reliability diagram (PNG) with one curve per detector, ECE in the legend.
+
+    Args:
+      outputs: detector -> (T, E, L) P(contact) (e.g. ``train.evaluate.replay``'s outputs;
+        keys containing ``/`` are diagnostics and are skipped unless named).
+      truth: (T, E, L) bool ground truth.
+      valid: (T, E) or (T, E, L) bool validity (broadcast over legs).
+      path: the PNG to write (atomically; its folder is created).
+      names: detectors to plot (default: every key without ``/``).
+      n_bins: bins on [0, 1].
+      title: the figure's title.
+
+    Returns:
+      The path written. A lower panel shows the share of steps per bin (log scale), since
+      a bin's gap matters in proportion to how often it is used.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from jax_contact.io import write_atomic
+
+    truth = np.asarray(truth, bool)
+    valid = np.asarray(valid, bool)
+    if valid.ndim == truth.ndim - 1:
+        valid = valid[..., None]
+    names = names or [k for k in outputs if "/" not in k]
+    fig, (ax, hist) = plt.subplots(
+        2, 1, figsize=(5.5, 6.5), sharex=True, gridspec_kw={"height_ratios": [3, 1]}
+    )
+    ax.plot([0, 1], [0, 1], color="0.6", lw=1, ls="--", label="perfect calibration")
+    centres = (np.arange(n_bins) + 0.5) / n_bins
+    width = 0.8 / (n_bins * max(len(names), 1))
+    for i, name in enumerate(names):
+        b = reliability_bins(outputs[name], truth, valid, n_bins=n_bins)
+        keep = b["count"] > 0
+        line = ax.plot(
+            b["mean_p"][keep], b["freq"][keep], marker="o", ms=4,
+            label=f"{name} (ECE {float(b['ece']):.3f})",
+        )[0]  # fmt: skip
+        share = b["count"] / max(b["count"].sum(), 1.0)
+        offset = (i - (len(names) - 1) / 2) * width
+        hist.bar(centres + offset, share, width=width, color=line.get_color())
+    ax.set_ylabel("observed contact frequency")
+    ax.set_xlim(0, 1)
+    ax.set_ylim(0, 1)
+    ax.legend(loc="upper left", fontsize=8)
+    ax.grid(alpha=0.3)
+    if title:
+        ax.set_title(title, fontsize=10)
+    hist.set_yscale("log")
+    hist.set_xlabel("predicted P(contact), bin mean")
+    hist.set_ylabel("share of steps")
+    hist.grid(alpha=0.3)
+    fig.tight_layout()
+    path = Path(path)
+    write_atomic(path, lambda tmp: fig.savefig(tmp, dpi=110, format="png"))
+    plt.close(fig)
+    return path
