@@ -361,7 +361,7 @@ def export_robot(
         },
         "robot": _robot_header(mj_model, desc, robot_source),
         "rate_hz": float(rate_hz),
-        "dt": dt,
+        "dt": 1.0 / float(rate_hz),
         "dtype": "float32",
         "call": {
             "signature": "update(state, key, qpos, qvel, qacc, tau) -> (state, key, out)",
@@ -393,7 +393,8 @@ def export_robot(
         "include_passive": bool(include_passive),
         "params": params_to_dict(params, provenance),
     }
-    return header, bytes(payload)
+    # As it reads back from the file (tuples become lists).
+    return json.loads(json.dumps(header)), bytes(payload)
 
 
 def readings_header(mj_model) -> list[dict]:

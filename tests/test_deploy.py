@@ -1,0 +1,250 @@
+"""The exported estimator (jax_contact.export / deploy) against the live one.
+
+One short simulated Go1 log, one export and one offline replay per module (about a minute
+of compilation on 2 cores); the artefact is run in a fresh Python process where ``mujoco``
+cannot be imported, one reading per call, and compared with ``train.evaluate.replay`` on
+the same readings.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import jax_contact as jc
+from jax_contact.io import read_log
+
+ROOT = Path(__file__).resolve().parents[1]
+# Both sides run the same float32 program from different compilations (the export is one
+# robot, the replay a vmapped scan): differences are rounding, ~1e-6 in P(contact); 1e-4
+# leaves room for a logit that rounding moves across the foothold memory's threshold.
+P_TOL = 1e-4
+N_STEPS = 160  # 0.4 s at 400 Hz: a trot's touch-downs and lift-offs on every foot
+
+
+@pytest.fixture(scope="module")
+def deployed(tmp_path_factory):
+    from train.deploy_cmd import export_to_file
+    from train.logs import simulate_to_file
+
+    tmp = tmp_path_factory.mktemp("deploy")
+    log = simulate_to_file(
+        tmp / "go1.h5", robot="go1", gait="trot", n_envs=1, duration=N_STEPS / 400.0, seed=3
+    )
+    artefact = tmp / "go1.contact"
+    header = export_to_file(artefact, robot="go1", rate_hz=400.0)
+    arrays, attrs = read_log(log)
+    readings = {
+        k: np.asarray(arrays[f"readings/{k}"], np.float32) for k in ("qpos", "qvel", "qacc", "tau")
+    }
+    return {"tmp": tmp, "log": log, "artefact": artefact, "header": header, "readings": readings}
+
+
+@pytest.fixture(scope="module")
+def live(deployed):
+    """P(contact) (T, L) of the offline estimator with the robot's default parameters."""
+    from envs.robots import load_robot
+    from train.deploy_cmd import default_estimator
+    from train.evaluate import replay
+
+    robot = load_robot("go1")
+    params, terrain, _ = default_estimator(robot.description, 1.0 / 400.0)
+    out = replay(
+        robot,
+        {k: v for k, v in deployed["readings"].items()},
+        estimators={"export": params},
+        terrain=terrain,
+        dt=1.0 / 400.0,
+        seed=0,
+        progress=False,
+    )
+    return out["export"][:, 0]
+
+
+_CHILD = """
+import json, sys
+sys.modules["mujoco"] = None  # any `import mujoco` (or mujoco.mjx) now raises ImportError
+import numpy as np
+from jax_contact import deploy
+
+est = deploy.load(sys.argv[1])
+log = np.load(sys.argv[2])
+belief, ps, valid = est.init(), [], []
+for k in range(log["qpos"].shape[0]):
+    belief, p, diag = est.update(belief, {n: log[n][k, 0] for n in est.reading_names})
+    ps.append(p)
+    valid.append(diag["valid"])
+errors = {}
+bad = {n: log[n][0, 0] for n in est.reading_names}
+bad["qvel"] = bad["qvel"][:-1]
+try:
+    est.update(belief, bad)
+except ValueError as err:
+    errors["short_qvel"] = str(err)
+try:
+    est.update(belief, {n: log[n][0, 0] for n in ("qpos", "qvel", "qacc")})
+except ValueError as err:
+    errors["missing_tau"] = str(err)
+loaded = sorted(m for m, v in sys.modules.items() if v is not None and m.split(".")[0] == "mujoco")
+np.savez(sys.argv[3], p=np.stack(ps), valid=np.stack(valid))
+print(json.dumps({"errors": errors, "mujoco_modules": loaded}))
+"""
+
+
+@pytest.fixture(scope="module")
+def child(deployed):
+    """The artefact run in a fresh process without mujoco."""
+    tmp = deployed["tmp"]
+    np.savez(tmp / "readings.npz", **deployed["readings"])
+    env = dict(os.environ, PYTHONPATH=str(ROOT), TF_CPP_MIN_LOG_LEVEL="3")
+    proc = subprocess.run(
+        [
+            sys.executable,
+            "-c",
+            textwrap.dedent(_CHILD),
+            str(deployed["artefact"]),
+            str(tmp / "readings.npz"),
+            str(tmp / "child.npz"),
+        ],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=600,
+    )
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    report = json.loads(proc.stdout.strip().splitlines()[-1])
+    out = np.load(tmp / "child.npz")
+    return {"p": out["p"], "valid": out["valid"], **report}
+
+
+def test_artefact_without_mujoco_matches_replay(child, live):
+    assert child["mujoco_modules"] == []
+    assert child["p"].shape == live.shape == (N_STEPS, 4)
+    assert child["valid"].all()
+    np.testing.assert_allclose(child["p"], live, rtol=0, atol=P_TOL)
+    # Not a trivially constant estimate: the trot makes and breaks contact on every foot.
+    assert (child["p"].max(axis=0) > 0.9).all() and (child["p"].min(axis=0) < 0.1).all()
+
+
+def test_wrong_reading_names_the_field(child):
+    msg = child["errors"]["short_qvel"]
+    assert "'qvel'" in msg and "(17,)" in msg and "(18,)" in msg
+    assert "'tau'" in child["errors"]["missing_tau"]
+
+
+def test_header_describes_inputs_and_parameters(deployed):
+    from envs.robots import load_robot
+
+    h = deployed["header"]
+    m = load_robot("go1").mj_model
+    assert [r["name"] for r in h["readings"]] == ["qpos", "qvel", "qacc", "tau"]
+    assert [r["shape"] for r in h["readings"]] == [[m.nq], [m.nv], [m.nv], [m.nv]]
+    qvel = h["readings"][1]
+    # Joint order as in the model: the free joint's six coordinates, then every hinge.
+    hinges = [m.joint(j).name for j in range(1, m.njnt)]
+    assert qvel["labels"][6:] == hinges and len(qvel["labels"]) == m.nv
+    assert qvel["units"][:6] == ["m/s"] * 3 + ["rad/s"] * 3
+    assert h["readings"][0]["units"][3:7] == ["1"] * 4  # the base quaternion w, x, y, z
+    assert h["readings"][3]["units"][6] == "N m"
+    assert h["rate_hz"] == 400.0 and h["dt"] == 0.0025
+    assert h["params"]["provenance"]["source"] == "defaults"
+    assert h["library_version"] and h["exported_with"]["jax"]
+    assert h["pairing"]["delayed"] == ["qpos", "qvel"]
+    # The stored parameters are the ones the offline estimator gets.
+    from jax_contact.io import params_from_dict, params_to_dict
+    from train.deploy_cmd import default_estimator
+
+    params, _, _ = default_estimator(load_robot("go1").description, 0.0025)
+    stored = params_from_dict(h["params"])
+    assert params_to_dict(stored)["values"] == params_to_dict(params)["values"]
+
+
+def test_corrupt_or_foreign_file_is_refused(deployed, tmp_path):
+    from jax_contact.export import read_artefact
+
+    data = bytearray(Path(deployed["artefact"]).read_bytes())
+    data[-10] ^= 0xFF
+    bad = tmp_path / "bad.contact"
+    bad.write_bytes(bytes(data))
+    with pytest.raises(ValueError, match="checksum"):
+        read_artefact(bad)
+    other = tmp_path / "other.contact"
+    other.write_text("hello")
+    with pytest.raises(ValueError, match="not a jax-contact export"):
+        read_artefact(other)
+
+
+def test_deploy_check_reports_latency_and_agreement(deployed, live, tmp_path):
+    from train.deploy_cmd import deploy_check
+
+    out = tmp_path / "check.json"
+    res = deploy_check(deployed["artefact"], deployed["log"], json_path=out)
+    saved = json.loads(out.read_text())
+    assert set(saved["latency_us"]) == {"median", "p99", "p999", "max"}
+    lat = saved["latency_us"]
+    assert 0 < lat["median"] <= lat["p99"] <= lat["p999"] <= lat["max"]
+    assert isinstance(saved["deadline_misses"], int)
+    assert saved["max_abs_diff"] <= P_TOL
+    assert res["steps"] == N_STEPS
+
+
+def test_cli_arguments_are_checked_without_jax(tmp_path):
+    import argparse
+
+    from train import deploy_cmd
+
+    parser = argparse.ArgumentParser()
+    deploy_cmd.add_parsers(parser.add_subparsers(dest="command"))
+    args = parser.parse_args(["export", "--robot", "go1", "--out", str(tmp_path / "x.bin")])
+    with pytest.raises(ValueError, match="--out.*.contact"):
+        args.check(args)
+    args = parser.parse_args(
+        ["export", "--robot", "go1", "--params", str(tmp_path / "no.json"), "--out", "a.contact"]
+    )
+    with pytest.raises(ValueError, match="--params"):
+        args.check(args)
+    with pytest.raises(SystemExit):  # --robot and --model together
+        parser.parse_args(["export", "--robot", "go1", "--model", "a.xml", "--out", "a.contact"])
+    (tmp_path / "a.contact").write_bytes(b"x")
+    args = parser.parse_args(["deploy-check", str(tmp_path / "a.contact"), str(tmp_path / "l.h5")])
+    with pytest.raises(ValueError, match="argument log"):
+        args.check(args)
+    code = "import train.deploy_cmd, sys; print('jax' in sys.modules)"
+    proc = subprocess.run(
+        [sys.executable, "-c", code],
+        capture_output=True,
+        text=True,
+        env=dict(os.environ, PYTHONPATH=str(ROOT)),
+    )
+    assert proc.stdout.strip() == "False", proc.stderr
+
+
+def test_export_flat_round_trip_with_key():
+    """export_flat (the benchmark's export) serialises pytrees and typed keys."""
+    import jax
+    import jax.numpy as jnp
+
+    from jax_contact.export import export_flat, load_exported
+
+    params = jc.make_params(
+        jc.make_noise(3), force_rows=(0, 2), touchdown="monte_carlo", n_samples=16
+    )
+
+    def f(belief, key):
+        return jax.random.normal(key, (2,)) + belief.logit, belief
+
+    belief = jc.init_belief(params)
+    exported, flat = export_flat(f, belief, jax.random.key(1))
+    restored = load_exported(exported.serialize())
+    got = restored.call(*flat)
+    want = jax.tree.leaves(f(belief, jax.random.key(1)))
+    assert len(got) == len(want)
+    for a, b in zip(got, want, strict=True):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(jnp.asarray(b)))

@@ -1,0 +1,412 @@
+"""``jax-contact export`` and ``jax-contact deploy-check``: the estimator as a robot runs it.
+
+- ``export`` writes one ``.contact`` file (:mod:`jax_contact.export`): the single-robot update
+  with the robot's kinematics and dynamics traced in, and a JSON header (readings, state,
+  outputs, parameters and their provenance, versions).
+- ``deploy-check`` feeds a log (``jax-contact simulate``) at its rate through the loaded file
+  (:mod:`jax_contact.deploy`), one reading per call as a control loop would, and reports
+  the per-call latency (median, p99, p99.9, max), the deadline misses at the rate and the
+  largest |P(contact)| difference from the offline estimator (``train.evaluate.replay``
+  with the file's own parameters on the same readings).
+
+Like :mod:`train.cli`, this module imports only the standard library: arguments are
+checked before JAX is imported, and the library is imported inside the run functions.
+Register the commands with :func:`add_parsers` (``train.cli.build_parser``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+ARTEFACT_SUFFIX = ".contact"
+
+
+def add_parsers(subparsers) -> None:
+    """Adds ``export`` and ``deploy-check`` to ``jax-contact``'s subparsers.
+
+    Each parser gets ``func`` (run) and ``check`` (validate, no JAX) defaults, as
+    :func:`train.cli.main` expects.
+    """
+    from train.cli import ROBOT_NAMES, _HelpFormatter, _positive_float, _positive_int
+
+    p = subparsers.add_parser(
+        "export",
+        help="write the estimator of one robot as a file its control loop runs (jax only)",
+        description="Exports the single-robot estimator update, the robot's kinematics and"
+        " dynamics included (the MJX adapter traced in, so the runtime needs jax but not"
+        " mujoco), with a JSON header naming the readings (order, units, shapes), the"
+        " parameters and their provenance. Load it with jax_contact.deploy.load. Without"
+        " --params the robot's shipped defaults (jax_contact.params_for with the anymal_like"
+        " sensor model) are used.",
+        formatter_class=_HelpFormatter,
+    )
+    p.set_defaults(func=run_export, check=check_export)
+    which = p.add_mutually_exclusive_group(required=True)
+    which.add_argument(
+        "--robot", default=None, metavar="NAME", help=f"a robot name: {', '.join(ROBOT_NAMES)}"
+    )
+    which.add_argument("--model", default=None, metavar="XML", help="an MJCF file (with its floor)")
+    p.add_argument(
+        "--feet",
+        nargs="+",
+        default=None,
+        metavar="NAME",
+        help="foot geom (or body) names, in the order of P(contact); default: found in the model",
+    )
+    p.add_argument(
+        "--params", default=None, metavar="P.json", help="parameter file (jax_contact.save_params)"
+    )
+    p.add_argument("--rate", type=_positive_float, default=400.0, help="reading rate, Hz")
+    p.add_argument("--seed", type=int, default=0, help="PRNG seed (Monte-Carlo touch-down only)")
+    p.add_argument("--out", required=True, help=f"the {ARTEFACT_SUFFIX} file to write")
+
+    p = subparsers.add_parser(
+        "deploy-check",
+        help="replay a log in real time through an exported estimator: latency, agreement",
+        description="Feeds a log at its rate through the exported estimator, one reading per"
+        " call as a control loop would, and reports the per-call latency (median, p99, p99.9,"
+        " max in us), the deadline misses at the rate and the largest |P(contact)| difference"
+        " from the offline estimator on the same readings.",
+        formatter_class=_HelpFormatter,
+    )
+    p.set_defaults(func=run_deploy_check, check=check_deploy_check)
+    p.add_argument("artefact", help=f"a {ARTEFACT_SUFFIX} file written by `jax-contact export`")
+    p.add_argument("log", help="an .h5 log written by `jax-contact simulate`")
+    p.add_argument("--env", type=int, default=0, help="which env of the log to replay")
+    p.add_argument(
+        "--steps", type=_positive_int, default=None, help="replay only the first N readings"
+    )
+    p.add_argument(
+        "--no-pace",
+        action="store_true",
+        help="call back to back instead of once per period (latency only, no deadlines)",
+    )
+    p.add_argument("--json", default=None, help="write the results here")
+
+
+# ------------------------------------------------------------------------- argument checks
+
+
+def check_export(args: argparse.Namespace) -> None:
+    """Raises ValueError naming the argument that is wrong (no JAX import)."""
+    from train.cli import check_input_file, check_output_file, check_robot
+
+    if args.robot is not None:
+        check_robot("--robot", args.robot)
+    else:
+        check_input_file("--model", args.model)
+        if not args.model.endswith(".xml"):
+            raise ValueError(f"argument --model: {args.model!r} must be an MJCF .xml file")
+    if args.params is not None:
+        check_input_file("--params", args.params)
+    check_output_file("--out", args.out, (ARTEFACT_SUFFIX,))
+
+
+def check_deploy_check(args: argparse.Namespace) -> None:
+    """Raises ValueError naming the argument that is wrong (no JAX import)."""
+    from train.cli import LOG_SUFFIXES, check_input_file, check_output_file
+
+    check_input_file("artefact", args.artefact)
+    check_input_file("log", args.log)
+    if Path(args.log).suffix not in LOG_SUFFIXES:
+        raise ValueError(f"argument log: {args.log!r} must end in {' or '.join(LOG_SUFFIXES)}")
+    if args.env < 0:
+        raise ValueError(f"argument --env: must be >= 0, got {args.env}")
+    check_output_file("--json", args.json)
+
+
+# -------------------------------------------------------------------------------- export
+
+
+def default_estimator(desc, dt: float):
+    """The robot's shipped estimator: ``(params, terrain, provenance)``.
+
+    The choice of ``jax-contact evaluate`` (``train.logs.evaluate_file``): the planar leg's
+    Section III parameters and a 0.2 m terrain sigma for two-joint legs, else Table III's
+    quadruped parameters (``params_for`` with the ``anymal_like`` sensors) on flat ground.
+    """
+    import jax_contact as jc
+    from train.reproduce import TERRAIN_SIGMA, planar_estimator_params, quadruped_estimator_params
+
+    if desc.n_leg_dofs == 2:
+        fn, params, terrain = (
+            "train.reproduce.planar_estimator_params",
+            planar_estimator_params(desc.nv, dt),
+            jc.flat(0.0, 0.2),
+        )
+    else:
+        fn, params, terrain = (
+            "train.reproduce.quadruped_estimator_params",
+            quadruped_estimator_params(desc, dt),
+            jc.flat(0.0, TERRAIN_SIGMA),
+        )
+    provenance = {
+        "source": "defaults",
+        "function": fn,
+        "rule": "jax_contact.params_for with the anymal_like sensor model (envs.sensors)",
+        "dt": dt,
+    }
+    return params, terrain, provenance
+
+
+def export_to_file(
+    out: str | Path,
+    *,
+    robot: str,
+    feet=None,
+    params_path: str | None = None,
+    rate_hz: float = 400.0,
+    seed: int = 0,
+) -> dict:
+    """Exports ``robot`` (a name or an MJCF path) to ``out``; returns the header."""
+    import hashlib
+
+    import jax_contact as jc
+    from envs.robots import load_robot
+    from jax_contact import export
+
+    loaded = load_robot(robot, foot_names=feet)
+    desc = loaded.description
+    dt = 1.0 / float(rate_hz)
+    params, terrain, provenance = default_estimator(desc, dt)
+    if params_path is not None:
+        params = jc.load_params(params_path)
+        raw = Path(params_path).read_bytes()
+        provenance = {
+            "source": "file",
+            "path": str(Path(params_path).resolve()),
+            "sha256": hashlib.sha256(raw).hexdigest(),
+            "file_provenance": json.loads(raw).get("provenance", {}),
+        }
+        if params.nv != desc.nv:
+            raise ValueError(
+                f"argument --params: {params_path!r} has nv={params.nv} but robot {robot!r}"
+                f" has nv={desc.nv}"
+            )
+    source = robot if robot in _robot_names() else str(Path(robot).resolve())
+    header, payload = export.export_robot(
+        loaded.mj_model,
+        desc,
+        params,
+        terrain,
+        rate_hz=rate_hz,
+        robot_source=source,
+        provenance=provenance,
+        seed=seed,
+    )
+    export.write_artefact(out, header, payload)
+    return header
+
+
+def _robot_names() -> tuple[str, ...]:
+    from train.cli import ROBOT_NAMES
+
+    return ROBOT_NAMES
+
+
+def run_export(args: argparse.Namespace) -> int:
+    header = export_to_file(
+        args.out,
+        robot=args.robot or args.model,
+        feet=args.feet,
+        params_path=args.params,
+        rate_hz=args.rate,
+        seed=args.seed,
+    )
+    r = header["robot"]
+    print(
+        f"wrote {args.out}: {r['source']} (nq {r['nq']}, nv {r['nv']}, feet"
+        f" {', '.join(r['feet'])}) at {header['rate_hz']:g} Hz, {header['payload_bytes']} bytes"
+        f" of StableHLO; parameters: {header['params']['provenance'].get('source')}"
+    )
+    return 0
+
+
+# -------------------------------------------------------------------------- deploy-check
+
+
+def params_and_terrain(header: dict):
+    """The estimator parameters and terrain model stored in an export's header."""
+    import jax_contact as jc
+    from jax_contact.io import params_from_dict
+
+    params = params_from_dict(header["params"], source="export header")
+    t = header["terrain"]
+    if t.get("type") != "FlatTerrain":
+        raise ValueError(f"deploy-check replays flat terrain models only, got {t.get('type')!r}")
+    return params, jc.flat(float(t["height"]), float(t["sigma"]))
+
+
+def offline_estimate(header: dict, readings: dict, *, dt: float):
+    """(T, L) P(contact) of the offline estimator (``replay``) on one env's readings."""
+    from envs.robots import load_robot
+    from train.evaluate import replay
+
+    params, terrain = params_and_terrain(header)
+    robot = load_robot(header["robot"]["source"], foot_names=header["robot"]["feet"])
+    out = replay(
+        robot,
+        {k: v[:, None] for k, v in readings.items()},
+        estimators={"export": params},
+        terrain=terrain,
+        dt=dt,
+        seed=int(header["key"]["seed"]),
+        progress=False,
+    )
+    return out["export"][:, 0]
+
+
+def realtime_replay(est, readings: dict, *, period_s: float, pace: bool = True) -> dict:
+    """Feeds ``readings`` ((T, n) arrays) through ``est`` one call per period.
+
+    Each call is released at ``t0 + k * period_s`` (a sleep, then a spin for the last
+    0.3 ms); its latency is the duration of :meth:`Estimator.update`, and a deadline is
+    missed when the call ends after the next release. Without ``pace`` the calls run back
+    to back (no deadlines).
+
+    Returns:
+      ``latency_s`` (T,), ``p_contact`` (T, L), ``deadline_misses``.
+    """
+    import time
+
+    import numpy as np
+
+    names = est.reading_names
+    n_t = len(readings[names[0]])
+    steps = [{k: readings[k][i] for k in names} for i in range(n_t)]
+    warm = est.init()
+    for _ in range(20):  # first calls allocate; a controller warms up before it starts
+        warm, _, _ = est.update(warm, steps[0])
+    belief = est.init()
+    latency = np.empty(n_t)
+    p = np.empty((n_t, len(est.feet)), np.float32)
+    misses = 0
+    clock = time.perf_counter
+    t0 = clock() + 0.01
+    for k in range(n_t):
+        if pace:
+            release = t0 + k * period_s
+            wait = release - clock()
+            if wait > 3e-4:
+                time.sleep(wait - 3e-4)
+            while clock() < release:
+                pass
+        start = clock()
+        belief, p[k], _ = est.update(belief, steps[k])
+        end = clock()
+        latency[k] = end - start
+        if pace and end > t0 + (k + 1) * period_s:
+            misses += 1
+    return {"latency_s": latency, "p_contact": p, "deadline_misses": misses}
+
+
+def deploy_check(
+    artefact: str | Path,
+    log: str | Path,
+    *,
+    env: int = 0,
+    steps: int | None = None,
+    pace: bool = True,
+    json_path: str | Path | None = None,
+) -> dict:
+    """The ``deploy-check`` command as a function; returns its JSON payload."""
+    import numpy as np
+
+    from jax_contact import deploy
+    from jax_contact.export import read_artefact
+    from jax_contact.io import read_log, write_json_atomic
+    from train.logs import _OLD_TIMING, READING_TIMING, _log_arrays, _log_attrs, to_end_of_step
+
+    header, _ = read_artefact(artefact)
+    arrays, attrs = read_log(log)
+    name = f"log {str(log)!r}"
+    robot_name, dt = _log_attrs(name, attrs)
+    readings, truth, valid = _log_arrays(name, arrays)
+    # The export pairs readings as replay does, for end-of-step readings (jax_contact.export).
+    timing = attrs.get("reading_timing", _OLD_TIMING)
+    if timing == _OLD_TIMING:
+        print(f"{name}: start-of-step readings re-aligned to {READING_TIMING!r}", file=sys.stderr)
+        readings, _, _ = to_end_of_step(readings, truth, valid)
+    elif timing != READING_TIMING:
+        raise ValueError(
+            f"{name}: attribute 'reading_timing' is {timing!r}; expected {READING_TIMING!r}"
+        )
+    if abs(dt * header["rate_hz"] - 1.0) > 1e-6:
+        raise ValueError(
+            f"{name} is at {1.0 / dt:g} Hz but {str(artefact)!r} was exported for"
+            f" {header['rate_hz']:g} Hz: export at the log's rate"
+        )
+    n_envs = readings["qpos"].shape[1]
+    if env >= n_envs:
+        raise ValueError(f"argument --env: {name} has {n_envs} envs, got --env {env}")
+    for r in header["readings"]:
+        if readings[r["name"]].shape[-1] != r["shape"][0]:
+            raise ValueError(
+                f"{name}: readings/{r['name']} has {readings[r['name']].shape[-1]} columns but"
+                f" {str(artefact)!r} expects {r['shape'][0]} (robot {header['robot']['source']!r},"
+                f" log robot {robot_name!r})"
+            )
+    one = {k: np.ascontiguousarray(v[:steps, env], np.float32) for k, v in readings.items()}
+
+    est = deploy.load(artefact)
+    rt = realtime_replay(est, one, period_s=dt, pace=pace)
+    offline = offline_estimate(header, one, dt=dt)
+    diff = np.abs(rt["p_contact"] - offline)
+    lat_us = 1e6 * rt["latency_s"]
+    result = {
+        "artefact": str(artefact),
+        "log": str(log),
+        "env": env,
+        "steps": int(len(lat_us)),
+        "rate_hz": float(header["rate_hz"]),
+        "paced": bool(pace),
+        "latency_us": {
+            "median": float(np.median(lat_us)),
+            "p99": float(np.percentile(lat_us, 99)),
+            "p999": float(np.percentile(lat_us, 99.9)),
+            "max": float(np.max(lat_us)),
+        },
+        "deadline_misses": int(rt["deadline_misses"]),
+        "max_abs_diff": float(np.nanmax(diff)) if np.isfinite(diff).any() else float("nan"),
+    }
+    lat = result["latency_us"]
+    print(
+        f"{result['steps']} readings of env {env} at {result['rate_hz']:g} Hz through"
+        f" {str(artefact)!r}:\n  latency per call: median {lat['median']:.1f} us, p99"
+        f" {lat['p99']:.1f}, p99.9 {lat['p999']:.1f}, max {lat['max']:.1f} us\n  deadline"
+        f" misses ({1e3 * dt:g} ms period): "
+        + (f"{result['deadline_misses']}" if pace else "not paced (--no-pace)")
+        + f"\n  max |P(contact) - offline estimate|: {result['max_abs_diff']:.2e}"
+    )
+    if json_path:
+        write_json_atomic(json_path, result)
+    return result
+
+
+def run_deploy_check(args: argparse.Namespace) -> int:
+    deploy_check(
+        args.artefact,
+        args.log,
+        env=args.env,
+        steps=args.steps,
+        pace=not args.no_pace,
+        json_path=args.json,
+    )
+    return 0
+
+
+if __name__ == "__main__":  # python -m train.deploy_cmd {export,deploy-check} ...
+    from train import cli
+
+    parser = argparse.ArgumentParser(prog="jax-contact")
+    add_parsers(parser.add_subparsers(dest="command", metavar="COMMAND"))
+    ns = parser.parse_args()
+    try:
+        ns.check(ns)
+    except ValueError as err:
+        print(f"jax-contact {ns.command}: error: {err}", file=sys.stderr)
+        sys.exit(cli.EXIT_USAGE)
+    sys.exit(ns.func(ns))
