@@ -9,7 +9,11 @@ strings and tuples, so it is hashable and can be a static argument of ``jax.jit`
 - the floor: geoms of the world body of type plane or height field;
 - the feet: sphere geoms of other bodies that can collide with a floor geom (MuJoCo's
   contype/conaffinity rule: ``(contype_a & conaffinity_b) | (contype_b & conaffinity_a)``),
-  or the geoms / bodies named by the caller;
+  or the geoms / bodies named by the caller. Unnamed, only the distal sphere of each joint
+  chain is a foot: a sphere on a body below which no other body carries such a sphere, and
+  of that body's spheres the one farthest from its joint (the body origin where it has
+  none). On models whose every collision geom is a sphere (Menagerie's Go2 MJX model:
+  hips, thighs, calves and feet) that is the foot at the end of each leg;
 - the base: the body with a free joint on the chain from a foot to the world, else the
   first body under the world on that chain (e.g. the planar leg's base on its rail);
 - each leg: the dofs of the joints on the chain from the foot's body up to, not including,
@@ -22,6 +26,7 @@ import dataclasses
 from collections.abc import Sequence
 
 import mujoco
+import numpy as np
 
 _FLOOR_TYPES = (int(mujoco.mjtGeom.mjGEOM_PLANE), int(mujoco.mjtGeom.mjGEOM_HFIELD))
 _JOINT_TRANSMISSIONS = (int(mujoco.mjtTrn.mjTRN_JOINT), int(mujoco.mjtTrn.mjTRN_JOINTINPARENT))
@@ -114,6 +119,19 @@ def _leg(m: mujoco.MjModel, geom: int) -> tuple[int, list[int]]:
     return base, sorted(d for b in leg_bodies for d in _body_dofs(m, b))
 
 
+def _distal(spheres: list[int], m: mujoco.MjModel) -> list[int]:
+    """The distal sphere of each joint chain among ``spheres``, in geom order."""
+    bodies = {int(m.geom_bodyid[g]) for g in spheres}
+    # A body is inner if another candidate body hangs below it.
+    inner = {b for c in bodies for b in _body_chain(m, c)[1:]}
+    out = []
+    for b in sorted(bodies - inner):
+        on_body = [g for g in spheres if int(m.geom_bodyid[g]) == b]
+        anchor = m.jnt_pos[m.body_jntadr[b]] if m.body_jntnum[b] > 0 else np.zeros(3)
+        out.append(max(on_body, key=lambda g: float(np.linalg.norm(m.geom_pos[g] - anchor))))
+    return sorted(out)
+
+
 def derive_description(
     mj_model: mujoco.MjModel, foot_names: Sequence[str] | None = None
 ) -> RobotDescription:
@@ -122,7 +140,8 @@ def derive_description(
     Args:
       mj_model: the compiled model, including its floor.
       foot_names: geom or body names of the feet, in the order the legs should have; None
-        takes every sphere geom that can touch the floor, in geom order.
+        takes the distal sphere of each joint chain that can touch the floor (module
+        docstring), in geom order.
 
     Returns:
       The robot's description.
@@ -155,7 +174,7 @@ def derive_description(
 
     if foot_names is None:
         # A sphere on the base itself (a bumper) can touch the floor but is no foot.
-        feet = [g for g in candidates if _leg(m, g)[1]]
+        feet = _distal([g for g in candidates if _leg(m, g)[1]], m)
         if not feet:
             raise ValueError(
                 "mj_model has no floor contact through a leg: the sphere geoms that can touch"

@@ -315,3 +315,46 @@ def test_put_model_smoke(loaded, rough_go1):
     for robot in (*loaded.values(), rough_go1[1]):
         mm = mjx.put_model(robot.mj_model)
         assert (mm.nq, mm.nv) == (robot.mj_model.nq, robot.mj_model.nv)
+
+
+def _all_sphere_quadruped() -> mujoco.MjModel:
+    """Every collision geom a sphere (as in Menagerie's Go2 MJX model): hip, two on the
+    thigh, two along the calf and the foot at its end, plus one on the base."""
+    legs = ""
+    for leg, (x, y) in {"FR": (0.2, -0.1), "FL": (0.2, 0.1), "RR": (-0.2, -0.1)}.items():
+        legs += f"""
+        <body name="{leg}_hip" pos="{x} {y} 0"><joint axis="1 0 0"/>
+          <inertial pos="0 0 0" mass=".5" diaginertia=".001 .001 .001"/>
+          <geom type="sphere" size=".04"/>
+          <body name="{leg}_thigh"><joint axis="0 1 0"/>
+            <inertial pos="0 0 -.1" mass=".8" diaginertia=".004 .004 .001"/>
+            <geom type="sphere" size=".03" pos="0 0 -.05"/>
+            <geom type="sphere" size=".03" pos="0 0 -.15"/>
+            <body name="{leg}_calf" pos="0 0 -.2"><joint pos="0 0 0" axis="0 1 0"/>
+              <inertial pos="0 0 -.1" mass=".2" diaginertia=".002 .002 .0005"/>
+              <geom type="sphere" size=".015" pos="0 0 -.07"/>
+              <geom name="{leg}" type="sphere" size=".02" pos="0 0 -.2"/>
+              <geom type="sphere" size=".015" pos="0 0 -.13"/>
+            </body></body></body>"""
+    xml = f"""<mujoco><worldbody><geom name="floor" type="plane" size="5 5 .1"/>
+      <body name="base" pos="0 0 .5"><freejoint/>
+        <inertial pos="0 0 0" mass="5" diaginertia=".02 .05 .06"/>
+        <geom type="sphere" size=".08"/>{legs}
+      </body></worldbody></mujoco>"""
+    spec = mujoco.MjSpec.from_string(xml)
+    for j in spec.joints:
+        if j.type == mujoco.mjtJoint.mjJNT_HINGE:
+            j.name = j.name or f"{j.parent.name}_joint"
+            spec.add_actuator(target=j.name, trntype=mujoco.mjtTrn.mjTRN_JOINT)
+    return spec.compile()
+
+
+def test_feet_of_an_all_sphere_model_are_the_distal_spheres():
+    m = _all_sphere_quadruped()
+    desc = derive_description(m)
+    # Nine spheres per leg chain can touch the floor; the foot is the calf's sphere
+    # farthest from the knee (0.2 m below it, the others 0.07 and 0.13 m).
+    assert desc.foot_names == ("FR", "FL", "RR")
+    assert desc.n_leg_dofs == 3 and desc.foot_radii == (0.02,) * 3
+    assert desc.foot_offsets == ((0.0, 0.0, -0.2),) * 3
+    assert desc == derive_description(m, ["FR", "FL", "RR"])
