@@ -7,7 +7,7 @@ STAMP := $(VENV)/.installed
 # module fixtures compile once. `make test TEST_WORKERS=0` runs it in one process.
 TEST_WORKERS ?= 2
 
-.PHONY: demo test install lint clean
+.PHONY: demo test install lint clean clean-cache
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -28,3 +28,9 @@ lint: $(STAMP)
 
 clean:
 	rm -rf $(VENV) out .pytest_cache
+
+# JAX's persistent compilation cache of the CLI and the tests (train/cli.py); `make demo`
+# and `make test` fill it, a second run loads from it. Safe to delete at any time.
+JAX_CONTACT_CACHE_DIR ?= $(or $(XDG_CACHE_HOME),$(HOME)/.cache)/jax-contact/xla
+clean-cache:
+	rm -rf "$(JAX_CONTACT_CACHE_DIR)"

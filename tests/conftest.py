@@ -6,6 +6,13 @@
 * ``jit_step``, ``jit_step_batch``, ``jit_run``: the estimator's entry points jitted once
   per session, so every test file that calls them with the same shapes and static
   parameters shares one compilation; each counts its traces (see :class:`CountingJit`).
+
+JAX's persistent compilation cache is on for the whole suite, in the folder the command
+line uses (``train.cli.enable_compilation_cache``: ``~/.cache/jax-contact/xla``, or
+``$JAX_CONTACT_CACHE_DIR``, empty for off), set before JAX is imported so that every
+pytest-xdist worker and every subprocess a test starts (the CLI, the README's blocks) shares
+it: a second ``make test`` loads the programs the first one compiled. Tracing still runs,
+so tests that count traces are unaffected.
 """
 
 from __future__ import annotations
@@ -13,11 +20,15 @@ from __future__ import annotations
 import collections
 import zlib
 
-import jax
-import numpy as np
-import pytest
+from train.cli import enable_compilation_cache
 
-import jax_contact
+enable_compilation_cache()  # before JAX is imported: through JAX's environment variables
+
+import jax  # noqa: E402
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
+
+import jax_contact  # noqa: E402
 
 
 def pytest_configure(config):

@@ -29,6 +29,20 @@ Three things here are about the command line itself, not the library:
   output goes through ``jax_contact.io``'s atomic writes) and ends the process with
   ``os._exit(130)``. Output written completely before the signal (e.g. the run folders of
   earlier ``train`` variants) stays.
+- **Compiled programs are kept between runs** (:func:`enable_compilation_cache`): JAX's
+  persistent compilation cache, in ``~/.cache/jax-contact/xla`` (``$XDG_CACHE_HOME`` is
+  honoured), or in ``$JAX_CONTACT_CACHE_DIR`` (empty: off); a ``JAX_COMPILATION_CACHE_DIR``
+  of the user's own wins. On 2 cores most of a short run is compilation, which a second
+  run then loads in about a second per program. Every program is kept (minimum compile
+  time and entry size 0); deleting the folder at any time is safe.
+- **Nothing is silent for long** (:mod:`train.progress`): while JAX loads and whenever it
+  compiles for over a second, stderr says so with the seconds counting
+  (``jax-contact simulate: compiling (first call)... 12 s``); ``JAX_CONTACT_PROGRESS=0``
+  turns these lines off.
+
+Adding a command: a ``_cmd_<name>`` function (imports the library inside, returns the exit
+code), a ``_check_<name>`` that raises ValueError for a bad argument without importing JAX,
+and a ``command(...)`` block with its arguments in :func:`build_parser`.
 """
 
 from __future__ import annotations
@@ -41,6 +55,8 @@ import sys
 import tempfile
 import threading
 from pathlib import Path
+
+from train import progress
 
 # Copies of the library's lists (importing those modules imports JAX); tests/test_cli.py
 # checks that each equals its original.
@@ -72,23 +88,56 @@ EXIT_INTERRUPTED = 130  # 128 + SIGINT, what a shell reports for a command stopp
 # ----------------------------------------------------------------------------- commands
 
 
-def _cmd_demo(args: argparse.Namespace) -> int:
+# `--size tiny` / `--config tiny`: the smallest runs that go through every step of a
+# command (a check of the install and of the README's commands, tests/test_readme.py); their
+# numbers mean nothing. Mostly compilation.
+REPRODUCE_SIZES = ("tiny", "demo", "full")
+TINY_REPRODUCE = dict(
+    n_envs=2,
+    duration=0.5,
+    tune_envs=2,
+    tune_duration=0.5,
+    planar_envs=1,
+    planar_duration=0.5,
+)
+PPO_CONFIGS = ("tiny", "small", "full")
+TINY_PPO = dict(
+    num_timesteps=160,
+    num_envs=8,
+    batch_size=8,
+    num_minibatches=2,
+    unroll_length=10,
+    num_updates_per_batch=1,
+    num_evals=2,
+    num_eval_envs=4,
+    episode_length=50,
+    policy_hidden=(16, 16),
+    value_hidden=(16,),
+)
+
+
+def _reproduce_config(size: str, **overrides):
     import dataclasses
 
     from train import reproduce
 
-    reproduce.run(dataclasses.replace(reproduce.DEMO, seed=args.seed), args.out)
+    cfg = reproduce.FULL if size == "full" else reproduce.DEMO
+    if size == "tiny":
+        cfg = dataclasses.replace(cfg, **TINY_REPRODUCE)
+    return dataclasses.replace(cfg, **{k: v for k, v in overrides.items() if v is not None})
+
+
+def _cmd_demo(args: argparse.Namespace) -> int:
+    from train import reproduce
+
+    reproduce.run(_reproduce_config(args.size, seed=args.seed), args.out)
     return 0
 
 
 def _cmd_reproduce(args: argparse.Namespace) -> int:
-    import dataclasses
-
     from train import reproduce
 
-    cfg = reproduce.FULL if args.size == "full" else reproduce.DEMO
-    overrides = {k: v for k, v in (("robot", args.robot), ("seed", args.seed)) if v is not None}
-    reproduce.run(dataclasses.replace(cfg, **overrides), args.out)
+    reproduce.run(_reproduce_config(args.size, robot=args.robot, seed=args.seed), args.out)
     return 0
 
 
@@ -130,7 +179,12 @@ def _cmd_bench(args: argparse.Namespace) -> int:
 def _cmd_train(args: argparse.Namespace) -> int:
     from train import ppo
 
-    cfg = ppo.CONFIGS[args.config]
+    if args.config == "tiny":
+        import dataclasses
+
+        cfg = dataclasses.replace(ppo.SMALL, **TINY_PPO)
+    else:
+        cfg = ppo.CONFIGS[args.config]
     if args.timesteps:
         # Brax PPO rounds num_timesteps up to whole epochs (6x the request at 40,960 steps);
         # fit_timesteps makes it train exactly what was asked, or says what it trains.
@@ -157,8 +211,13 @@ def _cmd_policy_eval(args: argparse.Namespace) -> int:
     print(ppo.format_evaluation([res]))
     c = res["contact"]
     print(
-        f"contact: touch-down delay {c['touchdown_delay_ms'][0]:.1f} +- "
+        f"contact estimator: touch-down delay {c['touchdown_delay_ms'][0]:.1f} +- "
         f"{c['touchdown_delay_ms'][1]:.1f} ms, failures {c['failures']}, Brier {c['brier']:.3f}"
+    )
+    print(
+        "estimator acc, F1, delay, failures, Brier: the contact estimator run beside the policy"
+        " (whatever the policy observes), per step against the simulator's contact, over the"
+        " steps alive; failures: false contacts in the air"
     )
     if args.json:
         write_json_atomic(args.json, res)
@@ -169,7 +228,9 @@ def _cmd_rates(args: argparse.Namespace) -> int:
     from jax_contact.io import write_json_atomic
     from train import rates
 
-    out = rates.run(args.scenes, seed=args.seed, pairing=args.pairing)
+    out = {}
+    for scene in progress.bar(args.scenes, desc="rates", unit="scene"):
+        out.update(rates.run([scene], seed=args.seed, pairing=args.pairing))
     if args.json:
         write_json_atomic(args.json, out)
     return 0
@@ -339,6 +400,12 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--out", default="out/demo", help="output folder")
     p.add_argument("--seed", type=int, default=0, help="evaluation seed")
+    p.add_argument(
+        "--size",
+        choices=REPRODUCE_SIZES,
+        default="demo",
+        help="run size, as `reproduce --size` (tiny: 2 envs for 0.5 s, checks the install)",
+    )
 
     p = command(
         "reproduce",
@@ -349,9 +416,10 @@ def build_parser() -> argparse.ArgumentParser:
         " comparison of the estimator with the generalized-momentum observer and a kinematic"
         " detector on a quadruped, and an ablation of the estimator's terms. Prints the tables"
         " and writes figures and table3.json into --out. `--size demo` is what `jax-contact"
-        " demo` runs; `--size full` is larger (more envs, longer, Monte-Carlo touch-down too).",
+        " demo` runs; `--size full` is larger (more envs, longer, Monte-Carlo touch-down too);"
+        " `--size tiny` (2 envs for 0.5 s) only checks that every step runs.",
     )
-    p.add_argument("--size", choices=("demo", "full"), default="demo", help="run size")
+    p.add_argument("--size", choices=REPRODUCE_SIZES, default="demo", help="run size")
     p.add_argument(
         "--robot",
         default=None,
@@ -404,9 +472,10 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--config",
-        choices=("small", "full"),
+        choices=PPO_CONFIGS,
         default="small",
-        help="small: this 2-core CPU, <= 20 min per variant; full: a GPU",
+        help="small: this 2-core CPU, <= 20 min per variant; full: a GPU; tiny: 160 steps"
+        " of 8 envs, checks that every step runs (learns nothing)",
     )
     p.add_argument(
         "--timesteps",
@@ -566,6 +635,51 @@ def _quiet_xla_logs() -> None:
         os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "3")
 
 
+CACHE_ENV = "JAX_CONTACT_CACHE_DIR"
+
+
+def compilation_cache_dir() -> str | None:
+    """jax-contact's persistent compilation cache folder, or None when turned off:
+    ``$JAX_CONTACT_CACHE_DIR`` if set (empty: off), else ``$XDG_CACHE_HOME/jax-contact/xla``
+    (``~/.cache/jax-contact/xla``)."""
+    if CACHE_ENV in os.environ:
+        return os.environ[CACHE_ENV].strip() or None
+    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    return os.path.join(base, "jax-contact", "xla")
+
+
+def enable_compilation_cache() -> str | None:
+    """Turns on JAX's persistent compilation cache (module docstring); returns its folder,
+    or None when it is off or its folder cannot be created.
+
+    Set through JAX's environment variables, before JAX is imported, so that subprocesses
+    (``bench``'s sharding check) share it; when JAX is already imported (a test calling
+    :func:`main`), through ``jax.config``, unless a cache folder is configured already.
+    """
+    folder = os.environ.get("JAX_COMPILATION_CACHE_DIR") or compilation_cache_dir()
+    if not folder:
+        return None
+    try:
+        os.makedirs(folder, exist_ok=True)
+    except OSError:  # e.g. a read-only home: run without the cache
+        return None
+    settings = {
+        "jax_compilation_cache_dir": folder,
+        # Keep every program: the measured default thresholds skip most of this code's.
+        "jax_persistent_cache_min_compile_time_secs": "0",
+        "jax_persistent_cache_min_entry_size_bytes": "0",
+    }
+    for name, value in settings.items():  # read by JAX when it is imported, here or in a child
+        os.environ.setdefault(name.upper(), value)
+    jax = sys.modules.get("jax")
+    if jax is not None:
+        if jax.config.jax_compilation_cache_dir is None:
+            jax.config.update("jax_compilation_cache_dir", folder)
+            jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
+            jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
+    return folder
+
+
 def main(argv: list[str] | None = None) -> int:
     """Runs ``jax-contact`` with ``argv`` (default: ``sys.argv[1:]``); returns the exit code:
     0, 2 for a bad argument or input (one line on stderr), 130 when interrupted."""
@@ -581,9 +695,14 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{prog}: error: {err}", file=sys.stderr)
         return EXIT_USAGE
     _quiet_xla_logs()
+    enable_compilation_cache()
     try:
         with _StopOnInterrupt(prog):
-            return int(args.func(args) or 0)
+            with progress.status(prog, "loading JAX and MuJoCo", "loaded JAX and MuJoCo"):
+                import jax  # noqa: F401  (what every command imports first, and the slow part)
+                from mujoco import mjx  # noqa: F401
+            with progress.watch_compiles(prog):
+                return int(args.func(args) or 0)
     except KeyboardInterrupt:  # raised before the watcher ran, or outside the main thread
         print(f"{prog}: interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED

@@ -509,7 +509,7 @@ def train(
         log(
             f"[{variant}] step {row['step']:>10,d}/{brax_timesteps(cfg):,d}"
             f"  return {row['eval_reward']:8.2f} +- {row['eval_reward_std']:6.2f}"
-            f"  episode {length:6.1f} steps  contact acc {row['eval_contact_accuracy']:.3f}"
+            f"  episode {length:6.1f} steps  estimator acc {row['eval_contact_accuracy']:.3f}"
             f"  wall {wall:7.1f} s"
         )
 
@@ -660,14 +660,14 @@ def format_evaluation(results: Sequence[dict]) -> str:
     """A table of :func:`evaluate_policy` results."""
     lines = [
         f"{'trained with':>12s} {'observed':>9s} {'return':>16s} {'ep. length':>10s}"
-        f" {'fell':>5s} {'contact acc':>11s} {'F1':>6s}"
+        f" {'fell':>5s} {'estimator acc':>13s} {'estimator F1':>12s}"
     ]
     for r in results:
         c = r["contact"]
         lines.append(
             f"{r['trained_with']:>12s} {r['observed']:>9s}"
             f" {r['return_mean']:8.2f} +- {r['return_std']:5.2f} {r['episode_length_mean']:10.1f}"
-            f" {r['fell']:5.2f} {c['accuracy']:11.3f} {c['f1']:6.3f}"
+            f" {r['fell']:5.2f} {c['accuracy']:13.3f} {c['f1']:12.3f}"
         )
     return "\n".join(lines)
 
