@@ -30,6 +30,7 @@ from benchmarks.common import (
     print_table,
     synthetic,
 )
+from jax_contact.export import export_flat, load_exported
 from jax_contact.io import write_json_atomic
 
 DEFAULT_ENVS = (1, 64, 256, 1024, 4096, 16384)
@@ -109,9 +110,10 @@ def _batch1(mode: str, layout: str):
 
 
 def latency(n_calls: int = 10_000) -> dict:
-    """Single-robot (4 legs) latency: Monte-Carlo jitted, AOT-compiled and jax.export'ed,
-    and the quadrature jitted, on per-foot copies; with the number of kernels each
-    executable launches. Also the Monte-Carlo jitted on the per-robot layout (the legs'
+    """Single-robot (4 legs) latency: Monte-Carlo jitted, AOT-compiled and jax.export'ed
+    (by ``jax_contact.export.export_flat``, as the exported robot estimator is), and the
+    quadrature jitted, on per-foot copies; with the number of kernels each executable
+    launches. Also the Monte-Carlo jitted on the per-robot layout (the legs'
     blocks sliced, then one program vmapped over the legs: about as many kernels)."""
     _, q_args, q_jitted, q_compiled = _batch1("quadrature", "per_foot")
     _, r_args, r_jitted, r_compiled = _batch1("monte_carlo", "robot")
@@ -122,21 +124,12 @@ def latency(n_calls: int = 10_000) -> dict:
     }
     out["jit"]["kernels"] = out["aot"]["kernels"] = kernel_count(compiled)
 
-    # jax.export serialises plain arrays: flatten the pytrees and pass the raw key data,
-    # as a deployment that loads the estimator without this library would.
-    belief, meas, key = args
-    leaves, treedef = jax.tree.flatten((belief, meas))
-    raw_key = jax.random.key_data(key)
-
-    def flat_update(raw, *flat):
-        b, m = jax.tree.unflatten(treedef, flat)
-        return jax.tree.leaves(update(b, m, jax.random.wrap_key_data(raw)))
-
-    exported = jax.export.export(jax.jit(flat_update))(raw_key, *leaves)
-    restored = jax.export.deserialize(exported.serialize())
-    call = jax.jit(restored.call)
-    jax.block_until_ready(call(raw_key, *leaves))
-    out["export"] = _time_calls(lambda: call(raw_key, *leaves), n_calls)
+    # jax.export serialises plain arrays: the library's export flattens the pytrees and
+    # passes the raw key data, as a deployment that loads the estimator without it would.
+    exported, flat = export_flat(update, *args)
+    call = jax.jit(load_exported(exported.serialize()).call)
+    jax.block_until_ready(call(*flat))
+    out["export"] = _time_calls(lambda: call(*flat), n_calls)
     out["quadrature_jit"] = _time_calls(lambda: q_jitted(*q_args), n_calls)
     out["quadrature_jit"]["kernels"] = kernel_count(q_compiled)
     out["robot_layout_jit"] = _time_calls(lambda: r_jitted(*r_args), n_calls)
