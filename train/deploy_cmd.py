@@ -198,7 +198,7 @@ def export_to_file(
         seed=seed,
     )
     export.write_artefact(out, header, payload)
-    return header
+    return export.read_artefact(out)[0]  # as written, checksum verified
 
 
 def _robot_names() -> tuple[str, ...]:
