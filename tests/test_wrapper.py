@@ -18,10 +18,8 @@ import pytest
 from brax.envs.base import PipelineEnv
 from brax.envs.wrappers import training as brax_training
 from brax.io import mjcf as brax_mjcf
-from ml_collections import config_dict
 from mujoco import mjx
-from mujoco_playground._src import mjx_env
-from wrapper_helpers import Traced
+from wrapper_helpers import PlaygroundLeg, Traced
 from wrapper_helpers import logit_of as _logit
 
 import jax_contact as jc
@@ -49,41 +47,6 @@ def leg_robot():
 @pytest.fixture(scope="module")
 def brax_leg(leg_robot):
     return W.LeggedPipelineEnv(leg_robot, n_frames=N_FRAMES, position_servo=(300.0, 8.0))
-
-
-class PlaygroundLeg(mjx_env.MjxEnv):
-    """The planar leg as a minimal Playground env (dict observation), for the refusals."""
-
-    def __init__(self, mj_model: mujoco.MjModel, n_substeps: int):
-        dt = float(mj_model.opt.timestep)
-        super().__init__(config_dict.create(ctrl_dt=dt * n_substeps, sim_dt=dt))
-        self._mj = mj_model
-        self._mjx = mjx.put_model(mj_model)
-
-    def reset(self, rng):
-        data = mjx.forward(self._mjx, mjx_env.make_data(self._mj, impl="jax"))
-        zero = jnp.zeros(())
-        obs = {"state": jnp.concatenate([data.qpos, data.qvel])}
-        return mjx_env.State(data, obs, zero, zero, {}, {"rng": rng})
-
-    def step(self, state, action):
-        return state.replace(data=mjx_env.step(self._mjx, state.data, action, self.n_substeps))
-
-    @property
-    def xml_path(self) -> str:
-        return ""
-
-    @property
-    def action_size(self) -> int:
-        return self._mj.nu
-
-    @property
-    def mj_model(self):
-        return self._mj
-
-    @property
-    def mjx_model(self):
-        return self._mjx
 
 
 @pytest.fixture(scope="module")
@@ -121,8 +84,13 @@ def test_brax_substep_observation_and_info(brax_leg, brax_train):
     state = reset(keys)
     init = jc.init_belief(env.contact_core.params)
     np.testing.assert_array_equal(_logit(state), np.full((N_ENVS, 1), init.logit))
+    hits = []  # per step, right foot-updates over its substeps (from the records)
     for a in hop_actions(2, float(brax_leg.dt)):
         state = step(state, _batch(a))
+        subs = state.info["contact_est_substeps"]
+        hits.append(
+            np.sum((np.asarray(subs["p_contact"]) > 0.5) == np.asarray(subs["truth"]), axis=(1, 2))
+        )
     assert state.obs.shape == (N_ENVS, inner_size + 1)
     # The env's own observation (joint positions after the rail, all velocities) comes
     # first, unchanged; the estimate is appended.
@@ -135,7 +103,17 @@ def test_brax_substep_observation_and_info(brax_leg, brax_train):
     # Standing on the floor at first: the belief has left 0.5 towards contact.
     assert np.all(np.asarray(state.info["contact_est_truth"]))
     assert np.all(np.asarray(state.obs[:, -1]) > 0.9)
-    np.testing.assert_array_equal(state.metrics["contact_est/accuracy"], 1.0)
+    # The score counts every physics-step update (one foot): running accuracy after two
+    # steps = (hits_1 + hits_2) / 8; the metric is its increment over the first step's
+    # hits_1 / 4, so that Brax's episode sums give the episode's accuracy.
+    score = state.info["contact_est_score"]
+    np.testing.assert_array_equal(score["n"], 2 * N_FRAMES)
+    mean2 = (hits[0] + hits[1]) / (2 * N_FRAMES)
+    np.testing.assert_allclose(score["mean"], mean2, rtol=1e-6)
+    np.testing.assert_allclose(
+        state.metrics["contact_est/accuracy"], mean2 - hits[0] / N_FRAMES, rtol=1e-6, atol=1e-7
+    )
+    assert np.all(hits[1] == N_FRAMES)  # standing: every update of step 2 is right
     subs = state.info["contact_est_substeps"]
     assert subs["p_contact"].shape == (N_ENVS, N_FRAMES, 1)
     np.testing.assert_array_equal(
@@ -299,8 +277,8 @@ def test_refusals(leg_robot, brax_leg, pg_leg):
         W.wrap_contact(brax_leg, foot_names=["nope"])
     with pytest.raises(ValueError, match="config.rate must be one of"):
         W.wrap_contact(brax_leg, W.ContactObsConfig(rate="fast"))
-    with pytest.raises(ValueError, match="use rate='control'"):
-        W.wrap_contact(pg_leg, W.ContactObsConfig(rate="substep"))
+    with pytest.raises(ValueError, match="record_substeps needs rate='substep'"):
+        W.wrap_contact(pg_leg, W.ContactObsConfig(rate="control", record_substeps=True))
     with pytest.raises(ValueError, match="config.obs_keys"):
         _ = W.wrap_contact(pg_leg, W.ContactObsConfig(obs_keys=("policy",))).observation_size
 

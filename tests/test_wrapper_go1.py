@@ -89,7 +89,7 @@ def test_offline_go1_model_matches_the_shipped_one():
     assert m.opt.timestep == pytest.approx(0.004)  # Playground's sim_dt applied
     assert env.mjx_model.impl.value == "jax"
     with pytest.raises(ValueError, match="valid names"):
-        playground_offline.load("Go1Getup")
+        playground_offline.load("Go1Moonwalk")
 
 
 def test_go1_joystick_offline_smoke():
@@ -97,7 +97,7 @@ def test_go1_joystick_offline_smoke():
     rate, anymal_like sensors) and Playground's training wrappers, jitted once: sizes, no
     NaN, truth from the env's own foot sensors, reset and auto-reset restart the belief."""
     go1 = playground_offline.load("Go1JoystickFlatTerrain")
-    env = W.wrap_contact(go1, W.ContactObsConfig(include_logit=True))
+    env = W.wrap_contact(go1, W.ContactObsConfig(include_logit=True, rate="control"))
     core = env.contact_core
     assert env.contact_rate == "control"
     assert float(core.params.dt) == pytest.approx(0.02)

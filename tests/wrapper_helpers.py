@@ -3,7 +3,12 @@
 from __future__ import annotations
 
 import jax
+import jax.numpy as jnp
+import mujoco
 import numpy as np
+from ml_collections import config_dict
+from mujoco import mjx
+from mujoco_playground._src import mjx_env
 
 
 class Traced:
@@ -31,3 +36,38 @@ class Traced:
 def logit_of(state, key="contact_est"):
     """(n_envs, n_feet) belief logits the wrapper keeps under ``state.info[key]``."""
     return np.asarray(state.info[key].belief.logit)
+
+
+class PlaygroundLeg(mjx_env.MjxEnv):
+    """The planar leg as a minimal Playground env (dict observation), for the refusals."""
+
+    def __init__(self, mj_model: mujoco.MjModel, n_substeps: int):
+        dt = float(mj_model.opt.timestep)
+        super().__init__(config_dict.create(ctrl_dt=dt * n_substeps, sim_dt=dt))
+        self._mj = mj_model
+        self._mjx = mjx.put_model(mj_model)
+
+    def reset(self, rng):
+        data = mjx.forward(self._mjx, mjx_env.make_data(self._mj, impl="jax"))
+        zero = jnp.zeros(())
+        obs = {"state": jnp.concatenate([data.qpos, data.qvel])}
+        return mjx_env.State(data, obs, zero, zero, {}, {"rng": rng})
+
+    def step(self, state, action):
+        return state.replace(data=mjx_env.step(self._mjx, state.data, action, self.n_substeps))
+
+    @property
+    def xml_path(self) -> str:
+        return ""
+
+    @property
+    def action_size(self) -> int:
+        return self._mj.nu
+
+    @property
+    def mj_model(self):
+        return self._mj
+
+    @property
+    def mjx_model(self):
+        return self._mjx

@@ -1,7 +1,7 @@
 """Physics-rate against control-rate contact estimation, on the same rollouts.
 
-:func:`envs.wrapper.compare_rates` wraps one Brax env twice (an estimator at every physics
-step and one per env step) so one simulation feeds both. Here it runs on two scripted
+:func:`compare_rates` wraps one env twice (an estimator at every physics step and one per
+env step) so one simulation feeds both. Here it runs on two scripted
 scenes, 16 rollouts of 250 env steps (5 s at a 20 ms control period) each, ``anymal_like``
 sensors, rollout ``e`` at ``1 + 0.02 e`` times the base frequency so that the contact
 events do not line up across rollouts:
@@ -18,10 +18,21 @@ events do not line up across rollouts:
 
 from __future__ import annotations
 
+import dataclasses
 import time
+from collections.abc import Mapping, Sequence
 
 import jax
+import jax.numpy as jnp
 import numpy as np
+
+from envs import feet
+from envs.contact_config import ContactObsConfig
+from envs.contact_core import model_of
+from envs.contact_params import default_estimator_params, default_sensor_params
+from envs.contact_wrappers import wrap_contact
+from envs.robots import Robot
+from jax_contact import metrics
 
 SCENES = ("planar_leg", "go1")
 N_STEPS, N_ROLLOUTS = 250, 16
@@ -30,7 +41,7 @@ N_STEPS, N_ROLLOUTS = 250, 16
 def scene(name: str, n_steps: int = N_STEPS, n_rollouts: int = N_ROLLOUTS):
     """(env, actions (T, E, nu)) of a scene of the module docstring."""
     from envs import ground_truth
-    from envs import wrapper as W
+    from envs.legged_env import LeggedPipelineEnv
     from envs.robots import load_robot
 
     if name not in SCENES:
@@ -38,13 +49,13 @@ def scene(name: str, n_steps: int = N_STEPS, n_rollouts: int = N_ROLLOUTS):
     freq = 1.0 + 0.02 * np.arange(n_rollouts)
     robot = ground_truth.with_contact_sensors(load_robot(name))
     if name == "planar_leg":
-        env = W.LeggedPipelineEnv(robot, n_frames=8, position_servo=(300.0, 8.0))
+        env = LeggedPipelineEnv(robot, n_frames=8, position_servo=(300.0, 8.0))
         t = np.arange(1, n_steps + 1)[:, None] * float(env.dt)
         knee = -1.2 + 0.7 * np.sin(2 * np.pi * 2.0 * freq * t)
         acts = np.stack([-0.5 * knee, knee], axis=-1)
     else:
         robot.mj_model.opt.timestep = 0.004
-        env = W.LeggedPipelineEnv(robot, n_frames=5, min_base_height=0.1)
+        env = LeggedPipelineEnv(robot, n_frames=5, min_base_height=0.1)
         t = np.arange(1, n_steps + 1)[:, None] * float(env.dt)
         acts = np.tile(robot.mj_model.key_ctrl[0], (n_steps, n_rollouts, 1))
         for leg, phase in enumerate([0.0, np.pi, np.pi, 0.0]):  # FR FL RR RL
@@ -55,17 +66,15 @@ def scene(name: str, n_steps: int = N_STEPS, n_rollouts: int = N_ROLLOUTS):
 
 
 def run(scenes=SCENES, *, seed: int = 0, pairing: str = "delayed", log=print) -> dict:
-    """Runs :func:`envs.wrapper.compare_rates` on each scene; returns name -> metrics.
+    """Runs :func:`compare_rates` on each scene; returns name -> metrics.
 
-    ``pairing`` is :attr:`envs.wrapper.ContactObsConfig.pairing` of both estimators.
+    ``pairing`` is ``ContactObsConfig.pairing`` of both estimators.
     """
-    from envs import wrapper as W
-
     out = {}
     for name in scenes:
         env, acts = scene(name)
         t0 = time.perf_counter()
-        res = W.compare_rates(env, acts, key=jax.random.PRNGKey(seed), skip_s=0.2, pairing=pairing)
+        res = compare_rates(env, acts, key=jax.random.PRNGKey(seed), skip_s=0.2, pairing=pairing)
         wall = time.perf_counter() - t0
         log(
             f"{name}: {acts.shape[0]} env steps x {acts.shape[1]} rollouts, anymal_like"
@@ -82,3 +91,161 @@ def run(scenes=SCENES, *, seed: int = 0, pairing: str = "delayed", log=print) ->
             "wall_s": round(wall, 1),
         }
     return out
+
+
+@dataclasses.dataclass(frozen=True)
+class RateComparison:
+    """Accuracy of the control-rate mode against the substep mode on one set of rollouts.
+
+    Attributes:
+      substep: the substep-rate estimate, scored at the end of every env step.
+      control: the control-rate estimate, scored at the same instants.
+      substep_all: the substep-rate estimate, scored at every physics step.
+      dt_substep, dt_control: the two estimator periods, s.
+    """
+
+    substep: metrics.ContactMetrics
+    control: metrics.ContactMetrics
+    substep_all: metrics.ContactMetrics
+    dt_substep: float
+    dt_control: float
+
+    def table(self) -> str:
+        rows = [
+            (f"substep ({self.dt_substep * 1e3:g} ms), at env steps", self.substep),
+            (f"control ({self.dt_control * 1e3:g} ms), at env steps", self.control),
+            (f"substep ({self.dt_substep * 1e3:g} ms), every substep", self.substep_all),
+        ]
+        lines = [
+            f"{'estimator':42s} {'acc':>6s} {'F1':>6s} {'prec':>6s} {'rec':>6s}"
+            f" {'TD delay ms':>14s} {'fails':>5s} {'steps':>7s}"
+        ]
+        for name, m in rows:
+            td = f"{m.touchdown_delay_ms[0]:.1f}+-{m.touchdown_delay_ms[1]:.1f}"
+            lines.append(
+                f"{name:42s} {m.accuracy:6.3f} {m.f1:6.3f} {m.precision:6.3f} {m.recall:6.3f}"
+                f" {td:>14s} {m.failures:5d} {m.n_steps:7d}"
+            )
+        lines.append(
+            f"control - substep: accuracy {self.control.accuracy - self.substep.accuracy:+.3f},"
+            f" F1 {self.control.f1 - self.substep.f1:+.3f}"
+        )
+        return "\n".join(lines)
+
+
+def compare_rates(
+    env,
+    actions: jax.Array,
+    *,
+    key: jax.Array,
+    sensor: str = "anymal_like",
+    foot_names: Sequence[str] | None = None,
+    params_kwargs: Mapping | None = None,
+    control_params_kwargs: Mapping | None = None,
+    skip_s: float = 0.0,
+    pairing: str = "delayed",
+) -> RateComparison:
+    """Measures the accuracy lost by the control-rate mode against the substep mode.
+
+    Both estimators run on *the same* rollouts: the env is wrapped twice (control rate
+    inside, substep rate outside, under their own ``info`` keys), so one simulation feeds
+    both and the physics cannot differ; each has its own sensor noise at its own rate
+    (same preset). The physics does not depend on the estimates (the actions are given).
+
+    Args:
+      env: an unwrapped Brax ``PipelineEnv`` (MJX) or Playground ``MjxEnv`` with ground
+        truth (:mod:`envs.contact_truth`).
+      actions: (T, E, nu) actions of E rollouts of T env steps.
+      key: PRNG key; env e resets with ``split(key, E)[e]``.
+      sensor: sensor preset name.
+      foot_names: as ``ContactObsConfig.feet``.
+      params_kwargs: extra arguments of
+        :func:`envs.contact_params.default_estimator_params` for both rates.
+      control_params_kwargs: more of them for the control rate only (e.g.
+        ``sigma_qdd_model``), applied last.
+      skip_s: time at the start of every rollout left out of the scores (settling), s.
+      pairing: ``ContactObsConfig.pairing`` of both estimators.
+
+    Returns:
+      The metrics of :func:`jax_contact.metrics.evaluate` for both, over the steps before
+      each rollout's first ``done``.
+    """
+    acts = jnp.asarray(actions)
+    if acts.ndim != 3:
+        raise ValueError(f"actions must have shape (T, E, nu), got {acts.shape}")
+    mj_model = model_of(env)[1]
+    desc = feet.describe(mj_model, foot_names)[0]
+    extra = dict(params_kwargs or {})
+    dt_sub = float(mj_model.opt.timestep)
+    n_frames = int(round(float(env.dt) / dt_sub))
+    dt_ctrl = dt_sub * n_frames
+
+    def make_params(dt, more):
+        robot = Robot(name="env", mj_model=mj_model, description=desc, spec=None)
+        sp = default_sensor_params(sensor, robot, dt)
+        return default_estimator_params(robot, dt, sp, **{**extra, **more})
+
+    ctrl_cfg = ContactObsConfig(
+        rate="control", info_key="contact_control", truth="auto", pairing=pairing
+    )
+    sub_cfg = ContactObsConfig(
+        rate="substep",
+        info_key="contact_substep",
+        truth="auto",
+        record_substeps=True,
+        pairing=pairing,
+    )
+    inner = wrap_contact(
+        env,
+        ctrl_cfg,
+        foot_names=foot_names,
+        sensor=sensor,
+        params=make_params(dt_ctrl, dict(control_params_kwargs or {})),
+    )
+    outer = wrap_contact(
+        inner, sub_cfg, foot_names=foot_names, sensor=sensor, params=make_params(dt_sub, {})
+    )
+    if inner.contact_core.truth is None:
+        raise ValueError("env's model has no ground-truth contact sensors for every foot")
+
+    def rollout(k, a_seq):
+        state = outer.reset(k)
+
+        def body(s, a):
+            s = outer.step(s, a)
+            info = s.info
+            out = (
+                info["contact_control"].diag.p_contact,
+                info["contact_control_truth"],
+                info["contact_substep_substeps"]["p_contact"],
+                info["contact_substep_substeps"]["truth"],
+                s.done,
+            )
+            return s, out
+
+        return jax.lax.scan(body, state, a_seq)[1]
+
+    keys = jax.random.split(key, acts.shape[1])
+    p_c, t_c, p_s, t_s, done = jax.jit(jax.vmap(rollout, in_axes=(0, 1)))(keys, acts)
+    # (E, T, ...) -> time first.
+    p_c, t_c, done = (np.moveaxis(np.asarray(x), 0, 1) for x in (p_c, t_c, done))
+    p_s, t_s = (np.moveaxis(np.asarray(x), 0, 1) for x in (p_s, t_s))
+    if not np.array_equal(t_s[:, :, -1], t_c):
+        raise RuntimeError("the two estimators saw different truths: rollouts diverged")
+    t_len = acts.shape[0]
+    alive = np.cumsum(done, axis=0) - done == 0  # steps up to and including the first done
+    skip = int(round(skip_s / dt_ctrl))
+    valid = alive & (np.arange(t_len) >= skip)[:, None]
+    valid_c = np.broadcast_to(valid[..., None], p_c.shape)
+    valid_s = np.broadcast_to(valid[:, :, None, None], p_s.shape)
+
+    def flat(x):  # (T, E, n_frames, L) -> (T * n_frames, E, L), time order kept
+        return np.moveaxis(x, 2, 1).reshape((t_len * n_frames,) + x.shape[1:2] + x.shape[3:])
+
+    return RateComparison(
+        substep=metrics.evaluate(p_s[:, :, -1], t_c, valid_c, dt=dt_ctrl),
+        control=metrics.evaluate(p_c, t_c, valid_c, dt=dt_ctrl),
+        substep_all=metrics.evaluate(flat(p_s), flat(t_s), flat(valid_s), dt=dt_sub),
+        dt_substep=dt_sub,
+        dt_control=dt_ctrl,
+    )

@@ -1,0 +1,124 @@
+"""Configuration of the contact observation wrapper: one frozen object holds every option.
+
+:class:`ContactObsConfig` names the feet, the sensor model, the estimator parameters, the
+terrain, the rate, the ground-truth source, the observation placement and the metric
+keys. :func:`envs.wrapper.wrap_contact` takes it (its keyword arguments, kept for older
+callers, only override fields of it). Nothing in it is mutated: override with
+``dataclasses.replace`` / ``config.replace(...)``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+from flax import struct
+
+RATES = ("auto", "substep", "control")
+OBSERVE = ("estimate", "truth", "none")
+PAIRINGS = ("delayed", "raw")
+TRUTH_SOURCES = ("auto", "force_sensors", "found_sensors", "touch_sensors", "contacts", "none")
+TERM_NAMES = ("p_dynamics", "p_diff_kinematics", "p_kinematics", "p_takeoff", "p_touchdown")
+
+
+@struct.dataclass
+class ContactObsConfig:
+    """How the wrapper observes contact. Every field is static (not a pytree leaf).
+
+    Attributes:
+      feet: the feet, in the order the features get: None finds them (sphere feet, else
+        one foot per body whose geoms touch the floor); else a sequence of names (a geom,
+        a body or a site) or :class:`envs.feet.FootSpec` (``envs/feet.py`` for what each
+        kind of foot means).
+      sensor: a preset name of :data:`envs.sensors.PRESETS` or a
+        :class:`~envs.sensors.SensorParams` at the estimator's period.
+      params: :class:`jax_contact.EstimatorParams` at the estimator's period; None:
+        :func:`envs.contact_params.default_estimator_params`.
+      force_rows: world axes of the contact force for legs of fewer than three joints;
+        None: chosen from the leg Jacobian at the home pose, the normal (z) always kept
+        (:func:`envs.contact_params.choose_force_rows`). The choice is reported by the
+        wrapper's ``contact_report()``.
+      terrain: a :mod:`jax_contact.terrain` model; None:
+        :func:`envs.contact_params.default_terrain`.
+      rate: ``"substep"``: an estimator update after every physics step (Brax and
+        Playground, :mod:`envs.substeps`); ``"control"``: one per env step (``dt =
+        env.dt``); ``"auto"`` (default) is ``"substep"``. The wrapper's ``contact_rate``
+        says which runs.
+      observe: what the policy sees: ``"estimate"`` the belief; ``"truth"`` the ground
+        truth in the same layout (the privileged baseline); ``"none"`` nothing. The
+        estimator runs and is scored in all three.
+      pairing: ``"delayed"`` (default) or ``"raw"``, as :func:`train.evaluate.replay`: the
+        update after step ``k`` evaluates the model at the state read at ``k-1`` with the
+        acceleration over ``[k-1, k]`` and the torque read at ``k``; ``"raw"`` at ``k``.
+      include_logit: also observe the belief's logit, clipped to ``+-logit_clip``.
+      include_terms: also observe the five per-term probabilities.
+      obs_keys: the entries of a dict observation that get the features, any set of them
+        (Playground's policy input ``"state"``, its critic's ``"privileged_state"``); an
+        array observation gets them appended and ignores this.
+      info_key: ``state.info`` key of the estimator state (:class:`ContactEstState`); the
+        truth goes under ``info_key + "_truth"``, metrics under ``info_key + "/..."``.
+      truth: ground-truth source, one of :data:`TRUTH_SOURCES` (:mod:`envs.contact_truth`).
+      truth_threshold: normal force above which a foot is in contact, N.
+      record_substeps: substep rate only: keep every substep's ``p_contact`` and truth,
+        (n_substeps, n_legs), in ``info[info_key + "_substeps"]``.
+      include_passive: the estimator's ``h`` includes the joint springs and dampers.
+      logit_clip: bound of the observed logit.
+    """
+
+    feet: tuple | None = struct.field(pytree_node=False, default=None)
+    sensor: object = struct.field(pytree_node=False, default="anymal_like")
+    params: object = struct.field(pytree_node=False, default=None)
+    force_rows: tuple[int, ...] | None = struct.field(pytree_node=False, default=None)
+    terrain: object = struct.field(pytree_node=False, default=None)
+    rate: str = struct.field(pytree_node=False, default="auto")
+    observe: str = struct.field(pytree_node=False, default="estimate")
+    pairing: str = struct.field(pytree_node=False, default="delayed")
+    include_logit: bool = struct.field(pytree_node=False, default=False)
+    include_terms: bool = struct.field(pytree_node=False, default=False)
+    obs_keys: tuple[str, ...] = struct.field(pytree_node=False, default=("state",))
+    info_key: str = struct.field(pytree_node=False, default="contact_est")
+    truth: str = struct.field(pytree_node=False, default="auto")
+    truth_threshold: float = struct.field(pytree_node=False, default=1.0)
+    record_substeps: bool = struct.field(pytree_node=False, default=False)
+    include_passive: bool = struct.field(pytree_node=False, default=True)
+    logit_clip: float = struct.field(pytree_node=False, default=10.0)
+
+    @property
+    def n_per_foot(self) -> int:
+        if self.observe == "none":
+            return 0
+        return 1 + int(self.include_logit) + len(TERM_NAMES) * int(self.include_terms)
+
+
+def _one_of(name: str, value, options: Sequence[str]) -> None:
+    if value not in options:
+        raise ValueError(f"config.{name} must be one of {tuple(options)}, got {value!r}")
+
+
+def validate_config(cfg: ContactObsConfig) -> None:
+    """Raises ValueError naming the first bad field of ``cfg``."""
+    if not isinstance(cfg, ContactObsConfig):
+        raise ValueError(f"config must be a ContactObsConfig, got {type(cfg).__name__}")
+    _one_of("rate", cfg.rate, RATES)
+    _one_of("observe", cfg.observe, OBSERVE)
+    _one_of("pairing", cfg.pairing, PAIRINGS)
+    _one_of("truth", cfg.truth, TRUTH_SOURCES)
+    if cfg.observe == "truth" and cfg.include_terms:
+        raise ValueError(
+            "config.include_terms has no ground-truth counterpart: observe='truth'"
+            " takes p_contact and the logit only"
+        )
+    if isinstance(cfg.obs_keys, str) or not all(isinstance(k, str) for k in cfg.obs_keys):
+        raise ValueError(f"config.obs_keys must be a tuple of str, got {cfg.obs_keys!r}")
+    if not cfg.info_key or not isinstance(cfg.info_key, str):
+        raise ValueError(f"config.info_key must be a non-empty str, got {cfg.info_key!r}")
+    if not (np.isfinite(cfg.truth_threshold) and cfg.truth_threshold >= 0):
+        raise ValueError(f"config.truth_threshold must be >= 0 (N), got {cfg.truth_threshold!r}")
+    if not (np.isfinite(cfg.logit_clip) and cfg.logit_clip > 0):
+        raise ValueError(f"config.logit_clip must be > 0, got {cfg.logit_clip!r}")
+    if cfg.feet is not None and (isinstance(cfg.feet, str) or len(cfg.feet) == 0):
+        raise ValueError(f"config.feet must be a non-empty sequence, got {cfg.feet!r}")
+    if cfg.force_rows is not None:
+        rows = tuple(cfg.force_rows)
+        if not rows or len(set(rows)) != len(rows) or not set(rows) <= {0, 1, 2}:
+            raise ValueError(f"config.force_rows must be distinct axes of 0, 1, 2, got {rows!r}")

@@ -1,0 +1,313 @@
+"""The estimator inside the wrapper: its state, its update, its features, built per env.
+
+:class:`Core` holds what is fixed when an env is wrapped (the nominal MJX model, the
+robot description and feet, parameters, sensor model, terrain, truth reader, config) and
+the pure functions of one env's estimator: ``init``, ``restart`` (after an auto-reset),
+``update`` (one estimator step from the true state after a physics step), ``features``
+and the observation placement. :func:`make_core` builds it from an env and a
+:class:`envs.contact_config.ContactObsConfig`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Mapping
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+from brax.envs import base as brax_base
+from flax import struct
+
+import jax_contact as jc
+from envs import contact_params, contact_truth, feet, sensors
+from envs.contact_config import TERM_NAMES, ContactObsConfig, validate_config
+from envs.robots import Robot
+from jax_contact import adapter
+from jax_contact.robot import RobotDescription
+
+
+@struct.dataclass
+class ContactEstState:
+    """What the wrapper carries in ``state.info[info_key]`` (one env, unbatched).
+
+    Attributes:
+      belief: the estimator's belief, leaves with leading axis n_legs.
+      sensor: the sensor model's state.
+      key: the wrapper's PRNG key, split at every update.
+      diag: diagnostics of the last update, leaves (n_legs, ...); at reset the prior
+        (``valid`` False).
+      qpos: (nq,) the true ``qpos`` the wrapper last returned (auto-reset detection).
+      qvel: (nv,) the true ``qvel`` the wrapper last returned.
+      prev: the previous sensor readings (delayed pairing; at reset the initial reading).
+      n_updates: () int32, estimator updates since the belief last (re)started.
+    """
+
+    belief: jc.LegBelief
+    sensor: sensors.SensorState
+    key: jax.Array
+    diag: jc.Diagnostics
+    qpos: jax.Array
+    qvel: jax.Array
+    prev: sensors.Readings
+    n_updates: jax.Array
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class Core:
+    """Static description of one wrapped env and the pure functions of its estimator.
+
+    Attributes:
+      mjx_model: the nominal MJX model (a Brax ``System`` for Brax envs): the estimator's
+        model, whatever domain randomisation does to the simulated one.
+      desc: the robot description (feet as :mod:`envs.feet` resolves them).
+      feet: the resolved feet (kind, body, contact point, radius, geoms).
+      params, sensor, terrain, cfg: the estimator's parameters, sensor model, terrain and
+        the wrapper's config.
+      truth: ``data -> (n_legs,) bool`` ground truth, or None.
+      truth_source: which :mod:`envs.contact_truth` source ``truth`` reads.
+      rate: ``"substep"`` or ``"control"``.
+    """
+
+    mjx_model: object
+    desc: RobotDescription
+    feet: tuple
+    params: jc.EstimatorParams
+    sensor: sensors.SensorParams
+    terrain: object
+    cfg: ContactObsConfig
+    truth: object
+    truth_source: str
+    rate: str
+
+    def moved(self, est: ContactEstState, data) -> jax.Array:
+        """() bool: ``data`` is not the state the wrapper last returned (an auto-reset)."""
+        return jnp.any(data.qpos != est.qpos) | jnp.any(data.qvel != est.qvel)
+
+    def restart(self, est: ContactEstState, data, moved: jax.Array) -> ContactEstState:
+        """Restarts belief and sensors where ``moved``."""
+        key, k_init = jax.random.split(est.key)
+        fresh = self.init(data, k_init)
+        return jax.tree.map(lambda a, b: jnp.where(moved, a, b), fresh, est.replace(key=key))
+
+    def record(self, est: ContactEstState, data) -> dict:
+        """What one update leaves for the metrics: p_contact, and truth and hits if any."""
+        rec = {"p_contact": est.diag.p_contact}
+        if self.truth is not None:
+            rec["truth"] = self.truth(data)
+            rec["hit"] = (est.diag.p_contact > 0.5) == rec["truth"]
+        return rec
+
+    def init(self, data, key: jax.Array) -> ContactEstState:
+        key, k_sense = jax.random.split(key)
+        sensor = sensors.sensor_init(
+            self.sensor, data.qpos, data.qvel, data.qfrc_actuator, key=k_sense
+        )
+        one = jc.init_belief(self.params)
+        n = self.desc.n_legs
+        belief = jax.tree.map(lambda x: jnp.broadcast_to(x, (n,) + x.shape), one)
+        half = jnp.full((n,), 0.5, jnp.float32)
+        diag = jc.Diagnostics(
+            p_contact=jax.nn.sigmoid(belief.logit),
+            p_dynamics=half,
+            p_diff_kinematics=half,
+            p_kinematics=half,
+            p_takeoff=jnp.exp(belief.log_transition[:, 0, 1]),
+            p_touchdown=jnp.exp(belief.log_transition[:, 1, 0]),
+            force=jnp.zeros((n, 3), jnp.float32),
+            valid=jnp.zeros((n,), bool),
+        )
+        return ContactEstState(
+            belief=belief,
+            sensor=sensor,
+            key=key,
+            diag=diag,
+            qpos=data.qpos,
+            qvel=data.qvel,
+            prev=jax.tree.map(lambda b: b[sensor.head], sensor.buffer),
+            n_updates=jnp.int32(0),
+        )
+
+    def update(self, est: ContactEstState, data) -> ContactEstState:
+        """One estimator update from the true state in ``data`` (after a physics step)."""
+        key, k_sense, k_est = jax.random.split(est.key, 3)
+        sensor, r = sensors.sensor_step(
+            self.sensor, est.sensor, data.qpos, data.qvel, data.qfrc_actuator, key=k_sense
+        )
+        # The state the acceleration belongs to (ContactObsConfig.pairing). The torque is
+        # always this reading's: ``data.qfrc_actuator`` after ``mjx.step`` is the force
+        # computed at the step's start and applied over it, the interval ``qacc`` spans.
+        at = est.prev if self.cfg.pairing == "delayed" else r
+        d = adapter.prepare(self.mjx_model, data.replace(qpos=at.qpos, qvel=at.qvel))
+        meas = feet.measurement(
+            self.mjx_model,
+            d,
+            self.desc,
+            qdd=r.qacc,
+            tau=r.tau,
+            include_passive=self.cfg.include_passive,
+        )
+        belief, diag = jc.step_robot(self.params, self.terrain, est.belief, meas, key=k_est)
+        return ContactEstState(
+            belief=belief,
+            sensor=sensor,
+            key=key,
+            diag=diag,
+            qpos=data.qpos,
+            qvel=data.qvel,
+            prev=r,
+            n_updates=est.n_updates + 1,
+        )
+
+    def features(self, est: ContactEstState, data) -> jax.Array:
+        """(n_per_foot * n_legs,) observation features (module docstring for the layout)."""
+        c = self.cfg.logit_clip
+        if self.cfg.observe == "none":
+            return jnp.zeros((0,), jnp.float32)
+        if self.cfg.observe == "truth":
+            truth = self.truth(data)
+            cols = [truth.astype(jnp.float32)]
+            if self.cfg.include_logit:
+                cols.append(jnp.where(truth, c, -c))
+            return jnp.concatenate(cols).astype(jnp.float32)
+        cols = [est.diag.p_contact]
+        if self.cfg.include_logit:
+            cols.append(jnp.clip(est.belief.logit, -c, c))
+        if self.cfg.include_terms:
+            cols += [jnp.nan_to_num(getattr(est.diag, n), nan=0.5) for n in TERM_NAMES]
+        return jnp.concatenate(cols).astype(jnp.float32)
+
+    def add_features(self, obs, feats: jax.Array):
+        if feats.shape[-1] == 0:
+            return obs
+        if isinstance(obs, Mapping):
+            missing = [k for k in self.cfg.obs_keys if k not in obs]
+            if missing:
+                raise ValueError(
+                    f"config.obs_keys {missing} not in the observation; its keys: {list(obs)}"
+                )
+            out = dict(obs)
+            for k in self.cfg.obs_keys:
+                out[k] = jnp.concatenate([obs[k], feats.astype(obs[k].dtype)], axis=-1)
+            return out
+        return jnp.concatenate([obs, feats.astype(obs.dtype)], axis=-1)
+
+    def add_size(self, size):
+        n = self.cfg.n_per_foot * self.desc.n_legs
+        if n == 0:
+            return size
+        if isinstance(size, Mapping):
+            out = dict(size)
+            for k in self.cfg.obs_keys:
+                if k not in size:
+                    raise ValueError(
+                        f"config.obs_keys: {k!r} not in the observation; its keys: {list(size)}"
+                    )
+                shape = (size[k],) if isinstance(size[k], int) else tuple(size[k])
+                out[k] = shape[:-1] + (shape[-1] + n,)
+            return out
+        return int(size) + n
+
+
+def model_of(env) -> tuple[object, mujoco.MjModel, bool]:
+    """(nominal mjx model, its mujoco.MjModel, is a Brax PipelineEnv) of an env."""
+    inner = env.unwrapped
+    if isinstance(inner, brax_base.PipelineEnv):
+        if inner.backend != "mjx":
+            raise ValueError(
+                f"env uses the Brax {inner.backend!r} backend; the wrapper needs an MJX model:"
+                " valid backend: 'mjx'"
+            )
+        sys = inner.sys
+        if getattr(sys, "mj_model", None) is None:
+            raise ValueError("env.sys has no mj_model: build the System with brax.io.mjcf")
+        return sys, sys.mj_model, True
+    mjx_model = getattr(inner, "mjx_model", None)
+    mj_model = getattr(inner, "mj_model", None)
+    if mjx_model is None or mj_model is None:
+        raise ValueError(
+            f"env ({type(inner).__name__}) has no MJX model: the wrapper takes a Brax"
+            " PipelineEnv with backend='mjx' or a MuJoCo Playground MjxEnv"
+        )
+    impl = getattr(getattr(mjx_model, "impl", None), "value", "jax")
+    if impl != "jax":
+        raise ValueError(
+            f"env's MJX model uses impl={impl!r}; the estimator's adapter runs MJX's JAX"
+            " implementation: build the env with config_overrides={'impl': 'jax'}"
+        )
+    return mjx_model, mj_model, False
+
+
+def make_core(env, cfg: ContactObsConfig) -> Core:
+    """Checks ``cfg`` against ``env`` and builds its :class:`Core` (raises with the reason)."""
+    validate_config(cfg)
+    mjx_model, mj_model, _ = model_of(env)
+    desc, resolved = feet.describe(mj_model, cfg.feet)
+    rate = "substep" if cfg.rate == "auto" else cfg.rate
+    if cfg.record_substeps and rate != "substep":
+        raise ValueError("config.record_substeps needs rate='substep'")
+    dt = float(mj_model.opt.timestep) if rate == "substep" else float(np.asarray(env.dt))
+    robot = Robot(name="wrapped env", mj_model=mj_model, description=desc, spec=None)
+    sensor_params = contact_params.default_sensor_params(cfg.sensor, robot, dt)
+    params = cfg.params
+    if params is None:
+        params = contact_params.default_estimator_params(
+            robot, dt, sensor_params, force_rows=cfg.force_rows
+        )
+    elif not isinstance(params, jc.EstimatorParams):
+        raise ValueError(f"params must be jax_contact.EstimatorParams, got {type(params).__name__}")
+    else:
+        jc.validate_params(params)
+        if params.nv != desc.nv or not np.isclose(float(params.dt), dt, rtol=1e-5):
+            raise ValueError(
+                f"params has nv={params.nv}, dt={float(params.dt)}; rate={rate!r} needs"
+                f" nv={desc.nv}, dt={dt}"
+            )
+    terrain = cfg.terrain
+    if terrain is None:
+        terrain = contact_params.default_terrain(mj_model, desc)
+    truth, source = contact_truth.truth_reader(
+        mj_model, desc, resolved, cfg.truth, cfg.truth_threshold
+    )
+    if cfg.observe == "truth" and truth is None:
+        raise ValueError(
+            f"config.observe='truth' needs ground-truth contact, but config.truth={cfg.truth!r}"
+            " finds none for every foot: add sensors (envs.ground_truth.with_contact_sensors)"
+        )
+    return Core(
+        mjx_model=mjx_model,
+        desc=desc,
+        feet=resolved,
+        params=params,
+        sensor=sensor_params,
+        terrain=terrain,
+        cfg=cfg,
+        truth=truth,
+        truth_source=source,
+        rate=rate,
+    )
+
+
+def report(core: Core) -> dict:
+    """What the wrapper chose, for the user to read (nothing is chosen silently)."""
+    return {
+        "rate": core.rate,
+        "dt": float(core.params.dt),
+        "feet": [
+            {
+                "name": f.name,
+                "kind": f.kind,
+                "point_in_body": [round(float(x), 5) for x in f.point],
+                "radius": float(f.radius),
+                "n_geoms": len(f.geom_ids),
+            }
+            for f in core.feet
+        ],
+        "leg_dofs": len(core.desc.leg_dofs[0]),
+        "force_rows": tuple(int(i) for i in core.params.force_rows),
+        "truth": core.truth_source,
+        "observe": core.cfg.observe,
+        "n_features": core.cfg.n_per_foot * core.desc.n_legs,
+        "obs_keys": core.cfg.obs_keys,
+    }

@@ -1,0 +1,195 @@
+"""Defaults of the wrapper's estimator: sensor model, parameters, force axes, terrain.
+
+Everything here reads the compiled ``mujoco.MjModel`` once, when an env is wrapped.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+
+import jax_contact as jc
+from envs import sensors
+from envs.feet import _home_data, foot_points_np
+from envs.robots import Robot
+from jax_contact.robot import RobotDescription
+
+# The sensor presets' latency is one step at the paper's 400 Hz (2.5 ms); at other rates
+# the wrapper keeps that delay in seconds rather than in steps (a choice, see
+# default_sensor_params).
+_PRESET_LATENCY_DT = 0.0025
+
+
+def floating_base(mj_model: mujoco.MjModel) -> bool:
+    free = int(mujoco.mjtJoint.mjJNT_FREE)
+    return mj_model.njnt > 0 and int(mj_model.jnt_type[0]) == free and mj_model.jnt_qposadr[0] == 0
+
+
+def _mj_model_of(robot_or_desc) -> mujoco.MjModel | None:
+    return robot_or_desc.mj_model if isinstance(robot_or_desc, Robot) else None
+
+
+def _desc_of(robot_or_desc) -> RobotDescription:
+    if isinstance(robot_or_desc, Robot):
+        return robot_or_desc.description
+    if isinstance(robot_or_desc, RobotDescription):
+        return robot_or_desc
+    raise ValueError(
+        "robot_or_desc must be an envs.robots.Robot or a jax_contact.robot.RobotDescription,"
+        f" got {type(robot_or_desc).__name__}"
+    )
+
+
+def choose_force_rows(mj_model: mujoco.MjModel, desc: RobotDescription) -> tuple[int, ...]:
+    """World axes of the contact force the legs can resist: the normal and the best others.
+
+    A leg of ``n_l >= 3`` joints spans all three axes. A shorter leg resists a force only
+    along the directions its Jacobian spans: the rows of ``J`` (at the feet's contact
+    points, home pose, or ``qpos0`` without a ``home`` key) are ranked by their norm over
+    the leg's joints, summed over the legs, and the ``n_l - 1`` largest tangential axes
+    are kept beside the normal (z), which is always included (contact is decided along
+    it). The planar leg (hip, knee in the x-z plane) gets (0, 2); Brax's ant (hip about
+    z, knee) gets z and the larger of x, y.
+    """
+    n_l = desc.n_leg_dofs
+    if n_l >= 3:
+        return (0, 1, 2)
+    d = _home_data(mj_model)
+    mujoco.mj_comPos(mj_model, d)
+    norms = np.zeros(3)
+    points = foot_points_np(mj_model, d, desc)
+    for body, point, dofs in zip(desc.foot_body_ids, points, desc.leg_dofs, strict=True):
+        jacp = np.zeros((3, mj_model.nv))
+        mujoco.mj_jac(mj_model, d, jacp, None, point, body)
+        norms += np.linalg.norm(jacp[:, list(dofs)], axis=1)
+    tangential = sorted((0, 1), key=lambda i: -norms[i])[: n_l - 1]
+    return tuple(sorted([2, *tangential]))
+
+
+def default_sensor_params(
+    sensor: str | sensors.SensorParams, robot_or_desc, dt: float
+) -> sensors.SensorParams:
+    """The sensor model of a robot at estimator period ``dt``.
+
+    A preset name is built with :func:`envs.sensors.sensor_preset` for the robot's
+    coordinates (floating base or not; the base dofs of the description otherwise). The
+    presets' latency is one step at 400 Hz (2.5 ms); it is kept in seconds here, as
+    ``round(latency * 2.5 ms / dt)`` steps, so that the control-rate mode (20 ms steps)
+    does not turn a 2.5 ms delay into 20 ms (a choice). A :class:`~envs.sensors.SensorParams`
+    is returned as given, after checking its size and period.
+
+    Raises:
+      ValueError: an unknown preset (the message lists them), a ``SensorParams`` of the
+        wrong ``nv`` or ``dt``, or a robot whose joints the sensor model cannot perturb.
+    """
+    desc = _desc_of(robot_or_desc)
+    mj_model = _mj_model_of(robot_or_desc)
+    floating = floating_base(mj_model) if mj_model is not None else desc.nq == desc.nv + 1
+    if desc.nq != desc.nv + (1 if floating else 0):
+        raise ValueError(
+            f"the sensor model handles a free joint first and hinges/slides otherwise; this"
+            f" model has nq={desc.nq}, nv={desc.nv}"
+        )
+    if isinstance(sensor, sensors.SensorParams):
+        if sensor.nv != desc.nv or sensor.floating_base != floating:
+            raise ValueError(
+                f"sensor has nv={sensor.nv}, floating_base={sensor.floating_base}; the robot"
+                f" has nv={desc.nv}, floating_base={floating}"
+            )
+        if not np.isclose(float(sensor.dt), dt, rtol=1e-5):
+            raise ValueError(
+                f"sensor.dt ({float(sensor.dt)}) must equal the estimator period ({dt}):"
+                " qacc is differenced over it"
+            )
+        return sensor
+    if sensor not in sensors.PRESETS:
+        raise ValueError(
+            f"sensor must be a SensorParams or one of {sensors.PRESETS}, got {sensor!r}"
+        )
+    params = sensors.sensor_preset(
+        sensor, desc.nv, dt=dt, floating_base=floating, base_dofs=desc.base_dofs
+    )
+    latency = int(round(params.latency * _PRESET_LATENCY_DT / dt))
+    return params.replace(latency=latency)
+
+
+def default_estimator_params(
+    robot_or_desc,
+    dt: float,
+    sensor_params: sensors.SensorParams,
+    *,
+    sigma_qdd_model: float = 0.0,
+    force_rows: Sequence[int] | None = None,
+    **params_for_kwargs,
+) -> jc.EstimatorParams:
+    """Estimator parameters consistent with a sensor model: :func:`jax_contact.params_for`.
+
+    The one source of parameters (its docstring lists the rules), with two things only a
+    simulated env knows: the force axes of legs with fewer than three joints, read from the
+    model, and ``sigma_qdd_model``, an acceleration model error for the control rate, where
+    ``qacc`` is the mean over a control period but the dynamics term predicts the
+    instantaneous acceleration, combined in quadrature with the sensor-derived
+    ``sigma_qdd``. Default 0: measured with :func:`train.rates.compare_rates` (16 rollouts, 20 ms
+    control period, ``pairing="raw"``), 1000 rad/s^2 raised the control-rate accuracy of
+    the hopping planar leg (stiff servos) from 0.858 to 0.905 but lowered the stepping
+    Go1's from 0.882 to 0.824.
+
+    Args:
+      robot_or_desc: an :class:`envs.robots.Robot` or a ``RobotDescription``.
+      dt: estimator period, s (physics step in the substep mode, control period else).
+      sensor_params: the sensor model (its ``dt`` must be ``dt``).
+      sigma_qdd_model: see above, rad/s^2.
+      force_rows: world axes of the contact force; None: :func:`choose_force_rows` (all
+        three for legs of three or more joints; a ``Robot`` is needed for shorter legs).
+      **params_for_kwargs: passed to :func:`jax_contact.params_for` (``gait``,
+        ``disturbance``, ``bias_horizon_s``, and any ``make_params`` argument).
+
+    Raises:
+      ValueError: a bad argument, naming it.
+    """
+    desc = _desc_of(robot_or_desc)
+    if not (np.isfinite(dt) and dt > 0):
+        raise ValueError(f"dt must be a finite float > 0, got {dt!r}")
+    if not isinstance(sensor_params, sensors.SensorParams):
+        raise ValueError(
+            f"sensor_params must be envs.sensors.SensorParams, got {type(sensor_params).__name__}"
+            " (default_sensor_params builds one from a preset name)"
+        )
+    if sensor_params.nv != desc.nv:
+        raise ValueError(f"sensor_params has nv={sensor_params.nv}, the robot nv={desc.nv}")
+    if not np.isclose(float(sensor_params.dt), dt, rtol=1e-5):
+        raise ValueError(f"sensor_params.dt ({float(sensor_params.dt)}) must equal dt ({dt})")
+    if not (np.isfinite(sigma_qdd_model) and sigma_qdd_model >= 0):
+        raise ValueError(f"sigma_qdd_model must be >= 0, got {sigma_qdd_model!r}")
+    if force_rows is None:
+        mj_model = _mj_model_of(robot_or_desc)
+        if desc.n_leg_dofs < 3 and mj_model is None:
+            raise ValueError(
+                f"legs with {desc.n_leg_dofs} joints span only some force axes: pass"
+                " force_rows, or a Robot so that they can be read from the model"
+            )
+        force_rows = choose_force_rows(mj_model, desc) if mj_model is not None else (0, 1, 2)
+    params = jc.params_for(desc, sensor_params, dt, force_rows=force_rows, **params_for_kwargs)
+    if sigma_qdd_model > 0:
+        qdd = np.hypot(np.asarray(params.noise.sigma_qdd), sigma_qdd_model)
+        params = params.replace(noise=params.noise.replace(sigma_qdd=jnp.asarray(qdd, jnp.float32)))
+    return params
+
+
+def default_terrain(mj_model: mujoco.MjModel, desc: RobotDescription, sigma: float = 0.05):
+    """A flat terrain at the floor plane's height, ``sigma_pi`` = 5 cm (a choice).
+
+    Sharper than the paper's 0.2 m so that the kinematics term can tell a foot held a few
+    cm above the floor from contact (MODEL.md). For a height-field floor the mean floor
+    height is used with ``sigma`` raised to the field's height range; pass a
+    :func:`jax_contact.height_field` terrain for better.
+    """
+    floor = desc.floor_geom_ids[0]
+    if int(mj_model.geom_type[floor]) == int(mujoco.mjtGeom.mjGEOM_PLANE):
+        return jc.flat(height=float(mj_model.geom_pos[floor, 2]), sigma=sigma)
+    hid = int(mj_model.geom_dataid[floor])
+    top = float(mj_model.hfield_size[hid, 2])
+    return jc.flat(height=float(mj_model.geom_pos[floor, 2]) + 0.5 * top, sigma=max(sigma, top))

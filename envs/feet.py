@@ -1,0 +1,366 @@
+"""Feet as robots have them: the contact point the estimator uses, per foot.
+
+The estimator models a foot as one point ``p_f`` (with a radius ``r``: the kinematics term
+compares ``p_f,z - r`` with the terrain) fixed to a body. A foot can be named as
+
+- a **sphere geom**: its centre, its radius (Go1, Spot, ANYmal);
+- a **box, cylinder or mesh geom**: the centre of its lowest face at the home pose (the
+  sole), radius 0; a mesh is taken as its bounding box (``geom_aabb``); a **capsule**: its
+  centre and radius (H1's foot capsules lie flat);
+- a **site**: its position, radius 0;
+- a **body** with an offset in the body frame (:class:`FootSpec`), radius 0 by default;
+- a **body** whose several geoms touch the floor: one foot, the mean of their contact
+  points and radii (T1's four corner spheres, H1's three capsules). G1's feet touch the
+  floor only through explicit ``<pair>`` elements (``contype = 0``): pairs count as
+  floor contact here.
+
+With no names, the feet are the floor-touching sphere geoms on legs, grouped by body; if
+there is no such sphere, every floor-touching geom on a leg, grouped by body (Berkeley
+Humanoid's boxes ``l_foot1``, ``r_foot1``; G1; Apollo). The geoms of a foot are what the
+ground truth reads (:mod:`envs.contact_truth`).
+
+What a point contact means for a flat foot: eq. (6) and the dynamics term model the foot
+as a point that transmits a force and no moment. A sole in full contact also transmits a
+moment (up to ``f_n`` times half its length); that moment reaches the joints as a torque
+the model does not predict, and it is folded into the disturbance ``Sigma_d`` and the
+force prior ``Sigma_f`` of the dynamics term, as any model error. docs/training.md
+measures what it costs on Berkeley Humanoid.
+
+:func:`describe` returns a :class:`jax_contact.robot.RobotDescription` (foot points as
+``foot_offsets``, ``foot_geom_ids`` the first geom of each foot, -1 for a site or a bare
+body) and :func:`measurement` the estimator's input at those points.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+from mujoco import mjx
+
+from jax_contact.adapter import foot_bias_acceleration
+from jax_contact.robot import RobotDescription
+from jax_contact.types import RobotMeasurement
+
+_T = mujoco.mjtGeom
+_FLOOR_TYPES = (int(_T.mjGEOM_PLANE), int(_T.mjGEOM_HFIELD))
+_JOINT_TRN = (int(mujoco.mjtTrn.mjTRN_JOINT), int(mujoco.mjtTrn.mjTRN_JOINTINPARENT))
+_JOINT_DOFS = (6, 3, 1, 1)  # free, ball, slide, hinge
+
+
+@dataclasses.dataclass(frozen=True)
+class FootSpec:
+    """A foot given as a body and a point in its frame (or any name, with options).
+
+    Attributes:
+      name: the foot's label; also looked up as a geom, site or body when ``body`` is None.
+      body: a body name: the foot is ``offset`` in this body's frame.
+      offset: (x, y, z) point in the body frame, m.
+      radius: the foot's radius, m.
+      geoms: geom names whose contact is this foot's ground truth; default: the body's
+        floor-touching geoms.
+    """
+
+    name: str
+    body: str | None = None
+    offset: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    radius: float = 0.0
+    geoms: tuple[str, ...] | None = None
+
+
+@dataclasses.dataclass(frozen=True)
+class Foot:
+    """A resolved foot. ``kind`` says which rule of the module docstring gave its point."""
+
+    name: str
+    kind: str
+    body_id: int
+    point: tuple[float, float, float]
+    radius: float
+    geom_ids: tuple[int, ...]
+
+
+def floors(m: mujoco.MjModel) -> list[int]:
+    return [
+        g for g in range(m.ngeom) if m.geom_bodyid[g] == 0 and int(m.geom_type[g]) in _FLOOR_TYPES
+    ]
+
+
+def touches(m: mujoco.MjModel, g: int, floor_ids) -> bool:
+    """Can geom ``g`` touch a floor geom (contype/conaffinity, or an explicit pair)?"""
+    for f in floor_ids:
+        if (m.geom_contype[g] & m.geom_conaffinity[f]) or (
+            m.geom_contype[f] & m.geom_conaffinity[g]
+        ):
+            return True
+    for a, b in zip(m.pair_geom1, m.pair_geom2, strict=True):
+        if (a == g and b in floor_ids) or (b == g and a in floor_ids):
+            return True
+    return False
+
+
+def _chain(m, body: int) -> list[int]:
+    out = []
+    while body != 0:
+        out.append(body)
+        body = int(m.body_parentid[body])
+    return out
+
+
+def _leg(m, body: int) -> tuple[int, list[int]]:
+    """(base body, sorted dofs between ``body`` and the base): as jax_contact.robot."""
+    chain = _chain(m, body)
+    free = int(mujoco.mjtJoint.mjJNT_FREE)
+    with_free = [
+        b
+        for b in chain
+        if any(
+            int(m.jnt_type[j]) == free
+            for j in range(m.body_jntadr[b], m.body_jntadr[b] + m.body_jntnum[b])
+        )
+    ]
+    base = with_free[0] if with_free else chain[-1]
+    dofs = []
+    for b in chain[: chain.index(base)]:
+        start, n = int(m.body_dofadr[b]), int(m.body_dofnum[b])
+        dofs += list(range(start, start + n))
+    return base, sorted(dofs)
+
+
+def _home_data(m) -> mujoco.MjData:
+    d = mujoco.MjData(m)
+    key = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_KEY, "home")
+    if key >= 0:
+        d.qpos[:] = m.key_qpos[key]
+    elif m.nkey > 0:
+        d.qpos[:] = m.key_qpos[0]
+    mujoco.mj_kinematics(m, d)
+    return d
+
+
+def _geom_point(m, d, g: int) -> tuple[str, np.ndarray, float]:
+    """(kind, contact point in the body frame, radius) of one geom (module docstring)."""
+    t = int(m.geom_type[g])
+    size = np.asarray(m.geom_size[g], np.float64)
+    if t == int(_T.mjGEOM_SPHERE):
+        return "sphere", np.asarray(m.geom_pos[g], np.float64), float(size[0])
+    if t == int(_T.mjGEOM_CAPSULE):
+        return "capsule", np.asarray(m.geom_pos[g], np.float64), float(size[0])
+    if t == int(_T.mjGEOM_BOX):
+        centre, half, kind = np.zeros(3), size, "box"
+    elif t == int(_T.mjGEOM_CYLINDER):
+        centre, half, kind = np.zeros(3), np.array([size[0], size[0], size[1]]), "cylinder"
+    elif t == int(_T.mjGEOM_ELLIPSOID):
+        centre, half, kind = np.zeros(3), size, "ellipsoid"
+    else:  # mesh and anything else: its bounding box in the geom frame
+        aabb = np.asarray(m.geom_aabb[g], np.float64)
+        centre, half, kind = aabb[:3], aabb[3:], "mesh"
+    # The face whose outward normal points most downward at the home pose: the sole.
+    rot_world = np.asarray(d.geom_xmat[g], np.float64).reshape(3, 3)
+    axis = int(np.argmax(np.abs(rot_world[2])))
+    sign = -np.sign(rot_world[2, axis]) or -1.0
+    local = centre.copy()
+    local[axis] += sign * half[axis]
+    rot_body = np.zeros(9)
+    mujoco.mju_quat2Mat(rot_body, np.asarray(m.geom_quat[g], np.float64))
+    point = np.asarray(m.geom_pos[g], np.float64) + rot_body.reshape(3, 3) @ local
+    return kind, point, 0.0
+
+
+def _name_of(m, obj, i) -> str:
+    return mujoco.mj_id2name(m, obj, i) or ""
+
+
+def _resolve(m, d, spec, floor_ids, colliders) -> Foot:
+    G, S, B = mujoco.mjtObj.mjOBJ_GEOM, mujoco.mjtObj.mjOBJ_SITE, mujoco.mjtObj.mjOBJ_BODY
+    if isinstance(spec, FootSpec) and spec.body is not None:
+        b = mujoco.mj_name2id(m, B, spec.body)
+        if b < 0:
+            raise ValueError(f"FootSpec {spec.name!r}: no body named {spec.body!r}")
+        if spec.geoms is not None:
+            geoms = tuple(mujoco.mj_name2id(m, G, n) for n in spec.geoms)
+            if min(geoms, default=0) < 0:
+                raise ValueError(f"FootSpec {spec.name!r}: unknown geom in {spec.geoms}")
+        else:
+            geoms = tuple(g for g in colliders if m.geom_bodyid[g] == b)
+        return Foot(spec.name, "body", b, tuple(map(float, spec.offset)), float(spec.radius), geoms)
+    name = spec.name if isinstance(spec, FootSpec) else spec
+    g = mujoco.mj_name2id(m, G, name)
+    if g >= 0:
+        kind, p, r = _geom_point(m, d, g)
+        return Foot(name, kind, int(m.geom_bodyid[g]), tuple(p), r, (g,))
+    s = mujoco.mj_name2id(m, S, name)
+    if s >= 0:
+        b = int(m.site_bodyid[s])
+        geoms = tuple(g for g in colliders if m.geom_bodyid[g] == b)
+        return Foot(name, "site", b, tuple(map(float, m.site_pos[s])), 0.0, geoms)
+    b = mujoco.mj_name2id(m, B, name)
+    if b >= 0:
+        geoms = [g for g in colliders if m.geom_bodyid[g] == b]
+        spheres = [g for g in geoms if int(m.geom_type[g]) == int(_T.mjGEOM_SPHERE)]
+        return _body_foot(m, d, name, b, spheres or geoms)
+    valid = sorted({_name_of(m, G, g) or _name_of(m, B, m.geom_bodyid[g]) for g in colliders})
+    raise ValueError(
+        f"foot {name!r} is no geom, site or body of the model; valid names (floor-touching"
+        f" geoms or their bodies; any site or body): {valid}"
+    )
+
+
+def _body_foot(m, d, name, b, geoms) -> Foot:
+    if not geoms:
+        return Foot(name, "body", b, (0.0, 0.0, 0.0), 0.0, ())
+    if len(geoms) == 1:
+        kind, p, r = _geom_point(m, d, geoms[0])
+        return Foot(name, kind, b, tuple(p), r, tuple(geoms))
+    pts = [_geom_point(m, d, g) for g in geoms]
+    kinds = sorted({k for k, _, _ in pts})
+    p = np.mean([q for _, q, _ in pts], axis=0)
+    r = float(np.mean([r for _, _, r in pts]))
+    return Foot(name, f"{len(geoms)} {'/'.join(kinds)} geoms", b, tuple(p), r, tuple(geoms))
+
+
+def find_feet(m: mujoco.MjModel, feet=None) -> tuple[tuple[Foot, ...], list[int]]:
+    """(the feet, the floor geoms): module docstring for the rules."""
+    floor_ids = floors(m)
+    if not floor_ids:
+        raise ValueError("mj_model has no floor: no plane or height-field geom in the world body")
+    colliders = [g for g in range(m.ngeom) if m.geom_bodyid[g] != 0 and touches(m, g, floor_ids)]
+    if not colliders:
+        raise ValueError(
+            "mj_model has no floor contact: no geom outside the world body can collide with"
+            " the floor (check contype/conaffinity and <pair>)"
+        )
+    d = _home_data(m)
+    if feet is not None:
+        out = tuple(_resolve(m, d, f, floor_ids, colliders) for f in feet)
+        if len({(f.body_id, f.point) for f in out}) != len(out):
+            raise ValueError(f"feet name the same foot twice: {[f.name for f in out]}")
+        return out, floor_ids
+    on_legs = [g for g in colliders if _leg(m, int(m.geom_bodyid[g]))[1]]
+    spheres = [g for g in on_legs if int(m.geom_type[g]) == int(_T.mjGEOM_SPHERE)]
+    chosen = spheres or on_legs
+    if not chosen:
+        raise ValueError(
+            "mj_model has no floor contact through a leg: the geoms that can touch the floor"
+            " have no joint between them and the base"
+        )
+    bodies = list(dict.fromkeys(int(m.geom_bodyid[g]) for g in chosen))
+    if not spheres:  # keep the ends of the legs: no floor-touching geom further down
+        bodies = [b for b in bodies if not any(b in _chain(m, o)[1:] for o in bodies)]
+    out = []
+    for b in bodies:
+        geoms = [g for g in chosen if m.geom_bodyid[g] == b]
+        label = _name_of(m, mujoco.mjtObj.mjOBJ_GEOM, geoms[0]) if len(geoms) == 1 else ""
+        out.append(_body_foot(m, d, label or _name_of(m, mujoco.mjtObj.mjOBJ_BODY, b), b, geoms))
+    return tuple(out), floor_ids
+
+
+def describe(m: mujoco.MjModel, feet=None) -> tuple[RobotDescription, tuple[Foot, ...]]:
+    """The description the estimator needs, and the resolved feet, of a compiled model."""
+    resolved, floor_ids = find_feet(m, feet)
+    actuated = set()
+    for a in range(m.nu):
+        if int(m.actuator_trntype[a]) in _JOINT_TRN:
+            j = int(m.actuator_trnid[a, 0])
+            n = _JOINT_DOFS[int(m.jnt_type[j])]
+            actuated.update(range(int(m.jnt_dofadr[j]), int(m.jnt_dofadr[j]) + n))
+    legs, bases = [], []
+    for f in resolved:
+        base, dofs = _leg(m, f.body_id)
+        if not dofs:
+            raise ValueError(f"foot {f.name!r} has no leg: no joint between it and the base")
+        if not actuated.intersection(dofs):
+            raise ValueError(f"foot {f.name!r}: none of its leg's joints is actuated")
+        legs.append(tuple(dofs))
+        bases.append(base)
+    if len({len(x) for x in legs}) != 1:
+        per = ", ".join(f"{f.name}: {len(x)}" for f, x in zip(resolved, legs, strict=True))
+        raise ValueError(f"every leg must have the same number of dofs, got {per}")
+    if len(set(bases)) != 1:
+        raise ValueError(f"the feet hang from different bases: {sorted(set(bases))}")
+    base = bases[0]
+    geoms = [g for f in resolved for g in f.geom_ids]
+    used = tuple(fl for fl in floor_ids if not geoms or any(touches(m, g, [fl]) for g in geoms))
+    start, n = int(m.body_dofadr[base]), int(m.body_dofnum[base])
+    desc = RobotDescription(
+        foot_names=tuple(f.name for f in resolved),
+        foot_body_ids=tuple(f.body_id for f in resolved),
+        foot_geom_ids=tuple(f.geom_ids[0] if f.geom_ids else -1 for f in resolved),
+        foot_offsets=tuple(tuple(float(x) for x in f.point) for f in resolved),
+        foot_radii=tuple(f.radius for f in resolved),
+        leg_dofs=tuple(legs),
+        other_dofs=tuple(tuple(i for i in range(m.nv) if i not in leg) for leg in legs),
+        base_dofs=tuple(range(start, start + n)) if n > 0 else (),
+        base_body_id=int(base),
+        floor_geom_ids=used or tuple(floor_ids),
+        nq=int(m.nq),
+        nv=int(m.nv),
+    )
+    return desc, resolved
+
+
+def foot_points(desc: RobotDescription, d) -> jax.Array:
+    """(n_legs, 3) world positions of the feet's contact points."""
+    b = jnp.asarray(desc.foot_body_ids)
+    off = jnp.asarray(desc.foot_offsets, jnp.float32)
+    return d.xpos[b] + jnp.einsum("nij,nj->ni", d.xmat[b], off)
+
+
+def measurement(
+    m, d, desc: RobotDescription, *, qdd, tau, include_passive: bool
+) -> RobotMeasurement:
+    """:func:`jax_contact.adapter.robot_measurement` at the feet's contact points.
+
+    Same quantities (``mjx.jac`` and :func:`jax_contact.adapter.foot_bias_acceleration` at
+    the point, ``M`` from ``mjx.full_m``, ``h`` from ``qfrc_bias``), the point being
+    ``xpos + xmat @ foot_offsets`` of the foot's body instead of a sphere's centre (for a
+    sphere foot the two are equal). ``d`` must be prepared (``adapter.prepare``).
+    """
+    h = d.qfrc_bias - d.qfrc_passive if include_passive else d.qfrc_bias
+    body_ids = jnp.asarray(desc.foot_body_ids, jnp.int32)
+    masks = []
+    for b in desc.foot_body_ids:
+        chain = _chain_np(np.asarray(m.body_parentid), b)
+        masks.append(np.isin(np.asarray(m.dof_bodyid), chain))
+    p_f = foot_points(desc, d)
+
+    def per_foot(body_id, point, mask):
+        jacp, _ = mjx.jac(m, d, point, body_id)
+        return jacp.T, foot_bias_acceleration(m, d, body_id, point, mask)
+
+    J, Jdot_qd = jax.vmap(per_foot)(body_ids, p_f, jnp.asarray(np.stack(masks)))
+    return RobotMeasurement(
+        q=d.qpos,
+        qd=d.qvel,
+        qdd=qdd,
+        tau=tau,
+        M=mjx.full_m(m, d),
+        h=h,
+        J=J,
+        Jdot_qd=Jdot_qd,
+        p_f=p_f,
+        v_f=J @ d.qvel,
+        foot_radius=jnp.asarray(desc.foot_radii, jnp.float32),
+        leg_dofs=tuple(tuple(int(i) for i in leg) for leg in desc.leg_dofs),
+    )
+
+
+def _chain_np(parent: np.ndarray, body: int) -> list[int]:
+    out = []
+    while body != 0:
+        out.append(int(body))
+        body = int(parent[body])
+    return out
+
+
+def foot_points_np(m: mujoco.MjModel, d: mujoco.MjData, desc: RobotDescription) -> np.ndarray:
+    """(n_legs, 3) world contact points from C-library data (after kinematics)."""
+    return np.stack(
+        [
+            d.xpos[b] + d.xmat[b].reshape(3, 3) @ np.asarray(off)
+            for b, off in zip(desc.foot_body_ids, desc.foot_offsets, strict=True)
+        ]
+    )
