@@ -37,15 +37,20 @@ Each call builds a fresh model; mutate it (e.g. ``robot.mj_model.opt.timestep``)
 from __future__ import annotations
 
 import dataclasses
+import functools
 import os
 import re
 from collections.abc import Callable, Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import mujoco
 import numpy as np
 
 from jax_contact.robot import RobotDescription, derive_description
+
+if TYPE_CHECKING:
+    from envs.gaits import GaitSettings
 
 ASSETS_DIR = Path(__file__).resolve().parent / "assets"
 PLANAR_LEG_XML = ASSETS_DIR / "planar_leg.xml"
@@ -102,6 +107,10 @@ class Robot:
       spec: the ``mujoco.MjSpec`` that ``mj_model`` was compiled from; treat as read-only
         (``with_terrain`` edits a copy).
       terrain: the height-field floor added by :func:`with_terrain`, or None.
+      gait: the robot's :class:`envs.gaits.GaitSettings` (standing pose, base height,
+        gains, speeds), or None for :data:`envs.gaits.GAIT_SETTINGS` of its name (else
+        every setting derived from the model). Set it with ``load_robot(..., gait=...)``
+        or ``dataclasses.replace(robot, gait=...)``.
     """
 
     name: str
@@ -109,19 +118,22 @@ class Robot:
     description: RobotDescription
     spec: mujoco.MjSpec = dataclasses.field(repr=False)
     terrain: HeightField | None = None
+    gait: GaitSettings | None = None
+
+    @functools.cached_property
+    def gait_settings(self) -> GaitSettings:
+        """The resolved gait settings (:func:`envs.gaits.resolve_gait_settings`): every
+        field set, computed once per robot."""
+        from envs.gaits import resolve_gait_settings
+
+        return resolve_gait_settings(self, self.gait)
 
     @property
     def home_qpos(self) -> np.ndarray:
-        """(nq,) standing configuration: the keyframe named ``home`` or ``standing``, else
-        the first keyframe, else ``qpos0``."""
-        m = self.mj_model
-        for key_name in ("home", "standing"):
-            key_id = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_KEY, key_name)
-            if key_id >= 0:
-                return np.array(m.key_qpos[key_id])
-        if m.nkey > 0:
-            return np.array(m.key_qpos[0])
-        return np.array(m.qpos0)
+        """(nq,) standing configuration: the gait settings' ``home_qpos`` or ``home_key``,
+        else the keyframe named ``home`` or ``standing``, else the first keyframe, else a
+        standing pose found by a short settle (:class:`envs.gaits.GaitSettings`)."""
+        return np.array(self.gait_settings.home_qpos)
 
 
 def _package_dir(module: str) -> Path:
@@ -310,13 +322,18 @@ def _looks_like_path(name: str) -> bool:
     return name.endswith(".xml") or os.sep in name or "/" in name
 
 
-def load_robot(name: str, *, foot_names: Sequence[str] | None = None) -> Robot:
+def load_robot(
+    name: str, *, foot_names: Sequence[str] | None = None, gait: GaitSettings | None = None
+) -> Robot:
     """Loads a robot by name (see the module docstring) or from an MJCF path.
 
     Args:
       name: one of :data:`ROBOT_NAMES`, or a path to an MJCF file (with its floor).
       foot_names: passed to :func:`jax_contact.robot.derive_description`; None finds the
-        feet (sphere geoms that can touch the floor).
+        feet (the distal sphere geom of each joint chain that can touch the floor).
+      gait: the robot's gait settings (:class:`envs.gaits.GaitSettings`); None takes
+        :data:`envs.gaits.GAIT_SETTINGS` of the name, else derives them from the model
+        when first needed.
 
     Returns:
       The compiled robot with its description.
@@ -350,11 +367,14 @@ def load_robot(name: str, *, foot_names: Sequence[str] | None = None) -> Robot:
     mj_model = _compile(spec, source or name)
     if source is not None:
         check_mjx_collisions(mj_model, source)
+    if gait is not None and type(gait).__name__ != "GaitSettings":
+        raise ValueError(f"gait must be an envs.gaits.GaitSettings, got {type(gait).__name__}")
     return Robot(
         name=name,
         mj_model=mj_model,
         description=derive_description(mj_model, foot_names),
         spec=spec,
+        gait=gait,
     )
 
 
@@ -461,4 +481,5 @@ def with_terrain(
         description=derive_description(mj_model, robot.description.foot_names),
         spec=spec,
         terrain=terrain,
+        gait=robot.gait,
     )

@@ -17,7 +17,10 @@ import numpy as np
 import pytest
 
 from envs.gaits import (
+    GAIT_SETTINGS,
+    GaitSettings,
     gait_control,
+    gait_settings,
     leg_fk,
     leg_ik,
     leg_phases,
@@ -26,7 +29,8 @@ from envs.gaits import (
     torque_to_ctrl,
 )
 from envs.ground_truth import make_truth_layout, with_contact_sensors
-from envs.robots import load_robot
+from envs.robots import Robot, load_robot
+from jax_contact.robot import derive_description
 
 ROBOTS = ("go1", "spot", "barkour", "planar_leg")
 
@@ -255,3 +259,87 @@ def test_make_gait_rejects_bad_arguments():
         make_gait("trot", period=0.0)
     with pytest.raises(ValueError, match="sway"):
         make_gait("walk", sway=2.0)
+
+
+# ------------------------------------------------------------------ gait settings
+
+
+def _without_keyframes(name: str) -> Robot:
+    spec = load_robot(name).spec.copy()
+    for key in list(spec.keys):
+        spec.delete(key)
+    m = spec.compile()
+    return Robot(f"{name}_no_keyframe", m, derive_description(m), spec)
+
+
+def test_tuned_settings_are_public_and_overridable(robots):
+    # The tuned gains that the private dict held, now GAIT_SETTINGS.
+    tuned = {"go1": (60.0, 1.5), "spot": (400.0, 20.0), "barkour": (35.0, 0.65)}
+    for name, (kp, kd) in tuned.items():
+        assert (GAIT_SETTINGS[name].kp, GAIT_SETTINGS[name].kd) == (kp, kd)
+        gr = robots[name][1]
+        np.testing.assert_allclose([float(gr.kp), float(gr.kd)], [kp, kd], rtol=1e-6)
+    with pytest.raises(TypeError):
+        GAIT_SETTINGS["go1"] = GaitSettings()  # read-only
+    home = np.array(load_robot("go1").home_qpos)
+    home[7:] += 0.1
+    settings = gait_settings("go1", kp=80.0, base_height=0.3, home_qpos=tuple(home))
+    robot = load_robot("go1", gait=settings)
+    gr = make_gait_robot(robot)
+    assert (float(gr.kp), float(gr.kd)) == (80.0, 1.5)  # kd stays the tuned one
+    np.testing.assert_allclose(float(gr.base_height), 0.3, rtol=1e-6)
+    np.testing.assert_allclose(robot.home_qpos, home)
+    np.testing.assert_allclose(
+        np.asarray(gr.q_home).ravel(), home[np.asarray(gr.leg_qpos).ravel()], rtol=1e-6
+    )
+    with pytest.raises(ValueError, match=r"'crouch' is not a keyframe.*\['home', 'home_higher'"):
+        _ = load_robot("go1", gait=GaitSettings(home_key="crouch")).home_qpos
+    with pytest.raises(ValueError, match="nq = 19"):
+        _ = load_robot("go1", gait=GaitSettings(home_qpos=(0.0,) * 7)).home_qpos
+    with pytest.raises(ValueError, match="kp must be"):
+        GaitSettings(kp=-1.0)
+    with pytest.raises(ValueError, match="trot_speed"):
+        GaitSettings(trot_speed=(0.5, 0.1))
+    assert GaitSettings(walk_speed=(0.0, 0.2)).speed_range("walk") == (0.0, 0.2)
+
+
+def test_a_robot_without_keyframe_settles_standing():
+    robot = _without_keyframes("go1")
+    m, desc = robot.mj_model, robot.description
+    s = robot.gait_settings
+    home = np.array(s.home_qpos)
+    assert s.base_height == pytest.approx(home[2])
+    # Not a tuned name: the servos' own stiffness (Go1: kp 35) and, as they have no
+    # damping (kv 0), kd = 0.025 s * 35.
+    assert (s.kp, s.kd) == (35.0, 0.025 * 35.0)
+    # Independent check in C MuJoCo: held at the settled joint angles by a stiff PD of
+    # this test's own (200 N m/rad, 5 N m s/rad, through Go1's servo law force = 35
+    # (ctrl - q)), the robot stays where it is, level, on all four feet.
+    d = mujoco.MjData(m)
+    d.qpos[:] = home
+    for _ in range(int(0.5 / m.opt.timestep)):
+        tau = 200.0 * (home[7:] - d.qpos[7:]) - 5.0 * d.qvel[6:]
+        d.ctrl[:] = d.qpos[7:] + tau / 35.0
+        mujoco.mj_step(m, d)
+    assert abs(d.qpos[2] - home[2]) < 0.01
+    assert 1.0 - 2.0 * (d.qpos[4] ** 2 + d.qpos[5] ** 2) > 0.99
+    touching = {c.geom1 for c in d.contact[: d.ncon]} | {c.geom2 for c in d.contact[: d.ncon]}
+    assert set(desc.foot_geom_ids) <= touching
+    # Knees bent (Go1's calf range is [-2.818, -0.888] rad; qpos0 has them at 0, straight).
+    calves = [m.joint(f"{leg}_calf_joint").qposadr[0] for leg in ("FR", "FL", "RR", "RL")]
+    assert np.all(home[calves] < -1.0)
+
+
+def test_torque_motor_gains_are_derived_from_the_weight():
+    robot = load_robot("planar_leg", gait=GaitSettings())  # not the tuned 300 / 8
+    s = robot.gait_settings
+    m = robot.mj_model
+    # kp = 7 M g h / n_legs with h the home pose's hip height (the rail's qpos[0]) above
+    # the foot's sole; kd = 0.025 s * kp.
+    d = mujoco.MjData(m)
+    d.qpos[:] = robot.home_qpos
+    mujoco.mj_kinematics(m, d)
+    b, g = robot.description.base_body_id, robot.description.foot_geom_ids[0]
+    h = d.xpos[b, 2] - d.geom_xpos[g, 2] + robot.description.foot_radii[0]
+    kp = 7.0 * float(m.body_mass.sum()) * 9.81 * h
+    np.testing.assert_allclose([s.kp, s.kd], [kp, 0.025 * kp], rtol=1e-9)
