@@ -243,8 +243,9 @@ def robot_update_fn(mj_model, desc, params, terrain, *, include_passive: bool = 
         # previous reading's state; the first reading with its own.
         qpos_s = jnp.where(has_prev, s["prev_qpos"], qpos)
         qvel_s = jnp.where(has_prev, s["prev_qvel"], qvel)
-        d = prepare(m, template.replace(qpos=qpos_s, qvel=qvel_s))
-        meas = robot_measurement(m, d, desc, qdd=qacc, tau=tau, include_passive=include_passive)
+        with jax.named_scope("adapter"):  # names the kernels in a profile
+            d = prepare(m, template.replace(qpos=qpos_s, qvel=qvel_s))
+            meas = robot_measurement(m, d, desc, qdd=qacc, tau=tau, include_passive=include_passive)
         belief = jc.LegBelief(
             logit=s["logit"],
             log_transition=s["log_transition"],
@@ -253,7 +254,8 @@ def robot_update_fn(mj_model, desc, params, terrain, *, include_passive: bool = 
         )
         # replay's key schedule: split once per step, then once per foot.
         key, sub = jax.random.split(key)
-        belief, diag = jc.step_robot(params, terrain, belief, meas, key=sub)
+        with jax.named_scope("estimator"):
+            belief, diag = jc.step_robot(params, terrain, belief, meas, key=sub)
         new_state = _pack(
             s_layout,
             {
