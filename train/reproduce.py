@@ -334,7 +334,7 @@ def input_lag_ms(dt: float, noise: str = "anymal_like") -> float:
     """
     from envs.sensors import sensor_preset
 
-    return 1e3 * dt * sensor_preset(noise, 1, dt=dt).latency
+    return 1e3 * dt * sensor_preset(noise, 6, dt=dt).latency
 
 
 def _pair(x) -> list[float]:
