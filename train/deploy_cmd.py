@@ -259,11 +259,13 @@ def offline_estimate(header: dict, readings: dict, *, dt: float):
     return out["export"][:, 0]
 
 
-def realtime_replay(est, readings: dict, *, period_s: float, pace: bool = True) -> dict:
+def realtime_replay(
+    est, readings: dict, *, period_s: float, pace: bool = True, spin_s: float = 3e-4
+) -> dict:
     """Feeds ``readings`` ((T, n) arrays) through ``est`` one call per period.
 
     Each call is released at ``t0 + k * period_s`` (a sleep, then a spin for the last
-    0.3 ms); its latency is the duration of :meth:`Estimator.update`, and a deadline is
+    ``spin_s``; ``spin_s >= period_s`` spins the whole period); its latency is the duration of :meth:`Estimator.update`, and a deadline is
     missed when the call ends after the next release. Without ``pace`` the calls run back
     to back (no deadlines).
 
@@ -290,8 +292,8 @@ def realtime_replay(est, readings: dict, *, period_s: float, pace: bool = True) 
         if pace:
             release = t0 + k * period_s
             wait = release - clock()
-            if wait > 3e-4:
-                time.sleep(wait - 3e-4)
+            if wait > spin_s:
+                time.sleep(wait - spin_s)
             while clock() < release:
                 pass
         start = clock()
