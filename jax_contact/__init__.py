@@ -13,7 +13,7 @@ from jax_contact.filter import (
     step_batch,
     step_robot,
 )
-from jax_contact.io import load_params, save_params
+from jax_contact.io import load_params, preset_names, save_params
 from jax_contact.measurement import (
     MeasurementTerms,
     diff_kinematics_llr,
@@ -89,6 +89,7 @@ __all__ = [
     "make_params",
     "measurement_terms",
     "params_for",
+    "preset_names",
     "robot_leg_blocks",
     "run",
     "save_params",

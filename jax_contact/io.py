@@ -360,17 +360,66 @@ def save_params(path: str | os.PathLike, params, provenance: Mapping | None = No
     return write_json_atomic(path, params_to_dict(params, provenance))
 
 
-def load_params(path: str | os.PathLike):
-    """Reads a parameter file written by :func:`save_params`.
+def _presets_folder():
+    """``jax_contact/presets`` as an importlib resource (package data, not a package)."""
+    from importlib import resources
+
+    return resources.files("jax_contact") / "presets"
+
+
+def preset_names() -> tuple[str, ...]:
+    """The names of the tuned parameter files shipped in ``jax_contact/presets``."""
+    folder = _presets_folder()
+    if not folder.is_dir():
+        return ()
+    return tuple(sorted(f.name[:-5] for f in folder.iterdir() if f.name.endswith(".json")))
+
+
+def load_params(path: str | os.PathLike, *, with_provenance: bool = False):
+    """Reads a parameter file written by :func:`save_params`, or a shipped preset by name.
+
+    Args:
+      path: a ``.json`` file, or the name of a shipped preset (:func:`preset_names`:
+        ``"go1"``, ``"spot"``, ``"barkour"``, tuned by ``jax-contact tune``; each file's
+        provenance says how). A name that is also an existing file is read as the file.
+      with_provenance: also return the file's ``provenance`` dict (where a calibration map
+        fitted by ``jax-contact tune --calibrate`` is kept, ``provenance["calibration"]``,
+        see :class:`jax_contact.tune.Calibration`).
+
+    Returns:
+      The validated :class:`~jax_contact.EstimatorParams`, or ``(params, provenance)``.
 
     Raises:
-      ValueError: the file is missing, is not JSON, or a field is wrong (named).
+      ValueError: the file is missing (or the name is no preset), is not JSON, or a field
+        is wrong (named).
     """
-    path = Path(path)
+    text, source = _params_text(path)
     try:
-        payload = json.loads(path.read_text())
-    except FileNotFoundError:
-        raise ValueError(f"parameter file {str(path)!r} does not exist") from None
+        payload = json.loads(text)
     except (json.JSONDecodeError, UnicodeDecodeError) as err:
-        raise ValueError(f"parameter file {str(path)!r} is not JSON: {err}") from None
-    return params_from_dict(payload, source=f"parameter file {str(path)!r}")
+        raise ValueError(f"{source} is not JSON: {err}") from None
+    params = params_from_dict(payload, source=source)
+    if with_provenance:
+        return params, dict(payload.get("provenance") or {})
+    return params
+
+
+def _params_text(path) -> tuple[str, str]:
+    """(text, description for errors) of a parameter file or a preset name."""
+    p = Path(path)
+    is_name = isinstance(path, str) and p.suffix == "" and len(p.parts) == 1
+    if is_name and not p.is_file():
+        names = preset_names()
+        if path not in names:
+            raise ValueError(
+                f"parameter file {path!r} does not exist and is no preset name (presets:"
+                f" {', '.join(names) or 'none'})"
+            )
+        ref = _presets_folder() / f"{path}.json"
+        return ref.read_text(), f"preset {path!r}"
+    try:
+        return p.read_text(), f"parameter file {str(p)!r}"
+    except FileNotFoundError:
+        raise ValueError(f"parameter file {str(p)!r} does not exist") from None
+    except UnicodeDecodeError as err:
+        raise ValueError(f"parameter file {str(p)!r} is not JSON: {err}") from None
