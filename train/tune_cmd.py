@@ -109,6 +109,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         action="store_true",
         help="also fit a temperature and bias on the fused logit (stored in the provenance)",
     )
+    p.add_argument("--note", default=None, help="free text stored in the provenance")
     p.set_defaults(func=run, check=check)
     return p
 
@@ -194,22 +195,20 @@ def measure_readings(robot, readings: dict, *, pairing: str = "delayed", chunk: 
     return jax.tree.map(lambda *xs: np.concatenate(xs, axis=0), *pieces)
 
 
-def load_tuning_log(path: str | Path):
-    """A log file -> (TuningData, robot, attrs, default params, terrain).
+def read_truth_log(path: str | Path):
+    """A log file -> (readings, truth, valid, attrs, robot), readings at the end-of-step
+    timing convention (an older log is re-aligned as ``jax-contact evaluate`` does).
 
     Raises:
       ValueError: the log has no ground truth, or any error of ``train.logs``' checks.
     """
-    import numpy as np
-
     from envs.robots import load_robot
     from jax_contact.io import read_log
-    from jax_contact.tune import TuningData
     from train.logs import READING_TIMING, _log_arrays, _log_attrs, to_end_of_step
 
     arrays, attrs = read_log(path)
     name = f"log {str(path)!r}"
-    robot_name, dt = _log_attrs(name, attrs)
+    robot_name, _ = _log_attrs(name, attrs)
     readings, truth, valid = _log_arrays(name, arrays)
     timing = attrs.get("reading_timing", "start_of_step")
     if timing == "start_of_step":  # a log written before the convention: as evaluate does
@@ -225,6 +224,21 @@ def load_tuning_log(path: str | Path):
             f"{name}: readings of {readings['qvel'].shape[-1]} velocities and {truth.shape[-1]}"
             f" feet do not fit robot {robot_name!r} (nv {desc.nv}, {desc.n_legs} feet)"
         )
+    return readings, truth, valid, attrs, robot
+
+
+def load_tuning_log(path: str | Path):
+    """A log file -> (TuningData, robot, attrs, default params, terrain).
+
+    Raises:
+      ValueError: as :func:`read_truth_log`.
+    """
+    import numpy as np
+
+    from jax_contact.tune import TuningData
+
+    readings, truth, valid, attrs, robot = read_truth_log(path)
+    dt = float(attrs["dt"])
     params, terrain = default_params(robot, dt, str(attrs.get("noise", "anymal_like")))
     meas = measure_readings(robot, readings)
     mask = np.broadcast_to(valid[..., None], truth.shape)
@@ -329,7 +343,96 @@ def regenerate_preset(
     if out is None:
         out = Path(__file__).resolve().parents[1] / "jax_contact" / "presets" / f"{robot}.json"
     argv = [logs[k] for k in PRESET_TUNE] + ["--validate"] + [logs[k] for k in PRESET_VALIDATE]
-    return main([*argv, "--out", str(out), "--calibrate"])
+    note = (
+        f'regenerate: python -c "from train.tune_cmd import regenerate_preset as r;'
+        f" r('{robot}')\" (logs: {n_envs} envs x {duration:g} s of train.reproduce's"
+        f" scenarios, anymal_like sensors)"
+    )
+    return main([*argv, "--out", str(out), "--calibrate", "--note", note])
+
+
+def compare(
+    robot: str,
+    variants: dict,
+    *,
+    scenarios=("trot", "walk", "walk_added_mass", "rough"),
+    seed: int = 0,
+    n_envs: int = 16,
+    duration: float = 8.0,
+    workdir: str | Path = "/tmp/jax-contact-presets",
+    plots: str | Path | None = None,
+) -> dict:
+    """Default vs tuned parameters on the evaluation scenarios (docs/tuning.md's tables).
+
+    Simulates (or reuses from ``workdir``) each scenario's log of ``seed``, replays it with
+    every variant on the same inputs (``train.evaluate.replay``) and scores it. A variant
+    whose file holds a calibration map also gets a ``<name>+cal`` row: its P(contact)
+    mapped by the temperature and bias (flag at calibrated P > 0.5).
+
+    Args:
+      robot: the robot simulated and evaluated.
+      variants: row name -> parameter file or preset name, or None for the defaults.
+      plots: a folder for one reliability diagram per scenario, or None.
+
+    Returns:
+      scenario -> row -> metrics (``train.evaluate.score``'s dicts).
+    """
+    import numpy as np
+
+    import jax_contact as jc
+    from jax_contact import tune as jt
+    from train.calibration import reliability_diagram
+    from train.evaluate import replay, score
+
+    results = {}
+    for scenario in scenarios:
+        path = Path(workdir) / f"{robot}_{scenario}_s{seed}.h5"
+        if not path.is_file():
+            simulate_log(path, robot, scenario, seed, n_envs=n_envs, duration=duration)
+        readings, truth, valid, attrs, robo = read_truth_log(path)
+        base, terrain = default_params(robo, float(attrs["dt"]), attrs.get("noise", "anymal_like"))
+        estimators, cals = {}, {}
+        for name, source in variants.items():
+            if source is None:
+                estimators[name] = base
+                continue
+            params, prov = jc.load_params(source, with_provenance=True)
+            estimators[name] = params
+            if "calibration" in prov:
+                cals[name] = jt.Calibration.from_dict(prov["calibration"])
+        out = replay(
+            robo, readings, estimators=estimators, terrain=terrain, dt=float(attrs["dt"]),
+            seed=seed, progress=False,
+        )  # fmt: skip
+        for name, cal in cals.items():
+            p = np.clip(np.asarray(out[name], np.float64), 1e-7, 1 - 1e-7)
+            out[f"{name}+cal"] = jt.sigmoid_np(jt.apply_calibration(np.log(p / (1 - p)), cal))
+        results[scenario] = score(out, truth, valid, dt=float(attrs["dt"]))
+        if plots is not None:
+            reliability_diagram(
+                out, truth, valid, Path(plots) / f"reliability_{robot}_{scenario}.png",
+                title=f"{robot} {scenario}, seed {seed}: reliability of P(contact)",
+            )  # fmt: skip
+        print(format_comparison({scenario: results[scenario]}), flush=True)
+    return results
+
+
+def format_comparison(results: dict) -> str:
+    """A Markdown table: scenario x row, the Table III cells and ECE."""
+    head = (
+        "| scenario | params | F1 | acc | air-phase fail | TD delay ms | LO delay ms | ECE |\n"
+        "|---|---|---|---|---|---|---|---|"
+    )
+    lines = [head]
+    for scenario, rows in results.items():
+        for name, m in rows.items():
+            td, lo = m["touchdown_delay_ms"], m["liftoff_delay_ms"]
+            lines.append(
+                f"| {scenario} | {name} | {m['f1']:.3f} | {m['accuracy']:.3f} |"
+                f" {100 * m['air_phase_failure_rate']:.1f} % | {td[0]:.1f} ± {td[1]:.1f} |"
+                f" {lo[0]:.1f} ± {lo[1]:.1f} | {m['ece']:.3f} |"
+            )
+    return "\n".join(lines)
 
 
 def _log_info(path, attrs, data) -> dict:
@@ -429,7 +532,8 @@ def run(args: argparse.Namespace) -> int:
         lib = "unknown"
     provenance = {
         "tool": "jax-contact tune",
-        "argv": list(sys.argv),
+        "arguments": {k: v for k, v in vars(args).items() if k not in ("func", "check")},
+        "note": args.note,
         "library_version": lib,
         "jax_version": jax.__version__,
         "robot": robot_name,
