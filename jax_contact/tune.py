@@ -414,6 +414,15 @@ def predict_logits(
     return np.concatenate(out, axis=0)
 
 
+def pooled(datas: Sequence[TuningData]) -> TuningData:
+    """Truth and mask of several logs flattened into one (for pooled scores)."""
+    return TuningData(
+        meas=None,
+        truth=np.concatenate([np.asarray(d.truth).reshape(-1) for d in datas]),
+        mask=np.concatenate([np.asarray(d.mask).reshape(-1) for d in datas]),
+    )
+
+
 def sigmoid_np(logit) -> np.ndarray:
     """P = sigmoid(logit) in float64 NumPy (no overflow)."""
     x = np.asarray(logit, np.float64)
@@ -466,7 +475,7 @@ def tune(
     base: EstimatorParams,
     terrain,
     train: Sequence[TuningData],
-    validation: TuningData,
+    validation: TuningData | Sequence[TuningData],
     space: ParamSpace,
     config: TuneConfig = TuneConfig(),
     *,
@@ -479,7 +488,8 @@ def tune(
       terrain: the estimator's terrain model (e.g. ``jax_contact.flat(0.0, 0.05)``).
       train: the tuning logs, each a :class:`TuningData` (NumPy leaves are fine: windows
         are moved to the device one at a time).
-      validation: the log that decides early stopping (another seed).
+      validation: the log(s) that decide early stopping (other seeds); with several, the
+        BCE, F1 and ECE are pooled over all their steps.
       space: what is tuned.
       config: optimiser, windows, prior, seed.
       progress: called with each epoch's history dict as it completes.
@@ -499,13 +509,18 @@ def tune(
     opt_state = _optimizer(config).init(theta)
     val_key = jax.random.fold_in(key, 10**6)
 
+    vals = [validation] if isinstance(validation, TuningData) else list(validation)
+    if not vals:
+        raise ValueError("tune needs a validation log")
+
     def validate(th) -> dict:
-        return score_logits(
-            predict_logits(
-                to_params(space, base, th), terrain, validation, key=val_key, chunk=config.chunk
-            ),
-            validation,
-        )
+        params = to_params(space, base, th)
+        logits = [
+            predict_logits(params, terrain, v, key=jax.random.fold_in(val_key, i),
+                           chunk=config.chunk).reshape(-1)
+            for i, v in enumerate(vals)
+        ]  # fmt: skip
+        return score_logits(np.concatenate(logits), pooled(vals))
 
     history = []
     first = dict(epoch=0, train_loss=float("nan"), train_bce=float("nan"), grad_norm=float("nan"))
