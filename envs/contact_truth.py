@@ -71,6 +71,12 @@ def _any_over(adrs: list[list[int]], threshold: float, strict_positive: bool):
 
 def contact_reader(m: mujoco.MjModel, feet, floor_ids, threshold: float):
     """``data -> (n_legs,) bool`` from ``mjx.Data.contact`` and ``efc_force`` (docstring)."""
+    force = contact_normal_force(m, feet, floor_ids)
+    return lambda d: force(d) > threshold
+
+
+def contact_normal_force(m: mujoco.MjModel, feet, floor_ids):
+    """``data -> (n_legs,)`` summed normal force of each foot's geoms on the floor, N."""
     foot_of_geom = np.full(m.ngeom, -1)
     for i, f in enumerate(feet):
         foot_of_geom[list(f.geom_ids)] = i
@@ -85,7 +91,7 @@ def contact_reader(m: mujoco.MjModel, feet, floor_ids, threshold: float):
             con, efc_force = d.contact, d.efc_force
         adr, dim = np.asarray(con.efc_address), np.asarray(con.dim)
         if adr.size == 0:
-            return jnp.zeros((n_legs,), bool)
+            return jnp.zeros((n_legs,), jnp.float32)
         rows = np.where(pyramidal & (dim > 1), 2 * (dim - 1), 1)
         width = int(rows.max())
         idx = adr[:, None] + np.arange(width)[None]
@@ -95,7 +101,7 @@ def contact_reader(m: mujoco.MjModel, feet, floor_ids, threshold: float):
         fog, flo = jnp.asarray(foot_of_geom), jnp.asarray(is_floor)
         leg = jnp.where(flo[g2], fog[g1], jnp.where(flo[g1], fog[g2], -1))
         per_leg = jnp.zeros((n_legs + 1,), fn.dtype).at[jnp.where(leg < 0, n_legs, leg)].add(fn)
-        return per_leg[:n_legs] > threshold
+        return per_leg[:n_legs]
 
     return read
 

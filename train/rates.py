@@ -102,6 +102,8 @@ class RateComparison:
       control: the control-rate estimate, scored at the same instants.
       substep_all: the substep-rate estimate, scored at every physics step.
       dt_substep, dt_control: the two estimator periods, s.
+      contact_fraction: fraction of the scored foot-updates (every physics step) in
+        contact: the accuracy of always-contact (and ``1 -`` it of always-air).
     """
 
     substep: metrics.ContactMetrics
@@ -109,6 +111,7 @@ class RateComparison:
     substep_all: metrics.ContactMetrics
     dt_substep: float
     dt_control: float
+    contact_fraction: float = float("nan")
 
     def table(self) -> str:
         rows = [
@@ -126,6 +129,10 @@ class RateComparison:
                 f"{name:42s} {m.accuracy:6.3f} {m.f1:6.3f} {m.precision:6.3f} {m.recall:6.3f}"
                 f" {td:>14s} {m.failures:5d} {m.n_steps:7d}"
             )
+        lines.append(
+            f"always contact: accuracy {self.contact_fraction:.3f}; always air:"
+            f" {1 - self.contact_fraction:.3f} (every physics step)"
+        )
         lines.append(
             f"control - substep: accuracy {self.control.accuracy - self.substep.accuracy:+.3f},"
             f" F1 {self.control.f1 - self.substep.f1:+.3f}"
@@ -248,4 +255,5 @@ def compare_rates(
         substep_all=metrics.evaluate(flat(p_s), flat(t_s), flat(valid_s), dt=dt_sub),
         dt_substep=dt_sub,
         dt_control=dt_ctrl,
+        contact_fraction=float(np.mean(flat(t_s)[flat(valid_s)])),
     )

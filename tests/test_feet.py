@@ -1,0 +1,175 @@
+"""Feet as robots have them (envs/feet.py), force axes, and truth from MJX contacts.
+
+Small MJCF models written here, so every expected point is derived by hand from the XML:
+a one-legged robot on a rail (hip and knee about y) whose shank ends in a box sole, with
+a site at its toe; variants with a rotated sole, two corner spheres and a ``<pair>``-only
+sole; a two-joint leg (hip yaw, knee pitch) for the force axes. One compiled program
+(a scan of ``mjx.step`` on the box-footed leg) checks the contact-based truth against the
+robot's weight.
+"""
+
+from __future__ import annotations
+
+import jax
+import mujoco
+import numpy as np
+import pytest
+from mujoco import mjx
+
+from envs import contact_truth, feet
+from envs import wrapper as W
+from envs.robots import Robot
+
+LEG = """
+<mujoco>
+  <option timestep="0.002"/>
+  <worldbody>
+    <geom name="floor" type="plane" size="5 5 .1"/>
+    <body name="base" pos="0 0 {z}">
+      <joint name="rail" type="slide" axis="0 0 1" damping="20"/>
+      <geom type="box" size=".1 .1 .05" contype="0" conaffinity="0" mass="5"/>
+      <body name="thigh">
+        <joint name="hip" axis="0 1 0" damping="2"/>
+        <geom type="capsule" fromto="0 0 0 0 0 -.25" size=".02" contype="0" conaffinity="0"/>
+        <body name="shank" pos="0 0 -.25">
+          <joint name="knee" axis="0 1 0" damping="2"/>
+          <geom type="capsule" fromto="0 0 0 0 0 -.25" size=".02" contype="0" conaffinity="0"/>
+          {foot}
+          <site name="toe" pos="0.08 0 -0.26"/>
+        </body>
+      </body>
+    </body>
+  </worldbody>
+  {contact}
+  <actuator><position joint="hip" kp="500"/><position joint="knee" kp="500"/></actuator>
+</mujoco>
+"""
+BOX = '<geom name="sole" type="box" pos="0.01 0 -0.25" size=".08 .03 .01"/>'
+
+
+def _model(foot=BOX, contact="", z=0.6) -> mujoco.MjModel:
+    return mujoco.MjModel.from_xml_string(LEG.format(foot=foot, contact=contact, z=z))
+
+
+def _one(m, names=None) -> feet.Foot:
+    desc, resolved = feet.describe(m, names)
+    assert desc.n_legs == 1 and desc.leg_dofs == ((1, 2),)
+    return resolved[0]
+
+
+def test_box_sole_site_body_and_offset():
+    m = _model()
+    # Box at (0.01, 0, -0.25) in the shank frame, half height 0.01, axes aligned: the
+    # sole is the centre of its bottom face, (0.01, 0, -0.26), radius 0.
+    f = _one(m)  # found with no names: the only floor-touching geom on the leg
+    assert (f.name, f.kind, f.radius) == ("sole", "box", 0.0)
+    np.testing.assert_allclose(f.point, (0.01, 0.0, -0.26), atol=1e-12)
+    assert _one(m, ["sole"]) == f
+    assert _one(m, ["shank"]).point == f.point  # the body of one geom: that geom
+    toe = _one(m, ["toe"])  # a site: its position, radius 0, the body's geoms as truth
+    assert toe.kind == "site" and toe.geom_ids == f.geom_ids
+    np.testing.assert_allclose(toe.point, (0.08, 0.0, -0.26), atol=1e-7)
+    spec = _one(m, [W.FootSpec("heel", body="shank", offset=(-0.07, 0, -0.26), radius=0.005)])
+    assert (spec.kind, spec.point, spec.radius) == ("body", (-0.07, 0.0, -0.26), 0.005)
+    with pytest.raises(ValueError, match="valid names"):
+        feet.describe(m, ["nope"])
+
+
+def test_rotated_box_takes_its_lowest_face():
+    # Rotated 90 deg about x: the box's y half-size (0.03) now points down, so its
+    # lowest face's centre is 0.03 below the geom centre: (0.01, 0, -0.28).
+    m = _model(
+        '<geom name="sole" type="box" pos="0.01 0 -0.25" euler="90 0 0" size=".08 .03 .01"/>'
+    )
+    np.testing.assert_allclose(_one(m).point, (0.01, 0.0, -0.28), atol=1e-9)
+
+
+def test_corner_spheres_are_one_foot_and_pairs_count_as_contact():
+    two = (
+        '<geom name="c1" type="sphere" pos="0.05 0 -0.25" size=".015"/>'
+        '<geom name="c2" type="sphere" pos="-0.05 0 -0.25" size=".015"/>'
+    )
+    f = _one(_model(two))
+    # One foot (the shank), the mean of the two centres and radii.
+    assert (f.name, f.kind, f.radius) == ("shank", "2 sphere geoms", 0.015)
+    np.testing.assert_allclose(f.point, (0.0, 0.0, -0.25), atol=1e-12)
+    assert len(f.geom_ids) == 2
+    # A sole that cannot collide by contype/conaffinity but has an explicit <pair>.
+    paired = BOX.replace("/>", ' contype="0" conaffinity="0"/>')
+    m = _model(paired, '<contact><pair geom1="floor" geom2="sole"/></contact>')
+    assert _one(m).name == "sole"
+    with pytest.raises(ValueError, match="no floor contact"):
+        feet.describe(_model(paired))
+
+
+ANT = """
+<mujoco>
+  <worldbody>
+    <geom name="floor" type="plane" size="5 5 .1"/>
+    <body name="torso" pos="0 0 0.3">
+      <freejoint/>
+      <geom type="sphere" size=".05" contype="0" conaffinity="0"/>
+      <body name="thigh">
+        <joint name="hip" axis="0 0 1"/>
+        <geom type="capsule" fromto="0 0 0 .2 0 0" size=".02" contype="0" conaffinity="0"/>
+        <body name="shank" pos=".2 0 0">
+          <joint name="knee" axis="0 1 0"/>
+          <geom type="capsule" fromto="0 0 0 .1 0 -.2" size=".02" contype="0" conaffinity="0"/>
+          <geom name="foot" type="sphere" pos=".1 0 -.2" size=".02"/>
+        </body>
+      </body>
+    </body>
+  </worldbody>
+  <actuator><motor joint="hip"/><motor joint="knee"/></actuator>
+  <keyframe><key name="home" qpos="0 0 0.3 1 0 0 0 0 0"/></keyframe>
+</mujoco>
+"""
+
+
+def test_force_rows_keep_the_normal():
+    """Two-joint leg like Brax's ant, foot at p = (0.3, 0, -0.2) from the hip. Jacobian
+    columns: hip (z axis at the origin) z x p = (0, 0.3, 0); knee (y axis at (0.2, 0, 0))
+    y x (0.1, 0, -0.2) = (-0.2, 0, -0.1). Row norms x 0.2, y 0.3, z 0.1: the two largest
+    are x and y (what the old rule chose, no normal); the normal is kept with the largest
+    tangential axis: (1, 2)."""
+    m = mujoco.MjModel.from_xml_string(ANT)
+    desc, _ = feet.describe(m)
+    assert W.choose_force_rows(m, desc) == (1, 2)
+    robot = Robot(name="ant", mj_model=m, description=desc, spec=mujoco.MjSpec.from_string(ANT))
+    env = W.LeggedPipelineEnv(robot)
+    assert W.wrap_contact(env).contact_report()["force_rows"] == (1, 2)
+    over = W.wrap_contact(env, W.ContactObsConfig(force_rows=(0, 2)))
+    assert over.contact_report()["force_rows"] == (0, 2)
+    with pytest.raises(ValueError, match="force_rows"):
+        W.wrap_contact(env, W.ContactObsConfig(force_rows=(0, 3)))
+
+
+def test_contact_truth_carries_the_weight():
+    """Sole resting on the floor (base at 0.51 m puts the sole's bottom at 0): after 1 s
+    the summed normal force of its contacts is the robot's weight (hand check: the rail
+    carries no vertical load). Started 0.3 m higher, the foot falls for
+    sqrt(2 0.3 / 9.81) = 0.25 s (124 steps): no force and no contact over the first 100."""
+    m = _model(z=0.51)
+    desc, resolved = feet.describe(m)
+    force = contact_truth.contact_normal_force(m, resolved, desc.floor_geom_ids)
+    reader, source = contact_truth.truth_reader(m, desc, resolved, "auto", 1.0)
+    assert source == "contacts"  # no sensors in this model
+    mx = mjx.put_model(m)
+
+    @jax.jit
+    def run(d):
+        def body(d, _):
+            d = mjx.step(mx, d)
+            return d, (force(d), reader(d))
+
+        return jax.lax.scan(body, d, (), 500)[1]
+
+    d0 = mjx.make_data(m)
+    f_down, t_down = (np.asarray(x) for x in run(d0))
+    weight = float(m.body_subtreemass[1]) * 9.81
+    np.testing.assert_allclose(f_down[-1], [weight], rtol=0.02)
+    assert t_down[-50:].all()
+    f_up, t_up = (np.asarray(x) for x in run(d0.replace(qpos=d0.qpos.at[0].set(0.3))))
+    np.testing.assert_array_equal(f_up[:100], 0.0)
+    assert not t_up[:100].any()
+    np.testing.assert_allclose(f_up[-1], [weight], rtol=0.02)  # landed and settled
