@@ -265,9 +265,9 @@ def realtime_replay(
     """Feeds ``readings`` ((T, n) arrays) through ``est`` one call per period.
 
     Each call is released at ``t0 + k * period_s`` (a sleep, then a spin for the last
-    ``spin_s``; ``spin_s >= period_s`` spins the whole period); its latency is the duration of :meth:`Estimator.update`, and a deadline is
-    missed when the call ends after the next release. Without ``pace`` the calls run back
-    to back (no deadlines).
+    ``spin_s``; ``spin_s >= period_s`` spins the whole period); its latency is the
+    duration of :meth:`Estimator.update`, and a deadline is missed when the call ends
+    after the next release. Without ``pace`` the calls run back to back (no deadlines).
 
     Returns:
       ``latency_s`` (T,), ``p_contact`` (T, L), ``deadline_misses``.
@@ -351,6 +351,12 @@ def deploy_check(
                 f" {str(artefact)!r} expects {r['shape'][0]} (robot {header['robot']['source']!r},"
                 f" log robot {robot_name!r})"
             )
+    if robot_name != header["robot"]["source"]:
+        print(
+            f"{name} is of robot {robot_name!r}, {str(artefact)!r} of"
+            f" {header['robot']['source']!r}: their readings have the same sizes, replaying",
+            file=sys.stderr,
+        )
     one = {k: np.ascontiguousarray(v[:steps, env], np.float32) for k, v in readings.items()}
 
     est = deploy.load(artefact)
