@@ -46,6 +46,9 @@ OPTIONS = {
     "scheduler_memory": {
         "XLA_FLAGS": "--xla_cpu_scheduler_type=CPU_SCHEDULER_TYPE_MEMORY_OPTIMIZED"
     },
+    "xnn_graph_greedy": {
+        "XLA_FLAGS": "--xla_cpu_experimental_xnn_graph_fusion_mode=XNN_GRAPH_FUSION_MODE_GREEDY"
+    },
     "no_async_dispatch": {"JAX_CPU_ENABLE_ASYNC_DISPATCH": "false"},
     "one_core": {"_PIN": "0"},
 }
