@@ -3,6 +3,7 @@
 The public API is listed in ``__all__``; everything else is private.
 """
 
+from jax_contact import deploy, export  # the exported estimator: export it, run it (no mujoco)
 from jax_contact.defaults import GaitPrior, params_for
 from jax_contact.filter import (
     init_belief,
@@ -70,8 +71,10 @@ __all__ = [
     "NoiseParams",
     "RobotMeasurement",
     "TerrainQuery",
+    "deploy",
     "diff_kinematics_llr",
     "dynamics_llr",
+    "export",
     "flat",
     "foothold_memory",
     "height_field",
