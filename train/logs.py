@@ -7,8 +7,10 @@ a recorded robot log.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import sys
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -27,16 +29,37 @@ def simulate_to_file(
     duration: float = 10.0,
     seed: int = 0,
     roughness: float = 0.015,
+    foot_names: Sequence[str] | None = None,
+    gait_settings=None,
 ) -> Path:
-    """Simulates and writes an HDF5 log (atomically). Returns the path."""
-    from envs.gaits import make_gait
+    """Simulates and writes an HDF5 log (atomically). Returns the path.
+
+    Args:
+      robot: a robot name or an MJCF path (:func:`envs.robots.load_robot`).
+      foot_names: the feet, geom or body names in leg order (None: found in the model);
+        stored in the log (``foot_names``), which :func:`evaluate_file` replays with.
+      gait_settings: an :class:`envs.gaits.GaitSettings`, or a mapping of fields that
+        override the robot's (e.g. ``{"kp": 80.0, "home_key": "home"}``); None: the
+        robot's own. Resolved, they are stored as the attribute ``gait_settings`` (JSON),
+        and their speed range for ``gait`` is what the envs' speed commands are drawn from.
+    """
+    from envs.gaits import GaitSettings, make_gait
+    from envs.gaits import gait_settings as settings_of
+    from envs.robots import load_robot
     from envs.simulate import build_world, simulate
 
     path = Path(path)
     if path.suffix not in (".h5", ".hdf5"):
         raise ValueError(f"output {str(path)!r} must end in .h5 or .hdf5")
-    world = build_world(robot, terrain=terrain, roughness=roughness)
-    roll = simulate(world, make_gait(gait), noise, n_envs, duration, seed, speed_range=(0.0, 0.4))
+    if gait_settings is None or isinstance(gait_settings, GaitSettings):
+        settings = gait_settings
+    else:
+        settings = settings_of(robot, **dict(gait_settings))
+    loaded = load_robot(robot, foot_names=foot_names, gait=settings)
+    world = build_world(loaded, terrain=terrain, roughness=roughness)
+    resolved = world.robot.gait_settings
+    speeds = resolved.speed_range(gait)
+    roll = simulate(world, make_gait(gait), noise, n_envs, duration, seed, speed_range=speeds)
     attrs = {
         "robot": robot,
         "gait": gait,
@@ -48,6 +71,7 @@ def simulate_to_file(
         "rate_hz": 1.0 / world.dt,
         "n_envs": n_envs,
         "foot_names": list(world.robot.description.foot_names),
+        "gait_settings": dataclasses.asdict(resolved),
         "reading_timing": READING_TIMING,
     }
     write_log(path, roll.to_arrays(), attrs)
@@ -67,29 +91,40 @@ _OLD_TIMING = "start_of_step"
 TRUTH_CONTACT = "truth/contact"
 
 
-def evaluate_file(path: str | Path, *, json_path: str | Path | None = None) -> dict:
-    """Runs the estimator, GM observer and kinematic detector on a log; prints the metrics.
+@dataclasses.dataclass(frozen=True, eq=False)
+class LoadedLog:
+    """A log read and checked, with the robot it was made with.
 
-    A log without ground truth (no ``truth/contact``, e.g. one recorded on a robot) has no
-    metrics: the estimator's P(contact) per foot is then printed as a mean per foot and,
-    with ``json_path``, written per step and env under ``"p_contact"``.
+    Attributes:
+      name: ``log '<path>'``, for messages.
+      robot: the robot of the log's ``robot`` attribute with the feet it stores.
+      readings: ``qpos`` (T, E, nq), ``qvel``, ``qacc``, ``tau`` (T, E, nv), end-of-step.
+      truth: (T, E, L) bool ground-truth contact, or None.
+      valid: (T, E) bool.
+      dt: the readings' period, s.
+      attrs: the log's attributes.
+    """
 
-    Returns:
-      ``log``, ``attrs``, ``scores`` (detector -> metrics; empty without ground truth),
-      ``has_truth``, ``foot_names``, and ``p_contact`` (foot -> (T, E) nested lists) when
-      the log has no ground truth.
+    name: str
+    robot: object
+    readings: dict
+    truth: np.ndarray | None
+    valid: np.ndarray
+    dt: float
+    attrs: dict
+
+
+def load_log(path: str | Path, *, foot_names: Sequence[str] | None = None) -> LoadedLog:
+    """Reads a log of :func:`simulate_to_file` and loads its robot with its feet.
+
+    Args:
+      foot_names: the feet to use; None takes the log's ``foot_names`` attribute (the feet
+        it was simulated with), else the model's own.
 
     Raises:
-      FileNotFoundError: no such file.
-      ValueError: one line naming the file, the field and what was expected: unreadable
-        file, a missing attribute or array, an array of the wrong shape, a robot whose
-        model does not fit the readings.
+      FileNotFoundError, ValueError: as :func:`evaluate_file`.
     """
-    import jax_contact as jc
     from envs.robots import load_robot
-    from jax_contact.baselines import make_gm_params, make_kinematic_params
-    from train.evaluate import replay, score
-    from train.reproduce import TERRAIN_SIGMA, planar_estimator_params, quadruped_estimator_params
 
     arrays, attrs = read_log(path)
     name = f"log {str(path)!r}"
@@ -107,7 +142,11 @@ def evaluate_file(path: str | Path, *, json_path: str | Path | None = None) -> d
         raise ValueError(
             f"{name}: attribute 'reading_timing' is {timing!r}; expected {READING_TIMING!r}"
         )
-    robot = load_robot(robot_name)
+    feet = foot_names if foot_names is not None else attrs.get("foot_names") or None
+    try:
+        robot = load_robot(robot_name, foot_names=feet)
+    except ValueError as err:
+        raise ValueError(f"{name}: robot {robot_name!r}: {err}") from None
     desc = robot.description
     for key, size, what in (("qpos", desc.nq, "nq"), ("qvel", desc.nv, "nv")):
         if readings[key].shape[-1] != size:
@@ -120,22 +159,125 @@ def evaluate_file(path: str | Path, *, json_path: str | Path | None = None) -> d
             f"{name}: array {TRUTH_CONTACT!r} has {truth.shape[-1]} feet but robot"
             f" {robot_name!r} has {desc.n_legs}"
         )
+    return LoadedLog(name, robot, readings, truth, valid, dt, attrs)
+
+
+def default_estimator(desc, dt: float):
+    """(EstimatorParams, terrain) that ``evaluate`` and ``estimate`` use for a robot: the
+    planar leg's Section III estimator for 2-joint legs, else Table III's (the one source:
+    :func:`jax_contact.params_for` with ``anymal_like`` sensors, ``train.reproduce``)."""
+    import jax_contact as jc
+    from train.reproduce import TERRAIN_SIGMA, planar_estimator_params, quadruped_estimator_params
+
     if desc.n_leg_dofs == 2:
-        params, terrain = planar_estimator_params(desc.nv, dt), jc.flat(0.0, 0.2)
-    else:
-        params, terrain = quadruped_estimator_params(desc, dt), jc.flat(0.0, TERRAIN_SIGMA)
+        return planar_estimator_params(desc.nv, dt), jc.flat(0.0, 0.2)
+    return quadruped_estimator_params(desc, dt), jc.flat(0.0, TERRAIN_SIGMA)
+
+
+def tune_gm(path: str | Path) -> tuple[str, object, dict]:
+    """The GM observer setting of ``train.reproduce``'s grid with the best F1 on a log.
+
+    Runs every grid point (:func:`train.reproduce.gm_grid`) on the log and picks one with
+    :func:`train.reproduce._tune_gm` (best per-step F1, ties: fewer failures), the rule
+    the reproduction tunes by.
+
+    Returns:
+      (grid name, e.g. ``"gm_K50_F15"``, its GMParams, grid name -> scores).
+
+    Raises:
+      ValueError: the log has no ground truth, or as :func:`load_log`.
+    """
+    import jax_contact as jc
+    from train.evaluate import replay, score
+    from train.reproduce import TERRAIN_SIGMA, _tune_gm, gm_grid
+
+    log = load_log(path)
+    if log.truth is None:
+        raise ValueError(f"{log.name} has no ground truth ({TRUTH_CONTACT!r}): cannot tune on it")
+    grid = gm_grid()
     out = replay(
-        robot,
-        readings,
+        log.robot,
+        log.readings,
+        estimators={},
+        terrain=jc.flat(0.0, TERRAIN_SIGMA),
+        gms=grid,
+        dt=log.dt,
+    )
+    scores = score(out, log.truth, log.valid, dt=log.dt, names=list(grid))
+    best = _tune_gm(scores)
+    return best, grid[best], scores
+
+
+def evaluate_file(
+    path: str | Path,
+    *,
+    json_path: str | Path | None = None,
+    gm_grid_log: str | Path | None = None,
+    params_path: str | Path | None = None,
+    foot_names: Sequence[str] | None = None,
+) -> dict:
+    """Runs the estimator, GM observer and kinematic detector on a log; prints the metrics.
+
+    The log is replayed with the robot and feet it was made with (its ``foot_names``
+    attribute) unless ``foot_names`` is given. Every detector's full metric set is printed
+    as one table with a header and a legend (``train.reproduce.format_table``): touch-down
+    and lift-off delays, F1, accuracy, failures, per-air-phase failure rate, missed
+    touch-downs and lift-offs, ECE.
+
+    A log without ground truth (no ``truth/contact``, e.g. one recorded on a robot) has no
+    metrics: the estimator's P(contact) per foot is then printed as a mean per foot and,
+    with ``json_path``, written per step and env under ``"p_contact"``.
+
+    Args:
+      json_path: write the result as JSON here.
+      gm_grid_log: tune the GM observer on this other log (:func:`tune_gm`) instead of
+        using the default setting (``make_gm_params()``).
+      params_path: estimator parameters (:func:`jax_contact.load_params`) instead of the
+        robot's defaults (:func:`default_estimator`).
+      foot_names: the feet, overriding the log's.
+
+    Returns:
+      ``log``, ``attrs``, ``scores`` (detector -> metrics; empty without ground truth),
+      ``has_truth``, ``foot_names``, ``gm`` (the GM setting used), ``outputs`` (the
+      replay's (T, E, L) arrays, not written to the JSON) and ``p_contact`` (foot -> (T, E)
+      nested lists) when the log has no ground truth.
+
+    Raises:
+      FileNotFoundError: no such file.
+      ValueError: one line naming the file, the field and what was expected: unreadable
+        file, a missing attribute or array, an array of the wrong shape, a robot whose
+        model does not fit the readings.
+    """
+    from jax_contact.baselines import make_gm_params, make_kinematic_params
+    from train.evaluate import replay, score
+
+    log = load_log(path, foot_names=foot_names)
+    name, truth, desc, dt = log.name, log.truth, log.robot.description, log.dt
+    params, terrain = default_estimator(desc, dt)
+    if params_path is not None:
+        params = _load_params_for(params_path, desc, dt)
+    gm_name, gm = "gm", make_gm_params()
+    if gm_grid_log is not None and truth is not None:
+        gm_name, gm, _ = tune_gm(gm_grid_log)
+        print(f"GM observer tuned on {str(gm_grid_log)!r}: {gm_name} (best F1 of the grid)")
+    out = replay(
+        log.robot,
+        log.readings,
         estimators={"probabilistic": params},
         terrain=terrain,
         # Without ground truth only the estimator's P(contact) is reported.
-        gms={"gm": make_gm_params()} if truth is not None else None,
+        gms={gm_name: gm} if truth is not None else None,
         kinematic=make_kinematic_params() if truth is not None else None,
         dt=dt,
     )
-    feet = [str(f) for f in attrs.get("foot_names") or desc.foot_names]
-    result = {"log": str(path), "attrs": attrs, "has_truth": truth is not None, "foot_names": feet}
+    feet = list(desc.foot_names)
+    result = {
+        "log": str(path),
+        "attrs": log.attrs,
+        "has_truth": truth is not None,
+        "foot_names": feet,
+        "gm": {"name": gm_name, "K_I": float(gm.K_I), "threshold": float(gm.threshold)},
+    }
     if truth is None:
         p = np.asarray(out["probabilistic"])  # (T, E, L)
         means = "  ".join(f"{f} {np.nanmean(p[..., i]):.3f}" for i, f in enumerate(feet))
@@ -151,33 +293,45 @@ def evaluate_file(path: str | Path, *, json_path: str | Path | None = None) -> d
         result["scores"] = {}
         result["p_contact"] = {f: p[..., i] for i, f in enumerate(feet)}
     else:
-        scores = score(out, truth, valid, dt=dt)
-        print(format_scores(scores))
+        scores = score(out, truth, log.valid, dt=dt)
+        print(format_scores(scores, title=Path(path).name))
         result["scores"] = scores
     if json_path:
         write_json_atomic(json_path, json.loads(json.dumps(result, default=_plain)))
+    result["outputs"] = out  # not in the JSON: (T, E, L) arrays of every detector
     return result
 
 
-def format_scores(scores: dict[str, dict]) -> str:
-    """The metrics table of :func:`evaluate_file`, with a header and a legend."""
-    lines = [
-        f"{'detector':14s} {'touch-down delay ms':>20s} {'failures':>8s} {'missed':>6s}"
-        f" {'F1':>5s} {'Brier':>5s} {'ECE':>5s} {'touch-downs':>11s}"
-    ]
-    for det, s in scores.items():
-        td = s["touchdown_delay_ms"]
-        lines.append(
-            f"{det:14s} {td[0]:11.1f} +- {td[1]:5.1f} {s['failures']:8d} {s['missed']:6d}"
-            f" {s['f1']:5.3f} {s['brier']:5.3f} {s['ece']:5.3f} {s['n_touchdowns']:11d}"
+def _load_params_for(path, desc, dt):
+    """A params file, checked against the robot and the log's period."""
+    import jax.numpy as jnp
+
+    from jax_contact.io import load_params
+
+    params = load_params(path)
+    if params.nv != desc.nv:
+        raise ValueError(
+            f"parameter file {str(path)!r} is for nv = {params.nv}; the robot has nv = {desc.nv}"
         )
-    lines += [
-        "delay: true touch-down to detection, mean +- std; failures: false contacts in the"
-        " air (the paper's 'fail');",
-        "missed: touch-downs not detected before the lift-off; F1 of the flag P > 0.5;"
-        " Brier, ECE: calibration of P(contact) (definitions: jax_contact.metrics)",
-    ]
-    return "\n".join(lines)
+    if abs(float(params.dt) - dt) > 1e-6 * dt:
+        print(
+            f"parameter file {str(path)!r} has dt = {float(params.dt)} s; the log's is {dt} s:"
+            " using the log's",
+            file=sys.stderr,
+        )
+        params = params.replace(dt=jnp.float32(dt))
+    return params
+
+
+def format_scores(scores: dict[str, dict], *, title: str = "log") -> str:
+    """Every detector's full metric set as one table with a header and the legend
+    (``train.reproduce.format_table``'s columns: TD / LO delays, F1, accuracy, failures,
+    per-air-phase failure rate, missed touch-downs and lift-offs, ECE)."""
+    from train.reproduce import _cell, format_table
+
+    rows = sorted(scores, key=lambda d: (d != "probabilistic", d == "kinematic", d))
+    payload = {"scenarios": {title: {det: _cell(scores[det]) for det in rows}}}
+    return format_table(payload, rows=rows)
 
 
 def to_end_of_step(readings: dict, truth: np.ndarray | None, valid: np.ndarray):
