@@ -1,0 +1,91 @@
+"""Every Playground locomotion env offline (envs/playground_offline.py), wrapped.
+
+Cheap part for every env that loads (C compiles and one abstract trace of reset each, no
+XLA compile): load, wrap with the defaults, the feet the wrapper found (kind and count, by
+robot), the truth source, and the observation size against the env's. Jitted reset and
+a few steps for two representative envs only (Berkeley Humanoid: box feet, the env's
+``*_foot1_floor_found`` sensors; G1: feet that touch the floor only through ``<pair>``s):
+each compile costs minutes on 2 cores. ``benchmarks/playground_envs.py`` runs every env
+jitted and prints the table.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from mujoco_playground._src import locomotion
+
+from envs import playground_offline
+from envs import wrapper as W
+
+# robot prefix -> (feet, their kind as envs.feet names it)
+FEET = {
+    "Go1": (("FR", "FL", "RR", "RL"), "sphere"),
+    "Spot": (("FL", "FR", "HL", "HR"), "sphere"),
+    "BerkeleyHumanoid": (("l_foot1", "r_foot1"), "box"),
+    "G1": (("left_foot", "right_foot"), "box"),
+    "T1": (("left_foot_link", "right_foot_link"), "4 sphere geoms"),
+    "H1": (("left_ankle_link", "right_ankle_link"), "3 capsule geoms"),
+    "Apollo": (("collision_l_sole", "collision_r_sole"), "box"),
+}
+NAMES = playground_offline.offline_names()
+
+
+def test_offline_names():
+    # Every locomotion env loads offline but Barkour (its scene includes Menagerie's
+    # robot XML, not only meshes) and OP3 (bodies without explicit inertials: the
+    # placeholder meshes would set their masses).
+    assert set(locomotion.ALL_ENVS) - set(NAMES) == {"BarkourJoystick", "Op3Joystick"}
+    for name in ("BarkourJoystick", "Op3Joystick"):
+        with pytest.raises(ValueError, match="cannot be built offline|depends on the mesh"):
+            playground_offline.load(name)
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_load_and_wrap(name):
+    env = playground_offline.load(name)
+    assert env.mjx_model.impl.value == "jax"
+    wrapped = W.wrap_contact(env)
+    report = wrapped.contact_report()
+    names, kind = next(v for k, v in FEET.items() if name.startswith(k))
+    assert tuple(f["name"] for f in report["feet"]) == names
+    assert {f["kind"] for f in report["feet"]} == {kind}
+    assert report["rate"] == "substep"
+    assert report["dt"] == pytest.approx(float(env.mj_model.opt.timestep))
+    assert report["truth"] == "found_sensors"  # every one of these scenes has them
+    assert report["force_rows"] == (0, 1, 2)  # legs of >= 3 joints
+    # One abstract trace of the env's reset (wrapped.observation_size would trace it
+    # again): the wrapped size is the env's plus one p_contact per foot in "state".
+    inner = env.observation_size
+    size = wrapped.contact_core.add_size(inner)
+    n = len(names)
+    if isinstance(inner, dict):
+        assert size["state"] == (inner["state"][0] + n,)
+        assert {k: v for k, v in size.items() if k != "state"} == {
+            k: v for k, v in inner.items() if k != "state"
+        }
+    else:
+        assert size == inner + n
+
+
+@pytest.mark.parametrize("name", ["BerkeleyHumanoidJoystickFlatTerrain", "G1JoystickFlatTerrain"])
+def test_jitted_reset_and_steps(name):
+    env = playground_offline.load(name)
+    cfg = W.ContactObsConfig(obs_keys=("state", "privileged_state"))
+    wrapped = W.wrap_contact(env, cfg)
+    reset, step = jax.jit(wrapped.reset), jax.jit(wrapped.step)
+    state = reset(jax.random.PRNGKey(0))
+    sizes = wrapped.observation_size
+    for _ in range(3):
+        state = step(state, jnp.zeros(env.action_size))
+    for k, shape in sizes.items():
+        assert state.obs[k].shape == tuple(shape)
+        assert np.all(np.isfinite(np.asarray(state.obs[k])))
+    p = np.asarray(state.info["contact_est"].diag.p_contact)
+    # The features are the last two entries of both keys (the critic's too).
+    np.testing.assert_allclose(np.asarray(state.obs["state"])[-2:], p, rtol=1e-6)
+    np.testing.assert_allclose(np.asarray(state.obs["privileged_state"])[-2:], p, rtol=1e-6)
+    assert int(state.info["contact_est"].n_updates) == 3 * env.n_substeps
+    assert state.info["contact_est_truth"].shape == (2,)
