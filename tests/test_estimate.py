@@ -1,0 +1,351 @@
+"""``jax-contact estimate`` on recordings the library did not make (issue 16).
+
+The round trip: the shipped simulated log (``tests/fixtures/planar_leg_hop.h5``, the planar
+leg hopping, 2 s) exported as a recording with shuffled columns, renamed joints and feet
+and degrees gives the probabilities that ``evaluate`` gives on the log itself. The
+conversion of a floating-base robot (Go1) is checked against the readings it came from,
+with NumPy differences as the reference where columns are missing; bad input gets one
+line naming what is wrong. Only the round trip runs the estimator (one planar replay).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+from pathlib import Path
+from types import SimpleNamespace
+
+import h5py
+import numpy as np
+import pytest
+
+from envs.robots import load_robot
+from jax_contact.io import read_log
+from train import estimate_cmd
+from train.recording import (
+    Recording,
+    log_to_columns,
+    read_recording,
+    to_readings,
+    write_recording_csv,
+)
+
+ROOT = Path(__file__).resolve().parents[1]
+FIXTURES = ROOT / "tests" / "fixtures"
+LOG = FIXTURES / "planar_leg_hop.h5"
+CSV = FIXTURES / "planar_leg_hop.csv"
+# Model name -> the recording's name for it.
+RENAME = {"rail": "slider_z", "hip": "HIP_J", "knee": "KNEE_J", "foot": "toe"}
+
+
+def _parser():
+    p = argparse.ArgumentParser(prog="jax-contact")
+    estimate_cmd.add_parser(p.add_subparsers(dest="command"))
+    return p
+
+
+@pytest.fixture(scope="module")
+def planar_log():
+    from train.logs import load_log
+
+    return load_log(LOG)
+
+
+@pytest.fixture(scope="module")
+def round_trip(planar_log, tmp_path_factory):
+    """evaluate on the log, and estimate on its shuffled, renamed, degree recording."""
+    from train.logs import evaluate_file
+    from train.recording import estimate_recording
+
+    tmp = tmp_path_factory.mktemp("estimate")
+    evaluated = evaluate_file(LOG, gm_grid_log=LOG)
+    arrays, _ = read_log(LOG)
+    cols = log_to_columns(planar_log, names=RENAME, units="deg", truth_force=arrays["truth/force"])
+    order = np.random.default_rng(0).permutation(list(cols))
+    write_recording_csv(tmp / "robot.csv", {k: cols[k] for k in order})
+    estimated = estimate_recording(
+        tmp / "robot.csv",
+        model="planar_leg",
+        out_dir=tmp / "out",
+        names={v: k for k, v in RENAME.items()},
+        units="deg",
+        progress=False,
+    )
+    return SimpleNamespace(evaluated=evaluated, estimated=estimated, tmp=tmp, order=order)
+
+
+def test_round_trip_gives_evaluates_probabilities(round_trip):
+    assert list(round_trip.order)[:2] != ["time", "q/slider_z"]  # shuffled
+    p_eval = np.asarray(round_trip.evaluated["outputs"]["probabilistic"])
+    p_est = np.asarray(round_trip.estimated["outputs"]["probabilistic"])
+    assert p_eval.shape == p_est.shape == (800, 1, 1)
+    # Degrees and back cost a float64 rounding; the readings are float32 in the replay.
+    np.testing.assert_allclose(p_est, p_eval, atol=1e-5)
+    assert 0.3 < float(np.mean(p_eval > 0.5)) < 0.95  # a hop: both phases present
+    s_eval = round_trip.evaluated["scores"]["probabilistic"]
+    s_est = round_trip.estimated["scores"]["probabilistic"]
+    for key in ("accuracy", "f1", "ece", "failures", "n_touchdowns"):
+        assert s_est[key] == pytest.approx(s_eval[key], abs=1e-6), key
+    assert round_trip.estimated["terms"] == ("dynamics", "diff_kinematics", "kinematics")
+
+
+def test_evaluate_prints_every_metric_and_tunes_gm_on_a_grid_log(round_trip):
+    from train.logs import format_scores, tune_gm
+    from train.reproduce import GM_K_I, GM_THRESHOLDS
+
+    ev = round_trip.evaluated
+    best, gm, grid_scores = tune_gm(LOG)  # compiled already by evaluate's own tuning
+    assert len(grid_scores) == len(GM_K_I) * len(GM_THRESHOLDS)
+    # The grid point with the best F1 (ties: fewer failures) is the one evaluate used.
+    f1 = {k: (v["f1"], -v["failures"]) for k, v in grid_scores.items()}
+    assert f1[best] == max(f1.values())
+    assert ev["gm"] == {"name": best, "K_I": float(gm.K_I), "threshold": float(gm.threshold)}
+    assert set(ev["scores"]) == {"probabilistic", best, "kinematic"}
+    text = format_scores(ev["scores"], title="planar_leg_hop.h5")
+    lines = text.splitlines()
+    for col in ("TD ms", "LO ms", "F1", "acc", "fail", "air-ph", "mTD", "mLO", "ECE"):
+        assert col in lines[0]
+    assert [ln.split()[0] for ln in lines[1:4]] == ["probabilistic", best, "kinematic"]
+    assert "ECE: expected calibration error" in text and "lift-off" in text
+    s = ev["scores"]["probabilistic"]
+    assert f"{s['accuracy']:.3f}" in lines[1] and f"{s['ece']:.3f}" in lines[1]
+
+
+def test_logs_replay_with_the_feet_they_store(tmp_path):
+    from train.logs import load_log
+
+    arrays, attrs = read_log(LOG)
+    from jax_contact.io import write_log
+
+    write_log(tmp_path / "heel.h5", arrays, attrs | {"foot_names": ["heel"]})
+    with pytest.raises(ValueError, match=r"'heel' is not a sphere geom"):
+        load_log(tmp_path / "heel.h5")
+    assert load_log(LOG).robot.description.foot_names == ("foot",)
+
+
+def test_estimate_writes_hdf5_csv_png_and_metrics(round_trip):
+    out = round_trip.tmp / "out"
+    outputs = round_trip.estimated["outputs"]
+    with h5py.File(out / "estimate.h5", "r") as f:
+        np.testing.assert_array_equal(f["p_contact"][:, 0], outputs["probabilistic"][:, 0, 0])
+        for field in ("p_dynamics", "p_diff_kinematics", "p_kinematics", "p_takeoff"):
+            np.testing.assert_array_equal(f[field][:], outputs[f"probabilistic/{field}"][:, 0])
+        assert json.loads(f.attrs["foot_names"]) == ["foot"]
+        np.testing.assert_array_equal(
+            f["truth/contact"][:], read_log(LOG)[0]["truth/contact"][:, 0]
+        )
+    table = read_recording(out / "estimate.csv").columns
+    np.testing.assert_allclose(
+        table["p_touchdown/foot"], outputs["probabilistic/p_touchdown"][:, 0, 0]
+    )
+    np.testing.assert_allclose(table["time"], (np.arange(800) + 1) * 0.0025)
+    assert (out / "foot.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["probabilistic"]["f1"] == pytest.approx(
+        round_trip.estimated["scores"]["probabilistic"]["f1"]
+    )
+    assert not list(out.glob(".*.tmp"))  # atomic writes leave no temporary file
+
+
+def test_the_command_runs_on_the_shipped_sample(round_trip, tmp_path, capsys):
+    args = _parser().parse_args(
+        ["estimate", str(CSV), "--model", "planar_leg", "--out", str(tmp_path), "--no-plots"]
+    )
+    args.check(args)
+    assert args.func(args) == 0
+    text = capsys.readouterr().out
+    assert "estimator terms: dynamics, diff_kinematics, kinematics" in text
+    assert "probabilistic" in text and "TD ms" in text  # the metrics table
+    got = read_recording(tmp_path / "estimate.csv").columns["p_contact/foot"]
+    want = round_trip.evaluated["outputs"]["probabilistic"][:, 0, 0]
+    np.testing.assert_allclose(got, want, atol=1e-5)
+
+
+def test_shipped_sample_is_the_export_of_the_shipped_log(planar_log):
+    assert CSV.stat().st_size < 1_000_000 and LOG.stat().st_size < 1_000_000
+    arrays, attrs = read_log(LOG)
+    assert attrs["robot"] == "planar_leg" and attrs["foot_names"] == ["foot"]
+    want = log_to_columns(planar_log, truth_force=arrays["truth/force"])
+    got = read_recording(CSV).columns
+    assert list(got) == list(want)
+    for k in want:
+        np.testing.assert_array_equal(got[k], want[k], err_msg=k)
+
+
+# --------------------------------------------------------------- floating-base conversion
+
+
+@pytest.fixture(scope="module")
+def go1_log():
+    """A synthetic Go1 log (random states; the conversion needs no physics)."""
+    robot = load_robot("go1")
+    rng = np.random.default_rng(3)
+    t_len, dt = 40, 0.0025
+    qpos = np.tile(robot.home_qpos, (t_len, 1, 1)) + rng.normal(0, 0.05, (t_len, 1, 19))
+    qpos[..., 3:7] /= np.linalg.norm(qpos[..., 3:7], axis=-1, keepdims=True)
+    qvel = rng.normal(0, 0.5, (t_len, 1, 18))
+    readings = {
+        "qpos": qpos,
+        "qvel": qvel,
+        "qacc": rng.normal(0, 5, (t_len, 1, 18)),
+        "tau": rng.normal(0, 3, (t_len, 1, 18)) * (np.arange(18) >= 6),
+    }
+    truth = rng.random((t_len, 1, 4)) > 0.5
+    return SimpleNamespace(readings=readings, robot=robot, dt=dt, truth=truth)
+
+
+@pytest.mark.parametrize("fmt", ["csv", "npz", "h5"])
+def test_go1_columns_convert_back_to_the_readings(go1_log, tmp_path, fmt):
+    names = {"FR_hip_joint": "fr_abad", "RL_calf_joint": "rl_knee", "FL": "front_left"}
+    cols = log_to_columns(go1_log, names=names, units="deg")
+    path = tmp_path / f"rec.{fmt}"
+    if fmt == "csv":
+        write_recording_csv(path, cols)
+    elif fmt == "npz":
+        np.savez(path, **cols)
+    else:
+        with h5py.File(path, "w") as f:
+            for k, v in cols.items():
+                f[k] = v
+    conv = to_readings(
+        read_recording(path), go1_log.robot, names={v: k for k, v in names.items()}, units="deg"
+    )
+    for key in ("qpos", "qvel", "qacc", "tau"):
+        np.testing.assert_allclose(
+            conv.readings[key], go1_log.readings[key], atol=1e-12, err_msg=key
+        )
+    np.testing.assert_array_equal(conv.truth, go1_log.truth)
+    assert conv.dt == pytest.approx(0.0025) and conv.valid.all()
+    assert conv.terms == ("dynamics", "diff_kinematics", "kinematics") and conv.notes == ()
+
+
+def _diff(x, dt):
+    """The reference: backward difference, the first row repeating the second's."""
+    d = np.diff(x, axis=0) / dt
+    return np.concatenate([d[:1], d], axis=0)
+
+
+def test_missing_velocities_accelerations_and_torques_are_derived(go1_log):
+    cols = log_to_columns(go1_log, velocities=False, accelerations=False, torques=False)
+    for k in [c for c in cols if c.startswith("base_linvel/")]:
+        del cols[k]
+    conv = to_readings(Recording(cols, "r"), go1_log.robot)
+    dt, r = go1_log.dt, go1_log.readings
+    np.testing.assert_allclose(
+        conv.readings["qvel"][..., 6:], _diff(r["qpos"][..., 7:], dt), atol=1e-9
+    )
+    np.testing.assert_allclose(
+        conv.readings["qvel"][..., :3], _diff(r["qpos"][..., :3], dt), atol=1e-9
+    )
+    np.testing.assert_allclose(conv.readings["qvel"][..., 3:6], r["qvel"][..., 3:6], atol=1e-12)
+    np.testing.assert_allclose(
+        conv.readings["qacc"][..., 6:], _diff(_diff(r["qpos"][..., 7:], dt), dt), atol=1e-6
+    )
+    np.testing.assert_allclose(
+        conv.readings["qacc"][..., 3:6], _diff(r["qvel"][..., 3:6], dt), atol=1e-9
+    )
+    assert np.all(conv.readings["tau"] == 0)
+    assert conv.terms == ("diff_kinematics", "kinematics") and not conv.has_torque
+    text = "\n".join(conv.notes)
+    assert "dynamics term is off" in text and "differentiated from base_pos" in text
+    assert "joint velocities differentiated from positions" in text
+
+
+def test_without_base_position_and_velocity_only_the_dynamics_run(go1_log):
+    cols = log_to_columns(go1_log)
+    for k in [c for c in cols if c.startswith(("base_pos/", "base_linvel/"))]:
+        del cols[k]
+    conv = to_readings(Recording(cols, "r"), go1_log.robot)
+    assert conv.terms == ("dynamics",)
+    text = "\n".join(conv.notes)
+    assert "kinematics term is off" in text and "differential-kinematics term is off" in text
+    for k in [c for c in cols if c.startswith("tau/")]:
+        del cols[k]
+    with pytest.raises(ValueError, match="no measurement term can run"):
+        to_readings(Recording(cols, "r"), go1_log.robot)
+
+
+def test_a_nan_stretch_marks_those_rows_invalid(go1_log):
+    cols = log_to_columns(go1_log)
+    cols["q/FL_thigh_joint"] = cols["q/FL_thigh_joint"].copy()
+    cols["q/FL_thigh_joint"][10:13] = np.nan
+    conv = to_readings(Recording(cols, "r"), go1_log.robot)
+    # Rows 10-12 and row 13, whose velocity difference reaches back to row 12.
+    assert np.flatnonzero(~conv.valid[:, 0]).tolist() == [10, 11, 12, 13]
+    assert np.isnan(conv.readings["qpos"][10:13, 0, 7 + 4]).all()
+    assert any("rows 10-13" in n for n in conv.notes)
+
+
+# --------------------------------------------------------------------------- bad input
+
+
+def _planar_cols():
+    t = (np.arange(10) + 1) * 0.0025
+    cols = {"time": t}
+    for j in ("rail", "hip", "knee"):
+        cols[f"q/{j}"] = np.linspace(0.1, 0.2, 10)
+    for j in ("hip", "knee"):
+        cols[f"tau/{j}"] = np.ones(10)
+    return cols
+
+
+@pytest.mark.parametrize(
+    "change, match",
+    [
+        (lambda c: c.pop("q/knee"), r"missing column 'q/knee' \(position of joint 'knee'\)"),
+        (lambda c: c.update({"q/ankle": c["q/hip"]}), r"column 'q/ankle': the model has no joint"),
+        (lambda c: c["time"].__setitem__(5, c["time"][3]), r"'time' does not increase at row 5"),
+        (lambda c: c["time"].__setitem__(5, c["time"][5] + 0.001), r"irregular time steps"),
+        (lambda c: c.update({"contact/heel": np.ones(10)}), r"column 'contact/heel': .*no foot"),
+    ],
+)
+def test_bad_input_is_one_line_naming_it(change, match):
+    cols = _planar_cols()
+    cols["time"] = cols["time"].copy()
+    change(cols)
+    with pytest.raises(ValueError, match=match) as err:
+        to_readings(Recording(cols, "rec.csv"), load_robot("planar_leg"))
+    assert "\n" not in str(err.value) and "rec.csv" in str(err.value)
+
+
+def test_irregular_steps_are_resampled_by_the_stated_rule():
+    cols = _planar_cols()
+    # Samples at 0.0025 s steps but one missing (row 5): the grid keeps the median step.
+    keep = np.arange(10) != 5
+    rec = Recording({k: v[keep] for k, v in cols.items()}, "r")
+    conv = to_readings(rec, load_robot("planar_leg"), resample=True)
+    np.testing.assert_allclose(conv.time, cols["time"])
+    # Linear columns are interpolated exactly; the gap is 2 dt wide, within 1.5 dt of samples.
+    np.testing.assert_allclose(conv.readings["qpos"][:, 0, 1], cols["q/hip"], atol=1e-12)
+    assert any("resampled" in n for n in conv.notes)
+
+
+def test_names_map_to_a_missing_joint_is_refused():
+    with pytest.raises(ValueError, match=r"names map: 'HIP' -> 'hips'"):
+        to_readings(Recording(_planar_cols(), "r"), load_robot("planar_leg"), names={"HIP": "hips"})
+
+
+def test_arguments_are_checked_without_jax(tmp_path):
+    code = (
+        "import sys, train.estimate_cmd; print([m for m in ('jax', 'numpy', 'mujoco', 'h5py')"
+        " if m in sys.modules])"
+    )
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT)
+    assert res.returncode == 0 and res.stdout.strip() == "[]", res.stderr
+    p = _parser()
+    bad = [
+        (["estimate", str(tmp_path / "no.csv"), "--model", "go1"], "does not exist"),
+        (["estimate", str(LOG.with_suffix(".py")), "--model", "go1"], "does not exist"),
+        (["estimate", str(CSV), "--model", "dog"], "unknown robot 'dog'"),
+        (["estimate", str(CSV), "--model", "go1", "--names", "a=b,c"], "'c' is not log_name"),
+        (["estimate", str(CSV), "--model", "go1", "--params", "nope.json"], "--params"),
+    ]
+    for argv, match in bad:
+        args = p.parse_args(argv)
+        with pytest.raises(ValueError, match=match):
+            args.check(args)
+    (tmp_path / "map.json").write_text(json.dumps({"HIP_J": "hip"}))
+    assert estimate_cmd.parse_names(str(tmp_path / "map.json")) == {"HIP_J": "hip"}
+    assert estimate_cmd.parse_names("a=b, c = d") == {"a": "b", "c": "d"}

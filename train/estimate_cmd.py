@@ -1,0 +1,136 @@
+"""``jax-contact estimate RECORDING --model ROBOT``: contact estimates for a recording that
+this library did not make (a robot's log).
+
+The recording's schema, its timing and the resampling rule are in :mod:`train.recording`,
+which does the work (:func:`train.recording.estimate_recording`). This module only parses
+and checks the arguments, and like ``train/cli.py`` imports no JAX, NumPy or MuJoCo at
+module level: :func:`check` runs before JAX is imported. Register it in the CLI with
+``estimate_cmd.add_parser(sub)`` (the parser's defaults carry ``func=run`` and
+``check=check``, as ``train/cli.py``'s commands do).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+RECORDING_SUFFIXES = (".csv", ".npz", ".h5", ".hdf5")  # train.recording.SUFFIXES
+UNITS = ("rad", "deg")  # train.recording.UNITS
+
+
+def add_parser(subparsers) -> argparse.ArgumentParser:
+    """Adds the ``estimate`` command to an argparse subparsers object; returns its parser."""
+    p = subparsers.add_parser(
+        "estimate",
+        help="contact estimates for your own recording (CSV, NPZ, HDF5) and robot model",
+        description="Runs the estimator on a recording with named columns (time, q/<joint>,"
+        " optional qd/, qdd/, tau/<joint>, base_quat/w,x,y,z, base_angvel/x,y,z, optional"
+        " base_pos/, base_linvel/, and contact/<foot> or force/<foot> as ground truth; the"
+        " schema and timing are in train/recording.py and docs/own_robot.md) and writes"
+        " P(contact) per foot, each term's probability and the transitions to"
+        " OUT/estimate.h5 and OUT/estimate.csv, a figure per foot, and the metrics when the"
+        " recording has ground truth. The estimator runs at the recording's rate.",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    )
+    p.add_argument("recording", help="the recording: .csv (header row), .npz or .h5")
+    p.add_argument(
+        "--model",
+        required=True,
+        help="the robot: a robot name (e.g. go1, planar_leg) or an MJCF .xml file with a floor",
+    )
+    p.add_argument(
+        "--feet",
+        nargs="+",
+        default=None,
+        metavar="FOOT",
+        help="foot geom or body names, in leg order (default: found in the model)",
+    )
+    p.add_argument(
+        "--names",
+        default=None,
+        metavar="MAP",
+        help="recording name -> model name for joints and feet whose names differ: a JSON"
+        ' file {"log name": "model name"} or inline log=model,log2=model2',
+    )
+    p.add_argument(
+        "--params",
+        default=None,
+        metavar="FILE",
+        help="estimator parameters (jax_contact.save_params / jax-contact tune); default:"
+        " the robot's defaults (those of jax-contact evaluate)",
+    )
+    p.add_argument(
+        "--units", choices=UNITS, default="rad", help="unit of joint angles and angular rates"
+    )
+    p.add_argument(
+        "--resample",
+        action="store_true",
+        help="resample irregular time steps onto a uniform grid (linear) instead of refusing",
+    )
+    p.add_argument("--out", default="out/estimate", help="output folder")
+    p.add_argument("--no-plots", action="store_true", help="skip the PNG per foot")
+    p.set_defaults(func=run, check=check)
+    return p
+
+
+def parse_names(text: str | None) -> dict[str, str]:
+    """The ``--names`` map: a JSON file of ``{"log name": "model name"}`` or inline
+    ``log=model,log2=model2``. Raises ValueError naming the argument."""
+    if not text:
+        return {}
+    path = Path(text)
+    if path.suffix == ".json" or path.is_file():
+        try:
+            payload = json.loads(path.read_text())
+        except FileNotFoundError:
+            raise ValueError(f"argument --names: file {text!r} does not exist") from None
+        except (json.JSONDecodeError, UnicodeDecodeError) as err:
+            raise ValueError(f"argument --names: {text!r} is not JSON ({err})") from None
+        ok = isinstance(payload, dict) and all(
+            isinstance(k, str) and isinstance(v, str) for k, v in payload.items()
+        )
+        if not ok:
+            raise ValueError(f"argument --names: {text!r} must hold one object of name: name")
+        return payload
+    out = {}
+    for item in text.split(","):
+        parts = [x.strip() for x in item.split("=")]
+        if len(parts) != 2 or not all(parts):
+            raise ValueError(f"argument --names: {item!r} is not log_name=model_name")
+        out[parts[0]] = parts[1]
+    return out
+
+
+def check(args: argparse.Namespace) -> None:
+    """Raises ValueError naming the argument; imports no JAX."""
+    from train.cli import check_input_file, check_output_folder, check_robot
+
+    check_input_file("recording", args.recording)
+    if Path(args.recording).suffix.lower() not in RECORDING_SUFFIXES:
+        raise ValueError(
+            f"argument recording: {args.recording!r} must end in {', '.join(RECORDING_SUFFIXES)}"
+        )
+    check_robot("--model", args.model)
+    if args.params is not None:
+        check_input_file("--params", args.params)
+    parse_names(args.names)
+    check_output_folder("--out", args.out)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Runs the estimate (imports the library); returns the exit code."""
+    from train.recording import estimate_recording
+
+    estimate_recording(
+        args.recording,
+        model=args.model,
+        out_dir=args.out,
+        feet=args.feet,
+        names=parse_names(args.names),
+        params_path=args.params,
+        units=args.units,
+        resample=args.resample,
+        plots=not args.no_plots,
+    )
+    return 0
