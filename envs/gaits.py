@@ -357,7 +357,8 @@ def settle(robot: Robot, settings: GaitSettings | None = None, seconds: float = 
 
 def resolve_gait_settings(robot: Robot, settings: GaitSettings | None = None) -> GaitSettings:
     """``settings`` (default :func:`gait_settings` of ``robot``) with every None filled in
-    from the model (the rules of :class:`GaitSettings`).
+    from the model (the rules of :class:`GaitSettings`); the gains stay None on a model
+    whose actuators the gaits cannot drive (:func:`make_gait_robot` says which).
 
     Raises:
       ValueError: a ``home_qpos`` of the wrong size, an unknown ``home_key`` (the
@@ -382,7 +383,10 @@ def resolve_gait_settings(robot: Robot, settings: GaitSettings | None = None) ->
     else:
         feet = _feet_in_base(m, desc, home)
         height = float(-np.min(feet[:, 2]) + desc.foot_radii[0])
-    kp, kd = _gains(m, desc, s, height)
+    try:
+        kp, kd = _gains(m, desc, s, height)
+    except ValueError:  # actuators the gaits cannot drive: the pose is still useful
+        kp, kd = s.kp, s.kd  # make_gait_robot names the actuator
     return dataclasses.replace(
         s, home_qpos=tuple(float(x) for x in home), base_height=height, kp=kp, kd=kd
     )
