@@ -349,3 +349,25 @@ def test_arguments_are_checked_without_jax(tmp_path):
     (tmp_path / "map.json").write_text(json.dumps({"HIP_J": "hip"}))
     assert estimate_cmd.parse_names(str(tmp_path / "map.json")) == {"HIP_J": "hip"}
     assert estimate_cmd.parse_names("a=b, c = d") == {"a": "b", "c": "d"}
+
+
+def test_robot_flags_map_onto_gait_settings():
+    from envs.gaits import GaitSettings, gait_settings
+
+    p = argparse.ArgumentParser()
+    estimate_cmd.add_feet_flag(p)
+    estimate_cmd.add_gait_flags(p)
+    p.add_argument("--gait", default="trot")
+    args = p.parse_args(
+        ["--feet", "FL", "FR", "--kp", "80", "--home-key", "home", "--speed", "0.1", "0.3"]
+    )
+    assert args.feet == ["FL", "FR"]
+    over = estimate_cmd.gait_overrides(args)
+    assert over == {"kp": 80.0, "home_key": "home", "trot_speed": (0.1, 0.3)}
+    s = gait_settings("go1", **over)
+    assert s == GaitSettings(kp=80.0, kd=1.5, home_key="home", trot_speed=(0.1, 0.3))
+    assert estimate_cmd.gait_overrides(p.parse_args([])) == {}
+    with pytest.raises(ValueError, match="--kd"):
+        estimate_cmd.gait_overrides(p.parse_args(["--kd", "-1"]))
+    with pytest.raises(ValueError, match="'hop' gait has no speed"):
+        estimate_cmd.gait_overrides(p.parse_args(["--gait", "hop", "--speed", "0", "1"]))

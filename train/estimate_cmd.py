@@ -74,6 +74,73 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     return p
 
 
+# ------------------------------------------- robot flags for simulate / evaluate / reproduce
+
+
+def add_feet_flag(p: argparse.ArgumentParser) -> None:
+    """``--feet FOOT [FOOT ...]``: ``foot_names`` of ``envs.robots.load_robot`` /
+    ``train.logs.simulate_to_file`` / ``train.logs.evaluate_file`` (None: the model's or
+    the log's own)."""
+    p.add_argument(
+        "--feet",
+        nargs="+",
+        default=None,
+        metavar="FOOT",
+        help="foot geom or body names, in leg order (default: found in the model; evaluate:"
+        " the feet the log stores)",
+    )
+
+
+def add_gait_flags(p: argparse.ArgumentParser) -> None:
+    """The ``envs.gaits.GaitSettings`` fields as flags; :func:`gait_overrides` reads them."""
+    g = p.add_argument_group("gait settings (default: the robot's, else derived from the model)")
+    g.add_argument("--home-key", default=None, metavar="KEY", help="keyframe of the standing pose")
+    g.add_argument(
+        "--home-qpos", nargs="+", type=float, default=None, metavar="Q", help="standing qpos (nq)"
+    )
+    g.add_argument("--base-height", type=float, default=None, metavar="M", help="base height, m")
+    g.add_argument("--kp", type=float, default=None, help="joint PD stiffness, N m/rad")
+    g.add_argument("--kd", type=float, default=None, help="joint PD damping, N m s/rad")
+    g.add_argument(
+        "--speed",
+        nargs=2,
+        type=float,
+        default=None,
+        metavar=("LOW", "HIGH"),
+        help="range of the forward speed commands of the chosen gait, m/s",
+    )
+
+
+def gait_overrides(args: argparse.Namespace) -> dict:
+    """The gait flags that were given, as ``GaitSettings`` field overrides (the mapping
+    ``train.logs.simulate_to_file(gait_settings=...)`` takes)."""
+    out = {}
+    for flag, field in (
+        ("home_key", "home_key"),
+        ("home_qpos", "home_qpos"),
+        ("base_height", "base_height"),
+        ("kp", "kp"),
+        ("kd", "kd"),
+    ):
+        value = getattr(args, flag, None)
+        if value is not None:
+            out[field] = tuple(value) if isinstance(value, list) else value
+    speed = getattr(args, "speed", None)
+    if speed is not None:
+        gait = getattr(args, "gait", "trot")
+        if gait not in ("trot", "walk"):
+            raise ValueError(f"argument --speed: the {gait!r} gait has no speed command")
+        out[f"{gait}_speed"] = tuple(speed)
+    for name in ("base_height", "kp", "kd"):
+        if name in out and not out[name] > 0:
+            raise ValueError(f"argument --{name.replace('_', '-')}: must be > 0, got {out[name]}")
+    if "trot_speed" in out or "walk_speed" in out:
+        low, high = out.get("trot_speed") or out["walk_speed"]
+        if low > high:
+            raise ValueError(f"argument --speed: LOW {low} > HIGH {high}")
+    return out
+
+
 def parse_names(text: str | None) -> dict[str, str]:
     """The ``--names`` map: a JSON file of ``{"log name": "model name"}`` or inline
     ``log=model,log2=model2``. Raises ValueError naming the argument."""
