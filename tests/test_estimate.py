@@ -371,3 +371,25 @@ def test_robot_flags_map_onto_gait_settings():
         estimate_cmd.gait_overrides(p.parse_args(["--kd", "-1"]))
     with pytest.raises(ValueError, match="'hop' gait has no speed"):
         estimate_cmd.gait_overrides(p.parse_args(["--gait", "hop", "--speed", "0", "1"]))
+
+
+def test_the_commands_copies_equal_the_librarys():
+    from train import recording
+
+    assert estimate_cmd.RECORDING_SUFFIXES == recording.SUFFIXES
+    assert estimate_cmd.UNITS == recording.UNITS
+
+
+def test_a_params_file_is_checked_against_the_robot_and_rate(tmp_path, capsys):
+    import jax_contact as jc
+    from train.logs import _load_params_for, default_estimator
+
+    desc = load_robot("planar_leg").description
+    params, _ = default_estimator(desc, 0.005)
+    jc.save_params(tmp_path / "p.json", params.replace(cap_dynamics=np.float32(0.95)))
+    got = _load_params_for(tmp_path / "p.json", desc, 0.0025)
+    assert float(got.cap_dynamics) == pytest.approx(0.95) and float(got.dt) == pytest.approx(0.0025)
+    assert "dt = 0.005 s; the log's is 0.0025 s" in capsys.readouterr().err
+    go1 = load_robot("go1").description
+    with pytest.raises(ValueError, match="nv = 3; the robot has nv = 18"):
+        _load_params_for(tmp_path / "p.json", go1, 0.0025)
