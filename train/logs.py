@@ -315,8 +315,8 @@ def _load_params_for(path, desc, dt):
         )
     if abs(float(params.dt) - dt) > 1e-6 * dt:
         print(
-            f"parameter file {str(path)!r} has dt = {float(params.dt)} s; the log's is {dt} s:"
-            " using the log's",
+            f"parameter file {str(path)!r} has dt = {float(params.dt):.6g} s; the log's is"
+            f" {dt:.6g} s: using the log's (noise the file derived from its dt is kept)",
             file=sys.stderr,
         )
         params = params.replace(dt=jnp.float32(dt))
