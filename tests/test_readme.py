@@ -1,0 +1,326 @@
+"""The README runs as written (issue 18): its Python blocks, its commands, what it promises.
+
+**Python blocks.** Every fenced ``python`` block of README.md runs. The blocks of one
+section (a ``##`` heading) run cumulatively, in README order, in one fresh subprocess from
+the repository root (a block may use what an earlier block of *its* section defined, never
+another section's); then the section's checks in :data:`CHECKS` run in the same process on
+the variables the blocks left. A section with a block and no checks fails.
+
+**Commands.** Every line that starts with ``jax-contact `` inside a fenced block runs, in
+README order, as the installed entry point, in one temporary folder (so ``out/...`` lands
+there and a later command reads what an earlier one wrote: ``evaluate`` the log of
+``simulate``, ``policy-eval`` the run of ``train``). Sizes: for each command, the flags of
+:data:`TINY` replace the README's value of the same flag (with all its values) or are
+appended. The long commands run at their smallest size flags: ``demo`` and ``reproduce``
+with ``--size tiny`` (2 envs for 0.5 s; still every scenario, so mostly compilation),
+``train`` with ``--config tiny`` (160 steps of 8 envs) and only the variant that
+``policy-eval`` reads (each variant compiles its own environment and PPO step: minutes),
+``bench`` with 4 and 8 envs, ``rates`` with one scene. Checked: exit code 0, no traceback,
+no XLA C++ log line (``E1201 ... Very slow compile?``), and every file the command is
+documented to write exists (:func:`expected_outputs`). The README must list every command
+of ``jax-contact --help``. ``pytest -s`` prints each command's wall and CPU time.
+
+These runs are most of this file's time: about 10 CPU-minutes with a cold compilation
+cache, mostly XLA compiling (``reproduce --size tiny`` after ``demo --size tiny`` loads
+every program from the cache); with the cache of an earlier run, a few minutes.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+import re
+import shlex
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from train import cli, progress
+
+ROOT = Path(__file__).resolve().parents[1]
+README = (ROOT / "README.md").read_text()
+_ENTRY = Path(sys.executable).parent / "jax-contact"
+CLI = [str(_ENTRY)] if _ENTRY.exists() else [sys.executable, "-m", "train.cli"]
+
+# --------------------------------------------------------------------- README parsing
+
+_FENCE = re.compile(r"^```(\w*)\n(.*?)^```", re.S | re.M)
+
+
+def sections(text: str = README) -> dict[str, list[str]]:
+    """``## heading`` -> its ``python`` blocks, in order (sections without one: absent)."""
+    out: dict[str, list[str]] = {}
+    parts = re.split(r"^## (.+)$", text, flags=re.M)
+    for heading, body in zip(parts[1::2], parts[2::2], strict=True):
+        blocks = [code for lang, code in _FENCE.findall(body) if lang == "python"]
+        if blocks:
+            out[heading.strip()] = blocks
+    return out
+
+
+def commands(text: str = README) -> list[list[str]]:
+    """Every ``jax-contact ...`` line of a fenced block, as arguments, comments removed."""
+    out = []
+    for _, code in _FENCE.findall(text):
+        for line in code.splitlines():
+            if line.startswith("jax-contact "):
+                out.append(shlex.split(line, comments=True)[1:])
+    return out
+
+
+# --------------------------------------------------------------------- Python blocks
+
+# Section -> code run after its blocks, in the same process: what the section promises.
+CHECKS = {
+    "Using the estimator": """
+import numpy as np
+p = np.asarray(diag.p_contact)
+assert p.shape == (n_envs, desc.n_legs) == (4, 4), p.shape
+for name in ("p_dynamics", "p_takeoff", "p_touchdown"):
+    assert np.shape(getattr(diag, name)) == p.shape, name
+assert dt == mj_model.opt.timestep == 0.004  # the shipped Go1 model's own period
+assert np.isfinite(p).all() and (p > 0.8).all(), p  # standing on all four feet
+""",
+    "In an RL environment": """
+from envs.wrapper import PlaygroundContactWrapper
+assert isinstance(env, PlaygroundContactWrapper), type(env)
+inner = env.unwrapped.observation_size["state"][0]
+assert env.observation_size["state"][0] == inner + 4, env.observation_size  # one per foot
+""",
+}
+
+
+def test_every_python_section_has_checks():
+    assert set(sections()) == set(CHECKS), "add the section's checks to CHECKS"
+
+
+@pytest.mark.parametrize("heading", sorted(CHECKS))
+def test_python_blocks_run_as_written(heading):
+    blocks = sections()[heading]
+    script = "\n\n".join([*blocks, "# --- tests/test_readme.py's checks", CHECKS[heading]])
+    res = subprocess.run(
+        [sys.executable, "-c", script],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=600,
+        env={**os.environ, "PYTHONPATH": str(ROOT)},
+    )
+    assert res.returncode == 0, f"{heading}:\n{res.stderr[-3000:]}"
+
+
+# ---------------------------------------------------------------------------- commands
+
+TINY: dict[str, dict[str, list[str]]] = {
+    "demo": {"--size": ["tiny"]},
+    "reproduce": {"--size": ["tiny"]},
+    "simulate": {"--envs": ["2"], "--duration": ["0.5"]},
+    "evaluate": {},
+    "rates": {"--scenes": ["planar_leg"]},
+    "bench": {"--envs": ["4"], "--versus-envs": ["8"]},
+    # One variant, the one policy-eval reads: each costs minutes of compilation.
+    "train": {"--config": ["tiny"], "--variants": ["truth"], "--eval-envs": ["2"]},
+    "policy-eval": {"--envs": ["2"]},
+}
+
+
+def tiny(argv: list[str]) -> list[str]:
+    """``argv`` with the flags of :data:`TINY` for its command: each replaces the same flag
+    and all its values, or is appended."""
+    sizes = TINY[argv[0]]
+    out, i = [], 0
+    while i < len(argv):
+        if argv[i] in sizes:
+            i += 1
+            while i < len(argv) and not argv[i].startswith("--"):
+                i += 1
+            continue
+        out.append(argv[i])
+        i += 1
+    for flag, values in sizes.items():
+        out += [flag, *values]
+    return out
+
+
+def _options(argv: list[str]) -> dict[str, list[str]]:
+    opts: dict[str, list[str]] = {}
+    flag = None
+    for a in argv[1:]:
+        if a.startswith("--"):
+            flag = a
+            opts[flag] = []
+        elif flag is not None:
+            opts[flag].append(a)
+    return opts
+
+
+def expected_outputs(argv: list[str]) -> list[str]:
+    """The files a command is documented to write (relative to its folder)."""
+    cmd, opts = argv[0], _options(argv)
+    files = list(opts.get("--json", []))
+    if cmd in ("demo", "reproduce"):
+        out = opts.get("--out", [f"out/{cmd}"])[0]
+        files += [f"{out}/table3.json", f"{out}/ablation.json", f"{out}/section3_fig5.png"]
+    elif cmd == "simulate":
+        files.append(argv[1])
+    elif cmd == "train":
+        out = opts.get("--out", ["out/train"])[0]
+        variants = opts.get("--variants", list(cli.VARIANTS))
+        files += [f"{out}/summary.json", f"{out}/reward_curves.png"]
+        files += [f"{out}/{v}/{name}" for v in variants for name in ("run.json", "progress.csv")]
+    return files
+
+
+README_COMMANDS = [tiny(argv) for argv in commands()]
+
+
+def test_the_readme_lists_every_command():
+    listed = {argv[0] for argv in README_COMMANDS}
+    parser = cli.build_parser()
+    sub = next(a for a in parser._actions if a.dest == "command")
+    assert set(sub.choices) <= listed, f"not in the README: {set(sub.choices) - listed}"
+    assert set(TINY) >= listed, f"add tiny sizes to TINY for {listed - set(TINY)}"
+
+
+def test_tiny_replaces_values_and_appends_flags():
+    argv = ["train", "--variants", "truth", "estimate", "--config", "small"]
+    assert tiny(argv) == ["train", "--variants", "truth", "estimate"] + [
+        "--config",
+        "tiny",
+        "--eval-envs",
+        "2",
+    ]
+    assert tiny(["simulate", "a.h5", "--envs", "16"]) == [
+        "simulate",
+        "a.h5",
+        "--envs",
+        "2",
+        "--duration",
+        "0.5",
+    ]
+
+
+@pytest.fixture(scope="module")
+def workdir(tmp_path_factory):
+    """The folder all README commands share, in README order."""
+    return tmp_path_factory.mktemp("readme_commands")
+
+
+@pytest.mark.parametrize("argv", README_COMMANDS, ids=[" ".join(a) for a in README_COMMANDS])
+def test_readme_command_runs(argv, workdir):
+    t0, cpu0 = time.perf_counter(), _children_cpu_s()
+    res = subprocess.run(CLI + argv, cwd=workdir, capture_output=True, text=True, timeout=1500)
+    wall, cpu = time.perf_counter() - t0, _children_cpu_s() - cpu0
+    print(f"jax-contact {' '.join(argv)}: {wall:.0f} s wall, {cpu:.0f} s CPU")  # pytest -s
+    where = f"jax-contact {' '.join(argv)} ({wall:.0f} s)\nstderr: {res.stderr[-3000:]}"
+    assert res.returncode == 0, where
+    assert "Traceback" not in res.stderr, where
+    # XLA's C++ log lines (E1201 ... Very slow compile?) are not the user's concern.
+    assert not re.search(r"^[EWI]\d{4} ", res.stderr, re.M), where
+    assert "Very slow compile" not in res.stderr, where
+    missing = [f for f in expected_outputs(argv) if not (workdir / f).is_file()]
+    assert not missing, f"{where}\nmissing outputs: {missing}"
+    for f in expected_outputs(argv):
+        if f.endswith(".json"):
+            json.loads((workdir / f).read_text())  # complete, valid JSON
+    if argv[0] == "policy-eval":
+        assert "estimator acc" in res.stdout, res.stdout
+
+
+def _children_cpu_s() -> float:
+    import resource
+
+    ru = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return ru.ru_utime + ru.ru_stime
+
+
+def test_the_commands_filled_the_compilation_cache(workdir):
+    """After the README's commands ran (with this suite's cache settings, conftest.py), the
+    cache folder holds compiled programs."""
+    folder = os.environ.get("JAX_COMPILATION_CACHE_DIR")
+    if not folder:
+        pytest.fail("conftest.py did not turn the compilation cache on")
+    assert any(Path(folder).iterdir())
+
+
+# ----------------------------------------------------- feedback and cache (the README's)
+
+
+def test_compiles_are_reported_while_they_run():
+    import jax
+    import jax.numpy as jnp
+
+    stream = io.StringIO()
+    salt = time.time_ns() % 1000  # a program no cache holds
+    with progress.watch_compiles("jax-contact test", stream=stream, min_s=0.0):
+        with progress.compiling("the test function"):
+            jax.jit(lambda x: jnp.sin(x) * salt + 1.0)(jnp.ones(3)).block_until_ready()
+    lines = stream.getvalue().splitlines()
+    assert "jax-contact test: compiling the test function (first call)..." in lines, lines
+    assert any(
+        re.fullmatch(r"jax-contact test: compiled the test function in \d+\.\d s.*", line)
+        for line in lines
+    ), lines
+    # The listeners are gone afterwards: another compilation writes nothing.
+    jax.jit(lambda x: jnp.cos(x) * salt)(jnp.ones(3)).block_until_ready()
+    assert stream.getvalue().splitlines() == lines
+
+
+def test_a_block_outside_the_watcher_is_timed_by_compiling_itself():
+    stream = io.StringIO()
+    with progress.compiling("the block", stream=stream, min_s=0.0):
+        time.sleep(0.7)
+    lines = stream.getvalue().splitlines()
+    assert lines[0] == "compiling the block (first call)..."
+    assert re.fullmatch(r"compiled the block in 0\.[6-9] s", lines[-1]), lines
+
+
+def test_bar_yields_everything_and_reports_in_a_log():
+    stream = io.StringIO()
+    items = list(progress.bar(range(3), desc="replay", unit="chunk", stream=stream))
+    assert items == [0, 1, 2]
+    assert stream.getvalue().splitlines() == ["replay: 3/3 chunks, 0 s"]
+    assert list(progress.bar(iter("ab"), desc="x", stream=stream)) == ["a", "b"]
+
+
+def test_feedback_can_be_turned_off(monkeypatch):
+    monkeypatch.setenv(progress.ENV_SWITCH, "0")
+    stream = io.StringIO()
+    with progress.compiling("x", stream=stream, min_s=0.0):
+        time.sleep(0.2)
+    assert list(progress.bar(range(2), stream=stream)) == [0, 1]
+    assert stream.getvalue() == ""
+
+
+def _cache_settings(env: dict) -> list[str]:
+    code = (
+        "import train.cli as c; c.enable_compilation_cache(); import jax;"
+        " print(jax.config.jax_compilation_cache_dir);"
+        " print(jax.config.jax_persistent_cache_min_compile_time_secs);"
+        " print(jax.config.jax_persistent_cache_min_entry_size_bytes)"
+    )
+    base = {k: v for k, v in os.environ.items() if not k.startswith("JAX_") or k == "JAX_PLATFORMS"}
+    res = subprocess.run(
+        [sys.executable, "-c", code],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=120,
+        env={**base, **env},
+    )
+    assert res.returncode == 0, res.stderr
+    return res.stdout.split()
+
+
+def test_the_cli_cache_folder_is_configurable(tmp_path):
+    folder = tmp_path / "xla"
+    assert _cache_settings({cli.CACHE_ENV: str(folder)}) == [str(folder), "0.0", "0"]
+    assert folder.is_dir()
+    assert _cache_settings({cli.CACHE_ENV: ""})[0] == "None"  # off
+    home = tmp_path / "cachehome"
+    expected = str(home / "jax-contact" / "xla")
+    assert _cache_settings({"XDG_CACHE_HOME": str(home)})[0] == expected
