@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 from pathlib import Path
 
@@ -80,6 +81,13 @@ def add_parsers(subparsers) -> None:
         "--steps", type=_positive_int, default=None, help="replay only the first N readings"
     )
     p.add_argument(
+        "--cpu",
+        type=int,
+        default=None,
+        help="run on this one CPU core (Linux), as a robot's pinned estimator process: XLA:CPU"
+        " then runs every kernel on one thread (the fastest setting measured, docs/deploy.md)",
+    )
+    p.add_argument(
         "--no-pace",
         action="store_true",
         help="call back to back instead of once per period (latency only, no deadlines)",
@@ -115,6 +123,12 @@ def check_deploy_check(args: argparse.Namespace) -> None:
         raise ValueError(f"argument log: {args.log!r} must end in {' or '.join(LOG_SUFFIXES)}")
     if args.env < 0:
         raise ValueError(f"argument --env: must be >= 0, got {args.env}")
+    if args.cpu is not None:
+        allowed = sorted(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else []
+        if args.cpu not in allowed:
+            raise ValueError(
+                f"argument --cpu: {args.cpu} is not one of this process's CPUs {allowed}"
+            )
     check_output_file("--json", args.json)
 
 
@@ -395,6 +409,10 @@ def deploy_check(
 
 
 def run_deploy_check(args: argparse.Namespace) -> int:
+    if args.cpu is not None:
+        if "jax" in sys.modules:  # the CPU client sizes its thread pool when it starts
+            print("jax-contact deploy-check: --cpu after jax was imported", file=sys.stderr)
+        os.sched_setaffinity(0, {args.cpu})
     deploy_check(
         args.artefact,
         args.log,
