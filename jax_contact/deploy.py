@@ -11,9 +11,10 @@ Usage, in a control loop at the export's rate::
         belief, p_contact, diag = est.update(belief, r)              # p_contact: (n_feet,)
 
 This module never imports ``mujoco``: the robot's kinematics and dynamics are part of the
-exported program. Readings are validated against the file's header (names, lengths,
-finiteness is *not* required: a NaN reading is the estimator's "invalid" step, it then
-predicts from the gait prior alone). See docs/deploy.md.
+exported program. Readings are checked against the file's header (names and lengths; a
+wrong one raises a ValueError naming it). Finite values are not required: a reading with
+a NaN is the estimator's invalid step, which predicts from the gait prior alone.
+See docs/deploy.md.
 """
 
 from __future__ import annotations
