@@ -393,3 +393,27 @@ def test_a_params_file_is_checked_against_the_robot_and_rate(tmp_path, capsys):
     go1 = load_robot("go1").description
     with pytest.raises(ValueError, match="nv = 3; the robot has nv = 18"):
         _load_params_for(tmp_path / "p.json", go1, 0.0025)
+
+
+def test_differentiated_coordinates_get_the_differences_noise(go1_log):
+    from train.logs import default_estimator
+    from train.recording import noise_for_differences
+
+    cols = log_to_columns(go1_log, velocities=False, accelerations=False)
+    for k in [c for c in cols if c.startswith("base_linvel/")]:
+        del cols[k]
+    conv = to_readings(Recording(cols, "r"), go1_log.robot)
+    assert conv.velocity_from_position == tuple(range(3)) + tuple(range(6, 18))
+    assert conv.acceleration_from_position == tuple(range(3)) + tuple(range(6, 18))
+    params, _ = default_estimator(go1_log.robot.description, conv.dt)
+    got = noise_for_differences(params, conv).noise
+    n, dt = params.noise, conv.dt
+    sq, sqd, sqdd = (np.asarray(x, np.float64) for x in (n.sigma_q, n.sigma_qd, n.sigma_qdd))
+    # Hand formula: var of x_k - x_{k-1} is 2 sigma_q^2; of x_k - 2 x_{k-1} + x_{k-2}, 6.
+    d = np.r_[0:3, 6:18]
+    want_qd, want_qdd = sqd.copy(), sqdd.copy()
+    want_qd[d] = np.hypot(sqd[d], np.sqrt(2) * sq[d] / dt)
+    want_qdd[d] = np.hypot(sqdd[d], np.sqrt(6) * sq[d] / dt**2)
+    np.testing.assert_allclose(got.sigma_qd, want_qd, rtol=1e-6)
+    np.testing.assert_allclose(got.sigma_qdd, want_qdd, rtol=1e-6)
+    np.testing.assert_array_equal(got.sigma_qd[3:6], n.sigma_qd[3:6])  # gyro measured

@@ -224,6 +224,9 @@ class Converted:
       terms: the measurement terms the recording supports (``EstimatorParams.terms``).
       has_torque: whether the recording has joint torques.
       notes: what was derived, switched off, ignored or resampled, one line each.
+      velocity_from_position: dofs whose velocity is a difference of positions.
+      acceleration_from_position: dofs whose acceleration is a second difference of
+        positions.
     """
 
     readings: dict
@@ -235,6 +238,8 @@ class Converted:
     terms: tuple[str, ...]
     has_torque: bool
     notes: tuple[str, ...]
+    velocity_from_position: tuple[int, ...] = ()
+    acceleration_from_position: tuple[int, ...] = ()
 
 
 def model_joints(mj_model: mujoco.MjModel, base_body: int):
@@ -393,6 +398,7 @@ def to_readings(
     qacc = np.zeros((t_len, m.nv))
     tau = np.zeros((t_len, m.nv))
     missing_tau, missing_qd = [], []
+    vel_from_pos, acc_from_pos = [], []
     for name, j in joints:
         col = by_model["q/"].get(name)
         if col is None:
@@ -407,12 +413,15 @@ def to_readings(
         if vcol is None:
             qvel[:, va] = _backward_diff(qpos[:, qa], dt)
             missing_qd.append(name)
+            vel_from_pos.append(va)
         else:
             qvel[:, va] = cols[vcol] * s
             used.add(vcol)
         acol = by_model["qdd/"].get(name)
         if acol is None:
             qacc[:, va] = _backward_diff(qvel[:, va], dt)
+            if vcol is None:
+                acc_from_pos.append(va)
         else:
             qacc[:, va] = cols[acol] * s
             used.add(acol)
@@ -460,6 +469,7 @@ def to_readings(
         elif has["base_pos"]:
             qvel[:, va : va + 3] = _backward_diff(qpos[:, qa : qa + 3], dt)
             notes.append("base linear velocity differentiated from base_pos")
+            vel_from_pos.extend(range(va, va + 3))
         else:
             terms.remove("diff_kinematics")
             notes.append(
@@ -475,6 +485,7 @@ def to_readings(
                 used.update(BASE[key])
             else:
                 qacc[:, sl] = _backward_diff(qvel[:, sl], dt)
+                acc_from_pos.extend(d for d in range(sl.start, sl.stop) if d in vel_from_pos)
     if not terms:
         raise ValueError(f"{src}: no measurement term can run on this recording")
     truth = force = None
@@ -518,7 +529,34 @@ def to_readings(
         terms=tuple(terms),
         has_torque=has_torque,
         notes=tuple(notes),
+        velocity_from_position=tuple(sorted(vel_from_pos)),
+        acceleration_from_position=tuple(sorted(acc_from_pos)),
     )
+
+
+def noise_for_differences(params, conv: Converted):
+    """``params`` with the noise of differentiated coordinates raised to what the
+    differences carry: a velocity that is a backward difference of positions with white
+    noise ``sigma_q`` has ``sqrt(2) sigma_q / dt`` more, an acceleration that is a second
+    difference ``sqrt(6) sigma_q / dt^2`` more (weights 1, -2, 1), added in quadrature to
+    the parameters' own ``sigma_qd`` and ``sigma_qdd``. The parameters' ``sigma_q`` (which
+    may include a bias drift that the difference cancels) makes this conservative.
+    """
+    import jax.numpy as jnp
+
+    if not conv.velocity_from_position:
+        return params
+    n, dt = params.noise, conv.dt
+    sq = np.asarray(n.sigma_q, np.float64)
+    sqd = np.array(n.sigma_qd, np.float64)
+    sqdd = np.array(n.sigma_qdd, np.float64)
+    v, a = list(conv.velocity_from_position), list(conv.acceleration_from_position)
+    sqd[v] = np.sqrt(sqd[v] ** 2 + 2.0 * (sq[v] / dt) ** 2)
+    sqdd[a] = np.sqrt(sqdd[a] ** 2 + 6.0 * (sq[a] / dt**2) ** 2)
+    noise = n.replace(
+        sigma_qd=jnp.asarray(sqd, jnp.float32), sigma_qdd=jnp.asarray(sqdd, jnp.float32)
+    )
+    return params.replace(noise=noise)
 
 
 def _stretches(mask: np.ndarray, t: np.ndarray) -> str:
@@ -643,8 +681,14 @@ def estimate_recording(
         raise ValueError(
             f"the parameters' terms {params.terms} and the recording's {conv.terms} share none"
         )
-    params = params.replace(terms=terms)
+    params = noise_for_differences(params.replace(terms=terms), conv)
     notes = list(conv.notes)
+    if conv.velocity_from_position:
+        notes.append(
+            "the estimator's velocity and acceleration noise of the differentiated"
+            " coordinates raised to that of the differences (sqrt(2) sigma_q / dt,"
+            " sqrt(6) sigma_q / dt^2)"
+        )
     notes.insert(0, f"estimator terms: {', '.join(terms)}; rate {1.0 / conv.dt:.6g} Hz")
     for line in notes:
         print(f"note: {line}")
