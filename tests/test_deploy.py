@@ -51,11 +51,11 @@ def deployed(tmp_path_factory):
 def live(deployed):
     """P(contact) (T, L) of the offline estimator with the robot's default parameters."""
     from envs.robots import load_robot
-    from train.deploy_cmd import default_estimator
     from train.evaluate import replay
+    from train.logs import default_estimator
 
     robot = load_robot("go1")
-    params, terrain, _ = default_estimator(robot.description, 1.0 / 400.0)
+    params, terrain = default_estimator(robot.description, 1.0 / 400.0)
     out = replay(
         robot,
         {k: v for k, v in deployed["readings"].items()},
@@ -159,9 +159,9 @@ def test_header_describes_inputs_and_parameters(deployed):
     assert h["pairing"]["delayed"] == ["qpos", "qvel"]
     # The stored parameters are the ones the offline estimator gets.
     from jax_contact.io import params_from_dict, params_to_dict
-    from train.deploy_cmd import default_estimator
+    from train.logs import default_estimator
 
-    params, _, _ = default_estimator(load_robot("go1").description, 0.0025)
+    params, _ = default_estimator(load_robot("go1").description, 0.0025)
     stored = params_from_dict(h["params"])
     assert params_to_dict(stored)["values"] == params_to_dict(params)["values"]
 

@@ -136,31 +136,16 @@ def check_deploy_check(args: argparse.Namespace) -> None:
 
 
 def default_estimator(desc, dt: float):
-    """The robot's shipped estimator: ``(params, terrain, provenance)``.
+    """The robot's shipped estimator, ``(params, terrain, provenance)``: the choice of
+    ``jax-contact evaluate`` (:func:`train.logs.default_estimator`), with where it came from."""
+    from train.logs import default_estimator as shipped
 
-    The choice of ``jax-contact evaluate`` (``train.logs.evaluate_file``): the planar leg's
-    Section III parameters and a 0.2 m terrain sigma for two-joint legs, else Table III's
-    quadruped parameters (``params_for`` with the ``anymal_like`` sensors) on flat ground.
-    """
-    import jax_contact as jc
-    from train.reproduce import TERRAIN_SIGMA, planar_estimator_params, quadruped_estimator_params
-
-    if desc.n_leg_dofs == 2:
-        fn, params, terrain = (
-            "train.reproduce.planar_estimator_params",
-            planar_estimator_params(desc.nv, dt),
-            jc.flat(0.0, 0.2),
-        )
-    else:
-        fn, params, terrain = (
-            "train.reproduce.quadruped_estimator_params",
-            quadruped_estimator_params(desc, dt),
-            jc.flat(0.0, TERRAIN_SIGMA),
-        )
+    params, terrain = shipped(desc, dt)
     provenance = {
         "source": "defaults",
-        "function": fn,
-        "rule": "jax_contact.params_for with the anymal_like sensor model (envs.sensors)",
+        "function": "train.logs.default_estimator",
+        "rule": "jax_contact.params_for with the anymal_like sensor model (envs.sensors);"
+        " the planar leg's Section III estimator for two-joint legs",
         "dt": dt,
     }
     return params, terrain, provenance
@@ -333,23 +318,14 @@ def deploy_check(
 
     from jax_contact import deploy
     from jax_contact.export import read_artefact
-    from jax_contact.io import read_log, write_json_atomic
-    from train.logs import _OLD_TIMING, READING_TIMING, _log_arrays, _log_attrs, to_end_of_step
+    from jax_contact.io import write_json_atomic
+    from train.logs import load_log
 
     header, _ = read_artefact(artefact)
-    arrays, attrs = read_log(log)
-    name = f"log {str(log)!r}"
-    robot_name, dt = _log_attrs(name, attrs)
-    readings, truth, valid = _log_arrays(name, arrays)
-    # The export pairs readings as replay does, for end-of-step readings (jax_contact.export).
-    timing = attrs.get("reading_timing", _OLD_TIMING)
-    if timing == _OLD_TIMING:
-        print(f"{name}: start-of-step readings re-aligned to {READING_TIMING!r}", file=sys.stderr)
-        readings, _, _ = to_end_of_step(readings, truth, valid)
-    elif timing != READING_TIMING:
-        raise ValueError(
-            f"{name}: attribute 'reading_timing' is {timing!r}; expected {READING_TIMING!r}"
-        )
+    # Checked, and re-aligned to end-of-step readings if older (what the export pairs).
+    loaded = load_log(log)
+    name, dt, readings = loaded.name, loaded.dt, loaded.readings
+    robot_name = loaded.attrs.get("robot")
     if abs(dt * header["rate_hz"] - 1.0) > 1e-6:
         raise ValueError(
             f"{name} is at {1.0 / dt:g} Hz but {str(artefact)!r} was exported for"
