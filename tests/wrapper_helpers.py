@@ -54,7 +54,8 @@ class PlaygroundLeg(mjx_env.MjxEnv):
         return mjx_env.State(data, obs, zero, zero, {}, {"rng": rng})
 
     def step(self, state, action):
-        return state.replace(data=mjx_env.step(self._mjx, state.data, action, self.n_substeps))
+        data = mjx_env.step(self._mjx, state.data, action, self.n_substeps)
+        return state.replace(data=data, obs={"state": jnp.concatenate([data.qpos, data.qvel])})
 
     @property
     def xml_path(self) -> str:
