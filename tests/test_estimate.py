@@ -417,3 +417,15 @@ def test_differentiated_coordinates_get_the_differences_noise(go1_log):
     np.testing.assert_allclose(got.sigma_qd, want_qd, rtol=1e-6)
     np.testing.assert_allclose(got.sigma_qdd, want_qdd, rtol=1e-6)
     np.testing.assert_array_equal(got.sigma_qd[3:6], n.sigma_qd[3:6])  # gyro measured
+
+
+def test_bad_input_through_the_command_is_one_line(tmp_path, capsys):
+    cols = _planar_cols()
+    del cols["q/knee"]
+    write_recording_csv(tmp_path / "rec.csv", cols)
+    argv = [str(tmp_path / "rec.csv"), "--model", "planar_leg", "--out", str(tmp_path / "o")]
+    assert estimate_cmd.main(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("jax-contact estimate: error: recording")
+    assert "missing column 'q/knee'" in err[0] and "rec.csv" in err[0]
+    assert not (tmp_path / "o").exists()  # nothing written

@@ -6,13 +6,15 @@ which does the work (:func:`train.recording.estimate_recording`). This module on
 and checks the arguments, and like ``train/cli.py`` imports no JAX, NumPy or MuJoCo at
 module level: :func:`check` runs before JAX is imported. Register it in the CLI with
 ``estimate_cmd.add_parser(sub)`` (the parser's defaults carry ``func=run`` and
-``check=check``, as ``train/cli.py``'s commands do).
+``check=check``, as ``train/cli.py``'s commands do); until then ``python -m
+train.estimate_cmd RECORDING --model ROBOT ...`` runs it alone (:func:`main`).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import sys
 from pathlib import Path
 
 RECORDING_SUFFIXES = (".csv", ".npz", ".h5", ".hdf5")  # train.recording.SUFFIXES
@@ -201,3 +203,21 @@ def run(args: argparse.Namespace) -> int:
         plots=not args.no_plots,
     )
     return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m train.estimate_cmd ...``: the command alone; a bad argument or input is
+    one line on stderr and exit code 2, as in ``jax-contact``."""
+    parser = argparse.ArgumentParser(prog="jax-contact")
+    add_parser(parser.add_subparsers(dest="command", required=True))
+    args = parser.parse_args(["estimate", *(sys.argv[1:] if argv is None else argv)])
+    try:
+        args.check(args)
+        return run(args)
+    except (ValueError, OSError) as err:
+        print(f"jax-contact estimate: error: {err}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())
