@@ -9,16 +9,18 @@ the variables the blocks left. A section with a block and no checks fails.
 **Commands.** Every line that starts with ``jax-contact `` inside a fenced block runs, in
 README order, as the installed entry point, in one temporary folder (so ``out/...`` lands
 there and a later command reads what an earlier one wrote: ``evaluate`` the log of
-``simulate``, ``policy-eval`` the run of ``train``). Sizes: for each command, the flags of
-:data:`TINY` replace the README's value of the same flag (with all its values) or are
-appended. The long commands run at their smallest size flags: ``demo`` and ``reproduce``
-with ``--size tiny`` (2 envs for 0.5 s; still every scenario, so mostly compilation),
-``train`` with ``--config tiny`` (160 steps of 8 envs) and only the variant that
-``policy-eval`` reads (each variant compiles its own environment and PPO step: minutes),
-``bench`` with 4 and 8 envs, ``rates`` with one scene. Checked: exit code 0, no traceback,
-no XLA C++ log line (``E1201 ... Very slow compile?``), and every file the command is
-documented to write exists (:func:`expected_outputs`). The README must list every command
-of ``jax-contact --help``. ``pytest -s`` prints each command's wall and CPU time.
+``simulate``, ``policy-eval`` the run of ``train``). Such a pair runs in order in one chain
+(:data:`CHAIN`); the chains run two at a time, which changes nothing but the wall time.
+Sizes: for each command, the flags of :data:`TINY` replace the README's value of the same
+flag (with all its values) or are appended. The long commands run at their smallest size
+flags: ``demo`` and ``reproduce`` with ``--size tiny`` (2 envs for 0.5 s; still every
+scenario, so mostly compilation), ``train`` with ``--config tiny`` (160 steps of 8 envs)
+and only the variant that ``policy-eval`` reads (each variant compiles its own environment
+and PPO step: minutes), ``bench`` with 4 and 8 envs, ``rates`` with one scene. Checked:
+exit code 0, no traceback, no XLA C++ log line (``E1201 ... Very slow compile?``), and
+every file the command is documented to write exists (:func:`expected_outputs`). The README
+must list every command of ``jax-contact --help``. ``pytest -s`` prints each command's wall
+time and the CPU time of them all.
 
 These runs are most of this file's time: about 10 CPU-minutes with a cold compilation
 cache, mostly XLA compiling (``reproduce --size tiny`` after ``demo --size tiny`` loads
@@ -27,6 +29,8 @@ every program from the cache); with the cache of an earlier run, a few minutes.
 
 from __future__ import annotations
 
+import concurrent.futures
+import dataclasses
 import io
 import json
 import os
@@ -204,19 +208,67 @@ def test_tiny_replaces_values_and_appends_flags():
     ]
 
 
+# A command that reads what an earlier one wrote runs after it, in the same chain; chains
+# run side by side (two at a time), so that this file, which holds most of the suite's
+# compilation, can use both cores once the other pytest-xdist worker is done.
+CHAIN = {"policy-eval": "train", "evaluate": "simulate", "reproduce": "demo"}
+PARALLEL = 2
+
+
+@dataclasses.dataclass
+class Ran:
+    argv: list[str]
+    returncode: int
+    stdout: str
+    stderr: str
+    wall_s: float
+
+
 @pytest.fixture(scope="module")
-def workdir(tmp_path_factory):
-    """The folder all README commands share, in README order."""
-    return tmp_path_factory.mktemp("readme_commands")
+def ran(tmp_path_factory) -> tuple[Path, dict[str, Ran]]:
+    """Runs every README command (module docstring) in one folder; returns the folder and
+    ' '.join(argv) -> its result."""
+    folder = tmp_path_factory.mktemp("readme_commands")
+    chains: dict[str, list[list[str]]] = {}
+    for argv in README_COMMANDS:
+        chains.setdefault(CHAIN.get(argv[0], argv[0]), []).append(argv)
+
+    def run_chain(argvs):
+        out = {}
+        for argv in argvs:
+            t0 = time.perf_counter()
+            res = subprocess.run(
+                CLI + argv, cwd=folder, capture_output=True, text=True, timeout=1500
+            )
+            wall = time.perf_counter() - t0
+            out[" ".join(argv)] = Ran(argv, res.returncode, res.stdout, res.stderr, wall)
+            print(f"jax-contact {' '.join(argv)}: {wall:.0f} s wall")  # pytest -s
+            if res.returncode != 0:
+                break  # the chain's later commands read this one's output
+        return out
+
+    t0, cpu0 = time.perf_counter(), _children_cpu_s()
+    results: dict[str, Ran] = {}
+    # Longest chains first (README order within a chain).
+    order = sorted(chains.values(), key=lambda c: -max(_COST.get(a[0], 1) for a in c))
+    with concurrent.futures.ThreadPoolExecutor(PARALLEL) as pool:
+        for part in pool.map(run_chain, order):
+            results.update(part)
+    wall, cpu = time.perf_counter() - t0, _children_cpu_s() - cpu0
+    print(f"README commands: {wall:.0f} s wall, {cpu:.0f} s CPU in all")  # pytest -s
+    return folder, results
+
+
+_COST = {"train": 5, "demo": 4, "bench": 3}  # rough CPU-minutes, cold cache
 
 
 @pytest.mark.parametrize("argv", README_COMMANDS, ids=[" ".join(a) for a in README_COMMANDS])
-def test_readme_command_runs(argv, workdir):
-    t0, cpu0 = time.perf_counter(), _children_cpu_s()
-    res = subprocess.run(CLI + argv, cwd=workdir, capture_output=True, text=True, timeout=1500)
-    wall, cpu = time.perf_counter() - t0, _children_cpu_s() - cpu0
-    print(f"jax-contact {' '.join(argv)}: {wall:.0f} s wall, {cpu:.0f} s CPU")  # pytest -s
-    where = f"jax-contact {' '.join(argv)} ({wall:.0f} s)\nstderr: {res.stderr[-3000:]}"
+def test_readme_command_runs(argv, ran):
+    workdir, results = ran
+    key = " ".join(argv)
+    assert key in results, f"not run: an earlier command of its chain failed ({key})"
+    res = results[key]
+    where = f"jax-contact {key} ({res.wall_s:.0f} s)\nstderr: {res.stderr[-3000:]}"
     assert res.returncode == 0, where
     assert "Traceback" not in res.stderr, where
     # XLA's C++ log lines (E1201 ... Very slow compile?) are not the user's concern.
@@ -238,7 +290,7 @@ def _children_cpu_s() -> float:
     return ru.ru_utime + ru.ru_stime
 
 
-def test_the_commands_filled_the_compilation_cache(workdir):
+def test_the_commands_filled_the_compilation_cache(ran):
     """After the README's commands ran (with this suite's cache settings, conftest.py), the
     cache folder holds compiled programs."""
     folder = os.environ.get("JAX_COMPILATION_CACHE_DIR")
