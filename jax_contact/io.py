@@ -20,7 +20,12 @@ Schema of a rollout log (``jax-contact simulate``), all arrays with leading axes
     /time             (T,)        float32  time since the start, s
 
 and root attributes ``robot``, ``gait``, ``noise``, ``terrain``, ``seed``, ``dt`` (s),
-``rate_hz``, ``n_envs``, ``foot_names``, ``format_version``. Readings are stored at the
+``rate_hz``, ``n_envs``, ``foot_names``, ``reading_timing``, ``format_version``.
+``reading_timing`` is ``"end_of_step"``: reading ``k`` is what the sensors give at the end
+of physics step ``k`` (the state after it, the acceleration over it, the torque applied
+during it), and the truth of ``k`` is the contact during that step (train/evaluate.py's
+module docstring); a log without the attribute is read that way, except one of an older
+``jax-contact simulate`` (``train.logs.reading_timing_of``). Readings are stored at the
 estimator's rate; the estimator's inputs (mass matrix, Jacobians, ...) are recomputed from
 them and the robot model when the log is replayed, which keeps logs ~40x smaller.
 """

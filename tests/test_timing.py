@@ -132,3 +132,16 @@ def test_old_start_of_step_logs_are_realigned():
     np.testing.assert_array_equal(new["tau"][:, 0, 0], [400, 401, 402])
     np.testing.assert_array_equal(tr[:, 0, 0], [0, 1, 1])
     np.testing.assert_array_equal(ok[:, 0], [1, 0, 0])  # a step needs both its readings
+
+
+def test_which_logs_are_read_as_start_of_step():
+    """Only an older ``jax-contact simulate`` log (gait, noise, seed; no reading_timing) is
+    re-aligned; a log the user wrote is read in the documented convention."""
+    from train.logs import reading_timing_of
+
+    sim = {"robot": "go1", "dt": 0.0025, "gait": "trot", "noise": "anymal_like", "seed": 0}
+    assert reading_timing_of("old", sim) == "start_of_step"
+    assert reading_timing_of("new", {**sim, "reading_timing": "end_of_step"}) == "end_of_step"
+    assert reading_timing_of("user", {"robot": "go1", "dt": 0.0025}) == "end_of_step"
+    with pytest.raises(ValueError, match="'reading_timing' is 'middle'"):
+        reading_timing_of("log 'x.h5'", {"reading_timing": "middle"})

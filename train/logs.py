@@ -83,11 +83,30 @@ def simulate_to_file(
 
 
 READINGS = ("readings/qpos", "readings/qvel", "readings/qacc", "readings/tau")
-# Reading k is taken at the end of physics step k (train.evaluate's module docstring). Logs
-# without the attribute were written before this convention, with reading k taken at the
-# start of step k (state q_k, torque tau_k, acceleration over step k - 1).
+# Reading k is taken at the end of physics step k (train.evaluate's module docstring).
+# `jax-contact simulate` wrote its logs before this convention with reading k taken at the
+# start of step k (state q_k, torque tau_k, acceleration over step k - 1) and without the
+# `reading_timing` attribute; see reading_timing_of.
 READING_TIMING = "end_of_step"
 _OLD_TIMING = "start_of_step"
+_SIMULATE_ATTRS = ("gait", "noise", "seed")  # what marks a log of `jax-contact simulate`
+
+
+def reading_timing_of(name: str, attrs: dict) -> str:
+    """The timing convention of a log's readings: its ``reading_timing`` attribute; without
+    one, ``"start_of_step"`` for a log of an older ``jax-contact simulate`` (it has the
+    ``gait``, ``noise`` and ``seed`` attributes), else the current convention (a log the
+    user wrote, documented in :mod:`jax_contact.io`). ValueError for an unknown value."""
+    timing = attrs.get("reading_timing")
+    if timing is None:
+        old = all(k in attrs for k in _SIMULATE_ATTRS)
+        return _OLD_TIMING if old else READING_TIMING
+    if timing not in (READING_TIMING, _OLD_TIMING):
+        raise ValueError(
+            f"{name}: attribute 'reading_timing' is {timing!r}; expected {READING_TIMING!r}"
+            f" or {_OLD_TIMING!r}"
+        )
+    return str(timing)
 TRUTH_CONTACT = "truth/contact"
 
 
@@ -130,18 +149,13 @@ def load_log(path: str | Path, *, foot_names: Sequence[str] | None = None) -> Lo
     name = f"log {str(path)!r}"
     robot_name, dt = _log_attrs(name, attrs)
     readings, truth, valid = _log_arrays(name, arrays)
-    timing = attrs.get("reading_timing", _OLD_TIMING)
-    if timing == _OLD_TIMING:
+    if reading_timing_of(name, attrs) == _OLD_TIMING:
         print(
-            f"{name} has readings taken at the start of each step (written before"
-            f" 'reading_timing' existed): re-aligned to {READING_TIMING!r}, one step shorter",
+            f"{name} has readings taken at the start of each step (an older jax-contact"
+            f" simulate): re-aligned to {READING_TIMING!r}, one step shorter",
             file=sys.stderr,
         )
         readings, truth, valid = to_end_of_step(readings, truth, valid)
-    elif timing != READING_TIMING:
-        raise ValueError(
-            f"{name}: attribute 'reading_timing' is {timing!r}; expected {READING_TIMING!r}"
-        )
     feet = foot_names if foot_names is not None else attrs.get("foot_names") or None
     try:
         robot = load_robot(robot_name, foot_names=feet)
