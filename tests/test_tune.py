@@ -258,6 +258,12 @@ def test_config_rejects_bad_values():
         jt.make_space(3, fields=("dt",))
 
 
+def test_tune_cmd_field_list_is_the_librarys():
+    from train import tune_cmd
+
+    assert tune_cmd.TUNABLE_FIELDS == jt.DEFAULT_FIELDS
+
+
 def test_tune_cmd_checks_arguments_without_jax(tmp_path):
     log = tmp_path / "a.h5"
     log.write_bytes(b"")
@@ -290,3 +296,22 @@ def test_reliability_bins_agree_with_metrics_ece_and_the_png_is_written(np_rng, 
     out = reliability_diagram({"a": p, "b": np.sqrt(p), "a/diag": p}, truth, valid,
                               tmp_path / "fig" / "rel.png", title="test")  # fmt: skip
     assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+@pytest.mark.parametrize("name", ["go1", "spot", "barkour"])
+def test_shipped_presets_load_by_name_with_their_provenance(name):
+    import jax_contact as jc
+
+    assert name in jc.preset_names()
+    params, prov = jc.load_params(name, with_provenance=True)
+    assert float(params.dt) == pytest.approx(0.0025)
+    assert prov["robot"] == name
+    # Tuned and validated on seeds that are never evaluated (the evaluation seed is 0).
+    seeds = prov["seeds"]["tuning_logs"] + prov["seeds"]["validation_logs"]
+    assert seeds and all(s >= 1000 for s in seeds)
+    assert {"temperature", "bias"} <= set(prov["calibration"])
+    assert prov["library_version"] and prov["history"]
+    # The prior keeps every std within a factor 8 of its derived value (docs/tuning.md says
+    # which tuned values are not physically plausible: Barkour's base position std, 5x).
+    ratios = [r["ratio"] for r in prov["tuned_vs_default"] if r["field"].startswith("sigma")]
+    assert all(1 / 8 <= r <= 8.0 for r in ratios), ratios

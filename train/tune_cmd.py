@@ -28,6 +28,24 @@ import time
 from pathlib import Path
 
 LOG_SUFFIXES = (".h5", ".hdf5")
+# A copy of jax_contact.tune.DEFAULT_FIELDS (importing it imports JAX); tests/test_tune.py
+# checks that the two agree.
+TUNABLE_FIELDS = (
+    "sigma_q",
+    "sigma_qd",
+    "sigma_qdd",
+    "sigma_d",
+    "sigma_f",
+    "sigma_J",
+    "sigma_qd_prior",
+    "cap_dynamics",
+    "cap_diff_kinematics",
+    "cap_diff_kinematics_still",
+    "cap_kinematics",
+    "cap_transition",
+    "stance_time",
+    "takeoff_accel",
+)
 
 
 # -------------------------------------------------------------------------- arguments
@@ -105,9 +123,23 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     )
     p.add_argument("--seed", type=int, default=0, help="the run's key")
     p.add_argument(
+        "--air-penalty",
+        type=_nonnegative_float,
+        default=0.0,
+        help="weight of the false-contact hinge on true air steps (jax_contact.tune)",
+    )
+    p.add_argument(
         "--calibrate",
         action="store_true",
         help="also fit a temperature and bias on the fused logit (stored in the provenance)",
+    )
+    p.add_argument(
+        "--freeze",
+        nargs="+",
+        default=[],
+        metavar="FIELD",
+        help="fields kept at their defaults (e.g. stance_time takeoff_accel); the rest of"
+        " jax_contact.tune.DEFAULT_FIELDS is tuned",
     )
     p.add_argument("--note", default=None, help="free text stored in the provenance")
     p.set_defaults(func=run, check=check)
@@ -127,6 +159,13 @@ def check(args: argparse.Namespace) -> None:
     tuning = {str(Path(p).resolve()) for p in args.logs}
     if any(str(Path(v).resolve()) in tuning for v in validate):
         raise ValueError("argument --validate: a validation log is also a tuning log")
+    unknown = [f for f in getattr(args, "freeze", []) or [] if f not in TUNABLE_FIELDS]
+    if unknown:
+        raise ValueError(
+            f"argument --freeze: unknown field(s) {unknown}; tunable: {', '.join(TUNABLE_FIELDS)}"
+        )
+    if len(set(getattr(args, "freeze", []) or [])) >= len(TUNABLE_FIELDS):
+        raise ValueError("argument --freeze: nothing left to tune")
     out = Path(args.out)
     if out.suffix != ".json":
         raise ValueError(f"argument --out: {args.out!r} must end in .json")
@@ -489,7 +528,9 @@ def run(args: argparse.Namespace) -> int:
 
     from envs.robots import load_robot
 
-    space = jt.robot_space(load_robot(robot_name).description)
+    frozen = list(getattr(args, "freeze", []) or [])
+    fields = [f for f in jt.DEFAULT_FIELDS if f not in frozen]
+    space = jt.robot_space(load_robot(robot_name).description, fields)
     config = jt.TuneConfig(
         learning_rate=args.lr,
         clip_norm=args.clip,
@@ -499,6 +540,7 @@ def run(args: argparse.Namespace) -> int:
         prior_noise=args.prior,
         prior_other=args.prior_other,
         seed=args.seed,
+        air_penalty=getattr(args, "air_penalty", 0.0),
     )
 
     def progress(row: dict) -> None:
