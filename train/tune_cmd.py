@@ -364,10 +364,12 @@ def regenerate_preset(
     workdir: str | Path = "/tmp/jax-contact-presets",
     n_envs: int = 16,
     duration: float = 8.0,
+    air_penalty: float = 0.0,
 ) -> int:
     """Rebuilds a shipped preset: simulates the tuning and validation logs (Go1-style
     trot and walk, seeds 1000 and 1001, never the evaluation seed 0) into ``workdir``, tunes
-    with the default settings and ``--calibrate``, and writes
+    with the default settings (plain BCE; ``air_penalty`` adds the false-contact hinge,
+    docs/tuning.md compares both) and ``--calibrate``, and writes
     ``jax_contact/presets/<robot>.json`` (or ``out``).
 
     ``python -c "from train.tune_cmd import regenerate_preset as r; r('go1')"``
@@ -387,7 +389,8 @@ def regenerate_preset(
         f" r('{robot}')\" (logs: {n_envs} envs x {duration:g} s of train.reproduce's"
         f" scenarios, anymal_like sensors)"
     )
-    return main([*argv, "--out", str(out), "--calibrate", "--note", note])
+    extra = ["--air-penalty", str(air_penalty)]
+    return main([*argv, "--out", str(out), "--calibrate", *extra, "--note", note])
 
 
 def compare(
