@@ -356,13 +356,17 @@ def read_progress(run_dir: str | Path, name: str = "progress.csv") -> list[dict]
         return [{k: float(v) for k, v in row.items()} for row in csv.DictReader(f)]
 
 
-def load_policy(ckpt: str | Path, *, deterministic: bool = True):
+def load_policy(ckpt: str | Path, *, deterministic: bool = True, parts: bool = False):
     """A checkpoint's policy ``(obs, key) -> (action, extras)`` and its observation shapes.
 
     Brax 0.14.2's ``ppo.checkpoint.load_policy`` cannot read the configuration its own
     ``save`` writes when a kernel-initialiser argument is None (``KeyError: None``), which
     is the default for ``mean_kernel_init_fn``; this reads the same files (the network
     configuration JSON and the orbax parameters) and builds the same network.
+
+    With ``parts``, ``(make_policy, params, sizes)`` instead: Brax's
+    ``make_inference_fn(network)`` and the parameters apart, so that one compiled rollout
+    can take the parameters of several checkpoints as arguments (:mod:`train.transfer`).
 
     Returns:
       (policy, {observation key: shape}).
@@ -383,12 +387,15 @@ def load_policy(ckpt: str | Path, *, deterministic: bool = True):
     for k, v in kwargs.items():
         if k.endswith("kernel_init_fn"):
             kwargs[k] = brax_networks.KERNEL_INITIALIZER[v]
-    sizes = {
-        k: tuple(v["shape"] if isinstance(v, dict) else v)
-        for k, v in cfg["observation_size"].items()
-    }
+    raw = cfg["observation_size"]
+    if isinstance(raw, dict):
+        sizes = {k: tuple(v["shape"] if isinstance(v, dict) else v) for k, v in raw.items()}
+        net_sizes = sizes
+    else:  # an array observation (a Brax PipelineEnv's, e.g. the hop task): "state"
+        sizes = {"state": tuple(raw) if isinstance(raw, list) else (int(raw),)}
+        net_sizes = sizes["state"][0] if len(sizes["state"]) == 1 else sizes["state"]
     net = ppo_networks.make_ppo_networks(
-        sizes,
+        net_sizes,
         cfg["action_size"],
         preprocess_observations_fn=(
             running_statistics.normalize if cfg["normalize_observations"] else lambda x, _: x
@@ -396,6 +403,8 @@ def load_policy(ckpt: str | Path, *, deterministic: bool = True):
         **kwargs,
     )
     params = ppo_checkpoint.load(ckpt)
+    if parts:
+        return ppo_networks.make_inference_fn(net), params, sizes
     return ppo_networks.make_inference_fn(net)(params, deterministic=deterministic), sizes
 
 
@@ -438,6 +447,7 @@ def train(
     seed: int = 0,
     overwrite: bool = False,
     log: Callable[[str], None] = print,
+    task: str = "go1",
 ) -> RunResult:
     """Trains one variant with Brax PPO; writes the run folder (module docstring).
 
@@ -448,6 +458,7 @@ def train(
       seed: PPO's seed (networks, env keys).
       overwrite: replace an existing run folder; otherwise one is refused.
       log: where progress lines go.
+      task: a name of :data:`train.tasks.TASK_NAMES` (the env and its training wrappers).
 
     Returns:
       The :class:`RunResult`.
@@ -458,10 +469,11 @@ def train(
     from brax.training.agents.ppo import train as ppo_train
 
     from jax_contact.io import write_json_atomic, write_text_atomic
-    from train import figures
+    from train import figures, tasks
 
     if variant not in VARIANTS:
         raise ValueError(f"variant must be one of {VARIANTS}, got {variant!r}")
+    spec = tasks.get_task(task)
     cfg.validate()
     run_dir = Path(out_dir) / variant
     if run_dir.exists() and any(run_dir.iterdir()):
@@ -471,11 +483,17 @@ def train(
     run_dir.mkdir(parents=True, exist_ok=True)
     write_json_atomic(
         run_dir / "run.json",
-        {"variant": variant, "env": ENV_NAME, "seed": seed, "config": dataclasses.asdict(cfg)},
+        {
+            "variant": variant,
+            "env": spec.env_name,
+            "task": spec.name,
+            "seed": seed,
+            "config": dataclasses.asdict(cfg),
+        },
     )
 
-    env = make_env(variant, sensor=cfg.sensor, reward=cfg.reward)
-    eval_env = make_env(variant, sensor=cfg.sensor, reward=cfg.reward)
+    env = spec.make_env(variant, cfg)
+    eval_env = spec.make_env(variant, cfg)
     rows: list[dict] = []
     train_rows: list[dict] = []
     t0 = time.perf_counter()
@@ -516,14 +534,14 @@ def train(
     total = brax_timesteps(cfg)  # what Brax trains: num_timesteps rounded up to epochs
     rounded = f" (num_timesteps {cfg.num_timesteps:,d} rounded up to whole epochs)"
     log(
-        f"[{variant}] training {ENV_NAME}, {total:,d} steps"
+        f"[{variant}] training {spec.env_name}, {total:,d} steps"
         f"{rounded if total != cfg.num_timesteps else ''} over {cfg.num_envs}"
         f" envs ({cfg.steps_per_training_step:,d} per training step); compiling ..."
     )
     ppo_train.train(
         environment=env,
         eval_env=eval_env,
-        wrap_env_fn=pg_wrapper.wrap_for_brax_training,
+        wrap_env_fn=spec.wrap_env_fn,
         num_timesteps=cfg.num_timesteps,
         num_evals=cfg.num_evals,
         num_eval_envs=cfg.num_eval_envs,
@@ -553,7 +571,7 @@ def train(
     figures.plot_reward_curves(
         {variant: rows},
         run_dir / "reward.png",
-        title=f"Go1 joystick, {variant}",
+        title=f"{spec.env_name}, {variant}",
         training={variant: train_rows},
     )
     log(f"[{variant}] done in {wall:.0f} s; {run_dir}")
@@ -603,6 +621,12 @@ def evaluate_policy(
     if not (run_dir / "run.json").is_file():
         raise FileNotFoundError(f"no run.json in {run_dir}: not a run folder of jax-contact train")
     run = json.loads((run_dir / "run.json").read_text())
+    if run.get("task", "go1") == "hop":  # its own evaluation (task metrics)
+        from train import transfer
+
+        return transfer.evaluate_run(
+            run_dir, observe=observe, n_envs=n_envs, episode_length=episode_length, seed=seed
+        )
     cfg = PPOConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in run["config"].items()})
     observe = observe or run["variant"]
     ckpt = latest_checkpoint(run_dir)

@@ -1,0 +1,135 @@
+"""The hop task (envs/hop_task.py), its configurations (train/tasks.py) and the transfer
+matrix's metrics (train/transfer.py). Training is measured, not tested
+(docs/training_hop.md). One module fixture builds the three envs; only resets and one step
+of the truth env are compiled."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from envs import hop_task as H
+from train import ppo, tasks, transfer
+
+N = 2
+
+
+@pytest.fixture(scope="module")
+def robot():
+    return H.hop_robot()
+
+
+@pytest.fixture(scope="module")
+def resets(robot):
+    """observe -> (env, batched reset state of keys 0, 1)."""
+    keys = jax.random.split(jax.random.PRNGKey(3), N)
+    out = {}
+    for observe in ("none", "truth", "estimate"):
+        env = H.make_hop_env(observe, robot=robot)
+        out[observe] = (env, jax.jit(jax.vmap(env.reset))(keys))
+    return out
+
+
+def test_reward_on_hand_computed_states():
+    # Flight, going up at 2 m/s from 0.5 m: apex 0.5 + 4 / 19.62 = 0.703874 m.
+    apex = 0.5 + 2.0**2 / (2 * 9.81)
+    assert math.isclose(apex, 0.7038736, rel_tol=1e-6)
+    want = math.exp(-(((apex - 0.7) / 0.1) ** 2))  # 0.998500
+    np.testing.assert_allclose(H.hop_reward(0.5, 2.0, 0.7, 0.1), want, rtol=1e-6)
+    # Going down (or stance): only the height counts: exp(-((0.45 - 0.65) / 0.1)^2) = e^-4.
+    np.testing.assert_allclose(H.hop_reward(0.45, -1.0, 0.65, 0.1), math.exp(-4.0), rtol=1e-6)
+    # Standing on a straight leg (0.52 m) under a 0.62 m command: e^-1.
+    np.testing.assert_allclose(H.hop_reward(0.52, 0.0, 0.62, 0.1), math.exp(-1.0), rtol=1e-6)
+
+
+def test_episode_metrics_find_the_apexes():
+    # Two envs, 6 steps. Env 0: up, up, apex (vz turns <= 0 in flight) at z=0.70, down,
+    # lands, pushes up. Env 1 stays on the ground (contact): no apex.
+    vz = np.array([[0.5, 0.0], [0.2, 0.0], [-0.1, 0.0], [-0.5, 0.0], [-0.2, 0.0], [0.3, 0.0]])
+    z = np.array([[0.6, 0.43], [0.65, 0.43], [0.70, 0.43], [0.66, 0.43], [0.5, 0.43],
+                  [0.52, 0.43]])
+    contact = np.array([[0, 1], [0, 1], [0, 1], [0, 1], [1, 1], [1, 1]], bool)
+    reward = np.full((6, 2), 0.5)
+    alive = np.ones((6, 2), bool)
+    alive[5, 1] = False  # env 1 falls at the last step
+    m = transfer.episode_metrics(z, vz, contact, reward, alive, np.array([0.68, 0.6]))
+    assert m["hops"] == 0.5  # one apex over two episodes
+    np.testing.assert_allclose(m["apex_error"], 0.02, rtol=1e-9)
+    np.testing.assert_allclose(m["return"], (6 * 0.5 + 5 * 0.5) / 2)
+    np.testing.assert_allclose(m["tracking"], 0.5)
+    assert m["fell"] == 0.5
+
+
+def test_configs_are_frozen_and_fit_brax():
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        H.HOP.sigma = 1.0
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        tasks.HOP_SMALL.num_envs = 1
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        tasks.HOP_TASK.name = "x"
+    for cfg in (tasks.HOP_SMALL, tasks.HOP_REDUCED):
+        cfg.validate()
+    # 10,240 env steps per training step (128 x 4 x 20): 120 of them in 6 epochs, 40 in 4.
+    assert tasks.HOP_SMALL.steps_per_training_step == 10_240
+    assert ppo.brax_timesteps(tasks.HOP_SMALL) == 1_228_800
+    assert ppo.brax_timesteps(tasks.HOP_REDUCED) == 409_600
+    assert tasks.get_task("hop").config("reduced") is tasks.HOP_REDUCED
+    assert tasks.get_task("go1").config("small") is ppo.SMALL
+    with pytest.raises(ValueError, match="task must be one of"):
+        tasks.get_task("walk")
+    assert H.HOP.episode_length == tasks.HOP_SMALL.episode_length == 300
+    # The command is above what a straight leg can stand at (0.25 + 0.25 + 0.02 m).
+    assert H.HOP.cmd_range[0] > 0.52
+
+
+def test_extra_latency_adds_env_steps(robot):
+    base = H.sensor_with_extra_latency(robot, "anymal_like", 0)
+    assert base.latency == 1  # the preset's 2.5 ms at the 2.5 ms physics step
+    assert H.sensor_with_extra_latency(robot, "anymal_like", 2).latency == 1 + 2 * 4
+
+
+def test_reset_shapes_and_contact_slots(resets):
+    env_n, s_n = resets["none"]
+    env_t, s_t = resets["truth"]
+    env_e, s_e = resets["estimate"]
+    assert env_n.observation_size == 6 and env_t.observation_size == env_e.observation_size == 7
+    assert s_n.obs.shape == (N, 6) and s_t.obs.shape == s_e.obs.shape == (N, 7)
+    # Same keys: the leg's 5 numbers and the command are the same in all three.
+    np.testing.assert_array_equal(s_t.obs[:, :6], s_n.obs)
+    np.testing.assert_array_equal(s_e.obs[:, :6], s_n.obs)
+    ps = s_n.pipeline_state
+    np.testing.assert_array_equal(s_n.obs[:, :5], np.concatenate([ps.qpos[:, 1:], ps.qvel], 1))
+    h_cmd = np.asarray(s_n.info["h_cmd"])
+    np.testing.assert_allclose(s_n.obs[:, 5], h_cmd - 0.6, rtol=1e-6)
+    assert np.all((h_cmd >= 0.55) & (h_cmd <= 0.70))
+    z0 = np.asarray(ps.qpos[:, 0])
+    assert np.all((z0 >= 0.45) & (z0 <= 0.60))  # above the 0.4327 m standing height
+    # The contact slot: truth 0 (dropped from above the floor); estimate = the prior 0.5
+    # of a fresh belief, sigmoid(logit).
+    np.testing.assert_array_equal(s_t.obs[:, 6], np.asarray(s_t.info["contact_est_truth"][:, 0]))
+    assert np.all(np.asarray(s_t.obs[:, 6]) == 0.0)
+    p = 1.0 / (1.0 + np.exp(-np.asarray(s_e.info["contact_est"].belief.logit[:, 0])))
+    np.testing.assert_allclose(s_e.obs[:, 6], p, rtol=1e-6)
+    assert not np.allclose(s_e.obs[:, 6], s_t.obs[:, 6])
+
+
+def test_step_reward_and_action_mapping(resets):
+    env, s = resets["truth"]
+    action = jnp.array([[1.0, -1.0], [0.0, 0.0]])
+    s1 = jax.jit(jax.vmap(env.step))(s, action)
+    assert s1.obs.shape == (N, 7) and s1.reward.shape == (N,) and s1.done.shape == (N,)
+    ps = s1.pipeline_state
+    z, vz = np.asarray(ps.qpos[:, 0], float), np.asarray(ps.qvel[:, 0], float)
+    h_cmd = np.asarray(s.info["h_cmd"], float)
+    want = np.exp(-(((z + np.maximum(vz, 0) ** 2 / (2 * 9.81) - h_cmd) / 0.1) ** 2))
+    np.testing.assert_allclose(s1.reward, want, rtol=1e-5)
+    np.testing.assert_array_equal(s1.done, 0.0)
+    # Targets: home (hip 0.6, knee -1.2) + 0.8 * action.
+    np.testing.assert_allclose(ps.ctrl, [[1.4, -2.0], [0.6, -1.2]], rtol=1e-6)
+    # Env 1 holds its pose: one env step = 4 physics steps of 2.5 ms of free fall from rest.
+    np.testing.assert_allclose(vz[1], -9.81 * 0.01, rtol=1e-3)

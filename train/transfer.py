@@ -1,0 +1,273 @@
+"""The transfer matrix of the hop task: trained with one contact signal, evaluated with others.
+
+Rows: the policies trained with ``observe`` in {none, truth, estimate} (one run folder per
+seed, written by :func:`train.ppo.train` with ``task="hop"``). Columns
+(:data:`COLUMNS`): what the policy sees at evaluation, in the slot it was trained with:
+
+- ``truth``: the simulator's contact;
+- ``estimate``: the estimator with the training sensors (``anymal_like``);
+- ``estimate_harsh``: the estimator with ``harsh`` sensors (more noise, bias, outliers,
+  3 physics steps of latency);
+- ``estimate_lat1``, ``estimate_lat2``: ``anymal_like`` with 1 or 2 extra *env* steps
+  (4 or 8 physics steps, 10 or 20 ms) of sensor latency.
+
+A policy trained with ``none`` sees no contact: its column values differ only by the
+evaluation's estimator (which never reaches it), so it is run once and its row repeats it.
+
+Per (row, column) and seed: the deterministic policy on ``n_envs`` episodes from the same
+seed (same commands and drop heights in every cell); ``return`` (sum of the tracking reward),
+``tracking`` (mean reward per alive step), ``apex_error`` (mean |apex - h_cmd| over the
+apexes of flights, m), ``hops`` (apexes per episode), ``fell`` and the estimator's
+``accuracy``. The matrix gives the mean and the standard deviation over seeds.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import time
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+COLUMNS = ("truth", "estimate", "estimate_harsh", "estimate_lat1", "estimate_lat2")
+METRICS = ("return", "tracking", "apex_error", "hops", "fell", "accuracy")
+
+
+def column_setting(column: str) -> tuple[str, str, int]:
+    """``(observe, sensor preset, extra latency in env steps)`` of a column."""
+    table = {
+        "truth": ("truth", "anymal_like", 0),
+        "estimate": ("estimate", "anymal_like", 0),
+        "estimate_harsh": ("estimate", "harsh", 0),
+        "estimate_lat1": ("estimate", "anymal_like", 1),
+        "estimate_lat2": ("estimate", "anymal_like", 2),
+        "none": ("none", "anymal_like", 0),
+    }
+    if column not in table:
+        raise ValueError(f"column must be one of {tuple(table)}, got {column!r}")
+    return table[column]
+
+
+def episode_metrics(z, vz, contact, reward, alive, h_cmd) -> dict:
+    """Task metrics of rollouts, from arrays of shape (T, n) (``h_cmd``: (n,)).
+
+    An apex is a step where the base velocity turns from up (> 0, previous step) to not up
+    (<= 0) with the foot off the ground; its error is ``|z - h_cmd|`` there.
+
+    Returns:
+      ``return``, ``tracking``, ``apex_error`` (NaN without any apex), ``hops`` and
+      ``fell`` (episode means).
+    """
+    z, vz, contact, reward, alive = (np.asarray(a) for a in (z, vz, contact, reward, alive))
+    h_cmd = np.asarray(h_cmd)
+    prev_vz = np.concatenate([np.zeros_like(vz[:1]), vz[:-1]], axis=0)
+    apex = (prev_vz > 0) & (vz <= 0) & ~contact.astype(bool) & alive
+    err = np.abs(z - h_cmd[None, :])
+    n_apex = apex.sum(axis=0)
+    total = n_apex.sum()
+    return {
+        "return": float(np.mean(np.where(alive, reward, 0.0).sum(axis=0))),
+        "tracking": float(np.sum(np.where(alive, reward, 0.0)) / max(alive.sum(), 1)),
+        "apex_error": float(np.sum(np.where(apex, err, 0.0)) / total) if total else float("nan"),
+        "hops": float(np.mean(n_apex)),
+        "fell": float(np.mean(~alive[-1])),
+    }
+
+
+class _Evaluator:
+    """One compiled rollout per (observe, sensor, latency), the policy parameters an
+    argument (so every checkpoint of the same observation size reuses it)."""
+
+    def __init__(self, task_cfg, robot, n_envs: int, t_len: int):
+        self.task_cfg, self.robot, self.n_envs, self.t_len = task_cfg, robot, n_envs, t_len
+        self._fns: dict = {}
+
+    def rollout_fn(self, column: str, make_policy):
+        from envs import hop_task
+
+        key = (column, id(make_policy))
+        if key in self._fns:
+            return self._fns[key]
+        observe, preset, extra = column_setting(column)
+        sensor = (
+            hop_task.sensor_with_extra_latency(self.robot, preset, extra, self.task_cfg)
+            if extra
+            else preset
+        )
+        env = hop_task.make_hop_env(observe, self.task_cfg, sensor=sensor, robot=self.robot)
+        n, t_len = self.n_envs, self.t_len
+        truth_key = hop_task.INFO_KEY + "_truth"
+
+        @jax.jit
+        def rollout(params, rng):
+            policy = make_policy(params, deterministic=True)
+            k_reset, k_act = jax.random.split(rng)
+            state = jax.vmap(env.reset)(jax.random.split(k_reset, n))
+
+            def body(carry, k):
+                s, alive = carry
+                act, _ = policy(s.obs, k)
+                s = jax.vmap(env.step)(s, act)
+                alive = alive & (s.done == 0)
+                p = s.info[hop_task.INFO_KEY].diag.p_contact[:, 0]
+                truth = s.info[truth_key][:, 0]
+                out = (
+                    s.pipeline_state.qpos[:, 0],
+                    s.pipeline_state.qvel[:, 0],
+                    truth,
+                    s.reward,
+                    alive,
+                    (p > 0.5) == truth,
+                )
+                return (s, alive), out
+
+            (s, _), outs = jax.lax.scan(body, (state, jnp.ones(n, bool)), jax.random.split(k_act, t_len))
+            return state.info["h_cmd"], outs
+
+        self._fns[key] = (rollout, env)
+        return rollout, env
+
+
+def _run_cfg(run_dir: Path):
+    from train.ppo import PPOConfig
+
+    run = json.loads((run_dir / "run.json").read_text())
+    cfg = PPOConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in run["config"].items()})
+    return run, cfg
+
+
+def _evaluate(ev: _Evaluator, run_dir: Path, column: str, seed: int, loaded=None) -> dict:
+    from train import ppo
+
+    ckpt = ppo.latest_checkpoint(run_dir)
+    make_policy, params, sizes = loaded or ppo.load_policy(ckpt, parts=True)
+    rollout, env = ev.rollout_fn(column, make_policy)
+    if tuple(sizes["state"]) != (env.observation_size,):
+        raise ValueError(
+            f"column {column!r} gives an observation of size {env.observation_size}; the"
+            f" checkpoint {ckpt} takes {sizes['state']}"
+        )
+    t0 = time.perf_counter()
+    h_cmd, (z, vz, truth, reward, alive, hit) = jax.device_get(
+        rollout(params, jax.random.PRNGKey(seed))
+    )
+    m = episode_metrics(z, vz, truth, reward, alive, h_cmd)
+    m["accuracy"] = float(np.sum(np.where(alive, hit, False)) / max(np.sum(alive), 1))
+    m["wall_s"] = round(time.perf_counter() - t0, 1)
+    m["checkpoint"] = str(ckpt)
+    return m
+
+
+def evaluate_run(
+    run_dir: str | Path,
+    *,
+    observe: str | None = None,
+    column: str | None = None,
+    n_envs: int = 64,
+    episode_length: int | None = None,
+    seed: int = 12345,
+) -> dict:
+    """One hop run's latest checkpoint evaluated in one column (``policy-eval``'s hop path).
+
+    Args:
+      run_dir: a run folder of :func:`train.ppo.train` with ``task="hop"``.
+      observe: ``"none"``, ``"truth"`` or ``"estimate"`` (the ``anymal_like`` column);
+        None: the variant it was trained with.
+      column: a :data:`COLUMNS` name (or ``"none"``), instead of ``observe``.
+      n_envs, episode_length, seed: episodes in parallel, their length (None: the
+        training configuration's), the PRNG seed.
+    """
+    from envs import hop_task
+
+    run_dir = Path(run_dir)
+    if not (run_dir / "run.json").is_file():
+        raise FileNotFoundError(f"no run.json in {run_dir}: not a run folder of jax-contact train")
+    run, cfg = _run_cfg(run_dir)
+    column = column or observe or run["variant"]
+    task_cfg = dataclasses.replace(hop_task.HOP, sensor=cfg.sensor)
+    ev = _Evaluator(task_cfg, hop_task.hop_robot(), n_envs, int(episode_length or cfg.episode_length))
+    m = _evaluate(ev, run_dir, column, seed)
+    return {
+        "run": str(run_dir),
+        "trained_with": run["variant"],
+        "observed": column,
+        "n_episodes": n_envs,
+        "return_mean": m["return"],
+        **m,
+    }
+
+
+def transfer_matrix(
+    runs: Mapping[str, Sequence[str | Path]],
+    *,
+    columns: Sequence[str] = COLUMNS,
+    n_envs: int = 64,
+    episode_length: int | None = None,
+    seed: int = 12345,
+    log=print,
+) -> dict:
+    """The transfer matrix over seeds.
+
+    Args:
+      runs: trained variant -> run folders (one per training seed).
+      columns: the evaluation columns (:data:`COLUMNS`).
+      n_envs, episode_length, seed: as :func:`evaluate_run` (the same episodes everywhere).
+
+    Returns:
+      ``{"cells": {variant: {column: {metric: {"mean", "std", "per_seed"}}}}, "wall_s"}``;
+      ``std`` is the population std over seeds (0 with one seed).
+    """
+    from envs import hop_task
+
+    t0 = time.perf_counter()
+    first = Path(next(iter(runs.values()))[0])
+    _, cfg = _run_cfg(first)
+    task_cfg = dataclasses.replace(hop_task.HOP, sensor=cfg.sensor)
+    ev = _Evaluator(task_cfg, hop_task.hop_robot(), n_envs, int(episode_length or cfg.episode_length))
+    cells: dict = {}
+    makers: dict = {}  # one make_policy per observation size, so rollouts are shared
+    for variant, dirs in runs.items():
+        cells[variant] = {}
+        per_col: dict = {c: [] for c in columns}
+        for d in dirs:
+            d = Path(d)
+            from train import ppo
+
+            make_policy, params, sizes = ppo.load_policy(ppo.latest_checkpoint(d), parts=True)
+            make_policy = makers.setdefault(tuple(sizes["state"]), make_policy)
+            if variant == "none":
+                m = _evaluate(ev, d, "none", seed, (make_policy, params, sizes))
+                for c in columns:
+                    per_col[c].append(m)
+            else:
+                for c in columns:
+                    m = _evaluate(ev, d, c, seed, (make_policy, params, sizes))
+                    per_col[c].append(m)
+                    log(f"[transfer] {variant:>8s} -> {c:<15s} return {m['return']:7.2f}"
+                        f" apex err {m['apex_error']:.3f} hops {m['hops']:.2f}"
+                        f" acc {m['accuracy']:.3f}  ({time.perf_counter() - t0:.0f} s)")
+        for c, ms in per_col.items():
+            cells[variant][c] = {
+                k: {
+                    "mean": float(np.mean([m[k] for m in ms])),
+                    "std": float(np.std([m[k] for m in ms])),
+                    "per_seed": [m[k] for m in ms],
+                }
+                for k in METRICS
+            }
+    return {"cells": cells, "columns": list(columns), "n_envs": n_envs, "seed": seed,
+            "wall_s": round(time.perf_counter() - t0, 1)}
+
+
+def format_matrix(result: dict, metric: str = "return") -> str:
+    """A markdown table of one metric, ``mean +- std`` over seeds."""
+    cols = result["columns"]
+    lines = ["| trained with | " + " | ".join(cols) + " |", "|---" * (len(cols) + 1) + "|"]
+    for variant, row in result["cells"].items():
+        vals = [f"{row[c][metric]['mean']:.3f} ± {row[c][metric]['std']:.3f}" for c in cols]
+        lines.append(f"| {variant} | " + " | ".join(vals) + " |")
+    return "\n".join(lines)
