@@ -670,14 +670,15 @@ def apply_calibration(logit, calibration: Calibration):
 def fit_calibration(logits, truth, mask, *, iterations: int = 50) -> Calibration:
     """Maximum-likelihood temperature and bias (logistic regression on the logit).
 
-    Newton's method in float64 on ``a = 1 / T`` and ``c``: the BCE of ``sigmoid(a l + c)``
-    is convex in ``(a, c)``.
+    Newton's method in float64 on ``a = 1 / T`` and ``c`` with a backtracking line search
+    (the BCE of ``sigmoid(a l + c)`` is convex in ``(a, c)``, but a full Newton step can
+    overshoot when most logits sit at the caps' bounds), starting from the identity.
 
     Args:
       logits, truth, mask: (T, E, L) arrays; only masked steps count.
 
     Raises:
-      ValueError: no masked step, only one class, or a non-positive fitted temperature.
+      ValueError: no masked step, only one class, or no finite positive temperature.
     """
     m = np.asarray(mask, bool)
     x = np.asarray(logits, np.float64)[m]
@@ -685,7 +686,13 @@ def fit_calibration(logits, truth, mask, *, iterations: int = 50) -> Calibration
     if x.size == 0 or y.min() == y.max():
         raise ValueError("fit_calibration needs masked steps of both classes")
     x = np.clip(x, -50.0, 50.0)
+
+    def loss(a, c):
+        z = a * x + c
+        return float(np.mean(np.logaddexp(0.0, z) - y * z))
+
     a, c = 1.0, 0.0
+    current = loss(a, c)
     for _ in range(iterations):
         p = sigmoid_np(a * x + c)
         r = p - y
@@ -693,9 +700,17 @@ def fit_calibration(logits, truth, mask, *, iterations: int = 50) -> Calibration
         w = p * (1.0 - p)
         h = np.array([[np.mean(w * x * x), np.mean(w * x)], [np.mean(w * x), np.mean(w)]])
         step = np.linalg.solve(h + 1e-9 * np.eye(2), g)
-        a, c = a - step[0], c - step[1]
-        if np.max(np.abs(step)) < 1e-10:
+        t = 1.0
+        while t > 1e-8:
+            trial = loss(a - t * step[0], c - t * step[1])
+            if trial <= current:
+                break
+            t *= 0.5
+        else:
+            break  # no descent along the Newton direction: at the minimum (to round-off)
+        a, c, current = a - t * step[0], c - t * step[1], trial
+        if np.max(np.abs(t * step)) < 1e-10:
             break
-    if not a > 0:
-        raise ValueError(f"the fitted inverse temperature is {a}; the logits anti-correlate")
-    return Calibration(temperature=1.0 / a, bias=c)
+    if not (np.isfinite(a) and np.isfinite(c) and a > 0):
+        raise ValueError(f"the fitted inverse temperature is {a}; no calibration map")
+    return Calibration(temperature=float(1.0 / a), bias=float(c))

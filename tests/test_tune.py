@@ -315,3 +315,18 @@ def test_shipped_presets_load_by_name_with_their_provenance(name):
     # which tuned values are not physically plausible: Barkour's base position std, 5x).
     ratios = [r["ratio"] for r in prov["tuned_vs_default"] if r["field"].startswith("sigma")]
     assert all(1 / 8 <= r <= 8.0 for r in ratios), ratios
+
+
+def test_fit_calibration_stays_finite_when_logits_sit_at_their_bounds(np_rng):
+    # Most logits at +-30 (a capped, confident filter) and a few mistakes among them: a
+    # plain Newton step from the identity overshot to T ~ 0 here; the line search keeps
+    # the fit a descent to a finite map.
+    y = np_rng.random(50_000) < 0.6
+    logits = np.where(y, 30.0, -30.0) + np_rng.normal(scale=0.5, size=y.shape)
+    flip = np_rng.random(y.shape) < 0.01
+    y = y ^ flip
+    mid = np_rng.random(y.shape) < 0.05
+    logits[mid] = np_rng.normal(scale=2.0, size=mid.sum())
+    cal = jt.fit_calibration(logits, y, np.ones_like(y))
+    assert np.isfinite(cal.temperature) and 0.5 < cal.temperature < 100
+    assert np.isfinite(cal.bias) and abs(cal.bias) < 10
