@@ -56,7 +56,7 @@ import tempfile
 import threading
 from pathlib import Path
 
-from train import progress
+from train import deploy_cmd, estimate_cmd, progress, tune_cmd  # stdlib-only at import
 
 # Copies of the library's lists (importing those modules imports JAX); tests/test_cli.py
 # checks that each equals its original.
@@ -153,6 +153,8 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
         n_envs=args.envs,
         duration=args.duration,
         seed=args.seed,
+        foot_names=args.feet,
+        gait_settings=estimate_cmd.gait_overrides(args) or None,
     )
     return 0
 
@@ -160,7 +162,13 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
 def _cmd_evaluate(args: argparse.Namespace) -> int:
     from train import logs
 
-    logs.evaluate_file(args.log, json_path=args.json)
+    logs.evaluate_file(
+        args.log,
+        json_path=args.json,
+        gm_grid_log=args.gm_grid,
+        params_path=args.params,
+        foot_names=args.feet,
+    )
     return 0
 
 
@@ -337,11 +345,16 @@ def _check_reproduce(args: argparse.Namespace) -> None:
 def _check_simulate(args: argparse.Namespace) -> None:
     check_output_file("output", args.output, LOG_SUFFIXES)
     check_robot("--robot", args.robot)
+    estimate_cmd.gait_overrides(args)  # ValueError naming the flag
 
 
 def _check_evaluate(args: argparse.Namespace) -> None:
     check_input_file("log", args.log)
     check_output_file("--json", args.json)
+    if args.gm_grid:
+        check_input_file("--gm-grid", args.gm_grid)
+    if args.params:
+        check_input_file("--params", args.params)
 
 
 def _check_train(args: argparse.Namespace) -> None:
@@ -443,6 +456,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--envs", type=_positive_int, default=16, help="robots simulated at once")
     p.add_argument("--duration", type=_positive_float, default=10.0, help="simulated seconds")
     p.add_argument("--seed", type=int, default=0, help="seeds states, commands and noise")
+    estimate_cmd.add_feet_flag(p)
+    estimate_cmd.add_gait_flags(p)
 
     p = command(
         "evaluate",
@@ -456,6 +471,19 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("log", help="an .h5 log written by `jax-contact simulate`")
     p.add_argument("--json", default=None, help="write the metrics (or P(contact)) here")
+    estimate_cmd.add_feet_flag(p)
+    p.add_argument(
+        "--gm-grid",
+        default=None,
+        metavar="LOG",
+        help="tune the GM observer on this other log (train.reproduce's grid, best F1)",
+    )
+    p.add_argument(
+        "--params", default=None, metavar="FILE", help="estimator parameters (jc.save_params)"
+    )
+    estimate_cmd.add_parser(sub)
+    tune_cmd.add_parser(sub)
+    deploy_cmd.add_parsers(sub)
 
     p = command(
         "train",
