@@ -1,0 +1,108 @@
+"""Every Playground locomotion env offline, wrapped at the physics rate, jitted: a table.
+
+For each name of :func:`envs.playground_offline.offline_names`: load, wrap with the
+defaults (physics rate, anymal_like sensors, the env's own foot sensors as truth), jit
+reset and step (compile times apart), run ``--steps`` steps of zero actions (the default
+pose) on one env, check the observation size and that nothing is NaN, and report the
+feet, the truth source and the fraction of foot-updates where the estimate matched the
+truth after the first 0.5 s (the reset drop). Prints the table and writes JSON.
+
+    python -m benchmarks.playground_envs --json out/playground_envs.json [--names A B]
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from benchmarks.common import json_of_what_finished, machine, print_table
+
+
+def run_one(name: str, n_steps: int) -> dict:
+    from envs import playground_offline
+    from envs import wrapper as W
+
+    t0 = time.perf_counter()
+    env = playground_offline.load(name)
+    wrapped = W.wrap_contact(env, W.ContactObsConfig(record_substeps=True))
+    report = wrapped.contact_report()
+    row = {
+        "env": name,
+        "feet": ",".join(f["name"] for f in report["feet"]),
+        "kind": report["feet"][0]["kind"],
+        "truth": report["truth"],
+        "dt_ms": report["dt"] * 1e3,
+        "load_s": time.perf_counter() - t0,
+    }
+    key = jax.random.PRNGKey(0)
+    t = time.perf_counter()
+    reset = jax.jit(wrapped.reset).lower(key).compile()
+    row["reset_compile_s"] = time.perf_counter() - t
+    state = reset(key)
+    action = jnp.zeros(env.action_size)
+    t = time.perf_counter()
+    step = jax.jit(wrapped.step).lower(state, action).compile()
+    row["step_compile_s"] = time.perf_counter() - t
+    hits, n, finite = 0.0, 0, True
+    skip = int(round(0.5 / float(env.dt)))
+    t = time.perf_counter()
+    for i in range(n_steps):
+        state = step(state, action)
+        finite &= all(bool(np.all(np.isfinite(np.asarray(x)))) for x in jax.tree.leaves(state.obs))
+        if i >= skip:
+            sub = state.info["contact_est_substeps"]
+            hits += float(np.sum((np.asarray(sub["p_contact"]) > 0.5) == np.asarray(sub["truth"])))
+            n += sub["p_contact"].size
+    row["run_s_per_step"] = (time.perf_counter() - t) / n_steps
+    size = wrapped.observation_size
+    shapes = jax.tree.map(lambda x: x.shape, state.obs)
+    if isinstance(size, dict):
+        row["obs_ok"] = all(tuple(shapes[k]) == tuple(v) for k, v in size.items())
+    else:
+        row["obs_ok"] = tuple(shapes) == (size,)
+    row["finite"] = finite
+    row["accuracy_standing"] = hits / n if n else None
+    row["done"] = bool(np.asarray(state.done))
+    return row
+
+
+def main(argv=None) -> int:
+    from envs import playground_offline
+
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--json", default=None, help="write the results here")
+    parser.add_argument("--names", nargs="*", default=None, help="registry names (default all)")
+    parser.add_argument("--steps", type=int, default=50, help="env steps per env")
+    args = parser.parse_args(argv)
+    names = args.names or list(playground_offline.offline_names())
+    result = {"machine": machine(), "steps": args.steps, "rows": []}
+    with json_of_what_finished(args.json, result):
+        for name in names:
+            try:
+                row = run_one(name, args.steps)
+            except Exception as err:  # noqa: BLE001 - one env's failure is one row
+                row = {"env": name, "error": f"{type(err).__name__}: {err}"[:300]}
+            result["rows"].append(row)
+            print(row, flush=True)
+    cols = [
+        ("env", "env", "{}"),
+        ("kind", "foot kind", "{}"),
+        ("truth", "truth", "{}"),
+        ("dt_ms", "dt ms", "{:.0f}"),
+        ("reset_compile_s", "reset comp s", "{:.1f}"),
+        ("step_compile_s", "step comp s", "{:.1f}"),
+        ("run_s_per_step", "s/step", "{:.4f}"),
+        ("obs_ok", "obs size", "{}"),
+        ("finite", "no NaN", "{}"),
+        ("accuracy_standing", "acc (stand)", "{:.3f}"),
+    ]
+    print_table(result["rows"], cols)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
