@@ -18,11 +18,16 @@ so tests that count traces are unaffected.
 from __future__ import annotations
 
 import collections
+import os
 import zlib
 
 from train.cli import enable_compilation_cache
 
 enable_compilation_cache()  # before JAX is imported: through JAX's environment variables
+# Importing JAX sets TF_CPP_MIN_LOG_LEVEL=1 when it is unset, and every subprocess a test
+# starts (the CLI, the README's blocks) would inherit that and print XLA's E-level lines
+# (e.g. loading a cached program); the CLI's own default for a user who set nothing is 3.
+os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "3")
 
 import jax  # noqa: E402
 import numpy as np  # noqa: E402
