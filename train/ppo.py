@@ -705,18 +705,22 @@ def train_variants(
     overwrite: bool = False,
     eval_envs: int = 64,
     log: Callable[[str], None] = print,
+    task: str = "go1",
 ) -> dict:
     """Trains each variant, evaluates each policy, and runs the sim-to-real check.
 
     Writes ``out_dir/summary.json`` (wall times, curves, evaluations),
     ``out_dir/reward_curves.csv`` and ``training_curves.csv`` (all runs, a ``variant``
-    column) and ``out_dir/reward_curves.png``.
+    column) and ``out_dir/reward_curves.png``. ``task``: as :func:`train`.
     """
     from jax_contact.io import write_json_atomic, write_text_atomic
     from train import figures
 
     out_dir = Path(out_dir)
-    results = {v: train(v, cfg, out_dir, seed=seed, overwrite=overwrite, log=log) for v in variants}
+    results = {
+        v: train(v, cfg, out_dir, seed=seed, overwrite=overwrite, log=log, task=task)
+        for v in variants
+    }
     curves = {v: r.rows for v, r in results.items()}
     training = {v: r.train_rows for v, r in results.items()}
     for name, data, fields in (
@@ -738,7 +742,7 @@ def train_variants(
         )
     log(format_evaluation(evals))
     summary = {
-        "env": ENV_NAME,
+        "env": ENV_NAME if task == "go1" else task,
         "config": dataclasses.asdict(cfg),
         "seed": seed,
         "machine": {"backend": jax.default_backend(), "devices": [str(d) for d in jax.devices()]},

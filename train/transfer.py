@@ -121,7 +121,7 @@ class _Evaluator:
                     truth,
                     s.reward,
                     alive,
-                    (p > 0.5) == truth,
+                    p,
                 )
                 return (s, alive), out
 
@@ -152,11 +152,15 @@ def _evaluate(ev: _Evaluator, run_dir: Path, column: str, seed: int, loaded=None
             f" checkpoint {ckpt} takes {sizes['state']}"
         )
     t0 = time.perf_counter()
-    h_cmd, (z, vz, truth, reward, alive, hit) = jax.device_get(
+    h_cmd, (z, vz, truth, reward, alive, p) = jax.device_get(
         rollout(params, jax.random.PRNGKey(seed))
     )
     m = episode_metrics(z, vz, truth, reward, alive, h_cmd)
+    hit = (np.asarray(p) > 0.5) == np.asarray(truth, bool)
     m["accuracy"] = float(np.sum(np.where(alive, hit, False)) / max(np.sum(alive), 1))
+    m["_p"], m["_truth"], m["_alive"] = p, truth, alive
+    m["episode_length_mean"] = float(np.mean(np.asarray(alive).sum(axis=0)))
+    m["return_std"] = float(np.std(np.where(alive, reward, 0.0).sum(axis=0)))
     m["wall_s"] = round(time.perf_counter() - t0, 1)
     m["checkpoint"] = str(ckpt)
     return m
@@ -190,8 +194,15 @@ def evaluate_run(
     column = column or observe or run["variant"]
     task_cfg = dataclasses.replace(hop_task.HOP, sensor=cfg.sensor)
     ev = _Evaluator(task_cfg, hop_task.hop_robot(), n_envs, int(episode_length or cfg.episode_length))
+    from jax_contact import metrics
+
     m = _evaluate(ev, run_dir, column, seed)
+    p, truth, alive = (np.asarray(m.pop(k)) for k in ("_p", "_truth", "_alive"))
+    contact = metrics.evaluate(
+        p[..., None], truth[..., None].astype(bool), alive[..., None], dt=float(ev.task_cfg.n_frames * 0.0025)
+    )
     return {
+        "contact": contact.as_dict(),
         "run": str(run_dir),
         "trained_with": run["variant"],
         "observed": column,
@@ -241,11 +252,15 @@ def transfer_matrix(
             make_policy = makers.setdefault(tuple(sizes["state"]), make_policy)
             if variant == "none":
                 m = _evaluate(ev, d, "none", seed, (make_policy, params, sizes))
+                for k in ("_p", "_truth", "_alive"):
+                    m.pop(k)
                 for c in columns:
                     per_col[c].append(m)
             else:
                 for c in columns:
                     m = _evaluate(ev, d, c, seed, (make_policy, params, sizes))
+                    for k in ("_p", "_truth", "_alive"):
+                        m.pop(k)
                     per_col[c].append(m)
                     log(f"[transfer] {variant:>8s} -> {c:<15s} return {m['return']:7.2f}"
                         f" apex err {m['apex_error']:.3f} hops {m['hops']:.2f}"
