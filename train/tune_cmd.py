@@ -236,24 +236,30 @@ def measure_readings(robot, readings: dict, *, pairing: str = "delayed", chunk: 
 
 def read_truth_log(path: str | Path):
     """A log file -> (readings, truth, valid, attrs, robot), readings at the end-of-step
-    timing convention (an older log is re-aligned as ``jax-contact evaluate`` does).
+    timing convention (an older simulated log is re-aligned as ``jax-contact evaluate``
+    does, by ``train.logs.reading_timing_of``).
 
     Raises:
       ValueError: the log has no ground truth, or any error of ``train.logs``' checks.
     """
     from envs.robots import load_robot
     from jax_contact.io import read_log
-    from train.logs import READING_TIMING, _log_arrays, _log_attrs, to_end_of_step
+    from train.logs import (
+        READING_TIMING,
+        _log_arrays,
+        _log_attrs,
+        reading_timing_of,
+        to_end_of_step,
+    )
 
     arrays, attrs = read_log(path)
     name = f"log {str(path)!r}"
     robot_name, _ = _log_attrs(name, attrs)
     readings, truth, valid = _log_arrays(name, arrays)
-    timing = attrs.get("reading_timing", "start_of_step")
-    if timing == "start_of_step":  # a log written before the convention: as evaluate does
+    # The convention's rule (train.logs): only an older `jax-contact simulate` log is
+    # re-aligned; a log without the attribute is otherwise end-of-step already.
+    if reading_timing_of(name, attrs) != READING_TIMING:
         readings, truth, valid = to_end_of_step(readings, truth, valid)
-    elif timing != READING_TIMING:
-        raise ValueError(f"{name}: attribute 'reading_timing' is {timing!r}")
     if truth is None:
         raise ValueError(f"{name} has no ground truth ('truth/contact'): it cannot be tuned on")
     robot = load_robot(robot_name)
