@@ -235,41 +235,19 @@ def measure_readings(robot, readings: dict, *, pairing: str = "delayed", chunk: 
 
 
 def read_truth_log(path: str | Path):
-    """A log file -> (readings, truth, valid, attrs, robot), readings at the end-of-step
-    timing convention (an older simulated log is re-aligned as ``jax-contact evaluate``
-    does, by ``train.logs.reading_timing_of``).
+    """A log file -> (readings, truth, valid, attrs, robot): ``train.logs.load_log`` (the
+    end-of-step timing convention, the robot with the log's feet, every shape checked),
+    refused without ground truth.
 
     Raises:
       ValueError: the log has no ground truth, or any error of ``train.logs``' checks.
     """
-    from envs.robots import load_robot
-    from jax_contact.io import read_log
-    from train.logs import (
-        READING_TIMING,
-        _log_arrays,
-        _log_attrs,
-        reading_timing_of,
-        to_end_of_step,
-    )
+    from train.logs import load_log
 
-    arrays, attrs = read_log(path)
-    name = f"log {str(path)!r}"
-    robot_name, _ = _log_attrs(name, attrs)
-    readings, truth, valid = _log_arrays(name, arrays)
-    # The convention's rule (train.logs): only an older `jax-contact simulate` log is
-    # re-aligned; a log without the attribute is otherwise end-of-step already.
-    if reading_timing_of(name, attrs) != READING_TIMING:
-        readings, truth, valid = to_end_of_step(readings, truth, valid)
-    if truth is None:
-        raise ValueError(f"{name} has no ground truth ('truth/contact'): it cannot be tuned on")
-    robot = load_robot(robot_name)
-    desc = robot.description
-    if readings["qvel"].shape[-1] != desc.nv or truth.shape[-1] != desc.n_legs:
-        raise ValueError(
-            f"{name}: readings of {readings['qvel'].shape[-1]} velocities and {truth.shape[-1]}"
-            f" feet do not fit robot {robot_name!r} (nv {desc.nv}, {desc.n_legs} feet)"
-        )
-    return readings, truth, valid, attrs, robot
+    log = load_log(path)
+    if log.truth is None:
+        raise ValueError(f"{log.name} has no ground truth ('truth/contact'): it cannot be tuned on")
+    return log.readings, log.truth, log.valid, log.attrs, log.robot
 
 
 def load_tuning_log(path: str | Path):
