@@ -137,7 +137,9 @@ def _cmd_demo(args: argparse.Namespace) -> int:
 def _cmd_reproduce(args: argparse.Namespace) -> int:
     from train import reproduce
 
-    reproduce.run(_reproduce_config(args.size, robot=args.robot, seed=args.seed), args.out)
+    feet = tuple(args.feet) if args.feet else None
+    cfg = _reproduce_config(args.size, robot=args.robot, seed=args.seed, foot_names=feet)
+    reproduce.run(cfg, args.out)
     return 0
 
 
@@ -441,6 +443,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--seed", type=int, default=None, help="evaluation seed (default: 0)")
     p.add_argument("--out", default="out/reproduce", help="output folder")
+    estimate_cmd.add_feet_flag(p)
 
     p = command(
         "simulate",

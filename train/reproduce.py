@@ -63,6 +63,7 @@ class ReproduceConfig:
       roughness: height std of the rough floor, m.
       monte_carlo: also evaluate the Monte-Carlo touch-down (500 samples) beside the
         quadrature.
+      foot_names: the robot's feet (geom, site or body names in leg order); None finds them.
     """
 
     robot: str = "go1"
@@ -75,6 +76,7 @@ class ReproduceConfig:
     seed: int = 0
     roughness: float = 0.015
     monte_carlo: bool = False
+    foot_names: tuple[str, ...] | None = None
 
 
 DEMO = ReproduceConfig()
@@ -169,17 +171,26 @@ def gm_grid() -> dict[str, jc.EstimatorParams]:
     }
 
 
+def _robot(cfg: ReproduceConfig):
+    """The nominal robot of a run, with the feet ``cfg.foot_names`` names (None: found)."""
+    from envs.robots import load_robot
+
+    feet = None if cfg.foot_names is None else tuple(cfg.foot_names)
+    return load_robot(cfg.robot, foot_names=feet)
+
+
 def _scenario_world(name: str, cfg: ReproduceConfig):
     from envs.simulate import build_world
 
+    robot = _robot(cfg)
     if name == "walk_added_mass":
-        return build_world(cfg.robot, added_mass=added_mass_for(cfg.robot))
+        return build_world(robot, added_mass=added_mass_for(cfg.robot, robot))
     if name == "rough":
-        return build_world(cfg.robot, terrain="rough", roughness=cfg.roughness)
-    return build_world(cfg.robot)
+        return build_world(robot, terrain="rough", roughness=cfg.roughness)
+    return build_world(robot)
 
 
-def added_mass_for(robot_name: str) -> tuple[tuple[str, float], ...]:
+def added_mass_for(robot_name: str, robot=None) -> tuple[tuple[str, float], ...]:
     """(body, kg) pairs of the added-mass scenario: :data:`ADDED_MASS`, or else the same
     shares of the robot's total mass (:data:`ADDED_MASS_SHARES`) on its base body and on
     the body of its first foot."""
@@ -189,7 +200,7 @@ def added_mass_for(robot_name: str) -> tuple[tuple[str, float], ...]:
 
     from envs.robots import load_robot
 
-    robot = load_robot(robot_name)
+    robot = robot if robot is not None else load_robot(robot_name)
     m, desc = robot.mj_model, robot.description
     total = float(m.body_mass.sum())
     base = next(b for b in range(1, m.nbody) if m.body_parentid[b] == 0)
@@ -281,9 +292,8 @@ def section3(cfg: ReproduceConfig, out_dir: Path) -> dict:
 
 def table3(cfg: ReproduceConfig, out_dir: Path) -> dict:
     """Tunes the GM observer, evaluates every detector, returns table and ablation."""
-    from envs.robots import load_robot
 
-    desc = load_robot(cfg.robot).description
+    desc = _robot(cfg).description
     base = quadruped_estimator_params(desc)
     estimators = ablation_variants(base)
     if cfg.monte_carlo:
