@@ -133,3 +133,30 @@ def test_step_reward_and_action_mapping(resets):
     np.testing.assert_allclose(ps.ctrl, [[1.4, -2.0], [0.6, -1.2]], rtol=1e-6)
     # Env 1 holds its pose: one env step = 4 physics steps of 2.5 ms of free fall from rest.
     np.testing.assert_allclose(vz[1], -9.81 * 0.01, rtol=1e-3)
+
+
+def test_array_observation_checkpoint_round_trip(tmp_path):
+    """Brax's training save writes an array observation's size as {"shape", "dtype"} (the hop
+    task's 7 numbers); load_policy rebuilds the same policy from it."""
+    from brax.training.acme import specs
+    from brax.training.acme import running_statistics
+    from brax.training.agents.ppo import checkpoint as ppo_checkpoint
+
+    cfg = dataclasses.replace(tasks.HOP_REDUCED, policy_hidden=(8,), value_hidden=(8,))
+    factory = ppo.network_factory(cfg)
+    net = factory(7, 2, preprocess_observations_fn=running_statistics.normalize)
+    k1, k2 = jax.random.split(jax.random.PRNGKey(1))
+    normalizer = running_statistics.init_state(jax.ShapeDtypeStruct((7,), jnp.float32))
+    normalizer = normalizer.replace(mean=jnp.full(7, 0.2), std=jnp.full(7, 3.0))
+    params = (normalizer, net.policy_network.init(k1), net.value_network.init(k2))
+    # What ppo.train passes: specs.Array of the observation's last axis.
+    obs_spec = specs.Array((7,), jnp.dtype("float32"))
+    conf = ppo_checkpoint.network_config(obs_spec, 2, True, factory)
+    ppo_checkpoint.save(str(tmp_path / "checkpoints"), 10, params, conf)
+    policy, sizes = ppo.load_policy(ppo.latest_checkpoint(tmp_path))
+    assert sizes == {"state": (7,)}
+    obs = jnp.linspace(-1.0, 1.0, 14).reshape(2, 7)
+    act, _ = policy(obs, jax.random.PRNGKey(0))
+    # Reference: the tanh of the mean half of the policy MLP on the normalised observation.
+    logits = net.policy_network.apply(normalizer, params[1], obs)
+    np.testing.assert_allclose(act, np.tanh(np.asarray(logits[:, :2])), rtol=1e-5, atol=1e-6)

@@ -388,6 +388,8 @@ def load_policy(ckpt: str | Path, *, deterministic: bool = True, parts: bool = F
         if k.endswith("kernel_init_fn"):
             kwargs[k] = brax_networks.KERNEL_INITIALIZER[v]
     raw = cfg["observation_size"]
+    if isinstance(raw, dict) and "shape" in raw and "dtype" in raw:  # one array, as saved
+        raw = raw["shape"]
     if isinstance(raw, dict):
         sizes = {k: tuple(v["shape"] if isinstance(v, dict) else v) for k, v in raw.items()}
         net_sizes = sizes
