@@ -25,8 +25,8 @@ time and the CPU time of them all.
 These runs are most of this file's time. Measured 2026-12-01 with a mostly cold
 compilation cache on the shared 2-core host (load average ~15): 826 CPU-seconds for all
 README commands (train 726 s wall, demo 888 s, bench 692 s, reproduce 431 s after demo,
-evaluate 128 s, policy-eval 106 s, rates 104 s, simulate 66 s); with a warm cache most
-programs load instead of compiling (``docs/performance.md``).
+evaluate 128 s, policy-eval 106 s, rates 104 s, simulate 66 s); with the cache warm, 394
+CPU-seconds (427 s wall; the whole file 467 s), ``docs/performance.md``.
 """
 
 from __future__ import annotations
