@@ -63,6 +63,8 @@ def test_importing_the_cli_does_not_import_jax():
         (["evaluate", "README.md", "--json", "/proc/m.json"], ["argument --json", "'/proc'"]),
         (["train", "--timesteps", "0"], ["argument --timesteps"]),
         (["train", "--out", "README.md"], ["argument --out", "README.md"]),
+        (["train", "--task", "hop", "--config", "full"], ["argument --config", "hop"]),
+        (["train", "--task", "cat"], ["argument --task", "'cat'"]),
         (["policy-eval", "docs"], ["argument run", "run.json"]),
         (["policy-eval", "docs", "--envs", "-3"], ["argument --envs"]),
         (["bench", "--versus-envs", "0"], ["argument --versus-envs"]),
@@ -104,6 +106,9 @@ def test_static_lists_equal_the_librarys():
     assert cli.NOISES == sensors.PRESETS
     assert cli.TERRAINS == simulate.TERRAINS
     assert cli.VARIANTS == ppo.VARIANTS
+    from train import tasks
+
+    assert cli.TASKS == tasks.TASK_NAMES
     assert cli.SCENES == rates.SCENES
 
 

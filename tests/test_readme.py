@@ -253,6 +253,10 @@ def ran(tmp_path_factory) -> tuple[Path, dict[str, Ran]]:
     """Runs every README command (module docstring) in one folder; returns the folder and
     ' '.join(argv) -> its result."""
     folder = tmp_path_factory.mktemp("readme_commands")
+    # The README's commands run from the repository root and read the files it ships
+    # (envs/assets, tests/fixtures); outputs go to the temporary folder's out/.
+    for shipped in ("envs", "tests"):
+        (folder / shipped).symlink_to(ROOT / shipped, target_is_directory=True)
     chains: dict[str, list[list[str]]] = {}
     for argv in README_COMMANDS:
         chains.setdefault(CHAIN.get(argv[0], argv[0]), []).append(argv)

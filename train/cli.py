@@ -78,6 +78,7 @@ GAITS = ("trot", "walk", "hop")  # envs.gaits.KINDS
 NOISES = ("ideal", "anymal_like", "harsh")  # envs.sensors.PRESETS
 TERRAINS = ("flat", "rough")  # envs.simulate.TERRAINS
 VARIANTS = ("none", "truth", "estimate")  # train.ppo.VARIANTS
+TASKS = ("go1", "hop")  # train.tasks.TASK_NAMES
 SCENES = ("planar_leg", "go1")  # train.rates.SCENES
 LOG_SUFFIXES = (".h5", ".hdf5")
 
@@ -187,14 +188,15 @@ def _cmd_bench(args: argparse.Namespace) -> int:
 
 
 def _cmd_train(args: argparse.Namespace) -> int:
-    from train import ppo
+    from train import ppo, tasks
 
+    task = tasks.get_task(args.task)
     if args.config == "tiny":
         import dataclasses
 
-        cfg = dataclasses.replace(ppo.SMALL, **TINY_PPO)
+        cfg = dataclasses.replace(task.config("small"), **TINY_PPO)
     else:
-        cfg = ppo.CONFIGS[args.config]
+        cfg = task.config(args.config)
     if args.timesteps:
         # Brax PPO rounds num_timesteps up to whole epochs (6x the request at 40,960 steps);
         # fit_timesteps makes it train exactly what was asked, or says what it trains.
@@ -209,6 +211,7 @@ def _cmd_train(args: argparse.Namespace) -> int:
         overwrite=args.overwrite,
         eval_envs=args.eval_envs,
         log=ppo.main_log,
+        task=args.task,
     )
     return 0
 
@@ -361,6 +364,10 @@ def _check_evaluate(args: argparse.Namespace) -> None:
 
 def _check_train(args: argparse.Namespace) -> None:
     check_output_folder("--out", args.out)
+    if args.task == "hop" and args.config == "full":
+        raise ValueError(
+            "argument --config: the hop task has no 'full' configuration (small, tiny)"
+        )
 
 
 def _check_policy_eval(args: argparse.Namespace) -> None:
@@ -507,6 +514,13 @@ def build_parser() -> argparse.ArgumentParser:
         default="small",
         help="small: this 2-core CPU, <= 20 min per variant; full: a GPU; tiny: 160 steps"
         " of 8 envs, checks that every step runs (learns nothing)",
+    )
+    p.add_argument(
+        "--task",
+        choices=TASKS,
+        default="go1",
+        help="go1: Playground's Go1 joystick; hop: the planar leg hopping to a commanded apex"
+        " height, where contact timing matters (docs/training_hop.md)",
     )
     p.add_argument(
         "--timesteps",
