@@ -51,26 +51,6 @@ TUNABLE_FIELDS = (
 # -------------------------------------------------------------------------- arguments
 
 
-def _positive_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        value = 0
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be an int >= 1, got {text!r}")
-    return value
-
-
-def _positive_float(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        value = math.nan
-    if not (math.isfinite(value) and value > 0):
-        raise argparse.ArgumentTypeError(f"must be a finite number > 0, got {text!r}")
-    return value
-
-
 def _nonnegative_float(text: str) -> float:
     try:
         value = float(text)
@@ -87,6 +67,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     The parser's defaults carry ``func=run`` and ``check=check``, as ``train/cli.py``'s
     commands do.
     """
+    # The CLI's argument types (one rule); imported here, once train.cli is loaded.
+    from train.cli import _positive_float, _positive_int
+
     p = subparsers.add_parser(
         "tune",
         help="tune the estimator's parameters by gradient on logs with ground truth",
