@@ -2,11 +2,12 @@
 
 Run::
 
-    python -m benchmarks.deploy_latency --artefact go1.contact --log go1.h5 --json out.json
+    python -m jax_contact.benchmarks.deploy_latency --artefact go1.contact --log go1.h5 \
+        --json out.json
 
 Every option runs in its own process (``XLA_FLAGS`` and JAX's config are read when the CPU
 backend starts): it loads the artefact with :func:`jax_contact.deploy.load` and feeds the
-log's readings through :func:`train.deploy_cmd.realtime_replay`, one reading per call,
+log's readings through :func:`jax_contact.train.deploy_cmd.realtime_replay`, one reading per call,
 back to back (``--repeats`` passes; the median of the passes' medians is reported) and
 once paced at the log's rate (median, p99, deadline misses). Also measured:
 
@@ -111,9 +112,9 @@ def export_variant(artefact: Path, out: Path) -> None:
     """Re-exports ``artefact``'s robot and parameters with :func:`dots_as_reductions`."""
     import jax.numpy as jnp
 
-    from envs.robots import load_robot
     from jax_contact import export
-    from train.deploy_cmd import params_and_terrain
+    from jax_contact.envs.robots import load_robot
+    from jax_contact.train.deploy_cmd import params_and_terrain
 
     header, _ = export.read_artefact(artefact)
     params, terrain = params_and_terrain(header)
@@ -144,9 +145,9 @@ def _readings(log: str, steps: int):
 def child(artefact: str, log: str, steps: int, repeats: int) -> dict:
     import numpy as np
 
-    from benchmarks.common import kernel_count
     from jax_contact import deploy
-    from train.deploy_cmd import realtime_replay
+    from jax_contact.benchmarks.common import kernel_count
+    from jax_contact.train.deploy_cmd import realtime_replay
 
     t0 = time.perf_counter()
     est = deploy.load(artefact)
@@ -193,7 +194,7 @@ def floor(repeats: int) -> dict:
     import jax.numpy as jnp
     import numpy as np
 
-    from benchmarks.common import kernel_count
+    from jax_contact.benchmarks.common import kernel_count
 
     def chain(n):
         def f(x):
@@ -230,11 +231,11 @@ def split(artefact: str, repeats: int) -> dict:
     from mujoco import mjx
 
     import jax_contact as jc
-    from benchmarks.common import kernel_count
-    from envs.robots import load_robot
     from jax_contact.adapter import prepare, robot_measurement
+    from jax_contact.benchmarks.common import kernel_count
+    from jax_contact.envs.robots import load_robot
     from jax_contact.export import read_artefact
-    from train.deploy_cmd import params_and_terrain
+    from jax_contact.train.deploy_cmd import params_and_terrain
 
     header, _ = read_artefact(artefact)
     params, terrain = params_and_terrain(header)
@@ -295,9 +296,9 @@ def profile(artefact: str, calls: int = 50) -> dict:
     import jax.numpy as jnp
     import numpy as np
 
-    from envs.robots import load_robot
     from jax_contact import export
-    from train.deploy_cmd import params_and_terrain
+    from jax_contact.envs.robots import load_robot
+    from jax_contact.train.deploy_cmd import params_and_terrain
 
     header, _ = export.read_artefact(artefact)
     params, terrain = params_and_terrain(header)
@@ -365,7 +366,7 @@ def _spawn(what: str, env_extra: dict, args) -> dict:
     env.setdefault("TF_CPP_MIN_LOG_LEVEL", "3")
     pin = env_extra.pop("_PIN", None)
     env.update(env_extra)
-    cmd = [sys.executable, "-m", "benchmarks.deploy_latency", "--child", what]
+    cmd = [sys.executable, "-m", "jax_contact.benchmarks.deploy_latency", "--child", what]
     cmd += ["--artefact", str(args.artefact), "--log", str(args.log)]
     cmd += ["--steps", str(args.steps), "--repeats", str(args.repeats)]
     if pin is not None:

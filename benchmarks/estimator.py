@@ -2,7 +2,7 @@
 
 Run::
 
-    python -m benchmarks.estimator --json out/bench/estimator.json [--envs 1 64 1024]
+    python -m jax_contact.benchmarks.estimator --json out/bench/estimator.json [--envs 1 64 1024]
 
 One "update" is the whole step of every foot of every env: all three measurement terms,
 both transitions (take-off and touch-down, Monte-Carlo at ``n_samples`` or quadrature) and
@@ -21,7 +21,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import jax_contact as jc
-from benchmarks.common import (
+from jax_contact.benchmarks.common import (
     compile_and_time,
     format_table,
     kernel_count,

@@ -9,9 +9,9 @@ Definitions (per environment):
 
 - upright: at every physics step the base is above ``0.5 x`` its standing height, the
   z-component of the base's up-vector exceeds 0.7, and ``qpos`` is finite (Playground's
-  NaN guard; the same check as ``envs.simulate.upright``). A failure is latched.
+  NaN guard; the same check as ``jax_contact.envs.simulate.upright``). A failure is latched.
 - touch-down of a foot: the ground-truth flag (normal force > 1 N,
-  :mod:`envs.ground_truth`) turns on after the foot was off the ground for at least
+  :mod:`jax_contact.envs.ground_truth`) turns on after the foot was off the ground for at least
   ``--min-air`` seconds (so contact chatter during stance does not count).
 - stepping: upright, and for every foot, from ``ramp_time + 2 periods`` until the end,
   no interval longer than ``1.5`` gait periods passes without a touch-down of that foot
@@ -36,11 +36,11 @@ import numpy as np
 from flax import struct
 from mujoco import mjx
 
-from envs.gaits import gait_control, make_gait, make_gait_robot
-from envs.ground_truth import foot_truth, make_truth_layout, with_contact_sensors
-from envs.robots import Robot, load_robot
-from envs.sensors import perturb_qpos
-from envs.simulate import upright as is_upright
+from jax_contact.envs.gaits import gait_control, make_gait, make_gait_robot
+from jax_contact.envs.ground_truth import foot_truth, make_truth_layout, with_contact_sensors
+from jax_contact.envs.robots import Robot, load_robot
+from jax_contact.envs.sensors import perturb_qpos
+from jax_contact.envs.simulate import upright as is_upright
 from jax_contact.io import write_json_atomic
 from jax_contact.robot import derive_description
 

@@ -1,13 +1,13 @@
 """Every Playground locomotion env offline, wrapped at the physics rate, jitted: a table.
 
-For each name of :func:`envs.playground_offline.offline_names`: load, wrap with the
+For each name of :func:`jax_contact.envs.playground_offline.offline_names`: load, wrap with the
 defaults (physics rate, anymal_like sensors, the env's own foot sensors as truth), jit
 reset and step (compile times apart), run ``--steps`` steps of zero actions (the default
 pose) on one env, check the observation size and that nothing is NaN, and report the
 feet, the truth source and the fraction of foot-updates where the estimate matched the
 truth after the first 0.5 s (the reset drop). Prints the table and writes JSON.
 
-    python -m benchmarks.playground_envs --json out/playground_envs.json [--names A B]
+    python -m jax_contact.benchmarks.playground_envs --json out/playground_envs.json [--names A B]
 """
 
 from __future__ import annotations
@@ -19,12 +19,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from benchmarks.common import json_of_what_finished, machine, print_table
+from jax_contact.benchmarks.common import json_of_what_finished, machine, print_table
 
 
 def run_one(name: str, n_steps: int) -> dict:
-    from envs import playground_offline
-    from envs import wrapper as W
+    from jax_contact.envs import playground_offline
+    from jax_contact.envs import wrapper as W
 
     t0 = time.perf_counter()
     env = playground_offline.load(name)
@@ -71,7 +71,7 @@ def run_one(name: str, n_steps: int) -> dict:
 
 
 def main(argv=None) -> int:
-    from envs import playground_offline
+    from jax_contact.envs import playground_offline
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--json", default=None, help="write the results here")

@@ -2,9 +2,9 @@
 
 Run::
 
-    python -m benchmarks.profile_pieces [--envs 1024] [--modes quadrature monte_carlo]
+    python -m jax_contact.benchmarks.profile_pieces [--envs 1024] [--modes quadrature monte_carlo]
 
-``step_batch`` runs on :func:`benchmarks.common.synthetic_robot_measurements` (the
+``step_batch`` runs on :func:`jax_contact.benchmarks.common.synthetic_robot_measurements` (the
 per-robot layout); every other piece is ``vmap``-ed over (envs, 4 legs) of those robots'
 :class:`jax_contact.LegBlocks` (split beforehand, except in the "split" piece) and compiled
 ahead of time; it prints the median (and min) ms per call over ``--repeats``
@@ -34,9 +34,9 @@ import jax
 import jax.numpy as jnp
 
 import jax_contact as jc
-from benchmarks.common import kernel_count, synthetic_robot_measurements
 from jax_contact import filter as filter_
 from jax_contact import measurement, transition
+from jax_contact.benchmarks.common import kernel_count, synthetic_robot_measurements
 from jax_contact.types import feet_are_finite
 
 N_LEGS, NV = 4, 18

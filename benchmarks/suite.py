@@ -2,10 +2,11 @@
 
 Run::
 
-    python -m benchmarks.suite --json out/bench.json [--envs 1 1024 4096] [--versus-envs 1024]
+    python -m jax_contact.benchmarks.suite --json out/bench.json [--envs 1 1024 4096] \
+        [--versus-envs 1024]
 
-``jax-contact bench`` runs this. It runs :mod:`benchmarks.estimator` (throughput at each
-batch size, single-robot latency, memory) and then :mod:`benchmarks.versus` (ratio to
+``jax-contact bench`` runs this. It runs :mod:`jax_contact.benchmarks.estimator` (throughput at each
+batch size, single-robot latency, memory) and then :mod:`jax_contact.benchmarks.versus` (ratio to
 ``mjx.step``, speed-up over per-robot NumPy, sharding), prints both sets of tables, and
 writes one JSON holding the keys of both: ``machine``, ``throughput``,
 ``latency_batch1_us``, ``bytes_per_env``, ``ratio_vs_mjx_step``, ``speedup_vs_numpy``,
@@ -17,9 +18,9 @@ from __future__ import annotations
 
 import argparse
 
-from benchmarks import estimator, versus
-from benchmarks.common import json_of_what_finished
-from train.cli import _positive_int  # the CLI's argument type: one rule for sizes
+from jax_contact.benchmarks import estimator, versus
+from jax_contact.benchmarks.common import json_of_what_finished
+from jax_contact.train.cli import _positive_int  # the CLI's argument type: one rule for sizes
 
 
 def main(argv=None) -> dict:

@@ -2,7 +2,7 @@
 
 Run::
 
-    python -m benchmarks.versus --json out/bench/versus.json [--envs 1024 4096]
+    python -m jax_contact.benchmarks.versus --json out/bench/versus.json [--envs 1024 4096]
 
 1. Ratio of one estimator update (with and without the adapter's extraction of its
    inputs from ``mjx.Data``) to one ``mjx.step`` of Go1 at the same batch size, with the
@@ -33,7 +33,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import jax_contact as jc
-from benchmarks.common import (
+from jax_contact.benchmarks.common import (
     json_of_what_finished,
     machine,
     print_table,
@@ -59,8 +59,8 @@ def ratio_vs_mjx(n_envs: int, repeats: int = 15) -> dict:
     """
     from mujoco import mjx
 
-    from envs.robots import load_robot
     from jax_contact.adapter import leg_measurements, prepare, robot_measurement
+    from jax_contact.envs.robots import load_robot
 
     robot = load_robot("go1")
     robot.mj_model.opt.timestep = 0.0025
@@ -176,7 +176,7 @@ SHARD_SCRIPT = r"""
 import json, statistics, time, jax, jax.numpy as jnp, numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec as P
 import jax_contact as jc
-from benchmarks.common import synthetic_measurements
+from jax_contact.benchmarks.common import synthetic_measurements
 n = int(__import__("sys").argv[1])
 params = jc.make_params(jc.make_noise(18), touchdown="quadrature")
 meas = synthetic_measurements(n, 4, 18)

@@ -13,12 +13,12 @@ and up to each rollout's first ``done``:
   (hip pitch -0.4 rad, knee +0.8 rad, ankle pitch -0.4 rad at the peak, 1.5 Hz);
 - ``Go1Getup``, ``Go1Handstand``: uniform random actions in [-1, 1] (the issue's case).
 
-Both rates run on the same rollouts (:func:`train.rates.compare_rates`: control-rate
+Both rates run on the same rollouts (:func:`jax_contact.train.rates.compare_rates`: control-rate
 wrapper inside, physics-rate outside). Reported: accuracy, F1, precision, recall at every
 physics step, the control rate's accuracy at env steps, and the trivial scores
 (always-contact, always-air). Prints a table and writes JSON.
 
-    python -m benchmarks.wrapper_accuracy --json out/wrapper_accuracy.json
+    python -m jax_contact.benchmarks.wrapper_accuracy --json out/wrapper_accuracy.json
 """
 
 from __future__ import annotations
@@ -29,7 +29,7 @@ import time
 import jax
 import numpy as np
 
-from benchmarks.common import json_of_what_finished, machine, print_table
+from jax_contact.benchmarks.common import json_of_what_finished, machine, print_table
 
 ENVS = (
     "Go1JoystickFlatTerrain",
@@ -67,8 +67,8 @@ def actions_for(name: str, env, n_steps: int, n_envs: int, seed: int) -> tuple[n
 
 
 def run_one(name: str, n_steps: int, n_envs: int, skip_s: float, seed: int) -> dict:
-    from envs import playground_offline
-    from train.rates import compare_rates
+    from jax_contact.envs import playground_offline
+    from jax_contact.train.rates import compare_rates
 
     env = playground_offline.load(name)
     acts, policy = actions_for(name, env, n_steps, n_envs, seed)

@@ -8,7 +8,8 @@ of timed calls of the compiled step (zero actions, the state carried over) are m
 apart; the ratio wrapped/bare is the wrapper's cost. The variants are timed in turn at
 each size, so that a load from other processes on the machine falls on all three alike.
 
-    python -m benchmarks.wrapper_throughput --sizes 1 256 1024 --json out/throughput.json
+    python -m jax_contact.benchmarks.wrapper_throughput --sizes 1 256 1024 \
+        --json out/throughput.json
 """
 
 from __future__ import annotations
@@ -20,12 +21,12 @@ import time
 import jax
 import jax.numpy as jnp
 
-from benchmarks.common import json_of_what_finished, machine, print_table
+from jax_contact.benchmarks.common import json_of_what_finished, machine, print_table
 
 
 def _variants(name: str):
-    from envs import playground_offline
-    from envs import wrapper as W
+    from jax_contact.envs import playground_offline
+    from jax_contact.envs import wrapper as W
 
     env = playground_offline.load(name)
     return env, {

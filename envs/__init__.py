@@ -1,6 +1,6 @@
 """Simulated worlds for jax_contact: robots, gaits, terrain, sensor noise, wrappers."""
 
-from envs.robots import (
+from jax_contact.envs.robots import (
     MENAGERIE_NAMES,
     ROBOT_NAMES,
     HeightField,

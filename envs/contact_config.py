@@ -2,7 +2,7 @@
 
 :class:`ContactObsConfig` names the feet, the sensor model, the estimator parameters, the
 terrain, the rate, the ground-truth source, the observation placement and the metric
-keys. :func:`envs.wrapper.wrap_contact` takes it (its keyword arguments, kept for older
+keys. :func:`jax_contact.envs.wrapper.wrap_contact` takes it (its keyword arguments, kept for older
 callers, only override fields of it). Nothing in it is mutated: override with
 ``dataclasses.replace`` / ``config.replace(...)``.
 """
@@ -28,26 +28,27 @@ class ContactObsConfig:
     Attributes:
       feet: the feet, in the order the features get: None finds them (sphere feet, else
         one foot per body whose geoms touch the floor); else a sequence of names (a geom,
-        a body or a site) or :class:`envs.feet.FootSpec` (``envs/feet.py`` for what each
+        a body or a site) or :class:`jax_contact.envs.feet.FootSpec` (``envs/feet.py`` for what each
         kind of foot means).
-      sensor: a preset name of :data:`envs.sensors.PRESETS` or a
-        :class:`~envs.sensors.SensorParams` at the estimator's period.
+      sensor: a preset name of :data:`jax_contact.envs.sensors.PRESETS` or a
+        :class:`~jax_contact.envs.sensors.SensorParams` at the estimator's period.
       params: :class:`jax_contact.EstimatorParams` at the estimator's period; None:
-        :func:`envs.contact_params.default_estimator_params`.
+        :func:`jax_contact.envs.contact_params.default_estimator_params`.
       force_rows: world axes of the contact force for legs of fewer than three joints;
         None: chosen from the leg Jacobian at the home pose, the normal (z) always kept
-        (:func:`envs.contact_params.choose_force_rows`). The choice is reported by the
+        (:func:`jax_contact.envs.contact_params.choose_force_rows`). The choice is reported by the
         wrapper's ``contact_report()``.
       terrain: a :mod:`jax_contact.terrain` model; None:
-        :func:`envs.contact_params.default_terrain`.
+        :func:`jax_contact.envs.contact_params.default_terrain`.
       rate: ``"substep"``: an estimator update after every physics step (Brax and
-        Playground, :mod:`envs.substeps`); ``"control"``: one per env step (``dt =
+        Playground, :mod:`jax_contact.envs.substeps`); ``"control"``: one per env step (``dt =
         env.dt``); ``"auto"`` (default) is ``"substep"``. The wrapper's ``contact_rate``
         says which runs.
       observe: what the policy sees: ``"estimate"`` the belief; ``"truth"`` the ground
         truth in the same layout (the privileged baseline); ``"none"`` nothing. The
         estimator runs and is scored in all three.
-      pairing: ``"delayed"`` (default) or ``"raw"``, as :func:`train.evaluate.replay`: the
+      pairing: ``"delayed"`` (default) or ``"raw"``, as :func:`jax_contact.train.evaluate.replay`:
+      the
         update after step ``k`` evaluates the model at the state read at ``k-1`` with the
         acceleration over ``[k-1, k]`` and the torque read at ``k``; ``"raw"`` at ``k``.
       include_logit: also observe the belief's logit, clipped to ``+-logit_clip``.
@@ -57,9 +58,10 @@ class ContactObsConfig:
         array observation gets them appended and ignores this.
       info_key: ``state.info`` key of the estimator state (:class:`ContactEstState`); the
         truth goes under ``info_key + "_truth"``, metrics under ``info_key + "/..."``.
-      truth: ground-truth source, one of :data:`TRUTH_SOURCES` (:mod:`envs.contact_truth`).
-      truth_threshold: normal force above which a foot is in contact, N.
-      record_substeps: substep rate only: keep every substep's ``p_contact`` and truth,
+      truth: ground-truth source, one of :data:`TRUTH_SOURCES`
+      (:mod:`jax_contact.envs.contact_truth`). truth_threshold: normal force above which a foot is
+      in contact, N. record_substeps: substep rate only: keep every substep's ``p_contact`` and
+      truth,
         (n_substeps, n_legs), in ``info[info_key + "_substeps"]``.
       include_passive: the estimator's ``h`` includes the joint springs and dampers.
       logit_clip: bound of the observed logit.

@@ -5,7 +5,7 @@ robot description and feet, parameters, sensor model, terrain, truth reader, con
 the pure functions of one env's estimator: ``init``, ``restart`` (after an auto-reset),
 ``update`` (one estimator step from the true state after a physics step), ``features``
 and the observation placement. :func:`make_core` builds it from an env and a
-:class:`envs.contact_config.ContactObsConfig`.
+:class:`jax_contact.envs.contact_config.ContactObsConfig`.
 """
 
 from __future__ import annotations
@@ -21,10 +21,10 @@ from brax.envs import base as brax_base
 from flax import struct
 
 import jax_contact as jc
-from envs import contact_params, contact_truth, feet, sensors
-from envs.contact_config import TERM_NAMES, ContactObsConfig, validate_config
-from envs.robots import Robot
 from jax_contact import adapter
+from jax_contact.envs import contact_params, contact_truth, feet, sensors
+from jax_contact.envs.contact_config import TERM_NAMES, ContactObsConfig, validate_config
+from jax_contact.envs.robots import Robot
 from jax_contact.robot import RobotDescription
 
 
@@ -61,12 +61,12 @@ class Core:
     Attributes:
       mjx_model: the nominal MJX model (a Brax ``System`` for Brax envs): the estimator's
         model, whatever domain randomisation does to the simulated one.
-      desc: the robot description (feet as :mod:`envs.feet` resolves them).
+      desc: the robot description (feet as :mod:`jax_contact.envs.feet` resolves them).
       feet: the resolved feet (kind, body, contact point, radius, geoms).
       params, sensor, terrain, cfg: the estimator's parameters, sensor model, terrain and
         the wrapper's config.
       truth: ``data -> (n_legs,) bool`` ground truth, or None.
-      truth_source: which :mod:`envs.contact_truth` source ``truth`` reads.
+      truth_source: which :mod:`jax_contact.envs.contact_truth` source ``truth`` reads.
       rate: ``"substep"`` or ``"control"``.
     """
 
@@ -273,7 +273,8 @@ def make_core(env, cfg: ContactObsConfig) -> Core:
     if cfg.observe == "truth" and truth is None:
         raise ValueError(
             f"config.observe='truth' needs ground-truth contact, but config.truth={cfg.truth!r}"
-            " finds none for every foot: add sensors (envs.ground_truth.with_contact_sensors)"
+            " finds none for every foot: add sensors"
+            " (jax_contact.envs.ground_truth.with_contact_sensors)"
         )
     return Core(
         mjx_model=mjx_model,

@@ -12,9 +12,9 @@ import mujoco
 import numpy as np
 
 import jax_contact as jc
-from envs import sensors
-from envs.feet import _home_data, foot_points_np
-from envs.robots import Robot
+from jax_contact.envs import sensors
+from jax_contact.envs.feet import _home_data, foot_points_np
+from jax_contact.envs.robots import Robot
 from jax_contact.robot import RobotDescription
 
 # The sensor presets' latency is one step at the paper's 400 Hz (2.5 ms); at other rates
@@ -38,8 +38,8 @@ def _desc_of(robot_or_desc) -> RobotDescription:
     if isinstance(robot_or_desc, RobotDescription):
         return robot_or_desc
     raise ValueError(
-        "robot_or_desc must be an envs.robots.Robot or a jax_contact.robot.RobotDescription,"
-        f" got {type(robot_or_desc).__name__}"
+        "robot_or_desc must be a jax_contact.envs.robots.Robot or a"
+        f" jax_contact.robot.RobotDescription, got {type(robot_or_desc).__name__}"
     )
 
 
@@ -74,12 +74,13 @@ def default_sensor_params(
 ) -> sensors.SensorParams:
     """The sensor model of a robot at estimator period ``dt``.
 
-    A preset name is built with :func:`envs.sensors.sensor_preset` for the robot's
+    A preset name is built with :func:`jax_contact.envs.sensors.sensor_preset` for the robot's
     coordinates (floating base or not; the base dofs of the description otherwise). The
     presets' latency is one step at 400 Hz (2.5 ms); it is kept in seconds here, as
     ``round(latency * 2.5 ms / dt)`` steps, so that the control-rate mode (20 ms steps)
-    does not turn a 2.5 ms delay into 20 ms (a choice). A :class:`~envs.sensors.SensorParams`
-    is returned as given, after checking its size and period.
+    does not turn a 2.5 ms delay into 20 ms (a choice). A
+    :class:`~jax_contact.envs.sensors.SensorParams` is returned as given, after checking its size
+    and period.
 
     Raises:
       ValueError: an unknown preset (the message lists them), a ``SensorParams`` of the
@@ -132,13 +133,13 @@ def default_estimator_params(
     model, and ``sigma_qdd_model``, an acceleration model error for the control rate, where
     ``qacc`` is the mean over a control period but the dynamics term predicts the
     instantaneous acceleration, combined in quadrature with the sensor-derived
-    ``sigma_qdd``. Default 0: measured with :func:`train.rates.compare_rates` (16 rollouts, 20 ms
-    control period, ``pairing="raw"``), 1000 rad/s^2 raised the control-rate accuracy of
-    the hopping planar leg (stiff servos) from 0.858 to 0.905 but lowered the stepping
+    ``sigma_qdd``. Default 0: measured with :func:`jax_contact.train.rates.compare_rates` (16
+    rollouts, 20 ms control period, ``pairing="raw"``), 1000 rad/s^2 raised the control-rate
+    accuracy of the hopping planar leg (stiff servos) from 0.858 to 0.905 but lowered the stepping
     Go1's from 0.882 to 0.824.
 
     Args:
-      robot_or_desc: an :class:`envs.robots.Robot` or a ``RobotDescription``.
+      robot_or_desc: an :class:`jax_contact.envs.robots.Robot` or a ``RobotDescription``.
       dt: estimator period, s (physics step in the substep mode, control period else).
       sensor_params: the sensor model (its ``dt`` must be ``dt``).
       sigma_qdd_model: see above, rad/s^2.
@@ -155,8 +156,8 @@ def default_estimator_params(
         raise ValueError(f"dt must be a finite float > 0, got {dt!r}")
     if not isinstance(sensor_params, sensors.SensorParams):
         raise ValueError(
-            f"sensor_params must be envs.sensors.SensorParams, got {type(sensor_params).__name__}"
-            " (default_sensor_params builds one from a preset name)"
+            "sensor_params must be jax_contact.envs.sensors.SensorParams, got"
+            f" {type(sensor_params).__name__} (default_sensor_params builds one from a preset name)"
         )
     if sensor_params.nv != desc.nv:
         raise ValueError(f"sensor_params has nv={sensor_params.nv}, the robot nv={desc.nv}")

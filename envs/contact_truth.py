@@ -1,10 +1,10 @@
 """Ground-truth foot contact for the wrapper's metrics and its ``observe="truth"`` mode.
 
 Sources (``ContactObsConfig.truth``), each a function ``mjx.Data -> (n_legs,) bool``; a
-foot is in contact if any of its geoms (:mod:`envs.feet`) is:
+foot is in contact if any of its geoms (:mod:`jax_contact.envs.feet`) is:
 
 - ``"force_sensors"``: the contact force sensors of
-  :func:`envs.ground_truth.with_contact_sensors` (normal force > ``truth_threshold``);
+  :func:`jax_contact.envs.ground_truth.with_contact_sensors` (normal force > ``truth_threshold``);
 - ``"found_sensors"``: the model's own contact sensors with ``data="found"`` between a
   foot geom (or the foot's body) and the floor: Playground's ``<foot>_floor_found``
   (Go1, Spot, Berkeley Humanoid's ``l_foot1_floor_found``...);
@@ -29,8 +29,8 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
-from envs import ground_truth
-from envs.robots import Robot
+from jax_contact.envs import ground_truth
+from jax_contact.envs.robots import Robot
 
 _SENS = mujoco.mjtSensor
 _OBJ = mujoco.mjtObj
@@ -116,7 +116,7 @@ def truth_reader(m: mujoco.MjModel, desc, feet, source: str, threshold: float):
             if source == "force_sensors":
                 raise ValueError(
                     "config.truth='force_sensors': the model lacks the sensors of"
-                    " envs.ground_truth.with_contact_sensors for every foot"
+                    " jax_contact.envs.ground_truth.with_contact_sensors for every foot"
                 ) from None
         else:
             return (lambda d: ground_truth.foot_truth(layout, d).contact), "force_sensors"

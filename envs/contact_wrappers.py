@@ -2,7 +2,8 @@
 
 Both wrappers share :class:`_ContactMixin` (reset, step, observation size, metrics) and
 differ only in the ``State`` field that holds the MJX data and in how the physics-rate
-loop is reached (:mod:`envs.substeps`). See :mod:`envs.wrapper` for what they do.
+loop is reached (:mod:`jax_contact.envs.substeps`). See :mod:`jax_contact.envs.wrapper` for what
+they do.
 """
 
 from __future__ import annotations
@@ -17,9 +18,9 @@ from mujoco_playground._src import mjx_env as pg_env
 from mujoco_playground._src import wrapper as pg_wrapper
 
 import jax_contact as jc
-from envs import contact_core, sensors, substeps
-from envs.contact_config import ContactObsConfig
-from envs.contact_core import ContactEstState, Core
+from jax_contact.envs import contact_core, sensors, substeps
+from jax_contact.envs.contact_config import ContactObsConfig
+from jax_contact.envs.contact_core import ContactEstState, Core
 
 # Tag folded into the reset key, so the wrapper's stream is its own and the wrapped env
 # gets the caller's key untouched (wrapped and unwrapped envs simulate the same episode).

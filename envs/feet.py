@@ -17,7 +17,7 @@ compares ``p_f,z - r`` with the terrain) fixed to a body. A foot can be named as
 With no names, the feet are the floor-touching sphere geoms on legs, grouped by body; if
 there is no such sphere, every floor-touching geom on a leg, grouped by body (Berkeley
 Humanoid's boxes ``l_foot1``, ``r_foot1``; G1; Apollo). The geoms of a foot are what the
-ground truth reads (:mod:`envs.contact_truth`).
+ground truth reads (:mod:`jax_contact.envs.contact_truth`).
 
 What a point contact means for a flat foot: eq. (6) and the dynamics term model the foot
 as a point that transmits a force and no moment. A sole in full contact also transmits a

@@ -53,7 +53,7 @@ import numpy as np
 from flax import struct
 from mujoco import mjx
 
-from envs.robots import Robot
+from jax_contact.envs.robots import Robot
 
 KINDS = ("trot", "walk", "hop")
 GRAVITY = 9.81
@@ -577,7 +577,7 @@ def make_gait_robot(
     """Reads the kinematic chains, standing pose and actuators of ``robot``.
 
     Args:
-      robot: from :func:`envs.robots.load_robot`.
+      robot: from :func:`jax_contact.envs.robots.load_robot`.
       settings: the gait settings (default: :func:`gait_settings` of ``robot``), resolved
         by :func:`resolve_gait_settings`; the keywords below override single fields.
       kp, kd: joint PD gains, N m/rad, N m s/rad.

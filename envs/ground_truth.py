@@ -37,7 +37,7 @@ import numpy as np
 from flax import struct
 from mujoco import mjx
 
-from envs.robots import Robot
+from jax_contact.envs.robots import Robot
 from jax_contact.robot import derive_description
 
 SENSOR_PREFIX = "gt_contact"
@@ -66,13 +66,13 @@ def with_contact_sensors(robot: Robot) -> Robot:
 
     The copy is compiled from ``robot.spec``: edits made to ``robot.mj_model`` after
     compiling are lost, except ``opt`` (timestep, solver iterations, ...), which is copied
-    over. Apply :func:`envs.sensors.add_mass` and similar model edits after this call.
+    over. Apply :func:`jax_contact.envs.sensors.add_mass` and similar model edits after this call.
 
     Args:
-      robot: a robot from :func:`envs.robots.load_robot` (or ``with_terrain``).
+      robot: a robot from :func:`jax_contact.envs.robots.load_robot` (or ``with_terrain``).
 
     Returns:
-      A new :class:`envs.robots.Robot`.
+      A new :class:`jax_contact.envs.robots.Robot`.
     """
     desc = robot.description
     m = robot.mj_model

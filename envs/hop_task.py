@@ -7,15 +7,15 @@ while it is on the ground: a knee extension in flight only moves the leg, one in
 pushes the base up, so the thrust is well timed only by a policy that knows (or infers)
 when the foot touches down and lifts off.
 
-:class:`HopEnv` is a :class:`envs.legged_env.LeggedPipelineEnv` (the planar leg with its
+:class:`HopEnv` is a :class:`jax_contact.envs.legged_env.LeggedPipelineEnv` (the planar leg with its
 ground-truth contact sensors, position servos, ``n_frames`` physics steps per env step)
 with:
 
 - observation: the leg env's own (hip, knee angles; rail, hip, knee velocities) and the
   command as ``h_cmd - 0.6`` m. The base height is *not* observed (a robot does not
   measure its height above the ground), so contact cannot be read off the kinematics;
-  :func:`make_hop_env` wraps it with :func:`envs.wrapper.wrap_contact`, which appends one
-  number for ``observe="truth"`` or ``"estimate"`` and nothing for ``"none"``;
+  :func:`make_hop_env` wraps it with :func:`jax_contact.envs.wrapper.wrap_contact`, which appends
+  one number for ``observe="truth"`` or ``"estimate"`` and nothing for ``"none"``;
 - action in [-1, 1]^2: joint targets ``home + action_scale * action`` (clipped);
 - reward per step: ``exp(-((h_pred - h_cmd) / sigma)^2)`` with the ballistic apex of the
   current state ``h_pred = z + max(vz, 0)^2 / (2 g)`` (:func:`hop_reward`): constant and
@@ -37,7 +37,7 @@ import jax.numpy as jnp
 import numpy as np
 from brax.envs import base as brax_base
 
-from envs.legged_env import LeggedPipelineEnv
+from jax_contact.envs.legged_env import LeggedPipelineEnv
 
 GRAVITY = 9.81
 CMD_OFFSET = 0.6  # m, subtracted from h_cmd in the observation
@@ -57,7 +57,7 @@ class HopConfig:
       sigma: width of the tracking reward, m.
       min_base_height: done below this base height, m.
       episode_length: env steps per episode (3 s at 10 ms: several hops).
-      sensor: sensor preset of the estimator's inputs (:data:`envs.sensors.PRESETS`).
+      sensor: sensor preset of the estimator's inputs (:data:`jax_contact.envs.sensors.PRESETS`).
     """
 
     n_frames: int = 4
@@ -82,8 +82,8 @@ def hop_reward(z, vz, h_cmd, sigma):
 
 def hop_robot():
     """The planar leg with its ground-truth contact sensors."""
-    from envs import ground_truth
-    from envs.robots import load_robot
+    from jax_contact.envs import ground_truth
+    from jax_contact.envs.robots import load_robot
 
     return ground_truth.with_contact_sensors(load_robot("planar_leg"))
 
@@ -154,10 +154,10 @@ def make_hop_env(
       observe: ``"none"``, ``"truth"`` or ``"estimate"``.
       config: the task.
       sensor: the estimator's sensor model (a preset name or an
-        :class:`envs.sensors.SensorParams`); None: ``config.sensor``.
+        :class:`jax_contact.envs.sensors.SensorParams`); None: ``config.sensor``.
       robot: the robot (default :func:`hop_robot`), to build several envs from one model.
     """
-    from envs import wrapper as W
+    from jax_contact.envs import wrapper as W
 
     cfg = W.ContactObsConfig(observe=observe, info_key=INFO_KEY)
     return W.wrap_contact(HopEnv(config, robot), cfg, sensor=sensor or config.sensor)
@@ -166,7 +166,7 @@ def make_hop_env(
 def sensor_with_extra_latency(robot, preset: str, extra_steps: int, config: HopConfig = HOP):
     """The preset's sensor model with ``extra_steps`` env steps (``n_frames`` physics steps
     each) of additional reading delay, at the physics period."""
-    from envs.contact_params import default_sensor_params
+    from jax_contact.envs.contact_params import default_sensor_params
 
     dt = float(robot.mj_model.opt.timestep)
     p = default_sensor_params(preset, robot, dt)

@@ -11,12 +11,13 @@ import numpy as np
 from brax.envs import base as brax_base
 from brax.io import mjcf as brax_mjcf
 
-from envs.contact_params import floating_base
-from envs.robots import Robot
+from jax_contact.envs.contact_params import floating_base
+from jax_contact.envs.robots import Robot
 
 
 class LeggedPipelineEnv(brax_base.PipelineEnv):
-    """A minimal Brax ``PipelineEnv`` over a :class:`envs.robots.Robot`: actions are ``ctrl``.
+    """A minimal Brax ``PipelineEnv`` over a :class:`jax_contact.envs.robots.Robot`: actions are
+    ``ctrl``.
 
     The project's own kind of environment for the wrapper's substep rate, its tests and
     :func:`compare_rates`: it starts at the robot's home pose at rest, observes the true
@@ -25,7 +26,7 @@ class LeggedPipelineEnv(brax_base.PipelineEnv):
 
     Args:
       robot: the robot (add ground-truth sensors with
-        :func:`envs.ground_truth.with_contact_sensors` first to get truth).
+        :func:`jax_contact.envs.ground_truth.with_contact_sensors` first to get truth).
       n_frames: physics steps per env step.
       position_servo: (kp N m/rad, kv N m s/rad): turn every joint actuator into a position
         servo with these gains, keeping its force limits (the planar leg's torque motors),

@@ -50,7 +50,7 @@ import numpy as np
 from jax_contact.robot import RobotDescription, derive_description
 
 if TYPE_CHECKING:
-    from envs.gaits import GaitSettings
+    from jax_contact.envs.gaits import GaitSettings
 
 ASSETS_DIR = Path(__file__).resolve().parent / "assets"
 PLANAR_LEG_XML = ASSETS_DIR / "planar_leg.xml"
@@ -107,8 +107,8 @@ class Robot:
       spec: the ``mujoco.MjSpec`` that ``mj_model`` was compiled from; treat as read-only
         (``with_terrain`` edits a copy).
       terrain: the height-field floor added by :func:`with_terrain`, or None.
-      gait: the robot's :class:`envs.gaits.GaitSettings` (standing pose, base height,
-        gains, speeds), or None for :data:`envs.gaits.GAIT_SETTINGS` of its name (else
+      gait: the robot's :class:`jax_contact.envs.gaits.GaitSettings` (standing pose, base height,
+        gains, speeds), or None for :data:`jax_contact.envs.gaits.GAIT_SETTINGS` of its name (else
         every setting derived from the model). Set it with ``load_robot(..., gait=...)``
         or ``dataclasses.replace(robot, gait=...)``.
     """
@@ -122,9 +122,9 @@ class Robot:
 
     @functools.cached_property
     def gait_settings(self) -> GaitSettings:
-        """The resolved gait settings (:func:`envs.gaits.resolve_gait_settings`): every
+        """The resolved gait settings (:func:`jax_contact.envs.gaits.resolve_gait_settings`): every
         field set, computed once per robot."""
-        from envs.gaits import resolve_gait_settings
+        from jax_contact.envs.gaits import resolve_gait_settings
 
         return resolve_gait_settings(self, self.gait)
 
@@ -132,7 +132,7 @@ class Robot:
     def home_qpos(self) -> np.ndarray:
         """(nq,) standing configuration: the gait settings' ``home_qpos`` or ``home_key``,
         else the keyframe named ``home`` or ``standing``, else the first keyframe, else a
-        standing pose found by a short settle (:class:`envs.gaits.GaitSettings`)."""
+        standing pose found by a short settle (:class:`jax_contact.envs.gaits.GaitSettings`)."""
         return np.array(self.gait_settings.home_qpos)
 
 
@@ -331,8 +331,8 @@ def load_robot(
       name: one of :data:`ROBOT_NAMES`, or a path to an MJCF file (with its floor).
       foot_names: passed to :func:`jax_contact.robot.derive_description`; None finds the
         feet (the distal sphere geom of each joint chain that can touch the floor).
-      gait: the robot's gait settings (:class:`envs.gaits.GaitSettings`); None takes
-        :data:`envs.gaits.GAIT_SETTINGS` of the name, else derives them from the model
+      gait: the robot's gait settings (:class:`jax_contact.envs.gaits.GaitSettings`); None takes
+        :data:`jax_contact.envs.gaits.GAIT_SETTINGS` of the name, else derives them from the model
         when first needed.
 
     Returns:
@@ -368,7 +368,9 @@ def load_robot(
     if source is not None:
         check_mjx_collisions(mj_model, source)
     if gait is not None and type(gait).__name__ != "GaitSettings":
-        raise ValueError(f"gait must be an envs.gaits.GaitSettings, got {type(gait).__name__}")
+        raise ValueError(
+            f"gait must be a jax_contact.envs.gaits.GaitSettings, got {type(gait).__name__}"
+        )
     return Robot(
         name=name,
         mj_model=mj_model,

@@ -5,8 +5,8 @@ time, in chunks so progress can be shown) and returns time x env x leg arrays of
 readings and ground truth. The physics runs at the estimator's rate (``dt``, 400 Hz by
 default, as on ANYmal), so every physics step yields one reading.
 
-Timing convention (the same in the wrapper, :mod:`envs.wrapper`, and in the offline
-replay, :func:`train.evaluate.replay`): reading ``k`` is what the sensors give *after*
+Timing convention (the same in the wrapper, :mod:`jax_contact.envs.wrapper`, and in the offline
+replay, :func:`jax_contact.train.evaluate.replay`): reading ``k`` is what the sensors give *after*
 physics step ``k``, as on a robot at the end of a control period: the state at the end of
 the step ``(qpos_{k+1}, qvel_{k+1})``, the acceleration over the step (the backward
 difference ``(qvel_{k+1} - qvel_k) / dt``) and the actuation force applied during it
@@ -37,10 +37,10 @@ import numpy as np
 from flax import struct
 from mujoco import mjx
 
-from envs.gaits import GaitParams, gait_control, make_gait, make_gait_robot
-from envs.ground_truth import foot_truth, make_truth_layout, with_contact_sensors
-from envs.robots import Robot, load_robot, with_terrain
-from envs.sensors import SensorParams, add_mass, sensor_init, sensor_preset, sensor_step
+from jax_contact.envs.gaits import GaitParams, gait_control, make_gait, make_gait_robot
+from jax_contact.envs.ground_truth import foot_truth, make_truth_layout, with_contact_sensors
+from jax_contact.envs.robots import Robot, load_robot, with_terrain
+from jax_contact.envs.sensors import SensorParams, add_mass, sensor_init, sensor_preset, sensor_step
 
 TERRAINS = ("flat", "rough")
 UPRIGHT_MIN_Z_AXIS = 0.7  # base z-axis . world z, as in the gait survival benchmark
@@ -103,7 +103,7 @@ def build_world(
     """Loads a robot and builds the world it is simulated in.
 
     Args:
-      robot: a robot name for :func:`envs.robots.load_robot`, or a loaded robot.
+      robot: a robot name for :func:`jax_contact.envs.robots.load_robot`, or a loaded robot.
       terrain: ``"flat"`` or ``"rough"`` (a height field of std ``roughness``).
       roughness: height std of the rough floor, m.
       added_mass: (body name, kg) pairs added to the *simulated* robot only.
@@ -152,7 +152,7 @@ class Rollout:
     """Time x env (x leg) arrays of one batched simulation (NumPy).
 
     Attributes:
-      qpos, qvel, qacc, tau: (T, E, nq | nv) sensor readings (see ``envs.sensors``).
+      qpos, qvel, qacc, tau: (T, E, nq | nv) sensor readings (see ``jax_contact.envs.sensors``).
       contact: (T, E, L) bool ground-truth contact (normal force > threshold).
       force: (T, E, L) ground-truth normal force on each foot, N.
       distance: (T, E, L) sole-to-floor distance, m.

@@ -5,30 +5,32 @@
 probability of the estimator of Hwangbo et al. fed by simulated, noisy proprioception, not
 the simulator's ground truth. This module is the public face; the parts live in
 
-- :mod:`envs.contact_config`: :class:`ContactObsConfig`, the one object that holds every
+- :mod:`jax_contact.envs.contact_config`: :class:`ContactObsConfig`, the one object that holds every
   option (feet, sensor model, parameters, force axes, terrain, rate, truth, placement);
-- :mod:`envs.feet`: which point of each foot the estimator uses (sphere, box or mesh sole,
+- :mod:`jax_contact.envs.feet`: which point of each foot the estimator uses (sphere, box or mesh
+sole,
   site, body and offset, several geoms as one foot);
-- :mod:`envs.contact_params`: default sensor model, estimator parameters, force axes and
+- :mod:`jax_contact.envs.contact_params`: default sensor model, estimator parameters, force axes and
   terrain for a model;
-- :mod:`envs.contact_truth`: ground truth from the env's own sensors or its contacts;
-- :mod:`envs.contact_core`: the estimator's state (:class:`ContactEstState`) and update;
-- :mod:`envs.substeps`: how the physics-rate estimator reaches the substep loop;
-- :mod:`envs.contact_wrappers`: the Brax and Playground adapters and :func:`wrap_contact`;
-- :mod:`envs.legged_env`: :class:`LeggedPipelineEnv`, a minimal Brax env over a robot;
-- :mod:`train.rates`: ``compare_rates``, physics against control rate on one rollout.
+- :mod:`jax_contact.envs.contact_truth`: ground truth from the env's own sensors or its contacts;
+- :mod:`jax_contact.envs.contact_core`: the estimator's state (:class:`ContactEstState`) and update;
+- :mod:`jax_contact.envs.substeps`: how the physics-rate estimator reaches the substep loop;
+- :mod:`jax_contact.envs.contact_wrappers`: the Brax and Playground adapters and
+:func:`wrap_contact`;
+- :mod:`jax_contact.envs.legged_env`: :class:`LeggedPipelineEnv`, a minimal Brax env over a robot;
+- :mod:`jax_contact.train.rates`: ``compare_rates``, physics against control rate on one rollout.
 
 Per estimator update (truth never reaches the observation): the true ``qpos``, ``qvel``,
-``qfrc_actuator`` after a physics step go through the sensor model (:mod:`envs.sensors`);
-the model is evaluated at the *measured* state on the *nominal* model the env had when it
-was wrapped (domain randomisation changes the simulated robot, never the estimator's
-model), by default (``pairing="delayed"``) at the state read at the previous update with
+``qfrc_actuator`` after a physics step go through the sensor model
+(:mod:`jax_contact.envs.sensors`); the model is evaluated at the *measured* state on the *nominal*
+model the env had when it was wrapped (domain randomisation changes the simulated robot, never the
+estimator's model), by default (``pairing="delayed"``) at the state read at the previous update with
 the torque read now; :func:`jax_contact.step_robot` updates each foot's belief.
 
 Rates (``ContactObsConfig.rate``, the wrapped env's ``contact_rate`` says which runs):
 ``"substep"`` (the default, also via ``"auto"``): an update after every physics step, for
 Playground and Brax envs alike, by hooking the substep loop for the duration of the
-wrapped ``step`` (:mod:`envs.substeps`); ``"control"``: one update per env step with
+wrapped ``step`` (:mod:`jax_contact.envs.substeps`); ``"control"``: one update per env step with
 ``dt = env.dt``, coarser (the measured ``qacc`` is a mean over the control period).
 
 State, all in ``state.info`` (the env's own keys, ``info["rng"]`` included, are never
@@ -58,7 +60,7 @@ the same layout with the ground truth, ``observe="none"`` adds nothing.
 
 from __future__ import annotations
 
-from envs.contact_config import (
+from jax_contact.envs.contact_config import (
     OBSERVE,
     PAIRINGS,
     RATES,
@@ -67,23 +69,27 @@ from envs.contact_config import (
     ContactObsConfig,
     validate_config,
 )
-from envs.contact_core import ContactEstState, Core, make_core, model_of
-from envs.contact_params import (
+from jax_contact.envs.contact_core import ContactEstState, Core, make_core, model_of
+from jax_contact.envs.contact_params import (
     choose_force_rows,
     default_estimator_params,
     default_sensor_params,
     default_terrain,
     floating_base,
 )
-from envs.contact_wrappers import BraxContactWrapper, PlaygroundContactWrapper, wrap_contact
-from envs.feet import FootSpec
-from envs.legged_env import LeggedPipelineEnv
+from jax_contact.envs.contact_wrappers import (
+    BraxContactWrapper,
+    PlaygroundContactWrapper,
+    wrap_contact,
+)
+from jax_contact.envs.feet import FootSpec
+from jax_contact.envs.legged_env import LeggedPipelineEnv
 
 
 def __getattr__(name):
-    # compare_rates moved to train.rates (train sits above envs); kept importable here.
+    # compare_rates moved to jax_contact.train.rates (train sits above envs); kept importable here.
     if name in ("compare_rates", "RateComparison"):
-        from train import rates
+        from jax_contact.train import rates
 
         return getattr(rates, name)
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -1,61 +1,133 @@
 """jax-contact: probabilistic foot contact estimation (Hwangbo et al., IROS 2016) in pure JAX.
 
-The public API is listed in ``__all__``; everything else is private.
+The public API is listed in ``__all__``; everything else is private. Names load on first use
+(PEP 562 ``__getattr__``): ``import jax_contact`` itself imports neither JAX nor NumPy, so the
+command line (``jax_contact.train.cli``) checks its arguments before the seconds that JAX takes
+to import, and ``jax_contact.deploy`` loads only what it uses.
 """
 
-from jax_contact import deploy, export  # the exported estimator: export it, run it (no mujoco)
-from jax_contact.defaults import GaitPrior, params_for
-from jax_contact.filter import (
-    init_belief,
-    init_belief_batch,
-    run,
-    sequence_bce,
-    step,
-    step_batch,
-    step_robot,
-)
-from jax_contact.io import load_params, preset_names, save_params
-from jax_contact.measurement import (
-    MeasurementTerms,
-    diff_kinematics_llr,
-    dynamics_llr,
-    kinematics_llr,
-    leg_blocks,
-    measurement_terms,
-    robot_leg_blocks,
-)
-from jax_contact.params import (
-    EstimatorParams,
-    NoiseParams,
-    make_noise,
-    make_params,
-    validate_params,
-)
-from jax_contact.terrain import (
-    FlatTerrain,
-    FootholdMemory,
-    HeightFieldTerrain,
-    flat,
-    foothold_memory,
-    height_field,
-)
-from jax_contact.transition import (
-    log_takeoff,
-    log_touchdown,
-    log_touchdown_monte_carlo,
-    log_touchdown_quadrature,
-    log_transition_matrix,
-)
-from jax_contact.types import (
-    Diagnostics,
-    LegBelief,
-    LegBlocks,
-    LegMeasurement,
-    RobotMeasurement,
-    TerrainQuery,
-    validate_measurement,
-    validate_robot_measurement,
-)
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING
+
+# public name -> the submodule that defines it (None: the name is a submodule)
+_LAZY = {
+    "deploy": None,
+    "export": None,
+    "GaitPrior": "defaults",
+    "params_for": "defaults",
+    "init_belief": "filter",
+    "init_belief_batch": "filter",
+    "run": "filter",
+    "sequence_bce": "filter",
+    "step": "filter",
+    "step_batch": "filter",
+    "step_robot": "filter",
+    "load_params": "io",
+    "preset_names": "io",
+    "save_params": "io",
+    "MeasurementTerms": "measurement",
+    "diff_kinematics_llr": "measurement",
+    "dynamics_llr": "measurement",
+    "kinematics_llr": "measurement",
+    "leg_blocks": "measurement",
+    "measurement_terms": "measurement",
+    "robot_leg_blocks": "measurement",
+    "EstimatorParams": "params",
+    "NoiseParams": "params",
+    "make_noise": "params",
+    "make_params": "params",
+    "validate_params": "params",
+    "FlatTerrain": "terrain",
+    "FootholdMemory": "terrain",
+    "HeightFieldTerrain": "terrain",
+    "flat": "terrain",
+    "foothold_memory": "terrain",
+    "height_field": "terrain",
+    "log_takeoff": "transition",
+    "log_touchdown": "transition",
+    "log_touchdown_monte_carlo": "transition",
+    "log_touchdown_quadrature": "transition",
+    "log_transition_matrix": "transition",
+    "Diagnostics": "types",
+    "LegBelief": "types",
+    "LegBlocks": "types",
+    "LegMeasurement": "types",
+    "RobotMeasurement": "types",
+    "TerrainQuery": "types",
+    "validate_measurement": "types",
+    "validate_robot_measurement": "types",
+}
+
+if TYPE_CHECKING:  # the same names, eagerly, for type checkers and IDEs
+    from jax_contact import deploy, export
+    from jax_contact.defaults import GaitPrior, params_for
+    from jax_contact.filter import (
+        init_belief,
+        init_belief_batch,
+        run,
+        sequence_bce,
+        step,
+        step_batch,
+        step_robot,
+    )
+    from jax_contact.io import load_params, preset_names, save_params
+    from jax_contact.measurement import (
+        MeasurementTerms,
+        diff_kinematics_llr,
+        dynamics_llr,
+        kinematics_llr,
+        leg_blocks,
+        measurement_terms,
+        robot_leg_blocks,
+    )
+    from jax_contact.params import (
+        EstimatorParams,
+        NoiseParams,
+        make_noise,
+        make_params,
+        validate_params,
+    )
+    from jax_contact.terrain import (
+        FlatTerrain,
+        FootholdMemory,
+        HeightFieldTerrain,
+        flat,
+        foothold_memory,
+        height_field,
+    )
+    from jax_contact.transition import (
+        log_takeoff,
+        log_touchdown,
+        log_touchdown_monte_carlo,
+        log_touchdown_quadrature,
+        log_transition_matrix,
+    )
+    from jax_contact.types import (
+        Diagnostics,
+        LegBelief,
+        LegBlocks,
+        LegMeasurement,
+        RobotMeasurement,
+        TerrainQuery,
+        validate_measurement,
+        validate_robot_measurement,
+    )
+
+
+def __getattr__(name: str):
+    if name not in _LAZY:
+        raise AttributeError(f"module 'jax_contact' has no attribute {name!r}")
+    module = importlib.import_module(f"jax_contact.{_LAZY[name] or name}")
+    value = module if _LAZY[name] is None else getattr(module, name)
+    globals()[name] = value  # later lookups skip __getattr__
+    return value
+
+
+def __dir__():
+    return sorted(set(globals()) | set(_LAZY))
+
 
 __all__ = [
     "Diagnostics",

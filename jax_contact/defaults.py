@@ -6,7 +6,7 @@ Its rules (choices, documented in docs/model_choices.md):
 
 Noise, per generalised coordinate, from the sensor model (``sensors``: any object with the
 (nv,) fields ``sigma_q, sigma_qd, sigma_tau, sigma_acc, bias_rw_q, bias_rw_qd,
-outlier_size`` and the scalar ``outlier_prob``, e.g. ``envs.sensors.SensorParams``):
+outlier_size`` and the scalar ``outlier_prob``, e.g. ``jax_contact.envs.sensors.SensorParams``):
 
 - ``sigma_q``, ``sigma_qd``: white noise combined in quadrature with the spread the bias
   random walk reaches in ``bias_horizon_s`` (``rw * sqrt(T)``), floored at 1 mm (mrad) and
@@ -82,8 +82,8 @@ def _sensor_fields(sensors, nv: int) -> dict[str, np.ndarray]:
     for name in _SENSOR_VECTORS + ("outlier_prob",):
         if not hasattr(sensors, name):
             raise ValueError(
-                f"sensors has no field {name!r}: pass an envs.sensors.SensorParams or an"
-                f" object with the fields {_SENSOR_VECTORS + ('outlier_prob',)}"
+                f"sensors has no field {name!r}: pass a jax_contact.envs.sensors.SensorParams or"
+                f" an object with the fields {_SENSOR_VECTORS + ('outlier_prob',)}"
             )
         arr = np.asarray(getattr(sensors, name), dtype=np.float64)
         want = () if name == "outlier_prob" else (nv,)
@@ -118,7 +118,7 @@ def params_for(
       disturbance: ``w_d``, the model error of the joints' equation of motion, N m.
       bias_horizon_s: time over which the sensor bias drift is folded into the noise, s.
       force_rows: world axes of the contact force; default all three, which needs legs of
-        three or more joints (pass them for shorter legs, see ``envs.wrapper``).
+        three or more joints (pass them for shorter legs, see ``jax_contact.envs.wrapper``).
       **overrides: any argument of :func:`jax_contact.make_params` (caps, ``touchdown``,
         ...), applied last.
 

@@ -13,11 +13,12 @@ Two layers:
 The exported update takes **one reading per call**, as a control loop has it, and keeps
 what the pairing needs in its state. A reading ``k`` is what the sensors give after physics
 step ``k``: the state at its end (``qpos``, ``qvel``), the acceleration over it (``qacc``)
-and the torque applied during it (``tau``). The offline estimator (``train.evaluate.replay``)
-pairs ``qacc`` and ``tau`` of reading ``k`` with the state of reading ``k - 1``, the state
-the step started from (see its module docstring), so the state carries the previous
-reading's ``qpos`` and ``qvel``. The first call has no previous reading and uses its own
-state, as replay's :func:`~train.evaluate.delay_one_step` repeats the first reading.
+and the torque applied during it (``tau``). The offline estimator
+(``jax_contact.train.evaluate.replay``) pairs ``qacc`` and ``tau`` of reading ``k`` with the state
+of reading ``k - 1``, the state the step started from (see its module docstring), so the state
+carries the previous reading's ``qpos`` and ``qvel``. The first call has no previous reading and
+uses its own state, as replay's :func:`~jax_contact.train.evaluate.delay_one_step` repeats the
+first reading.
 
 File layout (``.contact``)::
 

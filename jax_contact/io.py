@@ -25,7 +25,7 @@ and root attributes ``robot``, ``gait``, ``noise``, ``terrain``, ``seed``, ``dt`
 of physics step ``k`` (the state after it, the acceleration over it, the torque applied
 during it), and the truth of ``k`` is the contact during that step (train/evaluate.py's
 module docstring); a log without the attribute is read that way, except one of an older
-``jax-contact simulate`` (``train.logs.reading_timing_of``). Readings are stored at the
+``jax-contact simulate`` (``jax_contact.train.logs.reading_timing_of``). Readings are stored at the
 estimator's rate; the estimator's inputs (mass matrix, Jacobians, ...) are recomputed from
 them and the robot model when the log is replayed, which keeps logs ~40x smaller.
 """

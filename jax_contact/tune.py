@@ -3,8 +3,8 @@
 The filter (eq. 1-3, 11-17) is differentiable end to end, so its noise model, caps and gait
 constants can be fitted to a few seconds of data with ground-truth contact instead of by
 hand. Everything here is arrays in, arrays out: the measurements of each log are
-precomputed once (``train.tune_cmd`` runs the MJX adapter over a log's readings), and the
-tuning loop only runs the estimator.
+precomputed once (``jax_contact.train.tune_cmd`` runs the MJX adapter over a log's readings), and
+the tuning loop only runs the estimator.
 
 What is tuned (a documented choice, :data:`DEFAULT_FIELDS`), through an unconstrained
 vector ``theta``:

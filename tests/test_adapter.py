@@ -18,8 +18,8 @@ import numpy as np
 import pytest
 from mujoco import mjx
 
-from envs.robots import load_robot
 from jax_contact.adapter import leg_measurements, prepare
+from jax_contact.envs.robots import load_robot
 from jax_contact.types import LegMeasurement
 
 N_STATES = 4

@@ -22,12 +22,13 @@ import numpy as np
 import pytest
 
 from jax_contact import io
-from train import cli
+from jax_contact.train import cli
 
 ROOT = Path(__file__).resolve().parents[1]
-# The installed entry point, as a user runs it (``python -m train.cli`` where it is missing).
+# The installed entry point, as a user runs it (``python -m jax_contact.train.cli`` where it is
+# missing).
 _ENTRY = Path(sys.executable).parent / "jax-contact"
-CLI = [str(_ENTRY)] if _ENTRY.exists() else [sys.executable, "-m", "train.cli"]
+CLI = [str(_ENTRY)] if _ENTRY.exists() else [sys.executable, "-m", "jax_contact.train.cli"]
 
 
 def _run(args, *, timeout=60, **kwargs):
@@ -41,7 +42,7 @@ def _run(args, *, timeout=60, **kwargs):
 
 def test_importing_the_cli_does_not_import_jax():
     code = (
-        "import sys, train.cli; heavy = [m for m in ('jax', 'jaxlib', 'mujoco', 'h5py',"
+        "import sys, jax_contact.train.cli; heavy = [m for m in ('jax', 'jaxlib', 'mujoco', 'h5py',"
         " 'numpy', 'brax') if m in sys.modules]; print(heavy)"
     )
     res, _ = _run([sys.executable, "-c", code])
@@ -98,15 +99,15 @@ def test_output_folder_check_creates_nothing(tmp_path):
 
 def test_static_lists_equal_the_librarys():
     """cli.py copies lists whose modules import JAX; the copies must not drift."""
-    from envs import gaits, robots, sensors, simulate
-    from train import ppo, rates
+    from jax_contact.envs import gaits, robots, sensors, simulate
+    from jax_contact.train import ppo, rates
 
     assert cli.ROBOT_NAMES == robots.ROBOT_NAMES
     assert cli.GAITS == gaits.KINDS
     assert cli.NOISES == sensors.PRESETS
     assert cli.TERRAINS == simulate.TERRAINS
     assert cli.VARIANTS == ppo.VARIANTS
-    from train import tasks
+    from jax_contact.train import tasks
 
     assert cli.TASKS == tasks.TASK_NAMES
     assert cli.SCENES == rates.SCENES
@@ -133,7 +134,8 @@ def test_help_shows_defaults_robot_names_and_every_command(capsys):
 
 def test_xla_log_lines_are_silenced_unless_the_user_set_a_level():
     code = (
-        "import os, train.cli as c; c._quiet_xla_logs(); print(os.environ['TF_CPP_MIN_LOG_LEVEL'])"
+        "import os, jax_contact.train.cli as c; c._quiet_xla_logs();"
+        " print(os.environ['TF_CPP_MIN_LOG_LEVEL'])"
     )
     env = {k: v for k, v in os.environ.items() if k != "TF_CPP_MIN_LOG_LEVEL"}
     res, _ = _run([sys.executable, "-c", code], env=env)
@@ -184,7 +186,7 @@ def test_ctrl_c_during_a_write_removes_the_temporary_file(tmp_path):
     follow), even when the writer is stuck in C code."""
     script = (
         "import os, signal, sys, time\n"
-        "from train import cli\n"
+        "from jax_contact.train import cli\n"
         "from jax_contact.io import write_atomic\n"
         "def write(tmp):\n"
         "    open(tmp, 'w').write('partial')\n"
@@ -219,7 +221,7 @@ def test_the_interrupt_handler_is_removed_afterwards():
 def test_timesteps_are_trained_as_asked():
     """Brax PPO rounds num_timesteps up to whole epochs: SMALL with 40,960 steps trained
     245,760 (6 epochs of one 40,960-step training step). fit_timesteps trains 40,960."""
-    from train import ppo
+    from jax_contact.train import ppo
 
     small = ppo.SMALL
     step = small.steps_per_training_step
@@ -237,7 +239,7 @@ def test_timesteps_are_trained_as_asked():
 
 @pytest.mark.parametrize("name", ["small", "full"])
 def test_fitted_timesteps_are_exact_or_the_next_training_step(name):
-    from train import ppo
+    from jax_contact.train import ppo
 
     base = ppo.CONFIGS[name]
     unit = base.steps_per_training_step * max(base.num_resets_per_eval, 1)
@@ -269,7 +271,7 @@ def test_brax_timesteps_mirrors_brax():
 
 
 def test_sharding_batch_is_rounded_to_the_devices():
-    from benchmarks import versus
+    from jax_contact.benchmarks import versus
 
     assert versus.shard_batch(4, 8) == 8
     assert versus.shard_batch(4096, 8) == 4096
@@ -281,7 +283,7 @@ def test_sharding_batch_is_rounded_to_the_devices():
 
 
 def test_a_failed_sharding_subprocess_shows_its_stderr():
-    from benchmarks import versus
+    from jax_contact.benchmarks import versus
 
     script = "import sys; sys.stderr.write('the real cause\\n'); sys.exit(3)"
     with pytest.raises(RuntimeError, match="(?s)exited with code 3.*the real cause"):
@@ -289,7 +291,7 @@ def test_a_failed_sharding_subprocess_shows_its_stderr():
 
 
 def test_bench_writes_what_finished_when_a_part_fails(tmp_path, monkeypatch):
-    from benchmarks import estimator, suite, versus
+    from jax_contact.benchmarks import estimator, suite, versus
 
     monkeypatch.setattr(estimator, "main", lambda argv: {"machine": "m", "throughput": [1]})
     monkeypatch.setattr(

@@ -2,7 +2,7 @@
 
 One short simulated Go1 log, one export and one offline replay per module (about a minute
 of compilation on 2 cores); the artefact is run in a fresh Python process where ``mujoco``
-cannot be imported, one reading per call, and compared with ``train.evaluate.replay`` on
+cannot be imported, one reading per call, and compared with ``jax_contact.train.evaluate.replay`` on
 the same readings.
 """
 
@@ -31,8 +31,8 @@ N_STEPS = 160  # 0.4 s at 400 Hz: a trot's touch-downs and lift-offs on every fo
 
 @pytest.fixture(scope="module")
 def deployed(tmp_path_factory):
-    from train.deploy_cmd import export_to_file
-    from train.logs import simulate_to_file
+    from jax_contact.train.deploy_cmd import export_to_file
+    from jax_contact.train.logs import simulate_to_file
 
     tmp = tmp_path_factory.mktemp("deploy")
     log = simulate_to_file(
@@ -50,9 +50,9 @@ def deployed(tmp_path_factory):
 @pytest.fixture(scope="module")
 def live(deployed):
     """P(contact) (T, L) of the offline estimator with the robot's default parameters."""
-    from envs.robots import load_robot
-    from train.evaluate import replay
-    from train.logs import default_estimator
+    from jax_contact.envs.robots import load_robot
+    from jax_contact.train.evaluate import replay
+    from jax_contact.train.logs import default_estimator
 
     robot = load_robot("go1")
     params, terrain = default_estimator(robot.description, 1.0 / 400.0)
@@ -140,7 +140,7 @@ def test_wrong_reading_names_the_field(child):
 
 
 def test_header_describes_inputs_and_parameters(deployed):
-    from envs.robots import load_robot
+    from jax_contact.envs.robots import load_robot
 
     h = deployed["header"]
     m = load_robot("go1").mj_model
@@ -159,7 +159,7 @@ def test_header_describes_inputs_and_parameters(deployed):
     assert h["pairing"]["delayed"] == ["qpos", "qvel"]
     # The stored parameters are the ones the offline estimator gets.
     from jax_contact.io import params_from_dict, params_to_dict
-    from train.logs import default_estimator
+    from jax_contact.train.logs import default_estimator
 
     params, _ = default_estimator(load_robot("go1").description, 0.0025)
     stored = params_from_dict(h["params"])
@@ -182,7 +182,7 @@ def test_corrupt_or_foreign_file_is_refused(deployed, tmp_path):
 
 
 def test_deploy_check_reports_latency_and_agreement(deployed, live, tmp_path):
-    from train.deploy_cmd import deploy_check
+    from jax_contact.train.deploy_cmd import deploy_check
 
     out = tmp_path / "check.json"
     res = deploy_check(deployed["artefact"], deployed["log"], json_path=out)
@@ -198,7 +198,7 @@ def test_deploy_check_reports_latency_and_agreement(deployed, live, tmp_path):
 def test_cli_arguments_are_checked_without_jax(tmp_path):
     import argparse
 
-    from train import deploy_cmd
+    from jax_contact.train import deploy_cmd
 
     parser = argparse.ArgumentParser()
     deploy_cmd.add_parsers(parser.add_subparsers(dest="command"))
@@ -223,7 +223,7 @@ def test_cli_arguments_are_checked_without_jax(tmp_path):
     )
     with pytest.raises(ValueError, match="--cpu"):
         args.check(args)
-    code = "import train.deploy_cmd, sys; print('jax' in sys.modules)"
+    code = "import jax_contact.train.deploy_cmd, sys; print('jax' in sys.modules)"
     proc = subprocess.run(
         [sys.executable, "-c", code],
         capture_output=True,

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from train.diagnostics import event_profiles, false_contact_terms, format_profiles
+from jax_contact.train.diagnostics import event_profiles, false_contact_terms, format_profiles
 
 
 def _out(p, dyn, dkin, kin, to, td):

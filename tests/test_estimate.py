@@ -21,10 +21,10 @@ import h5py
 import numpy as np
 import pytest
 
-from envs.robots import load_robot
+from jax_contact.envs.robots import load_robot
 from jax_contact.io import read_log
-from train import estimate_cmd
-from train.recording import (
+from jax_contact.train import estimate_cmd
+from jax_contact.train.recording import (
     Recording,
     log_to_columns,
     read_recording,
@@ -48,7 +48,7 @@ def _parser():
 
 @pytest.fixture(scope="module")
 def planar_log():
-    from train.logs import load_log
+    from jax_contact.train.logs import load_log
 
     return load_log(LOG)
 
@@ -56,8 +56,8 @@ def planar_log():
 @pytest.fixture(scope="module")
 def round_trip(planar_log, tmp_path_factory):
     """evaluate on the log, and estimate on its shuffled, renamed, degree recording."""
-    from train.logs import evaluate_file
-    from train.recording import estimate_recording
+    from jax_contact.train.logs import evaluate_file
+    from jax_contact.train.recording import estimate_recording
 
     tmp = tmp_path_factory.mktemp("estimate")
     evaluated = evaluate_file(LOG, gm_grid_log=LOG)
@@ -92,8 +92,8 @@ def test_round_trip_gives_evaluates_probabilities(round_trip):
 
 
 def test_evaluate_prints_every_metric_and_tunes_gm_on_a_grid_log(round_trip):
-    from train.logs import format_scores, tune_gm
-    from train.reproduce import GM_K_I, GM_THRESHOLDS
+    from jax_contact.train.logs import format_scores, tune_gm
+    from jax_contact.train.reproduce import GM_K_I, GM_THRESHOLDS
 
     ev = round_trip.evaluated
     best, gm, grid_scores = tune_gm(LOG)  # compiled already by evaluate's own tuning
@@ -114,7 +114,7 @@ def test_evaluate_prints_every_metric_and_tunes_gm_on_a_grid_log(round_trip):
 
 
 def test_logs_replay_with_the_feet_they_store(tmp_path):
-    from train.logs import load_log
+    from jax_contact.train.logs import load_log
 
     arrays, attrs = read_log(LOG)
     from jax_contact.io import write_log
@@ -329,8 +329,8 @@ def test_names_map_to_a_missing_joint_is_refused():
 
 def test_arguments_are_checked_without_jax(tmp_path):
     code = (
-        "import sys, train.estimate_cmd; print([m for m in ('jax', 'numpy', 'mujoco', 'h5py')"
-        " if m in sys.modules])"
+        "import sys, jax_contact.train.estimate_cmd;"
+        " print([m for m in ('jax', 'numpy', 'mujoco', 'h5py') if m in sys.modules])"
     )
     res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT)
     assert res.returncode == 0 and res.stdout.strip() == "[]", res.stderr
@@ -352,7 +352,7 @@ def test_arguments_are_checked_without_jax(tmp_path):
 
 
 def test_robot_flags_map_onto_gait_settings():
-    from envs.gaits import GaitSettings, gait_settings
+    from jax_contact.envs.gaits import GaitSettings, gait_settings
 
     p = argparse.ArgumentParser()
     estimate_cmd.add_feet_flag(p)
@@ -374,7 +374,7 @@ def test_robot_flags_map_onto_gait_settings():
 
 
 def test_the_commands_copies_equal_the_librarys():
-    from train import recording
+    from jax_contact.train import recording
 
     assert estimate_cmd.RECORDING_SUFFIXES == recording.SUFFIXES
     assert estimate_cmd.UNITS == recording.UNITS
@@ -382,7 +382,7 @@ def test_the_commands_copies_equal_the_librarys():
 
 def test_a_params_file_is_checked_against_the_robot_and_rate(tmp_path, capsys):
     import jax_contact as jc
-    from train.logs import _load_params_for, default_estimator
+    from jax_contact.train.logs import _load_params_for, default_estimator
 
     desc = load_robot("planar_leg").description
     params, _ = default_estimator(desc, 0.005)
@@ -396,8 +396,8 @@ def test_a_params_file_is_checked_against_the_robot_and_rate(tmp_path, capsys):
 
 
 def test_differentiated_coordinates_get_the_differences_noise(go1_log):
-    from train.logs import default_estimator
-    from train.recording import noise_for_differences
+    from jax_contact.train.logs import default_estimator
+    from jax_contact.train.recording import noise_for_differences
 
     cols = log_to_columns(go1_log, velocities=False, accelerations=False)
     for k in [c for c in cols if c.startswith("base_linvel/")]:

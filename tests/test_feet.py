@@ -16,9 +16,9 @@ import numpy as np
 import pytest
 from mujoco import mjx
 
-from envs import contact_truth, feet
-from envs import wrapper as W
-from envs.robots import Robot
+from jax_contact.envs import contact_truth, feet
+from jax_contact.envs import wrapper as W
+from jax_contact.envs.robots import Robot
 
 LEG = """
 <mujoco>

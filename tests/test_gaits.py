@@ -16,7 +16,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from envs.gaits import (
+from jax_contact.envs.gaits import (
     GAIT_SETTINGS,
     GaitSettings,
     gait_control,
@@ -28,8 +28,8 @@ from envs.gaits import (
     make_gait_robot,
     torque_to_ctrl,
 )
-from envs.ground_truth import make_truth_layout, with_contact_sensors
-from envs.robots import Robot, load_robot
+from jax_contact.envs.ground_truth import make_truth_layout, with_contact_sensors
+from jax_contact.envs.robots import Robot, load_robot
 from jax_contact.robot import derive_description
 
 ROBOTS = ("go1", "spot", "barkour", "planar_leg")

@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 from mujoco import mjx
 
-from envs.ground_truth import foot_truth, make_truth_layout, with_contact_sensors
-from envs.robots import load_robot
+from jax_contact.envs.ground_truth import foot_truth, make_truth_layout, with_contact_sensors
+from jax_contact.envs.robots import load_robot
 
 G = 9.81
 

@@ -13,8 +13,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from envs import hop_task as H
-from train import ppo, tasks, transfer
+from jax_contact.envs import hop_task as H
+from jax_contact.train import ppo, tasks, transfer
 
 N = 2
 
@@ -138,8 +138,7 @@ def test_step_reward_and_action_mapping(resets):
 def test_array_observation_checkpoint_round_trip(tmp_path):
     """Brax's training save writes an array observation's size as {"shape", "dtype"} (the hop
     task's 7 numbers); load_policy rebuilds the same policy from it."""
-    from brax.training.acme import specs
-    from brax.training.acme import running_statistics
+    from brax.training.acme import running_statistics, specs
     from brax.training.agents.ppo import checkpoint as ppo_checkpoint
 
     cfg = dataclasses.replace(tasks.HOP_REDUCED, policy_hidden=(8,), value_hidden=(8,))

@@ -14,7 +14,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from envs.robots import MENAGERIE_SCENES, load_robot
+from jax_contact.envs.robots import MENAGERIE_SCENES, load_robot
 
 NAME = "unitree_go2"  # a Menagerie name the loader knows; the model is the test's own
 

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 import jax_contact as jc
-from envs.robots import load_robot
-from envs.sensors import sensor_preset
+from jax_contact.envs.robots import load_robot
+from jax_contact.envs.sensors import sensor_preset
 
 DT = 0.0025
 
@@ -21,7 +21,7 @@ def go1():
 
 
 def test_params_for_derives_the_noise_from_the_sensors(go1):
-    """Hand derivation for Go1 with the anymal_like sensors at 400 Hz (envs.sensors):
+    """Hand derivation for Go1 with the anymal_like sensors at 400 Hz (jax_contact.envs.sensors):
     joints q 0.02 rad white, no drift -> 0.02; base linear q 0.01 m white with a 0.01
     m/sqrt(s) drift over 10 s -> sqrt(0.01^2 + 0.01^2 * 10) = 0.0332 m; joint qd 0.3 ->
     qdd sqrt(2) 0.3 / 0.0025 = 169.7 rad/s^2; base linear qdd is the accelerometer's 0.5
@@ -43,8 +43,8 @@ def test_params_for_derives_the_noise_from_the_sensors(go1):
 
 
 def test_wrapper_and_reproduction_use_the_same_parameters(go1):
-    from envs.wrapper import default_estimator_params
-    from train.reproduce import quadruped_estimator_params
+    from jax_contact.envs.wrapper import default_estimator_params
+    from jax_contact.train.reproduce import quadruped_estimator_params
 
     sp = sensor_preset("anymal_like", go1.nv, dt=DT)
     a = default_estimator_params(go1, DT, sp)

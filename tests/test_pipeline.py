@@ -13,11 +13,17 @@ import numpy as np
 import pytest
 
 import jax_contact as jc
-from envs.simulate import Rollout, build_world, simulate
+from jax_contact.envs.simulate import Rollout, build_world, simulate
 from jax_contact.io import read_log, write_json_atomic, write_log
-from train import cli
-from train.evaluate import delay_one_step, replay, score
-from train.reproduce import ABLATION_ROWS, ROWS, format_table, planar_estimator_params, table3_json
+from jax_contact.train import cli
+from jax_contact.train.evaluate import delay_one_step, replay, score
+from jax_contact.train.reproduce import (
+    ABLATION_ROWS,
+    ROWS,
+    format_table,
+    planar_estimator_params,
+    table3_json,
+)
 
 N_ENVS, DURATION = 2, 1.0
 

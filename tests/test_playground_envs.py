@@ -17,10 +17,10 @@ import numpy as np
 import pytest
 from mujoco_playground._src import locomotion
 
-from envs import playground_offline
-from envs import wrapper as W
+from jax_contact.envs import playground_offline
+from jax_contact.envs import wrapper as W
 
-# robot prefix -> (feet, their kind as envs.feet names it)
+# robot prefix -> (feet, their kind as jax_contact.envs.feet names it)
 FEET = {
     "Go1": (("FR", "FL", "RR", "RL"), "sphere"),
     "Spot": (("FL", "FR", "HL", "HR"), "sphere"),

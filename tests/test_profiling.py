@@ -1,6 +1,6 @@
 """The library's profiler scopes: every piece of the paper's update is named in the compiled
-program, so a ``jax.profiler`` trace (and ``benchmarks.profile_pieces --trace``) can charge
-each kernel to the function it came from."""
+program, so a ``jax.profiler`` trace (and ``jax_contact.benchmarks.profile_pieces --trace``) can
+charge each kernel to the function it came from."""
 
 from __future__ import annotations
 
@@ -10,8 +10,8 @@ import jax
 import pytest
 
 import jax_contact as jc
-from benchmarks.common import synthetic
-from benchmarks.profile_pieces import SCOPES, _scope
+from jax_contact.benchmarks.common import synthetic
+from jax_contact.benchmarks.profile_pieces import SCOPES, _scope
 
 # In the per-robot layout the split and the finiteness check are the robot's own.
 PER_LAYOUT = {

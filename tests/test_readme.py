@@ -45,12 +45,12 @@ from pathlib import Path
 
 import pytest
 
-from train import cli, progress
+from jax_contact.train import cli, progress
 
 ROOT = Path(__file__).resolve().parents[1]
 README = (ROOT / "README.md").read_text()
 _ENTRY = Path(sys.executable).parent / "jax-contact"
-CLI = [str(_ENTRY)] if _ENTRY.exists() else [sys.executable, "-m", "train.cli"]
+CLI = [str(_ENTRY)] if _ENTRY.exists() else [sys.executable, "-m", "jax_contact.train.cli"]
 
 # --------------------------------------------------------------------- README parsing
 
@@ -92,7 +92,7 @@ assert dt == mj_model.opt.timestep == 0.004  # the shipped Go1 model's own perio
 assert np.isfinite(p).all() and (p > 0.8).all(), p  # standing on all four feet
 """,
     "In an RL environment": """
-from envs.wrapper import PlaygroundContactWrapper
+from jax_contact.envs.wrapper import PlaygroundContactWrapper
 assert isinstance(env, PlaygroundContactWrapper), type(env)
 inner = env.unwrapped.observation_size["state"][0]
 assert env.observation_size["state"][0] == inner + 4, env.observation_size  # one per foot
@@ -378,7 +378,7 @@ def test_feedback_can_be_turned_off(monkeypatch):
 
 def _cache_settings(env: dict) -> list[str]:
     code = (
-        "import train.cli as c; c.enable_compilation_cache(); import jax;"
+        "import jax_contact.train.cli as c; c.enable_compilation_cache(); import jax;"
         " print(jax.config.jax_compilation_cache_dir);"
         " print(jax.config.jax_persistent_cache_min_compile_time_secs);"
         " print(jax.config.jax_persistent_cache_min_entry_size_bytes)"

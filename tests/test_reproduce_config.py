@@ -6,8 +6,8 @@ import mujoco
 import numpy as np
 import pytest
 
-from envs.robots import load_robot
-from train import reproduce as R
+from jax_contact.envs.robots import load_robot
+from jax_contact.train import reproduce as R
 
 
 def test_named_feet_reach_every_scenario_world():

@@ -15,8 +15,8 @@ import numpy as np
 import pytest
 from mujoco import mjx
 
-from envs import robots
-from envs.robots import (
+from jax_contact.envs import robots
+from jax_contact.envs.robots import (
     PLANAR_LEG_XML,
     RobotUnavailableError,
     load_robot,

@@ -1,12 +1,12 @@
 """The robust likelihoods and transitions (docs/model_choices.md, "Robust likelihoods").
 
 On the analytic planar leg of ``oracle`` (Section III's leg), with the estimator of the
-reproduction (``train.reproduce.planar_estimator_params``: ``jax_contact.params_for`` on
+reproduction (``jax_contact.train.reproduce.planar_estimator_params``: ``jax_contact.params_for`` on
 the planar leg's ``anymal_like`` sensors). A velocity outlier is the sensors' 10 rad/s spike
 on one joint for one sample: it moves the foot velocity ``v_f = J qd`` and, through the
 backward difference of ``qd``, the measured acceleration by +-10 / dt = +-4000 rad/s^2 on
 the step of the spike and the next one. Each case is also run with the paper's model
-(``train.reproduce.paper_model``), which these outliers flip: the checks can fail.
+(``jax_contact.train.reproduce.paper_model``), which these outliers flip: the checks can fail.
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ import pytest
 from test_core_limits import _as_meas
 
 import jax_contact as jc
-from train.reproduce import paper_model, planar_estimator_params
+from jax_contact.train.reproduce import paper_model, planar_estimator_params
 
 DT = 0.0025
 SPIKE = 10.0  # rad/s, the anymal_like outlier

@@ -8,8 +8,8 @@ import mujoco
 import numpy as np
 import pytest
 
-from envs.robots import load_robot
-from envs.sensors import (
+from jax_contact.envs.robots import load_robot
+from jax_contact.envs.sensors import (
     PRESETS,
     add_mass,
     make_sensor_params,

@@ -3,7 +3,7 @@
 Runs in a subprocess, since the device count must be set before JAX starts.
 """
 
-from benchmarks.versus import sharded
+from jax_contact.benchmarks.versus import sharded
 
 
 def test_sharded_equals_unsharded():

@@ -4,10 +4,11 @@ Reading ``k`` is what the sensors give at the end of physics step ``k`` (state a
 step, acceleration over it, torque applied during it; train/evaluate.py's module
 docstring). Two checks, on the planar leg (cheap to compile):
 
-1. The wrapper's own readings, replayed offline by ``train.evaluate.replay``, give the live
+1. The wrapper's own readings, replayed offline by ``jax_contact.train.evaluate.replay``, give the
+live
    wrapper's beliefs to float tolerance (issue 13, item 4). Quadrature touch-down rule, so
    the estimator is deterministic and the two runs' different PRNG keys do not matter.
-2. A log written by ``envs.simulate`` (ideal sensors) has the same convention, checked
+2. A log written by ``jax_contact.envs.simulate`` (ideal sensors) has the same convention, checked
    against a float64 MuJoCo oracle: in the air, ``M(q) qdd + c(q, qd) = tau`` holds with
    the state of reading ``k - 1`` and the acceleration and torque of reading ``k``.
 """
@@ -20,11 +21,11 @@ import mujoco
 import numpy as np
 import pytest
 
-from envs import ground_truth
-from envs import wrapper as W
-from envs.robots import load_robot
-from envs.simulate import build_world, simulate
-from train.evaluate import replay
+from jax_contact.envs import ground_truth
+from jax_contact.envs import wrapper as W
+from jax_contact.envs.robots import load_robot
+from jax_contact.envs.simulate import build_world, simulate
+from jax_contact.train.evaluate import replay
 
 N_STEPS = 240  # 0.6 s at 400 Hz: two hops of the planar leg
 HOP_HZ, HOP_AMP = 2.0, 0.7
@@ -119,7 +120,7 @@ def test_simulated_readings_are_end_of_step(ideal_log):
 def test_old_start_of_step_logs_are_realigned():
     """Hand derivation: start-of-step reading k = (q_k, qd_k, acc over k-1, tau_k); the
     end-of-step reading k = (q_{k+1}, qd_{k+1}, acc over k, tau_k), truth of step k kept."""
-    from train.logs import to_end_of_step
+    from jax_contact.train.logs import to_end_of_step
 
     t = np.arange(4.0)[:, None, None]  # (T=4, E=1, 1): value = the step index
     old = {"qpos": t + 100, "qvel": t + 200, "qacc": t + 300, "tau": t + 400}
@@ -137,7 +138,7 @@ def test_old_start_of_step_logs_are_realigned():
 def test_which_logs_are_read_as_start_of_step():
     """Only an older ``jax-contact simulate`` log (gait, noise, seed; no reading_timing) is
     re-aligned; a log the user wrote is read in the documented convention."""
-    from train.logs import reading_timing_of
+    from jax_contact.train.logs import reading_timing_of
 
     sim = {"robot": "go1", "dt": 0.0025, "gait": "trot", "noise": "anymal_like", "seed": 0}
     assert reading_timing_of("old", sim) == "start_of_step"

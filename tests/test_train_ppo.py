@@ -18,7 +18,7 @@ from brax.training.acme import running_statistics
 from brax.training.agents.ppo import checkpoint as ppo_checkpoint
 from brax.training.agents.ppo import networks as ppo_networks
 
-from train import figures, ppo
+from jax_contact.train import figures, ppo
 
 TINY = ppo.PPOConfig(
     num_timesteps=160,

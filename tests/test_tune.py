@@ -259,7 +259,7 @@ def test_config_rejects_bad_values():
 
 
 def test_tune_cmd_field_list_is_the_librarys():
-    from train import tune_cmd
+    from jax_contact.train import tune_cmd
 
     assert tune_cmd.TUNABLE_FIELDS == jt.DEFAULT_FIELDS
 
@@ -268,7 +268,7 @@ def test_tune_cmd_checks_arguments_without_jax(tmp_path):
     log = tmp_path / "a.h5"
     log.write_bytes(b"")
     code = (
-        "import sys, train.tune_cmd as t, argparse\n"
+        "import sys, jax_contact.train.tune_cmd as t, argparse\n"
         "assert 'jax' not in sys.modules\n"
         "p = argparse.ArgumentParser(); s = p.add_subparsers(); t.add_parser(s)\n"
         f"a = p.parse_args(['tune', {str(log)!r}, '--validate', {str(log)!r}, '--out', 'x.json'])\n"
@@ -284,7 +284,7 @@ def test_tune_cmd_checks_arguments_without_jax(tmp_path):
 
 def test_reliability_bins_agree_with_metrics_ece_and_the_png_is_written(np_rng, tmp_path):
     from jax_contact.metrics import expected_calibration_error
-    from train.calibration import reliability_bins, reliability_diagram
+    from jax_contact.train.calibration import reliability_bins, reliability_diagram
 
     p = np_rng.random((50, 2, 4))
     truth = np_rng.random(p.shape) < p**2  # over-confident in contact

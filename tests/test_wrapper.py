@@ -23,9 +23,9 @@ from wrapper_helpers import PlaygroundLeg, Traced
 from wrapper_helpers import logit_of as _logit
 
 import jax_contact as jc
-from envs import ground_truth, sensors
-from envs import wrapper as W
-from envs.robots import load_robot
+from jax_contact.envs import ground_truth, sensors
+from jax_contact.envs import wrapper as W
+from jax_contact.envs.robots import load_robot
 
 N_FRAMES = 4  # planar leg: 2.5 ms physics, 10 ms env step
 HOP_HZ, HOP_AMP = 2.0, 0.7  # knee sinusoid that makes the planar leg hop (feet lift and land)

@@ -22,9 +22,9 @@ from wrapper_helpers import Traced
 from wrapper_helpers import logit_of as _logit
 
 import jax_contact as jc
-from envs import playground_offline
-from envs import wrapper as W
 from jax_contact import metrics
+from jax_contact.envs import playground_offline
+from jax_contact.envs import wrapper as W
 
 N_ENVS = 2
 

@@ -19,9 +19,9 @@ from mujoco_playground._src import mjx_env
 from mujoco_playground._src import wrapper as pg_wrapper
 from wrapper_helpers import PlaygroundLeg
 
-from envs import ground_truth
-from envs import wrapper as W
-from envs.robots import load_robot
+from jax_contact.envs import ground_truth
+from jax_contact.envs import wrapper as W
+from jax_contact.envs.robots import load_robot
 
 N_SUB = 4  # 2.5 ms physics, 10 ms env step
 KNEE = np.array([[0.3, -1.5], [0.6, -0.9], [0.2, -1.6], [0.5, -1.0], [0.4, -1.2]], np.float32)

@@ -66,7 +66,8 @@ def reliability_diagram(
     """Writes a reliability diagram (PNG) with one curve per detector, ECE in the legend.
 
     Args:
-      outputs: detector -> (T, E, L) P(contact) (e.g. ``train.evaluate.replay``'s outputs;
+      outputs: detector -> (T, E, L) P(contact) (e.g. ``jax_contact.train.evaluate.replay``'s
+      outputs;
         keys containing ``/`` are diagnostics and are skipped unless named).
       truth: (T, E, L) bool ground truth.
       valid: (T, E) or (T, E, L) bool validity (broadcast over legs).

@@ -6,7 +6,7 @@ Three things here are about the command line itself, not the library:
   takes seconds (up to a minute on a loaded machine), so this module imports only the
   standard library; every number, choice, input file and output folder is checked by
   :func:`main` first, and the library is imported inside each command function. A test
-  checks that ``import train.cli`` does not import JAX. The names the checks need from
+  checks that ``import jax_contact.train.cli`` does not import JAX. The names the checks need from
   modules that import JAX (:data:`ROBOT_NAMES`, the gaits, noise presets, ...) are copied
   here; tests check that each copy equals the library's list.
 - **XLA's C++ log lines are silenced.** XLA logs to stderr from C++, e.g. ``E1201 ...
@@ -35,7 +35,8 @@ Three things here are about the command line itself, not the library:
   of the user's own wins. On 2 cores most of a short run is compilation, which a second
   run then loads in about a second per program. Every program is kept (minimum compile
   time and entry size 0); deleting the folder at any time is safe.
-- **Nothing is silent for long** (:mod:`train.progress`): while JAX loads and whenever it
+- **Nothing is silent for long** (:mod:`jax_contact.train.progress`): while JAX loads and whenever
+it
   compiles for over a second, stderr says so with the seconds counting
   (``jax-contact simulate: compiling (first call)... 12 s``); ``JAX_CONTACT_PROGRESS=0``
   turns these lines off.
@@ -56,11 +57,11 @@ import tempfile
 import threading
 from pathlib import Path
 
-from train import deploy_cmd, estimate_cmd, progress, tune_cmd  # stdlib-only at import
+from jax_contact.train import deploy_cmd, estimate_cmd, progress, tune_cmd  # stdlib-only at import
 
 # Copies of the library's lists (importing those modules imports JAX); tests/test_cli.py
 # checks that each equals its original.
-ROBOT_NAMES = (  # envs.robots.ROBOT_NAMES
+ROBOT_NAMES = (  # jax_contact.envs.robots.ROBOT_NAMES
     "go1",
     "spot",
     "barkour",
@@ -74,12 +75,12 @@ ROBOT_NAMES = (  # envs.robots.ROBOT_NAMES
     "unitree_go1",
     "unitree_go2",
 )
-GAITS = ("trot", "walk", "hop")  # envs.gaits.KINDS
-NOISES = ("ideal", "anymal_like", "harsh")  # envs.sensors.PRESETS
-TERRAINS = ("flat", "rough")  # envs.simulate.TERRAINS
-VARIANTS = ("none", "truth", "estimate")  # train.ppo.VARIANTS
-TASKS = ("go1", "hop")  # train.tasks.TASK_NAMES
-SCENES = ("planar_leg", "go1")  # train.rates.SCENES
+GAITS = ("trot", "walk", "hop")  # jax_contact.envs.gaits.KINDS
+NOISES = ("ideal", "anymal_like", "harsh")  # jax_contact.envs.sensors.PRESETS
+TERRAINS = ("flat", "rough")  # jax_contact.envs.simulate.TERRAINS
+VARIANTS = ("none", "truth", "estimate")  # jax_contact.train.ppo.VARIANTS
+TASKS = ("go1", "hop")  # jax_contact.train.tasks.TASK_NAMES
+SCENES = ("planar_leg", "go1")  # jax_contact.train.rates.SCENES
 LOG_SUFFIXES = (".h5", ".hdf5")
 
 EXIT_USAGE = 2
@@ -120,7 +121,7 @@ TINY_PPO = dict(
 def _reproduce_config(size: str, **overrides):
     import dataclasses
 
-    from train import reproduce
+    from jax_contact.train import reproduce
 
     cfg = reproduce.FULL if size == "full" else reproduce.DEMO
     if size == "tiny":
@@ -129,14 +130,14 @@ def _reproduce_config(size: str, **overrides):
 
 
 def _cmd_demo(args: argparse.Namespace) -> int:
-    from train import reproduce
+    from jax_contact.train import reproduce
 
     reproduce.run(_reproduce_config(args.size, seed=args.seed), args.out)
     return 0
 
 
 def _cmd_reproduce(args: argparse.Namespace) -> int:
-    from train import reproduce
+    from jax_contact.train import reproduce
 
     feet = tuple(args.feet) if args.feet else None
     cfg = _reproduce_config(args.size, robot=args.robot, seed=args.seed, foot_names=feet)
@@ -145,7 +146,7 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
 
 
 def _cmd_simulate(args: argparse.Namespace) -> int:
-    from train import logs
+    from jax_contact.train import logs
 
     logs.simulate_to_file(
         args.output,
@@ -163,7 +164,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
 
 
 def _cmd_evaluate(args: argparse.Namespace) -> int:
-    from train import logs
+    from jax_contact.train import logs
 
     logs.evaluate_file(
         args.log,
@@ -176,7 +177,7 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
 
 
 def _cmd_bench(args: argparse.Namespace) -> int:
-    from benchmarks import suite
+    from jax_contact.benchmarks import suite
 
     argv = ["--json", args.json] if args.json else []
     if args.envs:
@@ -188,7 +189,7 @@ def _cmd_bench(args: argparse.Namespace) -> int:
 
 
 def _cmd_train(args: argparse.Namespace) -> int:
-    from train import ppo, tasks
+    from jax_contact.train import ppo, tasks
 
     task = tasks.get_task(args.task)
     if args.config == "tiny":
@@ -218,7 +219,7 @@ def _cmd_train(args: argparse.Namespace) -> int:
 
 def _cmd_policy_eval(args: argparse.Namespace) -> int:
     from jax_contact.io import write_json_atomic
-    from train import ppo
+    from jax_contact.train import ppo
 
     res = ppo.evaluate_policy(args.run, observe=args.observe, n_envs=args.envs, seed=args.seed)
     print(ppo.format_evaluation([res]))
@@ -239,7 +240,7 @@ def _cmd_policy_eval(args: argparse.Namespace) -> int:
 
 def _cmd_rates(args: argparse.Namespace) -> int:
     from jax_contact.io import write_json_atomic
-    from train import rates
+    from jax_contact.train import rates
 
     out = {}
     for scene in progress.bar(args.scenes, desc="rates", unit="scene"):
@@ -278,7 +279,7 @@ def check_robot(arg: str, name: str | None) -> None:
     """Raises ValueError unless ``name`` is a known robot or an existing MJCF file."""
     if name is None or name in ROBOT_NAMES:
         return
-    if name.endswith(".xml") or os.sep in name or "/" in name:  # envs.robots' rule
+    if name.endswith(".xml") or os.sep in name or "/" in name:  # jax_contact.envs.robots' rule
         if not Path(name).expanduser().is_file():
             raise ValueError(f"argument {arg}: MJCF file {name!r} does not exist")
         return
@@ -486,7 +487,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--gm-grid",
         default=None,
         metavar="LOG",
-        help="tune the GM observer on this other log (train.reproduce's grid, best F1)",
+        help="tune the GM observer on this other log (jax_contact.train.reproduce's grid, best F1)",
     )
     p.add_argument(
         "--params", default=None, metavar="FILE", help="estimator parameters (jc.save_params)"
@@ -581,7 +582,7 @@ def build_parser() -> argparse.ArgumentParser:
         type=_positive_int,
         nargs="+",
         default=None,
-        help="throughput batch sizes (default: benchmarks.estimator's)",
+        help="throughput batch sizes (default: jax_contact.benchmarks.estimator's)",
     )
     p.add_argument(
         "--versus-envs",

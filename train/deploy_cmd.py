@@ -6,12 +6,12 @@
 - ``deploy-check`` feeds a log (``jax-contact simulate``) at its rate through the loaded file
   (:mod:`jax_contact.deploy`), one reading per call as a control loop would, and reports
   the per-call latency (median, p99, p99.9, max), the deadline misses at the rate and the
-  largest |P(contact)| difference from the offline estimator (``train.evaluate.replay``
+  largest |P(contact)| difference from the offline estimator (``jax_contact.train.evaluate.replay``
   with the file's own parameters on the same readings).
 
-Like :mod:`train.cli`, this module imports only the standard library: arguments are
+Like :mod:`jax_contact.train.cli`, this module imports only the standard library: arguments are
 checked before JAX is imported, and the library is imported inside the run functions.
-Register the commands with :func:`add_parsers` (``train.cli.build_parser``).
+Register the commands with :func:`add_parsers` (``jax_contact.train.cli.build_parser``).
 """
 
 from __future__ import annotations
@@ -29,9 +29,9 @@ def add_parsers(subparsers) -> None:
     """Adds ``export`` and ``deploy-check`` to ``jax-contact``'s subparsers.
 
     Each parser gets ``func`` (run) and ``check`` (validate, no JAX) defaults, as
-    :func:`train.cli.main` expects.
+    :func:`jax_contact.train.cli.main` expects.
     """
-    from train.cli import ROBOT_NAMES, _HelpFormatter, _positive_float, _positive_int
+    from jax_contact.train.cli import ROBOT_NAMES, _HelpFormatter, _positive_float, _positive_int
 
     p = subparsers.add_parser(
         "export",
@@ -100,7 +100,7 @@ def add_parsers(subparsers) -> None:
 
 def check_export(args: argparse.Namespace) -> None:
     """Raises ValueError naming the argument that is wrong (no JAX import)."""
-    from train.cli import check_input_file, check_output_file, check_robot
+    from jax_contact.train.cli import check_input_file, check_output_file, check_robot
 
     if args.robot is not None:
         check_robot("--robot", args.robot)
@@ -115,7 +115,7 @@ def check_export(args: argparse.Namespace) -> None:
 
 def check_deploy_check(args: argparse.Namespace) -> None:
     """Raises ValueError naming the argument that is wrong (no JAX import)."""
-    from train.cli import LOG_SUFFIXES, check_input_file, check_output_file
+    from jax_contact.train.cli import LOG_SUFFIXES, check_input_file, check_output_file
 
     check_input_file("artefact", args.artefact)
     check_input_file("log", args.log)
@@ -137,15 +137,16 @@ def check_deploy_check(args: argparse.Namespace) -> None:
 
 def default_estimator(desc, dt: float):
     """The robot's shipped estimator, ``(params, terrain, provenance)``: the choice of
-    ``jax-contact evaluate`` (:func:`train.logs.default_estimator`), with where it came from."""
-    from train.logs import default_estimator as shipped
+    ``jax-contact evaluate`` (:func:`jax_contact.train.logs.default_estimator`), with where it came
+    from."""
+    from jax_contact.train.logs import default_estimator as shipped
 
     params, terrain = shipped(desc, dt)
     provenance = {
         "source": "defaults",
-        "function": "train.logs.default_estimator",
-        "rule": "jax_contact.params_for with the anymal_like sensor model (envs.sensors);"
-        " the planar leg's Section III estimator for two-joint legs",
+        "function": "jax_contact.train.logs.default_estimator",
+        "rule": "jax_contact.params_for with the anymal_like sensor model"
+        " (jax_contact.envs.sensors); the planar leg's Section III estimator for two-joint legs",
         "dt": dt,
     }
     return params, terrain, provenance
@@ -164,8 +165,8 @@ def export_to_file(
     import hashlib
 
     import jax_contact as jc
-    from envs.robots import load_robot
     from jax_contact import export
+    from jax_contact.envs.robots import load_robot
 
     loaded = load_robot(robot, foot_names=feet)
     desc = loaded.description
@@ -201,7 +202,7 @@ def export_to_file(
 
 
 def _robot_names() -> tuple[str, ...]:
-    from train.cli import ROBOT_NAMES
+    from jax_contact.train.cli import ROBOT_NAMES
 
     return ROBOT_NAMES
 
@@ -241,8 +242,8 @@ def params_and_terrain(header: dict):
 
 def offline_estimate(header: dict, readings: dict, *, dt: float):
     """(T, L) P(contact) of the offline estimator (``replay``) on one env's readings."""
-    from envs.robots import load_robot
-    from train.evaluate import replay
+    from jax_contact.envs.robots import load_robot
+    from jax_contact.train.evaluate import replay
 
     params, terrain = params_and_terrain(header)
     robot = load_robot(header["robot"]["source"], foot_names=header["robot"]["feet"])
@@ -319,7 +320,7 @@ def deploy_check(
     from jax_contact import deploy
     from jax_contact.export import read_artefact
     from jax_contact.io import write_json_atomic
-    from train.logs import load_log
+    from jax_contact.train.logs import load_log
 
     header, _ = read_artefact(artefact)
     # Checked, and re-aligned to end-of-step readings if older (what the export pairs).
@@ -400,8 +401,8 @@ def run_deploy_check(args: argparse.Namespace) -> int:
     return 0
 
 
-if __name__ == "__main__":  # python -m train.deploy_cmd {export,deploy-check} ...
-    from train import cli
+if __name__ == "__main__":  # python -m jax_contact.train.deploy_cmd {export,deploy-check} ...
+    from jax_contact.train import cli
 
     parser = argparse.ArgumentParser(prog="jax-contact")
     add_parsers(parser.add_subparsers(dest="command", metavar="COMMAND"))

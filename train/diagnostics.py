@@ -1,7 +1,7 @@
 """Per-phase diagnostics: what each term and transition says around the true events.
 
 Where a detector is late or wrong, the reproduction shows *which* term or transition is
-responsible with two views of the estimator's diagnostics (:func:`train.evaluate.replay`
+responsible with two views of the estimator's diagnostics (:func:`jax_contact.train.evaluate.replay`
 with ``diagnostics_of``):
 
 - :func:`event_profiles`: the mean of P(contact), of each term's probability (dynamics,

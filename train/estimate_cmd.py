@@ -1,14 +1,14 @@
 """``jax-contact estimate RECORDING --model ROBOT``: contact estimates for a recording that
 this library did not make (a robot's log).
 
-The recording's schema, its timing and the resampling rule are in :mod:`train.recording`,
-which does the work (:func:`train.recording.estimate_recording`). This module only parses
-and checks the arguments, and like ``train/cli.py`` imports no JAX, NumPy or MuJoCo at
-module level: :func:`check` runs before JAX is imported. Register it in the CLI with
+The recording's schema, its timing and the resampling rule are in
+:mod:`jax_contact.train.recording`, which does the work
+(:func:`jax_contact.train.recording.estimate_recording`). This module only parses and checks
+the arguments, and like ``train/cli.py`` imports no JAX, NumPy or MuJoCo at module level:
+:func:`check` runs before JAX is imported. Register it in the CLI with
 ``estimate_cmd.add_parser(sub)`` (the parser's defaults carry ``func=run`` and
 ``check=check``, as ``train/cli.py``'s commands do); until then ``python -m
-train.estimate_cmd RECORDING --model ROBOT ...`` runs it alone (:func:`main`).
-"""
+jax_contact.train.estimate_cmd RECORDING --model ROBOT ...`` runs it alone (:func:`main`)."""
 
 from __future__ import annotations
 
@@ -17,8 +17,8 @@ import json
 import sys
 from pathlib import Path
 
-RECORDING_SUFFIXES = (".csv", ".npz", ".h5", ".hdf5")  # train.recording.SUFFIXES
-UNITS = ("rad", "deg")  # train.recording.UNITS
+RECORDING_SUFFIXES = (".csv", ".npz", ".h5", ".hdf5")  # jax_contact.train.recording.SUFFIXES
+UNITS = ("rad", "deg")  # jax_contact.train.recording.UNITS
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
@@ -80,9 +80,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 
 
 def add_feet_flag(p: argparse.ArgumentParser) -> None:
-    """``--feet FOOT [FOOT ...]``: ``foot_names`` of ``envs.robots.load_robot`` /
-    ``train.logs.simulate_to_file`` / ``train.logs.evaluate_file`` (None: the model's or
-    the log's own)."""
+    """``--feet FOOT [FOOT ...]``: ``foot_names`` of ``jax_contact.envs.robots.load_robot`` /
+    ``jax_contact.train.logs.simulate_to_file`` / ``jax_contact.train.logs.evaluate_file`` (None:
+    the model's or the log's own)."""
     p.add_argument(
         "--feet",
         nargs="+",
@@ -94,7 +94,8 @@ def add_feet_flag(p: argparse.ArgumentParser) -> None:
 
 
 def add_gait_flags(p: argparse.ArgumentParser) -> None:
-    """The ``envs.gaits.GaitSettings`` fields as flags; :func:`gait_overrides` reads them."""
+    """The ``jax_contact.envs.gaits.GaitSettings`` fields as flags; :func:`gait_overrides` reads
+    them."""
     g = p.add_argument_group("gait settings (default: the robot's, else derived from the model)")
     g.add_argument("--home-key", default=None, metavar="KEY", help="keyframe of the standing pose")
     g.add_argument(
@@ -115,7 +116,7 @@ def add_gait_flags(p: argparse.ArgumentParser) -> None:
 
 def gait_overrides(args: argparse.Namespace) -> dict:
     """The gait flags that were given, as ``GaitSettings`` field overrides (the mapping
-    ``train.logs.simulate_to_file(gait_settings=...)`` takes)."""
+    ``jax_contact.train.logs.simulate_to_file(gait_settings=...)`` takes)."""
     out = {}
     for flag, field in (
         ("home_key", "home_key"),
@@ -173,7 +174,7 @@ def parse_names(text: str | None) -> dict[str, str]:
 
 def check(args: argparse.Namespace) -> None:
     """Raises ValueError naming the argument; imports no JAX."""
-    from train.cli import check_input_file, check_output_folder, check_robot
+    from jax_contact.train.cli import check_input_file, check_output_folder, check_robot
 
     check_input_file("recording", args.recording)
     if Path(args.recording).suffix.lower() not in RECORDING_SUFFIXES:
@@ -189,7 +190,7 @@ def check(args: argparse.Namespace) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Runs the estimate (imports the library); returns the exit code."""
-    from train.recording import estimate_recording
+    from jax_contact.train.recording import estimate_recording
 
     estimate_recording(
         args.recording,
@@ -206,8 +207,8 @@ def run(args: argparse.Namespace) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """``python -m train.estimate_cmd ...``: the command alone; a bad argument or input is
-    one line on stderr and exit code 2, as in ``jax-contact``."""
+    """``python -m jax_contact.train.estimate_cmd ...``: the command alone; a bad argument or input
+    is one line on stderr and exit code 2, as in ``jax-contact``."""
     parser = argparse.ArgumentParser(prog="jax-contact")
     add_parser(parser.add_subparsers(dest="command", required=True))
     args = parser.parse_args(["estimate", *(sys.argv[1:] if argv is None else argv)])

@@ -1,13 +1,13 @@
 """Offline evaluation: replay sensor readings (simulated or logged) through the detectors.
 
-Timing (one convention for :mod:`envs.simulate`, the wrapper and this replay): reading
+Timing (one convention for :mod:`jax_contact.envs.simulate`, the wrapper and this replay): reading
 ``k`` is what the sensors give at the end of physics step ``k``: the state after the step
 ``(q_{k+1}, qd_{k+1})``, the acceleration over it, ``(qd_{k+1} - qd_k) / dt``, and the
 actuation torque applied during it, ``tau_k``. The truth of step ``k`` is the contact
 during that step. Every detector's output at ``k`` is available when reading ``k``
 arrives and is scored against the truth of step ``k``; sensor latency (readings that are
-``latency`` steps old, :mod:`envs.sensors`) is the only input lag, and it counts in every
-reported delay.
+``latency`` steps old, :mod:`jax_contact.envs.sensors`) is the only input lag, and it counts in
+every reported delay.
 
 Pairing of readings (``pairing="delayed"``, the default): the differenced acceleration of
 reading ``k`` describes the interval that *starts* at ``q_k``, the state of reading
@@ -81,8 +81,8 @@ def replay(
     """Runs the detectors over a (T, E) batch of readings.
 
     Args:
-      robot: the nominal :class:`envs.robots.Robot` (its model is the estimator's model).
-      readings: ``qpos`` (T, E, nq), ``qvel``/``qacc``/``tau`` (T, E, nv).
+      robot: the nominal :class:`jax_contact.envs.robots.Robot` (its model is the estimator's
+      model). readings: ``qpos`` (T, E, nq), ``qvel``/``qacc``/``tau`` (T, E, nv).
       estimators: name -> estimator parameters; each runs its own filter.
       terrain: the estimator's terrain model (``jax_contact.terrain``).
       gms: name -> generalized-momentum observer parameters.

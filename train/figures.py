@@ -22,7 +22,7 @@ def plot_estimate(
     """Fused estimate, each term, both transition probabilities and ground truth of one foot.
 
     Args:
-      outputs: from ``train.evaluate.replay`` with ``diagnostics_of=name``.
+      outputs: from ``jax_contact.train.evaluate.replay`` with ``diagnostics_of=name``.
       rollout: the simulated rollout (``time``, ``contact``, ``force``).
       name: the estimator whose diagnostics to plot.
       path: PNG file to write (its folder must exist).
@@ -90,7 +90,8 @@ def plot_reward_curves(
     """Return against environment steps, one line per training run.
 
     Args:
-      curves: run name -> rows of :mod:`train.ppo`'s ``progress.csv`` (dicts with ``step``,
+      curves: run name -> rows of :mod:`jax_contact.train.ppo`'s ``progress.csv`` (dicts with
+      ``step``,
         ``eval_reward``, ``eval_reward_std``): the deterministic policy's evaluations.
       path: PNG file to write.
       title: figure title.

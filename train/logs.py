@@ -35,18 +35,18 @@ def simulate_to_file(
     """Simulates and writes an HDF5 log (atomically). Returns the path.
 
     Args:
-      robot: a robot name or an MJCF path (:func:`envs.robots.load_robot`).
+      robot: a robot name or an MJCF path (:func:`jax_contact.envs.robots.load_robot`).
       foot_names: the feet, geom or body names in leg order (None: found in the model);
         stored in the log (``foot_names``), which :func:`evaluate_file` replays with.
-      gait_settings: an :class:`envs.gaits.GaitSettings`, or a mapping of fields that
+      gait_settings: an :class:`jax_contact.envs.gaits.GaitSettings`, or a mapping of fields that
         override the robot's (e.g. ``{"kp": 80.0, "home_key": "home"}``); None: the
         robot's own. Resolved, they are stored as the attribute ``gait_settings`` (JSON),
         and their speed range for ``gait`` is what the envs' speed commands are drawn from.
     """
-    from envs.gaits import GaitSettings, make_gait
-    from envs.gaits import gait_settings as settings_of
-    from envs.robots import load_robot
-    from envs.simulate import build_world, simulate
+    from jax_contact.envs.gaits import GaitSettings, make_gait
+    from jax_contact.envs.gaits import gait_settings as settings_of
+    from jax_contact.envs.robots import load_robot
+    from jax_contact.envs.simulate import build_world, simulate
 
     path = Path(path)
     if path.suffix not in (".h5", ".hdf5"):
@@ -83,7 +83,7 @@ def simulate_to_file(
 
 
 READINGS = ("readings/qpos", "readings/qvel", "readings/qacc", "readings/tau")
-# Reading k is taken at the end of physics step k (train.evaluate's module docstring).
+# Reading k is taken at the end of physics step k (jax_contact.train.evaluate's module docstring).
 # `jax-contact simulate` wrote its logs before this convention with reading k taken at the
 # start of step k (state q_k, torque tau_k, acceleration over step k - 1) and without the
 # `reading_timing` attribute; see reading_timing_of.
@@ -143,7 +143,7 @@ def load_log(path: str | Path, *, foot_names: Sequence[str] | None = None) -> Lo
     Raises:
       FileNotFoundError, ValueError: as :func:`evaluate_file`.
     """
-    from envs.robots import load_robot
+    from jax_contact.envs.robots import load_robot
 
     arrays, attrs = read_log(path)
     name = f"log {str(path)!r}"
@@ -179,9 +179,14 @@ def load_log(path: str | Path, *, foot_names: Sequence[str] | None = None) -> Lo
 def default_estimator(desc, dt: float):
     """(EstimatorParams, terrain) that ``evaluate`` and ``estimate`` use for a robot: the
     planar leg's Section III estimator for 2-joint legs, else Table III's (the one source:
-    :func:`jax_contact.params_for` with ``anymal_like`` sensors, ``train.reproduce``)."""
+    :func:`jax_contact.params_for` with ``anymal_like`` sensors,
+    ``jax_contact.train.reproduce``)."""
     import jax_contact as jc
-    from train.reproduce import TERRAIN_SIGMA, planar_estimator_params, quadruped_estimator_params
+    from jax_contact.train.reproduce import (
+        TERRAIN_SIGMA,
+        planar_estimator_params,
+        quadruped_estimator_params,
+    )
 
     if desc.n_leg_dofs == 2:
         return planar_estimator_params(desc.nv, dt), jc.flat(0.0, 0.2)
@@ -189,10 +194,11 @@ def default_estimator(desc, dt: float):
 
 
 def tune_gm(path: str | Path) -> tuple[str, object, dict]:
-    """The GM observer setting of ``train.reproduce``'s grid with the best F1 on a log.
+    """The GM observer setting of ``jax_contact.train.reproduce``'s grid with the best F1 on a log.
 
-    Runs every grid point (:func:`train.reproduce.gm_grid`) on the log and picks one with
-    :func:`train.reproduce._tune_gm` (best per-step F1, ties: fewer failures), the rule
+    Runs every grid point (:func:`jax_contact.train.reproduce.gm_grid`) on the log and picks one
+    with
+    :func:`jax_contact.train.reproduce._tune_gm` (best per-step F1, ties: fewer failures), the rule
     the reproduction tunes by.
 
     Returns:
@@ -202,8 +208,8 @@ def tune_gm(path: str | Path) -> tuple[str, object, dict]:
       ValueError: the log has no ground truth, or as :func:`load_log`.
     """
     import jax_contact as jc
-    from train.evaluate import replay, score
-    from train.reproduce import TERRAIN_SIGMA, _tune_gm, gm_grid
+    from jax_contact.train.evaluate import replay, score
+    from jax_contact.train.reproduce import TERRAIN_SIGMA, _tune_gm, gm_grid
 
     log = load_log(path)
     if log.truth is None:
@@ -234,8 +240,8 @@ def evaluate_file(
 
     The log is replayed with the robot and feet it was made with (its ``foot_names``
     attribute) unless ``foot_names`` is given. Every detector's full metric set is printed
-    as one table with a header and a legend (``train.reproduce.format_table``): touch-down
-    and lift-off delays, F1, accuracy, failures, per-air-phase failure rate, missed
+    as one table with a header and a legend (``jax_contact.train.reproduce.format_table``):
+    touch-down and lift-off delays, F1, accuracy, failures, per-air-phase failure rate, missed
     touch-downs and lift-offs, ECE.
 
     A log without ground truth (no ``truth/contact``, e.g. one recorded on a robot) has no
@@ -263,7 +269,7 @@ def evaluate_file(
         model does not fit the readings.
     """
     from jax_contact.baselines import make_gm_params, make_kinematic_params
-    from train.evaluate import replay, score
+    from jax_contact.train.evaluate import replay, score
 
     log = load_log(path, foot_names=foot_names)
     name, truth, desc, dt = log.name, log.truth, log.robot.description, log.dt
@@ -339,9 +345,9 @@ def _load_params_for(path, desc, dt):
 
 def format_scores(scores: dict[str, dict], *, title: str = "log") -> str:
     """Every detector's full metric set as one table with a header and the legend
-    (``train.reproduce.format_table``'s columns: TD / LO delays, F1, accuracy, failures,
+    (``jax_contact.train.reproduce.format_table``'s columns: TD / LO delays, F1, accuracy, failures,
     per-air-phase failure rate, missed touch-downs and lift-offs, ECE)."""
-    from train.reproduce import _cell, format_table
+    from jax_contact.train.reproduce import _cell, format_table
 
     rows = sorted(scores, key=lambda d: (d != "probabilistic", d == "kinematic", d))
     payload = {"scenarios": {title: {det: _cell(scores[det]) for det in rows}}}

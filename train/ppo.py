@@ -2,8 +2,8 @@
 
 The task is MuJoCo Playground's Go1 joystick on flat terrain (track a random base velocity
 command; Playground's own rewards, terminations and observation noise), built offline by
-:mod:`envs.playground_offline` with MJX's JAX implementation. The contact wrapper
-(:mod:`envs.wrapper`, control rate: Playground hides the physics substeps) appends one
+:mod:`jax_contact.envs.playground_offline` with MJX's JAX implementation. The contact wrapper
+(:mod:`jax_contact.envs.wrapper`, control rate: Playground hides the physics substeps) appends one
 number per foot to the policy's ``"state"`` observation:
 
 - ``"none"``: nothing (the policy Playground trains);
@@ -88,7 +88,7 @@ class PPOConfig:
       zero_init_mean: initialise the ``"normal"`` policy's mean layer to zero, so that the
         untrained deterministic policy holds the default pose instead of falling over.
       num_resets_per_eval: Brax's host-side resets per evaluation epoch.
-      sensor: sensor preset of the estimator's inputs (:data:`envs.sensors.PRESETS`).
+      sensor: sensor preset of the estimator's inputs (:data:`jax_contact.envs.sensors.PRESETS`).
       reward: ``"playground"`` (the env's reward: the scaled terms summed, times ``dt``,
         clipped below at 0) or ``"unclipped"`` (the same sum without the clip,
         :class:`UnclippedReward`).
@@ -299,10 +299,10 @@ def make_env(
       observe: one of :data:`VARIANTS`.
       sensor: sensor preset of the estimator's inputs.
       reward: one of :data:`REWARDS` (:class:`PPOConfig`).
-      env_name: a name of :data:`envs.playground_offline.ENV_NAMES`.
+      env_name: a name of :data:`jax_contact.envs.playground_offline.ENV_NAMES`.
     """
-    from envs import playground_offline
-    from envs import wrapper as W
+    from jax_contact.envs import playground_offline
+    from jax_contact.envs import wrapper as W
 
     if observe not in VARIANTS:
         raise ValueError(f"observe must be one of {VARIANTS}, got {observe!r}")
@@ -366,7 +366,7 @@ def load_policy(ckpt: str | Path, *, deterministic: bool = True, parts: bool = F
 
     With ``parts``, ``(make_policy, params, sizes)`` instead: Brax's
     ``make_inference_fn(network)`` and the parameters apart, so that one compiled rollout
-    can take the parameters of several checkpoints as arguments (:mod:`train.transfer`).
+    can take the parameters of several checkpoints as arguments (:mod:`jax_contact.train.transfer`).
 
     Returns:
       (policy, {observation key: shape}).
@@ -460,7 +460,8 @@ def train(
       seed: PPO's seed (networks, env keys).
       overwrite: replace an existing run folder; otherwise one is refused.
       log: where progress lines go.
-      task: a name of :data:`train.tasks.TASK_NAMES` (the env and its training wrappers).
+      task: a name of :data:`jax_contact.train.tasks.TASK_NAMES` (the env and its training
+      wrappers).
 
     Returns:
       The :class:`RunResult`.
@@ -471,7 +472,7 @@ def train(
     from brax.training.agents.ppo import train as ppo_train
 
     from jax_contact.io import write_json_atomic, write_text_atomic
-    from train import figures, tasks
+    from jax_contact.train import figures, tasks
 
     if variant not in VARIANTS:
         raise ValueError(f"variant must be one of {VARIANTS}, got {variant!r}")
@@ -624,7 +625,7 @@ def evaluate_policy(
         raise FileNotFoundError(f"no run.json in {run_dir}: not a run folder of jax-contact train")
     run = json.loads((run_dir / "run.json").read_text())
     if run.get("task", "go1") == "hop":  # its own evaluation (task metrics)
-        from train import transfer
+        from jax_contact.train import transfer
 
         return transfer.evaluate_run(
             run_dir, observe=observe, n_envs=n_envs, episode_length=episode_length, seed=seed
@@ -716,7 +717,7 @@ def train_variants(
     column) and ``out_dir/reward_curves.png``. ``task``: as :func:`train`.
     """
     from jax_contact.io import write_json_atomic, write_text_atomic
-    from train import figures
+    from jax_contact.train import figures
 
     out_dir = Path(out_dir)
     results = {

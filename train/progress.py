@@ -2,7 +2,7 @@
 
 On a 2-core CPU most of a short run's wall time is XLA compiling (``docs/performance.md``),
 during which a program is silent for tens of seconds. Three pieces, standard library only at
-import (``train.cli`` imports this module before it may import JAX):
+import (``jax_contact.train.cli`` imports this module before it may import JAX):
 
 - :func:`watch_compiles` (``jax-contact`` wraps every command in it): whenever JAX traces,
   lowers or compiles for longer than ``min_s`` (1 s; 5 s when stderr is not a terminal),
@@ -27,7 +27,7 @@ How the loops of the library should call it (today they print a line per chunk
 themselves; these calls replace those prints, keeping their ``progress`` flag)::
 
     # envs/simulate.py, simulate(): the `while done < n_steps` loop becomes
-    from train import progress as pg
+    from jax_contact.train import progress as pg
     starts = range(0, n_steps, chunk)
     for done in pg.bar(starts, desc=f"simulate {world.robot.name}/{gait.kind}",
                        unit="chunk", enabled=progress):

@@ -26,13 +26,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from envs import feet
-from envs.contact_config import ContactObsConfig
-from envs.contact_core import model_of
-from envs.contact_params import default_estimator_params, default_sensor_params
-from envs.contact_wrappers import wrap_contact
-from envs.robots import Robot
 from jax_contact import metrics
+from jax_contact.envs import feet
+from jax_contact.envs.contact_config import ContactObsConfig
+from jax_contact.envs.contact_core import model_of
+from jax_contact.envs.contact_params import default_estimator_params, default_sensor_params
+from jax_contact.envs.contact_wrappers import wrap_contact
+from jax_contact.envs.robots import Robot
 
 SCENES = ("planar_leg", "go1")
 N_STEPS, N_ROLLOUTS = 250, 16
@@ -40,9 +40,9 @@ N_STEPS, N_ROLLOUTS = 250, 16
 
 def scene(name: str, n_steps: int = N_STEPS, n_rollouts: int = N_ROLLOUTS):
     """(env, actions (T, E, nu)) of a scene of the module docstring."""
-    from envs import ground_truth
-    from envs.legged_env import LeggedPipelineEnv
-    from envs.robots import load_robot
+    from jax_contact.envs import ground_truth
+    from jax_contact.envs.legged_env import LeggedPipelineEnv
+    from jax_contact.envs.robots import load_robot
 
     if name not in SCENES:
         raise ValueError(f"scene must be one of {SCENES}, got {name!r}")
@@ -161,13 +161,13 @@ def compare_rates(
 
     Args:
       env: an unwrapped Brax ``PipelineEnv`` (MJX) or Playground ``MjxEnv`` with ground
-        truth (:mod:`envs.contact_truth`).
+        truth (:mod:`jax_contact.envs.contact_truth`).
       actions: (T, E, nu) actions of E rollouts of T env steps.
       key: PRNG key; env e resets with ``split(key, E)[e]``.
       sensor: sensor preset name.
       foot_names: as ``ContactObsConfig.feet``.
       params_kwargs: extra arguments of
-        :func:`envs.contact_params.default_estimator_params` for both rates.
+        :func:`jax_contact.envs.contact_params.default_estimator_params` for both rates.
       control_params_kwargs: more of them for the control rate only (e.g.
         ``sigma_qdd_model``), applied last.
       skip_s: time at the start of every rollout left out of the scores (settling), s.

@@ -2,8 +2,9 @@
 
 :func:`estimate_recording` is ``jax-contact estimate``: it reads a recording with named
 columns (CSV, NPZ or HDF5), converts it to this library's readings for a robot model
-(:func:`to_readings`), runs :func:`train.evaluate.replay` and writes per-foot P(contact),
-each term's probability and the two transition probabilities as HDF5 and CSV (atomically,
+(:func:`to_readings`), runs :func:`jax_contact.train.evaluate.replay` and writes per-foot
+P(contact), each term's probability and the two transition probabilities as HDF5 and CSV
+(atomically,
 :mod:`jax_contact.io`), a Fig.-5-style PNG per foot, and the metrics when the recording
 has ground truth.
 
@@ -45,7 +46,7 @@ dropped: the estimator receives the NaN and its per-leg validity (``valid = Fals
 belief only follows the transition prior) handles it; the rows are listed in the output
 and left out of the metrics.
 
-Timing (:mod:`train.evaluate`'s convention): row ``j`` *is* reading ``j``. Everything in
+Timing (:mod:`jax_contact.train.evaluate`'s convention): row ``j`` *is* reading ``j``. Everything in
 a row describes its instant ``t_j`` or the interval ``(t_{j-1}, t_j]`` that ends at it:
 the state measured at ``t_j``, the acceleration over the interval (the backward
 difference ``(qd_j - qd_{j-1}) / (t_j - t_{j-1})`` where it is differentiated), the
@@ -85,7 +86,7 @@ JOINT_PREFIXES = ("q/", "qd/", "qdd/", "tau/")
 TRUTH_PREFIXES = ("contact/", "force/")
 SUFFIXES = (".csv", ".npz", ".h5", ".hdf5")
 UNITS = ("rad", "deg")
-FORCE_THRESHOLD = 1.0  # N, envs.ground_truth's default
+FORCE_THRESHOLD = 1.0  # N, jax_contact.envs.ground_truth's default
 RATE_TOLERANCE = 0.01
 DIAGNOSTICS = ("p_dynamics", "p_diff_kinematics", "p_kinematics", "p_takeoff", "p_touchdown")
 
@@ -349,7 +350,7 @@ def to_readings(
 
     Args:
       rec: from :func:`read_recording`.
-      robot: an :class:`envs.robots.Robot` (its model and feet).
+      robot: an :class:`jax_contact.envs.robots.Robot` (its model and feet).
       names: recording name -> model name, for joints and feet whose names differ.
       units: ``"rad"`` or ``"deg"``: the unit of hinge angles, their velocities and
         accelerations and of the base's angular velocity and acceleration.
@@ -578,7 +579,7 @@ def log_to_columns(
     torques: bool = True,
     truth_force: np.ndarray | None = None,
 ) -> dict[str, np.ndarray]:
-    """One env of a simulated log (:func:`train.logs.load_log`) as recording columns.
+    """One env of a simulated log (:func:`jax_contact.train.logs.load_log`) as recording columns.
 
     Reading ``k`` becomes row ``k`` at ``time = (k + 1) dt`` (the end of its step), so
     that :func:`to_readings` gives the log's readings back (with every column) and the
@@ -663,11 +664,11 @@ def estimate_recording(
       ``notes``, ``terms``, ``foot_names``, ``dt``, ``files`` (written), ``outputs`` (the
       replay's (T, 1, L) arrays), ``scores`` (empty without ground truth).
     """
-    from envs.robots import load_robot
     from jax_contact.baselines import make_gm_params, make_kinematic_params
+    from jax_contact.envs.robots import load_robot
     from jax_contact.io import write_json_atomic, write_log
-    from train.evaluate import replay, score
-    from train.logs import _load_params_for, default_estimator, format_scores
+    from jax_contact.train.evaluate import replay, score
+    from jax_contact.train.logs import _load_params_for, default_estimator, format_scores
 
     rec = read_recording(path)
     robot = load_robot(model, foot_names=feet)
@@ -731,7 +732,7 @@ def estimate_recording(
     if plots:
         from types import SimpleNamespace
 
-        from train.figures import plot_estimate
+        from jax_contact.train.figures import plot_estimate
 
         nan = np.full(out["probabilistic"].shape, np.nan)
         shown = SimpleNamespace(

@@ -3,8 +3,8 @@
 ``jax-contact reproduce`` (and ``make demo`` at its default size) runs:
 
 1. Section III: the planar leg of Table I hopping with Table II sensor noise (the
-   ``anymal_like`` preset on the planar leg *is* Table II, see ``envs.sensors``); the fused
-   estimate, each term, both transition probabilities and the ground truth are plotted
+   ``anymal_like`` preset on the planar leg *is* Table II, see ``jax_contact.envs.sensors``); the
+   fused estimate, each term, both transition probabilities and the ground truth are plotted
    like the paper's Fig. 5 and scored.
 2. Table III in simulation: a quadruped (Go1 by default) at 400 Hz with the
    ``anymal_like`` noise, trotting, walking, walking with unmodelled mass (+3 kg base,
@@ -32,8 +32,13 @@ import numpy as np
 
 import jax_contact as jc
 from jax_contact.baselines import make_gm_params, make_kinematic_params
-from train.diagnostics import TERM_FIELDS, event_profiles, false_contact_terms, format_profiles
-from train.evaluate import replay, score
+from jax_contact.train.diagnostics import (
+    TERM_FIELDS,
+    event_profiles,
+    false_contact_terms,
+    format_profiles,
+)
+from jax_contact.train.evaluate import replay, score
 
 SCENARIOS = ("trot", "walk", "walk_added_mass", "rough")
 # The robustness scenario's mass, carried by the simulated robot and not by the model: on
@@ -96,16 +101,16 @@ def _log(msg: str) -> None:
 
 
 # The gait priors of the two robots' gaits (T_s, swing time): Section III's hop spends
-# 0.45 s on the ground and 0.15 s in flight (envs.gaits' hop: period 0.6 s, duty 0.75).
+# 0.45 s on the ground and 0.15 s in flight (jax_contact.envs.gaits' hop: period 0.6 s, duty 0.75).
 PLANAR_GAIT = jc.GaitPrior(stance_time=0.45, swing_time=0.15)
 
 
 def planar_estimator_params(nv: int = 3, dt: float = 0.0025, **overrides) -> jc.EstimatorParams:
     """Section III's estimator: :func:`jax_contact.params_for` with the planar leg's
-    ``anymal_like`` sensors (which are Table II on that leg, ``envs.sensors``), its x-z
+    ``anymal_like`` sensors (which are Table II on that leg, ``jax_contact.envs.sensors``), its x-z
     force rows and the hop's gait prior."""
-    from envs.robots import load_robot
-    from envs.sensors import sensor_preset
+    from jax_contact.envs.robots import load_robot
+    from jax_contact.envs.sensors import sensor_preset
 
     desc = load_robot("planar_leg").description
     if desc.nv != nv:
@@ -119,7 +124,7 @@ def quadruped_estimator_params(desc, dt: float = 0.0025, **overrides) -> jc.Esti
     """Table III's estimator: :func:`jax_contact.params_for` with the ``anymal_like``
     sensors of a floating-base quadruped and the default gait prior (the one source of
     parameters; the wrapper and ``jax-contact evaluate`` build the same)."""
-    from envs.sensors import sensor_preset
+    from jax_contact.envs.sensors import sensor_preset
 
     sp = sensor_preset("anymal_like", desc.nv, dt=dt)
     return jc.params_for(desc, sp, dt, **overrides)
@@ -173,14 +178,14 @@ def gm_grid() -> dict[str, jc.EstimatorParams]:
 
 def _robot(cfg: ReproduceConfig):
     """The nominal robot of a run, with the feet ``cfg.foot_names`` names (None: found)."""
-    from envs.robots import load_robot
+    from jax_contact.envs.robots import load_robot
 
     feet = None if cfg.foot_names is None else tuple(cfg.foot_names)
     return load_robot(cfg.robot, foot_names=feet)
 
 
 def _scenario_world(name: str, cfg: ReproduceConfig):
-    from envs.simulate import build_world
+    from jax_contact.envs.simulate import build_world
 
     robot = _robot(cfg)
     if name == "walk_added_mass":
@@ -198,7 +203,7 @@ def added_mass_for(robot_name: str, robot=None) -> tuple[tuple[str, float], ...]
         return ADDED_MASS[robot_name]
     import mujoco
 
-    from envs.robots import load_robot
+    from jax_contact.envs.robots import load_robot
 
     robot = robot if robot is not None else load_robot(robot_name)
     m, desc = robot.mj_model, robot.description
@@ -213,7 +218,7 @@ def added_mass_for(robot_name: str, robot=None) -> tuple[tuple[str, float], ...]
 
 
 def _gait(name: str):
-    from envs.gaits import make_gait
+    from jax_contact.envs.gaits import make_gait
 
     return make_gait("trot" if name == "trot" else "walk")
 
@@ -224,7 +229,7 @@ SPEEDS = {"trot": (0.0, 0.5), "walk": (0.0, 0.15)}
 
 
 def _run(world, gait, n_envs, duration, seed, estimators, gms, *, diagnostics_of=None):
-    from envs.simulate import simulate
+    from jax_contact.envs.simulate import simulate
 
     t0 = time.perf_counter()
     speeds = SPEEDS.get(gait.kind, (0.0, 0.0))
@@ -253,7 +258,7 @@ def _tune_gm(scores: dict[str, dict]) -> str:
 
 def section3(cfg: ReproduceConfig, out_dir: Path) -> dict:
     """The planar leg of Section III: figure like Fig. 5 and its numbers."""
-    from envs.simulate import build_world, simulate
+    from jax_contact.envs.simulate import build_world, simulate
 
     _log("[section III] planar leg, Table II noise, hopping")
     world = build_world("planar_leg")
@@ -276,7 +281,7 @@ def section3(cfg: ReproduceConfig, out_dir: Path) -> dict:
         f: float(((out[f"probabilistic/{f}"] > 0.5) == roll.contact)[valid].mean())
         for f in ("p_dynamics", "p_diff_kinematics", "p_kinematics")
     }
-    from train.figures import plot_estimate
+    from jax_contact.train.figures import plot_estimate
 
     plot_estimate(
         out,
@@ -346,7 +351,7 @@ def table3(cfg: ReproduceConfig, out_dir: Path) -> dict:
             },
         }
         if name == "trot":
-            from train.figures import plot_estimate
+            from jax_contact.train.figures import plot_estimate
 
             plot_estimate(
                 out,
@@ -368,7 +373,7 @@ def input_lag_ms(dt: float, noise: str = "anymal_like") -> float:
     in every reported delay (delays count from the step of the true event to the first
     step whose output detects it).
     """
-    from envs.sensors import sensor_preset
+    from jax_contact.envs.sensors import sensor_preset
 
     return 1e3 * dt * sensor_preset(noise, 6, dt=dt).latency
 

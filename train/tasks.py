@@ -1,13 +1,13 @@
 """The tasks ``jax-contact train`` can train, and their frozen PPO configurations.
 
-- ``"go1"``: MuJoCo Playground's Go1 joystick (:mod:`train.ppo`; configurations
-  :data:`train.ppo.SMALL`, :data:`train.ppo.FULL`).
-- ``"hop"``: the planar leg hopping to a commanded apex height (:mod:`envs.hop_task`),
+- ``"go1"``: MuJoCo Playground's Go1 joystick (:mod:`jax_contact.train.ppo`; configurations
+  :data:`jax_contact.train.ppo.SMALL`, :data:`jax_contact.train.ppo.FULL`).
+- ``"hop"``: the planar leg hopping to a commanded apex height (:mod:`jax_contact.envs.hop_task`),
   where contact timing matters; configuration :data:`HOP_SMALL` (this 2-core CPU) and
   :data:`HOP_REDUCED` (the reduced run of docs/training_hop.md).
 
-A :class:`Task` says how :func:`train.ppo.train` builds the env of a variant and wraps it
-for training; everything else (the PPO call, the run folder, checkpoints, curves) is the
+A :class:`Task` says how :func:`jax_contact.train.ppo.train` builds the env of a variant and wraps
+it for training; everything else (the PPO call, the run folder, checkpoints, curves) is the
 same for both.
 """
 
@@ -16,7 +16,7 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Callable
 
-from train.ppo import PPOConfig
+from jax_contact.train.ppo import PPOConfig
 
 # Sized for the 2-core CPU: a 7-number observation (5 leg + command + 1 contact), small
 # networks, 3 s episodes (300 steps of 10 ms). 1,228,800 steps = 6 epochs of 20 training
@@ -49,7 +49,7 @@ class Task:
     Attributes:
       name: the task's name (``--task``).
       env_name: the env's name in ``run.json`` and plot titles.
-      configs: configuration name -> :class:`train.ppo.PPOConfig`, as pairs.
+      configs: configuration name -> :class:`jax_contact.train.ppo.PPOConfig`, as pairs.
       make_env: ``(observe, cfg) -> env``: the unbatched env with the contact wrapper.
       wrap_env_fn: the training wrappers (``ppo.train``'s ``wrap_env_fn``); None: Brax's.
     """
@@ -68,7 +68,7 @@ class Task:
 
 
 def _go1_env(observe: str, cfg: PPOConfig):
-    from train import ppo
+    from jax_contact.train import ppo
 
     return ppo.make_env(observe, sensor=cfg.sensor, reward=cfg.reward)
 
@@ -80,14 +80,14 @@ def _go1_wrap(env, **kwargs):
 
 
 def _hop_env(observe: str, cfg: PPOConfig):
-    from envs import hop_task
+    from jax_contact.envs import hop_task
 
     task = dataclasses.replace(hop_task.HOP, episode_length=cfg.episode_length, sensor=cfg.sensor)
     return hop_task.make_hop_env(observe, task)
 
 
 def _go1() -> Task:
-    from train import ppo
+    from jax_contact.train import ppo
 
     return Task("go1", ppo.ENV_NAME, tuple(ppo.CONFIGS.items()), _go1_env, _go1_wrap)
 

@@ -1,7 +1,7 @@
 """The transfer matrix of the hop task: trained with one contact signal, evaluated with others.
 
 Rows: the policies trained with ``observe`` in {none, truth, estimate} (one run folder per
-seed, written by :func:`train.ppo.train` with ``task="hop"``). Columns
+seed, written by :func:`jax_contact.train.ppo.train` with ``task="hop"``). Columns
 (:data:`COLUMNS`): what the policy sees at evaluation, in the slot it was trained with:
 
 - ``truth``: the simulator's contact;
@@ -87,7 +87,7 @@ class _Evaluator:
         self._fns: dict = {}
 
     def rollout_fn(self, column: str, make_policy):
-        from envs import hop_task
+        from jax_contact.envs import hop_task
 
         key = (column, id(make_policy))
         if key in self._fns:
@@ -125,7 +125,9 @@ class _Evaluator:
                 )
                 return (s, alive), out
 
-            (s, _), outs = jax.lax.scan(body, (state, jnp.ones(n, bool)), jax.random.split(k_act, t_len))
+            (s, _), outs = jax.lax.scan(
+                body, (state, jnp.ones(n, bool)), jax.random.split(k_act, t_len)
+            )
             return state.info["h_cmd"], outs
 
         self._fns[key] = (rollout, env)
@@ -133,7 +135,7 @@ class _Evaluator:
 
 
 def _run_cfg(run_dir: Path):
-    from train.ppo import PPOConfig
+    from jax_contact.train.ppo import PPOConfig
 
     run = json.loads((run_dir / "run.json").read_text())
     cfg = PPOConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in run["config"].items()})
@@ -141,7 +143,7 @@ def _run_cfg(run_dir: Path):
 
 
 def _evaluate(ev: _Evaluator, run_dir: Path, column: str, seed: int, loaded=None) -> dict:
-    from train import ppo
+    from jax_contact.train import ppo
 
     ckpt = ppo.latest_checkpoint(run_dir)
     make_policy, params, sizes = loaded or ppo.load_policy(ckpt, parts=True)
@@ -178,14 +180,14 @@ def evaluate_run(
     """One hop run's latest checkpoint evaluated in one column (``policy-eval``'s hop path).
 
     Args:
-      run_dir: a run folder of :func:`train.ppo.train` with ``task="hop"``.
+      run_dir: a run folder of :func:`jax_contact.train.ppo.train` with ``task="hop"``.
       observe: ``"none"``, ``"truth"`` or ``"estimate"`` (the ``anymal_like`` column);
         None: the variant it was trained with.
       column: a :data:`COLUMNS` name (or ``"none"``), instead of ``observe``.
       n_envs, episode_length, seed: episodes in parallel, their length (None: the
         training configuration's), the PRNG seed.
     """
-    from envs import hop_task
+    from jax_contact.envs import hop_task
 
     run_dir = Path(run_dir)
     if not (run_dir / "run.json").is_file():
@@ -193,13 +195,18 @@ def evaluate_run(
     run, cfg = _run_cfg(run_dir)
     column = column or observe or run["variant"]
     task_cfg = dataclasses.replace(hop_task.HOP, sensor=cfg.sensor)
-    ev = _Evaluator(task_cfg, hop_task.hop_robot(), n_envs, int(episode_length or cfg.episode_length))
+    ev = _Evaluator(
+        task_cfg, hop_task.hop_robot(), n_envs, int(episode_length or cfg.episode_length)
+    )
     from jax_contact import metrics
 
     m = _evaluate(ev, run_dir, column, seed)
     p, truth, alive = (np.asarray(m.pop(k)) for k in ("_p", "_truth", "_alive"))
     contact = metrics.evaluate(
-        p[..., None], truth[..., None].astype(bool), alive[..., None], dt=float(ev.task_cfg.n_frames * 0.0025)
+        p[..., None],
+        truth[..., None].astype(bool),
+        alive[..., None],
+        dt=float(ev.task_cfg.n_frames * 0.0025),
     )
     return {
         "contact": contact.as_dict(),
@@ -232,13 +239,15 @@ def transfer_matrix(
       ``{"cells": {variant: {column: {metric: {"mean", "std", "per_seed"}}}}, "wall_s"}``;
       ``std`` is the population std over seeds (0 with one seed).
     """
-    from envs import hop_task
+    from jax_contact.envs import hop_task
 
     t0 = time.perf_counter()
     first = Path(next(iter(runs.values()))[0])
     _, cfg = _run_cfg(first)
     task_cfg = dataclasses.replace(hop_task.HOP, sensor=cfg.sensor)
-    ev = _Evaluator(task_cfg, hop_task.hop_robot(), n_envs, int(episode_length or cfg.episode_length))
+    ev = _Evaluator(
+        task_cfg, hop_task.hop_robot(), n_envs, int(episode_length or cfg.episode_length)
+    )
     cells: dict = {}
     makers: dict = {}  # one make_policy per observation size, so rollouts are shared
     for variant, dirs in runs.items():
@@ -246,7 +255,7 @@ def transfer_matrix(
         per_col: dict = {c: [] for c in columns}
         for d in dirs:
             d = Path(d)
-            from train import ppo
+            from jax_contact.train import ppo
 
             make_policy, params, sizes = ppo.load_policy(ppo.latest_checkpoint(d), parts=True)
             make_policy = makers.setdefault(tuple(sizes["state"]), make_policy)
@@ -262,9 +271,11 @@ def transfer_matrix(
                     for k in ("_p", "_truth", "_alive"):
                         m.pop(k)
                     per_col[c].append(m)
-                    log(f"[transfer] {variant:>8s} -> {c:<15s} return {m['return']:7.2f}"
+                    log(
+                        f"[transfer] {variant:>8s} -> {c:<15s} return {m['return']:7.2f}"
                         f" apex err {m['apex_error']:.3f} hops {m['hops']:.2f}"
-                        f" acc {m['accuracy']:.3f}  ({time.perf_counter() - t0:.0f} s)")
+                        f" acc {m['accuracy']:.3f}  ({time.perf_counter() - t0:.0f} s)"
+                    )
         for c, ms in per_col.items():
             cells[variant][c] = {
                 k: {
@@ -274,8 +285,13 @@ def transfer_matrix(
                 }
                 for k in METRICS
             }
-    return {"cells": cells, "columns": list(columns), "n_envs": n_envs, "seed": seed,
-            "wall_s": round(time.perf_counter() - t0, 1)}
+    return {
+        "cells": cells,
+        "columns": list(columns),
+        "n_envs": n_envs,
+        "seed": seed,
+        "wall_s": round(time.perf_counter() - t0, 1),
+    }
 
 
 def format_matrix(result: dict, metric: str = "return") -> str:

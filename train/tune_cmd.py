@@ -12,7 +12,7 @@ fitted on the tuning logs (``provenance["calibration"]``, see
 
 Like ``train/cli.py``, this module imports no JAX at module level: :func:`check`
 validates the arguments first, and :func:`run` imports the library. Register it in the
-CLI with ``tune_cmd.add_parser(sub)``; ``python -m train.tune_cmd ...`` runs it alone.
+CLI with ``tune_cmd.add_parser(sub)``; ``python -m jax_contact.train.tune_cmd ...`` runs it alone.
 
 The default parameters that tuning starts from (and that the prior is centred on) are
 the ones ``jax-contact evaluate`` uses for the log's robot: ``params_for`` with the log's
@@ -67,8 +67,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     The parser's defaults carry ``func=run`` and ``check=check``, as ``train/cli.py``'s
     commands do.
     """
-    # The CLI's argument types (one rule); imported here, once train.cli is loaded.
-    from train.cli import _positive_float, _positive_int
+    # The CLI's argument types (one rule); imported here, once jax_contact.train.cli is loaded.
+    from jax_contact.train.cli import _positive_float, _positive_int
 
     p = subparsers.add_parser(
         "tune",
@@ -167,7 +167,7 @@ def check(args: argparse.Namespace) -> None:
 def measure_readings(robot, readings: dict, *, pairing: str = "delayed", chunk: int = 400):
     """The estimator's inputs of every step of a (T, E) batch of readings, computed once.
 
-    Pairing as ``train.evaluate.replay`` (``"delayed"``: the acceleration and torque of
+    Pairing as ``jax_contact.train.evaluate.replay`` (``"delayed"``: the acceleration and torque of
     reading ``k`` with the state of reading ``k - 1``, scored against the truth of step
     ``k``; the first reading is paired with its own state). The result is a
     :class:`jax_contact.RobotMeasurement` with NumPy float32 leaves
@@ -175,7 +175,7 @@ def measure_readings(robot, readings: dict, *, pairing: str = "delayed", chunk: 
     (Go1: 671 floats, 2.7 kB per robot-step; 16 envs x 8 s: 137 MB).
 
     Args:
-      robot: the nominal :class:`envs.robots.Robot` (the estimator's model).
+      robot: the nominal :class:`jax_contact.envs.robots.Robot` (the estimator's model).
       readings: ``qpos`` (T, E, nq), ``qvel``/``qacc``/``tau`` (T, E, nv).
       pairing: ``"delayed"`` or ``"raw"``.
       chunk: steps computed per compiled call.
@@ -186,12 +186,12 @@ def measure_readings(robot, readings: dict, *, pairing: str = "delayed", chunk: 
     from mujoco import mjx
 
     from jax_contact.adapter import prepare, robot_measurement
-    from train.evaluate import delay_one_step
+    from jax_contact.train.evaluate import delay_one_step
 
     if pairing not in ("delayed", "raw"):
         raise ValueError(f"pairing must be 'delayed' or 'raw', got {pairing!r}")
     qpos, qvel, qacc, tau = (np.asarray(readings[k]) for k in ("qpos", "qvel", "qacc", "tau"))
-    if pairing == "delayed":  # only the state is delayed (train.evaluate's convention)
+    if pairing == "delayed":  # only the state is delayed (jax_contact.train.evaluate's convention)
         qpos, qvel = delay_one_step(qpos), delay_one_step(qvel)
     m = mjx.put_model(robot.mj_model)
     template = mjx.make_data(m)
@@ -218,14 +218,14 @@ def measure_readings(robot, readings: dict, *, pairing: str = "delayed", chunk: 
 
 
 def read_truth_log(path: str | Path):
-    """A log file -> (readings, truth, valid, attrs, robot): ``train.logs.load_log`` (the
-    end-of-step timing convention, the robot with the log's feet, every shape checked),
+    """A log file -> (readings, truth, valid, attrs, robot): ``jax_contact.train.logs.load_log``
+    (the end-of-step timing convention, the robot with the log's feet, every shape checked),
     refused without ground truth.
 
     Raises:
-      ValueError: the log has no ground truth, or any error of ``train.logs``' checks.
+      ValueError: the log has no ground truth, or any error of ``jax_contact.train.logs``' checks.
     """
-    from train.logs import load_log
+    from jax_contact.train.logs import load_log
 
     log = load_log(path)
     if log.truth is None:
@@ -255,8 +255,12 @@ def default_params(robot, dt: float, noise: str = "anymal_like"):
     """(params, terrain) of ``jax-contact evaluate`` for this robot; other sensor presets
     than ``anymal_like`` get ``params_for`` with that preset."""
     import jax_contact as jc
-    from envs.sensors import sensor_preset
-    from train.reproduce import TERRAIN_SIGMA, planar_estimator_params, quadruped_estimator_params
+    from jax_contact.envs.sensors import sensor_preset
+    from jax_contact.train.reproduce import (
+        TERRAIN_SIGMA,
+        planar_estimator_params,
+        quadruped_estimator_params,
+    )
 
     desc = robot.description
     if desc.n_leg_dofs == 2:
@@ -270,7 +274,7 @@ def default_params(robot, dt: float, noise: str = "anymal_like"):
 # ------------------------------------------------------------------ presets, logs
 
 
-# The scenarios of train.reproduce (Table III): gait, terrain and added mass of each.
+# The scenarios of jax_contact.train.reproduce (Table III): gait, terrain and added mass of each.
 SCENARIOS = {
     "trot": ("trot", "flat", False),
     "walk": ("walk", "flat", False),
@@ -292,13 +296,13 @@ def simulate_log(
     duration: float = 8.0,
     noise: str = "anymal_like",
 ) -> Path:
-    """Simulates one scenario of ``train.reproduce`` (its world, gait, speed range and
+    """Simulates one scenario of ``jax_contact.train.reproduce`` (its world, gait, speed range and
     sensors) and writes it as a log (the schema of ``jax-contact simulate``)."""
-    from envs.gaits import make_gait
-    from envs.simulate import simulate
+    from jax_contact.envs.gaits import make_gait
+    from jax_contact.envs.simulate import simulate
     from jax_contact.io import write_log
-    from train import reproduce
-    from train.logs import READING_TIMING
+    from jax_contact.train import reproduce
+    from jax_contact.train.logs import READING_TIMING
 
     gait, _, _ = SCENARIOS[scenario]
     cfg = reproduce.ReproduceConfig(robot=robot)
@@ -339,7 +343,7 @@ def regenerate_preset(
     docs/tuning.md compares both) and ``--calibrate``, and writes
     ``jax_contact/presets/<robot>.json`` (or ``out``).
 
-    ``python -c "from train.tune_cmd import regenerate_preset as r; r('go1')"``
+    ``python -c "from jax_contact.train.tune_cmd import regenerate_preset as r; r('go1')"``
     """
     workdir = Path(workdir)
     logs = {}
@@ -352,8 +356,8 @@ def regenerate_preset(
         out = Path(__file__).resolve().parents[1] / "jax_contact" / "presets" / f"{robot}.json"
     argv = [logs[k] for k in PRESET_TUNE] + ["--validate"] + [logs[k] for k in PRESET_VALIDATE]
     note = (
-        f'regenerate: python -c "from train.tune_cmd import regenerate_preset as r;'
-        f" r('{robot}')\" (logs: {n_envs} envs x {duration:g} s of train.reproduce's"
+        f'regenerate: python -c "from jax_contact.train.tune_cmd import regenerate_preset as r;'
+        f" r('{robot}')\" (logs: {n_envs} envs x {duration:g} s of jax_contact.train.reproduce's"
         f" scenarios, anymal_like sensors)"
     )
     extra = ["--air-penalty", str(air_penalty)]
@@ -374,8 +378,8 @@ def compare(
     """Default vs tuned parameters on the evaluation scenarios (docs/tuning.md's tables).
 
     Simulates (or reuses from ``workdir``) each scenario's log of ``seed``, replays it with
-    every variant on the same inputs (``train.evaluate.replay``) and scores it. A variant
-    whose file holds a calibration map also gets a ``<name>+cal`` row: its P(contact)
+    every variant on the same inputs (``jax_contact.train.evaluate.replay``) and scores it. A
+    variant whose file holds a calibration map also gets a ``<name>+cal`` row: its P(contact)
     mapped by the temperature and bias (flag at calibrated P > 0.5).
 
     Args:
@@ -384,14 +388,14 @@ def compare(
       plots: a folder for one reliability diagram per scenario, or None.
 
     Returns:
-      scenario -> row -> metrics (``train.evaluate.score``'s dicts).
+      scenario -> row -> metrics (``jax_contact.train.evaluate.score``'s dicts).
     """
     import numpy as np
 
     import jax_contact as jc
     from jax_contact import tune as jt
-    from train.calibration import reliability_diagram
-    from train.evaluate import replay, score
+    from jax_contact.train.calibration import reliability_diagram
+    from jax_contact.train.evaluate import replay, score
 
     results = {}
     for scenario in scenarios:
@@ -496,7 +500,7 @@ def run(args: argparse.Namespace) -> int:
     t_load = time.perf_counter() - t0
     print(f"measurements precomputed in {t_load:.1f} s", file=sys.stderr)
 
-    from envs.robots import load_robot
+    from jax_contact.envs.robots import load_robot
 
     frozen = list(getattr(args, "freeze", []) or [])
     fields = [f for f in jt.DEFAULT_FIELDS if f not in frozen]
@@ -613,7 +617,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """``python -m train.tune_cmd ...``: the command without the rest of the CLI."""
+    """``python -m jax_contact.train.tune_cmd ...``: the command without the rest of the CLI."""
     parser = argparse.ArgumentParser(prog="jax-contact")
     add_parser(parser.add_subparsers(dest="command"))
     args = parser.parse_args(["tune", *(sys.argv[1:] if argv is None else argv)])
