@@ -98,6 +98,9 @@ DEFAULT_FIELDS = NOISE_FIELDS + CAP_FIELDS + LOG_FIELDS
 AXIS_GROUPS = {"sigma_f": ((0, 0, 1), ("horizontal", "normal")), "sigma_J": ((0, 0, 0), ("xyz",))}
 # Where a cap of exactly 1 (unbounded) is the starting point, it starts just below.
 _CAP_MAX = 1.0 - 1e-6
+# The interval T_s is tuned in, s (module docstring: what a plausible T_s is).
+STANCE_TIME_BOUNDS = (0.15, 1.2)
+BOUNDED_FIELDS = ("stance_time",)
 
 
 # ----------------------------------------------------------------------- the search space
@@ -111,13 +114,22 @@ class ParamSpace:
       fields: names of tuned fields, among :data:`DEFAULT_FIELDS`.
       dof_groups: (nv,) the group of each generalised coordinate.
       group_names: a name per coordinate group (for reports).
+      stance_time_bounds: (lo, hi), s: the interval ``T_s`` is tuned in (a hard bound,
+        :data:`STANCE_TIME_BOUNDS` by default; module docstring).
     """
 
     fields: tuple[str, ...]
     dof_groups: tuple[int, ...]
     group_names: tuple[str, ...]
+    stance_time_bounds: tuple[float, float] = STANCE_TIME_BOUNDS
 
     def __post_init__(self):
+        lo, hi = (float(x) for x in self.stance_time_bounds)
+        if not (np.isfinite(lo) and np.isfinite(hi) and 0 < lo < hi):
+            raise ValueError(
+                f"stance_time_bounds must be 0 < lo < hi (s), got {self.stance_time_bounds!r}"
+            )
+        object.__setattr__(self, "stance_time_bounds", (lo, hi))
         bad = [f for f in self.fields if f not in DEFAULT_FIELDS]
         if bad or not self.fields or len(set(self.fields)) != len(self.fields):
             raise ValueError(f"fields must be distinct names among {DEFAULT_FIELDS}, got {bad}")
@@ -144,6 +156,7 @@ def make_space(
     dof_groups: Sequence[int] | None = None,
     group_names: Sequence[str] | None = None,
     fields: Sequence[str] = DEFAULT_FIELDS,
+    stance_time_bounds: tuple[float, float] = STANCE_TIME_BOUNDS,
 ) -> ParamSpace:
     """A :class:`ParamSpace` for ``nv`` coordinates; by default all in one group."""
     groups = tuple(int(g) for g in (dof_groups if dof_groups is not None else (0,) * nv))
@@ -151,10 +164,19 @@ def make_space(
         raise ValueError(f"dof_groups must have nv={nv} entries, got {len(groups)}")
     n = max(groups) + 1
     names = tuple(group_names) if group_names is not None else tuple(f"g{i}" for i in range(n))
-    return ParamSpace(fields=tuple(fields), dof_groups=groups, group_names=names)
+    return ParamSpace(
+        fields=tuple(fields),
+        dof_groups=groups,
+        group_names=names,
+        stance_time_bounds=tuple(stance_time_bounds),
+    )
 
 
-def robot_space(desc, fields: Sequence[str] = DEFAULT_FIELDS) -> ParamSpace:
+def robot_space(
+    desc,
+    fields: Sequence[str] = DEFAULT_FIELDS,
+    stance_time_bounds: tuple[float, float] = STANCE_TIME_BOUNDS,
+) -> ParamSpace:
     """The coordinate groups of a legged robot (``jax_contact.robot.RobotDescription``).
 
     A free-joint base gives ``base_linear`` (coordinates 0-2) and ``base_rotational``
@@ -181,7 +203,12 @@ def robot_space(desc, fields: Sequence[str] = DEFAULT_FIELDS) -> ParamSpace:
     for i in range(nv):
         if groups[i] < 0:
             groups[i] = group("other")
-    return ParamSpace(fields=tuple(fields), dof_groups=tuple(groups), group_names=tuple(names))
+    return ParamSpace(
+        fields=tuple(fields),
+        dof_groups=tuple(groups),
+        group_names=tuple(names),
+        stance_time_bounds=tuple(stance_time_bounds),
+    )
 
 
 def _cap_to_theta(cap) -> np.ndarray:
@@ -192,13 +219,28 @@ def _cap_to_theta(cap) -> np.ndarray:
 
 def init_theta(space: ParamSpace, base: EstimatorParams) -> dict[str, jax.Array]:
     """The unconstrained values of ``base``: zeros for the noise log multipliers, the caps'
-    logits and the log of ``T_s`` and ``a_F`` (module docstring)."""
+    logits, the scaled logit of ``T_s`` in its bounds and the log of ``a_F`` (module
+    docstring).
+
+    Raises:
+      ValueError: ``base.stance_time`` is not strictly inside ``space.stance_time_bounds``.
+    """
     theta = {}
     for f in space.fields:
         if f in NOISE_FIELDS:
             theta[f] = jnp.zeros(len(space.groups_of(f)[1]), jnp.float32)
         elif f in CAP_FIELDS:
             theta[f] = jnp.asarray(_cap_to_theta(getattr(base, f)), jnp.float32)
+        elif f in BOUNDED_FIELDS:
+            lo, hi = space.stance_time_bounds
+            v = float(getattr(base, f))
+            if not lo < v < hi:
+                raise ValueError(
+                    f"{f} = {v} s lies outside the tuning bounds ({lo}, {hi}) s; pass"
+                    " stance_time_bounds that contain it (or freeze it)"
+                )
+            x = (v - lo) / (hi - lo)
+            theta[f] = jnp.asarray(np.log(x) - np.log1p(-x), jnp.float32)
         else:
             theta[f] = jnp.asarray(np.log(float(getattr(base, f))), jnp.float32)
     return theta
@@ -220,6 +262,9 @@ def to_params(space: ParamSpace, base: EstimatorParams, theta: dict) -> Estimato
         dtype = jnp.result_type(getattr(base, f))
         if f in CAP_FIELDS:
             values[f] = (0.5 + 0.5 * jax.nn.sigmoid(theta[f])).astype(dtype)
+        elif f in BOUNDED_FIELDS:
+            lo, hi = space.stance_time_bounds
+            values[f] = (lo + (hi - lo) * jax.nn.sigmoid(theta[f])).astype(dtype)
         else:
             values[f] = jnp.exp(theta[f]).astype(dtype)
     return base.replace(noise=base.noise.replace(**noise), **values)
@@ -239,8 +284,17 @@ class TuneConfig:
       prior_noise: ``lambda_sigma``, weight of the prior on the noise log multipliers.
       prior_other: ``lambda_other``, weight of the prior on caps, ``T_s``, ``a_F``.
       seed: the run's key, ``jax.random.key(seed)``.
-      air_penalty: ``mu``, weight of the false-contact hinge (0: plain BCE, the default).
+      air_penalty: ``mu``, weight of the per-step false-contact hinge (0: off, the
+        default; a diagnostic of the previous session, superseded by ``event_weight``).
       air_margin: ``m``, the logit below which a true air step costs nothing in the hinge.
+      event_weight: ``w_e``, weight of the air-phase event term (0: plain BCE).
+      event_temperature: ``tau``, the log-sum-exp's temperature (logit units); smaller is
+        closer to the hard maximum.
+      event_early_s: the early window of ``jax_contact.metrics`` (rule 2), s: a flagged
+        run that starts this close before a true touch-down and lasts into it is the
+        touch-down's detection, not a false contact, and is not scored.
+      select: which validation number picks the epoch returned: ``"loss"`` (BCE plus the
+        event term, the default) or ``"bce"``.
     """
 
     learning_rate: float = 0.05
@@ -254,16 +308,30 @@ class TuneConfig:
     seed: int = 0
     air_penalty: float = 0.0
     air_margin: float = 2.0
+    event_weight: float = 1.0
+    event_temperature: float = 0.5
+    event_early_s: float = 0.05
+    select: str = "loss"
 
     def __post_init__(self):
         for name in ("learning_rate", "clip_norm"):
             v = getattr(self, name)
             if not (np.isfinite(v) and v > 0):
                 raise ValueError(f"TuneConfig.{name} must be a finite number > 0, got {v!r}")
-        for name in ("prior_noise", "prior_other", "min_delta", "air_penalty", "air_margin"):
+        for name in (
+            "prior_noise", "prior_other", "min_delta", "air_penalty", "air_margin",
+            "event_weight", "event_early_s",
+        ):  # fmt: skip
             v = getattr(self, name)
             if not (np.isfinite(v) and v >= 0):
                 raise ValueError(f"TuneConfig.{name} must be a finite number >= 0, got {v!r}")
+        if not (np.isfinite(self.event_temperature) and self.event_temperature > 0):
+            raise ValueError(
+                f"TuneConfig.event_temperature must be a finite number > 0,"
+                f" got {self.event_temperature!r}"
+            )
+        if self.select not in ("loss", "bce"):
+            raise ValueError(f"TuneConfig.select must be 'loss' or 'bce', got {self.select!r}")
         for name, low in (("max_epochs", 0), ("patience", 1), ("chunk", 1)):
             v = getattr(self, name)
             if not isinstance(v, int) or v < low:
@@ -284,6 +352,24 @@ def prior_penalty(space: ParamSpace, theta: dict, theta0: dict, config: TuneConf
 
 
 @struct.dataclass
+class AirPhases:
+    """Where the true air phases and touch-downs of a log are (from truth and mask alone).
+
+    Attributes:
+      start: (T, E, L) bool, the first step of each true air phase (a valid air step whose
+        previous step is not a valid air step: ``jax_contact.metrics`` rule 8).
+      td_step: (T, E, L) bool, each true touch-down (a valid contact step after a valid
+        air step; rule 2's ``t0``).
+      td_window: (T, E, L) bool, the air steps at most ``early`` steps before the
+        touch-down that ends their phase (rule 2's early window).
+    """
+
+    start: jax.Array
+    td_step: jax.Array
+    td_window: jax.Array
+
+
+@struct.dataclass
 class TuningData:
     """One log's precomputed estimator inputs and ground truth (NumPy or JAX leaves).
 
@@ -293,15 +379,117 @@ class TuningData:
         estimator would see them.
       truth: (T, E, L) bool ground-truth contact at each step.
       mask: (T, E, L) bool, the steps that count (env valid).
+      events: the log's :class:`AirPhases` (:func:`with_air_phases`), needed by the event
+        term; None until annotated.
     """
 
     meas: RobotMeasurement | LegMeasurement
     truth: jax.Array
     mask: jax.Array
+    events: AirPhases | None = None
 
     @property
     def n_steps(self) -> int:
         return int(self.truth.shape[0])
+
+
+def air_phases(truth, mask, early: int) -> AirPhases:
+    """The :class:`AirPhases` of a (T, ...) truth and mask (NumPy, whole log at once).
+
+    Args:
+      truth, mask: (T, ...) bool.
+      early: the early window in steps (``round(early_window_s / dt)``).
+    """
+    truth = np.asarray(truth, bool)
+    air = np.asarray(mask, bool) & ~truth
+    prev_air = np.concatenate([np.zeros_like(air[:1]), air[:-1]], axis=0)
+    start = air & ~prev_air
+    td_step = np.asarray(mask, bool) & truth & prev_air
+    # Steps from each air step to the touch-down that ends its phase (a large number where
+    # the phase ends otherwise: an invalid step or the end of the log).
+    far = np.iinfo(np.int32).max // 2
+    dist = np.full(air.shape, far, np.int64)
+    cur = np.full(air.shape[1:], far, np.int64)
+    for t in range(air.shape[0] - 1, -1, -1):
+        cur = np.where(td_step[t], 0, np.where(air[t], cur + 1, far))
+        dist[t] = cur
+    return AirPhases(start=start, td_step=td_step, td_window=air & (dist <= early))
+
+
+def with_air_phases(data: TuningData, early: int) -> TuningData:
+    """``data`` with its :class:`AirPhases` (``early`` steps of early window)."""
+    return data.replace(events=air_phases(data.truth, data.mask, early))
+
+
+def scored_air_steps(logits: jax.Array, window: TuningData) -> jax.Array:
+    """(T, E, L) bool: the true air steps where a rise of the flag would be a failure.
+
+    A step of a true air phase is scored once the flag ``logit > 0`` has been off at some
+    step of the phase (so the stance's flag carried into the air, the lift-off delay, is
+    not a false contact: ``jax_contact.metrics`` rule 7 needs a rise in the air), and
+    unless it belongs to the flagged run that starts in the early window of the phase's
+    touch-down and lasts into it (that run is the detection, rule 4). Computed from the
+    flags alone, without gradient; a window's first step starts its phases afresh.
+    """
+    on = jax.lax.stop_gradient(logits) > 0
+    air = jnp.asarray(window.mask) & ~jnp.asarray(window.truth).astype(bool)
+    ev = jax.tree.map(jnp.asarray, window.events)
+
+    def fwd(dropped, x):
+        a, st, o = x
+        dropped = a & ((~st & dropped) | ~o)
+        return dropped, dropped
+
+    _, dropped = jax.lax.scan(fwd, jnp.zeros(on.shape[1:], bool), (air, ev.start, on))
+
+    def bwd(run, x):
+        o, td, win = x
+        run = o & (td | (win & run))
+        return run, run
+
+    # The window's last step: a flagged run there is taken to go on into the next window.
+    _, match = jax.lax.scan(
+        bwd, jnp.ones(on.shape[1:], bool), (on, ev.td_step, ev.td_window), reverse=True
+    )
+    return air & dropped & ~match
+
+
+def air_event_terms(logits: jax.Array, window: TuningData, temperature: float):
+    """The event term's sum over the window's air phases and their number.
+
+    For each true air phase ``a`` (:class:`AirPhases`; a phase cut by the window's start
+    counts from there) with scored steps ``S_a`` (:func:`scored_air_steps`)::
+
+        E_a = tau log sum_{t in S_a} exp(l_t / tau)      (smooth maximum of the logit)
+        cost_a = softplus(E_a) = -log(1 - sigmoid(E_a))
+
+    ``sigmoid(E_a)`` stands for the probability of at least one false contact in the phase
+    (``E_a`` lies between the largest logit and ``tau log |S_a|`` above it), so ``cost_a``
+    is the binary cross-entropy of the event "no false contact in this phase" (true for
+    every true air phase). Phases without a scored step cost 0.
+
+    Returns:
+      (sum of ``cost_a`` (), number of air phases in the window ()).
+    """
+    n_t = logits.shape[0]
+    cols = int(np.prod(logits.shape[1:]))
+    scored = scored_air_steps(logits, window)
+    air = jnp.asarray(window.mask) & ~jnp.asarray(window.truth).astype(bool)
+    first = (jnp.asarray(window.events.start) & air).at[0].set(air[0])  # phases cut by the start too
+    pid = jnp.cumsum(first, axis=0)  # phase number along each column, >= 1 inside phases
+    col = jnp.arange(cols).reshape(logits.shape[1:])
+    n_seg = cols * (n_t + 1) + 1
+    seg = jnp.where(scored, col * (n_t + 1) + pid, n_seg - 1).reshape(-1)
+    x = (logits / temperature).reshape(-1)
+    sc = scored.reshape(-1)
+    mx = jax.ops.segment_max(jnp.where(sc, jax.lax.stop_gradient(x), -jnp.inf), seg, n_seg)
+    has = jax.ops.segment_sum(sc.astype(jnp.int32), seg, n_seg) > 0
+    mx = jnp.where(has, mx, 0.0)
+    z = jnp.where(sc, x - mx[seg], -60.0)
+    total = jax.ops.segment_sum(jnp.where(sc, jnp.exp(z), 0.0), seg, n_seg)
+    e = temperature * (mx + jnp.log(jnp.where(has, total, 1.0)))
+    cost = jnp.where(has, jax.nn.softplus(e), 0.0)
+    return jnp.sum(cost), jnp.sum(first)
 
 
 def _window(data: TuningData, start: int, length: int) -> TuningData:
@@ -318,8 +506,15 @@ def _window(data: TuningData, start: int, length: int) -> TuningData:
 
     out = jax.tree.map(take, data)
     if pad:
-        keep = np.arange(length) < stop - start
-        out = out.replace(mask=out.mask & jnp.asarray(keep)[:, None, None])
+        keep = jnp.asarray(np.arange(length) < stop - start)[:, None, None]
+        out = out.replace(mask=out.mask & keep)
+        if out.events is not None:  # the padding holds no phase start and no touch-down
+            ev = out.events
+            out = out.replace(
+                events=ev.replace(
+                    start=ev.start & keep, td_step=ev.td_step & keep, td_window=ev.td_window & keep
+                )
+            )
     return out
 
 
@@ -363,14 +558,22 @@ def window_bce(
     *,
     key: jax.Array,
     air_margin: float = 2.0,
+    event_temperature: float | None = None,
 ) -> tuple[jax.Array, tuple]:
     """Masked BCE of one window: (sum of BCE, (final belief, number of counted steps, sum
-    of the air hinge over the true air steps))."""
+    of the air hinge over the true air steps, sum of the event term over the window's air
+    phases, number of air phases)); the event sums are 0 unless ``event_temperature``."""
     belief, logits = filter_logits(params, terrain, belief, window.meas, key=key, remat=True)
     nll = jnp.where(window.mask, _bce(logits, window.truth), 0.0)
     air = window.mask & ~window.truth.astype(bool)
     hinge = jnp.where(air, air_hinge(logits, air_margin), 0.0)
-    return jnp.sum(nll), (belief, jnp.sum(window.mask), jnp.sum(hinge))
+    if event_temperature is None:
+        event, n_phases = jnp.zeros((), logits.dtype), jnp.zeros((), jnp.int32)
+    else:
+        if window.events is None:
+            raise ValueError("the event term needs the window's AirPhases (with_air_phases)")
+        event, n_phases = air_event_terms(logits, window, event_temperature)
+    return jnp.sum(nll), (belief, jnp.sum(window.mask), jnp.sum(hinge), event, n_phases)
 
 
 def tuning_loss(
@@ -391,14 +594,17 @@ def tuning_loss(
       (loss (), (final belief, mean BCE of the window (), counted steps ())).
     """
     params = to_params(space, base, theta)
-    total, (belief, n, hinge) = window_bce(
-        params, terrain, belief, window, key=key, air_margin=config.air_margin
-    )
+    total, (belief, n, hinge, event, n_phases) = window_bce(
+        params, terrain, belief, window, key=key, air_margin=config.air_margin,
+        event_temperature=config.event_temperature if config.event_weight > 0 else None,
+    )  # fmt: skip
     scale = 1.0 / jnp.maximum(n, 1).astype(total.dtype)
     data = total * scale
     loss = data + prior_penalty(space, theta, theta0, config)
     if config.air_penalty > 0:
         loss = loss + config.air_penalty * hinge * scale
+    if config.event_weight > 0:
+        loss = loss + config.event_weight * event / jnp.maximum(n_phases, 1).astype(total.dtype)
     return loss, (belief, data, n)
 
 
@@ -476,6 +682,37 @@ def score_logits(logits, data: TuningData) -> dict[str, float]:
     }
 
 
+@functools.partial(jax.jit, static_argnames=("temperature",))
+def _event_sum(logits, window, temperature):
+    return air_event_terms(logits, window, temperature)
+
+
+def score_logs(
+    logits: Sequence, datas: Sequence[TuningData], *, dt: float, config: TuneConfig
+) -> dict[str, float]:
+    """Pooled validation scores of whole logs (each (T, E, L) logits with its data).
+
+    ``bce`` (mean over masked foot-steps), ``event`` (the event term's mean over air
+    phases; NaN without :class:`AirPhases`), ``loss`` (``bce + event_weight * event``,
+    no prior), ``f1``, ``ece`` and ``fail`` (``jax_contact.metrics``' air-phase failure
+    rate: air phases with a false contact / air phases, events per log).
+    """
+    from jax_contact.metrics import evaluate
+
+    out = score_logits(np.concatenate([np.asarray(x).reshape(-1) for x in logits]), pooled(datas))
+    ev_sum = n_ph = failed = n_air = 0.0
+    for x, d in zip(logits, datas, strict=True):
+        if d.events is not None:
+            e, n = _event_sum(jnp.asarray(x), d.replace(meas=None), config.event_temperature)
+            ev_sum, n_ph = ev_sum + float(e), n_ph + float(n)
+        m = evaluate(sigmoid_np(x), np.asarray(d.truth, bool), np.asarray(d.mask, bool), dt=dt)
+        failed, n_air = failed + m.air_phases_with_failure, n_air + m.n_air_phases
+    out["event"] = ev_sum / n_ph if n_ph else float("nan")
+    out["loss"] = out["bce"] + (config.event_weight * out["event"] if n_ph else 0.0)
+    out["fail"] = failed / n_air if n_air else float("nan")
+    return out
+
+
 # ------------------------------------------------------------------------------ tuning
 
 
@@ -488,8 +725,10 @@ class TuneResult:
       theta: their unconstrained values.
       history: one dict per epoch (epoch 0: before any update): ``epoch``, ``train_loss``
         (mean over the epoch's windows of the loss, NaN for epoch 0), ``train_bce``,
-        ``val_bce``, ``val_f1``, ``val_ece``, ``grad_norm``, ``wall_s``.
-      best_epoch: the epoch whose parameters are returned.
+        ``val_bce``, ``val_event``, ``val_loss``, ``val_f1``, ``val_ece``, ``val_fail``
+        (:func:`score_logs`), ``grad_norm``, ``wall_s``.
+      best_epoch: the epoch whose parameters are returned (lowest ``val_loss``, or
+        ``val_bce`` with ``config.select == "bce"``).
       stopped_early: whether patience ran out before ``max_epochs``.
       wall_s: total wall time, s (compilation included).
     """
@@ -544,14 +783,19 @@ def tune(
     if not vals:
         raise ValueError("tune needs a validation log")
 
+    dt = float(base.dt)
+    early = int(round(config.event_early_s / dt))
+    train = [d if d.events is not None else with_air_phases(d, early) for d in train]
+    vals = [v if v.events is not None else with_air_phases(v, early) for v in vals]
+
     def validate(th) -> dict:
         params = to_params(space, base, th)
         logits = [
             predict_logits(params, terrain, v, key=jax.random.fold_in(val_key, i),
-                           chunk=config.chunk).reshape(-1)
+                           chunk=config.chunk)
             for i, v in enumerate(vals)
         ]  # fmt: skip
-        return score_logits(np.concatenate(logits), pooled(vals))
+        return score_logs(logits, vals, dt=dt, config=config)
 
     history = []
     first = dict(epoch=0, train_loss=float("nan"), train_bce=float("nan"), grad_norm=float("nan"))
@@ -560,7 +804,8 @@ def tune(
     history.append(first)
     if progress:
         progress(first)
-    best, best_theta, best_epoch, bad = first["val_bce"], theta, 0, 0
+    crit = "val_loss" if config.select == "loss" else "val_bce"
+    best, best_theta, best_epoch, bad = first[crit], theta, 0, 0
     stopped = False
     for epoch in range(1, config.max_epochs + 1):
         losses, bces, norms, counts = [], [], [], []
@@ -589,8 +834,8 @@ def tune(
         history.append(row)
         if progress:
             progress(row)
-        if row["val_bce"] < best - config.min_delta:
-            best, best_theta, best_epoch, bad = row["val_bce"], theta, epoch, 0
+        if row[crit] < best - config.min_delta:
+            best, best_theta, best_epoch, bad = row[crit], theta, epoch, 0
         else:
             bad += 1
             if bad >= config.patience:

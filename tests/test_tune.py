@@ -61,8 +61,12 @@ def _fd_problem():
     return base["noise"], scalars, meas, truth
 
 
-def _fd_setup():
-    """Float64 params, space, data and a flat-vector loss (call under enable_x64)."""
+FD_EARLY = 2  # steps of early window in the FD problem (event_early_s = 2 dt)
+
+
+def _fd_setup(event_weight: float = 0.0):
+    """Float64 params, space, data and a flat-vector loss (call under enable_x64); with
+    ``event_weight > 0`` the loss has the air-phase event term."""
     noise, scalars, meas, truth = _fd_problem()
     base = make_params(make_noise(NV, **noise), **scalars, touchdown="quadrature")
     base = jax.tree.map(lambda x: jnp.asarray(x, jnp.float64), base)
@@ -77,10 +81,17 @@ def _fd_setup():
         }
     )
     data = jt.TuningData(meas=meas, truth=jnp.asarray(truth), mask=jnp.ones(truth.shape, bool))
+    data = jt.with_air_phases(data, FD_EARLY)
     terrain = jax.tree.map(lambda x: jnp.asarray(x, jnp.float64), flat(0.0, 0.05))
     belief = init_belief_batch(base, N_ENVS, N_LEGS)
     belief = belief.replace(foothold=belief.foothold.astype(jnp.float64))
-    config = jt.TuneConfig(prior_noise=1e-2, prior_other=1e-2)
+    config = jt.TuneConfig(
+        prior_noise=1e-2,
+        prior_other=1e-2,
+        event_weight=event_weight,
+        event_early_s=FD_EARLY * scalars["dt"],
+        event_temperature=0.5,
+    )
     flat0, unravel = jax.flatten_util.ravel_pytree(theta0)
     # Start away from the prior's centre so that its gradient is not zero.
     start = flat0 + 0.1 * jnp.asarray(np.random.default_rng(3).normal(size=flat0.shape))
@@ -90,12 +101,24 @@ def _fd_setup():
             unravel(x), space, base, theta0, terrain, belief, data, config, key=jax.random.key(0)
         )[0]
 
-    return jax.jit(loss), jax.jit(jax.grad(loss)), start
+    def logits(x):
+        params = jt.to_params(space, base, unravel(x))
+        return jt.filter_logits(params, terrain, belief, data.meas, key=jax.random.key(0))[1]
+
+    return jax.jit(loss), jax.jit(jax.grad(loss)), start, (jax.jit(logits), data)
 
 
-def test_gradient_matches_central_differences(x64):
-    loss, grad, x = _fd_setup()
+@pytest.mark.parametrize("event_weight", [0.0, 5.0], ids=["bce", "bce+event"])
+def test_gradient_matches_central_differences(x64, event_weight):
+    loss, grad, x, (logits, data) = _fd_setup(event_weight)
     assert loss(x).dtype == jnp.float64
+    if event_weight:
+        # Not vacuous: some air steps are scored at x, and the event term changes the
+        # gradient by far more than the tolerance (~1e-5 here).
+        scored = np.asarray(jt.scored_air_steps(logits(x), data))
+        assert scored.sum() >= 2, scored.sum()
+        g0 = np.asarray(_fd_setup(0.0)[1](x))
+        assert np.max(np.abs(np.asarray(grad(x)) - g0)) > 1e-3
     g = np.asarray(grad(x))
     fd = np.zeros_like(g)
     for i in range(x.shape[0]):
@@ -180,8 +203,9 @@ def test_tuning_recovers_a_mis_set_noise_std():
     train, val = _synthetic(1), _synthetic(2)
     space = jt.make_space(4, fields=("sigma_J",))
     config = jt.TuneConfig(
-        learning_rate=0.1, max_epochs=25, patience=5, chunk=300, prior_noise=0.0, seed=0
-    )
+        learning_rate=0.1, max_epochs=25, patience=5, chunk=300, prior_noise=0.0, seed=0,
+        event_weight=0.0, select="bce",
+    )  # fmt: skip
     wrong = _synthetic_params(SIGMA_J_WRONG)
     res = jt.tune(wrong, flat(0.0, 0.05), [train], val, space, config)
     got = float(res.params.noise.sigma_J[0])
@@ -330,3 +354,126 @@ def test_fit_calibration_stays_finite_when_logits_sit_at_their_bounds(np_rng):
     cal = jt.fit_calibration(logits, y, np.ones_like(y))
     assert np.isfinite(cal.temperature) and 0.5 < cal.temperature < 100
     assert np.isfinite(cal.bias) and abs(cal.bias) < 10
+
+
+# ------------------------------------------------------------- the air-phase event term
+
+
+def _event_oracle(logits, truth, mask, early, tau):
+    """Float64 loops over columns and phases: (scored mask, sum of costs, phases)."""
+    l2 = np.asarray(logits, np.float64).reshape(len(logits), -1)
+    y2 = np.asarray(truth, bool).reshape(l2.shape)
+    m2 = np.asarray(mask, bool).reshape(l2.shape)
+    scored = np.zeros(l2.shape, bool)
+    total, phases = 0.0, 0
+    n_t = l2.shape[0]
+    for c in range(l2.shape[1]):
+        air = m2[:, c] & ~y2[:, c]
+        on = l2[:, c] > 0
+        t = 0
+        while t < n_t:
+            if not air[t]:
+                t += 1
+                continue
+            a = t
+            while t < n_t and air[t]:
+                t += 1
+            b = t  # the phase is [a, b)
+            phases += 1
+            drops = [k for k in range(a, b) if not on[k]]
+            keep = set(range(drops[0], b)) if drops else set()
+            t0 = b if b < n_t and m2[b, c] and y2[b, c] else None
+            if t0 is not None and on[t0]:  # the detection run reaching the touch-down
+                k = t0 - 1
+                while k >= a and on[k] and t0 - k <= early:
+                    keep.discard(k)
+                    k -= 1
+            for k in keep:
+                scored[k, c] = True
+            if keep:
+                x = np.array([l2[k, c] for k in sorted(keep)]) / tau
+                e = tau * (x.max() + np.log(np.sum(np.exp(x - x.max()))))
+                total += np.logaddexp(0.0, e)
+    return scored.reshape(np.shape(logits)), total, phases
+
+
+def _event_data(truth, mask, early):
+    d = jt.TuningData(meas=None, truth=np.asarray(truth), mask=np.asarray(mask))
+    return jt.with_air_phases(d, early)
+
+
+def test_event_term_on_a_hand_example(x64):
+    # One foot: stance, air at t = 2..6, touch-down at t = 7; early window 2 steps.
+    #   t:      0  1  2   3    4    5   6    7  8
+    #   logit:  3  3  2  -1   1.5  -2  0.5   3  3
+    # t = 2 is the stance's flag carried into the air (no drop yet): not scored; t = 6 is
+    # on, 1 step before the touch-down, and its run lasts into t = 7: the detection, not
+    # scored. Scored: t = 3, 4, 5, where the blip at t = 4 is the one failure. With tau = 0.5
+    #   E = 0.5 log(e^-2 + e^3 + e^-4) = 1.5 + 0.5 log(1 + e^-5 + e^-7),  cost = softplus(E).
+    truth = np.array([1, 1, 0, 0, 0, 0, 0, 1, 1], bool)[:, None, None]
+    logit = np.array([3, 3, 2, -1, 1.5, -2, 0.5, 3, 3], np.float64)[:, None, None]
+    data = _event_data(truth, np.ones_like(truth), 2)
+    scored = np.asarray(jt.scored_air_steps(jnp.asarray(logit), data))[:, 0, 0]
+    np.testing.assert_array_equal(np.flatnonzero(scored), [3, 4, 5])
+    total, n = jt.air_event_terms(jnp.asarray(logit), data, 0.5)
+    e = 1.5 + 0.5 * np.log1p(np.exp(-5.0) + np.exp(-7.0))
+    assert float(total) == pytest.approx(np.logaddexp(0.0, e), abs=1e-12)
+    assert int(n) == 1
+    # The library's metrics see exactly this one failure in the phase.
+    from jax_contact.metrics import evaluate
+
+    m = evaluate(jt.sigmoid_np(logit), truth, None, dt=0.0025, early_window_s=0.005)
+    assert (m.failures, m.air_phases_with_failure, m.n_air_phases) == (1, 1, 1)
+
+
+EVENT_TOL = 1e-10  # float64 against the loop oracle: sums of a few exponentials
+
+
+def test_event_term_matches_a_loop_oracle(x64, np_rng):
+    n_t, e, legs, early, tau = 80, 2, 3, 3, 0.5
+    truth = np.zeros((n_t, e, legs), bool)
+    s = np_rng.random((e, legs)) < 0.5
+    for t in range(n_t):  # Markov phases of ~8 steps
+        s = np.where(np_rng.random((e, legs)) < 0.12, ~s, s)
+        truth[t] = s
+    mask = np.broadcast_to((np_rng.random((n_t, e)) > 0.03)[..., None], truth.shape)
+    # Logits that cross 0 often: a random walk around the truth's side.
+    logit = np.where(truth, 2.0, -2.0) + np.cumsum(np_rng.normal(size=truth.shape), 0) * 0.6
+    data = _event_data(truth, mask, early)
+    want_scored, want_total, want_n = _event_oracle(logit, truth, mask, early, tau)
+    assert 10 < want_scored.sum() < (mask & ~truth).sum()  # neither empty nor everything
+    got_scored = np.asarray(jt.scored_air_steps(jnp.asarray(logit), data))
+    np.testing.assert_array_equal(got_scored, want_scored)
+    total, n = jt.air_event_terms(jnp.asarray(logit), data, tau)
+    assert int(n) == want_n
+    assert abs(float(total) - want_total) <= EVENT_TOL * max(1.0, want_total)
+    # jit gives the same, and windows see the same phases as the whole log (no phase is
+    # cut here: the window is the log).
+    jitted = jax.jit(jt.air_event_terms, static_argnames="temperature")
+    assert float(jitted(jnp.asarray(logit), data, temperature=tau)[0]) == pytest.approx(
+        float(total), rel=1e-12
+    )
+
+
+def test_event_term_gradient_is_finite_where_no_step_is_scored(x64):
+    # All contact: no air phase, nothing scored; the term and its gradient are exactly 0,
+    # without NaN from the empty segments.
+    truth = np.ones((6, 1, 2), bool)
+    data = _event_data(truth, np.ones_like(truth), 2)
+    f = lambda x: jt.air_event_terms(x, data, 0.5)[0]  # noqa: E731
+    g = jax.grad(f)(jnp.linspace(-3.0, 3.0, 12).reshape(6, 1, 2))
+    assert float(f(jnp.zeros((6, 1, 2)))) == 0.0
+    assert np.all(np.asarray(g) == 0.0)
+
+
+def test_stance_time_stays_in_its_bounds():
+    base = make_params(make_noise(3), stance_time=0.3)
+    space = jt.make_space(3, fields=("stance_time",), stance_time_bounds=(0.15, 1.2))
+    th = jt.init_theta(space, base)
+    assert float(jt.to_params(space, base, th).stance_time) == pytest.approx(0.3, rel=1e-6)
+    for z in (-30.0, 30.0):
+        ts = float(jt.to_params(space, base, {"stance_time": jnp.float32(z)}).stance_time)
+        assert 0.15 <= ts <= 1.2
+    with pytest.raises(ValueError, match="outside the tuning bounds"):
+        jt.init_theta(jt.make_space(3, fields=("stance_time",), stance_time_bounds=(0.4, 1.0)),
+                      base)  # fmt: skip
