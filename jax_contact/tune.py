@@ -19,7 +19,17 @@ vector ``theta``:
   smaller than the data (5 groups x 7 fields for a quadruped).
 - the five confidence caps, in logit space on their allowed interval (0.5, 1):
   ``cap = (1 + sigmoid(theta)) / 2``;
-- ``T_s`` (``stance_time``, eq. 12) and ``a_F`` (``takeoff_accel``, eq. 15), in log space.
+- ``T_s`` (``stance_time``, eq. 12) in a bounded interval, ``T_s = lo + (hi - lo)
+  sigmoid(theta)`` (below), and ``a_F`` (``takeoff_accel``, eq. 15) in log space.
+
+What a plausible ``T_s`` is: the gait prior's mean stance duration (eq. 12, ``P(A | C) =
+dt / T_s``), so it should lie among the stance durations of the gaits the robot runs.
+The scripted gaits stand for 0.30 s (trot: period 0.5 s, duty 0.6) and 1.02 s (walk:
+1.2 s, 0.85); a quadruped of Go1's size trotting at 3 Hz with duty 0.5 stands for
+~0.17 s. :data:`STANCE_TIME_BOUNDS` = (0.15, 1.2) s covers these with a margin and no
+more. Without the bound, plain-BCE tuning drove ``T_s`` to 61-104 ms (docs/tuning.md): a
+knob for earlier lift-offs (a take-off hazard ``dt / T_s`` of 4 % per step), not a stance
+duration. The bound is hard (the sigmoid), and the prior below acts on ``theta``.
 
 Not tuned: ``dt``, the swing time (used only on invalid steps), the outlier model (from the
 sensors' outlier rate), the foothold threshold, the damping and the static switches.
@@ -29,14 +39,38 @@ Loss (minimised with ``optax``: Adam after clipping the gradient's global norm):
     L(theta) = (1 / N) sum_{t,e,l} m_tel BCE(l_tel(theta), y_tel)                 (data)
              + (lambda_sigma / 2) sum_{noise groups g} theta_g^2                 (prior)
              + (lambda_other / 2) sum_{caps, T_s, a_F} (theta_k - theta^0_k)^2
+             + (w_e / N_A) sum_{true air phases a} softplus(E_a)                 (events)
 
     BCE(l, y) = -y log sigmoid(l) - (1 - y) log sigmoid(-l)
+    E_a = tau log sum_{t in S_a} exp(l_t / tau)          (smooth maximum of the logit)
 
-and, optionally (``air_penalty`` ``mu > 0``; off by default), a false-contact term
-``(mu / N) sum_{t,e,l} m_tel (1 - y_tel) h(l_tel + m)`` with the smooth hinge
-``h(x) = softplus(2 x) / 2`` and margin ``m`` (2: P = 0.12): BCE charges a short blip of
-P slightly above 0.5 in the air less than a late touch-down, so plain BCE tuning buys
-faster touch-downs with more false contacts per air phase; the hinge prices them.
+The event term (:func:`air_event_terms`; weight ``w_e = 1`` (``event_weight``),
+temperature ``tau = 0.25`` logit units) prices false contacts as the metrics count them:
+per true air phase, not per step. ``sigmoid(E_a)`` stands for the probability of at least
+one false contact in phase ``a`` (``E_a`` lies between the largest logit of the phase and
+``tau log |S_a|`` above it: at most ~1 for a 0.2 s phase), so ``softplus(E_a) = -log(1 -
+sigmoid(E_a))`` is the binary cross-entropy of the phase-level event "no false contact"
+(true in every true air phase), and ``N_A`` is the number of air phases. Plain BCE charges
+a one-step blip of P = 0.55 in the air 0.8 nats, less than it gains by reaching contact a
+step sooner at every touch-down, so plain-BCE tuning bought faster touch-downs with more
+failures per air phase (Go1 trot 6.3 % -> 18.1 %, docs/tuning.md); the event term charges
+the same blip ``softplus(0.2) = 0.8`` nats *per phase*, i.e. ~190 foot-steps' worth of BCE
+(Go1 trot: 1071 air phases in 204,800 foot-steps). ``S_a`` (:func:`scored_air_steps`, no
+gradient through the choice) are the phase's steps between the end of the lift-off's fall
+(the stance's flag carried into the air and the fall after it are the lift-off delay, not
+a false contact: ``jax_contact.metrics`` rule 7 needs a rise of the flag in the air) and
+the start of the touch-down's rise within the metrics' early window (``event_early_s`` =
+50 ms; the run into the touch-down is its detection, rule 4). A phase whose highest
+scored logit is -4 costs ``softplus(-4 + ~1) = 0.05``; one with a blip to P = 0.6 costs
+``softplus(0.4 + ...) >= 0.9``. With
+windows (below), a phase cut by a window boundary counts as two phases. No
+lift-off/touch-down delay term: BCE already charges every late step of both events, and
+delays did not get worse with tuning.
+
+Optionally (``air_penalty`` ``mu > 0``; off by default: the previous session's
+diagnostic, superseded by the event term), a per-step false-contact term ``(mu / N)
+sum_{t,e,l} m_tel (1 - y_tel) h(l_tel + m)`` with the smooth hinge ``h(x) = softplus(2
+x) / 2`` and margin ``m`` (2: P = 0.12).
 
 Here ``l_tel`` is the filtered belief ``b_t`` of foot ``l`` of env ``e`` as a logit (eq.
 1-2, after the measurement update at ``t``), ``y`` the ground-truth contact, ``m`` the mask
@@ -52,11 +86,12 @@ only the beliefs are stored and each step is recomputed in the backward pass) an
 one optimizer update; the belief at the end of a window starts the next one, without
 gradient. The filter forgets its past in a few tens of steps (every step's evidence is
 capped), so little is lost. An *epoch* is one pass over every tuning log. After each
-epoch the validation log (another seed) is filtered with the current parameters: its
-mean BCE decides early stopping (``patience`` epochs without improving by ``min_delta``),
-and the parameters returned are those of the best validation epoch (epoch 0, the
-untuned parameters, included, so tuning never returns worse validation BCE than the
-defaults).
+epoch the validation logs (another seed) are filtered with the current parameters over
+their whole length: their loss without the prior (mean BCE + ``w_e`` x the mean event
+term, :func:`score_logs`) decides early stopping (``patience`` epochs without improving
+by ``min_delta``), and the parameters returned are those of the best validation epoch
+(epoch 0, the untuned parameters, included, so tuning never returns a worse validation
+loss than the defaults'). The validation air-phase failure rate is reported too.
 
 Randomness: the key ``jax.random.key(config.seed)`` is folded with the epoch, log and
 window numbers, so a run is reproducible (the key only feeds the Monte-Carlo touch-down;
@@ -309,7 +344,7 @@ class TuneConfig:
     air_penalty: float = 0.0
     air_margin: float = 2.0
     event_weight: float = 1.0
-    event_temperature: float = 0.5
+    event_temperature: float = 0.25
     event_early_s: float = 0.05
     select: str = "loss"
 
@@ -422,36 +457,51 @@ def with_air_phases(data: TuningData, early: int) -> TuningData:
 
 
 def scored_air_steps(logits: jax.Array, window: TuningData) -> jax.Array:
-    """(T, E, L) bool: the true air steps where a rise of the flag would be a failure.
+    """(T, E, L) bool: the true air steps where a rise of the logit could be a failure.
 
-    A step of a true air phase is scored once the flag ``logit > 0`` has been off at some
-    step of the phase (so the stance's flag carried into the air, the lift-off delay, is
-    not a false contact: ``jax_contact.metrics`` rule 7 needs a rise in the air), and
-    unless it belongs to the flagged run that starts in the early window of the phase's
-    touch-down and lasts into it (that run is the detection, rule 4). Computed from the
-    flags alone, without gradient; a window's first step starts its phases afresh.
+    The steps of a true air phase between the end of the lift-off's fall and the start of
+    the touch-down's rise (computed from the logits without gradient; a window's first
+    step starts its phases afresh):
+
+    - from the first step, after the flag ``logit > 0`` has been off in the phase, at which
+      the logit does not fall (``l_t >= l_{t-1}``): the stance's flag carried into the air
+      and the fall after it are the lift-off delay, not a false contact
+      (``jax_contact.metrics`` rule 7 needs a rise of the flag in the air);
+    - minus the run into the touch-down: going back from the true touch-down ``t0`` over
+      the early window (``AirPhases.td_window``), a flagged step followed by a flagged
+      step, or an unflagged one below the next logit (the rise toward the detection);
+      the detection itself (rule 4) and the approach to it are not false contacts. A
+      blip (on, then off) before the detection breaks the run and is scored.
     """
-    on = jax.lax.stop_gradient(logits) > 0
+    lg = jax.lax.stop_gradient(logits)
+    on = lg > 0
     air = jnp.asarray(window.mask) & ~jnp.asarray(window.truth).astype(bool)
     ev = jax.tree.map(jnp.asarray, window.events)
+    prev = jnp.concatenate([lg[:1], lg[:-1]], axis=0)
+    nxt = jnp.concatenate([lg[1:], lg[-1:]], axis=0)
+    on_next = jnp.concatenate([on[1:], on[-1:]], axis=0)
 
-    def fwd(dropped, x):
-        a, st, o = x
+    def fwd(carry, x):
+        dropped, settled = carry
+        a, st, o, rising = x
         dropped = a & ((~st & dropped) | ~o)
-        return dropped, dropped
+        settled = dropped & ((~st & settled) | rising)
+        return (dropped, settled), settled
 
-    _, dropped = jax.lax.scan(fwd, jnp.zeros(on.shape[1:], bool), (air, ev.start, on))
+    zeros = jnp.zeros(on.shape[1:], bool)
+    _, settled = jax.lax.scan(fwd, (zeros, zeros), (air, ev.start, on, lg >= prev))
 
     def bwd(run, x):
-        o, td, win = x
-        run = o & (td | (win & run))
+        td, win, into = x
+        run = td | (win & run & into)
         return run, run
 
-    # The window's last step: a flagged run there is taken to go on into the next window.
-    _, match = jax.lax.scan(
-        bwd, jnp.ones(on.shape[1:], bool), (on, ev.td_step, ev.td_window), reverse=True
+    into = jnp.where(on, on_next, lg <= nxt)
+    # The window's last step: a run there is taken to go on into the next window.
+    _, run = jax.lax.scan(
+        bwd, jnp.ones(on.shape[1:], bool), (ev.td_step, ev.td_window, into), reverse=True
     )
-    return air & dropped & ~match
+    return air & settled & ~run
 
 
 def air_event_terms(logits: jax.Array, window: TuningData, temperature: float):
@@ -475,7 +525,8 @@ def air_event_terms(logits: jax.Array, window: TuningData, temperature: float):
     cols = int(np.prod(logits.shape[1:]))
     scored = scored_air_steps(logits, window)
     air = jnp.asarray(window.mask) & ~jnp.asarray(window.truth).astype(bool)
-    first = (jnp.asarray(window.events.start) & air).at[0].set(air[0])  # phases cut by the start too
+    # A phase cut by the window's start begins at its first step.
+    first = (jnp.asarray(window.events.start) & air).at[0].set(air[0])
     pid = jnp.cumsum(first, axis=0)  # phase number along each column, >= 1 inside phases
     col = jnp.arange(cols).reshape(logits.shape[1:])
     n_seg = cols * (n_t + 1) + 1

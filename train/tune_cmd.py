@@ -112,6 +112,32 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         help="weight of the false-contact hinge on true air steps (jax_contact.tune)",
     )
     p.add_argument(
+        "--event-weight",
+        type=_nonnegative_float,
+        default=1.0,
+        help="weight of the air-phase event term (jax_contact.tune; 0: plain BCE)",
+    )
+    p.add_argument(
+        "--event-temperature",
+        type=_positive_float,
+        default=0.25,
+        help="temperature of the event term's log-sum-exp, logit units",
+    )
+    p.add_argument(
+        "--stance-time-bounds",
+        type=_positive_float,
+        nargs=2,
+        default=[0.15, 1.2],
+        metavar=("LO", "HI"),
+        help="interval T_s is tuned in, s",
+    )
+    p.add_argument(
+        "--select",
+        choices=("loss", "bce"),
+        default="loss",
+        help="validation number that picks the epoch kept (loss: BCE + event term)",
+    )
+    p.add_argument(
         "--calibrate",
         action="store_true",
         help="also fit a temperature and bias on the fused logit (stored in the provenance)",
@@ -149,6 +175,9 @@ def check(args: argparse.Namespace) -> None:
         )
     if len(set(getattr(args, "freeze", []) or [])) >= len(TUNABLE_FIELDS):
         raise ValueError("argument --freeze: nothing left to tune")
+    bounds = getattr(args, "stance_time_bounds", None)
+    if bounds is not None and not bounds[0] < bounds[1]:
+        raise ValueError(f"argument --stance-time-bounds: LO must be < HI, got {bounds}")
     out = Path(args.out)
     if out.suffix != ".json":
         raise ValueError(f"argument --out: {args.out!r} must end in .json")
@@ -336,12 +365,15 @@ def regenerate_preset(
     n_envs: int = 16,
     duration: float = 8.0,
     air_penalty: float = 0.0,
+    event_weight: float = 1.0,
+    extra: tuple[str, ...] = (),
 ) -> int:
     """Rebuilds a shipped preset: simulates the tuning and validation logs (Go1-style
-    trot and walk, seeds 1000 and 1001, never the evaluation seed 0) into ``workdir``, tunes
-    with the default settings (plain BCE; ``air_penalty`` adds the false-contact hinge,
-    docs/tuning.md compares both) and ``--calibrate``, and writes
-    ``jax_contact/presets/<robot>.json`` (or ``out``).
+    trot and walk, seeds 1000 and 1001, never the evaluation seed 0) into ``workdir`` unless
+    they are there, tunes with the default settings (BCE plus the air-phase event term of
+    weight ``event_weight``; ``air_penalty`` adds the per-step hinge of the previous
+    session; ``extra`` more arguments of ``jax-contact tune``) and ``--calibrate``, and
+    writes ``jax_contact/presets/<robot>.json`` (or ``out``).
 
     ``python -c "from jax_contact.train.tune_cmd import regenerate_preset as r; r('go1')"``
     """
@@ -360,8 +392,8 @@ def regenerate_preset(
         f" r('{robot}')\" (logs: {n_envs} envs x {duration:g} s of jax_contact.train.reproduce's"
         f" scenarios, anymal_like sensors)"
     )
-    extra = ["--air-penalty", str(air_penalty)]
-    return main([*argv, "--out", str(out), "--calibrate", *extra, "--note", note])
+    more = ["--air-penalty", str(air_penalty), "--event-weight", str(event_weight), *extra]
+    return main([*argv, "--out", str(out), "--calibrate", *more, "--note", note])
 
 
 def compare(
@@ -458,6 +490,31 @@ def _log_info(path, attrs, data) -> dict:
 # ---------------------------------------------------------------------------------- run
 
 
+def _code_version() -> dict:
+    """The git commit of the library's checkout and whether it had changes (None outside a
+    git checkout): the parameters' provenance names the model they were tuned for."""
+    import subprocess
+
+    root = Path(__file__).resolve().parents[1]
+
+    def git(*cmd):
+        try:
+            out = subprocess.run(
+                ["git", *cmd], cwd=root, capture_output=True, text=True, timeout=10, check=True
+            )
+        except (OSError, subprocess.SubprocessError):
+            return None
+        return out.stdout.strip()
+
+    commit = git("rev-parse", "HEAD")
+    if not commit:
+        return {"commit": None, "dirty": None}
+    status = git(
+        "status", "--porcelain", "--untracked-files=no", "--", "jax_contact", "envs", "train"
+    )
+    return {"commit": commit, "dirty": sorted(line[3:] for line in (status or "").splitlines())}
+
+
 def _bar(done: int, total: int, width: int = 20) -> str:
     n = int(round(width * done / max(total, 1)))
     return "[" + "#" * n + "-" * (width - n) + "]"
@@ -504,7 +561,8 @@ def run(args: argparse.Namespace) -> int:
 
     frozen = list(getattr(args, "freeze", []) or [])
     fields = [f for f in jt.DEFAULT_FIELDS if f not in frozen]
-    space = jt.robot_space(load_robot(robot_name).description, fields)
+    bounds = tuple(getattr(args, "stance_time_bounds", None) or jt.STANCE_TIME_BOUNDS)
+    space = jt.robot_space(load_robot(robot_name).description, fields, stance_time_bounds=bounds)
     config = jt.TuneConfig(
         learning_rate=args.lr,
         clip_norm=args.clip,
@@ -515,6 +573,9 @@ def run(args: argparse.Namespace) -> int:
         prior_other=args.prior_other,
         seed=args.seed,
         air_penalty=getattr(args, "air_penalty", 0.0),
+        event_weight=getattr(args, "event_weight", 1.0),
+        event_temperature=getattr(args, "event_temperature", 0.25),
+        select=getattr(args, "select", "loss"),
     )
 
     def progress(row: dict) -> None:
@@ -522,7 +583,8 @@ def run(args: argparse.Namespace) -> int:
         loss = "  (untuned)" if e == 0 else f"  loss {row['train_loss']:.4f}"
         print(
             f"tune {_bar(e, config.max_epochs)} epoch {e:2d}/{config.max_epochs}{loss}"
-            f"  val BCE {row['val_bce']:.4f}  F1 {row['val_f1']:.4f}  ECE {row['val_ece']:.4f}"
+            f"  val loss {row['val_loss']:.4f} BCE {row['val_bce']:.4f}  F1 {row['val_f1']:.4f}"
+            f"  ECE {row['val_ece']:.4f}  fail {100 * row['val_fail']:.1f} %"
             f"  {row['wall_s']:6.1f} s",
             file=sys.stderr,
             flush=True,
@@ -531,7 +593,8 @@ def run(args: argparse.Namespace) -> int:
     result = jt.tune(base, terrain, train, vals, space, config, progress=progress)
     best = result.history[result.best_epoch]
     print(
-        f"best epoch {result.best_epoch} (val BCE {best['val_bce']:.4f});"
+        f"best epoch {result.best_epoch} (val loss {best['val_loss']:.4f},"
+        f" BCE {best['val_bce']:.4f});"
         f" tuning {result.wall_s:.1f} s, total {time.perf_counter() - t0:.1f} s",
         file=sys.stderr,
     )
@@ -572,8 +635,17 @@ def run(args: argparse.Namespace) -> int:
                 strict=True,
             )
         ),
-        "loss": "mean BCE of P(contact) vs truth over valid foot-steps + Gaussian prior on log"
-        " std multipliers (jax_contact.tune)",
+        "loss": "mean BCE of P(contact) vs truth over valid foot-steps"
+        + (
+            f" + {config.event_weight:g} x mean over true air phases of softplus(log-sum-exp"
+            f" of the logit over the phase's scored steps, temperature"
+            f" {config.event_temperature:g})"
+            if config.event_weight > 0
+            else ""
+        )
+        + " + Gaussian prior on the unconstrained values (jax_contact.tune)",
+        "stance_time_bounds": list(space.stance_time_bounds),
+        "code": _code_version(),
         "epochs": len(result.history) - 1,
         "best_epoch": result.best_epoch,
         "stopped_early": result.stopped_early,
