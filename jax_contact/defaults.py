@@ -24,8 +24,14 @@ Robustness (docs/model_choices.md, "Robust likelihoods"): the outlier component'
 (an outlier of any of the leg's ``n_l`` joints spikes two differenced accelerations),
 never below 1 % because a real robot's outliers are never known exactly; its widths from
 the outlier spike (``2 size / dt`` for accelerations, 8000 rad/s^2 when the sensors model
-none) and 4 m/s for foot velocities. Caps: 0.99 dynamics, 0.9 / 0.75 differential
+none) and 4 m/s for foot velocities. Caps: 0.99 dynamics, 0.9 / 0.7 differential
 kinematics (air / still), 0.99 kinematics, 0.9 transitions.
+
+Contact (docs/model_choices.md, "Stabilised contact"): the dynamics term's contact
+hypothesis brings a foot moving into the ground to rest at the rate
+``contact_damping = 2 / contact_timeconst`` (critical damping of a contact that settles in
+``contact_timeconst``, 20 ms by default: MuJoCo's default contact time constant, and the
+order of a rubber foot on hard ground).
 """
 
 from __future__ import annotations
@@ -105,6 +111,7 @@ def params_for(
     gait: GaitPrior | None = None,
     disturbance: float = 2.0,
     bias_horizon_s: float = 10.0,
+    contact_timeconst: float = 0.02,
     force_rows=None,
     **overrides,
 ) -> EstimatorParams:
@@ -117,6 +124,9 @@ def params_for(
       gait: the gait prior; default :class:`GaitPrior` ().
       disturbance: ``w_d``, the model error of the joints' equation of motion, N m.
       bias_horizon_s: time over which the sensor bias drift is folded into the noise, s.
+      contact_timeconst: time in which a foot's contact brings it to rest, s; the
+        dynamics term's ``contact_damping`` is ``2 / contact_timeconst`` (``inf``: the
+        paper's rigid contact, ``contact_damping`` 0).
       force_rows: world axes of the contact force; default all three, which needs legs of
         three or more joints (pass them for shorter legs, see ``jax_contact.envs.wrapper``).
       **overrides: any argument of :func:`jax_contact.make_params` (caps, ``touchdown``,
@@ -136,6 +146,8 @@ def params_for(
     for name, v in (("disturbance", disturbance), ("bias_horizon_s", bias_horizon_s)):
         if not (np.isfinite(v) and v >= 0):
             raise ValueError(f"{name} must be a finite number >= 0, got {v!r}")
+    if not (isinstance(contact_timeconst, int | float) and contact_timeconst > 0):
+        raise ValueError(f"contact_timeconst must be a number > 0 (s), got {contact_timeconst!r}")
     nv, n_l = int(desc.nv), int(desc.n_leg_dofs)
     if force_rows is None:
         if n_l < 3:
@@ -167,11 +179,12 @@ def params_for(
         touchdown="quadrature",
         cap_dynamics=0.99,
         cap_diff_kinematics=0.9,
-        cap_diff_kinematics_still=0.75,
+        cap_diff_kinematics_still=0.7,
         cap_kinematics=0.99,
         cap_transition=0.9,
         outlier_prob=float(np.clip(2 * n_l * float(s["outlier_prob"]), 0.01, 0.5)),
         outlier_qdd=2.0 * spike / dt if spike > 0 else 8000.0,
         outlier_v=4.0,
+        contact_damping=2.0 / float(contact_timeconst),
     )
     return make_params(noise, **(kw | overrides))

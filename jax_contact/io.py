@@ -273,6 +273,10 @@ def _finite(x):
 
 PARAMS_FORMAT = "jax-contact-params"
 PARAMS_VERSION = 1
+# Fields added to a section after files of this version were first written, with the value
+# that reproduces the model those files were written with: a file without one loads with
+# it (a missing field of any other name is an error).
+LATER_FIELDS = {"values": {"contact_damping": 0.0}}
 
 
 def _param_sections() -> dict[str, tuple[str, ...]]:
@@ -343,6 +347,9 @@ def params_from_dict(payload: Mapping, *, source: str = "params"):
         if not isinstance(payload.get(section), Mapping):
             raise ValueError(f"{source}: missing section {section!r}")
     want = {section: set(names) for section, names in _param_sections().items()}
+    payload = dict(payload)
+    for section, added in LATER_FIELDS.items():
+        payload[section] = {**added, **payload[section]}
     for section, names in want.items():
         have = set(payload[section])
         if have - names:

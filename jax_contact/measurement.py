@@ -122,7 +122,12 @@ def dynamics_llr(
     taken as measured. Air: ``F = 0``. Contact: the foot does not accelerate, which fixes
     ``F`` (eq. 6). Only the rows of ``J_f`` in ``params.force_rows`` are used (a 2-joint leg
     spans two), and the operational-space matrix is damped by ``params.inv_damping`` so that
-    a leg at full extension stays finite.
+    a leg at full extension stays finite. With ``params.contact_damping`` ``b > 0`` the
+    contact hypothesis is a stabilised (soft) contact: the foot's acceleration is
+    ``-b min(e . v_f, 0) e`` rather than 0, so a foot still sinking into the ground in its
+    first steps of contact fits it, and ``Sigma_f`` gains the velocity noise that the
+    stabilising term carries, ``b^2 var(e . v_f) Lambda e e^T Lambda`` with ``Lambda`` the
+    (damped) operational-space matrix.
 
     With ``params.unilateral`` the contact hypothesis is weighted by ``P(e . F < 0)`` under
     ``F ~ N(F_hat, Sigma_f)``: a foot that the ground would have to *pull* is evidence for air
@@ -147,9 +152,14 @@ def dynamics_llr(
     # eq. 5: the leg's acceleration with no contact force, base accelerating as measured.
     residual = leg.tau_l - M_lb @ qdd_b - leg.h_l
     qdd_air = M_inv @ residual
-    # eq. 6: the force that keeps the foot still, J_fl qdd_l + J_fb qdd_b + Jdot qd = 0.
+    # eq. 6: the force that keeps the foot still, J_fl qdd_l + J_fb qdd_b + Jdot qd = 0,
+    # stabilised: a foot that still moves into the ground is brought to rest at the rate
+    # contact_damping, J_f qdd + Jdot qd = -b min(e . v_f, 0) e (0: the paper's rigid form).
+    e_rows = normal[rows]
+    approach = jnp.minimum(jnp.dot(normal, leg.v_f), 0.0)
     lam_inv = J_fl @ M_inv @ J_fl.T + params.inv_damping * jnp.eye(J_fl.shape[0])
-    force_rows = spd_solve(lam_inv, J_fl @ qdd_air + J_fb @ qdd_b + leg.Jdot_qd[rows])
+    stop = params.contact_damping * approach * e_rows
+    force_rows = spd_solve(lam_inv, J_fl @ qdd_air + J_fb @ qdd_b + leg.Jdot_qd[rows] + stop)
     qdd_contact = M_inv @ (residual - J_fl.T @ force_rows)
 
     # eq. 7: model error, plus the measured base acceleration's noise entering through M_lb.
@@ -158,6 +168,14 @@ def dynamics_llr(
     )
     sigma_qdd = jnp.diag(jnp.square(leg.sigma_qdd_l))
     sigma_f = jnp.diag(jnp.square(noise.sigma_f[rows]))
+    # The stabilising term carries the measured normal velocity's noise into the force:
+    # F gains Lambda e_rows b du, du ~ N(0, e^T (J Sigma_qd J^T + Sigma_J) e).
+    Je = normal @ leg.J
+    var_u = jnp.dot(Je * Je, jnp.square(noise.sigma_qd)) + jnp.dot(
+        normal * normal, jnp.square(noise.sigma_J)
+    )
+    lam_e = spd_solve(lam_inv, e_rows)
+    sigma_f = sigma_f + jnp.square(params.contact_damping) * var_u * jnp.outer(lam_e, lam_e)
     cov_air = M_inv @ sigma_d @ M_inv.T + sigma_qdd
     cov_contact = M_inv @ (sigma_d + J_fl.T @ sigma_f @ J_fl) @ M_inv.T + sigma_qdd
     # Both hypotheses share a broad outlier component (uniform over +-outlier_qdd per
@@ -174,7 +192,6 @@ def dynamics_llr(
 
     force = jnp.zeros(3, leg.J.dtype).at[rows].set(force_rows)
     if params.unilateral:
-        e_rows = normal[rows]
         push = jnp.dot(e_rows, force_rows)
         push_std = jnp.sqrt(jnp.dot(e_rows * e_rows, jnp.square(noise.sigma_f[rows])) + 1e-12)
         llr = llr + log_ndtr(-push / push_std)

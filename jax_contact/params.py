@@ -87,6 +87,13 @@ class EstimatorParams:
         height as terrain.
       inv_damping: () Tikhonov damping of the operational-space inverse of eq. 6, in units
         of ``1 / kg``, so a leg at full extension stays finite.
+      contact_damping: () ``b``, 1/s: the rate at which the ground brings a foot that
+        moves into it to rest under the contact hypothesis of the dynamics term. The
+        constraint of eq. 6 becomes ``J qdd + Jdot qd = -b min(e . v_f, 0) e`` (a soft
+        contact's reference acceleration, as MuJoCo's ``b = 2 / timeconst``) instead of
+        ``= 0``, so a foot still decelerating in its first steps on the ground fits the
+        contact hypothesis; the measured velocity's noise enters ``Sigma_f`` through it.
+        0 is the paper's rigid constraint (docs/model_choices.md, "Stabilised contact").
       initial_contact: () belief P(C) before the first measurement.
       n_samples: static, Monte-Carlo samples of Algorithm 1 (500 in the paper).
       touchdown: static, ``"monte_carlo"`` (Algorithm 1) or ``"quadrature"`` (the same
@@ -126,6 +133,7 @@ class EstimatorParams:
     foothold_confidence: jnp.ndarray
     inv_damping: jnp.ndarray
     initial_contact: jnp.ndarray
+    contact_damping: jnp.ndarray
     n_samples: int = struct.field(pytree_node=False, default=500)
     touchdown: str = struct.field(pytree_node=False, default="monte_carlo")
     n_quad: int = struct.field(pytree_node=False, default=8)
@@ -236,6 +244,7 @@ def make_params(
     foothold_confidence: float = 0.5,
     inv_damping: float = 1e-6,
     initial_contact: float = 0.5,
+    contact_damping: float = 0.0,
     n_samples: int = 500,
     touchdown: str = "monte_carlo",
     n_quad: int = 8,
@@ -249,7 +258,8 @@ def make_params(
     """Builds and validates :class:`EstimatorParams`.
 
     Defaults: 400 Hz (the paper's rate on ANYmal), ``T_s`` = 0.3 s, ``a_F`` = 200 m/s^2,
-    caps 0.99 / 0.9 / 0.99 (dynamics / differential kinematics / kinematics; MODEL.md).
+    caps 0.99 / 0.9 / 0.99 (dynamics / differential kinematics / kinematics; MODEL.md),
+    the paper's rigid contact constraint (``contact_damping`` 0).
 
     Raises:
       ValueError: naming the field, for a non-positive time or acceleration, a cap outside
@@ -275,6 +285,7 @@ def make_params(
         foothold_confidence=jnp.float32(foothold_confidence),
         inv_damping=jnp.float32(inv_damping),
         initial_contact=jnp.float32(initial_contact),
+        contact_damping=jnp.float32(contact_damping),
         n_samples=n_samples,
         touchdown=touchdown,
         n_quad=n_quad,
@@ -328,6 +339,9 @@ def validate_params(params: EstimatorParams) -> None:
     v = np.asarray(params.inv_damping)
     if v.shape != () or not np.isfinite(v) or v < 0:
         raise ValueError(f"inv_damping must be a finite scalar >= 0, got {v!r}")
+    v = np.asarray(params.contact_damping)
+    if v.shape != () or not np.isfinite(v) or v < 0:
+        raise ValueError(f"contact_damping must be a finite scalar >= 0 (1/s), got {v!r}")
     v = np.asarray(params.initial_contact)
     if v.shape != () or not (0.0 < float(v) < 1.0):
         raise ValueError(f"initial_contact must lie in (0, 1), got {v!r}")

@@ -7,7 +7,9 @@ documents:
 * dynamics (eq. 4-7): only the rows ``force_rows`` of ``J``; the contact force from the
   damped operational-space system ``(J M^-1 J^T + inv_damping I) F = ...``, solved here as
   the equivalent *compliant-contact KKT system* rather than by the formula of eq. 6;
-  ``Sigma_d = diag(sigma_d_l^2) + M_lb diag(sigma_qdd_b^2) M_lb^T``; with ``unilateral`` the
+  ``Sigma_d = diag(sigma_d_l^2) + M_lb diag(sigma_qdd_b^2) M_lb^T``; the stabilised
+  contact constraint ``J qdd + Jdot qd = -contact_damping min(e . v_f, 0) e`` with its
+  velocity noise added to ``Sigma_f``; with ``unilateral`` the
   contact log-likelihood gains ``log Phi(-(e.F) / sqrt(sum_r e_r^2 sigma_f,r^2))``;
 * differential kinematics (eq. 8-9): all three rows of ``J``;
 * kinematics (eq. 10): the sole ``p_f - r e``, the terrain point ``p_i`` below the foot
@@ -77,6 +79,7 @@ class Params:
     unilateral: bool = True
     kinematics_neutral_below: bool = True
     foothold_still: bool = True
+    contact_damping: float = 0.0
 
 
 @dataclasses.dataclass
@@ -216,9 +219,12 @@ def dynamics(p: Params, m: Meas, e: np.ndarray):
     # Contact: M_l qdd + J_l^T F = resid and the damped constraint
     # J_l qdd + J_b qdd_b + Jdot_qd - inv_damping F = 0 (a compliant contact), i.e. eq. 6
     # with the damped operational-space matrix, solved as one KKT system.
+    # Stabilised contact (contact_damping b): the foot's acceleration along the kept rows is
+    # -b min(u, 0) e_r, u = e . v_f, instead of 0, so it enters c with a plus sign.
+    u = float(sum(e[i] * m.v_f[i] for i in range(3)))
     c = np.zeros(nr)
     for k, r in enumerate(rows):
-        c[k] = m.Jdot_qd[r]
+        c[k] = m.Jdot_qd[r] + p.contact_damping * min(u, 0.0) * e[r]
         for j in range(nb):
             c[k] += J_b[k, j] * qdd_b[j]
     K = np.zeros((nl + nr, nl + nr))
@@ -235,11 +241,23 @@ def dynamics(p: Params, m: Meas, e: np.ndarray):
         for j in range(nl):
             for k in range(nb):
                 Sd[i, j] += M_lb[i, k] * p.sigma_qdd[base[k]] ** 2 * M_lb[j, k]
+    # Force covariance in the kept rows: Sigma_f, plus the normal velocity's noise carried by
+    # the stabilising term, F = Lambda (... + b u e_r): b^2 var(u) (Lambda e_r)(Lambda e_r)^T
+    # with Lambda = (J_l M^-1 J_l^T + inv_damping I)^-1.
+    Sf_rows = np.diag([p.sigma_f[r] ** 2 for r in rows])
+    if p.contact_damping > 0:
+        Je = e @ m.J
+        var_u = float(np.sum(Je**2 * np.asarray(p.sigma_qd) ** 2))
+        var_u += float(np.sum(np.asarray(e) ** 2 * np.asarray(p.sigma_J) ** 2))
+        Lam = np.linalg.inv(J_l @ M_inv @ J_l.T + p.inv_damping * np.eye(nr))
+        g = Lam @ np.array([e[r] for r in rows])
+        Sf_rows = Sf_rows + p.contact_damping**2 * var_u * np.outer(g, g)
     Sf = np.zeros((nl, nl))
     for i in range(nl):
         for j in range(nl):
             for k in range(nr):
-                Sf[i, j] += J_l[k, i] * p.sigma_f[rows[k]] ** 2 * J_l[k, j]
+                for k2 in range(nr):
+                    Sf[i, j] += J_l[k, i] * Sf_rows[k, k2] * J_l[k2, j]
     Sqdd = np.diag([p.sigma_qdd[i] ** 2 for i in legs])
     cov_air = M_inv @ Sd @ M_inv.T + Sqdd
     cov_contact = M_inv @ (Sd + Sf) @ M_inv.T + Sqdd
@@ -750,6 +768,10 @@ def random_case(rng, nv: int, n_l: int, force_rows=(0, 1, 2), stance: bool | Non
         outlier_v=float(_logu(sub, 0.5, 10.0)),
         foothold_confidence=float(sub.uniform(0.5, 0.999)),
     )
+    # The stabilised contact, from its own generator (so every earlier draw is unchanged);
+    # half the cases keep the paper's rigid constraint.
+    sub2 = np.random.default_rng([int(abs(x) * 1e9 + 7) % 2**32 for x in p_f])
+    scalars["contact_damping"] = float(_logu(sub2, 10.0, 400.0)) if sub2.integers(2) else 0.0
     return dict(meas=meas, terrain=terrain, noise=noise, scalars=scalars)
 
 

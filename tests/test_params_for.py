@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 import jax_contact as jc
+import jax_contact.io  # noqa: F401  (jc.io: the package imports its submodules lazily)
 from jax_contact.envs.robots import load_robot
 from jax_contact.envs.sensors import sensor_preset
 
@@ -106,3 +107,31 @@ def test_bad_params_file_names_the_field(go1, tmp_path):
         jc.load_params(tmp_path / "not.json")
     with pytest.raises(ValueError, match="does not exist"):
         jc.load_params(tmp_path / "absent.json")
+
+
+def test_contact_damping_from_the_contact_time_constant(go1):
+    """Critical damping of a contact that settles in T: b = 2 / T (20 ms -> 100 1/s)."""
+    sp = sensor_preset("anymal_like", go1.nv, dt=DT)
+    assert float(jc.params_for(go1, sp, DT).contact_damping) == pytest.approx(100.0)
+    p = jc.params_for(go1, sp, DT, contact_timeconst=0.05)
+    assert float(p.contact_damping) == pytest.approx(40.0)
+    assert float(jc.params_for(go1, sp, DT, contact_timeconst=math.inf).contact_damping) == 0.0
+    with pytest.raises(ValueError, match="contact_timeconst"):
+        jc.params_for(go1, sp, DT, contact_timeconst=0.0)
+
+
+def test_a_file_written_before_a_later_field_loads_with_the_old_model(go1, tmp_path):
+    """A version-1 file without ``contact_damping`` (written before the stabilised contact)
+    loads with 0, the rigid contact it was written with; every other field is unchanged."""
+    sp = sensor_preset("anymal_like", go1.nv, dt=DT)
+    payload = jc.io.params_to_dict(jc.params_for(go1, sp, DT))
+    old = json.loads(json.dumps(payload))
+    del old["values"]["contact_damping"]
+    path = tmp_path / "old.json"
+    path.write_text(json.dumps(old))
+    q = jc.io.params_to_dict(jc.load_params(path))
+    assert q["values"].pop("contact_damping") == 0.0
+    payload["values"].pop("contact_damping")
+    assert q["values"] == payload["values"] and q["noise"] == payload["noise"]
+    for name in jc.preset_names():  # the shipped presets predate it
+        jc.load_params(name)
