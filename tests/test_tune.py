@@ -344,6 +344,12 @@ def test_shipped_presets_load_by_name_with_their_provenance(name):
     # which tuned values are not physically plausible: Barkour's base position std, 5x).
     ratios = [r["ratio"] for r in prov["tuned_vs_default"] if r["field"].startswith("sigma")]
     assert all(1 / 8 <= r <= 8.0 for r in ratios), ratios
+    # T_s stays a stance duration (jax_contact.tune's bounds), the loss has the event term,
+    # and the file names the commit it was tuned at.
+    lo, hi = prov["stance_time_bounds"]
+    assert (lo, hi) == jt.STANCE_TIME_BOUNDS and lo <= float(params.stance_time) <= hi
+    assert prov["config"]["event_weight"] > 0 and "air phases" in prov["loss"]
+    assert len(prov["code"]["commit"]) == 40
 
 
 def test_fit_calibration_stays_finite_when_logits_sit_at_their_bounds(np_rng):

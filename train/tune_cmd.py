@@ -114,7 +114,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument(
         "--event-weight",
         type=_nonnegative_float,
-        default=1.0,
+        default=0.3,
         help="weight of the air-phase event term (jax_contact.tune; 0: plain BCE)",
     )
     p.add_argument(
@@ -365,7 +365,7 @@ def regenerate_preset(
     n_envs: int = 16,
     duration: float = 8.0,
     air_penalty: float = 0.0,
-    event_weight: float = 1.0,
+    event_weight: float = 0.3,
     extra: tuple[str, ...] = (),
 ) -> int:
     """Rebuilds a shipped preset: simulates the tuning and validation logs (Go1-style
@@ -573,7 +573,7 @@ def run(args: argparse.Namespace) -> int:
         prior_other=args.prior_other,
         seed=args.seed,
         air_penalty=getattr(args, "air_penalty", 0.0),
-        event_weight=getattr(args, "event_weight", 1.0),
+        event_weight=getattr(args, "event_weight", 0.3),
         event_temperature=getattr(args, "event_temperature", 0.25),
         select=getattr(args, "select", "loss"),
     )
