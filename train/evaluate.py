@@ -165,6 +165,28 @@ def _measure_batch(m, template, desc, qpos, qvel, qacc, tau):
 _STATIC = ("desc", "dt", "diagnostics_of", "separate_baselines")
 
 
+def _groups(tree: Mapping) -> list[list[str]]:
+    """Names of ``tree`` (name -> params pytree) grouped by pytree structure, in order.
+
+    Variants whose parameters differ only in values (every field a traced array, the static
+    fields equal) share one group, and :func:`_replay_chunk` runs a group as one ``vmap``
+    over its stacked parameters: one copy of the estimator in the compiled program per
+    structure instead of one per variant (the reproduction's 13 ablation variants are 7
+    structures, its 9 GM grid points one), which cuts the replay's compile time about in
+    half. Results equal a loop over the variants up to float rounding (same keys).
+    """
+    by_def: dict = {}
+    for name, params in tree.items():
+        by_def.setdefault(jax.tree.structure(params), []).append(name)
+    return list(by_def.values())
+
+
+def _stack(tree: Mapping, names: list[str]):
+    return jax.tree.map(
+        lambda *xs: jnp.stack([jnp.asarray(x) for x in xs]), *(tree[n] for n in names)
+    )
+
+
 @functools.partial(jax.jit, static_argnames=_STATIC)
 def _replay_init(
     m,
@@ -205,30 +227,44 @@ def _replay_chunk(
     separate_baselines,
 ):
     normal = jnp.array([0.0, 0.0, 1.0])
+    est_groups, gm_groups = _groups(estimators), _groups(gms)
+    # Each group's parameters stacked along a leading variant axis (traced once per chunk).
+    est_stacked = [_stack(estimators, g) for g in est_groups]
+    gm_stacked = [_stack(gms, g) for g in gm_groups]
+    order = list(estimators)  # the keys are split in this order, as a loop would
+
+    def gm_one(gp, st, ms):
+        return jax.vmap(jax.vmap(lambda s, m_: gm_step(gp, s, m_, dt, normal)))(st, ms)
 
     def one_step(carry, inputs):
         beliefs, gm_states, key = carry
         meas = _measure_batch(m, template, desc, *inputs[:4])
         base_meas = _measure_batch(m, template, desc, *inputs[4:]) if separate_baselines else meas
+        subs = {}
+        for name in order:
+            key, subs[name] = jax.random.split(key)
         out = {}
         new_beliefs = {}
-        for name, params in estimators.items():
-            key, sub = jax.random.split(key)
-            b, diag = jc.step_batch(params, terrain, beliefs[name], meas, key=sub)
-            new_beliefs[name] = b
-            out[name] = diag.p_contact
-            if name == diagnostics_of:
-                for field in DIAGNOSTIC_FIELDS[1:]:
-                    out[f"{name}/{field}"] = getattr(diag, field)
-                out[f"{name}/valid"] = diag.valid
-        new_gm = {}
-        for name, gp in gms.items():
-            s, o = jax.vmap(jax.vmap(lambda st, ms, gp=gp: gm_step(gp, st, ms, dt, normal)))(
-                gm_states[name], base_meas
+        for names, params in zip(est_groups, est_stacked, strict=True):
+            b_in = _stack(beliefs, names)
+            k_in = jnp.stack([subs[n] for n in names])
+            b, diag = jax.vmap(lambda p, bl, k: jc.step_batch(p, terrain, bl, meas, key=k))(
+                params, b_in, k_in
             )
-            new_gm[name] = s
-            out[name] = o.contact.astype(jnp.float32)
-            out[f"gm_force/{name}"] = o.force_normal
+            for i, name in enumerate(names):
+                new_beliefs[name] = jax.tree.map(lambda x, i=i: x[i], b)
+                out[name] = diag.p_contact[i]
+                if name == diagnostics_of:
+                    for field in DIAGNOSTIC_FIELDS[1:]:
+                        out[f"{name}/{field}"] = getattr(diag, field)[i]
+                    out[f"{name}/valid"] = diag.valid[i]
+        new_gm = {}
+        for names, gp in zip(gm_groups, gm_stacked, strict=True):
+            s, o = jax.vmap(gm_one, in_axes=(0, 0, None))(gp, _stack(gm_states, names), base_meas)
+            for i, name in enumerate(names):
+                new_gm[name] = jax.tree.map(lambda x, i=i: x[i], s)
+                out[name] = o.contact[i].astype(jnp.float32)
+                out[f"gm_force/{name}"] = o.force_normal[i]
         if kinematic is not None:
 
             def kin_one(ms):
