@@ -504,7 +504,7 @@ def _code_version() -> dict:
             )
         except (OSError, subprocess.SubprocessError):
             return None
-        return out.stdout.strip()
+        return out.stdout.rstrip()  # not strip(): porcelain lines start with a space
 
     commit = git("rev-parse", "HEAD")
     if not commit:
