@@ -26,8 +26,6 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-import sys
-import time
 from collections.abc import Sequence
 
 import jax
@@ -296,10 +294,18 @@ def simulate(
     alive = jax.device_put(jnp.ones((n_envs,), bool), jax.devices()[0])
 
     upright_args = (world.floating_base, 0.5 * float(world.robot.home_qpos[2]))
+    # The command line's progress bar (standard library and tqdm only; no JAX at import).
+    from jax_contact.train import progress as pg
+
     pieces = []
-    t_wall = time.perf_counter()
-    done = 0
-    while done < n_steps:
+    upright = [n_envs]
+
+    def state() -> str:
+        return f"{upright[0]}/{n_envs} upright"
+
+    starts = range(0, n_steps, chunk)
+    desc = f"simulate {world.robot.name}/{gait.kind} ({n_steps * dt:.1f} s simulated)"
+    for done in pg.bar(starts, desc=desc, unit="chunk", enabled=progress, postfix=state):
         k_run, sub = jax.random.split(k_run)
         data, sstate, alive, outs = _run_chunk(
             m,
@@ -317,15 +323,7 @@ def simulate(
             upright_args=upright_args,
         )
         pieces.append(jax.device_get(outs))
-        done += chunk
-        if progress:
-            print(
-                f"  simulate {world.robot.name}/{gait.kind}: {min(done, n_steps) * dt:6.1f} /"
-                f" {n_steps * dt:.1f} s simulated, {int(np.asarray(alive).sum())}/{n_envs} upright,"
-                f" {time.perf_counter() - t_wall:6.1f} s wall",
-                file=sys.stderr,
-                flush=True,
-            )
+        upright[0] = int(np.asarray(alive).sum())
     readings, contact, force, dist, ok = jax.tree.map(
         lambda *xs: np.concatenate(xs, axis=0)[:n_steps], *pieces
     )
@@ -361,9 +359,7 @@ def _env_step(m, grobot, layout, sensors, upright_args, g, d, s, ok, t, k):
     d_next = mjx.step(m, d.replace(ctrl=ctrl))
     truth = foot_truth(layout, d_next)
     # Reading k: the state after the step and the force applied during it (module docstring).
-    s, readings = sensor_step(
-        sensors, s, d_next.qpos, d_next.qvel, d_next.qfrc_actuator, key=k
-    )
+    s, readings = sensor_step(sensors, s, d_next.qpos, d_next.qvel, d_next.qfrc_actuator, key=k)
     ok = ok & upright(d_next.qpos, *upright_args)
     return d_next, s, ok, (readings, truth.contact, truth.normal_force, truth.distance, ok)
 

@@ -367,6 +367,16 @@ def test_bar_yields_everything_and_reports_in_a_log():
     assert list(progress.bar(iter("ab"), desc="x", stream=stream)) == ["a", "b"]
 
 
+def test_bar_shows_the_loops_state_after_the_last_item():
+    # simulate's bar: the postfix is read after each chunk, so the line shows the last state
+    stream, upright = io.StringIO(), [2]
+    for k in progress.bar(
+        range(2), desc="sim", unit="chunk", stream=stream, postfix=lambda: f"{upright[0]}/2 upright"
+    ):
+        upright[0] = 2 - k
+    assert stream.getvalue().splitlines() == ["sim: 2/2 chunks, 0 s, 1/2 upright"]
+
+
 def test_feedback_can_be_turned_off(monkeypatch):
     monkeypatch.setenv(progress.ENV_SWITCH, "0")
     stream = io.StringIO()

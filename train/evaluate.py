@@ -32,8 +32,6 @@ the per-leg inputs (an 18 x 18 mass matrix per leg and step) are never stored.
 from __future__ import annotations
 
 import functools
-import sys
-import time
 from collections.abc import Mapping
 
 import jax
@@ -135,20 +133,16 @@ def replay(
     beliefs, gm_states = _replay_init(*models, first, **static)
     # Committed like the chunk's outputs, or jit would compile the chunk a second time.
     carry = jax.device_put((beliefs, gm_states, jax.random.key(seed)), jax.devices()[0])
+    from jax_contact.train import progress as pg
+
     pieces = []
-    t_wall = time.perf_counter()
-    for start in range(0, n_t, chunk):
+    starts = range(0, n_t, chunk)
+    for start in pg.bar(starts, desc=f"replay ({n_t} steps)", unit="chunk", enabled=progress):
         stop = min(start + chunk, n_t)
         arrays = (qpos, qvel, qacc, tau) + (raw if separate else ())
         xs = tuple(jnp.asarray(_pad(a[start:stop], chunk)) for a in arrays)
         carry, out = _replay_chunk(*models, carry, xs, **static)
         pieces.append({k: np.asarray(v)[: stop - start] for k, v in out.items()})
-        if progress:
-            print(
-                f"  replay: {stop}/{n_t} steps, {time.perf_counter() - t_wall:6.1f} s wall",
-                file=sys.stderr,
-                flush=True,
-            )
     return {k: np.concatenate([p[k] for p in pieces], axis=0) for k in pieces[0]}
 
 

@@ -23,36 +23,14 @@ import (``jax_contact.train.cli`` imports this module before it may import JAX):
 
 ``JAX_CONTACT_PROGRESS=0`` turns all three off (errors and results are still printed).
 
-How the loops of the library should call it (today they print a line per chunk
-themselves; these calls replace those prints, keeping their ``progress`` flag)::
-
-    # envs/simulate.py, simulate(): the `while done < n_steps` loop becomes
-    from jax_contact.train import progress as pg
-    starts = range(0, n_steps, chunk)
-    for done in pg.bar(starts, desc=f"simulate {world.robot.name}/{gait.kind}",
-                       unit="chunk", enabled=progress):
-        k_run, sub = jax.random.split(k_run)
-        with pg.compiling("the rollout chunk") if done == 0 else contextlib.nullcontext():
-            data, sstate, alive, outs = _run_chunk(..., jnp.float32(done * dt), sub, ...)
-            pieces.append(jax.device_get(outs))
-
-    # train/evaluate.py, replay(): the chunk loop
-    for start in pg.bar(range(0, n_t, chunk), desc="replay", unit="chunk",
-                        enabled=progress):
-        ...
-        with pg.compiling("the replay chunk") if start == 0 else contextlib.nullcontext():
-            carry, out = _replay_chunk(*models, carry, xs, **static)
-            pieces.append({k: np.asarray(v)[: stop - start] for k, v in out.items()})
-
-    # train/reproduce.py, table3(): both scenario loops
-    for gait in pg.bar(("walk", "trot"), desc="table III, tuning GM", unit="gait"):
-    for name in pg.bar(SCENARIOS, desc="table III", unit="scenario"):
-
-Keep the ``device_get`` / ``np.asarray`` inside the ``with``: JAX dispatches
-asynchronously, so the block must wait for the result; the compilation itself happens
-inside the first call either way. ``bar`` needs ``len()`` of what it wraps (or ``total=``)
-to show a fraction and an estimate. From a notebook or script (not ``jax-contact``), wrap
-the work in ``with pg.watch_compiles("my run"):`` to get the compile lines too.
+The library's long loops use :func:`bar`: the chunks of ``envs.simulate.simulate`` and of
+``train.evaluate.replay``, the scenes of ``jax-contact rates``; their ``progress`` flag
+turns it off. A loop body that calls a jitted function should wait for its result
+(``jax.device_get`` / ``np.asarray``) inside the iteration, since JAX dispatches
+asynchronously and the bar would otherwise run ahead of the work. ``bar`` needs ``len()``
+of what it wraps (or ``total=``) to show a fraction and an estimate. From a notebook or
+script (not ``jax-contact``), wrap the work in ``with pg.watch_compiles("my run"):`` to
+get the compile lines too.
 """
 
 from __future__ import annotations
@@ -62,7 +40,7 @@ import os
 import sys
 import threading
 import time
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from typing import TextIO, TypeVar
 
 T = TypeVar("T")
@@ -307,13 +285,15 @@ def bar(
     unit: str = "it",
     enabled: bool = True,
     stream: TextIO | None = None,
+    postfix: Callable[[], str] | None = None,
 ) -> Iterator[T]:
     """Yields ``iterable``'s items and shows the loop's progress on ``stream`` (stderr).
 
     A ``tqdm`` bar on a terminal, else a plain line at most every 10 s and one at the end:
     ``{desc}: {k}/{total} {unit}s, {elapsed} s, about {left} s left``. The estimate starts
-    after the first item (which usually compiles). ``enabled=False`` (or
-    ``JAX_CONTACT_PROGRESS=0``) yields the items and shows nothing.
+    after the first item (which usually compiles). ``postfix``, called after each item,
+    adds the loop's own state (e.g. ``"16/16 upright"``) to the bar or line.
+    ``enabled=False`` (or ``JAX_CONTACT_PROGRESS=0``) yields the items and shows nothing.
     """
     stream = stream or sys.stderr
     if total is None:
@@ -325,12 +305,12 @@ def bar(
         yield from iterable
         return
     if _is_tty(stream):
-        yield from _tqdm_bar(iterable, total, desc, unit, stream)
+        yield from _tqdm_bar(iterable, total, desc, unit, stream, postfix)
     else:
-        yield from _plain_bar(iterable, total, desc, unit, stream)
+        yield from _plain_bar(iterable, total, desc, unit, stream, postfix)
 
 
-def _tqdm_bar(iterable, total, desc, unit, stream):
+def _tqdm_bar(iterable, total, desc, unit, stream, postfix=None):
     from tqdm import tqdm
 
     it = iter(iterable)
@@ -340,12 +320,16 @@ def _tqdm_bar(iterable, total, desc, unit, stream):
         return
     yield first  # the compiling one, reported by the watcher
     with tqdm(total=total, initial=1, desc=desc, unit=unit, file=stream, leave=True) as pbar:
+        if postfix is not None:
+            pbar.set_postfix_str(postfix())
         for item in it:
             yield item
+            if postfix is not None:
+                pbar.set_postfix_str(postfix(), refresh=False)
             pbar.update(1)
 
 
-def _plain_bar(iterable, total, desc, unit, stream):
+def _plain_bar(iterable, total, desc, unit, stream, postfix=None):
     t0 = time.monotonic()
     last = t0
     k, t_first = 0, None
@@ -358,7 +342,7 @@ def _plain_bar(iterable, total, desc, unit, stream):
         if total is not None and t_first is not None and k > 1 and k < total:
             rate = (time.monotonic() - t_first) / (k - 1)  # after the compiling first item
             text += f", about {rate * (total - k):.0f} s left"
-        return text
+        return text + (f", {postfix()}" if postfix is not None else "")
 
     for item in iterable:
         yield item
