@@ -238,3 +238,26 @@ def test_unclipped_reward_is_the_sum_of_the_scaled_terms():
         ppo.UnclippedReward(Silent()).step(state, jnp.zeros(2))
     with pytest.raises(ValueError, match="PPOConfig.reward"):
         dataclasses.replace(TINY, reward="shaped").validate()
+
+
+def test_eval_row_takes_the_episode_accuracy_as_brax_sums_it():
+    # The wrapper's metric is the per-step increment of the running accuracy, so Brax's
+    # EvalWrapper sum over a 40-step episode with 34 of 40 updates right is 0.85 (checked on
+    # the wrapper itself by test_wrapper_substeps' episode-mean test); dividing it by the
+    # episode length again (0.85 / 40 = 0.021) was the bug this pins.
+    m = {
+        "eval/episode_reward": 3.0,
+        "eval/episode_reward_std": 0.5,
+        "eval/avg_episode_length": 40.0,
+        "eval/episode_contact_est/accuracy": 0.85,
+    }
+    row = ppo.eval_row(1000, 12.34, m, "eval/episode_contact_est/accuracy")
+    assert row == {
+        "step": 1000,
+        "wall_s": 12.3,
+        "eval_reward": 3.0,
+        "eval_reward_std": 0.5,
+        "eval_episode_length": 40.0,
+        "eval_contact_accuracy": 0.85,
+    }
+    assert np.isnan(ppo.eval_row(0, 0.0, m | {}, "eval/missing")["eval_contact_accuracy"])

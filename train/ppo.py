@@ -38,7 +38,7 @@ import json
 import shutil
 import sys
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 
 import jax
@@ -515,16 +515,8 @@ def train(
             )
             write_text_atomic(run_dir / "training.csv", _csv_text(train_rows, TRAIN_FIELDS))
             return
-        length = float(m["eval/avg_episode_length"])
-        row = {
-            "step": int(step),
-            "wall_s": round(wall, 1),
-            "eval_reward": float(m["eval/episode_reward"]),
-            "eval_reward_std": float(m["eval/episode_reward_std"]),
-            "eval_episode_length": length,
-            # The metric is summed over each episode by Brax's evaluator.
-            "eval_contact_accuracy": float(m.get(acc_key, np.nan)) / max(length, 1.0),
-        }
+        row = eval_row(step, wall, m, acc_key)
+        length = row["eval_episode_length"]
         rows.append(row)
         write_text_atomic(run_dir / "progress.csv", _csv_text(rows, CSV_FIELDS))
         log(
@@ -680,6 +672,24 @@ def evaluate_policy(
         "fell": float(np.mean(np.asarray(fell).any(axis=0))),
         "contact": m.as_dict(),
         "wall_s": round(wall, 1),
+    }
+
+
+def eval_row(step: int, wall_s: float, metrics: Mapping, acc_key: str) -> dict:
+    """One row of ``progress.csv`` from the metrics Brax's PPO reports after an evaluation.
+
+    Brax's ``EvalWrapper`` sums each per-step metric over an episode and averages the sums
+    over the eval envs. The wrapper's ``accuracy`` metric is the per-step *increment* of the
+    episode's running accuracy (``envs/wrapper.py``), so its sum, ``acc_key``, already is the
+    episode's accuracy: it is not divided by the episode length again.
+    """
+    return {
+        "step": int(step),
+        "wall_s": round(wall_s, 1),
+        "eval_reward": float(metrics["eval/episode_reward"]),
+        "eval_reward_std": float(metrics["eval/episode_reward_std"]),
+        "eval_episode_length": float(metrics["eval/avg_episode_length"]),
+        "eval_contact_accuracy": float(metrics.get(acc_key, np.nan)),
     }
 
 
