@@ -429,3 +429,27 @@ def test_bad_input_through_the_command_is_one_line(tmp_path, capsys):
     assert len(err) == 1 and err[0].startswith("jax-contact estimate: error: recording")
     assert "missing column 'q/knee'" in err[0] and "rec.csv" in err[0]
     assert not (tmp_path / "o").exists()  # nothing written
+
+
+def test_a_simulated_barkour_log_stores_feet_its_robot_resolves(tmp_path, monkeypatch):
+    # Barkour's foot geoms have no names; the simulated world (with its ground-truth geoms)
+    # calls them gt_foot<i>, which the nominal robot that load_log loads does not have. The
+    # log must store the nominal robot's names. The simulation itself is replaced (no
+    # compile): only the attributes written are checked.
+    import types
+
+    from jax_contact.envs import simulate as sim
+    from jax_contact.envs.robots import load_robot
+    from jax_contact.train import logs
+
+    written = {}
+    fake = types.SimpleNamespace(
+        qpos=np.zeros((3, 1, 19)), valid=np.ones((3, 1), bool), to_arrays=lambda: {}
+    )
+    monkeypatch.setattr(sim, "simulate", lambda *a, **k: fake)
+    monkeypatch.setattr(logs, "write_log", lambda path, arrays, attrs: written.update(attrs))
+    logs.simulate_to_file(tmp_path / "b.h5", robot="barkour", n_envs=1, duration=0.01)
+    feet = written["foot_names"]
+    assert not any(f.startswith("gt_foot") for f in feet), feet
+    assert load_robot("barkour", foot_names=feet).description.foot_names == tuple(feet)
+    assert len(feet) == 4

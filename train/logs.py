@@ -59,7 +59,6 @@ def simulate_to_file(
     world = build_world(loaded, terrain=terrain, roughness=roughness)
     resolved = world.robot.gait_settings
     speeds = resolved.speed_range(gait)
-    roll = simulate(world, make_gait(gait), noise, n_envs, duration, seed, speed_range=speeds)
     attrs = {
         "robot": robot,
         "gait": gait,
@@ -70,10 +69,13 @@ def simulate_to_file(
         "dt": world.dt,
         "rate_hz": 1.0 / world.dt,
         "n_envs": n_envs,
-        "foot_names": list(world.robot.description.foot_names),
+        # The nominal robot's names, which load_log resolves: the simulated world renames
+        # unnamed foot geoms (Barkour's) gt_foot<i> when it adds its ground-truth geoms.
+        "foot_names": list(loaded.description.foot_names),
         "gait_settings": dataclasses.asdict(resolved),
         "reading_timing": READING_TIMING,
     }
+    roll = simulate(world, make_gait(gait), noise, n_envs, duration, seed, speed_range=speeds)
     write_log(path, roll.to_arrays(), attrs)
     n_valid = int(roll.valid[-1].sum())
     print(
