@@ -518,3 +518,17 @@ def test_stance_time_stays_in_its_bounds():
     with pytest.raises(ValueError, match="outside the tuning bounds"):
         jt.init_theta(jt.make_space(3, fields=("stance_time",), stance_time_bounds=(0.4, 1.0)),
                       base)  # fmt: skip
+
+
+def test_padded_window_holds_no_phase_or_touch_down():
+    # The last window of a log is padded with copies of its last step: the copies are
+    # masked and carry no phase start or touch-down, so they add no air phase.
+    truth = np.zeros((7, 1, 1), bool)
+    truth[5:] = True  # a touch-down at t = 5
+    d = jt.with_air_phases(
+        jt.TuningData(meas={"x": np.zeros((7, 1))}, truth=truth, mask=np.ones_like(truth)), 2
+    )
+    w = jt._window(d, 4, 5)  # steps 4..6 and two copies of step 6
+    assert np.asarray(w.mask)[:, 0, 0].tolist() == [True] * 3 + [False] * 2
+    assert np.asarray(w.events.td_step)[:, 0, 0].tolist() == [False, True, False, False, False]
+    assert not np.asarray(w.events.start)[3:].any()
