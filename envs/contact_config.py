@@ -60,8 +60,11 @@ class ContactObsConfig:
         truth goes under ``info_key + "_truth"``, metrics under ``info_key + "/..."``.
       truth: ground-truth source, one of :data:`TRUTH_SOURCES`
       (:mod:`jax_contact.envs.contact_truth`). truth_threshold: normal force above which a foot is
-      in contact, N. record_substeps: substep rate only: keep every substep's ``p_contact`` and
-      truth,
+      in contact, N. truth_gap: a foot whose sole is within this distance of the floor
+      also counts as in contact, m (default 1 mm: the micro-bounces of a foot at rest in
+      Playground's soft contact, :mod:`jax_contact.envs.contact_truth`; 0: the raw source).
+      record_substeps: substep rate only: keep every substep's ``p_contact`` and truth
+        (and, with ``truth_gap > 0``, ``truth_raw``: the source without the tolerance),
         (n_substeps, n_legs), in ``info[info_key + "_substeps"]``.
       include_passive: the estimator's ``h`` includes the joint springs and dampers.
       logit_clip: bound of the observed logit.
@@ -81,6 +84,7 @@ class ContactObsConfig:
     info_key: str = struct.field(pytree_node=False, default="contact_est")
     truth: str = struct.field(pytree_node=False, default="auto")
     truth_threshold: float = struct.field(pytree_node=False, default=1.0)
+    truth_gap: float = struct.field(pytree_node=False, default=0.001)
     record_substeps: bool = struct.field(pytree_node=False, default=False)
     include_passive: bool = struct.field(pytree_node=False, default=True)
     logit_clip: float = struct.field(pytree_node=False, default=10.0)
@@ -116,6 +120,8 @@ def validate_config(cfg: ContactObsConfig) -> None:
         raise ValueError(f"config.info_key must be a non-empty str, got {cfg.info_key!r}")
     if not (np.isfinite(cfg.truth_threshold) and cfg.truth_threshold >= 0):
         raise ValueError(f"config.truth_threshold must be >= 0 (N), got {cfg.truth_threshold!r}")
+    if not (np.isfinite(cfg.truth_gap) and cfg.truth_gap >= 0):
+        raise ValueError(f"config.truth_gap must be >= 0 (m), got {cfg.truth_gap!r}")
     if not (np.isfinite(cfg.logit_clip) and cfg.logit_clip > 0):
         raise ValueError(f"config.logit_clip must be > 0, got {cfg.logit_clip!r}")
     if cfg.feet is not None and (isinstance(cfg.feet, str) or len(cfg.feet) == 0):

@@ -66,6 +66,7 @@ class Core:
       params, sensor, terrain, cfg: the estimator's parameters, sensor model, terrain and
         the wrapper's config.
       truth: ``data -> (n_legs,) bool`` ground truth, or None.
+      truth_raw: the same source without ``cfg.truth_gap`` (recorded beside it).
       truth_source: which :mod:`jax_contact.envs.contact_truth` source ``truth`` reads.
       rate: ``"substep"`` or ``"control"``.
     """
@@ -80,6 +81,7 @@ class Core:
     truth: object
     truth_source: str
     rate: str
+    truth_raw: object = None
 
     def moved(self, est: ContactEstState, data) -> jax.Array:
         """() bool: ``data`` is not the state the wrapper last returned (an auto-reset)."""
@@ -97,6 +99,8 @@ class Core:
         if self.truth is not None:
             rec["truth"] = self.truth(data)
             rec["hit"] = (est.diag.p_contact > 0.5) == rec["truth"]
+            if self.cfg.record_substeps and self.truth_raw is not None:
+                rec["truth_raw"] = self.truth_raw(data)
         return rec
 
     def init(self, data, key: jax.Array) -> ContactEstState:
@@ -267,9 +271,13 @@ def make_core(env, cfg: ContactObsConfig) -> Core:
     terrain = cfg.terrain
     if terrain is None:
         terrain = contact_params.default_terrain(mj_model, desc)
-    truth, source = contact_truth.truth_reader(
+    truth_raw, source = contact_truth.truth_reader(
         mj_model, desc, resolved, cfg.truth, cfg.truth_threshold
     )
+    floors = desc.floor_geom_ids
+    truth = contact_truth.with_gap(truth_raw, mj_model, resolved, floors, cfg.truth_gap)
+    if truth is None or truth is truth_raw:
+        truth_raw = None
     if cfg.observe == "truth" and truth is None:
         raise ValueError(
             f"config.observe='truth' needs ground-truth contact, but config.truth={cfg.truth!r}"
@@ -287,6 +295,7 @@ def make_core(env, cfg: ContactObsConfig) -> Core:
         truth=truth,
         truth_source=source,
         rate=rate,
+        truth_raw=truth_raw,
     )
 
 
@@ -308,6 +317,7 @@ def report(core: Core) -> dict:
         "leg_dofs": len(core.desc.leg_dofs[0]),
         "force_rows": tuple(int(i) for i in core.params.force_rows),
         "truth": core.truth_source,
+        "truth_gap_m": float(core.cfg.truth_gap) if core.truth_raw is not None else 0.0,
         "observe": core.cfg.observe,
         "n_features": core.cfg.n_per_foot * core.desc.n_legs,
         "obs_keys": core.cfg.obs_keys,

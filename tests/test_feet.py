@@ -173,3 +173,28 @@ def test_contact_truth_carries_the_weight():
     np.testing.assert_array_equal(f_up[:100], 0.0)
     assert not t_up[:100].any()
     np.testing.assert_allclose(f_up[-1], [weight], rtol=0.02)  # landed and settled
+
+
+def test_truth_gap_counts_a_sole_just_above_the_floor():
+    """Base at 0.51 m puts the sole's bottom at 0 (as above); qpos[0] is the rail's height
+    offset, so +0.5 mm lifts the sole 0.5 mm: the sole-floor distance reads 0.5 mm, the
+    raw truth says air, a 1 mm ``truth_gap`` says contact, and 2 mm up is air for both."""
+    m = _model(z=0.51)
+    desc, resolved = feet.describe(m)
+    gap = contact_truth.contact_gap(m, resolved, desc.floor_geom_ids)
+    raw, _ = contact_truth.truth_reader(m, desc, resolved, "auto", 1.0)
+    tol, _ = contact_truth.truth_reader(m, desc, resolved, "auto", 1.0, gap=0.001)
+    mx = mjx.put_model(m)
+
+    @jax.jit
+    def read(lift):
+        d = mjx.make_data(m)
+        d = mjx.forward(mx, d.replace(qpos=d.qpos.at[0].set(lift)))
+        return gap(d), raw(d), tol(d)
+
+    dist, r, t = (np.asarray(x) for x in read(0.0005))
+    np.testing.assert_allclose(dist, [0.0005], atol=1e-5)
+    assert not r.any() and t.all()
+    dist, r, t = (np.asarray(x) for x in read(0.002))
+    np.testing.assert_allclose(dist, [0.002], atol=1e-5)
+    assert not r.any() and not t.any()

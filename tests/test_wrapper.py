@@ -153,8 +153,9 @@ def test_observe_options_sizes_and_refusals(brax_leg):
 
 def test_observe_truth_features_are_the_truth(brax_leg):
     """observe='truth': the slots of p_contact and the logit hold the simulator's flag and
-    +-logit_clip; the estimator still runs and is scored."""
-    cfg = W.ContactObsConfig(observe="truth", include_logit=True, logit_clip=7.0)
+    +-logit_clip; the estimator still runs and is scored. The leg is released less than
+    the default 1 mm ``truth_gap`` above the floor, so the raw truth (gap 0) is observed."""
+    cfg = W.ContactObsConfig(observe="truth", include_logit=True, logit_clip=7.0, truth_gap=0.0)
     env = W.wrap_contact(brax_leg, cfg, **IDEAL)
     state = jax.jit(env.reset)(jax.random.PRNGKey(0))
     step = jax.jit(env.step)

@@ -74,9 +74,10 @@ def test_substep_hook_equals_explicit_loop(pg_leg, brax_leg):
     first = jax.jit(wrapped.reset)(jax.random.PRNGKey(0))
     want, want_p = _reference(core, core.mjx_model, first.info["contact_est"], first.data, KNEE)
     # One scan against separate jitted calls: float32 round-off only. Deep in the air the
-    # logit is ~-37 (p ~ 1e-16), where round-off of the physics moves it by ~0.2.
+    # logit is ~-37 (p ~ 1e-16), where round-off of the physics moves it by up to ~0.7
+    # (seen with a different fusion of the same program): compared up to |logit| 30.
     np.testing.assert_allclose(np.stack(got_p), want_p, atol=1e-5)
-    np.testing.assert_allclose(np.stack(got), want, rtol=1e-2)
+    np.testing.assert_allclose(np.clip(np.stack(got), -30, 30), np.clip(want, -30, 30), rtol=1e-2)
     assert np.ptp(want) > 0.5  # the belief moved: the comparison is not vacuous
 
 

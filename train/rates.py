@@ -104,6 +104,9 @@ class RateComparison:
       dt_substep, dt_control: the two estimator periods, s.
       contact_fraction: fraction of the scored foot-updates (every physics step) in
         contact: the accuracy of always-contact (and ``1 -`` it of always-air).
+      substep_all_raw: ``substep_all`` against the truth source without the wrapper's
+        ``truth_gap`` tolerance (None when there is none).
+      contact_fraction_raw: ``contact_fraction`` of that raw truth.
     """
 
     substep: metrics.ContactMetrics
@@ -112,6 +115,8 @@ class RateComparison:
     dt_substep: float
     dt_control: float
     contact_fraction: float = float("nan")
+    substep_all_raw: metrics.ContactMetrics | None = None
+    contact_fraction_raw: float = float("nan")
 
     def table(self) -> str:
         rows = [
@@ -119,6 +124,8 @@ class RateComparison:
             (f"control ({self.dt_control * 1e3:g} ms), at env steps", self.control),
             (f"substep ({self.dt_substep * 1e3:g} ms), every substep", self.substep_all),
         ]
+        if self.substep_all_raw is not None:
+            rows.append(("  same, against the raw truth (no truth_gap)", self.substep_all_raw))
         lines = [
             f"{'estimator':42s} {'acc':>6s} {'F1':>6s} {'prec':>6s} {'rec':>6s}"
             f" {'TD delay ms':>14s} {'fails':>5s} {'steps':>7s}"
@@ -151,6 +158,7 @@ def compare_rates(
     control_params_kwargs: Mapping | None = None,
     skip_s: float = 0.0,
     pairing: str = "delayed",
+    truth_gap: float = 0.001,
 ) -> RateComparison:
     """Measures the accuracy lost by the control-rate mode against the substep mode.
 
@@ -172,6 +180,8 @@ def compare_rates(
         ``sigma_qdd_model``), applied last.
       skip_s: time at the start of every rollout left out of the scores (settling), s.
       pairing: ``ContactObsConfig.pairing`` of both estimators.
+      truth_gap: ``ContactObsConfig.truth_gap`` of both, m; the substep scores are also
+        given against the raw truth (``substep_all_raw``).
 
     Returns:
       The metrics of :func:`jax_contact.metrics.evaluate` for both, over the steps before
@@ -193,7 +203,11 @@ def compare_rates(
         return default_estimator_params(robot, dt, sp, **{**extra, **more})
 
     ctrl_cfg = ContactObsConfig(
-        rate="control", info_key="contact_control", truth="auto", pairing=pairing
+        rate="control",
+        info_key="contact_control",
+        truth="auto",
+        pairing=pairing,
+        truth_gap=truth_gap,
     )
     sub_cfg = ContactObsConfig(
         rate="substep",
@@ -201,6 +215,7 @@ def compare_rates(
         truth="auto",
         record_substeps=True,
         pairing=pairing,
+        truth_gap=truth_gap,
     )
     inner = wrap_contact(
         env,
@@ -221,11 +236,13 @@ def compare_rates(
         def body(s, a):
             s = outer.step(s, a)
             info = s.info
+            sub = info["contact_substep_substeps"]
             out = (
                 info["contact_control"].diag.p_contact,
                 info["contact_control_truth"],
-                info["contact_substep_substeps"]["p_contact"],
-                info["contact_substep_substeps"]["truth"],
+                sub["p_contact"],
+                sub["truth"],
+                sub.get("truth_raw", sub["truth"]),
                 s.done,
             )
             return s, out
@@ -233,10 +250,11 @@ def compare_rates(
         return jax.lax.scan(body, state, a_seq)[1]
 
     keys = jax.random.split(key, acts.shape[1])
-    p_c, t_c, p_s, t_s, done = jax.jit(jax.vmap(rollout, in_axes=(0, 1)))(keys, acts)
+    p_c, t_c, p_s, t_s, t_raw, done = jax.jit(jax.vmap(rollout, in_axes=(0, 1)))(keys, acts)
     # (E, T, ...) -> time first.
     p_c, t_c, done = (np.moveaxis(np.asarray(x), 0, 1) for x in (p_c, t_c, done))
-    p_s, t_s = (np.moveaxis(np.asarray(x), 0, 1) for x in (p_s, t_s))
+    p_s, t_s, t_raw = (np.moveaxis(np.asarray(x), 0, 1) for x in (p_s, t_s, t_raw))
+    has_raw = outer.contact_core.truth_raw is not None
     if not np.array_equal(t_s[:, :, -1], t_c):
         raise RuntimeError("the two estimators saw different truths: rollouts diverged")
     t_len = acts.shape[0]
@@ -256,4 +274,8 @@ def compare_rates(
         dt_substep=dt_sub,
         dt_control=dt_ctrl,
         contact_fraction=float(np.mean(flat(t_s)[flat(valid_s)])),
+        substep_all_raw=(
+            metrics.evaluate(flat(p_s), flat(t_raw), flat(valid_s), dt=dt_sub) if has_raw else None
+        ),
+        contact_fraction_raw=float(np.mean(flat(t_raw)[flat(valid_s)])),
     )
