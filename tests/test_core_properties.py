@@ -293,3 +293,40 @@ def test_run_and_sequence_bce_trace_under_x64(x64):
         lambda m: sequence_bce(params, terrain, m, truth, key=jax.random.key(0)), meas
     )
     assert out.dtype == jnp.float64 and out.shape == ()
+
+
+def test_stabilised_contact_reads_a_sinking_foot_as_contact():
+    """A foot that still moves into the ground at 0.3 m/s and decelerates as the
+    stabilised contact predicts (``J qdd + Jdot qd = -b u e``, b = 100 1/s) is contact
+    evidence for the stabilised dynamics term and air evidence for the rigid one (which
+    predicts zero foot acceleration); a foot that moves away is not stabilised at all."""
+    from jax_contact.measurement import dynamics_llr
+
+    rng = np.random.default_rng(7)
+    case = oracle.random_case(rng, 18, 3, stance=True)
+    meas, e = dict(case["meas"]), np.asarray(case["terrain"]["normal"])
+    noise = {k: np.asarray(v) for k, v in case["noise"].items()}
+    noise["sigma_qd"] = np.full(18, 0.02)  # a precise velocity, so the shift dominates
+    scalars = dict(case["scalars"], outlier_prob=0.0, cap_dynamics=1.0, contact_damping=100.0)
+    stab = oracle.Params(**noise, **scalars, unilateral=False)
+    rigid = oracle.Params(**noise, **dict(scalars, contact_damping=0.0), unilateral=False)
+    leg = meas["leg_dofs"]
+    qd = np.array(meas["qd"])
+    qd[leg] += np.linalg.lstsq(meas["J"][:, leg], -0.3 * e, rcond=None)[0]
+    meas.update(qd=qd, v_f=meas["J"] @ qd)
+    _, _, info = oracle.dynamics(stab, oracle.Meas(**meas), e)
+    meas["qdd"] = np.array(meas["qdd"])
+    meas["qdd"][leg] = info["qdd_contact"]
+    m = _as_meas(meas)
+    llr, params = {}, {}
+    for name, p in (("stab", stab), ("rigid", rigid)):
+        fields = {k: v for k, v in vars(p).items() if k not in noise and k != "unilateral"}
+        params[name] = make_params(make_noise(18, **noise), **fields, unilateral=False)
+        llr[name] = float(dynamics_llr(params[name], m, jnp.asarray(e, jnp.float32))[0])
+    assert llr["stab"] > 2.0 and llr["rigid"] < llr["stab"] - 2.0, llr
+    # Moving away from the ground (u > 0): nothing is stabilised, the contact force is the
+    # rigid one (only the force noise term, added whatever the sign, still differs).
+    qd[leg] -= 2 * np.linalg.lstsq(meas["J"][:, leg], -0.3 * e, rcond=None)[0]
+    m = _as_meas(dict(meas, qd=qd, v_f=meas["J"] @ qd))
+    forces = [np.asarray(dynamics_llr(params[n], m, jnp.asarray(e, jnp.float32))[1]) for n in llr]
+    np.testing.assert_allclose(forces[0], forces[1], rtol=1e-5, atol=1e-4)
