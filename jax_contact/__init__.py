@@ -9,6 +9,7 @@ to import, and ``jax_contact.deploy`` loads only what it uses.
 from __future__ import annotations
 
 import importlib
+import importlib.util
 from typing import TYPE_CHECKING
 
 # public name -> the submodule that defines it (None: the name is a submodule)
@@ -118,7 +119,13 @@ if TYPE_CHECKING:  # the same names, eagerly, for type checkers and IDEs
 
 def __getattr__(name: str):
     if name not in _LAZY:
-        raise AttributeError(f"module 'jax_contact' has no attribute {name!r}")
+        # Any submodule, as an eager package would have after importing it (``jc.io``,
+        # ``jc.baselines``, ``jc.envs``).
+        if name.startswith("__") or importlib.util.find_spec(f"jax_contact.{name}") is None:
+            raise AttributeError(f"module 'jax_contact' has no attribute {name!r}")
+        module = importlib.import_module(f"jax_contact.{name}")
+        globals()[name] = module
+        return module
     module = importlib.import_module(f"jax_contact.{_LAZY[name] or name}")
     value = module if _LAZY[name] is None else getattr(module, name)
     globals()[name] = value  # later lookups skip __getattr__

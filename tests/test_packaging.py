@@ -84,6 +84,8 @@ def test_import_is_lazy_and_every_public_name_resolves():
         "    want = importlib.import_module('jax_contact.' + (mod or n))\n"
         "    assert v is (want if mod is None else getattr(want, n)), n\n"
         "print(len(jc.__all__))\n"
+        "assert jc.io is importlib.import_module('jax_contact.io')\n"
+        "assert jc.baselines.make_gm_params is not None\n"
         "try:\n"
         "    jc.no_such_name\n"
         "except AttributeError as e:\n"
