@@ -107,6 +107,8 @@ class RateComparison:
       substep_all_raw: ``substep_all`` against the truth source without the wrapper's
         ``truth_gap`` tolerance (None when there is none).
       contact_fraction_raw: ``contact_fraction`` of that raw truth.
+      nonfinite_rollouts: rollouts whose estimate went NaN/inf before their first
+        ``done``; each is scored up to that step.
     """
 
     substep: metrics.ContactMetrics
@@ -117,6 +119,7 @@ class RateComparison:
     contact_fraction: float = float("nan")
     substep_all_raw: metrics.ContactMetrics | None = None
     contact_fraction_raw: float = float("nan")
+    nonfinite_rollouts: int = 0
 
     def table(self) -> str:
         rows = [
@@ -140,6 +143,11 @@ class RateComparison:
             f"always contact: accuracy {self.contact_fraction:.3f}; always air:"
             f" {1 - self.contact_fraction:.3f} (every physics step)"
         )
+        if self.nonfinite_rollouts:
+            lines.append(
+                f"WARNING: {self.nonfinite_rollouts} rollouts' estimate went non-finite before"
+                " their first done; scored up to that step"
+            )
         lines.append(
             f"control - substep: accuracy {self.control.accuracy - self.substep.accuracy:+.3f},"
             f" F1 {self.control.f1 - self.substep.f1:+.3f}"
@@ -185,7 +193,7 @@ def compare_rates(
 
     Returns:
       The metrics of :func:`jax_contact.metrics.evaluate` for both, over the steps before
-      each rollout's first ``done``.
+      each rollout's first ``done`` (that step excluded).
     """
     acts = jnp.asarray(actions)
     if acts.ndim != 3:
@@ -258,7 +266,13 @@ def compare_rates(
     if not np.array_equal(t_s[:, :, -1], t_c):
         raise RuntimeError("the two estimators saw different truths: rollouts diverged")
     t_len = acts.shape[0]
-    alive = np.cumsum(done, axis=0) - done == 0  # steps up to and including the first done
+    # Steps before the first done: the terminal step is left out, its state may be NaN
+    # (Playground ends an episode on NaN physics; random actions get there).
+    alive = np.cumsum(done, axis=0) == 0
+    # A non-finite estimate ends a rollout's score too, and is counted (never hidden).
+    finite = np.isfinite(p_s).all(axis=(2, 3)) & np.isfinite(p_c).all(axis=-1)
+    broke = alive & ~finite
+    alive &= np.cumsum(~finite, axis=0) == 0
     skip = int(round(skip_s / dt_ctrl))
     valid = alive & (np.arange(t_len) >= skip)[:, None]
     valid_c = np.broadcast_to(valid[..., None], p_c.shape)
@@ -278,4 +292,5 @@ def compare_rates(
             metrics.evaluate(flat(p_s), flat(t_raw), flat(valid_s), dt=dt_sub) if has_raw else None
         ),
         contact_fraction_raw=float(np.mean(flat(t_raw)[flat(valid_s)])),
+        nonfinite_rollouts=int(broke.any(axis=0).sum()),
     )
