@@ -118,6 +118,35 @@ def mvn_logpdf(x: jax.Array, mean: jax.Array, cov: jax.Array) -> jax.Array:
     return -0.5 * (jnp.dot(z, z) + log_det + n * LOG_2PI)
 
 
+def mvn_logpdf_rank1(x: jax.Array, mean: jax.Array, cov: jax.Array, v: jax.Array) -> jax.Array:
+    """``log N(x; mean, cov + v v^T)`` without forming ``cov + v v^T``.
+
+    The matrix determinant lemma and the Sherman-Morrison identity on the Cholesky factor
+    ``L`` of ``cov``: with ``z = L^-1 (x - mean)``, ``w = L^-1 v`` and ``s = 1 + w.w``,
+    ``log det = log det cov + log s`` and the quadratic form is ``z.z - (z.w)^2 / s``. A
+    huge ``v`` (a stretched leg's operational-space inverse) only removes the direction of
+    ``v`` from the density, where the Cholesky factor of the summed matrix would lose
+    positive-definiteness in float32 and return NaN.
+
+    Args:
+      x: (n,) point.
+      mean: (n,) mean.
+      cov: (n, n) symmetric positive definite covariance, n small.
+      v: (n,) the rank-one part's vector.
+
+    Returns:
+      () the log density.
+    """
+    n = x.shape[-1]
+    chol = cholesky_small(cov)
+    z = _forward_sub(chol, x - mean)
+    w = _forward_sub(chol, v)
+    s = 1.0 + jnp.dot(w, w)
+    quad = jnp.maximum(jnp.dot(z, z) - jnp.square(jnp.dot(z, w)) / s, 0.0)
+    log_det = 2.0 * jnp.sum(jnp.log(jnp.diagonal(chol))) + jnp.log(s)
+    return -0.5 * (quad + log_det + n * LOG_2PI)
+
+
 def normal_logpdf(x: jax.Array, mean: jax.Array, std: jax.Array) -> jax.Array:
     """() log N(x; mean, std^2) of a scalar."""
     z = (x - mean) / std

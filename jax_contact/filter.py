@@ -117,11 +117,16 @@ def _update(
     # eq. 3: the product of the terms is the sum of their log-likelihood ratios.
     terms = measurement_terms(params, leg, tq)
     llr = sum(getattr(terms, name) for name in params.terms)
+    # A term that is not finite on finite inputs (a numerical failure, e.g. a singular
+    # leg) is no evidence: the belief keeps its prior and the step is reported invalid,
+    # instead of a NaN that every later step of this foot would inherit.
+    valid = valid & jnp.isfinite(llr)
     logit = jnp.where(valid, prior_logit + llr, prior_logit)
 
     log_t = log_prior_transition(params)
     if params.transition_model:
-        log_t = jnp.where(valid, log_transition_matrix(params, leg, tq, key=key), log_t)
+        log_t_meas = log_transition_matrix(params, leg, tq, key=key)
+        log_t = jnp.where(valid & jnp.all(~jnp.isnan(log_t_meas)), log_t_meas, log_t)
 
     # The foothold memory stores only confident, still stance: a false contact in the air
     # would otherwise write the swing height as terrain.

@@ -13,7 +13,7 @@ import jax.numpy as jnp
 from flax import struct
 from jax.scipy.special import log_ndtr
 
-from jax_contact._math import cap_llr, mvn_logpdf, robust_llr, spd_solve
+from jax_contact._math import cap_llr, mvn_logpdf, mvn_logpdf_rank1, robust_llr, spd_solve
 from jax_contact.params import EstimatorParams
 from jax_contact.types import LegBlocks, LegMeasurement, RobotMeasurement, TerrainQuery
 
@@ -174,8 +174,11 @@ def dynamics_llr(
     var_u = jnp.dot(Je * Je, jnp.square(noise.sigma_qd)) + jnp.dot(
         normal * normal, jnp.square(noise.sigma_J)
     )
+    # In qdd: the rank-one covariance v v^T, v = b sqrt(var_u) M^-1 J_fl^T Lambda e, kept
+    # apart (mvn_logpdf_rank1): near a singular leg Lambda e is ~1/inv_damping and the summed
+    # matrix is no longer positive definite in float32.
     lam_e = spd_solve(lam_inv, e_rows)
-    sigma_f = sigma_f + jnp.square(params.contact_damping) * var_u * jnp.outer(lam_e, lam_e)
+    v_stab = params.contact_damping * jnp.sqrt(var_u) * (M_inv @ (J_fl.T @ lam_e))
     cov_air = M_inv @ sigma_d @ M_inv.T + sigma_qdd
     cov_contact = M_inv @ (sigma_d + J_fl.T @ sigma_f @ J_fl) @ M_inv.T + sigma_qdd
     # Both hypotheses share a broad outlier component (uniform over +-outlier_qdd per
@@ -184,7 +187,7 @@ def dynamics_llr(
     # Sigma_C.
     log_outlier = -M_l.shape[0] * jnp.log(2.0 * params.outlier_qdd)
     llr = robust_llr(
-        mvn_logpdf(qdd_l, qdd_contact, cov_contact),
+        mvn_logpdf_rank1(qdd_l, qdd_contact, cov_contact, v_stab),
         mvn_logpdf(qdd_l, qdd_air, cov_air),
         params.outlier_prob,
         log_outlier,

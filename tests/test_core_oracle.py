@@ -698,3 +698,56 @@ def test_run_float32(capped):
 @pytest.mark.parametrize("capped", [True, False], ids=["capped", "uncapped"])
 def test_run_float64(capped, x64):
     _compare_run(capped, "float64", TOL64)
+
+
+def test_rank_one_gaussian_density_where_the_summed_covariance_fails_in_float32():
+    """``log N(x; m, C + v v^T)`` with ``|v|`` 1e5 times the scale of ``C``: the stabilised
+    contact's covariance on a nearly singular leg. Summed and factored in float32, the later
+    pivots cancel to <= 0 (NaN or inf); the rank-one form matches float64 (hand-checked
+    identity: matrix determinant lemma and Sherman-Morrison)."""
+    from jax_contact._math import mvn_logpdf, mvn_logpdf_rank1
+
+    C = np.diag([1.0, 2.0, 3.0]) + 0.1
+    v = np.array([1e5, 2e5, -1e5])
+    x, m = np.array([0.3, -0.2, 0.5]), np.zeros(3)
+    S = C + np.outer(v, v)
+    r = x - m
+    want = -0.5 * (r @ np.linalg.solve(S, r) + np.linalg.slogdet(S)[1] + 3 * math.log(2 * math.pi))
+    f32 = lambda a: jnp.asarray(a, jnp.float32)  # noqa: E731
+    got = float(mvn_logpdf_rank1(f32(x), f32(m), f32(C), f32(v)))
+    np.testing.assert_allclose(got, want, rtol=1e-5)
+    summed = float(mvn_logpdf(f32(x), f32(m), f32(S)))
+    assert not np.isclose(summed, want, rtol=1e-3)  # what the summed form gave instead
+
+
+def test_a_non_finite_term_holds_the_prior_and_reports_the_step_invalid():
+    """A term that comes out NaN on finite inputs (here: inv_damping 1e-8 on a rank-one leg
+    Jacobian, whose float32 Cholesky fails) must not reach the belief: the step keeps the
+    prior logit (eq. 1 alone) and says ``valid=False``, so the foot recovers at the next
+    good step instead of staying NaN for the rest of the episode."""
+    rng = np.random.default_rng(3)
+    case = oracle.random_case(rng, 8, 3, (0, 1, 2), stance=True)
+    leg = case["meas"]["leg_dofs"]
+    J = case["meas"]["J"].copy()
+    J[:, leg[1]] = 0.5 * J[:, leg[0]]
+    J[:, leg[2]] = -1.3 * J[:, leg[0]]
+    case["meas"].update(J=J, v_f=np.array([0.3, -0.2, -3.0]))
+    case["scalars"].update(contact_damping=100.0, inv_damping=1e-8, outlier_prob=0.0)
+    case = oracle.round32(case)
+    params = _params(case, (0, 1, 2), True)
+    meas = LegMeasurement(**_to_jax(case["meas"], jnp.float32))
+    dyn, _ = dynamics_llr(params, meas, jnp.array([0.0, 0.0, 1.0]))
+    assert not np.isfinite(float(dyn))  # the failure this guards against
+    terrain = flat(0.0, 0.05)
+    belief = init_belief_batch(params, 1, 1)
+    batch = jax.tree.map(lambda a: a[None, None], meas)
+    new, diag = step_batch(params, terrain, belief, batch, key=jax.random.key(0))
+    # the prior of one step from the initial belief, eq. 1: sum over the previous state
+    lt = np.asarray(belief.log_transition[0, 0], np.float64)
+    lb = np.array(
+        [np.log(jax.nn.sigmoid(belief.logit[0, 0])), np.log(jax.nn.sigmoid(-belief.logit[0, 0]))]
+    )
+    lp = np.logaddexp(lt[0] + lb[0], lt[1] + lb[1])
+    assert bool(diag.valid[0, 0]) is False
+    np.testing.assert_allclose(float(new.logit[0, 0]), lp[0] - lp[1], rtol=1e-5, atol=1e-5)
+    assert np.isfinite(np.asarray(new.log_transition)).all()
