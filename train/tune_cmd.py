@@ -355,30 +355,12 @@ def simulate_log(
         "dt": world.dt,
         "rate_hz": 1.0 / world.dt,
         "n_envs": n_envs,
-        "foot_names": _loadable_foot_names(robot, world.robot),
+        # The nominal robot's names (load_log resolves them), as simulate_to_file stores:
+        # the simulated world calls Barkour's unnamed foot geoms gt_foot<i>.
+        "foot_names": list(reproduce._robot(cfg).description.foot_names),
         "reading_timing": READING_TIMING,
     }
     return write_log(path, roll.to_arrays(), attrs)
-
-
-def _loadable_foot_names(name: str, simulated) -> list[str]:
-    """The simulated robot's feet under names the nominal robot resolves: its own names,
-    or, where they do not resolve (Barkour's unnamed foot geoms are called ``gt_foot<i>``
-    in the simulated world), the names of the feet's bodies, in the same order."""
-    import mujoco
-
-    from jax_contact.envs.robots import load_robot
-
-    names = list(simulated.description.foot_names)
-    try:
-        load_robot(name, foot_names=names)
-        return names
-    except ValueError:
-        m = simulated.mj_model
-        return [
-            mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_BODY, int(b))
-            for b in simulated.description.foot_body_ids
-        ]
 
 
 def regenerate_preset(
