@@ -201,7 +201,11 @@ def _replay_init(
     n_envs, n_legs = meas0.p_f.shape[:2]
     beliefs = {n: jc.init_belief_batch(p, n_envs, n_legs) for n, p in estimators.items()}
     gm_states = {n: jax.vmap(jax.vmap(gm_init))(meas0) for n in gms}
-    return beliefs, gm_states
+    # Carried stacked by group (see _groups), as _replay_chunk's vmaps take them.
+    return (
+        [_stack(beliefs, g) for g in _groups(estimators)],
+        [_stack(gm_states, g) for g in _groups(gms)],
+    )
 
 
 @functools.partial(jax.jit, static_argnames=_STATIC)
@@ -238,25 +242,24 @@ def _replay_chunk(
         for name in order:
             key, subs[name] = jax.random.split(key)
         out = {}
-        new_beliefs = {}
-        for names, params in zip(est_groups, est_stacked, strict=True):
-            b_in = _stack(beliefs, names)
+        new_beliefs = []
+        for names, params, b_in in zip(est_groups, est_stacked, beliefs, strict=True):
             k_in = jnp.stack([subs[n] for n in names])
             b, diag = jax.vmap(lambda p, bl, k: jc.step_batch(p, terrain, bl, meas, key=k))(
                 params, b_in, k_in
             )
+            new_beliefs.append(b)
             for i, name in enumerate(names):
-                new_beliefs[name] = jax.tree.map(lambda x, i=i: x[i], b)
                 out[name] = diag.p_contact[i]
                 if name == diagnostics_of:
                     for field in DIAGNOSTIC_FIELDS[1:]:
                         out[f"{name}/{field}"] = getattr(diag, field)[i]
                     out[f"{name}/valid"] = diag.valid[i]
-        new_gm = {}
-        for names, gp in zip(gm_groups, gm_stacked, strict=True):
-            s, o = jax.vmap(gm_one, in_axes=(0, 0, None))(gp, _stack(gm_states, names), base_meas)
+        new_gm = []
+        for names, gp, st in zip(gm_groups, gm_stacked, gm_states, strict=True):
+            s, o = jax.vmap(gm_one, in_axes=(0, 0, None))(gp, st, base_meas)
+            new_gm.append(s)
             for i, name in enumerate(names):
-                new_gm[name] = jax.tree.map(lambda x, i=i: x[i], s)
                 out[name] = o.contact[i].astype(jnp.float32)
                 out[f"gm_force/{name}"] = o.force_normal[i]
         if kinematic is not None:
