@@ -154,9 +154,7 @@ def with_gap(reader, m: mujoco.MjModel, feet, floor_ids, gap: float):
     return lambda d: reader(d) | (jnp.abs(dist(d)) < gap)
 
 
-def truth_reader(
-    m: mujoco.MjModel, desc, feet, source: str, threshold: float, gap: float = 0.0
-):
+def truth_reader(m: mujoco.MjModel, desc, feet, source: str, threshold: float, gap: float = 0.0):
     """(``data -> (n_legs,) bool`` or None, the source used). Raises if ``source`` fails.
 
     ``gap``: the tolerance of the module docstring, m (0: none).

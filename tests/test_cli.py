@@ -63,6 +63,7 @@ def test_importing_the_cli_does_not_import_jax():
         (["evaluate", "no_such_log.h5"], ["argument log", "no_such_log.h5"]),
         (["evaluate", "README.md", "--json", "/proc/m.json"], ["argument --json", "'/proc'"]),
         (["train", "--timesteps", "0"], ["argument --timesteps"]),
+        (["train", "--eval-envs", "-1"], ["argument --eval-envs", "'-1'", ">= 0"]),
         (["train", "--out", "README.md"], ["argument --out", "README.md"]),
         (["train", "--task", "hop", "--config", "full"], ["argument --config", "hop"]),
         (["train", "--task", "cat"], ["argument --task", "'cat'"]),

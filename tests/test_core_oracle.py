@@ -736,12 +736,14 @@ def test_a_non_finite_term_holds_the_prior_and_reports_the_step_invalid():
     case = oracle.round32(case)
     params = _params(case, (0, 1, 2), True)
     meas = LegMeasurement(**_to_jax(case["meas"], jnp.float32))
-    dyn, _ = dynamics_llr(params, meas, jnp.array([0.0, 0.0, 1.0]))
+    # Jitted (op by op, these two calls compiled every primitive on its own: ~30 s of a
+    # cold suite), as the estimator runs.
+    dyn, _ = jax.jit(dynamics_llr)(params, meas, jnp.array([0.0, 0.0, 1.0]))
     assert not np.isfinite(float(dyn))  # the failure this guards against
     terrain = flat(0.0, 0.05)
     belief = init_belief_batch(params, 1, 1)
     batch = jax.tree.map(lambda a: a[None, None], meas)
-    new, diag = step_batch(params, terrain, belief, batch, key=jax.random.key(0))
+    new, diag = jax.jit(step_batch)(params, terrain, belief, batch, key=jax.random.key(0))
     # the prior of one step from the initial belief, eq. 1: sum over the previous state
     lt = np.asarray(belief.log_transition[0, 0], np.float64)
     lb = np.array(

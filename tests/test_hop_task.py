@@ -51,8 +51,7 @@ def test_episode_metrics_find_the_apexes():
     # Two envs, 6 steps. Env 0: up, up, apex (vz turns <= 0 in flight) at z=0.70, down,
     # lands, pushes up. Env 1 stays on the ground (contact): no apex.
     vz = np.array([[0.5, 0.0], [0.2, 0.0], [-0.1, 0.0], [-0.5, 0.0], [-0.2, 0.0], [0.3, 0.0]])
-    z = np.array([[0.6, 0.43], [0.65, 0.43], [0.70, 0.43], [0.66, 0.43], [0.5, 0.43],
-                  [0.52, 0.43]])
+    z = np.array([[0.6, 0.43], [0.65, 0.43], [0.70, 0.43], [0.66, 0.43], [0.5, 0.43], [0.52, 0.43]])
     contact = np.array([[0, 1], [0, 1], [0, 1], [0, 1], [1, 1], [1, 1]], bool)
     reward = np.full((6, 2), 0.5)
     alive = np.ones((6, 2), bool)

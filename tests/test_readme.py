@@ -13,10 +13,12 @@ there and a later command reads what an earlier one wrote: ``evaluate`` the log 
 (:data:`CHAIN`); the chains run two at a time, which changes nothing but the wall time.
 Sizes: for each command, the flags of :data:`TINY` replace the README's value of the same
 flag (with all its values) or are appended. The long commands run at their smallest size
-flags: ``demo`` and ``reproduce`` with ``--size tiny`` (2 envs for 0.5 s; still every
-scenario, so mostly compilation), ``train`` with ``--config tiny`` (160 steps of 8 envs)
-and only the variant that ``policy-eval`` reads (each variant compiles its own environment
-and PPO step: minutes), ``bench`` with 4 and 8 envs, ``rates`` with one scene. Checked:
+flags: ``demo`` with ``--size tiny`` (2 envs for 0.5 s; still every scenario, so mostly
+compilation), ``train`` with ``--config tiny`` (160 steps of 8 envs), only the variant
+that ``policy-eval`` reads (each variant compiles its own environment and PPO step:
+minutes) and no final evaluation (``policy-eval`` is one), ``bench`` with 4 and 8 envs,
+``rates`` with one scene. ``reproduce --size tiny`` is ``demo --size tiny``'s job and is
+checked to be (:data:`SAME_JOB`), not run again. Checked:
 exit code 0, no traceback, no XLA C++ log line (``E1201 ... Very slow compile?``), and
 every file the command is documented to write exists (:func:`expected_outputs`). The README
 must list every command of ``jax-contact --help``. ``pytest -s`` prints each command's wall
@@ -128,8 +130,9 @@ TINY: dict[str, dict[str, list[str]]] = {
     "evaluate": {},
     "rates": {"--scenes": ["planar_leg"]},
     "bench": {"--envs": ["4"], "--versus-envs": ["8"]},
-    # One variant, the one policy-eval reads: each costs minutes of compilation.
-    "train": {"--config": ["tiny"], "--variants": ["truth"], "--eval-envs": ["2"]},
+    # One variant, the one policy-eval reads: each costs minutes of compilation. No final
+    # evaluation: the README's policy-eval, run next on this run, is that evaluation.
+    "train": {"--config": ["tiny"], "--variants": ["truth"], "--eval-envs": ["0"]},
     "policy-eval": {"--envs": ["2"]},
     "estimate": {},  # the shipped 2 s recording
 }
@@ -220,7 +223,7 @@ def test_tiny_replaces_values_and_appends_flags():
         "--variants",
         "truth",
         "--eval-envs",
-        "2",
+        "0",
     ]
     assert tiny(["simulate", "a.h5", "--envs", "16"]) == [
         "simulate",
@@ -235,8 +238,15 @@ def test_tiny_replaces_values_and_appends_flags():
 # A command that reads what an earlier one wrote runs after it, in the same chain; chains
 # run side by side (two at a time), so that this file, which holds most of the suite's
 # compilation, can use both cores once the other pytest-xdist worker is done.
-CHAIN = {"policy-eval": "train", "evaluate": "simulate", "reproduce": "demo"}
+CHAIN = {"policy-eval": "train", "evaluate": "simulate"}
 PARALLEL = 2
+
+# A command whose tiny run is another README command's job: ``reproduce --size tiny`` is
+# ``demo --size tiny`` (the same ``reproduce.run`` on the same configuration; only the
+# output folder differs), ~120 CPU-s of a cold suite to compute the same tables again.
+# It is not run; test_same_job_as_a_command_that_runs checks, through the CLI's own parser
+# and command function, that it calls what the other runs with the same configuration.
+SAME_JOB = {"reproduce": "demo"}
 
 
 @dataclasses.dataclass
@@ -258,7 +268,7 @@ def ran(tmp_path_factory) -> tuple[Path, dict[str, Ran]]:
     for shipped in ("envs", "tests"):
         (folder / shipped).symlink_to(ROOT / shipped, target_is_directory=True)
     chains: dict[str, list[list[str]]] = {}
-    for argv in README_COMMANDS:
+    for argv in RUN_COMMANDS:
         chains.setdefault(CHAIN.get(argv[0], argv[0]), []).append(argv)
 
     def run_chain(argvs):
@@ -290,7 +300,10 @@ def ran(tmp_path_factory) -> tuple[Path, dict[str, Ran]]:
 _COST = {"train": 5, "demo": 4, "bench": 3}  # rough CPU-minutes, cold cache
 
 
-@pytest.mark.parametrize("argv", README_COMMANDS, ids=[" ".join(a) for a in README_COMMANDS])
+RUN_COMMANDS = [argv for argv in README_COMMANDS if argv[0] not in SAME_JOB]
+
+
+@pytest.mark.parametrize("argv", RUN_COMMANDS, ids=[" ".join(a) for a in RUN_COMMANDS])
 def test_readme_command_runs(argv, ran):
     workdir, results = ran
     key = " ".join(argv)
@@ -309,6 +322,34 @@ def test_readme_command_runs(argv, ran):
             json.loads((workdir / f).read_text())  # complete, valid JSON
     if argv[0] == "policy-eval":
         assert "estimator acc" in res.stdout, res.stdout
+
+
+def _called_with(argv: list[str], monkeypatch) -> tuple:
+    """The arguments the command function of ``argv`` passes to ``reproduce.run`` (recorded,
+    not run), after the CLI's parser and argument checks."""
+    from jax_contact.train import reproduce
+
+    calls = []
+    monkeypatch.setattr(reproduce, "run", lambda *a, **k: calls.append((a, k)))
+    args = cli.build_parser().parse_args(argv)
+    args.check(args)
+    assert args.func(args) == 0
+    assert len(calls) == 1, calls
+    return calls[0]
+
+
+@pytest.mark.parametrize("command", sorted(SAME_JOB))
+def test_same_job_as_a_command_that_runs(command, monkeypatch):
+    mine = [a for a in README_COMMANDS if a[0] == command]
+    other = [a for a in RUN_COMMANDS if a[0] == SAME_JOB[command]]
+    assert mine and other, (command, SAME_JOB[command])
+    (cfg, out), kw = _called_with(mine[0], monkeypatch)
+    (cfg_other, out_other), kw_other = _called_with(other[0], monkeypatch)
+    assert cfg == cfg_other and kw == kw_other, (cfg, cfg_other)
+    assert str(out) == f"out/{command}" and str(out_other) == f"out/{SAME_JOB[command]}"
+    # Not vacuous: another size or robot gives another configuration.
+    (cfg_demo, _), _ = _called_with([command, "--size", "demo", "--robot", "spot"], monkeypatch)
+    assert cfg_demo != cfg
 
 
 def _children_cpu_s() -> float:

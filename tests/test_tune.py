@@ -69,6 +69,7 @@ def _fd_problem():
 FD_EARLY = 2  # steps of early window in the FD problem (event_early_s = 2 dt)
 
 
+@functools.cache  # the event test compares with the plain loss's gradient: compiled once
 def _fd_setup(event_weight: float = 0.0):
     """Float64 params, space, data and a flat-vector loss (call under enable_x64); with
     ``event_weight > 0`` the loss has the air-phase event term."""

@@ -90,20 +90,22 @@ class _Fails(PlaygroundLeg):
 def test_hook_restored_after_error_and_refuses_nesting(pg_leg, brax_leg):
     original = mjx_env.step
     failing = W.wrap_contact(_Fails(brax_leg.mj_model, N_SUB))
-    state = failing.reset(jax.random.PRNGKey(0))
+    # Shapes only (eval_shape): an eager reset would dispatch MJX op by op, ~40 s of a cold
+    # suite, and the hook is installed and removed while step is traced, which this is.
+    state = jax.eval_shape(failing.reset, jax.random.PRNGKey(0))
     with pytest.raises(RuntimeError, match="env step failed"):
         jax.eval_shape(failing.step, state, jnp.zeros(2))
     assert mjx_env.step is original
     wrapped = W.wrap_contact(pg_leg)
     twice = W.wrap_contact(wrapped, W.ContactObsConfig(info_key="again"))
-    state = twice.reset(jax.random.PRNGKey(0))
+    state = jax.eval_shape(twice.reset, jax.random.PRNGKey(0))
     with pytest.raises(ValueError, match="already hooked"):
         jax.eval_shape(twice.step, state, jnp.zeros(2))
     assert mjx_env.step is original
     # A control-rate wrapper nests inside a physics-rate one.
     inner = W.wrap_contact(pg_leg, W.ContactObsConfig(rate="control", info_key="ctrl"))
     outer = W.wrap_contact(inner)
-    s = jax.eval_shape(outer.step, outer.reset(jax.random.PRNGKey(0)), jnp.zeros(2))
+    s = jax.eval_shape(outer.step, jax.eval_shape(outer.reset, jax.random.PRNGKey(0)), jnp.zeros(2))
     assert s.info["contact_est"].n_updates.shape == ()
 
 

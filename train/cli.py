@@ -265,6 +265,16 @@ def _positive_int(text: str) -> int:
     return value
 
 
+def _nonnegative_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        value = -1
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"must be an int >= 0, got {text!r}")
+    return value
+
+
 def _positive_float(text: str) -> float:
     try:
         value = float(text)
@@ -532,7 +542,10 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--seed", type=int, default=0, help="PPO seed")
     p.add_argument(
-        "--eval-envs", type=_positive_int, default=64, help="episodes of the final evaluation"
+        "--eval-envs",
+        type=_nonnegative_int,
+        default=64,
+        help="episodes of the final evaluation; 0 skips it (`policy-eval` evaluates a run later)",
     )
     p.add_argument("--out", default="out/train", help="output folder (a run folder per variant)")
     p.add_argument("--overwrite", action="store_true", help="replace existing run folders")

@@ -109,6 +109,8 @@ def reading_timing_of(name: str, attrs: dict) -> str:
             f" or {_OLD_TIMING!r}"
         )
     return str(timing)
+
+
 TRUTH_CONTACT = "truth/contact"
 
 

@@ -724,7 +724,8 @@ def train_variants(
 
     Writes ``out_dir/summary.json`` (wall times, curves, evaluations),
     ``out_dir/reward_curves.csv`` and ``training_curves.csv`` (all runs, a ``variant``
-    column) and ``out_dir/reward_curves.png``. ``task``: as :func:`train`.
+    column) and ``out_dir/reward_curves.png``. ``task``: as :func:`train`. ``eval_envs``:
+    episodes of each final evaluation; 0 skips them (``summary["evaluation"]`` is empty).
     """
     from jax_contact.io import write_json_atomic, write_text_atomic
     from jax_contact.train import figures
@@ -748,12 +749,16 @@ def train_variants(
         curves, out_dir / "reward_curves.png", title="Go1 joystick, PPO", training=training
     )
 
-    evals = [evaluate_policy(results[v].run_dir, n_envs=eval_envs) for v in variants]
-    if "truth" in results:  # the sim-to-real check
-        evals.append(
-            evaluate_policy(results["truth"].run_dir, observe="estimate", n_envs=eval_envs)
-        )
-    log(format_evaluation(evals))
+    evals = []
+    if eval_envs:
+        evals = [evaluate_policy(results[v].run_dir, n_envs=eval_envs) for v in variants]
+        if "truth" in results:  # the sim-to-real check
+            evals.append(
+                evaluate_policy(results["truth"].run_dir, observe="estimate", n_envs=eval_envs)
+            )
+        log(format_evaluation(evals))
+    else:
+        log("final evaluation skipped (eval_envs=0); `jax-contact policy-eval RUN` runs it")
     summary = {
         "env": ENV_NAME if task == "go1" else task,
         "config": dataclasses.asdict(cfg),
