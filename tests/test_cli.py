@@ -66,6 +66,7 @@ def test_importing_the_cli_does_not_import_jax():
         (["train", "--eval-envs", "-1"], ["argument --eval-envs", "'-1'", ">= 0"]),
         (["train", "--out", "README.md"], ["argument --out", "README.md"]),
         (["train", "--task", "hop", "--config", "full"], ["argument --config", "hop"]),
+        (["train", "--config", "reduced"], ["argument --config", "go1", "'reduced'"]),
         (["train", "--task", "cat"], ["argument --task", "'cat'"]),
         (["policy-eval", "docs"], ["argument run", "run.json"]),
         (["policy-eval", "docs", "--envs", "-3"], ["argument --envs"]),
@@ -111,6 +112,9 @@ def test_static_lists_equal_the_librarys():
     from jax_contact.train import tasks
 
     assert cli.TASKS == tasks.TASK_NAMES
+    for name in cli.TASKS:
+        assert cli.TASK_CONFIGS[name] == tuple(dict(tasks.get_task(name).configs)), name
+    assert set(cli.PPO_CONFIGS) == {"tiny"}.union(*cli.TASK_CONFIGS.values())
     assert cli.SCENES == rates.SCENES
 
 

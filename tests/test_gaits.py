@@ -243,11 +243,13 @@ def test_gait_control_vmap_matches_loop(robots):
     batched = jax.jit(
         jax.vmap(lambda q, v: gait_control(gait, gr, t, types.SimpleNamespace(qpos=q, qvel=v)))
     )(data.qpos, data.qvel)
+    # One env at a time, jitted (op by op, the Gauss-Newton IK dispatched every primitive
+    # on its own: ~30 s of a cold suite).
+    single = jax.jit(lambda q, v: gait_control(gait, gr, t, types.SimpleNamespace(qpos=q, qvel=v)))
     for i in range(2):
-        single = gait_control(
-            gait, gr, t, types.SimpleNamespace(qpos=data.qpos[i], qvel=data.qvel[i])
+        np.testing.assert_allclose(
+            batched[i], single(data.qpos[i], data.qvel[i]), rtol=1e-4, atol=1e-4
         )
-        np.testing.assert_allclose(batched[i], single, rtol=1e-4, atol=1e-4)
 
 
 def test_make_gait_rejects_bad_arguments():

@@ -158,3 +158,18 @@ def test_array_observation_checkpoint_round_trip(tmp_path):
     # Reference: the tanh of the mean half of the policy MLP on the normalised observation.
     logits = net.policy_network.apply(normalizer, params[1], obs)
     np.testing.assert_allclose(act, np.tanh(np.asarray(logits[:, :2])), rtol=1e-5, atol=1e-6)
+
+
+def test_runs_under_finds_each_variants_seeds_in_order(tmp_path):
+    from jax_contact.train import transfer
+
+    for seed in (10, 2, 0):
+        for v in ("none", "truth", "estimate"):
+            (tmp_path / f"seed{seed}" / v).mkdir(parents=True)
+            (tmp_path / f"seed{seed}" / v / "run.json").write_text("{}")
+    (tmp_path / "seed3" / "truth").mkdir(parents=True)  # no run.json: not a run
+    runs = transfer.runs_under(tmp_path)
+    assert list(runs) == ["none", "truth", "estimate"]
+    assert [d.parent.name for d in runs["truth"]] == ["seed0", "seed2", "seed10"]
+    with pytest.raises(FileNotFoundError, match=r"seed\*/other"):
+        transfer.runs_under(tmp_path, variants=("truth", "other"))

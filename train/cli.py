@@ -102,7 +102,9 @@ TINY_REPRODUCE = dict(
     planar_envs=1,
     planar_duration=0.5,
 )
-PPO_CONFIGS = ("tiny", "small", "full")
+PPO_CONFIGS = ("tiny", "small", "reduced", "full")
+# Each task's own configurations (jax_contact.train.tasks: Task.configs), plus "tiny" for both.
+TASK_CONFIGS = {"go1": ("small", "full"), "hop": ("small", "reduced")}
 TINY_PPO = dict(
     num_timesteps=160,
     num_envs=8,
@@ -375,9 +377,11 @@ def _check_evaluate(args: argparse.Namespace) -> None:
 
 def _check_train(args: argparse.Namespace) -> None:
     check_output_folder("--out", args.out)
-    if args.task == "hop" and args.config == "full":
+    have = ("tiny", *TASK_CONFIGS[args.task])
+    if args.config not in have:
         raise ValueError(
-            "argument --config: the hop task has no 'full' configuration (small, tiny)"
+            f"argument --config: the {args.task} task has no {args.config!r} configuration"
+            f" ({', '.join(have)})"
         )
 
 
@@ -523,8 +527,9 @@ def build_parser() -> argparse.ArgumentParser:
         "--config",
         choices=PPO_CONFIGS,
         default="small",
-        help="small: this 2-core CPU, <= 20 min per variant; full: a GPU; tiny: 160 steps"
-        " of 8 envs, checks that every step runs (learns nothing)",
+        help="small: this 2-core CPU, <= 20 min per variant; full (go1): a GPU; reduced (hop):"
+        " a third of small, docs/training_hop.md's run; tiny: 160 steps of 8 envs, checks that"
+        " every step runs (learns nothing)",
     )
     p.add_argument(
         "--task",

@@ -302,3 +302,58 @@ def format_matrix(result: dict, metric: str = "return") -> str:
         vals = [f"{row[c][metric]['mean']:.3f} ± {row[c][metric]['std']:.3f}" for c in cols]
         lines.append(f"| {variant} | " + " | ".join(vals) + " |")
     return "\n".join(lines)
+
+
+def runs_under(root: str | Path, variants: Sequence[str] | None = None) -> dict[str, list[Path]]:
+    """``root/seed*/<variant>`` run folders (the layout of ``jax-contact train --task hop
+    --seed S --out root/seedS``), per variant, in seed order.
+
+    Raises:
+      FileNotFoundError: a variant has no run folder under ``root``.
+    """
+    from jax_contact.train import ppo
+
+    root = Path(root)
+    found = {
+        v: sorted(
+            (d for d in root.glob(f"seed*/{v}") if (d / "run.json").is_file()),
+            key=lambda d: int(d.parent.name[4:]) if d.parent.name[4:].isdigit() else -1,
+        )
+        for v in (variants or ppo.VARIANTS)
+    }
+    empty = [v for v, dirs in found.items() if not dirs]
+    if empty:
+        raise FileNotFoundError(f"no run folder {root}/seed*/{empty[0]} (with a run.json)")
+    return found
+
+
+def main(argv: Sequence[str] | None = None) -> dict:
+    """``python -m jax_contact.train.transfer ROOT [--envs N] [--json FILE]``: the matrix of
+    every ``ROOT/seed*/<variant>`` run, printed per metric, written atomically as JSON."""
+    import argparse
+
+    from jax_contact.io import write_json_atomic
+    from jax_contact.train.cli import _positive_int, enable_compilation_cache
+
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("root", help="folder of seed*/{none,truth,estimate} run folders")
+    parser.add_argument("--envs", type=_positive_int, default=32, help="episodes per cell")
+    parser.add_argument("--seed", type=int, default=12345, help="seeds the episodes")
+    parser.add_argument("--json", default=None, help="write the matrix here")
+    args = parser.parse_args(argv)
+    try:
+        runs = runs_under(args.root)
+    except FileNotFoundError as err:
+        parser.error(str(err))
+    enable_compilation_cache()
+    res = transfer_matrix(runs, n_envs=args.envs, seed=args.seed)
+    res["runs"] = {v: [str(d) for d in dirs] for v, dirs in runs.items()}
+    for metric in METRICS:
+        print(f"\n{metric}\n{format_matrix(res, metric)}")
+    if args.json:
+        write_json_atomic(args.json, res)
+    return res
+
+
+if __name__ == "__main__":
+    main()
