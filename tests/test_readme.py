@@ -24,11 +24,11 @@ every file the command is documented to write exists (:func:`expected_outputs`).
 must list every command of ``jax-contact --help``. ``pytest -s`` prints each command's wall
 time and the CPU time of them all.
 
-These runs are most of this file's time. Measured 2026-12-01 with a mostly cold
-compilation cache on the shared 2-core host (load average ~15): 826 CPU-seconds for all
-README commands (train 726 s wall, demo 888 s, bench 692 s, reproduce 431 s after demo,
-evaluate 128 s, policy-eval 106 s, rates 104 s, simulate 66 s); with the cache warm, 394
-CPU-seconds (427 s wall; the whole file 467 s), ``docs/performance.md``.
+These runs are most of this file's time (2026-12-01: 1191 of the cold suite's 2841
+CPU-s). Measured 2026-12-02 on an idle 2-core host, each alone with an empty compilation
+cache: ``demo --size tiny`` 200 s wall (246 CPU-s), ``train --config tiny`` 172 s (230),
+``bench`` 150 s (190); in the whole cold suite (``make test``, 20 min 43 s) this file's
+commands took 736 s on their worker. ``docs/performance.md`` has the warm numbers.
 """
 
 from __future__ import annotations
