@@ -247,6 +247,7 @@ PARALLEL = 2
 # It is not run; test_same_job_as_a_command_that_runs checks, through the CLI's own parser
 # and command function, that it calls what the other runs with the same configuration.
 SAME_JOB = {"reproduce": "demo"}
+RUN_COMMANDS = [argv for argv in README_COMMANDS if argv[0] not in SAME_JOB]
 
 
 @dataclasses.dataclass
@@ -300,9 +301,6 @@ def ran(tmp_path_factory) -> tuple[Path, dict[str, Ran]]:
 _COST = {"train": 5, "demo": 4, "bench": 3}  # rough CPU-minutes, cold cache
 
 
-RUN_COMMANDS = [argv for argv in README_COMMANDS if argv[0] not in SAME_JOB]
-
-
 @pytest.mark.parametrize("argv", RUN_COMMANDS, ids=[" ".join(a) for a in RUN_COMMANDS])
 def test_readme_command_runs(argv, ran):
     workdir, results = ran
@@ -348,8 +346,8 @@ def test_same_job_as_a_command_that_runs(command, monkeypatch):
     assert cfg == cfg_other and kw == kw_other, (cfg, cfg_other)
     assert str(out) == f"out/{command}" and str(out_other) == f"out/{SAME_JOB[command]}"
     # Not vacuous: another size or robot gives another configuration.
-    (cfg_demo, _), _ = _called_with([command, "--size", "demo", "--robot", "spot"], monkeypatch)
-    assert cfg_demo != cfg
+    (cfg_spot, _), _ = _called_with([command, "--size", "demo", "--robot", "spot"], monkeypatch)
+    assert cfg_spot != cfg
 
 
 def _children_cpu_s() -> float:

@@ -102,9 +102,9 @@ TINY_REPRODUCE = dict(
     planar_envs=1,
     planar_duration=0.5,
 )
-PPO_CONFIGS = ("tiny", "small", "reduced", "full")
 # Each task's own configurations (jax_contact.train.tasks: Task.configs), plus "tiny" for both.
 TASK_CONFIGS = {"go1": ("small", "full"), "hop": ("small", "reduced")}
+PPO_CONFIGS = ("tiny", *dict.fromkeys(c for cs in TASK_CONFIGS.values() for c in cs))
 TINY_PPO = dict(
     num_timesteps=160,
     num_envs=8,
@@ -257,24 +257,23 @@ def _cmd_rates(args: argparse.Namespace) -> int:
 # checks raise ValueError with the argument's name, printed by main().
 
 
-def _positive_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        value = 0
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be an int >= 1, got {text!r}")
-    return value
+def _int_at_least(minimum: int):
+    """An argparse type: an int >= ``minimum``, else an error naming the value."""
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            value = minimum - 1
+        if value < minimum:
+            raise argparse.ArgumentTypeError(f"must be an int >= {minimum}, got {text!r}")
+        return value
+
+    return parse
 
 
-def _nonnegative_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        value = -1
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"must be an int >= 0, got {text!r}")
-    return value
+_positive_int = _int_at_least(1)
+_nonnegative_int = _int_at_least(0)
 
 
 def _positive_float(text: str) -> float:
