@@ -5,7 +5,8 @@ controller with a weight-bearing feed-forward tracks the resulting foot targets.
 enough to produce long, varied runs of touch-downs and lift-offs for the contact estimator
 on flat ground, and nothing more (no terrain perception, no turning).
 
-Gaits (``GaitParams.kind``, static):
+Gaits (``GaitParams.kind``; the trot and the walk differ only in data, the leg phase
+offsets and the sway, so one compiled program runs both; the hop is a program of its own):
 
 - ``trot``: diagonal pairs (front-left with hind-right, front-right with hind-left) half a
   period apart.
@@ -405,7 +406,14 @@ class GaitParams:
       sway: () walk only: sideways excursion of the zero-moment point at the lift-offs,
         as a fraction of the stance half-width (see ``_walk_sway``), in [0, 1].
       ramp_time: () time over which speed, step height and sway rise from zero, s.
-      kind: static, one of :data:`KINDS`.
+      pattern: () int32, the gait's index in :data:`KINDS`: which row of
+        ``GaitRobot.phase_offset`` sets the legs' phases, and whether the walk's sway
+        applies. Data, not a static field, so that the trot and the walk share one
+        compiled program (``jit`` retraces on every static field's value).
+      family: static, ``"hop"`` for the one-legged hop (other foot targets, other
+        forces) and ``"legged"`` for the trot and the walk.
+
+    The gait's name is :attr:`kind`, read from ``pattern`` (outside ``jit``).
     """
 
     period: jax.Array
@@ -414,7 +422,20 @@ class GaitParams:
     speed: jax.Array
     sway: jax.Array
     ramp_time: jax.Array
-    kind: str = struct.field(pytree_node=False, default="trot")
+    pattern: jax.Array
+    family: str = struct.field(pytree_node=False, default="legged")
+
+    @property
+    def kind(self) -> str:
+        """The gait's name (one of :data:`KINDS`; ``"mixed"`` for a batch of several).
+
+        Reads ``pattern``'s value, so it is for host code (logs, speed ranges), not for a
+        traced function (there: ``family`` and ``pattern``).
+        """
+        if self.family == "hop":
+            return "hop"
+        found = np.unique(np.asarray(self.pattern))
+        return KINDS[int(found[0])] if found.size == 1 else "mixed"
 
 
 def make_gait(
@@ -472,7 +493,8 @@ def make_gait(
         speed=f32(speed),
         sway=f32(sway),
         ramp_time=f32(ramp_time),
-        kind=kind,
+        pattern=jnp.int32(KINDS.index(kind)),
+        family="hop" if kind == "hop" else "legged",
     )
 
 
@@ -788,7 +810,7 @@ def _ramp(gait: GaitParams, t: jax.Array) -> jax.Array:
 
 def leg_phases(gait: GaitParams, robot: GaitRobot, t: jax.Array) -> jax.Array:
     """(n_legs,) phase of every leg in [0, 1): stance below ``duty``, swing above."""
-    offset = robot.phase_offset[_kind_index(gait.kind)]
+    offset = robot.phase_offset[gait.pattern]
     return jnp.mod(t / gait.period + offset, 1.0)
 
 
@@ -858,7 +880,7 @@ def foot_targets(
       acceleration, m/s^2.
     """
     home = robot.foot_home
-    if gait.kind == "hop":
+    if gait.family == "hop":
         length, acc, in_stance = _hop_profile(gait, robot, t)
         targets = jnp.stack(
             [home[:, 0], home[:, 1], jnp.broadcast_to(-length, home[:, 0].shape)], axis=-1
@@ -889,9 +911,11 @@ def foot_targets(
     nominal = jnp.stack([home[:, 0], home[:, 1], jnp.full_like(home[:, 0], z0)], axis=-1)
     targets = nominal + jnp.stack([dx, dy, dz], axis=-1)
 
-    if gait.kind == "walk":
-        shift = _walk_sway(gait, robot, t) * ramp
-        targets = targets - jnp.concatenate([shift, jnp.zeros(1)])[None, :]
+    # The walk's sway; the trot's shift is exactly zero (a trot has no sway, whatever
+    # ``sway`` holds).
+    is_walk = gait.pattern == _kind_index("walk")
+    shift = jnp.where(is_walk, _walk_sway(gait, robot, t) * ramp, 0.0)
+    targets = targets - jnp.concatenate([shift, jnp.zeros(1)])[None, :]
 
     # Weight share: ramps in and out over the first and last 3 % of the stance (a longer
     # ramp leaves a freshly landed foot unloaded and chattering on the floor).

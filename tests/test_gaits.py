@@ -129,6 +129,19 @@ def test_phases_trot_pairs_and_walk_sequence(robots):
     np.testing.assert_allclose(np.diff([lift[n] for n in order]), 0.25, atol=0.011)
 
 
+_CONTROLLERS: dict = {}
+
+
+def _controller(name, gr):
+    """The jitted controller of one robot, the gait an argument: Go1's trot and walk run
+    one compiled program (the gait's kind is data, not a static field)."""
+    if name not in _CONTROLLERS:
+        _CONTROLLERS[name] = jax.jit(
+            lambda g, t, q, v: gait_control(g, gr, t, types.SimpleNamespace(qpos=q, qvel=v))
+        )
+    return _CONTROLLERS[name]
+
+
 def _rollout(robot, gr, gait, seconds):
     """C MuJoCo physics, jitted JAX controller; returns per-step time, base z, up-z, x,
     foot normal forces (N) and foot heights above the floor (m)."""
@@ -136,9 +149,7 @@ def _rollout(robot, gr, gait, seconds):
     d = mujoco.MjData(m)
     d.qpos[:] = robot.home_qpos
     layout = make_truth_layout(robot)
-    ctrl_fn = jax.jit(
-        lambda t, q, v: gait_control(gait, gr, t, types.SimpleNamespace(qpos=q, qvel=v))
-    )
+    ctrl_fn = _controller(robot.name, gr)
     n = int(round(seconds / m.opt.timestep))
     log = np.zeros((n, 4 + 2 * gr.n_legs))
     feet = list(robot.description.foot_geom_ids)
@@ -146,7 +157,10 @@ def _rollout(robot, gr, gait, seconds):
         t = k * m.opt.timestep
         d.ctrl[:] = np.asarray(
             ctrl_fn(
-                jnp.float32(t), jnp.asarray(d.qpos, jnp.float32), jnp.asarray(d.qvel, jnp.float32)
+                gait,
+                jnp.float32(t),
+                jnp.asarray(d.qpos, jnp.float32),
+                jnp.asarray(d.qvel, jnp.float32),
             )
         )
         mujoco.mj_step(m, d)
@@ -250,6 +264,47 @@ def test_gait_control_vmap_matches_loop(robots):
         np.testing.assert_allclose(
             batched[i], single(data.qpos[i], data.qvel[i]), rtol=1e-4, atol=1e-4
         )
+
+
+def test_trot_and_walk_are_one_program_and_keep_their_own_targets(robots):
+    """The trot and the walk differ in data only (``pattern`` picks the phase-offset row
+    and switches the sway), so ``jit`` lowers both to the same program; the walk still
+    sways and the trot still does not (reference: the walk's targets minus the sway shift
+    of ``_walk_sway``, which the trot's targets equal)."""
+    from jax_contact.envs.gaits import _walk_sway, foot_targets
+
+    robot, gr = robots["go1"]
+    trot, walk = make_gait("trot", speed=0.2), make_gait("walk", speed=0.1)
+    assert (trot.kind, walk.kind, make_gait("hop").kind) == ("trot", "walk", "hop")
+    assert jax.tree.structure(trot) == jax.tree.structure(walk)
+    t, vel = jnp.float32(2.3), jnp.zeros(3)
+    fn = jax.jit(lambda g, t: foot_targets(g, gr, t, vel))
+    assert fn.lower(trot, t).as_text() == fn.lower(walk, t).as_text()
+
+    # The walk's targets are shifted by the sway (ramp done at t = 2.3 s > ramp_time 1 s)...
+    shift = np.asarray(_walk_sway(walk, gr, t))
+    assert np.abs(shift).max() > 1e-3  # a real shift, m
+    unswayed = walk.replace(sway=jnp.float32(0.0))
+    np.testing.assert_allclose(
+        np.asarray(fn(walk, t)[0]),
+        np.asarray(fn(unswayed, t)[0]) - np.concatenate([shift, [0.0]])[None, :],
+        atol=1e-6,
+    )
+    # ... and a trot ignores ``sway`` (documented: walk only).
+    np.testing.assert_array_equal(
+        np.asarray(fn(trot.replace(sway=jnp.float32(0.5)), t)[0]), np.asarray(fn(trot, t)[0])
+    )
+    # Phases: the row of the gait's own kind.
+    for g in (trot, walk):
+        np.testing.assert_allclose(
+            np.asarray(jax.jit(lambda g: leg_phases(g, gr, t))(g)),
+            np.mod(float(t) / float(g.period) + np.asarray(gr.phase_offset)[int(g.pattern)], 1.0),
+            atol=1e-6,
+        )
+    # A batch reports its kind; a batch of both reports "mixed".
+    both = jax.tree.map(lambda a, b: jnp.stack([a, b]), trot, walk)
+    assert jax.vmap(lambda s: walk.replace(speed=s))(jnp.zeros(3)).kind == "walk"
+    assert both.kind == "mixed"
 
 
 def test_make_gait_rejects_bad_arguments():
