@@ -103,6 +103,47 @@ def _sensor_fields(sensors, nv: int) -> dict[str, np.ndarray]:
     return out
 
 
+def _sensor_noise(s: dict, dt: float, *, bias_horizon_s: float) -> dict[str, np.ndarray]:
+    """(nv,) stds that the sensors alone put on each measured quantity (module docstring's
+    rules, with their floors), the bias drift of ``bias_horizon_s`` folded in."""
+    sigma_q = np.sqrt(s["sigma_q"] ** 2 + s["bias_rw_q"] ** 2 * bias_horizon_s)
+    sigma_qd = np.sqrt(s["sigma_qd"] ** 2 + s["bias_rw_qd"] ** 2 * bias_horizon_s)
+    sigma_qdd = np.where(s["sigma_acc"] > 0, s["sigma_acc"], np.sqrt(2.0) * s["sigma_qd"] / dt)
+    return {
+        "sigma_q": np.maximum(sigma_q, 1e-3),
+        "sigma_qd": np.maximum(sigma_qd, 1e-2),
+        "sigma_qdd": np.maximum(sigma_qdd, 0.1),
+        "sigma_d": s["sigma_tau"],
+    }
+
+
+def sensor_noise_floor(desc, sensors, dt: float) -> dict[str, np.ndarray]:
+    """The smallest stds a tuned noise model may take: what the sensors alone give.
+
+    A filter that believes a joint velocity more precisely than its sensor measures it is
+    over-confident, whatever a tuning loss gains from it (docs/tuning.md: tuned joint
+    velocity stds at a third of the sensor's were the warning sign). Per (nv,) field of
+    ``NoiseParams``: ``sigma_q`` and ``sigma_qd`` the white noise (no bias drift: the
+    floor is what any one reading carries), ``sigma_qdd`` the differenced velocity's (or the
+    accelerometer's) noise, ``sigma_d`` the torque sensors' noise (the model error above it
+    is the tuner's to find). The floors of :func:`params_for` (1 mm, 0.01, 0.1) apply, so
+    ``params_for``'s values are never below these. ``sigma_f``, ``sigma_J`` and the swing
+    prior are model quantities with no sensor floor (absent from the result).
+
+    Args:
+      desc: the robot's ``RobotDescription``.
+      sensors: the sensor model (as :func:`params_for`).
+      dt: estimator period, s.
+
+    Returns:
+      ``{field: (nv,) float64 array}`` for ``sigma_q``, ``sigma_qd``, ``sigma_qdd``,
+      ``sigma_d``; ``jax_contact.tune.tune``'s ``floor``.
+    """
+    if not (np.isfinite(dt) and dt > 0):
+        raise ValueError(f"dt must be a finite float > 0 (s), got {dt!r}")
+    return _sensor_noise(_sensor_fields(sensors, int(desc.nv)), dt, bias_horizon_s=0.0)
+
+
 def params_for(
     desc,
     sensors,
@@ -158,15 +199,14 @@ def params_for(
         force_rows = (0, 1, 2)
     s = _sensor_fields(sensors, nv)
 
-    sigma_q = np.sqrt(s["sigma_q"] ** 2 + s["bias_rw_q"] ** 2 * bias_horizon_s)
-    sigma_qd = np.sqrt(s["sigma_qd"] ** 2 + s["bias_rw_qd"] ** 2 * bias_horizon_s)
-    sigma_qdd = np.where(s["sigma_acc"] > 0, s["sigma_acc"], np.sqrt(2.0) * s["sigma_qd"] / dt)
+    white = _sensor_noise(s, dt, bias_horizon_s=0.0)
+    drift = _sensor_noise(s, dt, bias_horizon_s=bias_horizon_s)
     noise = make_noise(
         nv,
-        sigma_q=np.maximum(sigma_q, 1e-3),
-        sigma_qd=np.maximum(sigma_qd, 1e-2),
-        sigma_qdd=np.maximum(sigma_qdd, 0.1),
-        sigma_d=np.sqrt(disturbance**2 + s["sigma_tau"] ** 2),
+        sigma_q=drift["sigma_q"],
+        sigma_qd=drift["sigma_qd"],
+        sigma_qdd=white["sigma_qdd"],
+        sigma_d=np.sqrt(disturbance**2 + white["sigma_d"] ** 2),
         sigma_qd_prior=gait.swing_joint_speed,
     )
     spike = float(np.max(s["outlier_size"]))

@@ -31,6 +31,14 @@ more. Without the bound, plain-BCE tuning drove ``T_s`` to 61-104 ms (docs/tunin
 knob for earlier lift-offs (a take-off hazard ``dt / T_s`` of 4 % per step), not a stance
 duration. The bound is hard (the sigmoid), and the prior below acts on ``theta``.
 
+Floors (``tune(..., floor=...)``; ``jax-contact tune`` passes the log's sensor model's,
+:func:`jax_contact.defaults.sensor_noise_floor`): no tuned std may fall below what the
+sensors alone give (a joint velocity believed more precisely than its sensor measures it is
+over-confidence, whatever the loss gains). Each update is projected back onto the bound
+``theta_g >= max_{i in g} log(s_i / sigma^0_i)`` (:func:`theta_lower_bounds`): projected
+gradient descent, so the gradient itself, and the finite-difference check of it, are those
+of the unbounded loss.
+
 Not tuned: ``dt``, the swing time (used only on invalid steps), the outlier model (from the
 sensors' outlier rate), the foothold threshold, the damping and the static switches.
 
@@ -307,6 +315,59 @@ def to_params(space: ParamSpace, base: EstimatorParams, theta: dict) -> Estimato
         else:
             values[f] = jnp.exp(theta[f]).astype(dtype)
     return base.replace(noise=base.noise.replace(**noise), **values)
+
+
+def theta_lower_bounds(
+    space: ParamSpace, base: EstimatorParams, floor: dict | None
+) -> dict[str, jax.Array]:
+    """Lower bounds on ``theta`` that keep every tuned std at or above its floor.
+
+    A noise field's std is ``sigma_i = sigma^0_i exp(theta_g(i))`` with one multiplier per
+    group, so ``sigma_i >= s_i`` for every coordinate ``i`` of group ``g`` is
+    ``theta_g >= max_{i in g} log(s_i / sigma^0_i)``; a floor of 0 bounds nothing
+    (``log 0 = -inf``). Fields without a floor, caps, ``T_s`` and ``a_F``: ``-inf``.
+
+    Args:
+      space: what is tuned.
+      base: the untuned parameters (``sigma^0``).
+      floor: ``{noise field: std floor of the field's shape}`` in the field's units, e.g.
+        :func:`jax_contact.defaults.sensor_noise_floor`; None: no bound.
+
+    Returns:
+      ``theta``'s structure, float32 ``-inf`` where unbounded.
+
+    Raises:
+      ValueError: a floor for an unknown field or of the wrong shape, negative or not
+        finite, or ``base`` already below its floor (tuning starts from ``base``).
+    """
+    theta0 = init_theta(space, base)
+    lower = {f: jnp.full_like(v, -jnp.inf) for f, v in theta0.items()}
+    for f, values in (floor or {}).items():
+        if f not in NOISE_FIELDS:
+            raise ValueError(f"floor: {f!r} is not a noise field ({NOISE_FIELDS})")
+        ref = np.asarray(getattr(base.noise, f), np.float64)
+        s = np.asarray(values, np.float64)
+        if s.shape != ref.shape:
+            raise ValueError(f"floor[{f!r}] has shape {s.shape}, base.noise.{f} {ref.shape}")
+        if not np.all(np.isfinite(s)) or np.any(s < 0):
+            raise ValueError(f"floor[{f!r}] must be finite and >= 0")
+        below = np.flatnonzero(ref < s * (1.0 - 1e-6))
+        if below.size:
+            i = int(below[0])
+            raise ValueError(
+                f"base.noise.{f}[{i}] = {ref[i]:.4g} lies below its floor {s[i]:.4g}: tuning"
+                " starts from base, so start from parameters at or above the floor"
+            )
+        if f not in space.fields:
+            continue
+        idx, names = space.groups_of(f)
+        with np.errstate(divide="ignore"):
+            ratio = np.log(s / ref)
+        bound = np.full(len(names), -np.inf)
+        np.maximum.at(bound, np.asarray(idx), ratio)
+        # Never above the start (rounding of a std that sits exactly at its floor).
+        lower[f] = jnp.asarray(np.minimum(bound, 0.0), jnp.float32)
+    return lower
 
 
 @dataclasses.dataclass(frozen=True)
@@ -670,13 +731,16 @@ def _optimizer(config: TuneConfig) -> optax.GradientTransformation:
 
 
 @functools.partial(jax.jit, static_argnames=("space", "config"))
-def _train_window(theta, opt_state, space, base, theta0, terrain, belief, window, config, key):
+def _train_window(
+    theta, opt_state, space, base, theta0, lower, terrain, belief, window, config, key
+):
     grad_fn = jax.value_and_grad(tuning_loss, has_aux=True)
     (loss, (belief, data, n)), grads = grad_fn(
         theta, space, base, theta0, terrain, belief, window, config, key=key
     )
     updates, opt_state = _optimizer(config).update(grads, opt_state, theta)
-    theta = optax.apply_updates(theta, updates)
+    # Projected gradient step: back onto the floors (theta_lower_bounds) after the update.
+    theta = jax.tree.map(jnp.maximum, optax.apply_updates(theta, updates), lower)
     return theta, opt_state, belief, loss, data, n, optax.global_norm(grads)
 
 
@@ -804,6 +868,7 @@ def tune(
     space: ParamSpace,
     config: TuneConfig = TuneConfig(),
     *,
+    floor: dict | None = None,
     progress: Callable[[dict], None] | None = None,
 ) -> TuneResult:
     """Fits the fields of ``space`` to the tuning logs (module docstring).
@@ -817,6 +882,9 @@ def tune(
         BCE, F1 and ECE are pooled over all their steps.
       space: what is tuned.
       config: optimiser, windows, prior, seed.
+      floor: the smallest std of each floored noise field (``{field: array}``, e.g.
+        :func:`jax_contact.defaults.sensor_noise_floor`): every update is projected back
+        onto it (:func:`theta_lower_bounds`); None: no floor.
       progress: called with each epoch's history dict as it completes.
 
     Returns:
@@ -831,6 +899,7 @@ def tune(
     key = jax.random.key(config.seed)
     theta = init_theta(space, base)
     theta0 = theta
+    lower = theta_lower_bounds(space, base, floor)
     opt_state = _optimizer(config).init(theta)
     val_key = jax.random.fold_in(key, 10**6)
 
@@ -871,7 +940,7 @@ def tune(
                 win = _window(data, start, config.chunk)
                 k = jax.random.fold_in(jax.random.fold_in(jax.random.fold_in(key, epoch), i), w)
                 theta, opt_state, belief, loss, bce, n, gn = _train_window(
-                    theta, opt_state, space, base, theta0, terrain, belief, win, config, k
+                    theta, opt_state, space, base, theta0, lower, terrain, belief, win, config, k
                 )
                 losses.append(float(loss))
                 bces.append(float(bce))

@@ -43,6 +43,31 @@ def test_params_for_derives_the_noise_from_the_sensors(go1):
     assert float(p.dt) == pytest.approx(DT) and p.touchdown == "quadrature"
 
 
+def test_sensor_noise_floor_is_the_sensors_white_noise(go1):
+    """Hand derivation (anymal_like, 400 Hz, as above): the floor is what one reading
+    carries, without the bias drift: joint q 0.02 rad, base linear q 0.01 m (not 0.0332),
+    base linear qd 0.05 m/s (params_for: 0.081 with the drift), joint qd 0.3 rad/s, joint
+    qdd sqrt(2) 0.3 / 0.0025 = 169.7 rad/s^2, base linear qdd the accelerometer's 0.5,
+    sigma_d the torque sensors' 0.5 N m (no 2 N m model error). params_for's stds are
+    never below it."""
+    from jax_contact.defaults import sensor_noise_floor
+
+    sp = sensor_preset("anymal_like", go1.nv, dt=DT)
+    floor = sensor_noise_floor(go1, sp, DT)
+    assert set(floor) == {"sigma_q", "sigma_qd", "sigma_qdd", "sigma_d"}
+    joint = 6
+    np.testing.assert_allclose(floor["sigma_q"][[2, joint]], [0.01, 0.02], rtol=1e-6)
+    np.testing.assert_allclose(floor["sigma_qd"][[0, joint]], [0.05, 0.3], rtol=1e-6)
+    np.testing.assert_allclose(floor["sigma_qdd"][joint], math.sqrt(2) * 0.3 / DT, rtol=1e-6)
+    np.testing.assert_allclose(floor["sigma_qdd"][0], 0.5, rtol=1e-6)
+    np.testing.assert_allclose(floor["sigma_d"][joint], 0.5, rtol=1e-6)
+    noise = jc.params_for(go1, sp, DT).noise
+    for field, values in floor.items():
+        assert np.all(np.asarray(getattr(noise, field)) >= values * (1 - 1e-6)), field
+    with pytest.raises(ValueError, match="dt"):
+        sensor_noise_floor(go1, sp, 0.0)
+
+
 def test_wrapper_and_reproduction_use_the_same_parameters(go1):
     from jax_contact.envs.wrapper import default_estimator_params
     from jax_contact.train.reproduce import quadruped_estimator_params

@@ -231,6 +231,45 @@ def test_tuning_recovers_a_mis_set_noise_std():
     assert abs(hist[res.best_epoch]["val_bce"] - truth["bce"]) < 0.05 * truth["bce"]
 
 
+def test_tuning_stops_at_the_noise_floor():
+    """The recovery problem with a floor above the truth: sigma_J would fall to 0.05 m/s
+    (test above) but may not go below 0.1; projected onto the bound, it ends on it (the
+    loss falls all the way down to the floor: its minimum is below it)."""
+    train, val = _synthetic(1), _synthetic(2)
+    space = jt.make_space(4, fields=("sigma_J",))
+    config = jt.TuneConfig(
+        learning_rate=0.1, max_epochs=25, patience=5, chunk=300, prior_noise=0.0, seed=0,
+        event_weight=0.0, select="bce",
+    )  # same config as the recovery: the same compiled training step  # fmt: skip
+    floor = {"sigma_J": np.full(3, 0.1)}
+    res = jt.tune(_synthetic_params(SIGMA_J_WRONG), flat(0.0, 0.05), [train], val, space,
+                  config, floor=floor)  # fmt: skip
+    np.testing.assert_allclose(np.asarray(res.params.noise.sigma_J), 0.1, rtol=1e-5)
+    assert res.history[res.best_epoch]["val_bce"] < res.history[0]["val_bce"]
+
+
+def test_theta_lower_bounds_by_hand():
+    """Group multipliers: exp(theta_g) >= max over the group's coordinates of floor/sigma0.
+    sigma_qd = (1, 1, 2, 2, 2, 4, 4, 4) in groups (0, 0, 1, 1, 1, 2, 2, 2) with floor
+    (0.5, 0.25, 1, 2, 1, 0, 0, 0): group 0 -> log 0.5, group 1 -> log 1 = 0, group 2 -> no
+    bound (-inf); sigma_d has no floor."""
+    sigma_qd = np.array([1, 1, 2, 2, 2, 4, 4, 4], float)
+    base = make_params(make_noise(8, sigma_qd=sigma_qd))
+    space = jt.make_space(8, dof_groups=(0, 0, 1, 1, 1, 2, 2, 2))
+    floor = {"sigma_qd": np.array([0.5, 0.25, 1, 2, 1, 0, 0, 0], float)}
+    lower = jt.theta_lower_bounds(space, base, floor)
+    np.testing.assert_allclose(np.asarray(lower["sigma_qd"]), [np.log(0.5), 0.0, -np.inf])
+    assert np.all(np.isneginf(np.asarray(lower["sigma_d"])))
+    assert np.all(np.isneginf(np.asarray(lower["cap_dynamics"])))
+    assert set(lower) == set(jt.init_theta(space, base))
+    with pytest.raises(ValueError, match=r"base.noise.sigma_qd\[3\] = 2 lies below its floor 3"):
+        jt.theta_lower_bounds(space, base, {"sigma_qd": np.array([0, 0, 0, 3, 0, 0, 0, 0.0])})
+    with pytest.raises(ValueError, match="not a noise field"):
+        jt.theta_lower_bounds(space, base, {"stance_time": 0.1})
+    with pytest.raises(ValueError, match=r"floor\['sigma_qd'\] has shape \(3,\)"):
+        jt.theta_lower_bounds(space, base, {"sigma_qd": np.ones(3)})
+
+
 # ----------------------------------------------------------------------- cheap checks
 
 

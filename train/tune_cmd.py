@@ -138,6 +138,13 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         help="validation number that picks the epoch kept (loss: BCE + event term)",
     )
     p.add_argument(
+        "--noise-floor",
+        choices=("sensor", "none"),
+        default="sensor",
+        help="sensor: no tuned std below what the log's sensor model alone gives"
+        " (jax_contact.defaults.sensor_noise_floor); none: unbounded",
+    )
+    p.add_argument(
         "--calibrate",
         action="store_true",
         help="also fit a temperature and bias on the fused logit (stored in the provenance)",
@@ -298,6 +305,15 @@ def default_params(robot, dt: float, noise: str = "anymal_like"):
         return quadruped_estimator_params(desc, dt), jc.flat(0.0, TERRAIN_SIGMA)
     sp = sensor_preset(noise, desc.nv, dt=dt)
     return jc.params_for(desc, sp, dt), jc.flat(0.0, TERRAIN_SIGMA)
+
+
+def sensor_floor(robot, dt: float, noise: str = "anymal_like") -> dict:
+    """The noise floor of ``jax-contact tune --noise-floor sensor``: what the log's sensor
+    preset alone puts on each measured quantity (``jax_contact.defaults.sensor_noise_floor``)."""
+    from jax_contact.defaults import sensor_noise_floor
+    from jax_contact.envs.contact_params import default_sensor_params
+
+    return sensor_noise_floor(robot.description, default_sensor_params(noise, robot, dt), dt)
 
 
 # ------------------------------------------------------------------ presets, logs
@@ -541,9 +557,11 @@ def run(args: argparse.Namespace) -> int:
 
     t0 = time.perf_counter()
     train, infos = [], []
-    base = terrain = robot_name = None
+    base = terrain = robot_name = floor = None
     for path in args.logs:
         data, robot, attrs, params, terr = load_tuning_log(path)
+        if floor is None and getattr(args, "noise_floor", "sensor") == "sensor":
+            floor = sensor_floor(robot, float(attrs["dt"]), str(attrs.get("noise", "anymal_like")))
         if robot_name is not None and attrs["robot"] != robot_name:
             raise ValueError(
                 f"log {path!r} is of robot {attrs['robot']!r}; the first log's is {robot_name!r}"
@@ -599,7 +617,7 @@ def run(args: argparse.Namespace) -> int:
             flush=True,
         )
 
-    result = jt.tune(base, terrain, train, vals, space, config, progress=progress)
+    result = jt.tune(base, terrain, train, vals, space, config, floor=floor, progress=progress)
     best = result.history[result.best_epoch]
     print(
         f"best epoch {result.best_epoch} (val loss {best['val_loss']:.4f},"
@@ -654,6 +672,9 @@ def run(args: argparse.Namespace) -> int:
         )
         + " + Gaussian prior on the unconstrained values (jax_contact.tune)",
         "stance_time_bounds": list(space.stance_time_bounds),
+        "noise_floor": (
+            {f: np.asarray(v).tolist() for f, v in floor.items()} if floor is not None else None
+        ),
         "code": _code_version(),
         "epochs": len(result.history) - 1,
         "best_epoch": result.best_epoch,
