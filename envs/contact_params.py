@@ -117,6 +117,44 @@ def default_sensor_params(
     return params.replace(latency=latency)
 
 
+def with_extra_latency(
+    sensor: sensors.SensorParams, extra_env_steps: int, env_dt: float
+) -> sensors.SensorParams:
+    """``sensor`` with ``extra_env_steps`` env steps more of reading delay, in its own steps.
+
+    The sensor model's latency counts its own steps (``sensor.dt``: the physics step at the
+    wrapper's substep rate, the env step at the control rate), so an env step of ``env_dt``
+    is ``round(env_dt / sensor.dt)`` of them: the hop task's 10 ms env step is 4 physics
+    steps of 2.5 ms, Go1 joystick's 20 ms one is 5 of 4 ms. The one rule of the transfer
+    matrix's ``estimate_latK`` columns (:func:`jax_contact.train.transfer.column_setting`),
+    for every task.
+
+    Args:
+      sensor: the sensor model at the estimator's period.
+      extra_env_steps: env steps of delay to add, an int >= 0.
+      env_dt: the env step, s; a whole multiple of ``sensor.dt``.
+
+    Returns:
+      The sensor model with ``latency + extra_env_steps * round(env_dt / sensor.dt)``.
+
+    Raises:
+      ValueError: a negative or non-int ``extra_env_steps``, or an ``env_dt`` that is not a
+        whole number (>= 1) of sensor steps.
+    """
+    if isinstance(extra_env_steps, bool) or not isinstance(extra_env_steps, int | np.integer):
+        raise ValueError(f"extra_env_steps must be an int >= 0, got {extra_env_steps!r}")
+    if extra_env_steps < 0:
+        raise ValueError(f"extra_env_steps must be an int >= 0, got {extra_env_steps!r}")
+    ratio = float(env_dt) / float(sensor.dt)
+    per_env_step = int(round(ratio))
+    if per_env_step < 1 or not np.isclose(ratio, per_env_step, rtol=1e-5):
+        raise ValueError(
+            f"env_dt ({float(env_dt)}) must be a whole number of sensor steps"
+            f" (sensor.dt {float(sensor.dt)})"
+        )
+    return sensor.replace(latency=int(sensor.latency) + int(extra_env_steps) * per_env_step)
+
+
 def default_estimator_params(
     robot_or_desc,
     dt: float,

@@ -166,8 +166,8 @@ def make_hop_env(
 def sensor_with_extra_latency(robot, preset: str, extra_steps: int, config: HopConfig = HOP):
     """The preset's sensor model with ``extra_steps`` env steps (``n_frames`` physics steps
     each) of additional reading delay, at the physics period."""
-    from jax_contact.envs.contact_params import default_sensor_params
+    from jax_contact.envs.contact_params import default_sensor_params, with_extra_latency
 
     dt = float(robot.mj_model.opt.timestep)
     p = default_sensor_params(preset, robot, dt)
-    return p.replace(latency=int(p.latency) + int(extra_steps) * config.n_frames)
+    return with_extra_latency(p, int(extra_steps), config.n_frames * dt)

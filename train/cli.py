@@ -79,6 +79,13 @@ GAITS = ("trot", "walk", "hop")  # jax_contact.envs.gaits.KINDS
 NOISES = ("ideal", "anymal_like", "harsh")  # jax_contact.envs.sensors.PRESETS
 TERRAINS = ("flat", "rough")  # jax_contact.envs.simulate.TERRAINS
 VARIANTS = ("none", "truth", "estimate")  # jax_contact.train.ppo.VARIANTS
+COLUMNS = (  # jax_contact.train.transfer.COLUMNS
+    "truth",
+    "estimate",
+    "estimate_harsh",
+    "estimate_lat1",
+    "estimate_lat2",
+)
 TASKS = ("go1", "hop")  # jax_contact.train.tasks.TASK_NAMES
 SCENES = ("planar_leg", "go1")  # jax_contact.train.rates.SCENES
 LOG_SUFFIXES = (".h5", ".hdf5")
@@ -223,7 +230,9 @@ def _cmd_policy_eval(args: argparse.Namespace) -> int:
     from jax_contact.io import write_json_atomic
     from jax_contact.train import ppo
 
-    res = ppo.evaluate_policy(args.run, observe=args.observe, n_envs=args.envs, seed=args.seed)
+    res = ppo.evaluate_policy(
+        args.run, observe=args.observe, column=args.column, n_envs=args.envs, seed=args.seed
+    )
     print(ppo.format_evaluation([res]))
     c = res["contact"]
     print(
@@ -561,11 +570,19 @@ def build_parser() -> argparse.ArgumentParser:
         _check_policy_eval,
     )
     p.add_argument("run", help="a run folder of `jax-contact train`, e.g. out/train/estimate")
-    p.add_argument(
+    sees = p.add_mutually_exclusive_group()
+    sees.add_argument(
         "--observe",
         choices=VARIANTS,
         default=None,
-        help="contact the policy sees now (default: what it was trained with)",
+        help="contact the policy sees now, training sensors (default: what it was trained with)",
+    )
+    sees.add_argument(
+        "--column",
+        choices=COLUMNS,
+        default=None,
+        help="a column of the transfer matrix instead: estimate_harsh (harsh sensors),"
+        " estimate_lat1/2 (the training sensors 1/2 env steps late), truth, estimate",
     )
     p.add_argument("--envs", type=_positive_int, default=64, help="episodes, run in parallel")
     p.add_argument("--seed", type=int, default=12345, help="seeds the episodes")

@@ -292,17 +292,24 @@ def make_env(
     sensor: str = "anymal_like",
     reward: str = "playground",
     env_name: str = ENV_NAME,
+    extra_latency: int = 0,
 ):
     """The unbatched Go1 joystick env with the contact wrapper, observing ``observe``.
 
     Args:
       observe: one of :data:`VARIANTS`.
-      sensor: sensor preset of the estimator's inputs.
+      sensor: sensor preset of the estimator's inputs (or a
+        :class:`jax_contact.envs.sensors.SensorParams` at the estimator's period).
       reward: one of :data:`REWARDS` (:class:`PPOConfig`).
       env_name: a name of :data:`jax_contact.envs.playground_offline.ENV_NAMES`.
+      extra_latency: env steps of sensor delay added to ``sensor``'s, an int >= 0 (the
+        transfer matrix's ``estimate_latK`` columns): at the wrapper's physics rate each is
+        the env's substeps (Go1 joystick: 5 of 4 ms), by
+        :func:`jax_contact.envs.contact_params.with_extra_latency`.
     """
     from jax_contact.envs import playground_offline
     from jax_contact.envs import wrapper as W
+    from jax_contact.envs.contact_params import with_extra_latency
 
     if observe not in VARIANTS:
         raise ValueError(f"observe must be one of {VARIANTS}, got {observe!r}")
@@ -312,7 +319,12 @@ def make_env(
     if reward == "unclipped":
         env = UnclippedReward(env)
     cfg = W.ContactObsConfig(observe=observe, obs_keys=("state",), info_key=INFO_KEY)
-    return W.wrap_contact(env, cfg, sensor=sensor)
+    wrapped = W.wrap_contact(env, cfg, sensor=sensor)
+    if extra_latency == 0:
+        return wrapped
+    # The preset as the wrapper resolved it (estimator period, latency in its steps), delayed.
+    delayed = with_extra_latency(wrapped.contact_core.sensor, extra_latency, float(env.dt))
+    return W.wrap_contact(env, cfg, sensor=delayed)
 
 
 def network_factory(cfg: PPOConfig):
@@ -582,62 +594,45 @@ def train(
 # -------------------------------------------------------------------------- evaluate
 
 
-def evaluate_policy(
-    run_dir: str | Path,
-    *,
-    observe: str | None = None,
-    n_envs: int = 64,
-    episode_length: int | None = None,
-    seed: int = 12345,
-) -> dict:
-    """Runs a run's latest checkpoint (deterministic policy) for one episode per env.
+def column_env(column: str, cfg: PPOConfig):
+    """The unbatched Go1 env of a transfer-matrix column for a run trained with ``cfg``.
 
     Args:
-      run_dir: a run folder written by :func:`train`.
-      observe: the contact the policy sees now (:data:`VARIANTS`); None: the one it was
-        trained with. ``"estimate"`` for a ``"truth"`` run is the sim-to-real check.
+      column: a name of :data:`jax_contact.train.transfer.COLUMNS` or a variant
+        (:data:`VARIANTS`); :func:`jax_contact.train.transfer.column_setting` maps it to
+        (observe, sensor preset, extra env steps of latency).
+      cfg: the run's configuration (its ``sensor`` is the training preset, its ``reward``
+        the reward).
+    """
+    from jax_contact.train import transfer
+
+    observe, preset, extra = transfer.column_setting(column, cfg.sensor)
+    return make_env(observe, sensor=preset, reward=cfg.reward, extra_latency=extra)
+
+
+def policy_rollout(env, make_policy, n_envs: int, episode_length: int) -> Callable:
+    """A jitted rollout of a checkpoint's deterministic policy in ``env``, one episode per env.
+
+    The parameters are an argument, so checkpoints of the same network share one
+    compilation (:mod:`jax_contact.train.transfer`).
+
+    Args:
+      env: the unbatched env with the contact wrapper (:func:`make_env`).
+      make_policy: ``(params, deterministic) -> policy``, as ``load_policy(parts=True)``.
       n_envs: episodes, run in parallel.
-      episode_length: env steps per episode; None: the training configuration's.
-      seed: seeds the episodes (commands, noise, the estimator's sensors).
+      episode_length: env steps per episode (Playground's training wrappers truncate there).
 
     Returns:
-      ``return_mean``, ``return_std``, ``episode_length_mean`` (steps before termination or
-      the end), ``fell`` (fraction of episodes that terminated early), and ``contact``: the
-      estimator's metrics (:func:`jax_contact.metrics.evaluate`) against the simulator's
-      contact over the steps alive, plus the checkpoint and both observation sources.
-
-    Raises:
-      FileNotFoundError: no run.json or checkpoint.
-      ValueError: an observation the checkpoint's network cannot take.
+      ``rollout(params, key) -> (ret, p, truth, alive, fell)``: ``ret`` (n_envs,) the
+      return over the steps alive; over (episode_length, n_envs[, n_feet]): the estimator's
+      P(contact), the simulator's contact, alive before the step, and terminated (not
+      truncated) at it.
     """
-    from jax_contact import metrics
-
-    run_dir = Path(run_dir)
-    if not (run_dir / "run.json").is_file():
-        raise FileNotFoundError(f"no run.json in {run_dir}: not a run folder of jax-contact train")
-    run = json.loads((run_dir / "run.json").read_text())
-    if run.get("task", "go1") == "hop":  # its own evaluation (task metrics)
-        from jax_contact.train import transfer
-
-        return transfer.evaluate_run(
-            run_dir, observe=observe, n_envs=n_envs, episode_length=episode_length, seed=seed
-        )
-    cfg = PPOConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in run["config"].items()})
-    observe = observe or run["variant"]
-    ckpt = latest_checkpoint(run_dir)
-    env = make_env(observe, sensor=cfg.sensor, reward=cfg.reward)
-    policy, sizes = load_policy(ckpt, deterministic=True)
-    have = tuple(env.observation_size["state"])
-    if sizes["state"] != have:
-        raise ValueError(
-            f"observe={observe!r} gives a policy observation of shape {have}; the checkpoint"
-            f" {ckpt} (trained with {run['variant']!r}) takes {sizes['state']}"
-        )
-    t_len = int(episode_length or cfg.episode_length)
-    benv = pg_wrapper.wrap_for_brax_training(env, episode_length=t_len)
+    benv = pg_wrapper.wrap_for_brax_training(env, episode_length=episode_length)
 
     @jax.jit
-    def rollout(key):
+    def rollout(params, key):
+        policy = make_policy(params, deterministic=True)
         k_reset, k_act = jax.random.split(key)
         state = benv.reset(jax.random.split(k_reset, n_envs))
 
@@ -651,28 +646,173 @@ def evaluate_policy(
             return (s, alive & ~(s.done > 0), ret), out + (alive & terminated,)
 
         carry = (state, jnp.ones(n_envs, bool), jnp.zeros(n_envs))
-        (_, _, ret), outs = jax.lax.scan(body, carry, jax.random.split(k_act, t_len))
-        return ret, outs
+        (_, _, ret), outs = jax.lax.scan(body, carry, jax.random.split(k_act, episode_length))
+        return (ret, *outs)
 
-    t0 = time.perf_counter()
-    ret, (p, truth, alive, fell) = jax.device_get(rollout(jax.random.PRNGKey(seed)))
-    wall = time.perf_counter() - t0
-    alive = np.asarray(alive)
-    valid = np.broadcast_to(alive[..., None], np.shape(p))
-    m = metrics.evaluate(np.asarray(p), np.asarray(truth, bool), valid, dt=float(env.dt))
+    return rollout
+
+
+class ColumnEvaluator:
+    """Go1 checkpoints evaluated in transfer-matrix columns, sharing compiled rollouts.
+
+    One env per column (:func:`column_env`) and one compiled :func:`policy_rollout` per
+    (column, ``make_policy``): pass the same ``make_policy`` for checkpoints of the same
+    network and each column compiles once for all of them.
+
+    Args:
+      cfg: the runs' configuration (sensor preset, reward, episode length).
+      n_envs: episodes per evaluation.
+      episode_length: env steps per episode; None: ``cfg.episode_length``.
+    """
+
+    def __init__(self, cfg: PPOConfig, n_envs: int, episode_length: int | None = None):
+        self.cfg, self.n_envs = cfg, int(n_envs)
+        self.episode_length = int(episode_length or cfg.episode_length)
+        self._envs: dict = {}
+        self._fns: dict = {}
+
+    def env(self, column: str):
+        if column not in self._envs:
+            self._envs[column] = column_env(column, self.cfg)
+        return self._envs[column]
+
+    def evaluate(self, run_dir: str | Path, column: str, seed: int, loaded=None) -> dict:
+        """The latest checkpoint of ``run_dir`` in ``column`` (:func:`evaluate_policy`'s dict).
+
+        Args:
+          run_dir: a Go1 run folder.
+          column: as :func:`column_env`.
+          seed: seeds the episodes.
+          loaded: ``load_policy(ckpt, parts=True)`` of its latest checkpoint, if loaded.
+
+        Raises:
+          ValueError: the column's observation does not fit the checkpoint's network.
+        """
+        run_dir = Path(run_dir)
+        run = json.loads((run_dir / "run.json").read_text())
+        ckpt = latest_checkpoint(run_dir)
+        make_policy, params, sizes = loaded or load_policy(ckpt, parts=True)
+        env = self.env(column)
+        have = tuple(env.observation_size["state"])
+        if tuple(sizes["state"]) != have:
+            raise ValueError(
+                f"column {column!r} gives a policy observation of shape {have}; the checkpoint"
+                f" {ckpt} (trained with {run['variant']!r}) takes {tuple(sizes['state'])}"
+            )
+        key = (column, id(make_policy))
+        if key not in self._fns:  # keeps make_policy alive, so its id is not reused
+            self._fns[key] = (policy_rollout(env, make_policy, self.n_envs, self.episode_length),)
+            self._fns[key] += (make_policy,)
+        rollout = self._fns[key][0]
+        t0 = time.perf_counter()
+        ret, p, truth, alive, fell = jax.device_get(rollout(params, jax.random.PRNGKey(seed)))
+        wall = time.perf_counter() - t0
+        return {
+            "run": str(run_dir),
+            "checkpoint": str(ckpt),
+            "trained_with": run["variant"],
+            "observed": column,
+            "n_episodes": self.n_envs,
+            **rollout_metrics(ret, p, truth, alive, fell, dt=float(env.dt)),
+            "wall_s": round(wall, 1),
+        }
+
+
+def rollout_metrics(ret, p, truth, alive, fell, *, dt: float) -> dict:
+    """:func:`evaluate_policy`'s numbers from a :func:`policy_rollout`'s arrays.
+
+    Args:
+      ret: (n,) returns; p, truth: (T, n, n_feet) P(contact) and contact; alive, fell:
+        (T, n) bool, alive before each step and terminated at it.
+      dt: the env step, s (the estimator's metrics' time unit).
+
+    Returns:
+      ``return_mean``, ``return_std``, ``episode_length_mean`` (steps alive), ``fell``
+      (fraction of episodes terminated early) and ``contact`` (the estimator's metrics over
+      the steps alive, :func:`jax_contact.metrics.evaluate`).
+    """
+    from jax_contact import metrics
+
+    ret, p, alive = np.asarray(ret), np.asarray(p), np.asarray(alive, bool)
+    valid = np.broadcast_to(alive[..., None], p.shape)
+    m = metrics.evaluate(p, np.asarray(truth, bool), valid, dt=float(dt))
     return {
-        "run": str(run_dir),
-        "checkpoint": str(ckpt),
-        "trained_with": run["variant"],
-        "observed": observe,
-        "n_episodes": n_envs,
         "return_mean": float(np.mean(ret)),
         "return_std": float(np.std(ret)),
         "episode_length_mean": float(np.mean(alive.sum(axis=0))),
-        "fell": float(np.mean(np.asarray(fell).any(axis=0))),
+        "fell": float(np.mean(np.asarray(fell, bool).any(axis=0))),
         "contact": m.as_dict(),
-        "wall_s": round(wall, 1),
     }
+
+
+def evaluate_policy(
+    run_dir: str | Path,
+    *,
+    observe: str | None = None,
+    column: str | None = None,
+    n_envs: int = 64,
+    episode_length: int | None = None,
+    seed: int = 12345,
+) -> dict:
+    """Runs a run's latest checkpoint (deterministic policy) for one episode per env.
+
+    Args:
+      run_dir: a run folder written by :func:`train`.
+      observe: the contact the policy sees now (:data:`VARIANTS`, the training sensors);
+        None: the one it was trained with. ``"estimate"`` for a ``"truth"`` run is the
+        sim-to-real check.
+      column: instead of ``observe``, a transfer-matrix column
+        (:data:`jax_contact.train.transfer.COLUMNS`): ``estimate_harsh`` (the ``harsh``
+        sensors), ``estimate_lat1``/``estimate_lat2`` (the training sensors 1 or 2 env
+        steps late), ...
+      n_envs: episodes, run in parallel.
+      episode_length: env steps per episode; None: the training configuration's.
+      seed: seeds the episodes (commands, noise, the estimator's sensors).
+
+    Returns:
+      ``return_mean``, ``return_std``, ``episode_length_mean`` (steps before termination or
+      the end), ``fell`` (fraction of episodes that terminated early), and ``contact``: the
+      estimator's metrics (:func:`jax_contact.metrics.evaluate`) against the simulator's
+      contact over the steps alive, plus the checkpoint, what it was trained with and the
+      column it ``observed``. A hop run (``run.json``'s ``task``) gets its own metrics
+      (:func:`jax_contact.train.transfer.evaluate_run`).
+
+    Raises:
+      FileNotFoundError: no run.json or checkpoint.
+      ValueError: both ``observe`` and ``column``, an unknown one, or an observation the
+        checkpoint's network cannot take.
+    """
+    if observe is not None and column is not None:
+        raise ValueError(
+            f"pass observe or column, not both (got observe={observe!r}, column={column!r})"
+        )
+    if observe is not None and observe not in VARIANTS:
+        raise ValueError(f"observe must be one of {VARIANTS}, got {observe!r}")
+    run_dir = Path(run_dir)
+    if not (run_dir / "run.json").is_file():
+        raise FileNotFoundError(f"no run.json in {run_dir}: not a run folder of jax-contact train")
+    run = json.loads((run_dir / "run.json").read_text())
+    if run.get("task", "go1") == "hop":  # its own evaluation (task metrics)
+        from jax_contact.train import transfer
+
+        return transfer.evaluate_run(
+            run_dir,
+            observe=observe,
+            column=column,
+            n_envs=n_envs,
+            episode_length=episode_length,
+            seed=seed,
+        )
+    latest_checkpoint(run_dir)  # before building envs: FileNotFoundError without one
+    ev = ColumnEvaluator(config_of(run), n_envs, episode_length)
+    return ev.evaluate(run_dir, column or observe or run["variant"], seed)
+
+
+def config_of(run: Mapping) -> PPOConfig:
+    """The :class:`PPOConfig` of a ``run.json``'s contents (JSON lists back to tuples)."""
+    return PPOConfig(
+        **{k: tuple(v) if isinstance(v, list) else v for k, v in run["config"].items()}
+    )
 
 
 def eval_row(step: int, wall_s: float, metrics: Mapping, acc_key: str) -> dict:
@@ -696,13 +836,13 @@ def eval_row(step: int, wall_s: float, metrics: Mapping, acc_key: str) -> dict:
 def format_evaluation(results: Sequence[dict]) -> str:
     """A table of :func:`evaluate_policy` results."""
     lines = [
-        f"{'trained with':>12s} {'observed':>9s} {'return':>16s} {'ep. length':>10s}"
+        f"{'trained with':>12s} {'observed':>14s} {'return':>16s} {'ep. length':>10s}"
         f" {'fell':>5s} {'estimator acc':>13s} {'estimator F1':>12s}"
     ]
     for r in results:
         c = r["contact"]
         lines.append(
-            f"{r['trained_with']:>12s} {r['observed']:>9s}"
+            f"{r['trained_with']:>12s} {r['observed']:>14s}"
             f" {r['return_mean']:8.2f} +- {r['return_std']:5.2f} {r['episode_length_mean']:10.1f}"
             f" {r['fell']:5.2f} {c['accuracy']:13.3f} {c['f1']:12.3f}"
         )

@@ -1,24 +1,33 @@
-"""The transfer matrix of the hop task: trained with one contact signal, evaluated with others.
+"""The transfer matrix: trained with one contact signal, evaluated with others.
+
+For the hop task (:mod:`jax_contact.envs.hop_task`) and Go1 joystick
+(:mod:`jax_contact.train.ppo`); :func:`transfer_matrix` dispatches on each run's
+``run.json`` ``task`` (absent: ``"go1"``, the runs written before there were tasks).
 
 Rows: the policies trained with ``observe`` in {none, truth, estimate} (one run folder per
-seed, written by :func:`jax_contact.train.ppo.train` with ``task="hop"``). Columns
-(:data:`COLUMNS`): what the policy sees at evaluation, in the slot it was trained with:
+seed, written by :func:`jax_contact.train.ppo.train`). Columns (:data:`COLUMNS`): what the
+policy sees at evaluation, in the slot it was trained with (:func:`column_setting`):
 
 - ``truth``: the simulator's contact;
-- ``estimate``: the estimator with the training sensors (``anymal_like``);
+- ``estimate``: the estimator with the training sensors (the run's ``sensor`` preset,
+  ``anymal_like``);
 - ``estimate_harsh``: the estimator with ``harsh`` sensors (more noise, bias, outliers,
-  3 physics steps of latency);
-- ``estimate_lat1``, ``estimate_lat2``: ``anymal_like`` with 1 or 2 extra *env* steps
-  (4 or 8 physics steps, 10 or 20 ms) of sensor latency.
+  7.5 ms of latency: 3 physics steps of the hop, 2 of Go1's 4 ms);
+- ``estimate_lat1``, ``estimate_lat2``: the training sensors with 1 or 2 extra *env* steps
+  of sensor latency (hop: 4 or 8 physics steps, 10 or 20 ms; Go1 joystick: 5 or 10, 20 or
+  40 ms), :func:`jax_contact.envs.contact_params.with_extra_latency`.
 
 A policy trained with ``none`` sees no contact: its column values differ only by the
 evaluation's estimator (which never reaches it), so it is run once and its row repeats it.
 
 Per (row, column) and seed: the deterministic policy on ``n_envs`` episodes from the same
-seed (same commands and drop heights in every cell); ``return`` (sum of the tracking reward),
-``tracking`` (mean reward per alive step), ``apex_error`` (mean |apex - h_cmd| over the
-apexes of flights, m), ``hops`` (apexes per episode), ``fell`` and the estimator's
-``accuracy``. The matrix gives the mean and the standard deviation over seeds.
+seed (same commands, drop heights and noise in every cell). Hop (:data:`METRICS`):
+``return`` (sum of the tracking reward), ``tracking`` (mean reward per alive step),
+``apex_error`` (mean |apex - h_cmd| over the apexes of flights, m), ``hops`` (apexes per
+episode), ``fell`` and the estimator's ``accuracy``. Go1 (:data:`GO1_METRICS`): ``return``,
+``episode_length`` (steps alive), ``fell`` (terminated early) and the estimator's
+``accuracy`` and ``f1`` over the steps alive. The matrix gives the mean, the standard
+deviation and the per-seed values over seeds.
 """
 
 from __future__ import annotations
@@ -34,18 +43,30 @@ import jax.numpy as jnp
 import numpy as np
 
 COLUMNS = ("truth", "estimate", "estimate_harsh", "estimate_lat1", "estimate_lat2")
-METRICS = ("return", "tracking", "apex_error", "hops", "fell", "accuracy")
+METRICS = ("return", "tracking", "apex_error", "hops", "fell", "accuracy")  # hop
+GO1_METRICS = ("return", "episode_length", "fell", "accuracy", "f1")
 
 
-def column_setting(column: str) -> tuple[str, str, int]:
-    """``(observe, sensor preset, extra latency in env steps)`` of a column."""
+def column_setting(column: str, sensor: str = "anymal_like") -> tuple[str, str, int]:
+    """``(observe, sensor preset, extra latency in env steps)`` of a column.
+
+    The one map from a column to what the env is built with, for every task.
+
+    Args:
+      column: a name of :data:`COLUMNS`, or ``"none"`` (no contact observed).
+      sensor: the training sensor preset (the run's ``PPOConfig.sensor``): every column
+        but ``estimate_harsh`` uses it.
+
+    Raises:
+      ValueError: an unknown column.
+    """
     table = {
-        "truth": ("truth", "anymal_like", 0),
-        "estimate": ("estimate", "anymal_like", 0),
+        "truth": ("truth", sensor, 0),
+        "estimate": ("estimate", sensor, 0),
         "estimate_harsh": ("estimate", "harsh", 0),
-        "estimate_lat1": ("estimate", "anymal_like", 1),
-        "estimate_lat2": ("estimate", "anymal_like", 2),
-        "none": ("none", "anymal_like", 0),
+        "estimate_lat1": ("estimate", sensor, 1),
+        "estimate_lat2": ("estimate", sensor, 2),
+        "none": ("none", sensor, 0),
     }
     if column not in table:
         raise ValueError(f"column must be one of {tuple(table)}, got {column!r}")
@@ -92,7 +113,7 @@ class _Evaluator:
         key = (column, id(make_policy))
         if key in self._fns:
             return self._fns[key]
-        observe, preset, extra = column_setting(column)
+        observe, preset, extra = column_setting(column, self.task_cfg.sensor)
         sensor = (
             hop_task.sensor_with_extra_latency(self.robot, preset, extra, self.task_cfg)
             if extra
@@ -135,11 +156,10 @@ class _Evaluator:
 
 
 def _run_cfg(run_dir: Path):
-    from jax_contact.train.ppo import PPOConfig
+    from jax_contact.train import ppo
 
     run = json.loads((run_dir / "run.json").read_text())
-    cfg = PPOConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in run["config"].items()})
-    return run, cfg
+    return run, ppo.config_of(run)
 
 
 def _evaluate(ev: _Evaluator, run_dir: Path, column: str, seed: int, loaded=None) -> dict:
@@ -219,6 +239,89 @@ def evaluate_run(
     }
 
 
+class _HopCells:
+    """The hop task's cells: :class:`_Evaluator`'s rollouts, :data:`METRICS`."""
+
+    metrics = METRICS
+
+    def __init__(self, first_run: Path, n_envs: int, episode_length: int | None):
+        from jax_contact.envs import hop_task
+
+        _, cfg = _run_cfg(first_run)
+        task_cfg = dataclasses.replace(hop_task.HOP, sensor=cfg.sensor)
+        t_len = int(episode_length or cfg.episode_length)
+        self._ev = _Evaluator(task_cfg, hop_task.hop_robot(), n_envs, t_len)
+
+    def cell(self, run_dir: Path, column: str, seed: int, loaded) -> dict:
+        m = _evaluate(self._ev, run_dir, column, seed, loaded)
+        for k in ("_p", "_truth", "_alive"):
+            m.pop(k)
+        return m
+
+    @staticmethod
+    def line(m: dict) -> str:
+        return (
+            f"return {m['return']:7.2f} apex err {m['apex_error']:.3f} hops {m['hops']:.2f}"
+            f" acc {m['accuracy']:.3f}"
+        )
+
+
+class _Go1Cells:
+    """Go1 joystick's cells: :class:`jax_contact.train.ppo.ColumnEvaluator`,
+    :data:`GO1_METRICS`."""
+
+    metrics = GO1_METRICS
+
+    def __init__(self, first_run: Path, n_envs: int, episode_length: int | None):
+        from jax_contact.train import ppo
+
+        _, cfg = _run_cfg(first_run)
+        self._ev = ppo.ColumnEvaluator(cfg, n_envs, episode_length)
+
+    def cell(self, run_dir: Path, column: str, seed: int, loaded) -> dict:
+        r = self._ev.evaluate(run_dir, column, seed, loaded)
+        return {
+            "return": r["return_mean"],
+            "return_std": r["return_std"],
+            "episode_length": r["episode_length_mean"],
+            "fell": r["fell"],
+            "accuracy": r["contact"]["accuracy"],
+            "f1": r["contact"]["f1"],
+            "wall_s": r["wall_s"],
+            "checkpoint": r["checkpoint"],
+        }
+
+    @staticmethod
+    def line(m: dict) -> str:
+        return (
+            f"return {m['return']:8.2f} ep. length {m['episode_length']:6.1f}"
+            f" fell {m['fell']:.2f} acc {m['accuracy']:.3f} F1 {m['f1']:.3f}"
+        )
+
+
+# run.json's task -> its cells (a test swaps in its own).
+_CELLS = {"hop": _HopCells, "go1": _Go1Cells}
+
+
+def run_task(run_dir: str | Path) -> str:
+    """The task of a run folder: ``run.json``'s ``task``, ``"go1"`` when it has none."""
+    path = Path(run_dir) / "run.json"
+    if not path.is_file():
+        raise FileNotFoundError(f"no run.json in {run_dir}: not a run folder of jax-contact train")
+    return json.loads(path.read_text()).get("task", "go1")
+
+
+def _load(run_dir: Path, makers: dict):
+    """``load_policy(parts=True)`` of the latest checkpoint, with one ``make_policy`` per
+    network configuration, so that compiled rollouts are shared across checkpoints."""
+    from jax_contact.train import ppo
+
+    ckpt = ppo.latest_checkpoint(run_dir)
+    make_policy, params, sizes = ppo.load_policy(ckpt, parts=True)
+    net = (ckpt.resolve() / "ppo_network_config.json").read_text()
+    return makers.setdefault(net, make_policy), params, sizes
+
+
 def transfer_matrix(
     runs: Mapping[str, Sequence[str | Path]],
     *,
@@ -228,54 +331,66 @@ def transfer_matrix(
     seed: int = 12345,
     log=print,
 ) -> dict:
-    """The transfer matrix over seeds.
+    """The transfer matrix over seeds, of hop or of Go1 joystick runs.
 
     Args:
-      runs: trained variant -> run folders (one per training seed).
+      runs: trained variant -> run folders (one per training seed), all of one task
+        (``run.json``'s ``task``; none: ``"go1"``) and one configuration.
       columns: the evaluation columns (:data:`COLUMNS`).
       n_envs, episode_length, seed: as :func:`evaluate_run` (the same episodes everywhere).
+      log: where one line per evaluated cell goes.
 
     Returns:
-      ``{"cells": {variant: {column: {metric: {"mean", "std", "per_seed"}}}}, "wall_s"}``;
-      ``std`` is the population std over seeds (0 with one seed).
-    """
-    from jax_contact.envs import hop_task
+      ``{"task", "metrics", "cells": {variant: {column: {metric: {"mean", "std",
+      "per_seed"}}}}, "columns", "n_envs", "seed", "wall_s"}``; the metrics are the
+      task's (:data:`METRICS`, :data:`GO1_METRICS`), ``std`` is the population std over
+      seeds (0 with one seed).
 
+    Raises:
+      ValueError: runs of several tasks, an unknown task or column, or none at all.
+      FileNotFoundError: a folder without run.json or checkpoint.
+    """
     t0 = time.perf_counter()
-    first = Path(next(iter(runs.values()))[0])
-    _, cfg = _run_cfg(first)
-    task_cfg = dataclasses.replace(hop_task.HOP, sensor=cfg.sensor)
-    ev = _Evaluator(
-        task_cfg, hop_task.hop_robot(), n_envs, int(episode_length or cfg.episode_length)
-    )
+    dirs_all = [Path(d) for dirs in runs.values() for d in dirs]
+    if not dirs_all:
+        raise ValueError("runs has no run folder")
+    for c in columns:
+        column_setting(c)
+    found = {d: run_task(d) for d in dirs_all}
+    task_names = sorted(set(found.values()))
+    if len(task_names) > 1:
+        raise ValueError(
+            f"runs mixes tasks {task_names}: one matrix per task"
+            f" ({', '.join(f'{d} is {t}' for d, t in found.items())})"
+        )
+    task = task_names[0]
+    if task not in _CELLS:
+        raise ValueError(f"run.json's task must be one of {tuple(_CELLS)}, got {task!r}")
+    cells_of = _CELLS[task](dirs_all[0], n_envs, episode_length)
     cells: dict = {}
-    makers: dict = {}  # one make_policy per observation size, so rollouts are shared
+    makers: dict = {}  # one make_policy per network, so rollouts are shared
     for variant, dirs in runs.items():
         cells[variant] = {}
         per_col: dict = {c: [] for c in columns}
         for d in dirs:
             d = Path(d)
-            from jax_contact.train import ppo
-
-            make_policy, params, sizes = ppo.load_policy(ppo.latest_checkpoint(d), parts=True)
-            make_policy = makers.setdefault(tuple(sizes["state"]), make_policy)
-            if variant == "none":
-                m = _evaluate(ev, d, "none", seed, (make_policy, params, sizes))
-                for k in ("_p", "_truth", "_alive"):
-                    m.pop(k)
+            loaded = _load(d, makers)
+            if variant == "none":  # sees no contact: one evaluation stands for every column
+                m = cells_of.cell(d, "none", seed, loaded)
+                log(
+                    f"[transfer] {variant:>8s} -> {'(every column)':<15s} {cells_of.line(m)}"
+                    f"  ({time.perf_counter() - t0:.0f} s)"
+                )
                 for c in columns:
                     per_col[c].append(m)
-            else:
-                for c in columns:
-                    m = _evaluate(ev, d, c, seed, (make_policy, params, sizes))
-                    for k in ("_p", "_truth", "_alive"):
-                        m.pop(k)
-                    per_col[c].append(m)
-                    log(
-                        f"[transfer] {variant:>8s} -> {c:<15s} return {m['return']:7.2f}"
-                        f" apex err {m['apex_error']:.3f} hops {m['hops']:.2f}"
-                        f" acc {m['accuracy']:.3f}  ({time.perf_counter() - t0:.0f} s)"
-                    )
+                continue
+            for c in columns:
+                m = cells_of.cell(d, c, seed, loaded)
+                per_col[c].append(m)
+                log(
+                    f"[transfer] {variant:>8s} -> {c:<15s} {cells_of.line(m)}"
+                    f"  ({time.perf_counter() - t0:.0f} s)"
+                )
         for c, ms in per_col.items():
             cells[variant][c] = {
                 k: {
@@ -283,9 +398,11 @@ def transfer_matrix(
                     "std": float(np.std([m[k] for m in ms])),
                     "per_seed": [m[k] for m in ms],
                 }
-                for k in METRICS
+                for k in cells_of.metrics
             }
     return {
+        "task": task,
+        "metrics": list(cells_of.metrics),
         "cells": cells,
         "columns": list(columns),
         "n_envs": n_envs,
@@ -305,7 +422,7 @@ def format_matrix(result: dict, metric: str = "return") -> str:
 
 
 def runs_under(root: str | Path, variants: Sequence[str] | None = None) -> dict[str, list[Path]]:
-    """``root/seed*/<variant>`` run folders (the layout of ``jax-contact train --task hop
+    """``root/seed*/<variant>`` run folders (the layout of ``jax-contact train --task TASK
     --seed S --out root/seedS``), per variant, in seed order.
 
     Raises:
@@ -328,8 +445,9 @@ def runs_under(root: str | Path, variants: Sequence[str] | None = None) -> dict[
 
 
 def main(argv: Sequence[str] | None = None) -> dict:
-    """``python -m jax_contact.train.transfer ROOT [--envs N] [--json FILE]``: the matrix of
-    every ``ROOT/seed*/<variant>`` run, printed per metric, written atomically as JSON."""
+    """``python -m jax_contact.train.transfer ROOT [--envs N] [--episode-length T] [--json
+    FILE]``: the matrix of every ``ROOT/seed*/<variant>`` run (hop or Go1, by their
+    run.json), printed per metric, written atomically as JSON."""
     import argparse
 
     from jax_contact.io import write_json_atomic
@@ -338,17 +456,28 @@ def main(argv: Sequence[str] | None = None) -> dict:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("root", help="folder of seed*/{none,truth,estimate} run folders")
     parser.add_argument("--envs", type=_positive_int, default=32, help="episodes per cell")
+    parser.add_argument(
+        "--episode-length",
+        type=_positive_int,
+        default=None,
+        help="env steps per episode (default: the runs' configuration's)",
+    )
     parser.add_argument("--seed", type=int, default=12345, help="seeds the episodes")
     parser.add_argument("--json", default=None, help="write the matrix here")
     args = parser.parse_args(argv)
     try:
         runs = runs_under(args.root)
+        tasks = {run_task(d) for dirs in runs.values() for d in dirs}
     except FileNotFoundError as err:
         parser.error(str(err))
+    if len(tasks) > 1:
+        parser.error(f"argument root: {args.root} holds runs of several tasks {sorted(tasks)}")
     enable_compilation_cache()
-    res = transfer_matrix(runs, n_envs=args.envs, seed=args.seed)
+    res = transfer_matrix(
+        runs, n_envs=args.envs, episode_length=args.episode_length, seed=args.seed
+    )
     res["runs"] = {v: [str(d) for d in dirs] for v, dirs in runs.items()}
-    for metric in METRICS:
+    for metric in res["metrics"]:
         print(f"\n{metric}\n{format_matrix(res, metric)}")
     if args.json:
         write_json_atomic(args.json, res)
