@@ -484,8 +484,9 @@ def train(
     from brax.training.agents.ppo import train as ppo_train
 
     from jax_contact.io import write_json_atomic, write_text_atomic
-    from jax_contact.train import figures, tasks
+    from jax_contact.train import _compat, figures, tasks
 
+    _compat.install()  # Brax's PPO on jax >= 0.10 (the GPU image's 0.11.2); no-op on the pin
     if variant not in VARIANTS:
         raise ValueError(f"variant must be one of {VARIANTS}, got {variant!r}")
     spec = tasks.get_task(task)

@@ -1,0 +1,330 @@
+"""The transfer matrix on Go1 joystick runs (issue 19): columns, latency, dispatch, CLI, shim.
+
+Cheap only: no rollout is compiled. The Go1 envs of the columns are built (their sensor
+models are read, nothing runs); the matrix's dispatch on ``run.json``'s ``task`` is
+checked with fake run folders and fake cell evaluators; the CLI's ``--column`` through its
+entry point and with a fake evaluator; the ``jax.device_put_replicated`` shim of
+``train/_compat.py`` against jax's own function on this CPU. The GPU run itself is
+``benchmarks/gpu_go1_transfer.sh`` (docs/training.md, "Transfer matrix on Go1").
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import subprocess
+import sys
+import types
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jax_contact.benchmarks import gpu_go1_transfer as G
+from jax_contact.envs import contact_params, sensors
+from jax_contact.train import _compat, cli, ppo, transfer
+
+ROOT = Path(__file__).resolve().parents[1]
+_ENTRY = Path(sys.executable).parent / "jax-contact"
+CLI = [str(_ENTRY)] if _ENTRY.exists() else [sys.executable, "-m", "jax_contact.train.cli"]
+
+
+# ------------------------------------------------------------------------- columns
+
+
+def test_column_setting_for_every_column():
+    assert transfer.COLUMNS == cli.COLUMNS == G.COLUMNS
+    want = {
+        "truth": ("truth", "anymal_like", 0),
+        "estimate": ("estimate", "anymal_like", 0),
+        "estimate_harsh": ("estimate", "harsh", 0),
+        "estimate_lat1": ("estimate", "anymal_like", 1),
+        "estimate_lat2": ("estimate", "anymal_like", 2),
+        "none": ("none", "anymal_like", 0),
+    }
+    assert {c: transfer.column_setting(c) for c in (*transfer.COLUMNS, "none")} == want
+    # The training preset is the run's: every column but estimate_harsh follows it.
+    assert transfer.column_setting("estimate_lat2", "ideal") == ("estimate", "ideal", 2)
+    assert transfer.column_setting("estimate_harsh", "ideal") == ("estimate", "harsh", 0)
+    with pytest.raises(ValueError, match="column must be one of .*'estimate_lat3'"):
+        transfer.column_setting("estimate_lat3")
+
+
+def _sensor(dt: float, latency: int) -> sensors.SensorParams:
+    return sensors.sensor_preset("anymal_like", 18, dt=dt).replace(latency=latency)
+
+
+def test_extra_latency_is_env_steps_in_sensor_steps():
+    # Go1 joystick: 20 ms env step, 4 ms physics step: 5 sensor steps per env step.
+    go1 = _sensor(0.004, 1)
+    assert contact_params.with_extra_latency(go1, 0, 0.02).latency == 1
+    assert contact_params.with_extra_latency(go1, 1, 0.02).latency == 1 + 5
+    assert contact_params.with_extra_latency(go1, 2, 0.02).latency == 1 + 10
+    # The hop task: 10 ms env step of 2.5 ms physics steps; the control rate: 1 per step.
+    assert contact_params.with_extra_latency(_sensor(0.0025, 1), 2, 0.01).latency == 1 + 8
+    assert contact_params.with_extra_latency(_sensor(0.02, 0), 3, 0.02).latency == 3
+    delayed = contact_params.with_extra_latency(go1, 2, 0.02)
+    np.testing.assert_array_equal(delayed.sigma_qd, go1.sigma_qd)  # only the delay changes
+    for bad in (-1, 1.5, True):
+        with pytest.raises(ValueError, match="extra_env_steps must be an int >= 0"):
+            contact_params.with_extra_latency(go1, bad, 0.02)
+    with pytest.raises(ValueError, match="env_dt .* whole number of sensor steps"):
+        contact_params.with_extra_latency(go1, 1, 0.021)
+
+
+def test_go1_columns_build_their_sensors():
+    """Each Go1 column's env (nothing compiled): observation slot, sensor preset, delay."""
+    envs = {c: ppo.column_env(c, ppo.SMALL) for c in transfer.COLUMNS}
+    est = envs["estimate"].contact_core.sensor
+    assert float(envs["estimate"].dt) == pytest.approx(0.02)
+    assert float(est.dt) == pytest.approx(0.004)  # the physics rate
+    assert est.latency == 1  # anymal_like's 2.5 ms at 4 ms steps, kept in seconds: 1 step
+    lat = {c: envs[c].contact_core.sensor.latency for c in transfer.COLUMNS}
+    # harsh: 3 steps of 2.5 ms = 7.5 ms -> 2 physics steps; latK: + 5 K physics steps.
+    assert lat == {
+        "truth": 1,
+        "estimate": 1,
+        "estimate_harsh": 2,
+        "estimate_lat1": 6,
+        "estimate_lat2": 11,
+    }
+    sigma = {c: float(envs[c].contact_core.sensor.sigma_qd[6]) for c in transfer.COLUMNS}
+    assert sigma["estimate_lat1"] == sigma["estimate_lat2"] == sigma["estimate"]
+    assert sigma["estimate_harsh"] == pytest.approx(2 * sigma["estimate"])
+    assert {c: envs[c].contact_core.cfg.observe for c in transfer.COLUMNS} == {
+        "truth": "truth",
+        **{c: "estimate" for c in transfer.COLUMNS[1:]},
+    }
+    assert {tuple(e.observation_size["state"]) for e in envs.values()} == {(52,)}
+
+
+# ----------------------------------------------------------------------- dispatch
+
+
+def _run_folder(path: Path, variant: str, task: str | None) -> Path:
+    path.mkdir(parents=True)
+    run = {"variant": variant, "config": dataclasses.asdict(ppo.SMALL)}
+    if task is not None:
+        run["task"] = task
+    (path / "run.json").write_text(json.dumps(run))
+    return path
+
+
+def test_evaluate_policy_dispatches_hop_runs_with_the_column(tmp_path, monkeypatch):
+    run = _run_folder(tmp_path / "truth", "truth", "hop")
+    seen = {}
+    monkeypatch.setattr(transfer, "evaluate_run", lambda d, **kw: seen.update(kw) or {"ok": 1})
+    assert ppo.evaluate_policy(run, column="estimate_harsh", n_envs=3) == {"ok": 1}
+    assert seen["column"] == "estimate_harsh" and seen["observe"] is None
+    assert seen["n_envs"] == 3
+    with pytest.raises(ValueError, match="observe or column, not both"):
+        ppo.evaluate_policy(run, observe="truth", column="estimate")
+    with pytest.raises(ValueError, match="observe must be one of"):
+        ppo.evaluate_policy(run, observe="estimate_harsh")
+    # No task in run.json is a Go1 run: it needs a checkpoint, not the hop evaluation.
+    go1 = _run_folder(tmp_path / "old" / "truth", "truth", None)
+    with pytest.raises(FileNotFoundError, match="no checkpoint"):
+        ppo.evaluate_policy(go1, column="estimate_lat1")
+
+
+class _FakeCells:
+    """A cell evaluator whose numbers say which run, seed and column they came from."""
+
+    metrics = ("return", "fell")
+    calls: list = []
+
+    def __init__(self, first_run, n_envs, episode_length):
+        self.kind = type(self).__name__
+        _FakeCells.calls.append(("init", self.kind, n_envs, episode_length))
+
+    def cell(self, run_dir, column, seed, loaded):
+        _FakeCells.calls.append((self.kind, run_dir.parent.name, run_dir.name, column))
+        s = int(run_dir.parent.name[4:])
+        c = (*transfer.COLUMNS, "none").index(column)
+        return {"return": 10.0 * s + c, "fell": 0.5 * s}
+
+    @staticmethod
+    def line(m):
+        return f"return {m['return']}"
+
+
+class _FakeGo1(_FakeCells):
+    pass
+
+
+class _FakeHop(_FakeCells):
+    pass
+
+
+@pytest.fixture
+def fake_cells(monkeypatch):
+    monkeypatch.setattr(transfer, "_CELLS", {"go1": _FakeGo1, "hop": _FakeHop})
+    monkeypatch.setattr(transfer, "_load", lambda d, makers: ("make_policy", d, {}))
+    _FakeCells.calls = []
+    return _FakeCells.calls
+
+
+def test_transfer_matrix_dispatches_on_the_runs_task(tmp_path, fake_cells):
+    runs = {
+        v: [
+            _run_folder(tmp_path / f"seed{s}" / v, v, None if s == 0 else "go1")  # absent: go1
+            for s in (0, 2)
+        ]
+        for v in ("none", "truth", "estimate")
+    }
+    res = transfer.transfer_matrix(runs, n_envs=5, episode_length=7, log=lambda m: None)
+    assert res["task"] == "go1" and res["metrics"] == ["return", "fell"]
+    assert fake_cells[0] == ("init", "_FakeGo1", 5, 7)
+    evaluated = fake_cells[1:]
+    # The none row: one evaluation per seed, in the "none" column, repeated in every column.
+    assert [c for c in evaluated if c[2] == "none"] == [
+        ("_FakeGo1", "seed0", "none", "none"),
+        ("_FakeGo1", "seed2", "none", "none"),
+    ]
+    assert len(evaluated) == 2 + 2 * 2 * len(transfer.COLUMNS)
+    none = res["cells"]["none"]
+    assert [none[c]["return"]["per_seed"] for c in transfer.COLUMNS] == [[5.0, 25.0]] * 5
+    lat2 = res["cells"]["estimate"]["estimate_lat2"]["return"]
+    assert lat2 == {"mean": 14.0, "std": 10.0, "per_seed": [4.0, 24.0]}
+    assert res["cells"]["truth"]["truth"]["fell"] == {"mean": 0.5, "std": 0.5, "per_seed": [0, 1]}
+
+
+def test_transfer_matrix_hop_runs_and_mixed_tasks(tmp_path, fake_cells):
+    hop = {v: [_run_folder(tmp_path / "seed1" / v, v, "hop")] for v in ("truth", "estimate")}
+    res = transfer.transfer_matrix(hop, columns=("estimate",), log=lambda m: None)
+    assert res["task"] == "hop" and {c[0] for c in fake_cells[1:]} == {"_FakeHop"}
+    assert res["cells"]["truth"]["estimate"]["return"]["per_seed"] == [11.0]
+    mixed = dict(hop, none=[_run_folder(tmp_path / "seed1" / "none", "none", None)])
+    with pytest.raises(ValueError, match=r"runs mixes tasks \['go1', 'hop'\]"):
+        transfer.transfer_matrix(mixed, log=lambda m: None)
+    with pytest.raises(ValueError, match="column must be one of"):
+        transfer.transfer_matrix(hop, columns=("estimate_lat9",), log=lambda m: None)
+
+
+def test_transfer_main_prints_the_go1_metrics(tmp_path, fake_cells, monkeypatch, capsys):
+    monkeypatch.setattr(cli, "enable_compilation_cache", lambda: None)
+    for v in ("none", "truth", "estimate"):
+        _run_folder(tmp_path / "seed0" / v, v, None)
+    res = transfer.main([str(tmp_path), "--envs", "3", "--json", str(tmp_path / "m.json")])
+    out = capsys.readouterr().out
+    assert "\nreturn\n| trained with | truth | estimate | estimate_harsh" in out
+    assert "| truth | 0.000 ± 0.000 | 1.000 ± 0.000 | 2.000 ± 0.000 |" in out
+    assert json.loads((tmp_path / "m.json").read_text())["cells"] == res["cells"]
+    _run_folder(tmp_path / "seed1" / "truth", "truth", "hop")
+    with pytest.raises(SystemExit):
+        transfer.main([str(tmp_path)])
+    assert "argument root:" in capsys.readouterr().err
+
+
+# ----------------------------------------------------------------------------- CLI
+
+
+@pytest.mark.parametrize(
+    "extra, names",
+    [
+        (["--observe", "truth", "--column", "estimate_harsh"], ["argument --column", "--observe"]),
+        (["--column", "estimate_lat3"], ["argument --column", "'estimate_lat3'"]),
+    ],
+)
+def test_policy_eval_column_errors_are_one_line(tmp_path, extra, names):
+    run = _run_folder(tmp_path / "truth", "truth", None)
+    res = subprocess.run(
+        CLI + ["policy-eval", str(run), *extra], capture_output=True, text=True, timeout=60
+    )
+    assert res.returncode == 2, (res.stdout, res.stderr)
+    errors = [line for line in res.stderr.splitlines() if "error:" in line]
+    assert len(errors) == 1 and errors[0].startswith("jax-contact policy-eval: error:")
+    for name in names:
+        assert name in errors[0], (name, errors[0])
+
+
+def test_policy_eval_passes_the_column(tmp_path, monkeypatch, capsys):
+    run = _run_folder(tmp_path / "truth", "truth", None)
+    seen = {}
+    contact = {"accuracy": 0.9, "f1": 0.8, "touchdown_delay_ms": [1.0, 2.0], "failures": 3}
+
+    def fake(run_dir, **kw):
+        seen.update(kw, run_dir=run_dir)
+        return {
+            "trained_with": "truth",
+            "observed": kw["column"],
+            "return_mean": 1.5,
+            "return_std": 0.5,
+            "episode_length_mean": 20.0,
+            "fell": 0.25,
+            "contact": dict(contact, brier=0.1),
+        }
+
+    monkeypatch.setattr(ppo, "evaluate_policy", fake)
+    monkeypatch.setattr(cli, "enable_compilation_cache", lambda: None)
+    assert cli.main(["policy-eval", str(run), "--column", "estimate_lat2", "--envs", "2"]) == 0
+    assert seen == {
+        "run_dir": str(run),
+        "observe": None,
+        "column": "estimate_lat2",
+        "n_envs": 2,
+        "seed": 12345,
+    }
+    assert "truth  estimate_lat2     1.50 +-  0.50       20.0  0.25" in capsys.readouterr().out
+
+
+# ------------------------------------------------------------------- the GPU script
+
+
+def test_gpu_script_budget_and_merge():
+    full = G.config_for("full", 6)
+    unit = 5 * 10 * 256 * 32 * 20  # epochs x resets per eval x training step = 8,192,000
+    assert G.budget_timesteps(full, 16_000_000) == 2 * unit
+    assert G.budget_timesteps(full, 1) == unit
+    assert ppo.brax_timesteps(dataclasses.replace(full, num_timesteps=2 * unit)) == 2 * unit
+
+    def cell(v):
+        return {"return": {"mean": v, "std": 0.0, "per_seed": [v]}}
+
+    parts = [
+        {"task": "go1", "metrics": ["return"], "cells": {"none": {"truth": cell(1.0)}}},
+        {"task": "go1", "metrics": ["return"], "cells": {"truth": {"estimate": cell(2.0)}}},
+        {"cells": {"truth": {"truth": cell(3.0)}, "estimate": {"truth": cell(4.0)}}},
+    ]
+    m = G.merge_parts(parts, ["truth", "estimate"])
+    assert m["cells"]["none"] == {"truth": cell(1.0), "estimate": cell(1.0)}
+    assert m["cells"]["truth"] == {"truth": cell(3.0), "estimate": cell(2.0)}
+    assert m["missing"] == ["estimate/estimate"]
+    assert m["task"] == "go1" and m["metrics"] == ["return"]
+
+
+# ---------------------------------------------------------------------------- shim
+
+
+def test_device_put_replicated_shim_equals_jax():
+    """On the pinned jax (0.9) the shim is not installed; where it would be, it gives what
+    jax's own function gives, also through a pmap."""
+    devices = jax.local_devices()
+    tree = {
+        "w": jnp.arange(6.0, dtype=jnp.float32).reshape(2, 3),
+        "step": jnp.int32(7),
+        "key": jax.random.PRNGKey(3),
+    }
+    got = _compat.device_put_replicated(tree, devices)
+    want = jax.device_put_replicated(tree, devices)
+    for k in tree:
+        assert got[k].shape == want[k].shape == (len(devices),) + tree[k].shape
+        assert got[k].dtype == want[k].dtype
+        np.testing.assert_array_equal(np.asarray(got[k]), np.asarray(want[k]))
+        assert got[k].sharding.device_set == set(devices)
+    f = jax.pmap(lambda t: jax.tree.map(lambda x: x * 2 + 1, t))
+    for a, b in zip(jax.tree.leaves(f(got)), jax.tree.leaves(f(want)), strict=True):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    with pytest.raises(ValueError, match="non-empty sequence"):
+        _compat.device_put_replicated(tree, [])
+
+
+def test_install_only_where_jax_lacks_it(monkeypatch):
+    assert _compat.install() is False  # the pinned jax has its own
+    assert jax.device_put_replicated is not _compat.device_put_replicated
+    fake = types.SimpleNamespace()  # a jax without it (0.10 and later)
+    monkeypatch.setattr(_compat, "jax", fake)
+    assert _compat.install() is True
+    assert fake.device_put_replicated is _compat.device_put_replicated
