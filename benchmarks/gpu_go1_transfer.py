@@ -40,6 +40,7 @@ import argparse
 import dataclasses
 import json
 import os
+import re
 import subprocess
 import sys
 import tarfile
@@ -50,6 +51,7 @@ from pathlib import Path
 COLUMNS = ("truth", "estimate", "estimate_harsh", "estimate_lat1", "estimate_lat2")
 VARIANTS = ("none", "truth", "estimate")
 _MODULE = "jax_contact.benchmarks.gpu_go1_transfer"
+_STEP_LINE = re.compile(r"\] step +([0-9,]+)/")  # ppo.train's line of an evaluation
 
 
 class DeadlineReached(Exception):
@@ -127,6 +129,26 @@ def _wait(procs: list[subprocess.Popen], deadline: float | None) -> list[int | N
 # -------------------------------------------------------------------------- children
 
 
+def deadline_log(stop_at: float | None, out=print):
+    """A ``log`` for :func:`jax_contact.train.ppo.train` that stops training at a deadline.
+
+    ``ppo.train`` logs one ``[variant] step N/...`` line per evaluation, after Brax has
+    saved that evaluation's checkpoint; the first such line with N > 0 after ``stop_at``
+    (``time.time()``) raises :class:`DeadlineReached` through Brax's loop, leaving that
+    checkpoint the latest. Step 0 (the evaluation before training) has no checkpoint, so
+    it never stops there. None: never.
+    """
+
+    def log(msg: str) -> None:
+        out(msg, flush=True)
+        m = _STEP_LINE.search(msg)
+        if stop_at is not None and m and int(m.group(1).replace(",", "")) > 0:
+            if time.time() > stop_at:
+                raise DeadlineReached(msg)
+
+    return log
+
+
 def _train_child(args: argparse.Namespace) -> int:
     """One (variant, seed) training run; stops at an evaluation after ``--stop-at``."""
     from jax_contact.train import cli, ppo
@@ -134,13 +156,7 @@ def _train_child(args: argparse.Namespace) -> int:
     cli.enable_compilation_cache()
     cfg = config_for(args.config, args.num_evals)
     cfg = dataclasses.replace(cfg, num_timesteps=args.timesteps)
-    stop_at = args.stop_at
-
-    def log(msg: str) -> None:
-        print(msg, flush=True)
-        if stop_at and time.time() > stop_at and "] step " in msg:
-            raise DeadlineReached(msg)
-
+    log = deadline_log(args.stop_at)
     t0 = time.perf_counter()
     try:
         ppo.train(args.variant, cfg, Path(args.runs) / f"seed{args.seed}", seed=args.seed, log=log)

@@ -14,6 +14,7 @@ import dataclasses
 import json
 import subprocess
 import sys
+import time
 import types
 from pathlib import Path
 
@@ -293,6 +294,19 @@ def test_gpu_script_budget_and_merge():
     assert m["cells"]["truth"] == {"truth": cell(3.0), "estimate": cell(2.0)}
     assert m["missing"] == ["estimate/estimate"]
     assert m["task"] == "go1" and m["metrics"] == ["return"]
+
+
+def test_gpu_script_deadline_stops_only_at_an_evaluation_after_it():
+    lines = []
+    late = G.deadline_log(time.time() - 1.0, out=lambda m, flush: lines.append(m))
+    late("[truth] training Go1JoystickFlatTerrain, ...; compiling ...")  # not an evaluation
+    late("[truth] step          0/16,384,000  return 1.00")  # before training: no checkpoint
+    with pytest.raises(G.DeadlineReached, match="step 3,276,800"):
+        late("[truth] step 3,276,800/16,384,000  return 1.00")
+    on_time = G.deadline_log(time.time() + 3600.0, out=lambda m, flush: lines.append(m))
+    on_time("[truth] step  3,276,800/16,384,000  return 1.00")
+    G.deadline_log(None, out=lambda m, flush: lines.append(m))("[none] step 0/320")
+    assert len(lines) == 5  # every line is still printed
 
 
 # ---------------------------------------------------------------------------- shim
