@@ -390,6 +390,16 @@ def test_shipped_presets_load_by_name_with_their_provenance(name):
     assert (lo, hi) == jt.STANCE_TIME_BOUNDS and lo <= float(params.stance_time) <= hi
     assert prov["config"]["event_weight"] > 0 and "air phases" in prov["loss"]
     assert len(prov["code"]["commit"]) == 40
+    # Tuned with the sensor floor: no std below what the anymal_like sensors alone give,
+    # recomputed here from the sensor model (not read from the file).
+    from jax_contact.envs.robots import load_robot
+    from jax_contact.train.tune_cmd import sensor_floor
+
+    floor = sensor_floor(load_robot(name), 0.0025, "anymal_like")
+    assert prov["noise_floor"] is not None
+    for field, values in floor.items():
+        got = np.asarray(getattr(params.noise, field))
+        assert np.all(got >= values * (1 - 1e-5)), (field, got / values)
 
 
 def test_fit_calibration_stays_finite_when_logits_sit_at_their_bounds(np_rng):
