@@ -24,8 +24,12 @@ Robustness (docs/model_choices.md, "Robust likelihoods"): the outlier component'
 (an outlier of any of the leg's ``n_l`` joints spikes two differenced accelerations),
 never below 1 % because a real robot's outliers are never known exactly; its widths from
 the outlier spike (``2 size / dt`` for accelerations, 8000 rad/s^2 when the sensors model
-none) and 4 m/s for foot velocities. Caps: 0.99 dynamics, 0.9 / 0.7 differential
+none) and 4 m/s for foot velocities. Caps: 0.99 dynamics, 0.9 / 0.65 differential
 kinematics (air / still), 0.99 kinematics, 0.9 transitions.
+
+The newest reading (docs/model_choices.md, "The newest reading for the kinematic terms"):
+``kinematics_lead = 1``, the kinematic terms and the transitions read the foot at the end
+of the interval whose acceleration the dynamics term reads, one step newer.
 
 Contact (docs/model_choices.md, "Stabilised contact"): the dynamics term's contact
 hypothesis brings a foot moving into the ground to rest at the rate
@@ -219,12 +223,13 @@ def params_for(
         touchdown="quadrature",
         cap_dynamics=0.99,
         cap_diff_kinematics=0.9,
-        cap_diff_kinematics_still=0.7,
+        cap_diff_kinematics_still=0.65,
         cap_kinematics=0.99,
         cap_transition=0.9,
         outlier_prob=float(np.clip(2 * n_l * float(s["outlier_prob"]), 0.01, 0.5)),
         outlier_qdd=2.0 * spike / dt if spike > 0 else 8000.0,
         outlier_v=4.0,
         contact_damping=2.0 / float(contact_timeconst),
+        kinematics_lead=1.0,
     )
     return make_params(noise, **(kw | overrides))

@@ -19,7 +19,12 @@ import jax
 import jax.numpy as jnp
 
 from jax_contact._math import logit as logit_of
-from jax_contact.measurement import leg_blocks, measurement_terms, robot_leg_blocks
+from jax_contact.measurement import (
+    end_of_interval,
+    leg_blocks,
+    measurement_terms,
+    robot_leg_blocks,
+)
 from jax_contact.params import EstimatorParams
 from jax_contact.transition import log_prior_transition, log_transition_matrix
 from jax_contact.types import (
@@ -107,7 +112,9 @@ def _update(
 ) -> tuple[LegBelief, Diagnostics]:
     """:func:`step` from the foot's split measurement and whether all of it was finite."""
     leg = _sanitize(leg, valid)
-    tq = terrain.query(leg.p_f, belief.foothold, belief.foothold_valid)
+    # The kinematic terms, the transitions and the foothold read the newest state.
+    kin = end_of_interval(params, leg)
+    tq = terrain.query(kin.p_f, belief.foothold, belief.foothold_valid)
 
     # eq. 1, the sum over the previous state, in log space.
     log_b_prev = jnp.stack([jax.nn.log_sigmoid(belief.logit), jax.nn.log_sigmoid(-belief.logit)])
@@ -115,7 +122,7 @@ def _update(
     prior_logit = log_prior[0] - log_prior[1]
 
     # eq. 3: the product of the terms is the sum of their log-likelihood ratios.
-    terms = measurement_terms(params, leg, tq)
+    terms = measurement_terms(params, leg, tq, kin)
     llr = sum(getattr(terms, name) for name in params.terms)
     # A term that is not finite on finite inputs (a numerical failure, e.g. a singular
     # leg) is no evidence: the belief keeps its prior and the step is reported invalid,
@@ -125,7 +132,7 @@ def _update(
 
     log_t = log_prior_transition(params)
     if params.transition_model:
-        log_t_meas = log_transition_matrix(params, leg, tq, key=key)
+        log_t_meas = log_transition_matrix(params, kin, tq, key=key)
         log_t = jnp.where(valid & jnp.all(~jnp.isnan(log_t_meas)), log_t_meas, log_t)
 
     # The foothold memory stores only confident, still stance: a false contact in the air
@@ -133,7 +140,7 @@ def _update(
     on_ground = valid & (logit > logit_of(params.foothold_confidence))
     if params.foothold_still:
         on_ground = on_ground & (terms.diff_kinematics > 0.0)
-    sole = leg.p_f - leg.foot_radius * tq.normal
+    sole = kin.p_f - kin.foot_radius * tq.normal
     new_belief = LegBelief(
         logit=logit,
         log_transition=log_t,

@@ -229,6 +229,26 @@ def diff_kinematics_llr(params: EstimatorParams, meas: LegMeasurement | LegBlock
     return cap_llr(llr, params.cap_diff_kinematics, params.cap_diff_kinematics_still)
 
 
+@jax.named_call
+def end_of_interval(params: EstimatorParams, leg: LegBlocks) -> LegBlocks:
+    """One foot's blocks moved ``kinematics_lead`` of the way to the end of the measured
+    interval (1: the newest reading).
+
+    The delayed pairing gives the estimator the state ``(q_k, qd_k)`` that the acceleration
+    ``qdd_k`` and torque ``tau_k`` belong to, one reading old. The velocity at the end of
+    the interval is ``qd_k + dt qdd_k`` (for a differenced acceleration exactly the newest
+    measured velocity), so the foot's is ``v_f + dt (J qdd + Jdot qd)`` and its position,
+    after one semi-implicit Euler step, ``p_f + dt v_f'``; ``J`` is kept (it changes by
+    O(dt)). The kinematic terms and the transitions read this state, one step newer than
+    the dynamics term's (docs/model_choices.md); ``kinematics_lead`` 0 returns the
+    blocks' values unchanged.
+    """
+    dt = params.kinematics_lead * params.dt
+    a_f = leg.J_l @ leg.qdd_l + leg.J_b @ leg.qdd_b + leg.Jdot_qd
+    v_end = leg.v_f + dt * a_f
+    return leg.replace(v_f=v_end, p_f=leg.p_f + dt * v_end, qd_b=leg.qd_b + dt * leg.qdd_b)
+
+
 def sole_gap(
     params: EstimatorParams, meas: LegMeasurement | LegBlocks, terrain: TerrainQuery
 ) -> tuple[jax.Array, jax.Array]:
@@ -272,14 +292,24 @@ def kinematics_llr(
 
 
 def measurement_terms(
-    params: EstimatorParams, meas: LegMeasurement | LegBlocks, terrain: TerrainQuery
+    params: EstimatorParams,
+    meas: LegMeasurement | LegBlocks,
+    terrain: TerrainQuery,
+    kin: LegBlocks | None = None,
 ) -> MeasurementTerms:
-    """All three capped terms of eq. 3 for one foot."""
+    """All three capped terms of eq. 3 for one foot.
+
+    Args:
+      kin: the blocks the kinematic terms read, :func:`end_of_interval` of ``meas`` when
+        None.
+    """
     meas = leg_blocks(params, meas)
+    if kin is None:
+        kin = end_of_interval(params, meas)
     dyn, force = dynamics_llr(params, meas, terrain.normal)
     return MeasurementTerms(
         dynamics=dyn,
-        diff_kinematics=diff_kinematics_llr(params, meas),
-        kinematics=kinematics_llr(params, meas, terrain),
+        diff_kinematics=diff_kinematics_llr(params, kin),
+        kinematics=kinematics_llr(params, kin, terrain),
         force=force,
     )

@@ -115,6 +115,12 @@ class EstimatorParams:
         ``P(phi <= 0) / P(phi > 0)``, which reads a sole estimated below the plane (base
         height drift) as contact evidence.
       foothold_still: static; see ``foothold_confidence``.
+      kinematics_lead: () in [0, 1], the fraction of the measured interval by which the
+        state that the differential-kinematics and kinematics terms, the transitions and
+        the foothold memory read is advanced: 1 reads the foot at the *end* of the
+        interval (the newest reading, ``qd + dt qdd``), while the dynamics term keeps the
+        state its acceleration belongs to (docs/model_choices.md, "The newest reading for
+        the kinematic terms"); 0 reads every term at the interval's start (the paper).
     """
 
     noise: NoiseParams
@@ -134,6 +140,7 @@ class EstimatorParams:
     inv_damping: jnp.ndarray
     initial_contact: jnp.ndarray
     contact_damping: jnp.ndarray
+    kinematics_lead: jnp.ndarray
     n_samples: int = struct.field(pytree_node=False, default=500)
     touchdown: str = struct.field(pytree_node=False, default="monte_carlo")
     n_quad: int = struct.field(pytree_node=False, default=8)
@@ -254,6 +261,7 @@ def make_params(
     transition_model: bool = True,
     kinematics_neutral_below: bool = True,
     foothold_still: bool = True,
+    kinematics_lead: float = 0.0,
 ) -> EstimatorParams:
     """Builds and validates :class:`EstimatorParams`.
 
@@ -286,6 +294,7 @@ def make_params(
         inv_damping=jnp.float32(inv_damping),
         initial_contact=jnp.float32(initial_contact),
         contact_damping=jnp.float32(contact_damping),
+        kinematics_lead=jnp.float32(kinematics_lead),
         n_samples=n_samples,
         touchdown=touchdown,
         n_quad=n_quad,
@@ -342,6 +351,9 @@ def validate_params(params: EstimatorParams) -> None:
     v = np.asarray(params.contact_damping)
     if v.shape != () or not np.isfinite(v) or v < 0:
         raise ValueError(f"contact_damping must be a finite scalar >= 0 (1/s), got {v!r}")
+    v = np.asarray(params.kinematics_lead)
+    if v.shape != () or not (0.0 <= float(v) <= 1.0):
+        raise ValueError(f"kinematics_lead must lie in [0, 1], got {v!r}")
     v = np.asarray(params.initial_contact)
     if v.shape != () or not (0.0 < float(v) < 1.0):
         raise ValueError(f"initial_contact must lie in (0, 1), got {v!r}")

@@ -80,6 +80,7 @@ class Params:
     kinematics_neutral_below: bool = True
     foothold_still: bool = True
     contact_damping: float = 0.0
+    kinematics_lead: float = 0.0
 
 
 @dataclasses.dataclass
@@ -315,6 +316,28 @@ def _along(e, J, sigma):
         je = e[0] * J[0, k] + e[1] * J[1, k] + e[2] * J[2, k]
         acc += je * je * sigma[k] ** 2
     return math.sqrt(acc)
+
+
+def end_of_interval(p: Params, m: Meas) -> Meas:
+    """The foot read ``kinematics_lead`` of the way to the end of the measured interval.
+
+    Written out from the semi-implicit Euler step over ``h = lead dt``: every coordinate's
+    velocity ``qd_i + h qdd_i``; the foot's velocity is the Jacobian times that, plus the
+    velocity-product term over the step, ``v_f + h (sum_k J_ik qdd_k + Jdot_qd_i)``; its
+    position ``p_f + h v_f'``. ``J``, ``M`` and the rest are kept.
+    """
+    h = p.kinematics_lead * p.dt
+    nv = m.J.shape[1]
+    qd = np.array([m.qd[k] + h * m.qdd[k] for k in range(nv)])
+    v = np.zeros(3)
+    pos = np.zeros(3)
+    for i in range(3):
+        acc = m.Jdot_qd[i]
+        for k in range(nv):
+            acc += m.J[i, k] * m.qdd[k]
+        v[i] = m.v_f[i] + h * acc
+        pos[i] = m.p_f[i] + h * v[i]
+    return dataclasses.replace(m, qd=qd, v_f=v, p_f=pos)
 
 
 def sole_gap(p: Params, m: Meas, tq: Query) -> tuple[float, float]:
@@ -553,18 +576,20 @@ def step(p: Params, terrain, b: Belief, m: Meas, td_fn=touchdown):
             takeoff_scale=1.0,
         )
         return new, diag
-    tq = terrain.query(m.p_f, b.foothold, b.foothold_valid)
+    # The dynamics term reads the interval's start, everything else the foot at its end.
+    k = end_of_interval(p, m)
+    tq = terrain.query(k.p_f, b.foothold, b.foothold_valid)
     l_dyn, force, _ = dynamics(p, m, tq.normal)
-    l_dk = diff_kinematics(p, m)
-    l_k = kinematics(p, m, tq)
+    l_dk = diff_kinematics(p, k)
+    l_k = kinematics(p, k, tq)
     # eq. 2: alpha(C) / alpha(A) = prior(C) L(C) / (prior(A) L(A)).
     logit = prior_logit + l_dyn + l_dk + l_k
-    log_t = transition(p, m, tq, td_fn)
-    u, s_v = normal_velocity(p, m, tq.normal)
+    log_t = transition(p, k, tq, td_fn)
+    u, s_v = normal_velocity(p, k, tq.normal)
     takeoff_scale = float(np.abs(takeoff_joint(p, u, s_v)).max())
     still = (not p.foothold_still) or l_dk > 0.0
     if logit > _logit(p.foothold_confidence) and still:
-        foothold, fvalid = m.p_f - m.foot_radius * tq.normal, True
+        foothold, fvalid = k.p_f - k.foot_radius * tq.normal, True
     else:
         foothold, fvalid = b.foothold.copy(), b.foothold_valid
     new = Belief(logit, log_t, foothold, fvalid)
@@ -772,6 +797,9 @@ def random_case(rng, nv: int, n_l: int, force_rows=(0, 1, 2), stance: bool | Non
     # half the cases keep the paper's rigid constraint.
     sub2 = np.random.default_rng([int(abs(x) * 1e9 + 7) % 2**32 for x in p_f])
     scalars["contact_damping"] = float(_logu(sub2, 10.0, 400.0)) if sub2.integers(2) else 0.0
+    # The kinematic terms' lead, likewise: the interval's start, its end, or between.
+    sub3 = np.random.default_rng([int(abs(x) * 1e9 + 11) % 2**32 for x in p_f])
+    scalars["kinematics_lead"] = float(sub3.choice([0.0, 1.0, sub3.uniform()]))
     return dict(meas=meas, terrain=terrain, noise=noise, scalars=scalars)
 
 

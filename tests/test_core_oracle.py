@@ -37,7 +37,7 @@ from jax_contact import (
     make_params,
     step_batch,
 )
-from jax_contact.measurement import sole_gap
+from jax_contact.measurement import end_of_interval, leg_blocks, sole_gap
 from jax_contact.transition import normal_velocity
 
 # (nv, leg dofs, force_rows, unilateral): 3-dof legs in models of 8 and 18 velocities, the
@@ -192,6 +192,7 @@ def _cases(name: str):
 
 
 def _terms(params, meas, tq):
+    end = end_of_interval(params, leg_blocks(params, meas))
     dyn, force = dynamics_llr(params, meas, tq.normal)
     gap, sigma_pf = sole_gap(params, meas, tq)
     u, sigma_v = normal_velocity(params, meas, tq.normal)
@@ -205,6 +206,9 @@ def _terms(params, meas, tq):
         u=u,
         sigma_v=sigma_v,
         log_takeoff=log_takeoff(params, u, sigma_v),
+        v_end=end.v_f,
+        p_end=end.p_f,
+        llr_diff_kinematics_end=diff_kinematics_llr(params, end),
     )
 
 
@@ -244,6 +248,9 @@ def _oracle_terms(name):
             sigma_v=s_v,
             log_takeoff=oracle.takeoff(p, u, s_v),
             takeoff_scale=np.abs(oracle.takeoff_joint(p, u, s_v)).max(),
+            v_end=oracle.end_of_interval(p, m).v_f,
+            p_end=oracle.end_of_interval(p, m).p_f,
+            llr_diff_kinematics_end=oracle.diff_kinematics(p, oracle.end_of_interval(p, m)),
         )
         for k, v in row.items():
             out[k].append(v)
@@ -256,6 +263,10 @@ def _compare_terms(name, dtype, tol):
     assert got["llr_dynamics"].dtype == np.dtype(dtype)
     for q in ("llr_dynamics", "llr_diff_kinematics", "llr_kinematics"):
         _check(q, dtype, got[q], ref[q], tol[q])
+    _check("llr_diff_kinematics_end", dtype, got["llr_diff_kinematics_end"],
+           ref["llr_diff_kinematics_end"], tol["llr_diff_kinematics"])  # fmt: skip
+    for q in ("v_end", "p_end"):
+        _check(q, dtype, got[q], ref[q], tol["gap"])
     for q in ("gap", "sigma_pf", "u", "sigma_v"):
         _check(q, dtype, got[q], ref[q], tol[q])
     scale = np.maximum(np.abs(ref["force"]).max(axis=1, keepdims=True), 1.0)
@@ -543,6 +554,9 @@ def _seq_params(capped: bool):
     caps = (0.99, 0.9, 0.99) if capped else (1.0, 1.0, 1.0)
     for k, c in zip(("cap_dynamics", "cap_diff_kinematics", "cap_kinematics"), caps, strict=True):
         base["scalars"][k] = float(np.float32(c))
+    # The library's default reads the kinematic terms at the interval's end; the uncapped
+    # (paper) run reads every term at its start.
+    base["scalars"]["kinematics_lead"] = 1.0 if capped else 0.0
     _, _, rows, uni = CONFIGS[SEQ_CONFIG]
     return _params(base, rows, uni, touchdown="quadrature"), _oracle_params(base, rows, uni)
 

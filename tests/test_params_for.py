@@ -145,18 +145,23 @@ def test_contact_damping_from_the_contact_time_constant(go1):
         jc.params_for(go1, sp, DT, contact_timeconst=0.0)
 
 
-def test_a_file_written_before_a_later_field_loads_with_the_old_model(go1, tmp_path):
+@pytest.mark.parametrize("later", ["contact_damping", "kinematics_lead"])
+def test_a_file_written_before_a_later_field_loads_with_the_old_model(go1, tmp_path, later):
     """A version-1 file without ``contact_damping`` (written before the stabilised contact)
-    loads with 0, the rigid contact it was written with; every other field is unchanged."""
+    loads with 0, the rigid contact it was written with; one without ``kinematics_lead``
+    (before the kinematic terms read the newest reading) with 0, every term at the
+    interval's start. Every other field is unchanged."""
     sp = sensor_preset("anymal_like", go1.nv, dt=DT)
     payload = jc.io.params_to_dict(jc.params_for(go1, sp, DT))
+    assert payload["values"][later] > 0.0  # the default is not the old model
     old = json.loads(json.dumps(payload))
-    del old["values"]["contact_damping"]
+    del old["values"][later]
     path = tmp_path / "old.json"
     path.write_text(json.dumps(old))
     q = jc.io.params_to_dict(jc.load_params(path))
-    assert q["values"].pop("contact_damping") == 0.0
-    payload["values"].pop("contact_damping")
+    assert q["values"].pop(later) == 0.0
+    payload["values"].pop(later)
     assert q["values"] == payload["values"] and q["noise"] == payload["noise"]
-    for name in jc.preset_names():  # the shipped presets predate it
-        jc.load_params(name)
+    for name in jc.preset_names():  # the shipped presets predate the lead: its old model
+        lead = float(jc.load_params(name).kinematics_lead)
+        assert lead == 0.0 if later == "kinematics_lead" else lead in (0.0, 1.0)

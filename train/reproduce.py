@@ -138,10 +138,11 @@ def paper_model(params: jc.EstimatorParams) -> jc.EstimatorParams:
     """``params`` with every robustness change of docs/model_choices.md undone: pure
     Gaussian terms, uncapped transitions, the symmetric 0.9 cap on differential kinematics,
     the two-sided kinematics ratio, the foothold written whenever P(C) > 0.5, MODEL.md's
-    a_F = 200 m/s^2 and the rigid contact constraint of eq. 6 (the paper's model with this
-    library's noise)."""
+    a_F = 200 m/s^2, the rigid contact constraint of eq. 6 and every term at the interval's
+    start (the paper's model with this library's noise)."""
     return params.replace(
         contact_damping=_f32(0.0),
+        kinematics_lead=_f32(0.0),
         outlier_prob=_f32(0.0),
         cap_transition=_f32(1.0),
         cap_diff_kinematics_still=params.cap_diff_kinematics,
@@ -164,7 +165,8 @@ def ablation_variants(base: jc.EstimatorParams) -> dict[str, jc.EstimatorParams]
         "two_sided_kinematics": base.replace(kinematics_neutral_below=False),
         "a_F_200": base.replace(takeoff_accel=_f32(200.0)),
         "rigid_contact": base.replace(contact_damping=_f32(0.0)),
-        "dkin_still_0.75": base.replace(cap_diff_kinematics_still=_f32(0.75)),
+        "kinematics_at_start": base.replace(kinematics_lead=_f32(0.0)),
+        "dkin_still_0.7": base.replace(cap_diff_kinematics_still=_f32(0.7)),
         "no_transition_model": base.replace(transition_model=False),
         "dynamics_only": base.replace(terms=("dynamics",)),
         "diff_kinematics_only": base.replace(terms=("diff_kinematics",)),
@@ -419,7 +421,8 @@ ABLATION_ROWS = (
     "two_sided_kinematics",
     "a_F_200",
     "rigid_contact",
-    "dkin_still_0.75",
+    "kinematics_at_start",
+    "dkin_still_0.7",
     "no_transition_model",
     "dynamics_only",
     "diff_kinematics_only",
