@@ -24,8 +24,13 @@ Robustness (docs/model_choices.md, "Robust likelihoods"): the outlier component'
 (an outlier of any of the leg's ``n_l`` joints spikes two differenced accelerations),
 never below 1 % because a real robot's outliers are never known exactly; its widths from
 the outlier spike (``2 size / dt`` for accelerations, 8000 rad/s^2 when the sensors model
-none) and 4 m/s for foot velocities. Caps: 0.99 dynamics, 0.9 / 0.65 differential
-kinematics (air / still), 0.99 kinematics, 0.9 transitions.
+none) and 4 m/s for foot velocities. Caps: 0.99 dynamics, 0.9 differential kinematics on
+the air side, 0.99 kinematics, 0.9 transitions. The still side of differential kinematics
+is a rate of evidence, not a per-step value: :data:`STILL_EVIDENCE_PER_S` log-odds per
+second (0.65 per step at 400 Hz, where it was chosen), so ``logit(cap) = rate x dt``, at
+most the air side's cap (0.62 at 2 ms, 0.73 at 4 ms, 0.9 at a 20 ms control rate): a slow
+swing foot looks still for a *time*, however many readings that is, and a standing foot
+must be confirmed in a time that does not grow with the period.
 
 The newest reading (docs/model_choices.md, "The newest reading for the kinematic terms"):
 ``kinematics_lead = 1``, the kinematic terms and the transitions read the foot at the end
@@ -45,6 +50,22 @@ import dataclasses
 import numpy as np
 
 from jax_contact.params import EstimatorParams, make_noise, make_params
+
+# The differential-kinematics term's still-side evidence per second: logit(0.65) per 2.5 ms
+# step, chosen at 400 Hz on Go1's tuning seed (docs/model_choices.md).
+STILL_EVIDENCE_PER_S = float(np.log(0.65 / 0.35) / 0.0025)
+CAP_DIFF_KINEMATICS = 0.9
+
+
+def still_cap(dt: float) -> float:
+    """The still-side cap of the differential-kinematics term at period ``dt`` (s):
+    ``sigmoid(STILL_EVIDENCE_PER_S dt)``, at most :data:`CAP_DIFF_KINEMATICS`."""
+    logit = min(
+        STILL_EVIDENCE_PER_S * float(dt),
+        float(np.log(CAP_DIFF_KINEMATICS / (1 - CAP_DIFF_KINEMATICS))),
+    )
+    return float(1.0 / (1.0 + np.exp(-logit)))
+
 
 _SENSOR_VECTORS = (
     "sigma_q",
@@ -222,8 +243,8 @@ def params_for(
         force_rows=tuple(force_rows),
         touchdown="quadrature",
         cap_dynamics=0.99,
-        cap_diff_kinematics=0.9,
-        cap_diff_kinematics_still=0.65,
+        cap_diff_kinematics=CAP_DIFF_KINEMATICS,
+        cap_diff_kinematics_still=still_cap(dt),
         cap_kinematics=0.99,
         cap_transition=0.9,
         outlier_prob=float(np.clip(2 * n_l * float(s["outlier_prob"]), 0.01, 0.5)),

@@ -165,3 +165,21 @@ def test_a_file_written_before_a_later_field_loads_with_the_old_model(go1, tmp_p
     for name in jc.preset_names():  # the shipped presets predate the lead: its old model
         lead = float(jc.load_params(name).kinematics_lead)
         assert lead == 0.0 if later == "kinematics_lead" else lead in (0.0, 1.0)
+
+
+def test_still_side_cap_is_a_rate_of_evidence(go1):
+    """The still side of differential kinematics gives the same evidence per second at any
+    period: logit(cap) = logit(0.65) dt / 2.5 ms, at most the air side's 0.9. By hand: at
+    5 ms the odds square, (0.65 / 0.35)^2 = 3.449, cap 3.449 / 4.449 = 0.7752; at 1.25 ms
+    the square root, sqrt(1.857) = 1.3628, cap 0.5768; at 10 ms the odds would be
+    11.9 > 9, so 0.9."""
+    from jax_contact.defaults import still_cap
+
+    assert still_cap(0.0025) == pytest.approx(0.65, abs=1e-12)
+    assert still_cap(0.005) == pytest.approx(0.7752, abs=1e-4)
+    assert still_cap(0.00125) == pytest.approx(0.5768, abs=1e-4)
+    assert still_cap(0.01) == pytest.approx(0.9, abs=1e-12)
+    for dt, want in ((0.0025, 0.65), (0.02, 0.9)):
+        sp = sensor_preset("anymal_like", go1.nv, dt=dt)
+        got = float(jc.params_for(go1, sp, dt).cap_diff_kinematics_still)
+        assert got == pytest.approx(want, abs=1e-6)
