@@ -29,8 +29,9 @@ lint: $(STAMP)
 clean:
 	rm -rf $(VENV) out .pytest_cache
 
-# JAX's persistent compilation cache of the CLI and the tests (train/cli.py); `make demo`
-# and `make test` fill it, a second run loads from it. Safe to delete at any time.
+# JAX's persistent compilation cache of the CLI and the tests (train/cli.py; one subfolder
+# per CPU feature set); `make demo` and `make test` fill it, a second run loads from it.
+# Safe to delete at any time.
 JAX_CONTACT_CACHE_DIR ?= $(or $(XDG_CACHE_HOME),$(HOME)/.cache)/jax-contact/xla
 clean-cache:
 	rm -rf "$(JAX_CONTACT_CACHE_DIR)"

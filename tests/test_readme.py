@@ -451,5 +451,20 @@ def test_the_cli_cache_folder_is_configurable(tmp_path):
     assert folder.is_dir()
     assert _cache_settings({cli.CACHE_ENV: ""})[0] == "None"  # off
     home = tmp_path / "cachehome"
-    expected = str(home / "jax-contact" / "xla")
+    expected = str(home / "jax-contact" / "xla" / cli.host_tag())
     assert _cache_settings({"XDG_CACHE_HOME": str(home)})[0] == expected
+
+
+def test_the_default_cache_folder_is_per_cpu_feature_set():
+    """Programs compiled for one CPU's instruction set are not loaded on another: the
+    default folder's last part is the architecture and a hash of the sorted feature flags."""
+    import hashlib
+    import platform
+
+    avx512 = "processor\t: 0\nflags\t\t: fpu sse2 avx2 avx512f\n"
+    assert cli.host_tag(avx512) == cli.host_tag(avx512.replace("sse2 avx2", "avx2 sse2"))
+    assert cli.host_tag(avx512) != cli.host_tag(avx512.replace(" avx512f", ""))
+    digest = hashlib.sha256(b"avx2 avx512f fpu sse2").hexdigest()[:12]
+    assert cli.host_tag(avx512) == f"{platform.machine() or 'cpu'}-{digest}"
+    arm = "processor\t: 0\nFeatures\t: fp asimd sve\n"  # aarch64's name for the flags
+    assert cli.host_tag(arm).endswith(hashlib.sha256(b"asimd fp sve").hexdigest()[:12])

@@ -718,14 +718,47 @@ def _quiet_xla_logs() -> None:
 CACHE_ENV = "JAX_CONTACT_CACHE_DIR"
 
 
+def host_tag(cpuinfo: str | None = None) -> str:
+    """A folder name for this host's CPU: its architecture and a hash of its instruction-set
+    features (the ``flags`` of ``/proc/cpuinfo``, else the processor's name).
+
+    XLA:CPU compiles for the features of the host it runs on and loads a cached program
+    built for other features with only a warning ("could lead to execution errors such as
+    SIGILL"): a home folder shared by hosts of different CPUs must not share programs.
+
+    Args:
+      cpuinfo: the text of ``/proc/cpuinfo`` (read when None and present).
+    """
+    import hashlib
+    import platform
+
+    if cpuinfo is None:
+        try:
+            with open("/proc/cpuinfo", encoding="utf-8", errors="replace") as f:
+                cpuinfo = f.read()
+        except OSError:
+            cpuinfo = ""
+    flags = next(
+        (
+            line.split(":", 1)[1]
+            for line in cpuinfo.splitlines()
+            if line.split(":")[0].strip() in ("flags", "Features")
+        ),
+        platform.processor(),
+    )
+    digest = hashlib.sha256(" ".join(sorted(flags.split())).encode()).hexdigest()[:12]
+    return f"{platform.machine() or 'cpu'}-{digest}"
+
+
 def compilation_cache_dir() -> str | None:
     """jax-contact's persistent compilation cache folder, or None when turned off:
-    ``$JAX_CONTACT_CACHE_DIR`` if set (empty: off), else ``$XDG_CACHE_HOME/jax-contact/xla``
-    (``~/.cache/jax-contact/xla``)."""
+    ``$JAX_CONTACT_CACHE_DIR`` if set (empty: off), else
+    ``$XDG_CACHE_HOME/jax-contact/xla/<host_tag()>`` (``~/.cache/jax-contact/xla/...``), one
+    folder per CPU feature set."""
     if CACHE_ENV in os.environ:
         return os.environ[CACHE_ENV].strip() or None
     base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
-    return os.path.join(base, "jax-contact", "xla")
+    return os.path.join(base, "jax-contact", "xla", host_tag())
 
 
 def enable_compilation_cache() -> str | None:
