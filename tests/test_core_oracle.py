@@ -232,6 +232,7 @@ def _oracle_terms(name):
     for c in _cases(name):
         p = _oracle_params(c, rows, uni)
         m = oracle.Meas(**c["meas"])
+        end = oracle.end_of_interval(p, m)
         tq = oracle.Query(**c["terrain"])
         dyn, force, info = oracle.dynamics(p, m, tq.normal)
         gap, s_pf = oracle.sole_gap(p, m, tq)
@@ -248,9 +249,9 @@ def _oracle_terms(name):
             sigma_v=s_v,
             log_takeoff=oracle.takeoff(p, u, s_v),
             takeoff_scale=np.abs(oracle.takeoff_joint(p, u, s_v)).max(),
-            v_end=oracle.end_of_interval(p, m).v_f,
-            p_end=oracle.end_of_interval(p, m).p_f,
-            llr_diff_kinematics_end=oracle.diff_kinematics(p, oracle.end_of_interval(p, m)),
+            v_end=end.v_f,
+            p_end=end.p_f,
+            llr_diff_kinematics_end=oracle.diff_kinematics(p, end),
         )
         for k, v in row.items():
             out[k].append(v)
