@@ -83,6 +83,14 @@ def test_caps_outside_half_open_interval(cap, value):
         make_params(make_noise(3), **{cap: value})
 
 
+@pytest.mark.parametrize("value", [-0.1, 1.01, np.nan, np.inf])
+def test_kinematics_lead_outside_unit_interval(value):
+    with pytest.raises(ValueError, match="kinematics_lead"):
+        make_params(make_noise(3), kinematics_lead=value)
+    for ok in (0.0, 0.5, 1.0):
+        assert float(make_params(make_noise(3), kinematics_lead=ok).kinematics_lead) == ok
+
+
 @pytest.mark.parametrize("cap", ["cap_dynamics", "cap_diff_kinematics", "cap_kinematics"])
 def test_caps_inside_interval_are_accepted(cap):
     for value in (0.500001, 0.9, 1.0):
