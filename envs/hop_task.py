@@ -11,9 +11,11 @@ when the foot touches down and lifts off.
 ground-truth contact sensors, position servos, ``n_frames`` physics steps per env step)
 with:
 
-- observation: the leg env's own (hip, knee angles; rail, hip, knee velocities) and the
-  command as ``h_cmd - 0.6`` m. The base height is *not* observed (a robot does not
-  measure its height above the ground), so contact cannot be read off the kinematics;
+- observation: the leg env's own (hip, knee angles; rail, hip, knee velocities; the rail
+  velocity left out in :data:`HOP_BLIND`) and the command as ``h_cmd - 0.6`` m. The base
+  height is *not* observed (a robot does not measure its height above the ground), so
+  contact cannot be read off the foot's height; with the rail velocity it can still be
+  inferred from the stance kinematics (``HopConfig.observe_rail_velocity``);
   :func:`make_hop_env` wraps it with :func:`jax_contact.envs.wrapper.wrap_contact`, which appends
   one number for ``observe="truth"`` or ``"estimate"`` and nothing for ``"none"``;
 - action in [-1, 1]^2: joint targets ``home + action_scale * action`` (clipped);
@@ -58,6 +60,11 @@ class HopConfig:
       min_base_height: done below this base height, m.
       episode_length: env steps per episode (3 s at 10 ms: several hops).
       sensor: sensor preset of the estimator's inputs (:data:`jax_contact.envs.sensors.PRESETS`).
+      observe_rail_velocity: whether the observation holds the base's (rail) velocity.
+        With it, a policy can read stance off a single observation (in stance the rail
+        velocity is the leg's kinematic velocity of the joint rates, the foot fixed);
+        without it (:data:`HOP_BLIND`, task ``"hop_blind"``), contact is known only from
+        the contact observation or inferred from the joints alone.
     """
 
     n_frames: int = 4
@@ -69,9 +76,20 @@ class HopConfig:
     min_base_height: float = 0.2
     episode_length: int = 300
     sensor: str = "anymal_like"
+    observe_rail_velocity: bool = True
 
 
 HOP = HopConfig()
+HOP_BLIND = HopConfig(observe_rail_velocity=False)
+# ``jax-contact train --task`` names of the hop tasks -> their configuration.
+TASK_CONFIGS = {"hop": HOP, "hop_blind": HOP_BLIND}
+
+
+def task_config(task: str) -> HopConfig:
+    """The :class:`HopConfig` of a hop task name (a key of :data:`TASK_CONFIGS`)."""
+    if task not in TASK_CONFIGS:
+        raise ValueError(f"hop task must be one of {tuple(TASK_CONFIGS)}, got {task!r}")
+    return TASK_CONFIGS[task]
 
 
 def hop_reward(z, vz, h_cmd, sigma):
@@ -106,7 +124,13 @@ class HopEnv(LeggedPipelineEnv):
 
     @property
     def observation_size(self) -> int:
-        return super().observation_size + 1
+        return super().observation_size + 1 - (not self.config.observe_rail_velocity)
+
+    def _obs(self, ps) -> jax.Array:
+        if self.config.observe_rail_velocity:
+            return super()._obs(ps)
+        # (hip, knee angles; hip, knee velocities): the rail's slide joint left out.
+        return jnp.concatenate([ps.qpos[self._n_base_q :], ps.qvel[self._n_base_q :]])
 
     @property
     def action_size(self) -> int:

@@ -134,6 +134,32 @@ def test_step_reward_and_action_mapping(resets):
     np.testing.assert_allclose(vz[1], -9.81 * 0.01, rtol=1e-3)
 
 
+def test_blind_task_leaves_out_the_rail_velocity(robot):
+    """hop_blind: the same env but its observation is (hip, knee; their rates; command),
+    4 + 1 numbers, + 1 for the contact slot; task lookup, run.json name and the hop evaluator
+    all reach its configuration."""
+    assert tasks.get_task("hop_blind").config("small") is tasks.HOP_SMALL
+    assert H.task_config("hop_blind") is H.HOP_BLIND and H.task_config("hop") is H.HOP
+    with pytest.raises(ValueError, match="hop task must be one of"):
+        H.task_config("go1")
+    cfg = dataclasses.replace(tasks.HOP_SMALL, sensor="ideal")
+    env_b = tasks.get_task("hop_blind").make_env("truth", cfg)
+    env_n = H.make_hop_env("none", H.HOP_BLIND, robot=robot)
+    assert (env_b.observation_size, env_n.observation_size) == (6, 5)
+    keys = jax.random.split(jax.random.PRNGKey(3), N)
+    s = jax.jit(jax.vmap(env_b.reset))(keys)
+    s1 = jax.jit(jax.vmap(env_b.step))(s, jnp.array([[1.0, -1.0], [0.0, 0.0]]))
+    for st in (s, s1):
+        ps = st.pipeline_state
+        want = np.concatenate([ps.qpos[:, 1:], ps.qvel[:, 1:]], 1)  # hip, knee; their rates
+        np.testing.assert_array_equal(st.obs[:, :4], want)
+        np.testing.assert_allclose(st.obs[:, 4], np.asarray(st.info["h_cmd"]) - 0.6, rtol=1e-6)
+        np.testing.assert_array_equal(st.obs[:, 5], st.info["contact_est_truth"][:, 0])
+    # The rail moved (env 1 falls freely for 10 ms: -0.0981 m/s) but is not observed.
+    np.testing.assert_allclose(s1.pipeline_state.qvel[1, 0], -9.81 * 0.01, rtol=1e-3)
+    assert not np.any(np.isclose(np.asarray(s1.obs[1]), -0.0981, rtol=1e-2))
+
+
 def test_array_observation_checkpoint_round_trip(tmp_path):
     """Brax's training save writes an array observation's size as {"shape", "dtype"} (the hop
     task's 7 numbers); load_policy rebuilds the same policy from it."""

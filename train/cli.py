@@ -86,7 +86,7 @@ COLUMNS = (  # jax_contact.train.transfer.COLUMNS
     "estimate_lat1",
     "estimate_lat2",
 )
-TASKS = ("go1", "hop")  # jax_contact.train.tasks.TASK_NAMES
+TASKS = ("go1", "hop", "hop_blind")  # jax_contact.train.tasks.TASK_NAMES
 SCENES = ("planar_leg", "go1")  # jax_contact.train.rates.SCENES
 LOG_SUFFIXES = (".h5", ".hdf5")
 
@@ -110,7 +110,11 @@ TINY_REPRODUCE = dict(
     planar_duration=0.5,
 )
 # Each task's own configurations (jax_contact.train.tasks: Task.configs), plus "tiny" for both.
-TASK_CONFIGS = {"go1": ("small", "full"), "hop": ("small", "reduced")}
+TASK_CONFIGS = {
+    "go1": ("small", "full"),
+    "hop": ("small", "reduced"),
+    "hop_blind": ("small", "reduced"),
+}
 PPO_CONFIGS = ("tiny", *dict.fromkeys(c for cs in TASK_CONFIGS.values() for c in cs))
 TINY_PPO = dict(
     num_timesteps=160,

@@ -793,7 +793,7 @@ def evaluate_policy(
     if not (run_dir / "run.json").is_file():
         raise FileNotFoundError(f"no run.json in {run_dir}: not a run folder of jax-contact train")
     run = json.loads((run_dir / "run.json").read_text())
-    if run.get("task", "go1") == "hop":  # its own evaluation (task metrics)
+    if run.get("task", "go1") != "go1":  # a hop task: its own evaluation (task metrics)
         from jax_contact.train import transfer
 
         return transfer.evaluate_run(

@@ -5,6 +5,9 @@
 - ``"hop"``: the planar leg hopping to a commanded apex height (:mod:`jax_contact.envs.hop_task`),
   where contact timing matters; configuration :data:`HOP_SMALL` (this 2-core CPU) and
   :data:`HOP_REDUCED` (the reduced run of docs/training_hop.md).
+- ``"hop_blind"``: the same hop without the rail (base) velocity in the observation
+  (:data:`jax_contact.envs.hop_task.HOP_BLIND`), so that stance cannot be read off the
+  kinematics of one observation; the same configurations.
 
 A :class:`Task` says how :func:`jax_contact.train.ppo.train` builds the env of a variant and wraps
 it for training; everything else (the PPO call, the run folder, checkpoints, curves) is the
@@ -14,6 +17,7 @@ same for both.
 from __future__ import annotations
 
 import dataclasses
+import functools
 from collections.abc import Callable
 
 from jax_contact.train.ppo import PPOConfig
@@ -79,10 +83,12 @@ def _go1_wrap(env, **kwargs):
     return pg_wrapper.wrap_for_brax_training(env, **kwargs)
 
 
-def _hop_env(observe: str, cfg: PPOConfig):
+def _hop_env(task_name: str, observe: str, cfg: PPOConfig):
     from jax_contact.envs import hop_task
 
-    task = dataclasses.replace(hop_task.HOP, episode_length=cfg.episode_length, sensor=cfg.sensor)
+    task = dataclasses.replace(
+        hop_task.task_config(task_name), episode_length=cfg.episode_length, sensor=cfg.sensor
+    )
     return hop_task.make_hop_env(observe, task)
 
 
@@ -96,11 +102,17 @@ HOP_TASK = Task(
     "hop",
     "PlanarLegHop",
     (("small", HOP_SMALL), ("reduced", HOP_REDUCED)),
-    _hop_env,
+    functools.partial(_hop_env, "hop"),
     None,
 )
+HOP_BLIND_TASK = dataclasses.replace(
+    HOP_TASK,
+    name="hop_blind",
+    env_name="PlanarLegHopBlind",
+    make_env=functools.partial(_hop_env, "hop_blind"),
+)
 
-TASK_NAMES = ("go1", "hop")
+TASK_NAMES = ("go1", "hop", "hop_blind")
 
 
 def get_task(name: str) -> Task:
@@ -109,4 +121,6 @@ def get_task(name: str) -> Task:
         return _go1()
     if name == "hop":
         return HOP_TASK
+    if name == "hop_blind":
+        return HOP_BLIND_TASK
     raise ValueError(f"task must be one of {TASK_NAMES}, got {name!r}")

@@ -200,7 +200,8 @@ def evaluate_run(
     """One hop run's latest checkpoint evaluated in one column (``policy-eval``'s hop path).
 
     Args:
-      run_dir: a run folder of :func:`jax_contact.train.ppo.train` with ``task="hop"``.
+      run_dir: a run folder of :func:`jax_contact.train.ppo.train` of a hop task
+        (``task`` "hop" or "hop_blind").
       observe: ``"none"``, ``"truth"`` or ``"estimate"`` (the ``anymal_like`` column);
         None: the variant it was trained with.
       column: a :data:`COLUMNS` name (or ``"none"``), instead of ``observe``.
@@ -214,7 +215,7 @@ def evaluate_run(
         raise FileNotFoundError(f"no run.json in {run_dir}: not a run folder of jax-contact train")
     run, cfg = _run_cfg(run_dir)
     column = column or observe or run["variant"]
-    task_cfg = dataclasses.replace(hop_task.HOP, sensor=cfg.sensor)
+    task_cfg = dataclasses.replace(hop_task.task_config(run.get("task", "hop")), sensor=cfg.sensor)
     ev = _Evaluator(
         task_cfg, hop_task.hop_robot(), n_envs, int(episode_length or cfg.episode_length)
     )
@@ -247,8 +248,8 @@ class _HopCells:
     def __init__(self, first_run: Path, n_envs: int, episode_length: int | None):
         from jax_contact.envs import hop_task
 
-        _, cfg = _run_cfg(first_run)
-        task_cfg = dataclasses.replace(hop_task.HOP, sensor=cfg.sensor)
+        run, cfg = _run_cfg(first_run)
+        task_cfg = dataclasses.replace(hop_task.task_config(run["task"]), sensor=cfg.sensor)
         t_len = int(episode_length or cfg.episode_length)
         self._ev = _Evaluator(task_cfg, hop_task.hop_robot(), n_envs, t_len)
 
@@ -300,7 +301,7 @@ class _Go1Cells:
 
 
 # run.json's task -> its cells (a test swaps in its own).
-_CELLS = {"hop": _HopCells, "go1": _Go1Cells}
+_CELLS = {"hop": _HopCells, "hop_blind": _HopCells, "go1": _Go1Cells}
 
 
 def run_task(run_dir: str | Path) -> str:
