@@ -39,9 +39,8 @@ import jax
 import jax.numpy as jnp
 import mujoco
 import numpy as np
-from mujoco import mjx
 
-from jax_contact.adapter import foot_bias_acceleration
+from jax_contact import adapter
 from jax_contact.robot import RobotDescription
 from jax_contact.types import RobotMeasurement
 
@@ -314,46 +313,20 @@ def measurement(
 ) -> RobotMeasurement:
     """:func:`jax_contact.adapter.robot_measurement` at the feet's contact points.
 
-    Same quantities (``mjx.jac`` and :func:`jax_contact.adapter.foot_bias_acceleration` at
-    the point, ``M`` from ``mjx.full_m``, ``h`` from ``qfrc_bias``), the point being
+    :func:`jax_contact.adapter.measurement_at_points` (the same quantities), the point being
     ``xpos + xmat @ foot_offsets`` of the foot's body instead of a sphere's centre (for a
     sphere foot the two are equal). ``d`` must be prepared (``adapter.prepare``).
     """
-    h = d.qfrc_bias - d.qfrc_passive if include_passive else d.qfrc_bias
-    body_ids = jnp.asarray(desc.foot_body_ids, jnp.int32)
-    masks = []
-    for b in desc.foot_body_ids:
-        chain = _chain_np(np.asarray(m.body_parentid), b)
-        masks.append(np.isin(np.asarray(m.dof_bodyid), chain))
-    p_f = foot_points(desc, d)
-
-    def per_foot(body_id, point, mask):
-        jacp, _ = mjx.jac(m, d, point, body_id)
-        return jacp.T, foot_bias_acceleration(m, d, body_id, point, mask)
-
-    J, Jdot_qd = jax.vmap(per_foot)(body_ids, p_f, jnp.asarray(np.stack(masks)))
-    return RobotMeasurement(
-        q=d.qpos,
-        qd=d.qvel,
+    return adapter.measurement_at_points(
+        m,
+        d,
+        desc,
+        foot_points(desc, d),
+        jnp.asarray(desc.foot_radii, jnp.float32),
         qdd=qdd,
         tau=tau,
-        M=mjx.full_m(m, d),
-        h=h,
-        J=J,
-        Jdot_qd=Jdot_qd,
-        p_f=p_f,
-        v_f=J @ d.qvel,
-        foot_radius=jnp.asarray(desc.foot_radii, jnp.float32),
-        leg_dofs=tuple(tuple(int(i) for i in leg) for leg in desc.leg_dofs),
+        include_passive=include_passive,
     )
-
-
-def _chain_np(parent: np.ndarray, body: int) -> list[int]:
-    out = []
-    while body != 0:
-        out.append(int(body))
-        body = int(parent[body])
-    return out
 
 
 def foot_points_np(m: mujoco.MjModel, d: mujoco.MjData, desc: RobotDescription) -> np.ndarray:

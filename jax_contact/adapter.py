@@ -175,19 +175,55 @@ def robot_measurement(
     for name, value in (("qdd", qdd), ("tau", tau)):
         if value is not None and jnp.shape(value) != (m.nv,):
             raise ValueError(f"{name} must have shape ({m.nv},) (nv), got {jnp.shape(value)}")
+    geom_ids = jnp.asarray(desc.foot_geom_ids, dtype=jnp.int32)
+    return measurement_at_points(
+        m,
+        d,
+        desc,
+        d.geom_xpos[geom_ids],
+        m.geom_size[geom_ids, 0],
+        qdd=qdd,
+        tau=tau,
+        include_passive=include_passive,
+    )
+
+
+def measurement_at_points(
+    mjx_model: mjx.Model,
+    mjx_data: mjx.Data,
+    desc: RobotDescription,
+    p_f: jax.Array,
+    foot_radius: jax.Array,
+    *,
+    qdd: jax.Array | None = None,
+    tau: jax.Array | None = None,
+    include_passive: bool = False,
+) -> RobotMeasurement:
+    """:func:`robot_measurement` with each foot's contact point given.
+
+    The one place the measurement is assembled: ``J`` from ``mjx.jac`` at the point,
+    ``Jdot qd`` from :func:`foot_bias_acceleration`, ``M`` from ``mjx.full_m``, ``h`` from
+    ``qfrc_bias``. :func:`robot_measurement` passes the sphere feet's centres;
+    :func:`jax_contact.envs.feet.measurement` any foot's contact point (a box sole, a site,
+    a body offset).
+
+    Args:
+      mjx_model, mjx_data, desc: as :func:`robot_measurement` (shapes not re-checked).
+      p_f: (n_legs, 3) world positions of the contact points, m; each moves with its
+        ``desc.foot_body_ids`` body.
+      foot_radius: (n_legs,) distance from each point to the sole, m.
+      qdd, tau, include_passive: as :func:`robot_measurement`.
+    """
+    m, d = mjx_model, mjx_data
     qdd = d.qacc if qdd is None else jnp.asarray(qdd)
     tau = d.qfrc_actuator if tau is None else jnp.asarray(tau)
     h = d.qfrc_bias - d.qfrc_passive if include_passive else d.qfrc_bias
-
     body_ids = jnp.asarray(desc.foot_body_ids, dtype=jnp.int32)
-    geom_ids = jnp.asarray(desc.foot_geom_ids, dtype=jnp.int32)
     masks = jnp.asarray(np.stack([_chain_dof_mask(m, b) for b in desc.foot_body_ids]))
-    p_f = d.geom_xpos[geom_ids]
 
     def per_foot(body_id, point, mask):
         jacp, _ = mjx.jac(m, d, point, body_id)
-        acc = foot_bias_acceleration(m, d, body_id, point, mask)
-        return jacp.T, acc
+        return jacp.T, foot_bias_acceleration(m, d, body_id, point, mask)
 
     J, Jdot_qd = jax.vmap(per_foot)(body_ids, p_f, masks)
     return RobotMeasurement(
@@ -201,7 +237,7 @@ def robot_measurement(
         Jdot_qd=Jdot_qd,
         p_f=p_f,
         v_f=J @ d.qvel,
-        foot_radius=m.geom_size[geom_ids, 0],
+        foot_radius=jnp.asarray(foot_radius),
         leg_dofs=tuple(tuple(int(i) for i in leg) for leg in desc.leg_dofs),
     )
 
