@@ -524,7 +524,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = command(
         "train",
-        "PPO on Go1 with no / true / estimated contact in the observation",
+        "PPO (Go1 joystick or the hop, --task) with no / true / estimated contact observed",
         _cmd_train,
         _check_train,
     )
