@@ -34,6 +34,7 @@ overhead of the Python runtime small (every argument and result is one buffer to
 
 from __future__ import annotations
 
+import dataclasses
 import datetime
 import hashlib
 import json
@@ -485,10 +486,15 @@ def _robot_header(mj_model, desc, source: str) -> dict:
 
 
 def _terrain_header(terrain) -> dict:
+    """The terrain model's type and scalar settings (a fallback model nested), for the
+    header; a height field's grid is left out."""
     out = {"type": type(terrain).__name__}
-    for name in ("height", "sigma"):
-        if hasattr(terrain, name):
-            out[name] = np.asarray(getattr(terrain, name)).tolist()
+    for f in dataclasses.fields(terrain):
+        value = getattr(terrain, f.name)
+        if dataclasses.is_dataclass(value):
+            out[f.name] = _terrain_header(value)
+        elif np.ndim(value) == 0:
+            out[f.name] = float(value)
     return out
 
 

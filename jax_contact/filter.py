@@ -144,7 +144,11 @@ def _update(
     new_belief = LegBelief(
         logit=logit,
         log_transition=log_t,
-        foothold=jnp.where(on_ground, sole, belief.foothold),
+        foothold=jnp.where(
+            on_ground,
+            terrain.remember(belief.foothold, belief.foothold_valid, sole),
+            belief.foothold,
+        ),
         foothold_valid=belief.foothold_valid | on_ground,
     )
     nan = jnp.float32(jnp.nan)

@@ -4,7 +4,8 @@ A terrain model answers, for a foot at a horizontal position, the mean height of
 below it, that height's standard deviation (the paper's ``sigma_pi``) and the unit normal
 ``e`` that points out of the ground (the impact axis). Every model is a frozen pytree with a
 ``query`` method, so it can be passed through ``jit`` and shared by every env of a ``vmap``
-(``in_axes=None``).
+(``in_axes=None``), and a ``remember`` method: the foothold the filter keeps in each foot's
+belief after a confident, still stance step (only :class:`FootholdMemory` reads it back).
 
 Models:
   * :class:`FlatTerrain`: a plane of known height and a height variance (the paper's choice
@@ -45,6 +46,10 @@ class FlatTerrain:
         return TerrainQuery(
             height=self.height, sigma=self.sigma, normal=jnp.asarray(_UP, dtype=jnp.float32)
         )
+
+    def remember(self, foothold: jax.Array, foothold_valid: jax.Array, sole: jax.Array):
+        """The sole point (3,) itself (kept for the diagnostics; a plane does not read it)."""
+        return _keep_sole(foothold, foothold_valid, sole)
 
 
 @struct.dataclass
@@ -92,6 +97,15 @@ class HeightFieldTerrain:
         normal = normal / jnp.linalg.norm(normal)
         return TerrainQuery(height=height, sigma=self.sigma, normal=normal)
 
+    def remember(self, foothold: jax.Array, foothold_valid: jax.Array, sole: jax.Array):
+        """The sole point (3,) itself (kept for the diagnostics; the grid does not read it)."""
+        return _keep_sole(foothold, foothold_valid, sole)
+
+
+def _keep_sole(foothold, foothold_valid, sole):
+    del foothold, foothold_valid
+    return sole
+
 
 @struct.dataclass
 class FootholdMemory:
@@ -101,16 +115,26 @@ class FootholdMemory:
     from the remembered foothold, never more than the fallback's ``sigma``. Before the first
     foothold, or when the fallback is sharper, the fallback model answers.
 
+    The remembered height is the sole's, measured through the base-state estimate: it moves
+    with that estimate's drift, which is what makes it useful where the base position
+    drifts (a plane at the true floor height does not: docs/model_choices.md, "Base drift and
+    the kinematics term"). ``smoothing`` < 1 averages it over the stance steps,
+    ``z <- (1 - smoothing) z + smoothing z_sole`` (an exponential average, about
+    ``1 / smoothing`` steps long, that also averages the estimate's white noise), the
+    horizontal position always the newest sole's; 1 keeps the newest sole (no averaging).
+
     Attributes:
       fallback: a terrain model (flat or height field) used before the first foothold.
       sigma_foothold: () height uncertainty at the foothold itself, m.
       growth: () growth of the height's standard deviation per metre of horizontal
         distance, m/m (a slope bound of the terrain).
+      smoothing: () weight of the newest sole height in the remembered one, in (0, 1].
     """
 
     fallback: FlatTerrain | HeightFieldTerrain
     sigma_foothold: jax.Array
     growth: jax.Array
+    smoothing: jax.Array = struct.field(default_factory=lambda: jnp.float32(1.0))
 
     def query(self, p: jax.Array, foothold: jax.Array, foothold_valid: jax.Array) -> TerrainQuery:
         """Answers for a foot at ``p`` (3,) that last stood at ``foothold`` (3,)."""
@@ -123,6 +147,12 @@ class FootholdMemory:
             sigma=jnp.where(use, sigma, base.sigma),
             normal=base.normal,
         )
+
+    def remember(self, foothold: jax.Array, foothold_valid: jax.Array, sole: jax.Array):
+        """The foothold (3,) after a stance step at ``sole`` (3,): its height averaged."""
+        a = self.smoothing
+        z = jnp.where(foothold_valid, (1.0 - a) * foothold[2] + a * sole[2], sole[2])
+        return sole.at[2].set(z)
 
 
 def _positive(name: str, value) -> jax.Array:
@@ -169,15 +199,27 @@ def height_field(heights, origin, spacing, sigma: float = 0.02) -> HeightFieldTe
 
 
 def foothold_memory(
-    fallback: FlatTerrain | HeightFieldTerrain, sigma_foothold: float = 0.02, growth: float = 0.3
+    fallback: FlatTerrain | HeightFieldTerrain,
+    sigma_foothold: float = 0.02,
+    growth: float = 0.3,
+    smoothing: float = 1.0,
 ) -> FootholdMemory:
-    """A validated :class:`FootholdMemory` over ``fallback``."""
+    """A validated :class:`FootholdMemory` over ``fallback``.
+
+    Raises:
+      ValueError: naming the argument: a fallback of another kind, a non-positive
+        ``sigma_foothold`` or ``growth``, a ``smoothing`` outside (0, 1].
+    """
     if not isinstance(fallback, FlatTerrain | HeightFieldTerrain):
         raise ValueError(
             f"fallback must be a FlatTerrain or HeightFieldTerrain, got {type(fallback).__name__}"
         )
+    a = _positive("smoothing", smoothing)
+    if float(a) > 1.0:
+        raise ValueError(f"smoothing must be in (0, 1], got {smoothing!r}")
     return FootholdMemory(
         fallback=fallback,
         sigma_foothold=_positive("sigma_foothold", sigma_foothold),
         growth=_positive("growth", growth),
+        smoothing=a,
     )

@@ -119,14 +119,25 @@ class Flat:
     def query(self, p, foothold, foothold_valid) -> Query:
         return Query(self.height, self.sigma, np.array([0.0, 0.0, 1.0]))
 
+    def remember(self, foothold, foothold_valid, sole):
+        return np.array(sole, dtype=float)
+
 
 @dataclasses.dataclass
 class Foothold:
-    """Foothold memory over a flat fallback: sigma^2 = s0^2 + (growth d_xy)^2."""
+    """Foothold memory over a flat fallback: sigma^2 = s0^2 + (growth d_xy)^2; the height
+    remembered as z <- (1 - smoothing) z + smoothing z_sole once a foothold is set."""
 
     fallback: Flat
     sigma_foothold: float
     growth: float
+    smoothing: float = 1.0
+
+    def remember(self, foothold, foothold_valid, sole):
+        out = np.array(sole, dtype=float)
+        if foothold_valid:
+            out[2] = (1.0 - self.smoothing) * foothold[2] + self.smoothing * sole[2]
+        return out
 
     def query(self, p, foothold, foothold_valid) -> Query:
         base = self.fallback.query(p, foothold, foothold_valid)
@@ -589,7 +600,8 @@ def step(p: Params, terrain, b: Belief, m: Meas, td_fn=touchdown):
     takeoff_scale = float(np.abs(takeoff_joint(p, u, s_v)).max())
     still = (not p.foothold_still) or l_dk > 0.0
     if logit > _logit(p.foothold_confidence) and still:
-        foothold, fvalid = k.p_f - k.foot_radius * tq.normal, True
+        sole = k.p_f - k.foot_radius * tq.normal
+        foothold, fvalid = terrain.remember(b.foothold, b.foothold_valid, sole), True
     else:
         foothold, fvalid = b.foothold.copy(), b.foothold_valid
     new = Belief(logit, log_t, foothold, fvalid)

@@ -112,6 +112,33 @@ def test_loaded_still_foot_on_the_ground(jit_step):
         np.testing.assert_allclose(np.asarray(belief.foothold), [0.0, 0.0, 0.0], atol=1e-6)
 
 
+def test_foothold_memory_averages_the_stance_height(jit_step):
+    """The standing leg above (sole at z = 0, confident and still from the first step) under
+    a foothold memory with smoothing 1/2, its belief starting from a remembered foothold
+    2 cm up at another x (a base estimate that drifted since): each stance step halves the
+    remembered height's offset, z_k = z_{k-1} / 2 + 0 / 2 = 0.02 / 2^k, and takes the sole's
+    x, y. With smoothing 1 the sole is kept as it is (z = 0 after one step).
+    FootholdMemory.remember by hand: not set yet -> the sole itself."""
+    from jax_contact import foothold_memory
+
+    sole = jnp.array([0.3, -0.1, 0.05])
+    memo = foothold_memory(flat(0.0, 0.05), 0.02, 0.3, smoothing=0.25)
+    np.testing.assert_allclose(memo.remember(jnp.zeros(3), jnp.array(False), sole), sole)
+    got = memo.remember(jnp.array([9.0, 9.0, 0.09]), jnp.array(True), sole)
+    np.testing.assert_allclose(got, [0.3, -0.1, 0.75 * 0.09 + 0.25 * 0.05], rtol=1e-6)
+
+    meas = _as_meas(oracle.planar_measurement(*oracle.planar_stance()))
+    for smoothing, want in ((0.5, [0.01, 0.005, 0.0025, 0.00125]), (1.0, [0.0] * 4)):
+        terrain = foothold_memory(flat(0.0, 0.05), 0.02, 0.3, smoothing=smoothing)
+        belief = init_belief(PARAMS).replace(
+            foothold=jnp.array([0.1, 0.0, 0.02]), foothold_valid=jnp.array(True)
+        )
+        for i, z in enumerate(want):
+            belief, diag = jit_step(PARAMS, terrain, belief, meas, key=jax.random.key(i))
+            assert float(diag.p_contact) > 0.99
+            np.testing.assert_allclose(np.asarray(belief.foothold), [0.0, 0.0, z], atol=1e-7)
+
+
 def test_fast_swing_foot_high_above_the_ground(jit_step):
     """The free leg swinging with its foot 0.2 m up at ~2 m/s (qd = (0, 6, -3) rad/s),
     qdd = M^-1 (tau - h) the free dynamics (rail included) under tau = (0, 5, -3) N m.

@@ -563,10 +563,13 @@ def _seq_params(capped: bool):
 
 
 def _terrains():
-    """Foothold memory over a flat floor: the flat model answers until a foothold is set."""
-    jt = foothold_memory(flat(0.0, 0.2), sigma_foothold=0.02, growth=0.3)
+    """Foothold memory over a flat floor: the flat model answers until a foothold is set;
+    its height an average over stance steps (smoothing 0.3, so the average is exercised)."""
+    jt = foothold_memory(flat(0.0, 0.2), sigma_foothold=0.02, growth=0.3, smoothing=0.3)
     f32 = np.float32
-    ot = oracle.Foothold(oracle.Flat(0.0, float(f32(0.2))), float(f32(0.02)), float(f32(0.3)))
+    ot = oracle.Foothold(
+        oracle.Flat(0.0, float(f32(0.2))), float(f32(0.02)), float(f32(0.3)), float(f32(0.3))
+    )
     return jt, ot
 
 
