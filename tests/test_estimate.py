@@ -378,6 +378,61 @@ def test_the_commands_copies_equal_the_librarys():
 
     assert estimate_cmd.RECORDING_SUFFIXES == recording.SUFFIXES
     assert estimate_cmd.UNITS == recording.UNITS
+    from jax_contact.train import logs
+
+    assert estimate_cmd.TERRAIN_MODELS == logs.TERRAIN_MODELS
+
+
+def test_terrain_model_reaches_the_replay_of_evaluate_and_estimate(
+    planar_log, tmp_path, monkeypatch
+):
+    """--terrain-model memory: a foothold memory over the same plane, with FOOTHOLD_MEMORY's
+    numbers, is what evaluate's and estimate's replay get; flat the plane itself; an unknown
+    name is refused naming the argument."""
+    import jax_contact as jc
+    from jax_contact.train import evaluate, logs
+
+    desc = planar_log.robot.description
+    _, plane = logs.default_estimator(desc, planar_log.dt)
+    _, memo = logs.default_estimator(desc, planar_log.dt, "memory")
+    assert isinstance(plane, jc.FlatTerrain) and isinstance(memo, jc.FootholdMemory)
+    np.testing.assert_allclose(
+        [memo.fallback.height, memo.fallback.sigma], [plane.height, plane.sigma]
+    )
+    np.testing.assert_allclose(
+        [memo.sigma_foothold, memo.growth, memo.smoothing], [0.02, 0.3, 0.05], rtol=1e-6
+    )
+    with pytest.raises(ValueError, match="terrain_model must be one of"):
+        logs.default_estimator(desc, planar_log.dt, "rough")
+
+    seen = []
+
+    class Stop(Exception):
+        pass
+
+    def fake_replay(*args, terrain, **kwargs):
+        seen.append(terrain)
+        raise Stop
+
+    monkeypatch.setattr(evaluate, "replay", fake_replay)
+    args = _parser().parse_args(["estimate", "r.csv", "--model", "m.xml", "--out", "o"])
+    assert args.terrain_model == "flat"
+    with pytest.raises(Stop):
+        logs.evaluate_file(LOG, terrain_model="memory")
+    cols = log_to_columns(planar_log, names=RENAME, units="rad")
+    write_recording_csv(tmp_path / "r.csv", cols)
+    with pytest.raises(Stop):
+        from jax_contact.train.recording import estimate_recording
+
+        estimate_recording(
+            tmp_path / "r.csv",
+            model="planar_leg",
+            out_dir=tmp_path / "out",
+            names={v: k for k, v in RENAME.items()},
+            progress=False,
+            terrain_model="memory",
+        )
+    assert [type(t).__name__ for t in seen] == ["FootholdMemory", "FootholdMemory"]
 
 
 def test_a_params_file_is_checked_against_the_robot_and_rate(tmp_path, capsys):

@@ -185,6 +185,7 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
         gm_grid_log=args.gm_grid,
         params_path=args.params,
         foot_names=args.feet,
+        terrain_model=args.terrain_model,
     )
     return 0
 
@@ -518,6 +519,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--params", default=None, metavar="FILE", help="estimator parameters (jc.save_params)"
     )
+    estimate_cmd.add_terrain_model_flag(p)
     estimate_cmd.add_parser(sub)
     tune_cmd.add_parser(sub)
     deploy_cmd.add_parsers(sub)

@@ -19,6 +19,7 @@ from pathlib import Path
 
 RECORDING_SUFFIXES = (".csv", ".npz", ".h5", ".hdf5")  # jax_contact.train.recording.SUFFIXES
 UNITS = ("rad", "deg")  # jax_contact.train.recording.UNITS
+TERRAIN_MODELS = ("flat", "memory")  # jax_contact.train.logs.TERRAIN_MODELS
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
@@ -62,6 +63,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         help="estimator parameters (jax_contact.save_params / jax-contact tune); default:"
         " the robot's defaults (those of jax-contact evaluate)",
     )
+    add_terrain_model_flag(p)
     p.add_argument(
         "--units", choices=UNITS, default="rad", help="unit of joint angles and angular rates"
     )
@@ -90,6 +92,20 @@ def add_feet_flag(p: argparse.ArgumentParser) -> None:
         metavar="FOOT",
         help="foot geom or body names, in leg order (default: found in the model; evaluate:"
         " the feet the log stores)",
+    )
+
+
+def add_terrain_model_flag(p: argparse.ArgumentParser) -> None:
+    """``--terrain-model {flat,memory}``: ``terrain_model`` of
+    ``jax_contact.train.logs.evaluate_file`` and
+    ``jax_contact.train.recording.estimate_recording``."""
+    p.add_argument(
+        "--terrain-model",
+        choices=TERRAIN_MODELS,
+        default="flat",
+        help="the estimator's ground: flat, a plane at z = 0 of the log's world frame (5 cm"
+        " std; the reproduction's); memory, where each foot last stood, averaged over its"
+        " stance: for a base position that drifts (docs/model_choices.md)",
     )
 
 
@@ -199,6 +215,7 @@ def run(args: argparse.Namespace) -> int:
         feet=args.feet,
         names=parse_names(args.names),
         params_path=args.params,
+        terrain_model=args.terrain_model,
         units=args.units,
         resample=args.resample,
         plots=not args.no_plots,

@@ -180,11 +180,21 @@ def load_log(path: str | Path, *, foot_names: Sequence[str] | None = None) -> Lo
     return LoadedLog(name, robot, readings, truth, valid, dt, attrs)
 
 
-def default_estimator(desc, dt: float):
+# The estimator's terrain model for logs (``--terrain-model``): ``flat``, a plane at z = 0 of
+# the log's world frame; ``memory``, the height where each foot last stood (its stance
+# average) over that plane (docs/model_choices.md, "Base drift and the kinematics term").
+TERRAIN_MODELS = ("flat", "memory")
+# sigma at the foothold (m), its growth per metre walked, the stance average's weight.
+FOOTHOLD_MEMORY = dict(sigma_foothold=0.02, growth=0.3, smoothing=0.05)
+
+
+def default_estimator(desc, dt: float, terrain_model: str = "flat"):
     """(EstimatorParams, terrain) that ``evaluate`` and ``estimate`` use for a robot: the
     planar leg's Section III estimator for 2-joint legs, else Table III's (the one source:
     :func:`jax_contact.params_for` with ``anymal_like`` sensors,
-    ``jax_contact.train.reproduce``)."""
+    ``jax_contact.train.reproduce``). ``terrain_model`` (:data:`TERRAIN_MODELS`): ``"flat"``
+    the plane of the reproduction, ``"memory"`` a :func:`jax_contact.foothold_memory` over
+    it with :data:`FOOTHOLD_MEMORY`, for base positions that drift."""
     import jax_contact as jc
     from jax_contact.train.reproduce import (
         TERRAIN_SIGMA,
@@ -192,9 +202,15 @@ def default_estimator(desc, dt: float):
         quadruped_estimator_params,
     )
 
+    if terrain_model not in TERRAIN_MODELS:
+        raise ValueError(f"terrain_model must be one of {TERRAIN_MODELS}, got {terrain_model!r}")
     if desc.n_leg_dofs == 2:
-        return planar_estimator_params(desc.nv, dt), jc.flat(0.0, 0.2)
-    return quadruped_estimator_params(desc, dt), jc.flat(0.0, TERRAIN_SIGMA)
+        params, plane = planar_estimator_params(desc.nv, dt), jc.flat(0.0, 0.2)
+    else:
+        params, plane = quadruped_estimator_params(desc, dt), jc.flat(0.0, TERRAIN_SIGMA)
+    if terrain_model == "memory":
+        return params, jc.foothold_memory(plane, **FOOTHOLD_MEMORY)
+    return params, plane
 
 
 def tune_gm(path: str | Path) -> tuple[str, object, dict]:
@@ -239,6 +255,7 @@ def evaluate_file(
     gm_grid_log: str | Path | None = None,
     params_path: str | Path | None = None,
     foot_names: Sequence[str] | None = None,
+    terrain_model: str = "flat",
 ) -> dict:
     """Runs the estimator, GM observer and kinematic detector on a log; prints the metrics.
 
@@ -259,6 +276,8 @@ def evaluate_file(
       params_path: estimator parameters (:func:`jax_contact.load_params`) instead of the
         robot's defaults (:func:`default_estimator`).
       foot_names: the feet, overriding the log's.
+      terrain_model: the estimator's terrain model, one of :data:`TERRAIN_MODELS`
+        (:func:`default_estimator`).
 
     Returns:
       ``log``, ``attrs``, ``scores`` (detector -> metrics; empty without ground truth),
@@ -277,7 +296,7 @@ def evaluate_file(
 
     log = load_log(path, foot_names=foot_names)
     name, truth, desc, dt = log.name, log.truth, log.robot.description, log.dt
-    params, terrain = default_estimator(desc, dt)
+    params, terrain = default_estimator(desc, dt, terrain_model)
     if params_path is not None:
         params = _load_params_for(params_path, desc, dt)
     gm_name, gm = "gm", make_gm_params()
@@ -297,6 +316,7 @@ def evaluate_file(
     feet = list(desc.foot_names)
     result = {
         "log": str(path),
+        "terrain_model": terrain_model,
         "attrs": log.attrs,
         "has_truth": truth is not None,
         "foot_names": feet,

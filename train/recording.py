@@ -650,8 +650,14 @@ def estimate_recording(
     plots: bool = True,
     plot_seconds: float = 4.0,
     progress: bool = True,
+    terrain_model: str = "flat",
 ) -> dict:
     """``jax-contact estimate``: P(contact) per foot for a recording (module docstring).
+
+    ``terrain_model``: the estimator's terrain model
+    (:data:`jax_contact.train.logs.TERRAIN_MODELS`): ``"flat"`` a plane at z = 0 of the
+    recording's world frame, ``"memory"`` the feet's own footholds, for a ``base_pos`` that
+    drifts (a state estimator's, over a long recording).
 
     Writes into ``out_dir``: ``estimate.h5`` (``time`` (T,), ``p_contact``, each of
     :data:`DIAGNOSTICS` and ``valid`` as (T, L) arrays, ``truth/contact`` when known;
@@ -674,7 +680,7 @@ def estimate_recording(
     robot = load_robot(model, foot_names=feet)
     conv = to_readings(rec, robot, names=names, units=units, resample=resample)
     desc = robot.description
-    params, terrain = default_estimator(desc, conv.dt)
+    params, terrain = default_estimator(desc, conv.dt, terrain_model)
     if params_path is not None:
         params = _load_params_for(params_path, desc, conv.dt)
     terms = tuple(t for t in params.terms if t in conv.terms)
@@ -717,6 +723,7 @@ def estimate_recording(
     attrs = {
         "model": str(model),
         "recording": str(path),
+        "terrain_model": terrain_model,
         "foot_names": feet_names,
         "terms": list(terms),
         "dt": conv.dt,
