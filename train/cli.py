@@ -374,6 +374,17 @@ def _check_reproduce(args: argparse.Namespace) -> None:
 
 
 def _check_simulate(args: argparse.Namespace) -> None:
+    if args.output is not None and args.out_option is not None:
+        raise ValueError(
+            f"argument output: given twice ({args.output!r} and --out {args.out_option!r});"
+            " give one"
+        )
+    if args.output is None and args.out_option is None:
+        raise ValueError(
+            "argument output: missing: the .h5 file to write, e.g. jax-contact simulate"
+            " out/go1.h5 (or --out out/go1.h5)"
+        )
+    args.output = args.output or args.out_option
     check_output_file("output", args.output, LOG_SUFFIXES)
     check_robot("--robot", args.robot)
     estimate_cmd.gait_overrides(args)  # ValueError naming the flag
@@ -486,7 +497,12 @@ def build_parser() -> argparse.ArgumentParser:
         _cmd_simulate,
         _check_simulate,
     )
-    p.add_argument("output", help="the .h5 file to write (atomically)")
+    p.add_argument(
+        "output", nargs="?", default=None, help="the .h5 file to write (atomically); or --out"
+    )
+    p.add_argument(
+        "--out", dest="out_option", default=None, metavar="OUTPUT", help="the same as OUTPUT"
+    )
     p.add_argument("--robot", default="go1", metavar="ROBOT", help=robots)
     p.add_argument("--gait", default="trot", choices=GAITS, help="scripted gait")
     p.add_argument("--noise", default="anymal_like", choices=NOISES, help="sensor noise preset")
