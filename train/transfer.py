@@ -162,6 +162,16 @@ def _run_cfg(run_dir: Path):
     return run, ppo.config_of(run)
 
 
+def _hop_evaluator(run: dict, cfg, n_envs: int, episode_length: int | None) -> _Evaluator:
+    """The :class:`_Evaluator` of a hop run: its task's configuration (``run.json``'s
+    ``task``) with the run's sensor, episodes of ``episode_length`` (None: the run's)."""
+    from jax_contact.envs import hop_task
+
+    task_cfg = dataclasses.replace(hop_task.task_config(run.get("task", "hop")), sensor=cfg.sensor)
+    t_len = int(episode_length or cfg.episode_length)
+    return _Evaluator(task_cfg, hop_task.hop_robot(), n_envs, t_len)
+
+
 def _evaluate(ev: _Evaluator, run_dir: Path, column: str, seed: int, loaded=None) -> dict:
     from jax_contact.train import ppo
 
@@ -208,17 +218,13 @@ def evaluate_run(
       n_envs, episode_length, seed: episodes in parallel, their length (None: the
         training configuration's), the PRNG seed.
     """
-    from jax_contact.envs import hop_task
 
     run_dir = Path(run_dir)
     if not (run_dir / "run.json").is_file():
         raise FileNotFoundError(f"no run.json in {run_dir}: not a run folder of jax-contact train")
     run, cfg = _run_cfg(run_dir)
     column = column or observe or run["variant"]
-    task_cfg = dataclasses.replace(hop_task.task_config(run.get("task", "hop")), sensor=cfg.sensor)
-    ev = _Evaluator(
-        task_cfg, hop_task.hop_robot(), n_envs, int(episode_length or cfg.episode_length)
-    )
+    ev = _hop_evaluator(run, cfg, n_envs, episode_length)
     from jax_contact import metrics
 
     m = _evaluate(ev, run_dir, column, seed)
@@ -246,12 +252,7 @@ class _HopCells:
     metrics = METRICS
 
     def __init__(self, first_run: Path, n_envs: int, episode_length: int | None):
-        from jax_contact.envs import hop_task
-
-        run, cfg = _run_cfg(first_run)
-        task_cfg = dataclasses.replace(hop_task.task_config(run["task"]), sensor=cfg.sensor)
-        t_len = int(episode_length or cfg.episode_length)
-        self._ev = _Evaluator(task_cfg, hop_task.hop_robot(), n_envs, t_len)
+        self._ev = _hop_evaluator(*_run_cfg(first_run), n_envs, episode_length)
 
     def cell(self, run_dir: Path, column: str, seed: int, loaded) -> dict:
         m = _evaluate(self._ev, run_dir, column, seed, loaded)
