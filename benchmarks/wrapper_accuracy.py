@@ -33,6 +33,7 @@ import jax
 import numpy as np
 
 from jax_contact.benchmarks.common import json_of_what_finished, machine, print_table
+from jax_contact.envs import scripted
 
 ENVS = (
     "Go1JoystickFlatTerrain",
@@ -44,10 +45,6 @@ ENVS = (
 SCALE = {"Go1": 0.5, "Spot": 0.3, "BerkeleyHumanoid": 0.5}  # their configs' action_scale
 POLICIES = ("walk", "trot", "step", "random")
 DEFAULT_POLICY = {"Go1": "walk", "Spot": "walk", "BerkeleyHumanoid": "step"}
-# Phase of each leg's swing in the cycle, in the actuator order (Go1: FR FL RR RL; Spot:
-# FL FR HL HR): a lateral-sequence walk, hind right, front right, hind left, front left.
-WALK_PHASE = {"Go1": (0.0, 0.5, 0.75, 0.25), "Spot": (0.5, 0.0, 0.25, 0.75)}
-TROT_PHASE = {"Go1": (0.0, 0.5, 0.5, 0.0), "Spot": (0.0, 0.5, 0.5, 0.0)}
 
 
 def _robot(name: str) -> str:
@@ -61,13 +58,6 @@ def default_policy(name: str) -> str:
     return DEFAULT_POLICY.get(robot, "random")
 
 
-def _swing(t, freq, phase, swing):
-    """(T, E) swing profile in [0, 1]: sin^2 over the swing fraction of each cycle, 0 else
-    (zero velocity at lift-off and touch-down, as a gait's swing)."""
-    ph = (freq * t + phase) % 1.0
-    return np.where(ph < swing, np.sin(np.pi * ph / swing) ** 2, 0.0)
-
-
 # Stepping in place of the humanoid: per leg (hip flexion, knee, ankle flexion) at the
 # apex, rad; the cycle frequency, Hz; the swing fraction of each leg's cycle.
 HUMANOID_STEP = dict(hip=-0.25, knee=0.5, ankle=-0.25, freq=1.25, swing=0.3)
@@ -76,7 +66,7 @@ HUMANOID_STEP = dict(hip=-0.25, knee=0.5, ankle=-0.25, freq=1.25, swing=0.3)
 def _humanoid_step(t, jitter, phase0, acts, scale):
     p = HUMANOID_STEP
     for leg, off in enumerate((0.0, 0.5)):  # left, right: 6 actuators each
-        s = _swing(t, p["freq"] * jitter, phase0 + off, p["swing"])
+        s = scripted.swing_profile(t, p["freq"] * jitter, phase0 + off, p["swing"])
         acts[:, :, 6 * leg + 2] += p["hip"] * s / scale
         acts[:, :, 6 * leg + 3] += p["knee"] * s / scale
         acts[:, :, 6 * leg + 4] += p["ankle"] * s / scale
@@ -114,15 +104,11 @@ def actions_for(
     jitter = 1.0 + 0.1 * rng.uniform(-1, 1, n_envs)
     phase0 = rng.uniform(0, 1, n_envs)
     acts = np.zeros((n_steps, n_envs, nu), np.float32)
-    if policy in ("walk", "trot"):
-        if robot not in WALK_PHASE:
+    if policy in scripted.POLICIES:
+        if robot not in scripted.PHASES[policy]:
             raise ValueError(f"policy {policy!r} is for Go1 and Spot, not {name}")
-        freq, swing, hip, knee = (1.0, 0.2, 0.3, 0.6) if policy == "walk" else (2.0, 0.4, 0.4, 0.7)
-        phases = (WALK_PHASE if policy == "walk" else TROT_PHASE)[robot]
-        for leg, off in enumerate(phases):
-            s = _swing(t, freq * jitter, phase0 + off, swing)
-            acts[:, :, 3 * leg + 1] += hip * s / scale
-            acts[:, :, 3 * leg + 2] -= knee * s / scale
+        acts[:] = scripted.in_place_offsets(policy, robot, t, jitter, phase0) / scale
+        freq, swing = scripted.SETTINGS[policy][:2]
         desc = f"scripted {policy} in place ({freq:g} Hz, swing {swing:g} of the cycle)"
         return acts, desc
     if robot != "BerkeleyHumanoid":

@@ -87,7 +87,7 @@ COLUMNS = (  # jax_contact.train.transfer.COLUMNS
     "estimate_lat2",
 )
 TASKS = ("go1", "hop", "hop_blind")  # jax_contact.train.tasks.TASK_NAMES
-SCENES = ("planar_leg", "go1")  # jax_contact.train.rates.SCENES
+SCENES = ("planar_leg", "go1", "go1_walk", "go1_trot")  # jax_contact.train.rates.SCENES
 LOG_SUFFIXES = (".h5", ".hdf5")
 
 EXIT_USAGE = 2

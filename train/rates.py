@@ -1,7 +1,7 @@
 """Physics-rate against control-rate contact estimation, on the same rollouts.
 
 :func:`compare_rates` wraps one env twice (an estimator at every physics step and one per
-env step) so one simulation feeds both. Here it runs on two scripted
+env step) so one simulation feeds both. Here it runs on four scripted
 scenes, 16 rollouts of 250 env steps (5 s at a 20 ms control period) each, ``anymal_like``
 sensors, rollout ``e`` at ``1 + 0.02 e`` times the base frequency so that the contact
 events do not line up across rollouts:
@@ -11,7 +11,13 @@ events do not line up across rollouts:
   2.5 ms x 8 substeps.
 - ``go1``: Go1 (its own position actuators) at the home pose, diagonal pairs lifting in
   turn (thigh +0.5 rad, calf -0.8 rad at the peak of a half-sine, 2.5 f Hz): stepping on
-  the spot; physics 4 ms x 5 substeps, as Playground's Go1.
+  the spot; physics 4 ms x 5 substeps, as Playground's Go1. The half-sine's knee is
+  fastest at touch-down: feet hit at ~3 m/s, sink up to 2 cm into the soft contact and
+  bounce out of it, and slide in stance (half the contact steps faster than 0.2 m/s): a
+  stress test of the no-slip contact, unlike a gait (docs/training.md).
+- ``go1_walk``, ``go1_trot``: the same Go1 and physics under the gaits in place of
+  :mod:`jax_contact.envs.scripted` (``sin^2`` swings, feet put down at rest), rollout
+  ``e`` at ``1 + 0.02 e`` times the gait's frequency.
 
 ``jax-contact rates`` prints the table and writes JSON.
 """
@@ -27,14 +33,14 @@ import jax.numpy as jnp
 import numpy as np
 
 from jax_contact import metrics
-from jax_contact.envs import feet
+from jax_contact.envs import feet, scripted
 from jax_contact.envs.contact_config import ContactObsConfig
 from jax_contact.envs.contact_core import model_of
 from jax_contact.envs.contact_params import default_estimator_params, default_sensor_params
 from jax_contact.envs.contact_wrappers import wrap_contact
 from jax_contact.envs.robots import Robot
 
-SCENES = ("planar_leg", "go1")
+SCENES = ("planar_leg", "go1", "go1_walk", "go1_trot")
 N_STEPS, N_ROLLOUTS = 250, 16
 
 
@@ -47,7 +53,9 @@ def scene(name: str, n_steps: int = N_STEPS, n_rollouts: int = N_ROLLOUTS):
     if name not in SCENES:
         raise ValueError(f"scene must be one of {SCENES}, got {name!r}")
     freq = 1.0 + 0.02 * np.arange(n_rollouts)
-    robot = ground_truth.with_contact_sensors(load_robot(name))
+    robot = ground_truth.with_contact_sensors(
+        load_robot("planar_leg" if name == "planar_leg" else "go1")
+    )
     if name == "planar_leg":
         env = LeggedPipelineEnv(robot, n_frames=8, position_servo=(300.0, 8.0))
         t = np.arange(1, n_steps + 1)[:, None] * float(env.dt)
@@ -58,6 +66,10 @@ def scene(name: str, n_steps: int = N_STEPS, n_rollouts: int = N_ROLLOUTS):
         env = LeggedPipelineEnv(robot, n_frames=5, min_base_height=0.1)
         t = np.arange(1, n_steps + 1)[:, None] * float(env.dt)
         acts = np.tile(robot.mj_model.key_ctrl[0], (n_steps, n_rollouts, 1))
+        if name != "go1":
+            policy = name.removeprefix("go1_")
+            acts += scripted.in_place_offsets(policy, "Go1", t, freq, np.zeros(n_rollouts))
+            return env, acts.astype(np.float32)
         for leg, phase in enumerate([0.0, np.pi, np.pi, 0.0]):  # FR FL RR RL
             s = np.maximum(0.0, np.sin(2 * np.pi * 2.5 * freq * t + phase))
             acts[:, :, 3 * leg + 1] += 0.5 * s
