@@ -616,7 +616,15 @@ def build_parser() -> argparse.ArgumentParser:
         _cmd_rates,
         _check_json,
     )
-    p.add_argument("--scenes", nargs="+", default=list(SCENES), choices=SCENES, help="scenes")
+    p.add_argument(
+        "--scenes",
+        nargs="+",
+        default=list(SCENES),
+        choices=SCENES,
+        help="planar_leg: the paper's leg hopping; go1: Go1 stepping on the spot with a"
+        " half-sine (feet slammed and sliding: a stress test); go1_walk, go1_trot: Go1"
+        " gaits in place (jax_contact.train.rates)",
+    )
     p.add_argument("--seed", type=int, default=0, help="seed of the rollouts")
     p.add_argument(
         "--pairing",
