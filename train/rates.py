@@ -12,7 +12,7 @@ events do not line up across rollouts:
 - ``go1``: Go1 (its own position actuators) at the home pose, diagonal pairs lifting in
   turn (thigh +0.5 rad, calf -0.8 rad at the peak of a half-sine, 2.5 f Hz): stepping on
   the spot; physics 4 ms x 5 substeps, as Playground's Go1. The half-sine's knee is
-  fastest at touch-down: feet hit at ~3 m/s, sink up to 2 cm into the soft contact and
+  fastest at touch-down: feet hit at 2-3 m/s, sink up to 2 cm into the soft contact and
   bounce out of it, and slide in stance (half the contact steps faster than 0.2 m/s): a
   stress test of the no-slip contact, unlike a gait (docs/training.md).
 - ``go1_walk``, ``go1_trot``: the same Go1 and physics under the gaits in place of
