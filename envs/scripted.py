@@ -24,9 +24,9 @@ from __future__ import annotations
 
 import numpy as np
 
-POLICIES = ("walk", "trot")
 # (cycle frequency Hz, swing share of the cycle, hip pitch rad, knee rad) at the apex.
 SETTINGS = {"walk": (1.0, 0.2, 0.3, 0.6), "trot": (2.0, 0.4, 0.4, 0.7)}
+POLICIES = tuple(SETTINGS)
 # Phase of each leg's swing in the cycle, in the actuator order (Go1: FR FL RR RL; Spot:
 # FL FR HL HR): the walk's sequence is hind right, front right, hind left, front left.
 PHASES = {

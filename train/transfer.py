@@ -218,7 +218,6 @@ def evaluate_run(
       n_envs, episode_length, seed: episodes in parallel, their length (None: the
         training configuration's), the PRNG seed.
     """
-
     run_dir = Path(run_dir)
     if not (run_dir / "run.json").is_file():
         raise FileNotFoundError(f"no run.json in {run_dir}: not a run folder of jax-contact train")
