@@ -250,30 +250,30 @@ def compare_rates(
     if inner.contact_core.truth is None:
         raise ValueError("env's model has no ground-truth contact sensors for every foot")
 
-    def rollout(k, a_seq):
-        state = outer.reset(k)
+    # A scan over the batched step (Brax's and Playground's own layout), not a vmap of a
+    # scan: vmap re-batches a scan's whole body until its carry's batching settles, and
+    # the substep scan inside the step would be re-batched on every round.
+    def step(s, a):
+        s = outer.step(s, a)
+        info = s.info
+        sub = info["contact_substep_substeps"]
+        out = (
+            info["contact_control"].diag.p_contact,
+            info["contact_control_truth"],
+            sub["p_contact"],
+            sub["truth"],
+            sub.get("truth_raw", sub["truth"]),
+            s.done,
+        )
+        return s, out
 
-        def body(s, a):
-            s = outer.step(s, a)
-            info = s.info
-            sub = info["contact_substep_substeps"]
-            out = (
-                info["contact_control"].diag.p_contact,
-                info["contact_control_truth"],
-                sub["p_contact"],
-                sub["truth"],
-                sub.get("truth_raw", sub["truth"]),
-                s.done,
-            )
-            return s, out
-
-        return jax.lax.scan(body, state, a_seq)[1]
+    @jax.jit
+    def rollout(keys, a_seq):
+        return jax.lax.scan(jax.vmap(step), jax.vmap(outer.reset)(keys), a_seq)[1]
 
     keys = jax.random.split(key, acts.shape[1])
-    p_c, t_c, p_s, t_s, t_raw, done = jax.jit(jax.vmap(rollout, in_axes=(0, 1)))(keys, acts)
-    # (E, T, ...) -> time first.
-    p_c, t_c, done = (np.moveaxis(np.asarray(x), 0, 1) for x in (p_c, t_c, done))
-    p_s, t_s, t_raw = (np.moveaxis(np.asarray(x), 0, 1) for x in (p_s, t_s, t_raw))
+    p_c, t_c, p_s, t_s, t_raw, done = rollout(keys, jnp.asarray(acts))
+    p_c, t_c, done, p_s, t_s, t_raw = map(np.asarray, (p_c, t_c, done, p_s, t_s, t_raw))
     has_raw = outer.contact_core.truth_raw is not None
     if not np.array_equal(t_s[:, :, -1], t_c):
         raise RuntimeError("the two estimators saw different truths: rollouts diverged")
