@@ -18,6 +18,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 from mujoco_playground._src import locomotion
+from wrapper_helpers import Traced
 
 from jax_contact.envs import playground_offline
 from jax_contact.envs import wrapper as W
@@ -77,7 +78,9 @@ def test_jitted_reset_and_steps(name):
     env = playground_offline.load(name)
     cfg = W.ContactObsConfig(obs_keys=("state", "privileged_state"))
     wrapped = W.wrap_contact(env, cfg)
-    reset, step = jax.jit(wrapped.reset), jax.jit(wrapped.step)
+    # Traced: strongly typed outputs, so step compiles once (reset's weak-typed metrics
+    # would give step a second signature after its first call).
+    reset, step = Traced(wrapped.reset), Traced(wrapped.step)
     state = reset(jax.random.PRNGKey(0))
     sizes = wrapped.observation_size
     for _ in range(3):
@@ -91,3 +94,4 @@ def test_jitted_reset_and_steps(name):
     np.testing.assert_allclose(np.asarray(state.obs["privileged_state"])[-2:], p, rtol=1e-6)
     assert int(state.info["contact_est"].n_updates) == 3 * env.n_substeps
     assert state.info["contact_est_truth"].shape == (2,)
+    assert (reset.traces, step.traces) == (1, 1)
