@@ -198,6 +198,8 @@ def _cmd_bench(args: argparse.Namespace) -> int:
         argv += ["--envs", *map(str, args.envs)]
     if args.versus_envs:
         argv += ["--versus-envs", *map(str, args.versus_envs)]
+    if args.latency_calls:
+        argv += ["--latency-calls", str(args.latency_calls)]
     suite.main(argv)
     return 0
 
@@ -655,6 +657,12 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         help="batch sizes vs mjx.step; the largest, rounded up to a multiple of 8, is also"
         " the sharding check's (default: 1024 4096)",
+    )
+    p.add_argument(
+        "--latency-calls",
+        type=_positive_int,
+        default=None,
+        help="timed calls per single-robot latency row (default: 10000)",
     )
     return parser
 
