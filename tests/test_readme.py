@@ -17,8 +17,9 @@ flag (with all its values) or are appended. The long commands run at their small
 flags: ``demo`` with ``--size tiny`` (2 envs for 0.5 s; still every scenario, so mostly
 compilation), ``train`` with ``--config tiny`` (160 steps of 8 envs), only the variant
 that ``policy-eval`` reads (each variant compiles its own environment and PPO step:
-minutes) and no final evaluation (``policy-eval`` is one), ``bench`` with 4 and 8 envs,
-``rates`` with one scene. ``reproduce --size tiny`` is ``demo --size tiny``'s job and is
+minutes) and no final evaluation (``policy-eval`` is one), ``bench`` with 1 and 8 envs
+and 100 latency calls, ``rates`` with one scene; all compiled at XLA's optimisation level
+0 (:data:`_ENV`). ``reproduce --size tiny`` is ``demo --size tiny``'s job and is
 checked to be (:data:`SAME_JOB`), not run again. Checked:
 exit code 0, no traceback, no XLA C++ log line (``E1201 ... Very slow compile?``), and
 every file the command is documented to write exists (:func:`expected_outputs`). The README
