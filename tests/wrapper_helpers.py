@@ -11,6 +11,10 @@ from mujoco import mjx
 from mujoco_playground._src import mjx_env
 
 
+def _strong(x: jax.Array) -> jax.Array:
+    return jax.lax.convert_element_type(x, x.dtype)
+
+
 class Traced:
     """``jax.jit(fn)`` that counts its traces and returns strongly typed arrays.
 
@@ -25,7 +29,8 @@ class Traced:
         def counted(*args):
             self.traces += 1
             out = fn(*args)
-            return jax.tree.map(lambda x: jax.lax.convert_element_type(x, x.dtype), out)
+            # jnp.asarray first: an env may return a Python number (Berkeley Humanoid's info).
+            return jax.tree.map(lambda x: _strong(jnp.asarray(x)), out)
 
         self._jitted = jax.jit(counted)
 
