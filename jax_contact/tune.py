@@ -103,7 +103,13 @@ their whole length: their loss without the prior (mean BCE + ``w_e`` x the mean 
 term, :func:`score_logs`) decides early stopping (``patience`` epochs without improving
 by ``min_delta``), and the parameters returned are those of the best validation epoch
 (epoch 0, the untuned parameters, included, so tuning never returns a worse validation
-loss than the defaults'). The validation air-phase failure rate is reported too.
+loss than the defaults'). The validation air-phase failure rate is reported too. With
+``select="cells"`` an epoch is returned only if it is *no worse than epoch 0 in any
+validation cell* (:func:`no_worse`: on each validation log separately, F1, accuracy, ECE,
+the air-phase failure rate and the magnitude of both mean event delays; ties allowed),
+the lowest validation loss among those; when none is, the untuned parameters (epoch 0).
+It trades the single loss's optimum for issue 15's "every cell at least as good as the
+defaults", measured on validation.
 
 Randomness: the key ``jax.random.key(config.seed)`` is folded with the epoch, log and
 window numbers, so a run is reproducible (the key only feeds the Monte-Carlo touch-down;
@@ -394,7 +400,8 @@ class TuneConfig:
         run that starts this close before a true touch-down and lasts into it is the
         touch-down's detection, not a false contact, and is not scored.
       select: which validation number picks the epoch returned: ``"loss"`` (BCE plus the
-        event term, the default) or ``"bce"``.
+        event term, the default), ``"bce"``, or ``"cells"`` (the lowest loss among the
+        epochs no worse than epoch 0 in any validation cell, :func:`no_worse`).
     """
 
     learning_rate: float = 0.05
@@ -430,8 +437,10 @@ class TuneConfig:
                 f"TuneConfig.event_temperature must be a finite number > 0,"
                 f" got {self.event_temperature!r}"
             )
-        if self.select not in ("loss", "bce"):
-            raise ValueError(f"TuneConfig.select must be 'loss' or 'bce', got {self.select!r}")
+        if self.select not in SELECT_RULES:
+            raise ValueError(
+                f"TuneConfig.select must be one of {SELECT_RULES}, got {self.select!r}"
+            )
         for name, low in (("max_epochs", 0), ("patience", 1), ("chunk", 1)):
             v = getattr(self, name)
             if not isinstance(v, int) or v < low:
@@ -808,28 +817,72 @@ def _event_sum(logits, window, temperature):
 
 def score_logs(
     logits: Sequence, datas: Sequence[TuningData], *, dt: float, config: TuneConfig
-) -> dict[str, float]:
+) -> dict:
     """Pooled validation scores of whole logs (each (T, E, L) logits with its data).
 
     ``bce`` (mean over masked foot-steps), ``event`` (the event term's mean over air
     phases; NaN without :class:`AirPhases`), ``loss`` (``bce + event_weight * event``,
     no prior), ``f1``, ``ece`` and ``fail`` (``jax_contact.metrics``' air-phase failure
-    rate: air phases with a false contact / air phases, events per log).
+    rate: air phases with a false contact / air phases, events per log), and ``cells``:
+    per log, the numbers :func:`no_worse` compares (:data:`CELL_KEYS`).
     """
     from jax_contact.metrics import evaluate
 
     out = score_logits(np.concatenate([np.asarray(x).reshape(-1) for x in logits]), pooled(datas))
     ev_sum = n_ph = failed = n_air = 0.0
+    cells = []
     for x, d in zip(logits, datas, strict=True):
         if d.events is not None:
             e, n = _event_sum(jnp.asarray(x), d.replace(meas=None), config.event_temperature)
             ev_sum, n_ph = ev_sum + float(e), n_ph + float(n)
         m = evaluate(sigmoid_np(x), np.asarray(d.truth, bool), np.asarray(d.mask, bool), dt=dt)
         failed, n_air = failed + m.air_phases_with_failure, n_air + m.n_air_phases
+        cells.append(
+            dict(
+                f1=float(m.f1),
+                accuracy=float(m.accuracy),
+                ece=float(m.ece),
+                fail=float(m.air_phase_failure_rate),
+                touchdown_ms=abs(float(m.touchdown_delay_ms[0])),
+                liftoff_ms=abs(float(m.liftoff_delay_ms[0])),
+            )
+        )
     out["event"] = ev_sum / n_ph if n_ph else float("nan")
     out["loss"] = out["bce"] + (config.event_weight * out["event"] if n_ph else 0.0)
     out["fail"] = failed / n_air if n_air else float("nan")
+    out["cells"] = cells
     return out
+
+
+SELECT_RULES = ("loss", "bce", "cells")
+# The validation cells of select="cells": per log, (key, +1 higher is better / -1 lower is).
+CELL_KEYS = (
+    ("f1", 1),
+    ("accuracy", 1),
+    ("ece", -1),
+    ("fail", -1),
+    ("touchdown_ms", -1),
+    ("liftoff_ms", -1),
+)
+
+
+def no_worse(cells: Sequence[dict], reference: Sequence[dict]) -> bool:
+    """Whether every validation cell of ``cells`` is at least as good as ``reference``'s.
+
+    Both are :func:`score_logs`' ``cells`` (one dict per validation log). A cell is a log
+    and one of :data:`CELL_KEYS`; ties count as no worse, and a number that is NaN in
+    both (e.g. no air phase, no event to time) is not compared; NaN in one only is worse.
+    """
+    if len(cells) != len(reference):
+        raise ValueError(f"{len(cells)} validation logs' cells against {len(reference)}")
+    for got, ref in zip(cells, reference, strict=True):
+        for key, sign in CELL_KEYS:
+            a, b = float(got[key]), float(ref[key])
+            if np.isnan(a) and np.isnan(b):
+                continue
+            if np.isnan(a) or np.isnan(b) or sign * (a - b) < 0:
+                return False
+    return True
 
 
 # ------------------------------------------------------------------------------ tuning
@@ -847,7 +900,8 @@ class TuneResult:
         ``val_bce``, ``val_event``, ``val_loss``, ``val_f1``, ``val_ece``, ``val_fail``
         (:func:`score_logs`), ``grad_norm``, ``wall_s``.
       best_epoch: the epoch whose parameters are returned (lowest ``val_loss``, or
-        ``val_bce`` with ``config.select == "bce"``).
+        ``val_bce`` with ``config.select == "bce"``, or the lowest ``val_loss`` among the
+        epochs :func:`no_worse` than epoch 0 with ``"cells"``).
       stopped_early: whether patience ran out before ``max_epochs``.
       wall_s: total wall time, s (compilation included).
     """
@@ -928,8 +982,18 @@ def tune(
     history.append(first)
     if progress:
         progress(first)
-    crit = "val_loss" if config.select == "loss" else "val_bce"
+    crit = "val_bce" if config.select == "bce" else "val_loss"
     best, best_theta, best_epoch, bad = first[crit], theta, 0, 0
+
+    # The compiled training step depends on the loss and optimiser only: one program
+    # whatever the epochs, patience or selection rule.
+    step_config = dataclasses.replace(
+        config, select="loss", max_epochs=0, patience=1, min_delta=0.0
+    )
+
+    def admissible(row) -> bool:
+        return config.select != "cells" or no_worse(row["val_cells"], first["val_cells"])
+
     stopped = False
     for epoch in range(1, config.max_epochs + 1):
         losses, bces, norms, counts = [], [], [], []
@@ -940,8 +1004,9 @@ def tune(
                 win = _window(data, start, config.chunk)
                 k = jax.random.fold_in(jax.random.fold_in(jax.random.fold_in(key, epoch), i), w)
                 theta, opt_state, belief, loss, bce, n, gn = _train_window(
-                    theta, opt_state, space, base, theta0, lower, terrain, belief, win, config, k
-                )
+                    theta, opt_state, space, base, theta0, lower, terrain, belief, win,
+                    step_config, k,
+                )  # fmt: skip
                 losses.append(float(loss))
                 bces.append(float(bce))
                 counts.append(float(n))
@@ -958,7 +1023,7 @@ def tune(
         history.append(row)
         if progress:
             progress(row)
-        if row[crit] < best - config.min_delta:
+        if row[crit] < best - config.min_delta and admissible(row):
             best, best_theta, best_epoch, bad = row[crit], theta, epoch, 0
         else:
             bad += 1

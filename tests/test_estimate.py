@@ -416,7 +416,7 @@ def test_terrain_model_reaches_the_replay_of_evaluate_and_estimate(
 
     monkeypatch.setattr(evaluate, "replay", fake_replay)
     args = _parser().parse_args(["estimate", "r.csv", "--model", "m.xml", "--out", "o"])
-    assert args.terrain_model == "flat"
+    assert args.terrain_model is None  # the --params file's own, else flat
     with pytest.raises(Stop):
         logs.evaluate_file(LOG, terrain_model="memory")
     cols = log_to_columns(planar_log, names=RENAME, units="rad")
@@ -433,6 +433,42 @@ def test_terrain_model_reaches_the_replay_of_evaluate_and_estimate(
             terrain_model="memory",
         )
     assert [type(t).__name__ for t in seen] == ["FootholdMemory", "FootholdMemory"]
+
+
+def test_a_params_file_runs_on_the_terrain_model_it_was_tuned_with(tmp_path, monkeypatch):
+    """A file whose provenance says ``terrain_model: memory`` (``jax-contact tune
+    --terrain-model memory``) is replayed on the foothold memory unless the user names a
+    terrain model; a file that does not say, and no file, on the plane; a provenance naming
+    an unknown model is refused naming the file and the field."""
+    import jax_contact as jc
+    from jax_contact.train import evaluate, logs
+
+    desc = load_robot("planar_leg").description
+    params, _ = logs.default_estimator(desc, 0.0025)
+    jc.save_params(tmp_path / "mem.json", params, {"terrain_model": "memory"})
+    jc.save_params(tmp_path / "old.json", params, {"tool": "before the option"})
+    jc.save_params(tmp_path / "bad.json", params, {"terrain_model": "stairs"})
+    assert logs.file_terrain_model(tmp_path / "mem.json") == "memory"
+    assert logs.file_terrain_model(tmp_path / "old.json") is None
+    assert logs.resolve_terrain_model(None, None) == "flat"
+    assert logs.resolve_terrain_model("flat", tmp_path / "mem.json") == "flat"
+    with pytest.raises(ValueError, match=r"bad\.json.*'terrain_model'.*'stairs'"):
+        logs.resolve_terrain_model(None, tmp_path / "bad.json")
+
+    seen = []
+
+    class Stop(Exception):
+        pass
+
+    def fake_replay(*args, terrain, **kwargs):
+        seen.append(type(terrain).__name__)
+        raise Stop
+
+    monkeypatch.setattr(evaluate, "replay", fake_replay)
+    for path, model in [("mem.json", None), ("mem.json", "flat"), ("old.json", None)]:
+        with pytest.raises(Stop):
+            logs.evaluate_file(LOG, params_path=tmp_path / path, terrain_model=model)
+    assert seen == ["FootholdMemory", "FlatTerrain", "FlatTerrain"]
 
 
 def test_a_params_file_is_checked_against_the_robot_and_rate(tmp_path, capsys):

@@ -256,6 +256,55 @@ def test_tuning_stops_at_the_noise_floor():
     assert res.history[res.best_epoch]["val_bce"] < res.history[0]["val_bce"]
 
 
+def test_select_cells_keeps_the_lowest_loss_epoch_no_worse_than_the_defaults():
+    """select="cells" on the recovery problem (the same compiled training step): epoch 0's
+    cells are jax_contact.metrics of the untuned filter on the validation log (recomputed
+    here), the epoch returned is no worse than epoch 0 in any cell, and every epoch with a
+    lower validation loss is worse in some cell (the rule, tune's docstring)."""
+    from jax_contact.metrics import evaluate
+
+    train, val = _synthetic(1), _synthetic(2)
+    space = jt.make_space(4, fields=("sigma_J",))
+    config = jt.TuneConfig(
+        learning_rate=0.1, max_epochs=25, patience=5, chunk=300, prior_noise=0.0, seed=0,
+        event_weight=0.0, select="cells",
+    )  # fmt: skip
+    wrong = _synthetic_params(SIGMA_J_WRONG)
+    res = jt.tune(wrong, flat(0.0, 0.05), [train], val, space, config)
+    hist = res.history
+    logits = jt.predict_logits(wrong, flat(0.0, 0.05), val, key=jax.random.key(0), chunk=300)
+    m = evaluate(jt.sigmoid_np(np.asarray(logits)), val.truth, val.mask, dt=DT)
+    (cell0,) = hist[0]["val_cells"]
+    assert cell0["f1"] == pytest.approx(m.f1, abs=1e-6)
+    assert cell0["ece"] == pytest.approx(m.ece, abs=1e-6)
+    assert cell0["fail"] == pytest.approx(m.air_phase_failure_rate, abs=1e-9)
+    assert cell0["touchdown_ms"] == pytest.approx(abs(m.touchdown_delay_ms[0]), abs=1e-6)
+    chosen = hist[res.best_epoch]
+    assert jt.no_worse(chosen["val_cells"], hist[0]["val_cells"])
+    for row in hist[1:]:
+        if row["val_loss"] < chosen["val_loss"] - config.min_delta:
+            assert not jt.no_worse(row["val_cells"], hist[0]["val_cells"]), row["epoch"]
+
+
+def test_no_worse_by_hand():
+    ref = [dict(f1=0.9, accuracy=0.9, ece=0.02, fail=0.01, touchdown_ms=5.0, liftoff_ms=3.0)]
+    assert jt.no_worse(ref, ref)  # ties are no worse
+    better = [dict(ref[0], f1=0.95, ece=0.01)]
+    assert jt.no_worse(better, ref) and not jt.no_worse(ref, better)
+    for key, worse in [
+        ("f1", 0.89), ("accuracy", 0.8), ("ece", 0.03), ("fail", 0.02),
+        ("touchdown_ms", 5.5), ("liftoff_ms", 3.1),
+    ]:  # fmt: skip
+        assert not jt.no_worse([dict(better[0], **{key: worse})], ref), key
+    nan = [dict(ref[0], fail=float("nan"))]  # no air phase: nothing to compare
+    assert jt.no_worse(nan, nan) and not jt.no_worse(nan, ref) and not jt.no_worse(ref, nan)
+    two = ref + [dict(ref[0], f1=0.5)]
+    assert jt.no_worse(better + [dict(ref[0], f1=0.5)], two)
+    assert not jt.no_worse(better + [dict(ref[0], f1=0.49)], two)  # one log's cell is enough
+    with pytest.raises(ValueError, match="2 validation logs' cells against 1"):
+        jt.no_worse(two, ref)
+
+
 def test_theta_lower_bounds_by_hand():
     """Group multipliers: exp(theta_g) >= max over the group's coordinates of floor/sigma0.
     sigma_qd = (1, 1, 2, 2, 2, 4, 4, 4) in groups (0, 0, 1, 1, 1, 2, 2, 2) with floor
@@ -336,9 +385,15 @@ def test_config_rejects_bad_values():
 
 
 def test_tune_cmd_field_list_is_the_librarys():
-    from jax_contact.train import tune_cmd
+    import argparse
+
+    from jax_contact.train import logs, tune_cmd
 
     assert tune_cmd.TUNABLE_FIELDS == jt.DEFAULT_FIELDS
+    p = tune_cmd.add_parser(argparse.ArgumentParser().add_subparsers())
+    choices = {a.dest: a.choices for a in p._actions if a.choices}
+    assert tuple(choices["select"]) == jt.SELECT_RULES
+    assert tuple(choices["terrain_model"]) == logs.TERRAIN_MODELS
 
 
 def test_tune_cmd_checks_arguments_without_jax(tmp_path):

@@ -102,10 +102,11 @@ def add_terrain_model_flag(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--terrain-model",
         choices=TERRAIN_MODELS,
-        default="flat",
+        default=None,
         help="the estimator's ground: flat, a plane at z = 0 of the log's world frame (5 cm"
         " std; the reproduction's); memory, where each foot last stood, averaged over its"
-        " stance: for a base position that drifts (docs/model_choices.md)",
+        " stance: for a base position that drifts (docs/model_choices.md). Default: the one"
+        " the --params file was tuned with (its provenance), else flat",
     )
 
 

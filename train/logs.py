@@ -202,15 +202,58 @@ def default_estimator(desc, dt: float, terrain_model: str = "flat"):
         quadruped_estimator_params,
     )
 
-    if terrain_model not in TERRAIN_MODELS:
-        raise ValueError(f"terrain_model must be one of {TERRAIN_MODELS}, got {terrain_model!r}")
+    check_terrain_model(terrain_model)
     if desc.n_leg_dofs == 2:
         params, plane = planar_estimator_params(desc.nv, dt), jc.flat(0.0, 0.2)
     else:
         params, plane = quadruped_estimator_params(desc, dt), jc.flat(0.0, TERRAIN_SIGMA)
+    return params, terrain_for(plane, terrain_model)
+
+
+def check_terrain_model(terrain_model: str) -> None:
+    """Raises ValueError unless ``terrain_model`` is one of :data:`TERRAIN_MODELS`."""
+    if terrain_model not in TERRAIN_MODELS:
+        raise ValueError(f"terrain_model must be one of {TERRAIN_MODELS}, got {terrain_model!r}")
+
+
+def terrain_for(plane, terrain_model: str):
+    """The estimator's terrain of ``terrain_model`` over ``plane``: the plane itself
+    (``"flat"``), or a :func:`jax_contact.foothold_memory` over it with
+    :data:`FOOTHOLD_MEMORY` (``"memory"``)."""
+    import jax_contact as jc
+
+    check_terrain_model(terrain_model)
     if terrain_model == "memory":
-        return params, jc.foothold_memory(plane, **FOOTHOLD_MEMORY)
-    return params, plane
+        return jc.foothold_memory(plane, **FOOTHOLD_MEMORY)
+    return plane
+
+
+def file_terrain_model(path) -> str | None:
+    """The terrain model a parameter file (or preset name) was tuned with
+    (``provenance["terrain_model"]`` of ``jax-contact tune``), or None when it does not say
+    (files written before the option: tuned on the plane)."""
+    from jax_contact.io import load_params
+
+    _, prov = load_params(path, with_provenance=True)
+    model = prov.get("terrain_model")
+    if model is not None and model not in TERRAIN_MODELS:
+        raise ValueError(
+            f"parameter file {str(path)!r}: provenance field 'terrain_model' must be one of"
+            f" {TERRAIN_MODELS}, got {model!r}"
+        )
+    return model
+
+
+def resolve_terrain_model(terrain_model: str | None, params_path) -> str:
+    """``--terrain-model`` as given, else the parameter file's own
+    (:func:`file_terrain_model`), else ``"flat"``: parameters tuned with a foothold memory
+    are run with it unless the user says otherwise."""
+    if terrain_model is not None:
+        check_terrain_model(terrain_model)
+        return terrain_model
+    if params_path is not None:
+        return file_terrain_model(params_path) or "flat"
+    return "flat"
 
 
 def tune_gm(path: str | Path) -> tuple[str, object, dict]:
@@ -255,7 +298,7 @@ def evaluate_file(
     gm_grid_log: str | Path | None = None,
     params_path: str | Path | None = None,
     foot_names: Sequence[str] | None = None,
-    terrain_model: str = "flat",
+    terrain_model: str | None = None,
 ) -> dict:
     """Runs the estimator, GM observer and kinematic detector on a log; prints the metrics.
 
@@ -277,7 +320,8 @@ def evaluate_file(
         robot's defaults (:func:`default_estimator`).
       foot_names: the feet, overriding the log's.
       terrain_model: the estimator's terrain model, one of :data:`TERRAIN_MODELS`
-        (:func:`default_estimator`).
+        (:func:`default_estimator`); None: the one ``params_path`` was tuned with, else
+        ``"flat"`` (:func:`resolve_terrain_model`).
 
     Returns:
       ``log``, ``attrs``, ``scores`` (detector -> metrics; empty without ground truth),
@@ -296,9 +340,7 @@ def evaluate_file(
 
     log = load_log(path, foot_names=foot_names)
     name, truth, desc, dt = log.name, log.truth, log.robot.description, log.dt
-    params, terrain = default_estimator(desc, dt, terrain_model)
-    if params_path is not None:
-        params = _load_params_for(params_path, desc, dt)
+    params, terrain_model, terrain = _estimator_for(desc, dt, params_path, terrain_model)
     gm_name, gm = "gm", make_gm_params()
     if gm_grid_log is not None and truth is not None:
         gm_name, gm, _ = tune_gm(gm_grid_log)
@@ -344,6 +386,20 @@ def evaluate_file(
         write_json_atomic(json_path, json.loads(json.dumps(result, default=_plain)))
     result["outputs"] = out  # not in the JSON: (T, E, L) arrays of every detector
     return result
+
+
+def _estimator_for(desc, dt: float, params_path, terrain_model: str | None):
+    """(params, terrain model, terrain) of ``evaluate`` and ``estimate``: the defaults
+    (:func:`default_estimator`) or ``params_path`` checked against the robot and period, on
+    the terrain model given, else the file's own (:func:`resolve_terrain_model`), which is
+    then printed."""
+    model = resolve_terrain_model(terrain_model, params_path)
+    if terrain_model is None and model != "flat":
+        print(f"terrain model {model!r}: the one {str(params_path)!r} was tuned with")
+    params, terrain = default_estimator(desc, dt, model)
+    if params_path is not None:
+        params = _load_params_for(params_path, desc, dt)
+    return params, model, terrain
 
 
 def _load_params_for(path, desc, dt):

@@ -650,14 +650,15 @@ def estimate_recording(
     plots: bool = True,
     plot_seconds: float = 4.0,
     progress: bool = True,
-    terrain_model: str = "flat",
+    terrain_model: str | None = None,
 ) -> dict:
     """``jax-contact estimate``: P(contact) per foot for a recording (module docstring).
 
     ``terrain_model``: the estimator's terrain model
     (:data:`jax_contact.train.logs.TERRAIN_MODELS`): ``"flat"`` a plane at z = 0 of the
     recording's world frame, ``"memory"`` the feet's own footholds, for a ``base_pos`` that
-    drifts (a state estimator's, over a long recording).
+    drifts (a state estimator's, over a long recording); None: the one ``params_path`` was
+    tuned with, else ``"flat"``.
 
     Writes into ``out_dir``: ``estimate.h5`` (``time`` (T,), ``p_contact``, each of
     :data:`DIAGNOSTICS` and ``valid`` as (T, L) arrays, ``truth/contact`` when known;
@@ -674,15 +675,13 @@ def estimate_recording(
     from jax_contact.envs.robots import load_robot
     from jax_contact.io import write_json_atomic, write_log
     from jax_contact.train.evaluate import replay, score
-    from jax_contact.train.logs import _load_params_for, default_estimator, format_scores
+    from jax_contact.train.logs import _estimator_for, format_scores
 
     rec = read_recording(path)
     robot = load_robot(model, foot_names=feet)
     conv = to_readings(rec, robot, names=names, units=units, resample=resample)
     desc = robot.description
-    params, terrain = default_estimator(desc, conv.dt, terrain_model)
-    if params_path is not None:
-        params = _load_params_for(params_path, desc, conv.dt)
+    params, terrain_model, terrain = _estimator_for(desc, conv.dt, params_path, terrain_model)
     terms = tuple(t for t in params.terms if t in conv.terms)
     if not terms:
         raise ValueError(

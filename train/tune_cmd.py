@@ -133,9 +133,11 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--select",
-        choices=("loss", "bce"),
+        choices=("loss", "bce", "cells"),  # jax_contact.tune.SELECT_RULES
         default="loss",
-        help="validation number that picks the epoch kept (loss: BCE + event term)",
+        help="validation number that picks the epoch kept (loss: BCE + event term; cells:"
+        " the lowest loss among the epochs no worse than the defaults in any validation"
+        " log's F1, accuracy, ECE, air-phase failures and mean delays)",
     )
     p.add_argument(
         "--noise-floor",
@@ -156,6 +158,14 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         metavar="FIELD",
         help="fields kept at their defaults (e.g. stance_time takeoff_accel); the rest of"
         " jax_contact.tune.DEFAULT_FIELDS is tuned",
+    )
+    p.add_argument(
+        "--terrain-model",
+        choices=("flat", "memory"),  # jax_contact.train.logs.TERRAIN_MODELS
+        default="flat",
+        help="the estimator's ground while tuning, stored in the file's provenance (evaluate"
+        " and estimate then use it): flat, the plane at z = 0 (5 cm std); memory, where each"
+        " foot last stood, for a base position that drifts (docs/model_choices.md)",
     )
     p.add_argument("--note", default=None, help="free text stored in the provenance")
     p.set_defaults(func=run, check=check)
@@ -269,19 +279,24 @@ def read_truth_log(path: str | Path):
     return log.readings, log.truth, log.valid, log.attrs, log.robot
 
 
-def load_tuning_log(path: str | Path):
+def load_tuning_log(path: str | Path, terrain_model: str = "flat"):
     """A log file -> (TuningData, robot, attrs, default params, terrain).
+
+    ``terrain_model``: the estimator's terrain over the log's plane
+    (:func:`jax_contact.train.logs.terrain_for`).
 
     Raises:
       ValueError: as :func:`read_truth_log`.
     """
     import numpy as np
 
+    from jax_contact.train.logs import terrain_for
     from jax_contact.tune import TuningData
 
     readings, truth, valid, attrs, robot = read_truth_log(path)
     dt = float(attrs["dt"])
-    params, terrain = default_params(robot, dt, str(attrs.get("noise", "anymal_like")))
+    params, plane = default_params(robot, dt, str(attrs.get("noise", "anymal_like")))
+    terrain = terrain_for(plane, terrain_model)
     meas = measure_readings(robot, readings)
     mask = np.broadcast_to(valid[..., None], truth.shape)
     return TuningData(meas=meas, truth=truth, mask=np.array(mask)), robot, attrs, params, terrain
@@ -441,7 +456,10 @@ def compare(
 
     Args:
       robot: the robot simulated and evaluated.
-      variants: row name -> parameter file or preset name, or None for the defaults.
+      variants: row name -> parameter file or preset name, or None for the defaults, or a
+        pair (one of those, terrain model); without a terrain model a file runs on the one
+        it was tuned with (:func:`jax_contact.train.logs.file_terrain_model`), the defaults
+        on the plane.
       plots: a folder for one reliability diagram per scenario, or None.
 
     Returns:
@@ -453,27 +471,41 @@ def compare(
     from jax_contact import tune as jt
     from jax_contact.train.calibration import reliability_diagram
     from jax_contact.train.evaluate import replay, score
+    from jax_contact.train.logs import file_terrain_model, terrain_for
 
+    def terrain_model_of(source) -> tuple[object, str]:
+        if isinstance(source, tuple):
+            return source
+        return source, (file_terrain_model(source) if source is not None else None) or "flat"
+
+    sources = {name: terrain_model_of(source) for name, source in variants.items()}
     results = {}
     for scenario in scenarios:
         path = Path(workdir) / f"{robot}_{scenario}_s{seed}.h5"
         if not path.is_file():
             simulate_log(path, robot, scenario, seed, n_envs=n_envs, duration=duration)
         readings, truth, valid, attrs, robo = read_truth_log(path)
-        base, terrain = default_params(robo, float(attrs["dt"]), attrs.get("noise", "anymal_like"))
-        estimators, cals = {}, {}
-        for name, source in variants.items():
-            if source is None:
-                estimators[name] = base
-                continue
-            params, prov = jc.load_params(source, with_provenance=True)
-            estimators[name] = params
-            if "calibration" in prov:
-                cals[name] = jt.Calibration.from_dict(prov["calibration"])
-        out = replay(
-            robo, readings, estimators=estimators, terrain=terrain, dt=float(attrs["dt"]),
-            seed=seed, progress=False,
-        )  # fmt: skip
+        base, plane = default_params(robo, float(attrs["dt"]), attrs.get("noise", "anymal_like"))
+        out, cals = {}, {}
+        # One replay per terrain model (the replay runs every estimator on one terrain).
+        for model in dict.fromkeys(m for _, m in sources.values()):
+            estimators = {}
+            for name, (source, m) in sources.items():
+                if m != model:
+                    continue
+                if source is None:
+                    estimators[name] = base
+                    continue
+                params, prov = jc.load_params(source, with_provenance=True)
+                estimators[name] = params
+                if "calibration" in prov:
+                    cals[name] = jt.Calibration.from_dict(prov["calibration"])
+            out.update(
+                replay(
+                    robo, readings, estimators=estimators, terrain=terrain_for(plane, model),
+                    dt=float(attrs["dt"]), seed=seed, progress=False,
+                )
+            )  # fmt: skip
         for name, cal in cals.items():
             p = np.clip(np.asarray(out[name], np.float64), 1e-7, 1 - 1e-7)
             out[f"{name}+cal"] = jt.sigmoid_np(jt.apply_calibration(np.log(p / (1 - p)), cal))
@@ -558,8 +590,9 @@ def run(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     train, infos = [], []
     base = terrain = robot_name = floor = None
+    terrain_model = getattr(args, "terrain_model", "flat")
     for path in args.logs:
-        data, robot, attrs, params, terr = load_tuning_log(path)
+        data, robot, attrs, params, terr = load_tuning_log(path, terrain_model)
         if floor is None and getattr(args, "noise_floor", "sensor") == "sensor":
             floor = sensor_floor(robot, float(attrs["dt"]), str(attrs.get("noise", "anymal_like")))
         if robot_name is not None and attrs["robot"] != robot_name:
@@ -573,7 +606,7 @@ def run(args: argparse.Namespace) -> int:
     vals, vinfos = [], []
     validate = [args.validate] if isinstance(args.validate, str) else list(args.validate)
     for path in validate:
-        val, _, vattrs, _, _ = load_tuning_log(path)
+        val, _, vattrs, _, _ = load_tuning_log(path, terrain_model)
         if vattrs["robot"] != robot_name:
             raise ValueError(
                 f"argument --validate: log {path!r} is of robot {vattrs['robot']!r}, the"
@@ -625,6 +658,12 @@ def run(args: argparse.Namespace) -> int:
         f" tuning {result.wall_s:.1f} s, total {time.perf_counter() - t0:.1f} s",
         file=sys.stderr,
     )
+    if result.best_epoch == 0:
+        print(
+            "no epoch improved the validation loss: the file holds the untuned defaults"
+            + (" (and the calibration map)" if args.calibrate else ""),
+            file=sys.stderr,
+        )
     table = jt.describe(space, base, result.params)
     for r in table:
         print(
@@ -643,6 +682,7 @@ def run(args: argparse.Namespace) -> int:
         "library_version": lib,
         "jax_version": jax.__version__,
         "robot": robot_name,
+        "terrain_model": terrain_model,
         "logs": infos,
         "validation": vinfos,
         "seeds": {
