@@ -659,8 +659,13 @@ def run(args: argparse.Namespace) -> int:
         file=sys.stderr,
     )
     if result.best_epoch == 0:
+        why = (
+            "no epoch was no worse than the defaults in every validation cell"
+            if config.select == "cells"
+            else "no epoch improved the validation loss"
+        )
         print(
-            "no epoch improved the validation loss: the file holds the untuned defaults"
+            f"{why}: the file holds the untuned defaults"
             + (" (and the calibration map)" if args.calibrate else ""),
             file=sys.stderr,
         )
