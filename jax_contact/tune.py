@@ -20,7 +20,15 @@ vector ``theta``:
 - the five confidence caps, in logit space on their allowed interval (0.5, 1):
   ``cap = (1 + sigmoid(theta)) / 2``;
 - ``T_s`` (``stance_time``, eq. 12) in a bounded interval, ``T_s = lo + (hi - lo)
-  sigmoid(theta)`` (below), and ``a_F`` (``takeoff_accel``, eq. 15) in log space.
+  sigmoid(theta)`` (below), and ``a_F`` (``takeoff_accel``, eq. 15) in log space;
+- on request only (:data:`OPTIONAL_FIELDS`), the stabilised contact's damping ``b``
+  (``contact_damping``, eq. 6 stabilised, docs/model_choices.md) in log space, centred on
+  ``params_for``'s ``2 / contact_timeconst``. It is a property of the foot and the ground
+  (how fast a landing foot comes to rest), not of the sensors, so nothing floors it; a
+  tuned ``b`` far outside ``2 / (0.005 .. 0.1 s)`` = 20-400 1/s no longer describes a
+  foot settling into the ground. Opt-in because it changes which swing feet fit the
+  contact hypothesis (a braking, still-descending foot fits a large ``b``), a trade
+  docs/tuning.md measures per robot before any preset tunes it.
 
 What a plausible ``T_s`` is: the gait prior's mean stance duration (eq. 12, ``P(A | C) =
 dt / T_s``), so it should lie among the stance durations of the gaits the robot runs.
@@ -40,7 +48,8 @@ gradient descent, so the gradient itself, and the finite-difference check of it,
 of the unbounded loss.
 
 Not tuned: ``dt``, the swing time (used only on invalid steps), the outlier model (from the
-sensors' outlier rate), the foothold threshold, the damping and the static switches.
+sensors' outlier rate), the foothold threshold, the static switches, and
+``contact_damping`` unless asked for.
 
 Loss (minimised with ``optax``: Adam after clipping the gradient's global norm)::
 
@@ -147,6 +156,11 @@ CAP_FIELDS = (
 )
 LOG_FIELDS = ("stance_time", "takeoff_accel")
 DEFAULT_FIELDS = NOISE_FIELDS + CAP_FIELDS + LOG_FIELDS
+# Tuned only when asked (``fields=DEFAULT_FIELDS + ("contact_damping",)``, ``jax-contact tune
+# --tune-also contact_damping``), in log space like ``a_F``: module docstring.
+OPTIONAL_FIELDS = ("contact_damping",)
+TUNABLE_FIELDS = DEFAULT_FIELDS + OPTIONAL_FIELDS
+SCALAR_FIELDS = CAP_FIELDS + LOG_FIELDS + OPTIONAL_FIELDS
 # Axis groups of the per-axis noise fields: sigma_f horizontal (x, y) and normal (z).
 AXIS_GROUPS = {"sigma_f": ((0, 0, 1), ("horizontal", "normal")), "sigma_J": ((0, 0, 0), ("xyz",))}
 # Where a cap of exactly 1 (unbounded) is the starting point, it starts just below.
@@ -164,7 +178,7 @@ class ParamSpace:
     """Which parameters are tuned and how the ``nv`` coordinates are tied (static).
 
     Attributes:
-      fields: names of tuned fields, among :data:`DEFAULT_FIELDS`.
+      fields: names of tuned fields, among :data:`TUNABLE_FIELDS`.
       dof_groups: (nv,) the group of each generalised coordinate.
       group_names: a name per coordinate group (for reports).
       stance_time_bounds: (lo, hi), s: the interval ``T_s`` is tuned in (a hard bound,
@@ -183,9 +197,9 @@ class ParamSpace:
                 f"stance_time_bounds must be 0 < lo < hi (s), got {self.stance_time_bounds!r}"
             )
         object.__setattr__(self, "stance_time_bounds", (lo, hi))
-        bad = [f for f in self.fields if f not in DEFAULT_FIELDS]
+        bad = [f for f in self.fields if f not in TUNABLE_FIELDS]
         if bad or not self.fields or len(set(self.fields)) != len(self.fields):
-            raise ValueError(f"fields must be distinct names among {DEFAULT_FIELDS}, got {bad}")
+            raise ValueError(f"fields must be distinct names among {TUNABLE_FIELDS}, got {bad}")
         n = len(self.group_names)
         if sorted(set(self.dof_groups)) != list(range(n)):
             raise ValueError(
@@ -295,7 +309,13 @@ def init_theta(space: ParamSpace, base: EstimatorParams) -> dict[str, jax.Array]
             x = (v - lo) / (hi - lo)
             theta[f] = jnp.asarray(np.log(x) - np.log1p(-x), jnp.float32)
         else:
-            theta[f] = jnp.asarray(np.log(float(getattr(base, f))), jnp.float32)
+            v = float(getattr(base, f))
+            if not (np.isfinite(v) and v > 0):
+                raise ValueError(
+                    f"{f} = {v} cannot be tuned in log space (it must be > 0); e.g."
+                    " contact_damping 0 is the rigid contact: start from params_for's value"
+                )
+            theta[f] = jnp.asarray(np.log(v), jnp.float32)
     return theta
 
 
@@ -309,7 +329,7 @@ def to_params(space: ParamSpace, base: EstimatorParams, theta: dict) -> Estimato
             ref = ref * jnp.exp(theta[f][idx]).astype(ref.dtype)
         noise[f] = ref
     values = {}
-    for f in CAP_FIELDS + LOG_FIELDS:
+    for f in SCALAR_FIELDS:
         if f not in theta:
             continue
         dtype = jnp.result_type(getattr(base, f))

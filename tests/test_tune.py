@@ -62,6 +62,7 @@ def _fd_problem():
         cap_transition=0.9,
         outlier_prob=0.02,
         dt=0.0025,
+        contact_damping=100.0,  # the stabilised contact, so that its (optional) b is tuned too
     )
     return base["noise"], scalars, meas, truth
 
@@ -76,7 +77,7 @@ def _fd_setup(event_weight: float = 0.0):
     noise, scalars, meas, truth = _fd_problem()
     base = make_params(make_noise(NV, **noise), **scalars, touchdown="quadrature")
     base = jax.tree.map(lambda x: jnp.asarray(x, jnp.float64), base)
-    space = jt.make_space(NV, dof_groups=(0, 0, 1, 1, 1, 2, 2, 2))
+    space = jt.make_space(NV, dof_groups=(0, 0, 1, 1, 1, 2, 2, 2), fields=jt.TUNABLE_FIELDS)
     theta0 = jax.tree.map(lambda x: jnp.asarray(x, jnp.float64), jt.init_theta(space, base))
     meas = LegMeasurement(
         **{
@@ -118,13 +119,13 @@ def _fd_setup(event_weight: float = 0.0):
         lambda x: value_and_grad(x)[0],
         lambda x: value_and_grad(x)[1],
         start,
-        (jax.jit(logits), data),
+        (jax.jit(logits), data, unravel),
     )
 
 
 @pytest.mark.parametrize("event_weight", [0.0, 5.0], ids=["bce", "bce+event"])
 def test_gradient_matches_central_differences(x64, event_weight):
-    loss, grad, x, (logits, data) = _fd_setup(event_weight)
+    loss, grad, x, (logits, data, unravel) = _fd_setup(event_weight)
     assert loss(x).dtype == jnp.float64
     if event_weight:
         # Not vacuous: some air steps are scored at x, and the event term changes the
@@ -142,8 +143,10 @@ def test_gradient_matches_central_differences(x64, event_weight):
     bad = np.abs(g - fd) > atol + rtol * np.abs(fd)
     assert np.all(np.isfinite(g))
     assert not bad.any(), f"entries {np.flatnonzero(bad)}: autodiff {g[bad]}, fd {fd[bad]}"
-    # The check is not vacuous: most entries have a gradient well above the tolerance.
+    # The check is not vacuous: most entries have a gradient well above the tolerance,
+    # the optional contact damping's among them.
     assert np.sum(np.abs(g) > 1e-4) >= x.shape[0] // 2
+    assert abs(float(unravel(jnp.asarray(g))["contact_damping"][()])) > 1e-4
 
 
 # ---------------------------------------------------------------- recovery of a std
@@ -344,6 +347,23 @@ def test_init_theta_maps_back_to_the_base_params():
                                rtol=1e-6)  # fmt: skip
 
 
+def test_contact_damping_is_tuned_in_log_space_only_when_asked():
+    base = make_params(make_noise(8), contact_damping=100.0)
+    assert "contact_damping" not in jt.DEFAULT_FIELDS
+    space = jt.make_space(8, fields=jt.DEFAULT_FIELDS + ("contact_damping",))
+    theta = jt.init_theta(space, base)
+    np.testing.assert_allclose(float(theta["contact_damping"]), np.log(100.0), rtol=1e-6)
+    # theta + log 2 doubles b: b = b0 exp(theta - theta0), like a_F.
+    theta["contact_damping"] = theta["contact_damping"] + np.log(2.0)
+    np.testing.assert_allclose(float(jt.to_params(space, base, theta).contact_damping), 200.0,
+                               rtol=1e-5)  # fmt: skip
+    # The rigid contact (b = 0) has no log: refused, naming the field.
+    with pytest.raises(ValueError, match="contact_damping = 0.0 cannot be tuned in log space"):
+        jt.init_theta(space, base.replace(contact_damping=jnp.float32(0.0)))
+    with pytest.raises(ValueError, match="fields must be distinct names"):
+        jt.make_space(8, fields=("contact_damping", "no_such_field"))
+
+
 def test_caps_stay_in_their_interval():
     base = make_params(make_noise(3))
     space = jt.make_space(3, fields=("cap_dynamics",))
@@ -390,10 +410,12 @@ def test_tune_cmd_field_list_is_the_librarys():
     from jax_contact.train import logs, tune_cmd
 
     assert tune_cmd.TUNABLE_FIELDS == jt.DEFAULT_FIELDS
+    assert tune_cmd.OPTIONAL_FIELDS == jt.OPTIONAL_FIELDS
     p = tune_cmd.add_parser(argparse.ArgumentParser().add_subparsers())
     choices = {a.dest: a.choices for a in p._actions if a.choices}
     assert tuple(choices["select"]) == jt.SELECT_RULES
     assert tuple(choices["terrain_model"]) == logs.TERRAIN_MODELS
+    assert tuple(choices["tune_also"]) == jt.OPTIONAL_FIELDS
 
 
 def test_tune_cmd_checks_arguments_without_jax(tmp_path):

@@ -28,8 +28,8 @@ import time
 from pathlib import Path
 
 LOG_SUFFIXES = (".h5", ".hdf5")
-# A copy of jax_contact.tune.DEFAULT_FIELDS (importing it imports JAX); tests/test_tune.py
-# checks that the two agree.
+# Copies of jax_contact.tune.DEFAULT_FIELDS and OPTIONAL_FIELDS (importing it imports JAX);
+# tests/test_tune.py checks that they agree.
 TUNABLE_FIELDS = (
     "sigma_q",
     "sigma_qd",
@@ -46,6 +46,7 @@ TUNABLE_FIELDS = (
     "stance_time",
     "takeoff_accel",
 )
+OPTIONAL_FIELDS = ("contact_damping",)
 
 
 # -------------------------------------------------------------------------- arguments
@@ -158,6 +159,15 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         metavar="FIELD",
         help="fields kept at their defaults (e.g. stance_time takeoff_accel); the rest of"
         " jax_contact.tune.DEFAULT_FIELDS is tuned",
+    )
+    p.add_argument(
+        "--tune-also",
+        nargs="+",
+        default=[],
+        choices=OPTIONAL_FIELDS,
+        metavar="FIELD",
+        help="also tune these fields, which are kept at their derived values by default:"
+        f" {', '.join(OPTIONAL_FIELDS)} (jax_contact.tune.OPTIONAL_FIELDS)",
     )
     p.add_argument(
         "--terrain-model",
@@ -620,7 +630,8 @@ def run(args: argparse.Namespace) -> int:
     from jax_contact.envs.robots import load_robot
 
     frozen = list(getattr(args, "freeze", []) or [])
-    fields = [f for f in jt.DEFAULT_FIELDS if f not in frozen]
+    also = list(dict.fromkeys(getattr(args, "tune_also", []) or []))
+    fields = [f for f in jt.DEFAULT_FIELDS if f not in frozen] + also
     bounds = tuple(getattr(args, "stance_time_bounds", None) or jt.STANCE_TIME_BOUNDS)
     space = jt.robot_space(load_robot(robot_name).description, fields, stance_time_bounds=bounds)
     config = jt.TuneConfig(
