@@ -168,7 +168,11 @@ def test_a_file_written_before_a_later_field_loads_with_the_old_model(go1, tmp_p
     payload["values"].pop(later)
     assert q["values"] == payload["values"] and q["noise"] == payload["noise"]
     for name in jc.preset_names():  # written with both fields: the model as it is
-        assert float(getattr(jc.load_params(name), later)) == payload_default(later)
+        params, prov = jc.load_params(name, with_provenance=True)
+        if later in prov["fields"]:  # tuned (Spot's and Barkour's damping): not the old model
+            assert float(getattr(params, later)) > 0.0
+        else:
+            assert float(getattr(params, later)) == payload_default(later)
 
 
 def test_still_side_cap_is_a_rate_of_evidence(go1):

@@ -475,6 +475,17 @@ def test_shipped_presets_load_by_name_with_their_provenance(name):
     assert (lo, hi) == jt.STANCE_TIME_BOUNDS and lo <= float(params.stance_time) <= hi
     assert prov["config"]["event_weight"] > 0 and "air phases" in prov["loss"]
     assert len(prov["code"]["commit"]) == 40
+    # The weight and optional fields the file was tuned with are the ones regenerate_preset
+    # passes, and a tuned contact damping stays a foot settling in 5-100 ms (2 / b).
+    from jax_contact.train.tune_cmd import PRESET_EVENT_WEIGHTS, PRESET_TUNE_ALSO
+
+    assert prov["config"]["event_weight"] == pytest.approx(PRESET_EVENT_WEIGHTS[name])
+    also = [f for f in prov["fields"] if f in jt.OPTIONAL_FIELDS]
+    assert also == list(PRESET_TUNE_ALSO.get(name, ()))
+    if "contact_damping" in also:
+        assert 20.0 <= float(params.contact_damping) <= 400.0
+    else:
+        assert float(params.contact_damping) == pytest.approx(100.0)  # params_for's 2 / 20 ms
     # Tuned with the sensor floor: no std below what the anymal_like sensors alone give,
     # recomputed here from the sensor model (not read from the file).
     from jax_contact.envs.robots import load_robot
