@@ -86,7 +86,9 @@ validation seed 1001 (trot and walk, never the evaluation seed): with ``w_e = 1`
 trot's failures per air phase fell from 3.9 % to 0.2 % but the walk lost accuracy (0.982
 -> 0.977), 4 ms of touch-down delay and ECE (0.013 -> 0.021); ``w_e = 0.3`` halved them
 (2.1 %) and left every walking number within 0.1 ms and 0.002 ECE of the defaults
-(docs/tuning.md). The Barkour preset uses 1.0, chosen the same way on its validation seed.
+(docs/tuning.md). ``TuneConfig``'s default stays 0.3; the presets use a weight per robot
+chosen on their validation seed among three (Go1 and Spot 0.1, Barkour 1.0:
+``jax_contact.train.tune_cmd.PRESET_EVENT_WEIGHTS``).
 
 Optionally (``air_penalty`` ``mu > 0``; off by default: the previous session's
 diagnostic, superseded by the event term), a per-step false-contact term ``(mu / N)
