@@ -218,7 +218,8 @@ def _synthetic_params(sigma_J: float):
 
 def _recovery_run(select: str):
     """``sigma_J`` tuned from 4x its true value on the synthetic problem: (result,
-    validation data, the mis-set params). Both selection rules share the training step."""
+    validation data, the mis-set params, the config). Both selection rules share the
+    training step."""
     train, val = _synthetic(1), _synthetic(2)
     space = jt.make_space(4, fields=("sigma_J",))
     config = jt.TuneConfig(
@@ -226,11 +227,11 @@ def _recovery_run(select: str):
         event_weight=0.0, select=select,
     )  # fmt: skip
     wrong = _synthetic_params(SIGMA_J_WRONG)
-    return jt.tune(wrong, flat(0.0, 0.05), [train], val, space, config), val, wrong
+    return jt.tune(wrong, flat(0.0, 0.05), [train], val, space, config), val, wrong, config
 
 
 def test_tuning_recovers_a_mis_set_noise_std():
-    res, val, _ = _recovery_run("bce")
+    res, val, _, _ = _recovery_run("bce")
     got = float(res.params.noise.sigma_J[0])
     assert abs(got / SIGMA_J_TRUE - 1.0) < RECOVERY_RTOL, (got, res.history)
     hist = res.history
@@ -272,7 +273,7 @@ def test_select_cells_keeps_the_lowest_loss_epoch_no_worse_than_the_defaults():
     lower validation loss is worse in some cell (the rule, tune's docstring)."""
     from jax_contact.metrics import evaluate
 
-    res, val, wrong = _recovery_run("cells")
+    res, val, wrong, config = _recovery_run("cells")
     hist = res.history
     logits = jt.predict_logits(wrong, flat(0.0, 0.05), val, key=jax.random.key(0), chunk=300)
     m = evaluate(jt.sigmoid_np(np.asarray(logits)), val.truth, val.mask, dt=DT)
@@ -284,7 +285,7 @@ def test_select_cells_keeps_the_lowest_loss_epoch_no_worse_than_the_defaults():
     chosen = hist[res.best_epoch]
     assert jt.no_worse(chosen["val_cells"], hist[0]["val_cells"])
     for row in hist[1:]:
-        if row["val_loss"] < chosen["val_loss"] - jt.TuneConfig().min_delta:
+        if row["val_loss"] < chosen["val_loss"] - config.min_delta:
             assert not jt.no_worse(row["val_cells"], hist[0]["val_cells"]), row["epoch"]
 
 
@@ -408,7 +409,7 @@ def test_tune_cmd_field_list_is_the_librarys():
 
     from jax_contact.train import logs, tune_cmd
 
-    assert tune_cmd.TUNABLE_FIELDS == jt.DEFAULT_FIELDS
+    assert tune_cmd.DEFAULT_FIELDS == jt.DEFAULT_FIELDS
     assert tune_cmd.OPTIONAL_FIELDS == jt.OPTIONAL_FIELDS
     p = tune_cmd.add_parser(argparse.ArgumentParser().add_subparsers())
     choices = {a.dest: a.choices for a in p._actions if a.choices}

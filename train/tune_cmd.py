@@ -30,7 +30,7 @@ from pathlib import Path
 LOG_SUFFIXES = (".h5", ".hdf5")
 # Copies of jax_contact.tune.DEFAULT_FIELDS and OPTIONAL_FIELDS (importing it imports JAX);
 # tests/test_tune.py checks that they agree.
-TUNABLE_FIELDS = (
+DEFAULT_FIELDS = (
     "sigma_q",
     "sigma_qd",
     "sigma_qdd",
@@ -195,12 +195,12 @@ def check(args: argparse.Namespace) -> None:
     tuning = {str(Path(p).resolve()) for p in args.logs}
     if any(str(Path(v).resolve()) in tuning for v in validate):
         raise ValueError("argument --validate: a validation log is also a tuning log")
-    unknown = [f for f in getattr(args, "freeze", []) or [] if f not in TUNABLE_FIELDS]
+    unknown = [f for f in getattr(args, "freeze", []) or [] if f not in DEFAULT_FIELDS]
     if unknown:
         raise ValueError(
-            f"argument --freeze: unknown field(s) {unknown}; tunable: {', '.join(TUNABLE_FIELDS)}"
+            f"argument --freeze: unknown field(s) {unknown}; tunable: {', '.join(DEFAULT_FIELDS)}"
         )
-    if len(set(getattr(args, "freeze", []) or [])) >= len(TUNABLE_FIELDS):
+    if len(set(getattr(args, "freeze", []) or [])) >= len(DEFAULT_FIELDS):
         raise ValueError("argument --freeze: nothing left to tune")
     bounds = getattr(args, "stance_time_bounds", None)
     if bounds is not None and not bounds[0] < bounds[1]:
