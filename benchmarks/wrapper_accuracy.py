@@ -9,8 +9,12 @@ Open-loop scripted policies through the env's action interface (:func:`actions_f
 
 - ``Go1JoystickFlatTerrain``, ``SpotFlatTerrainJoystick``: ``walk`` (default), a
   lateral-sequence walk in place, or ``trot``, diagonal pairs in turn;
-- ``BerkeleyHumanoidJoystickFlatTerrain``: ``step``, stepping in place (it tips the
-  robot over: no open-loop policy keeps it up, docs/training.md);
+- ``BerkeleyHumanoidJoystickFlatTerrain``: ``hop`` (default), hopping in place on both
+  feet, closed loop (:mod:`jax_contact.envs.biped_hop`: squat-and-push feedforward, attitude
+  and foot-placement feedback on the simulator's state), each rollout's score ending when
+  the robot falls (base below 0.3 m or tilted over 0.8 rad); ``step``, open-loop
+  stepping in place (it tips the robot over: no open-loop policy keeps it up,
+  docs/training.md);
 - ``Go1Getup``, ``Go1Handstand``: ``random``, uniform actions in [-1, 1] (the issue's case).
 
 Both rates run on the same rollouts (:func:`jax_contact.train.rates.compare_rates`: control-rate
@@ -33,7 +37,7 @@ import jax
 import numpy as np
 
 from jax_contact.benchmarks.common import json_of_what_finished, machine, print_table
-from jax_contact.envs import scripted
+from jax_contact.envs import biped_hop, scripted
 
 ENVS = (
     "Go1JoystickFlatTerrain",
@@ -43,8 +47,8 @@ ENVS = (
     "Go1Handstand",
 )
 SCALE = {"Go1": 0.5, "Spot": 0.3, "BerkeleyHumanoid": 0.5}  # their configs' action_scale
-POLICIES = ("walk", "trot", "step", "random")
-DEFAULT_POLICY = {"Go1": "walk", "Spot": "walk", "BerkeleyHumanoid": "step"}
+POLICIES = ("walk", "trot", "step", "hop", "random")
+DEFAULT_POLICY = {"Go1": "walk", "Spot": "walk", "BerkeleyHumanoid": "hop"}
 
 
 def _robot(name: str) -> str:
@@ -89,6 +93,8 @@ def actions_for(
     - ``trot`` (Go1, Spot): diagonal pairs in turn, 0.4 of a 2 Hz cycle each, hip +0.4 rad,
       knee -0.7 rad at the apex.
     - ``step`` (Berkeley Humanoid): stepping in place, the legs in turn (see the code).
+    - ``hop`` (Berkeley Humanoid): the feedforward of :func:`jax_contact.envs.biped_hop.feedforward`
+      (its closed-loop part is :func:`closed_loop_for`'s).
     - ``random``: uniform actions in [-1, 1] (the issue's case for getup and handstand).
     """
     policy = default_policy(name) if policy is None else policy
@@ -110,20 +116,62 @@ def actions_for(
         desc = f"scripted {policy} in place ({freq:g} Hz, swing {swing:g} of the cycle)"
         return acts, desc
     if robot != "BerkeleyHumanoid":
-        raise ValueError(f"policy 'step' is for BerkeleyHumanoid, not {name}")
+        raise ValueError(f"policy {policy!r} is for BerkeleyHumanoid, not {name}")
+    if policy == "hop":
+        acts[:] = biped_hop.feedforward(t, jitter, phase0) / scale
+        desc = f"scripted hop in place, closed loop ({biped_hop.BERKELEY_HOP.freq:g} Hz)"
+        return acts, desc
     return _humanoid_step(t, jitter, phase0, acts, scale)
 
 
+def closed_loop_for(name: str, env, policy: str | None = None):
+    """(feedback, stop) of :func:`jax_contact.train.rates.compare_rates` for a policy.
+
+    ``hop``: the feedback of :func:`jax_contact.envs.biped_hop.feedback` in the env's
+    action units, in stance when either foot's ``*_foot1_floor_found`` sensor is on, and
+    :func:`jax_contact.envs.biped_hop.fallen` as ``stop``. Every other policy is open
+    loop: (None, None).
+    """
+    policy = default_policy(name) if policy is None else policy
+    if policy != "hop":
+        return None, None
+    m = env.mj_model
+    adr = np.array([m.sensor_adr[m.sensor(f"{side}_foot1_floor_found").id] for side in "lr"])
+    scale = SCALE[_robot(name)]
+
+    def feedback(data):
+        stance = (data.sensordata[adr] > 0).any()
+        return biped_hop.feedback(data.qpos, data.qvel, stance) / scale
+
+    def stop(data):
+        return biped_hop.fallen(data.qpos)
+
+    return feedback, stop
+
+
 def run_one(
-    name: str, n_steps: int, n_envs: int, skip_s: float, seed: int, policy: str | None = None
+    name: str,
+    n_steps: int,
+    n_envs: int,
+    skip_s: float,
+    seed: int,
+    policy: str | None = None,
 ) -> dict:
     from jax_contact.envs import playground_offline
     from jax_contact.train.rates import compare_rates
 
     env = playground_offline.load(name)
+    feedback, stop = closed_loop_for(name, env, policy)
     acts, policy = actions_for(name, env, n_steps, n_envs, seed, policy)
     t0 = time.perf_counter()
-    res = compare_rates(env, acts, key=jax.random.PRNGKey(seed), skip_s=skip_s)
+    res = compare_rates(
+        env,
+        acts,
+        key=jax.random.PRNGKey(seed),
+        skip_s=skip_s,
+        feedback=feedback,
+        stop=stop,
+    )
     wall = time.perf_counter() - t0
     print(f"{name}: {policy}, {n_envs} x {n_steps} steps ({wall:.0f} s)\n{res.table()}", flush=True)
     m = res.substep_all
@@ -146,6 +194,8 @@ def run_one(
         "f1_raw_truth": raw.f1,
         "always_air_raw_truth": 1 - res.contact_fraction_raw,
         "nonfinite_rollouts": res.nonfinite_rollouts,
+        "ended_rollouts": res.ended_rollouts,
+        "rollouts": n_envs,
         "wall_s": wall,
         "substep": m.as_dict(),
         "control": res.control.as_dict(),

@@ -356,3 +356,30 @@ def test_substep_belief_tracks_truth_and_rate_comparison(brax_leg):
     assert res.substep.f1 > 0.9
     assert res.substep_all.f1 > 0.9
     assert 0.0 <= res.control.f1 <= 1.0
+
+
+def test_rate_comparison_closed_loop_and_stop(brax_leg):
+    """compare_rates' ``feedback`` drives the physics from the simulator's state and
+    ``stop`` ends the score: the hop of the test above computed from ``data.time`` on
+    zero open-loop actions, stopped after 0.5 s (the 50th of 60 env steps)."""
+    n_steps, n_envs, dt = 60, 2, float(brax_leg.dt)
+
+    def feedback(data):  # hop_actions' target for the step that starts at data.time
+        knee = -1.2 + HOP_AMP * jnp.sin(2 * jnp.pi * HOP_HZ * (data.time + dt))
+        return jnp.stack([-0.5 * knee, knee])
+
+    acts = np.zeros((n_steps, n_envs, 2), np.float32)
+    res = W.compare_rates(
+        brax_leg,
+        acts,
+        key=jax.random.PRNGKey(0),
+        skip_s=0.1,
+        feedback=feedback,
+        stop=lambda data: data.time > 0.495,
+    )
+    # data.time after env step k (1-based) is k dt = 0.01 k: stop flags step 50 (0.5 s,
+    # the first over 0.495), so steps 11..49 are scored (10 skipped), 39 per rollout.
+    assert res.ended_rollouts == n_envs
+    assert res.substep.n_steps == 39 * n_envs
+    assert res.substep_all.n_touchdowns >= n_envs  # the feedback made it hop
+    assert res.substep_all.f1 > 0.9

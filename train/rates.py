@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 
 import jax
 import jax.numpy as jnp
@@ -121,6 +121,8 @@ class RateComparison:
       contact_fraction_raw: ``contact_fraction`` of that raw truth.
       nonfinite_rollouts: rollouts whose estimate went NaN/inf before their first
         ``done``; each is scored up to that step.
+      ended_rollouts: rollouts that reached a ``done`` (or ``stop``) before their last
+        step; each is scored up to that step.
     """
 
     substep: metrics.ContactMetrics
@@ -132,6 +134,7 @@ class RateComparison:
     substep_all_raw: metrics.ContactMetrics | None = None
     contact_fraction_raw: float = float("nan")
     nonfinite_rollouts: int = 0
+    ended_rollouts: int = 0
 
     def table(self) -> str:
         rows = [
@@ -155,6 +158,8 @@ class RateComparison:
             f"always contact: accuracy {self.contact_fraction:.3f}; always air:"
             f" {1 - self.contact_fraction:.3f} (every physics step)"
         )
+        if self.ended_rollouts:
+            lines.append(f"{self.ended_rollouts} rollouts ended (done or stop) early")
         if self.nonfinite_rollouts:
             lines.append(
                 f"WARNING: {self.nonfinite_rollouts} rollouts' estimate went non-finite before"
@@ -165,6 +170,12 @@ class RateComparison:
             f" F1 {self.control.f1 - self.substep.f1:+.3f}"
         )
         return "\n".join(lines)
+
+
+def _sim_data(state):
+    """The simulator state of a Playground (``data``) or Brax (``pipeline_state``) state."""
+    data = getattr(state, "data", None)
+    return state.pipeline_state if data is None else data
 
 
 def compare_rates(
@@ -179,13 +190,16 @@ def compare_rates(
     skip_s: float = 0.0,
     pairing: str = "delayed",
     truth_gap: float = 0.001,
+    feedback: Callable | None = None,
+    stop: Callable | None = None,
 ) -> RateComparison:
     """Measures the accuracy lost by the control-rate mode against the substep mode.
 
     Both estimators run on *the same* rollouts: the env is wrapped twice (control rate
     inside, substep rate outside, under their own ``info`` keys), so one simulation feeds
     both and the physics cannot differ; each has its own sensor noise at its own rate
-    (same preset). The physics does not depend on the estimates (the actions are given).
+    (same preset). The physics does not depend on the estimates (the actions are given,
+    or computed from the simulator's state by ``feedback``, never from an estimate).
 
     Args:
       env: an unwrapped Brax ``PipelineEnv`` (MJX) or Playground ``MjxEnv`` with ground
@@ -202,10 +216,16 @@ def compare_rates(
       pairing: ``ContactObsConfig.pairing`` of both estimators.
       truth_gap: ``ContactObsConfig.truth_gap`` of both, m; the substep scores are also
         given against the raw truth (``substep_all_raw``).
+      feedback: optional closed-loop part of the policy, ``feedback(data) -> (nu,)``
+        on one env's simulator state (``mjx.Data``: Playground's ``state.data``, Brax's
+        ``state.pipeline_state``), added to that step's action (e.g.
+        :mod:`jax_contact.envs.biped_hop`).
+      stop: optional ``stop(data) -> bool``: a rollout's score ends before the first
+        step whose state it flags (e.g. the robot has fallen), as at a ``done``.
 
     Returns:
       The metrics of :func:`jax_contact.metrics.evaluate` for both, over the steps before
-      each rollout's first ``done`` (that step excluded).
+      each rollout's first ``done`` or ``stop`` (that step excluded).
     """
     acts = jnp.asarray(actions)
     if acts.ndim != 3:
@@ -254,7 +274,12 @@ def compare_rates(
     # scan: vmap re-batches a scan's whole body until its carry's batching settles, and
     # the substep scan inside the step would be re-batched on every round.
     def step(s, a):
+        if feedback is not None:
+            a = a + feedback(_sim_data(s))
         s = outer.step(s, a)
+        ended = s.done
+        if stop is not None:
+            ended = jnp.maximum(ended, jnp.asarray(stop(_sim_data(s)), ended.dtype))
         info = s.info
         sub = info["contact_substep_substeps"]
         out = (
@@ -263,7 +288,7 @@ def compare_rates(
             sub["p_contact"],
             sub["truth"],
             sub.get("truth_raw", sub["truth"]),
-            s.done,
+            ended,
         )
         return s, out
 
@@ -281,6 +306,7 @@ def compare_rates(
     # Steps before the first done: the terminal step is left out, its state may be NaN
     # (Playground ends an episode on NaN physics; random actions get there).
     alive = np.cumsum(done, axis=0) == 0
+    n_ended = int((~alive).any(axis=0).sum())
     # A non-finite estimate ends a rollout's score too, and is counted (never hidden).
     finite = np.isfinite(p_s).all(axis=(2, 3)) & np.isfinite(p_c).all(axis=-1)
     broke = alive & ~finite
@@ -305,4 +331,5 @@ def compare_rates(
         ),
         contact_fraction_raw=float(np.mean(flat(t_raw)[flat(valid_s)])),
         nonfinite_rollouts=int(broke.any(axis=0).sum()),
+        ended_rollouts=n_ended,
     )
