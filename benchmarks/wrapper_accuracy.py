@@ -156,6 +156,7 @@ def run_one(
     skip_s: float,
     seed: int,
     policy: str | None = None,
+    sole: str = "rolling",
 ) -> dict:
     from jax_contact.envs import playground_offline
     from jax_contact.train.rates import compare_rates
@@ -171,6 +172,7 @@ def run_one(
         skip_s=skip_s,
         feedback=feedback,
         stop=stop,
+        sole=sole,
     )
     wall = time.perf_counter() - t0
     print(f"{name}: {policy}, {n_envs} x {n_steps} steps ({wall:.0f} s)\n{res.table()}", flush=True)
@@ -190,6 +192,7 @@ def run_one(
         "substep_accuracy_at_env_steps": res.substep.accuracy,
         "foot_updates": m.n_steps,
         "seed": seed,
+        "sole": sole,
         "accuracy_raw_truth": raw.accuracy,
         "f1_raw_truth": raw.f1,
         "always_air_raw_truth": 1 - res.contact_fraction_raw,
@@ -215,12 +218,17 @@ def main(argv=None) -> int:
     parser.add_argument("--rollouts", type=int, default=8)
     parser.add_argument("--skip", type=float, default=0.5, help="seconds left out at the start")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument(
+        "--sole", default="rolling", help="ContactObsConfig.sole: rolling or centre (flat feet)"
+    )
     args = parser.parse_args(argv)
     result = {"machine": machine(), "args": vars(args), "rows": []}
     with json_of_what_finished(args.json, result):
         for entry in args.envs:
             name, _, policy = entry.partition(":")
-            row = run_one(name, args.steps, args.rollouts, args.skip, args.seed, policy or None)
+            row = run_one(
+                name, args.steps, args.rollouts, args.skip, args.seed, policy or None, args.sole
+            )
             result["rows"].append(row)
     cols = [
         ("env", "env", "{}"),

@@ -14,6 +14,8 @@ from collections.abc import Sequence
 import numpy as np
 from flax import struct
 
+from jax_contact.envs.feet import SOLES
+
 RATES = ("auto", "substep", "control")
 OBSERVE = ("estimate", "truth", "none")
 PAIRINGS = ("delayed", "raw")
@@ -68,6 +70,11 @@ class ContactObsConfig:
         (n_substeps, n_legs), in ``info[info_key + "_substeps"]``.
       include_passive: the estimator's ``h`` includes the joint springs and dampers.
       logit_clip: bound of the observed logit.
+      sole: contact point of a flat foot (box, cylinder, mesh): ``"rolling"`` (default)
+        the lowest part of its sole at each step, its centre when it lies flat, the edge
+        or corner it stands on when it rolls; ``"centre"`` the sole's centre at the home
+        pose, fixed to the foot (:func:`jax_contact.envs.feet.foot_points`). Round feet
+        are the same under both.
     """
 
     feet: tuple | None = struct.field(pytree_node=False, default=None)
@@ -88,6 +95,7 @@ class ContactObsConfig:
     record_substeps: bool = struct.field(pytree_node=False, default=False)
     include_passive: bool = struct.field(pytree_node=False, default=True)
     logit_clip: float = struct.field(pytree_node=False, default=10.0)
+    sole: str = struct.field(pytree_node=False, default="rolling")
 
     @property
     def n_per_foot(self) -> int:
@@ -109,6 +117,7 @@ def validate_config(cfg: ContactObsConfig) -> None:
     _one_of("observe", cfg.observe, OBSERVE)
     _one_of("pairing", cfg.pairing, PAIRINGS)
     _one_of("truth", cfg.truth, TRUTH_SOURCES)
+    _one_of("sole", cfg.sole, SOLES)
     if cfg.observe == "truth" and cfg.include_terms:
         raise ValueError(
             "config.include_terms has no ground-truth counterpart: observe='truth'"

@@ -151,6 +151,7 @@ class Core:
             qdd=r.qacc,
             tau=r.tau,
             include_passive=self.cfg.include_passive,
+            sole=self.cfg.sole,
         )
         belief, diag = jc.step_robot(self.params, self.terrain, est.belief, meas, key=k_est)
         return ContactEstState(

@@ -5,8 +5,9 @@ compares ``p_f,z - r`` with the terrain) fixed to a body. A foot can be named as
 
 - a **sphere geom**: its centre, its radius (Go1, Spot, ANYmal);
 - a **box, cylinder or mesh geom**: the centre of its lowest face at the home pose (the
-  sole), radius 0; a mesh is taken as its bounding box (``geom_aabb``); a **capsule**: its
-  centre and radius (H1's foot capsules lie flat);
+  sole), radius 0, and that face's four corners (the rolling point below); a mesh is
+  taken as its bounding box (``geom_aabb``); a **capsule**: its centre and radius (H1's
+  foot capsules lie flat);
 - a **site**: its position, radius 0;
 - a **body** with an offset in the body frame (:class:`FootSpec`), radius 0 by default;
 - a **body** whose several geoms touch the floor: one foot, the mean of their contact
@@ -23,8 +24,18 @@ What a point contact means for a flat foot: eq. (6) and the dynamics term model 
 as a point that transmits a force and no moment. A sole in full contact also transmits a
 moment (up to ``f_n`` times half its length); that moment reaches the joints as a torque
 the model does not predict, and it is folded into the disturbance ``Sigma_d`` and the
-force prior ``Sigma_f`` of the dynamics term, as any model error. docs/training.md
-measures what it costs on Berkeley Humanoid.
+force prior ``Sigma_f`` of the dynamics term, as any model error.
+
+Which point: a flat sole that lands on its toe or heel, or rolls over an edge, touches the
+floor at that edge, not at its centre, which is then centimetres above the floor and
+moving (the kinematics and differential-kinematics terms say air). So by default
+(``ContactObsConfig.sole = "rolling"``) a flat foot's point is recomputed at each step
+from its sole's four corners (:func:`foot_points`): their mean weighted by
+``exp(-(z_i - z_min) / SOLE_SOFTNESS)``, ``SOLE_SOFTNESS`` = 2 mm (set, not fitted): the
+centre when the sole lies flat, the middle of the lowest edge when it is tilted by more
+than a degree or two, the lowest corner on a corner. The Jacobian, the foot's velocity and
+height are those of that point. ``sole = "centre"`` keeps the fixed centre.
+docs/training.md measures both on Berkeley Humanoid.
 
 :func:`describe` returns a :class:`jax_contact.robot.RobotDescription` (foot points as
 ``foot_offsets``, ``foot_geom_ids`` the first geom of each foot, -1 for a site or a bare
@@ -48,6 +59,9 @@ _T = mujoco.mjtGeom
 _FLOOR_TYPES = (int(_T.mjGEOM_PLANE), int(_T.mjGEOM_HFIELD))
 _JOINT_TRN = (int(mujoco.mjtTrn.mjTRN_JOINT), int(mujoco.mjtTrn.mjTRN_JOINTINPARENT))
 _JOINT_DOFS = (6, 3, 1, 1)  # free, ball, slide, hinge
+SOLES = ("rolling", "centre")
+# Softness of the rolling sole's lowest point, m: corners this much higher weigh 1/e.
+SOLE_SOFTNESS = 0.002
 
 
 @dataclasses.dataclass(frozen=True)
@@ -80,6 +94,7 @@ class Foot:
     point: tuple[float, float, float]
     radius: float
     geom_ids: tuple[int, ...]
+    sole: tuple[tuple[float, float, float], ...] = ()
 
 
 def floors(m: mujoco.MjModel) -> list[int]:
@@ -140,14 +155,15 @@ def _home_data(m) -> mujoco.MjData:
     return d
 
 
-def _geom_point(m, d, g: int) -> tuple[str, np.ndarray, float]:
-    """(kind, contact point in the body frame, radius) of one geom (module docstring)."""
+def _geom_point(m, d, g: int) -> tuple[str, np.ndarray, float, tuple]:
+    """(kind, contact point in the body frame, radius, sole corners in the body frame) of
+    one geom (module docstring); no corners for a sphere or capsule."""
     t = int(m.geom_type[g])
     size = np.asarray(m.geom_size[g], np.float64)
     if t == int(_T.mjGEOM_SPHERE):
-        return "sphere", np.asarray(m.geom_pos[g], np.float64), float(size[0])
+        return "sphere", np.asarray(m.geom_pos[g], np.float64), float(size[0]), ()
     if t == int(_T.mjGEOM_CAPSULE):
-        return "capsule", np.asarray(m.geom_pos[g], np.float64), float(size[0])
+        return "capsule", np.asarray(m.geom_pos[g], np.float64), float(size[0]), ()
     if t == int(_T.mjGEOM_BOX):
         centre, half, kind = np.zeros(3), size, "box"
     elif t == int(_T.mjGEOM_CYLINDER):
@@ -165,8 +181,21 @@ def _geom_point(m, d, g: int) -> tuple[str, np.ndarray, float]:
     local[axis] += sign * half[axis]
     rot_body = np.zeros(9)
     mujoco.mju_quat2Mat(rot_body, np.asarray(m.geom_quat[g], np.float64))
-    point = np.asarray(m.geom_pos[g], np.float64) + rot_body.reshape(3, 3) @ local
-    return kind, point, 0.0
+    rot_body = rot_body.reshape(3, 3)
+    pos = np.asarray(m.geom_pos[g], np.float64)
+    # The sole's four corners: the face's extremes along its two in-plane axes (a
+    # cylinder's or ellipsoid's: four points of its rim).
+    a, b = (i for i in range(3) if i != axis)
+    corners = []
+    for sa, sb in ((1, 1), (1, -1), (-1, -1), (-1, 1)):
+        c = local.copy()
+        c[a] += sa * half[a]
+        c[b] += sb * half[b]
+        if kind in ("cylinder", "ellipsoid"):
+            c[a] = local[a] + (sa * half[a] if sa == sb else 0.0)
+            c[b] = local[b] + (sb * half[b] if sa != sb else 0.0)
+        corners.append(tuple(float(x) for x in pos + rot_body @ c))
+    return kind, pos + rot_body @ local, 0.0, tuple(corners)
 
 
 def _name_of(m, obj, i) -> str:
@@ -189,8 +218,8 @@ def _resolve(m, d, spec, floor_ids, colliders) -> Foot:
     name = spec.name if isinstance(spec, FootSpec) else spec
     g = mujoco.mj_name2id(m, G, name)
     if g >= 0:
-        kind, p, r = _geom_point(m, d, g)
-        return Foot(name, kind, int(m.geom_bodyid[g]), tuple(p), r, (g,))
+        kind, p, r, sole = _geom_point(m, d, g)
+        return Foot(name, kind, int(m.geom_bodyid[g]), tuple(p), r, (g,), sole)
     s = mujoco.mj_name2id(m, S, name)
     if s >= 0:
         b = int(m.site_bodyid[s])
@@ -212,13 +241,16 @@ def _body_foot(m, d, name, b, geoms) -> Foot:
     if not geoms:
         return Foot(name, "body", b, (0.0, 0.0, 0.0), 0.0, ())
     if len(geoms) == 1:
-        kind, p, r = _geom_point(m, d, geoms[0])
-        return Foot(name, kind, b, tuple(p), r, tuple(geoms))
+        kind, p, r, sole = _geom_point(m, d, geoms[0])
+        return Foot(name, kind, b, tuple(p), r, tuple(geoms), sole)
     pts = [_geom_point(m, d, g) for g in geoms]
-    kinds = sorted({k for k, _, _ in pts})
-    p = np.mean([q for _, q, _ in pts], axis=0)
-    r = float(np.mean([r for _, _, r in pts]))
-    return Foot(name, f"{len(geoms)} {'/'.join(kinds)} geoms", b, tuple(p), r, tuple(geoms))
+    kinds = sorted({k for k, _, _, _ in pts})
+    p = np.mean([q for _, q, _, _ in pts], axis=0)
+    r = float(np.mean([r for _, _, r, _ in pts]))
+    # Several flat geoms: every corner of every sole; any round one: a fixed point.
+    sole = () if any(not c for *_, c in pts) else tuple(c for *_, cs in pts for c in cs)
+    label = f"{len(geoms)} {'/'.join(kinds)} geoms"
+    return Foot(name, label, b, tuple(p), r, tuple(geoms), sole)
 
 
 def find_feet(m: mujoco.MjModel, feet=None) -> tuple[tuple[Foot, ...], list[int]]:
@@ -290,6 +322,7 @@ def describe(m: mujoco.MjModel, feet=None) -> tuple[RobotDescription, tuple[Foot
         foot_geom_ids=tuple(f.geom_ids[0] if f.geom_ids else -1 for f in resolved),
         foot_offsets=tuple(tuple(float(x) for x in f.point) for f in resolved),
         foot_radii=tuple(f.radius for f in resolved),
+        foot_soles=tuple(f.sole for f in resolved),
         leg_dofs=tuple(legs),
         other_dofs=tuple(tuple(i for i in range(m.nv) if i not in leg) for leg in legs),
         base_dofs=tuple(range(start, start + n)) if n > 0 else (),
@@ -301,27 +334,54 @@ def describe(m: mujoco.MjModel, feet=None) -> tuple[RobotDescription, tuple[Foot
     return desc, resolved
 
 
-def foot_points(desc: RobotDescription, d) -> jax.Array:
-    """(n_legs, 3) world positions of the feet's contact points."""
+def foot_points(desc: RobotDescription, d, sole: str = "centre") -> jax.Array:
+    """(n_legs, 3) world positions of the feet's contact points.
+
+    Args:
+      desc: the description (:func:`describe`).
+      d: data after kinematics.
+      sole: ``"centre"``: each foot's fixed point (``foot_offsets``); ``"rolling"``: for
+        a foot with a flat sole (``foot_soles``), the mean of its sole's corners weighted
+        by ``exp(-(z - z_min) / SOLE_SOFTNESS)`` (module docstring), so the sole's centre
+        when it lies flat and its lowest edge or corner when it rolls; feet without a
+        flat sole keep their fixed point.
+    """
+    if sole not in SOLES:
+        raise ValueError(f"sole must be one of {SOLES}, got {sole!r}")
     b = jnp.asarray(desc.foot_body_ids)
     off = jnp.asarray(desc.foot_offsets, jnp.float32)
-    return d.xpos[b] + jnp.einsum("nij,nj->ni", d.xmat[b], off)
+    fixed = d.xpos[b] + jnp.einsum("nij,nj->ni", d.xmat[b], off)
+    if sole == "centre" or not any(desc.foot_soles):
+        return fixed
+    k = max(len(c) for c in desc.foot_soles)
+    # One (k, 3) block per foot: its corners repeated cyclically up to k (a foot without
+    # a sole: its fixed point k times), which leaves every foot's weighted mean unchanged
+    # when k is a multiple of its count.
+    blocks = []
+    for c, o in zip(desc.foot_soles, desc.foot_offsets, strict=True):
+        pts = np.asarray(c or [o], np.float32).reshape(-1, 3)
+        blocks.append(pts[np.arange(k) % len(pts)])
+    corners = np.stack(blocks)
+    world = d.xpos[b][:, None] + jnp.einsum("nij,nkj->nki", d.xmat[b], jnp.asarray(corners))
+    z = world[..., 2]
+    w = jax.nn.softmax(-(z - jnp.min(z, axis=1, keepdims=True)) / SOLE_SOFTNESS, axis=1)
+    return jnp.einsum("nk,nki->ni", w, world)
 
 
 def measurement(
-    m, d, desc: RobotDescription, *, qdd, tau, include_passive: bool
+    m, d, desc: RobotDescription, *, qdd, tau, include_passive: bool, sole: str = "centre"
 ) -> RobotMeasurement:
     """:func:`jax_contact.adapter.robot_measurement` at the feet's contact points.
 
     :func:`jax_contact.adapter.measurement_at_points` (the same quantities), the point being
-    ``xpos + xmat @ foot_offsets`` of the foot's body instead of a sphere's centre (for a
+    :func:`foot_points`'s (``sole``) on the foot's body instead of a sphere's centre (for a
     sphere foot the two are equal). ``d`` must be prepared (``adapter.prepare``).
     """
     return adapter.measurement_at_points(
         m,
         d,
         desc,
-        foot_points(desc, d),
+        foot_points(desc, d, sole),
         jnp.asarray(desc.foot_radii, jnp.float32),
         qdd=qdd,
         tau=tau,

@@ -46,6 +46,9 @@ class RobotDescription:
       foot_geom_ids: the foot sphere geoms.
       foot_offsets: each foot sphere's centre in its body frame, (x, y, z), m.
       foot_radii: each foot sphere's radius, m.
+      foot_soles: per foot, the corners of a flat sole in its body frame, ((x, y, z),
+        ...), m, for the rolling contact point of
+        :func:`jax_contact.envs.feet.foot_points`; empty for a round foot (default: none).
       leg_dofs: per leg, the indices into ``nv`` of its joints' dofs, base side first.
       other_dofs: per leg, the complement of ``leg_dofs`` in ``range(nv)``, ascending.
       base_dofs: dofs of the base's own joints (6 for a free joint, 1 for the planar
@@ -68,6 +71,7 @@ class RobotDescription:
     floor_geom_ids: tuple[int, ...]
     nq: int
     nv: int
+    foot_soles: tuple[tuple[tuple[float, float, float], ...], ...] = ()
 
     @property
     def n_legs(self) -> int:

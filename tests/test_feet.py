@@ -17,6 +17,7 @@ import pytest
 from mujoco import mjx
 
 from jax_contact.envs import contact_truth, feet
+from jax_contact.envs.contact_config import validate_config
 from jax_contact.envs import wrapper as W
 from jax_contact.envs.robots import Robot
 
@@ -198,3 +199,55 @@ def test_truth_gap_counts_a_sole_just_above_the_floor():
     dist, r, t = (np.asarray(x) for x in read(0.002))
     np.testing.assert_allclose(dist, [0.002], atol=1e-5)
     assert not r.any() and not t.any()
+
+
+def _sole_points(m, knee: float):
+    """(centre, rolling) contact points (3,) with the shank pitched by ``knee`` rad, and
+    the C library's data (kinematics done) for the reference."""
+    desc, _ = feet.describe(m)
+    d = mujoco.MjData(m)
+    d.qpos[:] = (0.6, 0.0, knee)
+    mujoco.mj_kinematics(m, d)
+    dx = mjx.put_data(m, d)
+    pts = [np.asarray(feet.foot_points(desc, dx, s))[0] for s in ("centre", "rolling")]
+    return (*pts, desc, d)
+
+
+def test_rolling_sole_point():
+    m = _model()
+    b = m.body("shank").id
+    # Sole corners in the shank frame: x 0.01 +- 0.08, y +- 0.03, z -0.26 (box at
+    # (0.01, 0, -0.25), half sizes .08 .03 .01).
+    corners = np.array([(0.01 + sx * 0.08, sy * 0.03, -0.26) for sx in (1, -1) for sy in (1, -1)])
+    centre, rolling, desc, d = _sole_points(m, 0.0)
+    assert len(desc.foot_soles[0]) == 4
+    np.testing.assert_allclose(sorted(desc.foot_soles[0]), sorted(map(tuple, corners)), atol=1e-12)
+    # Flat: the four corners are equally low, the rolling point is the sole's centre.
+    np.testing.assert_allclose(rolling, centre, atol=1e-6)
+    # Pitched 0.2 rad about y (knee > 0 turns x towards -z): the toe corners (x = 0.09)
+    # are 0.16 sin(0.2) = 31.8 mm below the heel's, so the heel weighs e^-15.9: the
+    # point is the middle of the toe edge, (0.09, 0, -0.26) in the shank frame.
+    _, rolling, _, d = _sole_points(m, 0.2)
+    toe_mid = d.xpos[b] + d.xmat[b].reshape(3, 3) @ np.array([0.09, 0.0, -0.26])
+    np.testing.assert_allclose(rolling, toe_mid, atol=1e-5)
+    # Pitched 0.005 rad: toe 0.8 mm lower, a soft mix. Float64 reference: weights
+    # exp(-(z - z_min) / SOLE_SOFTNESS) over the C library's world corners.
+    centre, rolling, _, d = _sole_points(m, 0.005)
+    world = d.xpos[b] + corners @ d.xmat[b].reshape(3, 3).T
+    w = np.exp(-(world[:, 2] - world[:, 2].min()) / feet.SOLE_SOFTNESS)
+    np.testing.assert_allclose(rolling, (w / w.sum()) @ world, atol=2e-6)
+    # By hand: toe weight 1, heel e^-(0.16 sin 0.005 / 0.002) = e^-0.4 = 0.670, so the
+    # point is (0.09 - 0.670 x 0.07) / 1.670 = 0.0258 along the sole, 15.8 mm ahead of
+    # the centre.
+    assert np.linalg.norm(rolling - centre) == pytest.approx(0.0158, abs=2e-4)
+    with pytest.raises(ValueError, match="sole must be one of"):
+        feet.foot_points(desc, mjx.put_data(m, d), "lowest")
+    with pytest.raises(ValueError, match="config.sole"):
+        validate_config(W.ContactObsConfig(sole="lowest"))
+
+
+def test_round_feet_roll_nowhere():
+    m = _model(foot='<geom name="ball" type="sphere" pos="0.01 0 -0.25" size=".02"/>')
+    centre, rolling, desc, _ = _sole_points(m, 0.2)
+    assert desc.foot_soles == ((),)
+    np.testing.assert_array_equal(rolling, centre)

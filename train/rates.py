@@ -192,6 +192,7 @@ def compare_rates(
     truth_gap: float = 0.001,
     feedback: Callable | None = None,
     stop: Callable | None = None,
+    sole: str = "rolling",
 ) -> RateComparison:
     """Measures the accuracy lost by the control-rate mode against the substep mode.
 
@@ -222,6 +223,7 @@ def compare_rates(
         :mod:`jax_contact.envs.biped_hop`).
       stop: optional ``stop(data) -> bool``: a rollout's score ends before the first
         step whose state it flags (e.g. the robot has fallen), as at a ``done``.
+      sole: ``ContactObsConfig.sole`` of both estimators.
 
     Returns:
       The metrics of :func:`jax_contact.metrics.evaluate` for both, over the steps before
@@ -248,6 +250,7 @@ def compare_rates(
         truth="auto",
         pairing=pairing,
         truth_gap=truth_gap,
+        sole=sole,
     )
     sub_cfg = ContactObsConfig(
         rate="substep",
@@ -256,6 +259,7 @@ def compare_rates(
         record_substeps=True,
         pairing=pairing,
         truth_gap=truth_gap,
+        sole=sole,
     )
     inner = wrap_contact(
         env,
