@@ -17,8 +17,8 @@ import pytest
 from mujoco import mjx
 
 from jax_contact.envs import contact_truth, feet
-from jax_contact.envs.contact_config import validate_config
 from jax_contact.envs import wrapper as W
+from jax_contact.envs.contact_config import validate_config
 from jax_contact.envs.robots import Robot
 
 LEG = """
