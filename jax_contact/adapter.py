@@ -163,14 +163,24 @@ def robot_measurement(
       ``foot_radius`` (n_legs,), ``leg_dofs`` from ``desc``.
 
     Raises:
-      ValueError: ``desc`` does not match the model, or ``qdd``/``tau`` have the wrong
-        shape.
+      ValueError: ``desc`` does not match the model, ``qdd``/``tau`` have the wrong
+        shape, or a foot is a flat sole or has no geom (``foot_soles``, geom id -1:
+        :func:`jax_contact.envs.feet.measurement` takes those).
     """
     m, d = mjx_model, mjx_data
     if (desc.nv, desc.nq) != (m.nv, m.nq):
         raise ValueError(
             f"desc has nv={desc.nv}, nq={desc.nq} but mjx_model has nv={m.nv}, nq={m.nq}:"
             " derive the description from the same model"
+        )
+    soles = desc.foot_soles or ((),) * desc.n_legs
+    if any(soles) or min(desc.foot_geom_ids) < 0:
+        names = zip(desc.foot_names, desc.foot_geom_ids, soles, strict=True)
+        flat = [n for n, g, c in names if c or g < 0]
+        raise ValueError(
+            f"feet {flat} are no sphere or capsule geom (a flat sole, or a point with no geom):"
+            " robot_measurement reads a foot geom's centre and radius; use"
+            " jax_contact.envs.feet.measurement for these feet"
         )
     for name, value in (("qdd", qdd), ("tau", tau)):
         if value is not None and jnp.shape(value) != (m.nv,):

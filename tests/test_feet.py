@@ -251,3 +251,17 @@ def test_round_feet_roll_nowhere():
     centre, rolling, desc, _ = _sole_points(m, 0.2)
     assert desc.foot_soles == ((),)
     np.testing.assert_array_equal(rolling, centre)
+
+
+def test_robot_measurement_refuses_feet_it_cannot_place():
+    """adapter.robot_measurement reads a foot geom's centre and radius (spheres,
+    capsules); a box sole's point would be wrong there (the box's centre, its
+    half-length as a radius), so it refuses it, naming the foot (feet.measurement is the
+    route for it)."""
+    from jax_contact import adapter
+
+    m = _model()
+    desc, _ = feet.describe(m)
+    dx = mjx.put_data(m, mujoco.MjData(m))
+    with pytest.raises(ValueError, match=r"feet \['sole'\].*feet.measurement"):
+        adapter.robot_measurement(mjx.put_model(m), dx, desc)
