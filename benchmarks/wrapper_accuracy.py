@@ -135,8 +135,7 @@ def closed_loop_for(name: str, env, policy: str | None = None):
     policy = default_policy(name) if policy is None else policy
     if policy != "hop":
         return None, None
-    m = env.mj_model
-    adr = np.array([m.sensor_adr[m.sensor(f"{side}_foot1_floor_found").id] for side in "lr"])
+    adr = biped_hop.stance_sensors(env.mj_model)
     scale = SCALE[_robot(name)]
 
     def feedback(data):

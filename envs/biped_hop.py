@@ -228,9 +228,15 @@ class HopRun:
     liftoffs: np.ndarray
 
 
-def env_like_reset(
-    mj_model, data, rng: np.random.Generator, pose: np.ndarray, keyframe: int = 0
-) -> None:
+def stance_sensors(mj_model) -> np.ndarray:
+    """(2,) ``sensordata`` addresses of the ``l_``/``r_foot1_floor_found`` sensors: the hop
+    is in stance when either reads > 0."""
+    return np.array(
+        [mj_model.sensor_adr[mj_model.sensor(f"{s}_foot1_floor_found").id] for s in "lr"]
+    )
+
+
+def env_like_reset(mj_model, data, rng: np.random.Generator, keyframe: int = 0) -> None:
     """Resets ``data`` as Playground's Berkeley Humanoid joystick env does (its ``reset``).
 
     Yaw U(-pi, pi), joint angles of the keyframe times U(0.5, 1.5), base velocity (linear
@@ -240,6 +246,7 @@ def env_like_reset(
     import mujoco
 
     mujoco.mj_resetDataKeyframe(mj_model, data, keyframe)
+    pose = data.qpos[7:].copy()
     yaw = rng.uniform(-3.14, 3.14)
     data.qpos[3:7] = [np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2)]
     data.qpos[7:] = pose * rng.uniform(0.5, 1.5, pose.shape)
@@ -276,13 +283,14 @@ def run_mujoco(
 
     m = env.mj_model
     d = mujoco.MjData(m)
-    pose = m.keyframe("home").qpos[7:].copy()
+    home = m.keyframe("home")
+    pose = home.qpos[7:].copy()
     if reset_rng is None:
-        mujoco.mj_resetDataKeyframe(m, d, m.keyframe("home").id)
+        mujoco.mj_resetDataKeyframe(m, d, home.id)
     else:
-        env_like_reset(m, d, reset_rng, pose, m.keyframe("home").id)
+        env_like_reset(m, d, reset_rng, home.id)
     mujoco.mj_forward(m, d)
-    adr = [m.sensor_adr[m.sensor(f"{s}_foot1_floor_found").id] for s in "lr"]
+    adr = stance_sensors(m)
     fb = _jitted_feedback(legs)
     dt = float(env.dt)
     n_sub = int(round(dt / m.opt.timestep))

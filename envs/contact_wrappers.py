@@ -60,6 +60,11 @@ class _ContactMixin:
         mj_model = contact_core.model_of(self.env)[1]
         self._n_sub = int(round(float(self.env.dt) / float(mj_model.opt.timestep)))
 
+    def sim_data(self, state):
+        """The MJX data of one of this env's states (Brax's ``pipeline_state``,
+        Playground's ``data``)."""
+        return getattr(state, self._DATA)
+
     @property
     def contact_core(self) -> Core:
         """The description, feet, parameters, sensor model and terrain the wrapper uses."""

@@ -184,16 +184,17 @@ def _geom_point(m, d, g: int) -> tuple[str, np.ndarray, float, tuple]:
     rot_body = rot_body.reshape(3, 3)
     pos = np.asarray(m.geom_pos[g], np.float64)
     # The sole's four corners: the face's extremes along its two in-plane axes (a
-    # cylinder's or ellipsoid's: four points of its rim).
+    # cylinder's or ellipsoid's: four points of its rim, one at each end of each axis).
     a, b = (i for i in range(3) if i != axis)
+    round_sole = kind in ("cylinder", "ellipsoid")
+    signs = (
+        ((1, 0), (0, -1), (-1, 0), (0, 1)) if round_sole else ((1, 1), (1, -1), (-1, -1), (-1, 1))
+    )
     corners = []
-    for sa, sb in ((1, 1), (1, -1), (-1, -1), (-1, 1)):
+    for sa, sb in signs:
         c = local.copy()
         c[a] += sa * half[a]
         c[b] += sb * half[b]
-        if kind in ("cylinder", "ellipsoid"):
-            c[a] = local[a] + (sa * half[a] if sa == sb else 0.0)
-            c[b] = local[b] + (sb * half[b] if sa != sb else 0.0)
         corners.append(tuple(float(x) for x in pos + rot_body @ c))
     return kind, pos + rot_body @ local, 0.0, tuple(corners)
 

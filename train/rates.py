@@ -172,12 +172,6 @@ class RateComparison:
         return "\n".join(lines)
 
 
-def _sim_data(state):
-    """The simulator state of a Playground (``data``) or Brax (``pipeline_state``) state."""
-    data = getattr(state, "data", None)
-    return state.pipeline_state if data is None else data
-
-
 def compare_rates(
     env,
     actions: jax.Array,
@@ -279,11 +273,11 @@ def compare_rates(
     # the substep scan inside the step would be re-batched on every round.
     def step(s, a):
         if feedback is not None:
-            a = a + feedback(_sim_data(s))
+            a = a + feedback(outer.sim_data(s))
         s = outer.step(s, a)
         ended = s.done
         if stop is not None:
-            ended = jnp.maximum(ended, jnp.asarray(stop(_sim_data(s)), ended.dtype))
+            ended = jnp.maximum(ended, jnp.asarray(stop(outer.sim_data(s)), ended.dtype))
         info = s.info
         sub = info["contact_substep_substeps"]
         out = (
