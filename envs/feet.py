@@ -349,9 +349,7 @@ def foot_points(desc: RobotDescription, d, sole: str = "centre") -> jax.Array:
     """
     if sole not in SOLES:
         raise ValueError(f"sole must be one of {SOLES}, got {sole!r}")
-    b = jnp.asarray(desc.foot_body_ids)
-    off = jnp.asarray(desc.foot_offsets, jnp.float32)
-    fixed = d.xpos[b] + jnp.einsum("nij,nj->ni", d.xmat[b], off)
+    fixed = adapter.foot_centres(desc, d)
     if sole == "centre" or not any(desc.foot_soles):
         return fixed
     k = max(len(c) for c in desc.foot_soles)
@@ -363,6 +361,7 @@ def foot_points(desc: RobotDescription, d, sole: str = "centre") -> jax.Array:
         pts = np.asarray(c or [o], np.float32).reshape(-1, 3)
         blocks.append(pts[np.arange(k) % len(pts)])
     corners = np.stack(blocks)
+    b = jnp.asarray(desc.foot_body_ids)
     world = d.xpos[b][:, None] + jnp.einsum("nij,nkj->nki", d.xmat[b], jnp.asarray(corners))
     z = world[..., 2]
     w = jax.nn.softmax(-(z - jnp.min(z, axis=1, keepdims=True)) / SOLE_SOFTNESS, axis=1)

@@ -21,8 +21,9 @@ Where each quantity comes from (all at the state in ``mjx_data``):
 - ``tau``: ``qfrc_actuator`` (what joint torque sensors measure: the generalised actuator
   force after force limits), unless given.
 - ``qdd``: ``qacc`` of the data (the simulator's true acceleration), unless given.
-- ``J``, ``p_f``, ``v_f``: ``mjx.jac`` at the foot sphere's centre ``geom_xpos``; ``v_f = J
-  qd``.
+- ``J``, ``p_f``, ``v_f``: ``mjx.jac`` at the foot's point, its body's pose applied to
+  ``desc.foot_offsets`` (:func:`foot_centres`: a sphere geom's centre, a site, a point on a
+  body); ``v_f = J qd``.
 - ``Jdot_qd``: the foot centre's acceleration at zero ``qacc`` without gravity, from the
   velocity-stage quantities ``cvel`` and ``cdof_dot`` (see :func:`foot_bias_acceleration`);
   it equals the C library's ``mj_jacDot(point) @ qvel``.
@@ -164,7 +165,7 @@ def robot_measurement(
 
     Raises:
       ValueError: ``desc`` does not match the model, ``qdd``/``tau`` have the wrong
-        shape, or a foot is a flat sole or has no geom (``foot_soles``, geom id -1:
+        shape, or a foot is a flat sole (``foot_soles``:
         :func:`jax_contact.envs.feet.measurement` takes those).
     """
     m, d = mjx_model, mjx_data
@@ -174,28 +175,38 @@ def robot_measurement(
             " derive the description from the same model"
         )
     soles = desc.foot_soles or ((),) * desc.n_legs
-    if any(soles) or min(desc.foot_geom_ids) < 0:
-        names = zip(desc.foot_names, desc.foot_geom_ids, soles, strict=True)
-        flat = [n for n, g, c in names if c or g < 0]
+    if any(soles):
+        flat = [n for n, c in zip(desc.foot_names, soles, strict=True) if c]
         raise ValueError(
-            f"feet {flat} are no sphere or capsule geom (a flat sole, or a point with no geom):"
-            " robot_measurement reads a foot geom's centre and radius; use"
-            " jax_contact.envs.feet.measurement for these feet"
+            f"feet {flat} are flat soles: robot_measurement reads each foot's fixed point and"
+            " radius; use jax_contact.envs.feet.measurement for these feet (its sole='rolling'"
+            " follows the sole's lowest edge)"
         )
     for name, value in (("qdd", qdd), ("tau", tau)):
         if value is not None and jnp.shape(value) != (m.nv,):
             raise ValueError(f"{name} must have shape ({m.nv},) (nv), got {jnp.shape(value)}")
-    geom_ids = jnp.asarray(desc.foot_geom_ids, dtype=jnp.int32)
     return measurement_at_points(
         m,
         d,
         desc,
-        d.geom_xpos[geom_ids],
-        m.geom_size[geom_ids, 0],
+        foot_centres(desc, d),
+        jnp.asarray(desc.foot_radii, d.xpos.dtype),
         qdd=qdd,
         tau=tau,
         include_passive=include_passive,
     )
+
+
+def foot_centres(desc: RobotDescription, mjx_data: mjx.Data) -> jax.Array:
+    """(n_legs, 3) world positions of the feet's fixed points, m.
+
+    ``xpos + xmat @ foot_offsets`` of each foot's body: the sphere geom's centre (equal to
+    its ``geom_xpos``), or the site or body offset the foot was named by. Needs the data's
+    kinematics (``xpos``, ``xmat``).
+    """
+    b = jnp.asarray(desc.foot_body_ids, dtype=jnp.int32)
+    off = jnp.asarray(desc.foot_offsets, mjx_data.xpos.dtype)
+    return mjx_data.xpos[b] + jnp.einsum("nij,nj->ni", mjx_data.xmat[b], off)
 
 
 def measurement_at_points(

@@ -253,15 +253,32 @@ def test_round_feet_roll_nowhere():
     np.testing.assert_array_equal(rolling, centre)
 
 
-def test_robot_measurement_refuses_feet_it_cannot_place():
-    """adapter.robot_measurement reads a foot geom's centre and radius (spheres,
-    capsules); a box sole's point would be wrong there (the box's centre, its
-    half-length as a radius), so it refuses it, naming the foot (feet.measurement is the
-    route for it)."""
+def test_robot_measurement_places_site_feet_and_refuses_flat_soles():
+    """adapter.robot_measurement reads each foot's fixed point (its body's pose applied to
+    foot_offsets) and radius. A site foot on a body that carries a geom is at the site, not
+    at the geom's centre: against MuJoCo C in float64 (site_xpos, mj_jac at the site). A
+    box sole's point depends on how the sole tilts, so robot_measurement refuses it, naming
+    the foot (feet.measurement is the route for it)."""
     from jax_contact import adapter
 
     m = _model()
+    desc_toe, _ = feet.describe(m, ["toe"])
+    d = mujoco.MjData(m)
+    d.qpos[:] = (0.55, 0.4, -0.7)  # rail, hip, knee: a bent leg, so the frames turn
+    d.qvel[:] = (0.1, -1.0, 2.0)
+    mujoco.mj_forward(m, d)
+    site = m.site("toe").id
+    jacp = np.zeros((3, m.nv))
+    mujoco.mj_jacSite(m, d, jacp, None, site)
+    dx = adapter.prepare(mjx.put_model(m), mjx.put_data(m, d))
+    meas = adapter.robot_measurement(mjx.put_model(m), dx, desc_toe)
+    np.testing.assert_allclose(meas.p_f[0], d.site_xpos[site], atol=2e-6)
+    np.testing.assert_allclose(meas.J[0], jacp, atol=2e-6)
+    np.testing.assert_allclose(meas.v_f[0], jacp @ d.qvel, atol=2e-5)
+    assert float(meas.foot_radius[0]) == 0.0
+    # The box centre, where a geom-centre reading put it, is sqrt(0.07^2 + 0.01^2) = 7.1 cm away.
+    assert np.linalg.norm(d.geom_xpos[m.geom("sole").id] - d.site_xpos[site]) > 0.07
+
     desc, _ = feet.describe(m)
-    dx = mjx.put_data(m, mujoco.MjData(m))
-    with pytest.raises(ValueError, match=r"feet \['sole'\].*feet.measurement"):
-        adapter.robot_measurement(mjx.put_model(m), dx, desc)
+    with pytest.raises(ValueError, match=r"feet \['sole'\] are flat soles.*feet.measurement"):
+        adapter.robot_measurement(mjx.put_model(m), mjx.put_data(m, mujoco.MjData(m)), desc)
