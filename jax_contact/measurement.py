@@ -129,9 +129,11 @@ def dynamics_llr(
     stabilising term carries, ``b^2 var(e . v_f) Lambda e e^T Lambda`` with ``Lambda`` the
     (damped) operational-space matrix.
 
-    With ``params.unilateral`` the contact hypothesis is weighted by ``P(e . F < 0)`` under
-    ``F ~ N(F_hat, Sigma_f)``: a foot that the ground would have to *pull* is evidence for air
-    (a documented choice, MODEL.md "Sign").
+    With ``params.unilateral`` the contact hypothesis is weighted by ``P(-e . F > f_min)``
+    under ``F ~ N(F_hat, Sigma_f)``, ``f_min = params.min_push`` (0 by default: ``P(e . F <
+    0)``): a foot that the ground would have to *pull*, or with ``f_min > 0`` a foot that
+    bears almost no load, is evidence for air (a documented choice, MODEL.md "Sign";
+    docs/model_choices.md, "A loaded contact").
 
     Args:
       params: estimator parameters.
@@ -196,8 +198,11 @@ def dynamics_llr(
     force = jnp.zeros(3, leg.J.dtype).at[rows].set(force_rows)
     if params.unilateral:
         push = jnp.dot(e_rows, force_rows)
-        push_std = jnp.sqrt(jnp.dot(e_rows * e_rows, jnp.square(noise.sigma_f[rows])) + 1e-12)
-        llr = llr + log_ndtr(-push / push_std)
+        push_var = jnp.dot(e_rows * e_rows, jnp.square(noise.sigma_f[rows]))
+        # P(-push > min_push); Phi(0) when e has no component along the kept rows (the
+        # force then says nothing about the normal).
+        loaded = log_ndtr((-push - params.min_push) / jnp.sqrt(push_var + 1e-12))
+        llr = llr + jnp.where(push_var > 0, loaded, jnp.log(0.5))
     return cap_llr(llr, params.cap_dynamics), force
 
 

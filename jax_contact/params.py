@@ -105,6 +105,11 @@ class EstimatorParams:
       unilateral: static; if True the contact hypothesis is also weighed by the
         probability that the estimated force pushes into the ground (``e . F < 0``), so a
         foot that would need the ground to pull it counts as evidence for air.
+      min_push: () N, with ``unilateral``: the contact hypothesis's foot pushes into the
+        ground with at least this force, ``P(-e . F > min_push)``; 0 (default) is the
+        sign rule above. A loaded foot, not a foot the ground merely touches: a braking
+        swing foot whose deceleration the stabilised contact explains with almost no
+        force counts as air (docs/model_choices.md, "A loaded contact").
       terms: static, the measurement terms that enter eq. 3 (all three by default); a
         subset is for ablations (diagnostics still report every term).
       transition_model: static; if False the measurement-dependent transitions (eq.
@@ -141,6 +146,7 @@ class EstimatorParams:
     initial_contact: jnp.ndarray
     contact_damping: jnp.ndarray
     kinematics_lead: jnp.ndarray
+    min_push: jnp.ndarray
     n_samples: int = struct.field(pytree_node=False, default=500)
     touchdown: str = struct.field(pytree_node=False, default="monte_carlo")
     n_quad: int = struct.field(pytree_node=False, default=8)
@@ -262,6 +268,7 @@ def make_params(
     kinematics_neutral_below: bool = True,
     foothold_still: bool = True,
     kinematics_lead: float = 0.0,
+    min_push: float = 0.0,
 ) -> EstimatorParams:
     """Builds and validates :class:`EstimatorParams`.
 
@@ -295,6 +302,7 @@ def make_params(
         initial_contact=jnp.float32(initial_contact),
         contact_damping=jnp.float32(contact_damping),
         kinematics_lead=jnp.float32(kinematics_lead),
+        min_push=jnp.float32(min_push),
         n_samples=n_samples,
         touchdown=touchdown,
         n_quad=n_quad,
@@ -354,6 +362,9 @@ def validate_params(params: EstimatorParams) -> None:
     v = np.asarray(params.kinematics_lead)
     if v.shape != () or not (0.0 <= float(v) <= 1.0):
         raise ValueError(f"kinematics_lead must lie in [0, 1], got {v!r}")
+    v = np.asarray(params.min_push)
+    if v.shape != () or not np.isfinite(v) or v < 0:
+        raise ValueError(f"min_push must be a finite scalar >= 0 (N), got {v!r}")
     v = np.asarray(params.initial_contact)
     if v.shape != () or not (0.0 < float(v) < 1.0):
         raise ValueError(f"initial_contact must lie in (0, 1), got {v!r}")

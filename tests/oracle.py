@@ -81,6 +81,7 @@ class Params:
     foothold_still: bool = True
     contact_damping: float = 0.0
     kinematics_lead: float = 0.0
+    min_push: float = 0.0
 
 
 @dataclasses.dataclass
@@ -287,8 +288,12 @@ def dynamics(p: Params, m: Meas, e: np.ndarray):
     if p.unilateral:
         push = sum(e[r] * force[r] for r in rows)
         var = sum(e[r] ** 2 * p.sigma_f[r] ** 2 for r in rows)
-        # e has no component along the kept rows: the force says nothing, Phi(0).
-        llr += special.log_ndtr(-push / math.sqrt(var)) if var > 0 else math.log(0.5)
+        # P(-push > min_push): the foot pushes into the ground with at least min_push. When
+        # e has no component along the kept rows the force says nothing: Phi(0).
+        if var > 0:
+            llr += special.log_ndtr((-push - p.min_push) / math.sqrt(var))
+        else:
+            llr += math.log(0.5)
     info = {"llr_raw": llr, "qdd_air": qdd_air, "qdd_contact": qdd_contact}
     return cap(llr, p.cap_dynamics), force, info
 
@@ -812,6 +817,9 @@ def random_case(rng, nv: int, n_l: int, force_rows=(0, 1, 2), stance: bool | Non
     # The kinematic terms' lead, likewise: the interval's start, its end, or between.
     sub3 = np.random.default_rng([int(abs(x) * 1e9 + 11) % 2**32 for x in p_f])
     scalars["kinematics_lead"] = float(sub3.choice([0.0, 1.0, sub3.uniform()]))
+    # The loaded contact's least push: none (the sign rule) in half the cases.
+    sub4 = np.random.default_rng([int(abs(x) * 1e9 + 13) % 2**32 for x in p_f])
+    scalars["min_push"] = float(sub4.uniform(0.0, 40.0)) if sub4.integers(2) else 0.0
     return dict(meas=meas, terrain=terrain, noise=noise, scalars=scalars)
 
 

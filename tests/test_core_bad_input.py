@@ -91,6 +91,12 @@ def test_kinematics_lead_outside_unit_interval(value):
         assert float(make_params(make_noise(3), kinematics_lead=ok).kinematics_lead) == ok
 
 
+@pytest.mark.parametrize("value", [-1.0, np.nan, np.inf])
+def test_min_push_negative_or_not_finite(value):
+    with pytest.raises(ValueError, match="min_push"):
+        make_params(make_noise(3), min_push=value)
+
+
 @pytest.mark.parametrize("cap", ["cap_dynamics", "cap_diff_kinematics", "cap_kinematics"])
 def test_caps_inside_interval_are_accepted(cap):
     for value in (0.500001, 0.9, 1.0):
