@@ -100,13 +100,19 @@ def test_params_for_names_bad_input(go1):
 
 def test_params_file_round_trip(go1, tmp_path):
     sp = sensor_preset("anymal_like", go1.nv, dt=DT)
-    p = jc.params_for(go1, sp, DT, touchdown="monte_carlo", n_samples=64)
+    p = jc.params_for(go1, sp, DT, touchdown="monte_carlo", n_samples=64, min_push=12.5)
     path = jc.save_params(tmp_path / "go1.json", p, provenance={"by": "test"})
     q = jc.load_params(path)
     da, db = jc.io.params_to_dict(p), jc.io.params_to_dict(q)
     assert da["noise"] == db["noise"] and da["values"] == db["values"]
     assert da["options"] == db["options"] and q.n_samples == 64
+    assert float(q.min_push) == 12.5
     assert json.loads(path.read_text())["provenance"] == {"by": "test"}
+    # A file written before min_push (the sign rule) loads with 0, that rule.
+    old = json.loads(path.read_text())
+    del old["values"]["min_push"]
+    (tmp_path / "old.json").write_text(json.dumps(old))
+    assert float(jc.load_params(tmp_path / "old.json").min_push) == 0.0
 
 
 def test_bad_params_file_names_the_field(go1, tmp_path):
