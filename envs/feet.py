@@ -349,9 +349,8 @@ def foot_points(desc: RobotDescription, d, sole: str = "centre") -> jax.Array:
     """
     if sole not in SOLES:
         raise ValueError(f"sole must be one of {SOLES}, got {sole!r}")
-    fixed = adapter.foot_centres(desc, d)
     if sole == "centre" or not any(desc.foot_soles):
-        return fixed
+        return adapter.foot_centres(desc, d)
     k = max(len(c) for c in desc.foot_soles)
     # One (k, 3) block per foot: its corners repeated cyclically up to k (a foot without
     # a sole: its fixed point k times), which leaves every foot's weighted mean unchanged
@@ -360,9 +359,7 @@ def foot_points(desc: RobotDescription, d, sole: str = "centre") -> jax.Array:
     for c, o in zip(desc.foot_soles, desc.foot_offsets, strict=True):
         pts = np.asarray(c or [o], np.float32).reshape(-1, 3)
         blocks.append(pts[np.arange(k) % len(pts)])
-    corners = np.stack(blocks)
-    b = jnp.asarray(desc.foot_body_ids)
-    world = d.xpos[b][:, None] + jnp.einsum("nij,nkj->nki", d.xmat[b], jnp.asarray(corners))
+    world = adapter.on_foot_bodies(desc, d, np.stack(blocks))
     z = world[..., 2]
     w = jax.nn.softmax(-(z - jnp.min(z, axis=1, keepdims=True)) / SOLE_SOFTNESS, axis=1)
     return jnp.einsum("nk,nki->ni", w, world)

@@ -204,9 +204,24 @@ def foot_centres(desc: RobotDescription, mjx_data: mjx.Data) -> jax.Array:
     its ``geom_xpos``), or the site or body offset the foot was named by. Needs the data's
     kinematics (``xpos``, ``xmat``).
     """
+    return on_foot_bodies(desc, mjx_data, desc.foot_offsets)
+
+
+def on_foot_bodies(desc: RobotDescription, mjx_data: mjx.Data, local) -> jax.Array:
+    """World positions of points fixed to the feet's bodies, m.
+
+    Args:
+      desc: the robot description (its ``foot_body_ids``).
+      mjx_data: data after kinematics (``xpos``, ``xmat``).
+      local: (n_legs, ..., 3) points in each foot body's frame, m.
+
+    Returns:
+      (n_legs, ..., 3) ``xpos + xmat @ local`` of each foot's body.
+    """
     b = jnp.asarray(desc.foot_body_ids, dtype=jnp.int32)
-    off = jnp.asarray(desc.foot_offsets, mjx_data.xpos.dtype)
-    return mjx_data.xpos[b] + jnp.einsum("nij,nj->ni", mjx_data.xmat[b], off)
+    local = jnp.asarray(local, mjx_data.xpos.dtype)
+    pos = mjx_data.xpos[b].reshape((len(desc.foot_body_ids),) + (1,) * (local.ndim - 2) + (3,))
+    return pos + jnp.einsum("nij,n...j->n...i", mjx_data.xmat[b], local)
 
 
 def measurement_at_points(
