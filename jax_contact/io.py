@@ -276,7 +276,15 @@ PARAMS_VERSION = 1
 # Fields added to a section after files of this version were first written, with the value
 # that reproduces the model those files were written with: a file without one loads with
 # it (a missing field of any other name is an error).
-LATER_FIELDS = {"values": {"contact_damping": 0.0, "kinematics_lead": 0.0, "min_push": 0.0}}
+LATER_FIELDS = {
+    "values": {
+        "contact_damping": 0.0,
+        "kinematics_lead": 0.0,
+        "min_push": 0.0,
+        "slip_prob": 0.0,
+        "slip_speed": 0.5,
+    }
+}
 
 
 def _param_sections() -> dict[str, tuple[str, ...]]:

@@ -207,12 +207,26 @@ def dynamics_llr(
 
 
 @jax.named_call
-def diff_kinematics_llr(params: EstimatorParams, meas: LegMeasurement | LegBlocks) -> jax.Array:
+def diff_kinematics_llr(
+    params: EstimatorParams, meas: LegMeasurement | LegBlocks, normal: jax.Array | None = None
+) -> jax.Array:
     """Differential kinematics term (eq. 8-9): is the foot still?
 
     Contact: ``v_f ~ N(0, J Sigma_qd J^T + Sigma_J)``. Air: the leg's joints move with the
     zero-mean prior ``Sigma_prior`` while the other coordinates move as measured,
     ``v_f ~ N(J_fb qd_b, J_fl Sigma_prior J_fl^T + J Sigma_qd J^T + Sigma_J)``.
+
+    With ``params.slip_prob`` ``rho > 0`` the contact hypothesis is the mixture
+    ``(1 - rho) N(0, S) + rho N(0, S + s^2 (I - e e^T))``, ``S`` the still foot's covariance
+    above and ``s`` = ``params.slip_speed``: a sliding foot stays on the terrain's tangent
+    plane (its normal velocity is still ~0) and moves along it (docs/model_choices.md,
+    "A sliding contact").
+
+    Args:
+      params: estimator parameters.
+      meas: one foot's measurement, or its :class:`LegBlocks`.
+      normal: (3,) terrain normal ``e`` at the foot; world z when None (used only with
+        ``slip_prob > 0``).
 
     Returns:
       () capped log-likelihood ratio.
@@ -223,8 +237,18 @@ def diff_kinematics_llr(params: EstimatorParams, meas: LegMeasurement | LegBlock
     cov_meas = J @ (jnp.square(noise.sigma_qd)[:, None] * J.T) + jnp.diag(jnp.square(noise.sigma_J))
     cov_air = J_fl @ (jnp.square(leg.sigma_qd_prior_l)[:, None] * J_fl.T) + cov_meas
     mean_air = leg.J_b @ leg.qd_b
+    zero = jnp.zeros(3, J.dtype)
+    log_still = mvn_logpdf(leg.v_f, zero, cov_meas)
+    if normal is None:
+        normal = jnp.array([0.0, 0.0, 1.0], J.dtype)
+    tangent = jnp.eye(3, dtype=J.dtype) - jnp.outer(normal, normal)
+    log_slide = mvn_logpdf(leg.v_f, zero, cov_meas + jnp.square(params.slip_speed) * tangent)
+    rho = params.slip_prob
+    # rho = 0 selects the still foot exactly (and keeps log(0) out of every gradient).
+    log_rho = jnp.log(jnp.where(rho > 0, rho, 1.0))
+    mixed = jnp.logaddexp(jnp.log1p(-rho) + log_still, log_rho + log_slide)
     llr = robust_llr(
-        mvn_logpdf(leg.v_f, jnp.zeros(3, J.dtype), cov_meas),
+        jnp.where(rho > 0, mixed, log_still),
         mvn_logpdf(leg.v_f, mean_air, cov_air),
         params.outlier_prob,
         -3.0 * jnp.log(2.0 * params.outlier_v),
@@ -314,7 +338,7 @@ def measurement_terms(
     dyn, force = dynamics_llr(params, meas, terrain.normal)
     return MeasurementTerms(
         dynamics=dyn,
-        diff_kinematics=diff_kinematics_llr(params, kin),
+        diff_kinematics=diff_kinematics_llr(params, kin, terrain.normal),
         kinematics=kinematics_llr(params, kin, terrain),
         force=force,
     )

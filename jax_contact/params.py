@@ -110,6 +110,12 @@ class EstimatorParams:
         sign rule above. A loaded foot, not a foot the ground merely touches: a braking
         swing foot whose deceleration the stabilised contact explains with almost no
         force counts as air (docs/model_choices.md, "A loaded contact").
+      slip_prob: () probability ``rho`` in [0, 1) that a foot in contact slides: the
+        differential-kinematics term's contact hypothesis is the mixture of the still
+        foot (eq. 8) and, with weight ``rho``, a foot that keeps to the terrain's
+        tangent plane and moves along it with std ``slip_speed`` per tangent axis. 0
+        (default) is the paper's still foot (docs/model_choices.md, "A sliding contact").
+      slip_speed: () m/s, the sliding foot's tangential velocity std (with ``slip_prob``).
       terms: static, the measurement terms that enter eq. 3 (all three by default); a
         subset is for ablations (diagnostics still report every term).
       transition_model: static; if False the measurement-dependent transitions (eq.
@@ -147,6 +153,8 @@ class EstimatorParams:
     contact_damping: jnp.ndarray
     kinematics_lead: jnp.ndarray
     min_push: jnp.ndarray
+    slip_prob: jnp.ndarray
+    slip_speed: jnp.ndarray
     n_samples: int = struct.field(pytree_node=False, default=500)
     touchdown: str = struct.field(pytree_node=False, default="monte_carlo")
     n_quad: int = struct.field(pytree_node=False, default=8)
@@ -269,6 +277,8 @@ def make_params(
     foothold_still: bool = True,
     kinematics_lead: float = 0.0,
     min_push: float = 0.0,
+    slip_prob: float = 0.0,
+    slip_speed: float = 0.5,
 ) -> EstimatorParams:
     """Builds and validates :class:`EstimatorParams`.
 
@@ -303,6 +313,8 @@ def make_params(
         contact_damping=jnp.float32(contact_damping),
         kinematics_lead=jnp.float32(kinematics_lead),
         min_push=jnp.float32(min_push),
+        slip_prob=jnp.float32(slip_prob),
+        slip_speed=jnp.float32(slip_speed),
         n_samples=n_samples,
         touchdown=touchdown,
         n_quad=n_quad,
@@ -365,6 +377,12 @@ def validate_params(params: EstimatorParams) -> None:
     v = np.asarray(params.min_push)
     if v.shape != () or not np.isfinite(v) or v < 0:
         raise ValueError(f"min_push must be a finite scalar >= 0 (N), got {v!r}")
+    v = np.asarray(params.slip_prob)
+    if v.shape != () or not (0.0 <= float(v) < 1.0):
+        raise ValueError(f"slip_prob must be a scalar in [0, 1), got {v!r}")
+    v = np.asarray(params.slip_speed)
+    if v.shape != () or not np.isfinite(v) or v <= 0:
+        raise ValueError(f"slip_speed must be a finite scalar > 0 (m/s), got {v!r}")
     v = np.asarray(params.initial_contact)
     if v.shape != () or not (0.0 < float(v) < 1.0):
         raise ValueError(f"initial_contact must lie in (0, 1), got {v!r}")

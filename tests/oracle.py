@@ -82,6 +82,8 @@ class Params:
     contact_damping: float = 0.0
     kinematics_lead: float = 0.0
     min_push: float = 0.0
+    slip_prob: float = 0.0
+    slip_speed: float = 0.5
 
 
 @dataclasses.dataclass
@@ -298,8 +300,13 @@ def dynamics(p: Params, m: Meas, e: np.ndarray):
     return cap(llr, p.cap_dynamics), force, info
 
 
-def diff_kinematics(p: Params, m: Meas) -> float:
-    """Differential kinematics term (eq. 8-9), all three rows of J."""
+def diff_kinematics(p: Params, m: Meas, normal=(0.0, 0.0, 1.0)) -> float:
+    """Differential kinematics term (eq. 8-9), all three rows of J.
+
+    With ``slip_prob`` rho > 0 the contact density is the mixture of the still foot and,
+    with weight rho, a foot moving along the tangent plane of ``normal``:
+    ``(1 - rho) N(0, S) + rho N(0, S + slip_speed^2 (I - n n^T))``.
+    """
     nv = m.J.shape[1]
     legs = [int(i) for i in m.leg_dofs]
     base = [int(i) for i in m.other_dofs]
@@ -316,8 +323,16 @@ def diff_kinematics(p: Params, m: Meas) -> float:
     for i in range(3):
         for k in base:
             mean_air[i] += m.J[i, k] * m.qd[k]
+    log_contact = stats.multivariate_normal.logpdf(m.v_f, np.zeros(3), S)
+    if p.slip_prob > 0:
+        n = np.asarray(normal, float)
+        T = np.eye(3) - np.outer(n, n)
+        log_slide = stats.multivariate_normal.logpdf(m.v_f, np.zeros(3), S + p.slip_speed**2 * T)
+        log_contact = np.logaddexp(
+            math.log1p(-p.slip_prob) + log_contact, math.log(p.slip_prob) + log_slide
+        )
     llr = robust(
-        stats.multivariate_normal.logpdf(m.v_f, np.zeros(3), S),
+        log_contact,
         stats.multivariate_normal.logpdf(m.v_f, mean_air, S + P),
         p.outlier_prob,
         -3.0 * math.log(2.0 * p.outlier_v),
@@ -596,7 +611,7 @@ def step(p: Params, terrain, b: Belief, m: Meas, td_fn=touchdown):
     k = end_of_interval(p, m)
     tq = terrain.query(k.p_f, b.foothold, b.foothold_valid)
     l_dyn, force, _ = dynamics(p, m, tq.normal)
-    l_dk = diff_kinematics(p, k)
+    l_dk = diff_kinematics(p, k, tq.normal)
     l_k = kinematics(p, k, tq)
     # eq. 2: alpha(C) / alpha(A) = prior(C) L(C) / (prior(A) L(A)).
     logit = prior_logit + l_dyn + l_dk + l_k
@@ -820,6 +835,10 @@ def random_case(rng, nv: int, n_l: int, force_rows=(0, 1, 2), stance: bool | Non
     # The loaded contact's least push: none (the sign rule) in half the cases.
     sub4 = np.random.default_rng([int(abs(x) * 1e9 + 13) % 2**32 for x in p_f])
     scalars["min_push"] = float(sub4.uniform(0.0, 40.0)) if sub4.integers(2) else 0.0
+    # The sliding contact: the still foot alone (rho = 0) in half the cases.
+    sub5 = np.random.default_rng([int(abs(x) * 1e9 + 17) % 2**32 for x in p_f])
+    scalars["slip_prob"] = float(_logu(sub5, 0.01, 0.5)) if sub5.integers(2) else 0.0
+    scalars["slip_speed"] = float(_logu(sub5, 0.05, 2.0))
     return dict(meas=meas, terrain=terrain, noise=noise, scalars=scalars)
 
 

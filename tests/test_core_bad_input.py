@@ -97,6 +97,16 @@ def test_min_push_negative_or_not_finite(value):
         make_params(make_noise(3), min_push=value)
 
 
+@pytest.mark.parametrize(
+    "field, value",
+    [("slip_prob", -0.1), ("slip_prob", 1.0), ("slip_prob", np.nan)]
+    + [("slip_speed", v) for v in (0.0, -1.0, np.inf)],
+)
+def test_sliding_contact_out_of_range(field, value):
+    with pytest.raises(ValueError, match=field):
+        make_params(make_noise(3), **{field: value})
+
+
 @pytest.mark.parametrize("cap", ["cap_dynamics", "cap_diff_kinematics", "cap_kinematics"])
 def test_caps_inside_interval_are_accepted(cap):
     for value in (0.500001, 0.9, 1.0):

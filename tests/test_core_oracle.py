@@ -199,7 +199,7 @@ def _terms(params, meas, tq):
     return dict(
         llr_dynamics=dyn,
         force=force,
-        llr_diff_kinematics=diff_kinematics_llr(params, meas),
+        llr_diff_kinematics=diff_kinematics_llr(params, meas, tq.normal),
         llr_kinematics=kinematics_llr(params, meas, tq),
         gap=gap,
         sigma_pf=sigma_pf,
@@ -208,7 +208,7 @@ def _terms(params, meas, tq):
         log_takeoff=log_takeoff(params, u, sigma_v),
         v_end=end.v_f,
         p_end=end.p_f,
-        llr_diff_kinematics_end=diff_kinematics_llr(params, end),
+        llr_diff_kinematics_end=diff_kinematics_llr(params, end, tq.normal),
     )
 
 
@@ -241,7 +241,7 @@ def _oracle_terms(name):
             llr_dynamics=dyn,
             llr_dynamics_raw=info["llr_raw"],
             force=force,
-            llr_diff_kinematics=oracle.diff_kinematics(p, m),
+            llr_diff_kinematics=oracle.diff_kinematics(p, m, tq.normal),
             llr_kinematics=oracle.kinematics(p, m, tq),
             gap=gap,
             sigma_pf=s_pf,
@@ -251,7 +251,7 @@ def _oracle_terms(name):
             takeoff_scale=np.abs(oracle.takeoff_joint(p, u, s_v)).max(),
             v_end=end.v_f,
             p_end=end.p_f,
-            llr_diff_kinematics_end=oracle.diff_kinematics(p, end),
+            llr_diff_kinematics_end=oracle.diff_kinematics(p, end, tq.normal),
         )
         for k, v in row.items():
             out[k].append(v)
