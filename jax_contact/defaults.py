@@ -41,6 +41,11 @@ hypothesis brings a foot moving into the ground to rest at the rate
 ``contact_damping = 2 / contact_timeconst`` (critical damping of a contact that settles in
 ``contact_timeconst``, 20 ms by default: MuJoCo's default contact time constant, and the
 order of a rubber foot on hard ground).
+
+Sliding (docs/model_choices.md, "A sliding contact"): the differential-kinematics term's
+contact hypothesis is a still foot or, with probability ``SLIP_PROB`` = 0.3, a foot
+sliding along the terrain at a tangential speed of std ``SLIP_SPEED`` = 1 m/s (its normal
+velocity still ~0); chosen on Go1's tuning seed (1000).
 """
 
 from __future__ import annotations
@@ -55,6 +60,10 @@ from jax_contact.params import EstimatorParams, make_noise, make_params
 # step, chosen at 400 Hz on Go1's tuning seed (docs/model_choices.md).
 STILL_EVIDENCE_PER_S = float(np.log(0.65 / 0.35) / 0.0025)
 CAP_DIFF_KINEMATICS = 0.9
+# The sliding contact's weight and tangential speed std (m/s), chosen on tuning seed 1000
+# (docs/model_choices.md, "A sliding contact").
+SLIP_PROB = 0.3
+SLIP_SPEED = 1.0
 
 
 def still_cap(dt: float) -> float:
@@ -252,5 +261,7 @@ def params_for(
         outlier_v=4.0,
         contact_damping=2.0 / float(contact_timeconst),
         kinematics_lead=1.0,
+        slip_prob=SLIP_PROB,
+        slip_speed=SLIP_SPEED,
     )
     return make_params(noise, **(kw | overrides))

@@ -100,19 +100,24 @@ def test_params_for_names_bad_input(go1):
 
 def test_params_file_round_trip(go1, tmp_path):
     sp = sensor_preset("anymal_like", go1.nv, dt=DT)
-    p = jc.params_for(go1, sp, DT, touchdown="monte_carlo", n_samples=64, min_push=12.5)
+    p = jc.params_for(
+        go1, sp, DT, touchdown="monte_carlo", n_samples=64, min_push=12.5, slip_prob=0.1
+    )
     path = jc.save_params(tmp_path / "go1.json", p, provenance={"by": "test"})
     q = jc.load_params(path)
     da, db = jc.io.params_to_dict(p), jc.io.params_to_dict(q)
     assert da["noise"] == db["noise"] and da["values"] == db["values"]
     assert da["options"] == db["options"] and q.n_samples == 64
-    assert float(q.min_push) == 12.5
+    assert float(q.min_push) == 12.5 and float(q.slip_prob) == np.float32(0.1)
     assert json.loads(path.read_text())["provenance"] == {"by": "test"}
-    # A file written before min_push (the sign rule) loads with 0, that rule.
+    # A file written before min_push (the sign rule) and the sliding contact loads with
+    # the values that reproduce its model: 0 (that rule) and 0 (the still foot).
     old = json.loads(path.read_text())
-    del old["values"]["min_push"]
+    for field in ("min_push", "slip_prob", "slip_speed"):
+        del old["values"][field]
     (tmp_path / "old.json").write_text(json.dumps(old))
-    assert float(jc.load_params(tmp_path / "old.json").min_push) == 0.0
+    old_p = jc.load_params(tmp_path / "old.json")
+    assert float(old_p.min_push) == 0.0 and float(old_p.slip_prob) == 0.0
 
 
 def test_bad_params_file_names_the_field(go1, tmp_path):

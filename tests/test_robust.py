@@ -134,3 +134,33 @@ def test_slow_low_swing_foot_no_longer_held_in_contact(jit_step):
     assert p[39] > 0.99 and paper[39] > 0.99
     assert np.all(np.diff(p[40:]) < 0) and p[-1] < 0.6
     assert paper[-1] > 0.99
+
+
+def test_sliding_stance_foot_is_contact_evidence_a_rising_one_is_not():
+    """The sliding contact (docs/model_choices.md, "A sliding contact"): the planar leg in
+    its stance pose, base still, joints moving the foot at 1 m/s.
+
+    Along the floor (x): eq. 8's still foot (``slip_prob`` 0) calls it air at the cap,
+    -logit(0.9); the defaults' sliding component (weight 0.3, tangential std 1 m/s) keeps
+    the normal velocity at its noise and lets the foot move along the floor, so the same
+    reading is weak evidence for contact (measured +0.42, below the still-side cap
+    logit(0.65) = 0.62). Along the normal (z, a rising foot): 1 m/s is ~10 std of the
+    normal velocity's noise (sigma_qd 0.3 rad/s through J), so both models call it air at
+    the cap: sliding does not excuse a foot leaving the ground.
+    """
+    q, qd, qdd, tau = oracle.planar_stance()
+    J = oracle.planar_leg(q, qd)["J"][[0, 2]][:, 1:]  # x and z rows, the leg's two joints
+    still = ROBUST.replace(slip_prob=ROBUST.slip_prob * 0)
+    air_cap = -np.log(0.9 / 0.1)
+
+    def llr(params, v_xz):
+        qd_leg = np.linalg.solve(J, np.asarray(v_xz, float))
+        meas = _as_meas(oracle.planar_measurement(q, np.array([0.0, *qd_leg]), qdd, tau))
+        return float(jc.diff_kinematics_llr(params, meas))
+
+    assert float(ROBUST.slip_prob) == np.float32(0.3)
+    slide = llr(ROBUST, (1.0, 0.0))
+    assert 0.2 < slide < np.log(0.65 / 0.35) - 0.1, slide
+    np.testing.assert_allclose(llr(still, (1.0, 0.0)), air_cap, rtol=1e-6)
+    np.testing.assert_allclose(llr(ROBUST, (0.0, 1.0)), air_cap, rtol=1e-6)
+    np.testing.assert_allclose(llr(still, (0.0, 1.0)), air_cap, rtol=1e-6)

@@ -138,8 +138,9 @@ def paper_model(params: jc.EstimatorParams) -> jc.EstimatorParams:
     """``params`` with every robustness change of docs/model_choices.md undone: pure
     Gaussian terms, uncapped transitions, the symmetric 0.9 cap on differential kinematics,
     the two-sided kinematics ratio, the foothold written whenever P(C) > 0.5, MODEL.md's
-    a_F = 200 m/s^2, the rigid contact constraint of eq. 6 and every term at the interval's
-    start (the paper's model with this library's noise)."""
+    a_F = 200 m/s^2, the rigid contact constraint of eq. 6, every term at the interval's
+    start and the still contact foot of eq. 8 (the paper's model with this library's
+    noise)."""
     return params.replace(
         contact_damping=_f32(0.0),
         kinematics_lead=_f32(0.0),
@@ -150,6 +151,7 @@ def paper_model(params: jc.EstimatorParams) -> jc.EstimatorParams:
         foothold_still=False,
         foothold_confidence=_f32(0.5),
         takeoff_accel=_f32(200.0),
+        slip_prob=_f32(0.0),
     )
 
 
@@ -167,6 +169,7 @@ def ablation_variants(base: jc.EstimatorParams) -> dict[str, jc.EstimatorParams]
         "rigid_contact": base.replace(contact_damping=_f32(0.0)),
         "kinematics_at_start": base.replace(kinematics_lead=_f32(0.0)),
         "dkin_still_0.7": base.replace(cap_diff_kinematics_still=_f32(0.7)),
+        "still_foot": base.replace(slip_prob=_f32(0.0)),
         "no_transition_model": base.replace(transition_model=False),
         "dynamics_only": base.replace(terms=("dynamics",)),
         "diff_kinematics_only": base.replace(terms=("diff_kinematics",)),
@@ -423,6 +426,7 @@ ABLATION_ROWS = (
     "rigid_contact",
     "kinematics_at_start",
     "dkin_still_0.7",
+    "still_foot",
     "no_transition_model",
     "dynamics_only",
     "diff_kinematics_only",
