@@ -329,6 +329,10 @@ def make_params(
     return params
 
 
+# Units named in the errors of validate_params.
+_UNITS = {"contact_damping": " (1/s)", "min_push": " (N)", "slip_speed": " (m/s)"}
+
+
 def validate_params(params: EstimatorParams) -> None:
     """Checks every field of ``params``; raises ``ValueError`` naming the first bad one."""
     validate_noise(params.noise)
@@ -355,34 +359,26 @@ def validate_params(params: EstimatorParams) -> None:
         v = np.asarray(getattr(params, name))
         if v.shape != () or not (0.5 < float(v) <= 1.0):
             raise ValueError(f"{name} must lie in (0.5, 1], got {v!r}")
-    v = np.asarray(params.outlier_prob)
-    if v.shape != () or not (0.0 <= float(v) < 1.0):
-        raise ValueError(f"outlier_prob must lie in [0, 1), got {v!r}")
-    for name in ("outlier_qdd", "outlier_v"):
+    for name in ("outlier_prob", "slip_prob"):
+        v = np.asarray(getattr(params, name))
+        if v.shape != () or not (0.0 <= float(v) < 1.0):
+            raise ValueError(f"{name} must lie in [0, 1), got {v!r}")
+    for name in ("outlier_qdd", "outlier_v", "slip_speed"):
         v = np.asarray(getattr(params, name))
         if v.shape != () or not np.isfinite(v) or v <= 0:
-            raise ValueError(f"{name} must be a finite scalar > 0, got {v!r}")
+            raise ValueError(f"{name} must be a finite scalar > 0{_UNITS.get(name, '')}, got {v!r}")
     v = np.asarray(params.foothold_confidence)
     if v.shape != () or not (0.0 < float(v) < 1.0):
         raise ValueError(f"foothold_confidence must lie in (0, 1), got {v!r}")
-    v = np.asarray(params.inv_damping)
-    if v.shape != () or not np.isfinite(v) or v < 0:
-        raise ValueError(f"inv_damping must be a finite scalar >= 0, got {v!r}")
-    v = np.asarray(params.contact_damping)
-    if v.shape != () or not np.isfinite(v) or v < 0:
-        raise ValueError(f"contact_damping must be a finite scalar >= 0 (1/s), got {v!r}")
+    for name in ("inv_damping", "contact_damping", "min_push"):
+        v = np.asarray(getattr(params, name))
+        if v.shape != () or not np.isfinite(v) or v < 0:
+            raise ValueError(
+                f"{name} must be a finite scalar >= 0{_UNITS.get(name, '')}, got {v!r}"
+            )
     v = np.asarray(params.kinematics_lead)
     if v.shape != () or not (0.0 <= float(v) <= 1.0):
         raise ValueError(f"kinematics_lead must lie in [0, 1], got {v!r}")
-    v = np.asarray(params.min_push)
-    if v.shape != () or not np.isfinite(v) or v < 0:
-        raise ValueError(f"min_push must be a finite scalar >= 0 (N), got {v!r}")
-    v = np.asarray(params.slip_prob)
-    if v.shape != () or not (0.0 <= float(v) < 1.0):
-        raise ValueError(f"slip_prob must be a scalar in [0, 1), got {v!r}")
-    v = np.asarray(params.slip_speed)
-    if v.shape != () or not np.isfinite(v) or v <= 0:
-        raise ValueError(f"slip_speed must be a finite scalar > 0 (m/s), got {v!r}")
     v = np.asarray(params.initial_contact)
     if v.shape != () or not (0.0 < float(v) < 1.0):
         raise ValueError(f"initial_contact must lie in (0, 1), got {v!r}")
