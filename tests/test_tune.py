@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import json
 import subprocess
 import sys
 
@@ -486,6 +487,20 @@ def test_shipped_presets_load_by_name_with_their_provenance(name):
         assert 20.0 <= float(params.contact_damping) <= 400.0
     else:
         assert float(params.contact_damping) == pytest.approx(100.0)  # params_for's 2 / 20 ms
+    # The sliding contact is not tuned: a file tuned with it holds params_for's values, and
+    # a file tuned before it (no such field) loads with the still foot it was tuned with.
+    from importlib import resources
+
+    from jax_contact.defaults import SLIP_PROB, SLIP_SPEED
+
+    shipped = resources.files("jax_contact") / "presets" / f"{name}.json"
+    values = json.loads(shipped.read_text())["values"]
+    assert "slip_prob" not in prov["fields"] and "slip_speed" not in prov["fields"]
+    if "slip_prob" in values:
+        assert float(params.slip_prob) == pytest.approx(SLIP_PROB)
+        assert float(params.slip_speed) == pytest.approx(SLIP_SPEED)
+    else:
+        assert float(params.slip_prob) == 0.0
     # Tuned with the sensor floor: no std below what the anymal_like sensors alone give,
     # recomputed here from the sensor model (not read from the file).
     from jax_contact.envs.robots import load_robot
