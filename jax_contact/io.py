@@ -42,6 +42,8 @@ from pathlib import Path
 import h5py
 import numpy as np
 
+from jax_contact._presets import preset_names, presets_folder
+
 FORMAT_VERSION = 1
 
 # Temporary files of writes in progress, so that a process stopped from another thread (the
@@ -380,21 +382,6 @@ def save_params(path: str | os.PathLike, params, provenance: Mapping | None = No
     return write_json_atomic(path, params_to_dict(params, provenance))
 
 
-def _presets_folder():
-    """``jax_contact/presets`` as an importlib resource (package data, not a package)."""
-    from importlib import resources
-
-    return resources.files("jax_contact") / "presets"
-
-
-def preset_names() -> tuple[str, ...]:
-    """The names of the tuned parameter files shipped in ``jax_contact/presets``."""
-    folder = _presets_folder()
-    if not folder.is_dir():
-        return ()
-    return tuple(sorted(f.name[:-5] for f in folder.iterdir() if f.name.endswith(".json")))
-
-
 def load_params(path: str | os.PathLike, *, with_provenance: bool = False):
     """Reads a parameter file written by :func:`save_params`, or a shipped preset by name.
 
@@ -435,7 +422,7 @@ def _params_text(path) -> tuple[str, str]:
                 f"parameter file {path!r} does not exist and is no preset name (presets:"
                 f" {', '.join(names) or 'none'})"
             )
-        ref = _presets_folder() / f"{path}.json"
+        ref = presets_folder() / f"{path}.json"
         return ref.read_text(), f"preset {path!r}"
     try:
         return p.read_text(), f"parameter file {str(p)!r}"

@@ -1123,6 +1123,23 @@ def apply_calibration(logit, calibration: Calibration):
     return logit / calibration.temperature + calibration.bias
 
 
+def calibrate_probability(p, calibration: Calibration) -> np.ndarray:
+    """P(contact) mapped by ``calibration`` (float64 NumPy, any shape; NaN stays NaN).
+
+    The logit of ``p`` (clipped to [1e-7, 1 - 1e-7], where the filter's float32 output
+    saturates) is mapped by :func:`apply_calibration` and turned back into a probability.
+    """
+    q = np.clip(np.asarray(p, np.float64), 1e-7, 1.0 - 1e-7)
+    return sigmoid_np(apply_calibration(np.log(q) - np.log1p(-q), calibration))
+
+
+def calibration_of(provenance) -> Calibration | None:
+    """The calibration map a parameter file's provenance holds (``jax-contact tune
+    --calibrate``), or None."""
+    cal = (provenance or {}).get("calibration")
+    return None if cal is None else Calibration.from_dict(cal)
+
+
 def fit_calibration(logits, truth, mask, *, iterations: int = 50) -> Calibration:
     """Maximum-likelihood temperature and bias (logistic regression on the logit).
 

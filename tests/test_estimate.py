@@ -341,11 +341,18 @@ def test_arguments_are_checked_without_jax(tmp_path):
         (["estimate", str(CSV), "--model", "dog"], "unknown robot 'dog'"),
         (["estimate", str(CSV), "--model", "go1", "--names", "a=b,c"], "'c' is not log_name"),
         (["estimate", str(CSV), "--model", "go1", "--params", "nope.json"], "--params"),
+        (
+            ["estimate", str(CSV), "--model", "go1", "--params", "go2"],
+            r"--params: 'go2' is neither a file nor a shipped preset \(barkour, go1, spot\)",
+        ),
     ]
     for argv, match in bad:
         args = p.parse_args(argv)
         with pytest.raises(ValueError, match=match):
             args.check(args)
+    # A shipped preset's name is taken where a parameter file is (jc.load_params takes both).
+    args = p.parse_args(["estimate", str(CSV), "--model", "go1", "--params", "go1"])
+    args.check(args)
     (tmp_path / "map.json").write_text(json.dumps({"HIP_J": "hip"}))
     assert estimate_cmd.parse_names(str(tmp_path / "map.json")) == {"HIP_J": "hip"}
     assert estimate_cmd.parse_names("a=b, c = d") == {"a": "b", "c": "d"}
@@ -469,6 +476,41 @@ def test_a_params_file_runs_on_the_terrain_model_it_was_tuned_with(tmp_path, mon
         with pytest.raises(Stop):
             logs.evaluate_file(LOG, params_path=tmp_path / path, terrain_model=model)
     assert seen == ["FootholdMemory", "FlatTerrain", "FlatTerrain"]
+
+
+def test_evaluate_adds_the_calibrated_row_of_a_file_with_a_calibration_map(tmp_path, capsys):
+    """A params file holding a calibration map (``jax-contact tune --calibrate``) gets a
+    ``probabilistic+cal`` row: P mapped by ``sigmoid(logit(P) / T + c)`` after the
+    recursion, scored like any detector. Its ECE and flags are recomputed here from the
+    raw row's P by hand (NumPy, T = 2, c = 0.7); the raw row is the same as without a
+    map, and a file without one adds no row."""
+    import jax_contact as jc
+    from jax_contact.metrics import expected_calibration_error, step_scores
+    from jax_contact.train import logs
+
+    desc = load_robot("planar_leg").description
+    params, _ = logs.default_estimator(desc, 0.0025)
+    jc.save_params(
+        tmp_path / "cal.json", params, {"calibration": {"temperature": 2.0, "bias": 0.7}}
+    )
+    jc.save_params(tmp_path / "plain.json", params, {"tool": "no map"})
+    got = logs.evaluate_file(LOG, params_path=tmp_path / "cal.json")
+    plain = logs.evaluate_file(LOG, params_path=tmp_path / "plain.json")
+    assert "probabilistic+cal" in got["scores"] and "probabilistic+cal" not in plain["scores"]
+    assert "probabilistic+cal" in capsys.readouterr().out  # printed in the table
+    assert got["scores"]["probabilistic"] == plain["scores"]["probabilistic"]
+
+    log = logs.load_log(LOG)
+    p = np.clip(np.asarray(got["outputs"]["probabilistic"], np.float64), 1e-7, 1 - 1e-7)
+    by_hand = 1.0 / (1.0 + np.exp(-(np.log(p / (1.0 - p)) / 2.0 + 0.7)))
+    np.testing.assert_allclose(got["outputs"]["probabilistic+cal"], by_hand, rtol=1e-12)
+    valid = np.broadcast_to(np.asarray(log.valid)[..., None], p.shape)
+    cal = got["scores"]["probabilistic+cal"]
+    assert cal["ece"] == pytest.approx(expected_calibration_error(by_hand, log.truth, valid))
+    flags = step_scores(by_hand, log.truth, valid)
+    assert cal["f1"] == pytest.approx(flags.f1) and cal["accuracy"] == pytest.approx(flags.accuracy)
+    # The map moves P: a bias of +0.7 calls more steps contact than the raw row does.
+    assert np.mean(by_hand[valid] > 0.5) > np.mean(p[valid] > 0.5)
 
 
 def test_a_params_file_is_checked_against_the_robot_and_rate(tmp_path, capsys):

@@ -325,6 +325,22 @@ def check_input_file(arg: str, path: str) -> None:
         raise ValueError(f"argument {arg}: {path!r} is not a file")
 
 
+def check_params_source(arg: str, source: str) -> None:
+    """Raises ValueError unless ``source`` is an existing parameter file or the name of a
+    shipped preset (``jax_contact.preset_names()``), the two things
+    :func:`jax_contact.load_params` takes."""
+    from jax_contact._presets import preset_names
+
+    if source in preset_names() and not Path(source).exists():
+        return
+    if not Path(source).exists():
+        raise ValueError(
+            f"argument {arg}: {source!r} is neither a file nor a shipped preset"
+            f" ({', '.join(preset_names())})"
+        )
+    check_input_file(arg, source)
+
+
 def check_output_folder(arg: str, folder: str | os.PathLike) -> None:
     """Raises ValueError unless files can be created in ``folder`` (once created).
 
@@ -398,7 +414,7 @@ def _check_evaluate(args: argparse.Namespace) -> None:
     if args.gm_grid:
         check_input_file("--gm-grid", args.gm_grid)
     if args.params:
-        check_input_file("--params", args.params)
+        check_params_source("--params", args.params)
 
 
 def _check_train(args: argparse.Namespace) -> None:
@@ -535,7 +551,10 @@ def build_parser() -> argparse.ArgumentParser:
         help="tune the GM observer on this other log (jax_contact.train.reproduce's grid, best F1)",
     )
     p.add_argument(
-        "--params", default=None, metavar="FILE", help="estimator parameters (jc.save_params)"
+        "--params",
+        default=None,
+        metavar="FILE|PRESET",
+        help="estimator parameters: a jc.save_params file or a shipped preset (go1, spot, barkour)",
     )
     estimate_cmd.add_terrain_model_flag(p)
     estimate_cmd.add_parser(sub)

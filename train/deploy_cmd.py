@@ -58,7 +58,10 @@ def add_parsers(subparsers) -> None:
         help="foot geom (or body) names, in the order of P(contact); default: found in the model",
     )
     p.add_argument(
-        "--params", default=None, metavar="P.json", help="parameter file (jax_contact.save_params)"
+        "--params",
+        default=None,
+        metavar="P.json|PRESET",
+        help="parameter file (jax_contact.save_params) or a shipped preset (go1, spot, barkour)",
     )
     p.add_argument("--rate", type=_positive_float, default=400.0, help="reading rate, Hz")
     p.add_argument("--seed", type=int, default=0, help="PRNG seed (Monte-Carlo touch-down only)")
@@ -100,7 +103,12 @@ def add_parsers(subparsers) -> None:
 
 def check_export(args: argparse.Namespace) -> None:
     """Raises ValueError naming the argument that is wrong (no JAX import)."""
-    from jax_contact.train.cli import check_input_file, check_output_file, check_robot
+    from jax_contact.train.cli import (
+        check_input_file,
+        check_output_file,
+        check_params_source,
+        check_robot,
+    )
 
     if args.robot is not None:
         check_robot("--robot", args.robot)
@@ -109,7 +117,7 @@ def check_export(args: argparse.Namespace) -> None:
         if not args.model.endswith(".xml"):
             raise ValueError(f"argument --model: {args.model!r} must be an MJCF .xml file")
     if args.params is not None:
-        check_input_file("--params", args.params)
+        check_params_source("--params", args.params)
     check_output_file("--out", args.out, (ARTEFACT_SUFFIX,))
 
 

@@ -59,8 +59,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument(
         "--params",
         default=None,
-        metavar="FILE",
-        help="estimator parameters (jax_contact.save_params / jax-contact tune); default:"
+        metavar="FILE|PRESET",
+        help="estimator parameters (jax_contact.save_params / jax-contact tune, or a shipped"
+        " preset: go1, spot, barkour); default:"
         " the robot's defaults (those of jax-contact evaluate)",
     )
     add_terrain_model_flag(p)
@@ -191,7 +192,12 @@ def parse_names(text: str | None) -> dict[str, str]:
 
 def check(args: argparse.Namespace) -> None:
     """Raises ValueError naming the argument; imports no JAX."""
-    from jax_contact.train.cli import check_input_file, check_output_folder, check_robot
+    from jax_contact.train.cli import (
+        check_input_file,
+        check_output_folder,
+        check_params_source,
+        check_robot,
+    )
 
     check_input_file("recording", args.recording)
     if Path(args.recording).suffix.lower() not in RECORDING_SUFFIXES:
@@ -200,7 +206,7 @@ def check(args: argparse.Namespace) -> None:
         )
     check_robot("--model", args.model)
     if args.params is not None:
-        check_input_file("--params", args.params)
+        check_params_source("--params", args.params)
     parse_names(args.names)
     check_output_folder("--out", args.out)
 

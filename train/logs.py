@@ -306,7 +306,10 @@ def evaluate_file(
     attribute) unless ``foot_names`` is given. Every detector's full metric set is printed
     as one table with a header and a legend (``jax_contact.train.reproduce.format_table``):
     touch-down and lift-off delays, F1, accuracy, failures, per-air-phase failure rate, missed
-    touch-downs and lift-offs, ECE.
+    touch-downs and lift-offs, ECE. A parameter file that holds a calibration map
+    (``jax-contact tune --calibrate``, the shipped presets) adds the row
+    ``probabilistic+cal``: the estimator's P(contact) mapped by it
+    (:func:`jax_contact.tune.calibrate_probability`), flagged at calibrated P > 0.5.
 
     A log without ground truth (no ``truth/contact``, e.g. one recorded on a robot) has no
     metrics: the estimator's P(contact) per foot is then printed as a mean per foot and,
@@ -355,6 +358,13 @@ def evaluate_file(
         kinematic=make_kinematic_params() if truth is not None else None,
         dt=dt,
     )
+    calibration = _file_calibration(params_path)
+    if calibration is not None and truth is not None:
+        # The map fitted on the tuning logs, applied after the recursion: a second row,
+        # flagged at calibrated P > 0.5 (as in docs/tuning.md's comparisons).
+        from jax_contact.tune import calibrate_probability
+
+        out["probabilistic+cal"] = calibrate_probability(out["probabilistic"], calibration)
     feet = list(desc.foot_names)
     result = {
         "log": str(path),
@@ -402,6 +412,16 @@ def _estimator_for(desc, dt: float, params_path, terrain_model: str | None):
     return params, model, terrain
 
 
+def _file_calibration(params_path):
+    """The calibration map in a parameter file's provenance, or None (no file, no map)."""
+    if params_path is None:
+        return None
+    from jax_contact.io import load_params
+    from jax_contact.tune import calibration_of
+
+    return calibration_of(load_params(params_path, with_provenance=True)[1])
+
+
 def _load_params_for(path, desc, dt):
     """A params file, checked against the robot and the log's period."""
     import jax.numpy as jnp
@@ -429,7 +449,7 @@ def format_scores(scores: dict[str, dict], *, title: str = "log") -> str:
     per-air-phase failure rate, missed touch-downs and lift-offs, ECE)."""
     from jax_contact.train.reproduce import _cell, format_table
 
-    rows = sorted(scores, key=lambda d: (d != "probabilistic", d == "kinematic", d))
+    rows = sorted(scores, key=lambda d: (not d.startswith("probabilistic"), d == "kinematic", d))
     payload = {"scenarios": {title: {det: _cell(scores[det]) for det in rows}}}
     return format_table(payload, rows=rows)
 

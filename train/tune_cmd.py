@@ -483,7 +483,6 @@ def compare(
     Returns:
       scenario -> row -> metrics (``jax_contact.train.evaluate.score``'s dicts).
     """
-    import numpy as np
 
     import jax_contact as jc
     from jax_contact import tune as jt
@@ -516,8 +515,8 @@ def compare(
                     continue
                 params, prov = jc.load_params(source, with_provenance=True)
                 estimators[name] = params
-                if "calibration" in prov:
-                    cals[name] = jt.Calibration.from_dict(prov["calibration"])
+                if (cal := jt.calibration_of(prov)) is not None:
+                    cals[name] = cal
             out.update(
                 replay(
                     robo, readings, estimators=estimators, terrain=terrain_for(plane, model),
@@ -525,8 +524,7 @@ def compare(
                 )
             )  # fmt: skip
         for name, cal in cals.items():
-            p = np.clip(np.asarray(out[name], np.float64), 1e-7, 1 - 1e-7)
-            out[f"{name}+cal"] = jt.sigmoid_np(jt.apply_calibration(np.log(p / (1 - p)), cal))
+            out[f"{name}+cal"] = jt.calibrate_probability(out[name], cal)
         results[scenario] = score(out, truth, valid, dt=float(attrs["dt"]))
         if plots is not None:
             reliability_diagram(
