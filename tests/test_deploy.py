@@ -166,6 +166,25 @@ def test_header_describes_inputs_and_parameters(deployed):
     assert params_to_dict(stored)["values"] == params_to_dict(params)["values"]
 
 
+def test_a_shipped_preset_exports_by_name(tmp_path):
+    """``--params go1`` exports the shipped preset: its values, and a provenance naming the
+    preset with the SHA-256 of the shipped file (recomputed here from the package data)."""
+    import hashlib
+    from importlib import resources
+
+    import jax_contact as jc
+    from jax_contact.io import params_from_dict, params_to_dict
+    from jax_contact.train.deploy_cmd import export_to_file
+
+    h = export_to_file(tmp_path / "go1.contact", robot="go1", params_path="go1")
+    prov = h["params"]["provenance"]
+    shipped = (resources.files("jax_contact") / "presets" / "go1.json").read_bytes()
+    assert prov["source"] == "preset" and prov["name"] == "go1"
+    assert prov["sha256"] == hashlib.sha256(shipped).hexdigest()
+    stored = params_to_dict(params_from_dict(h["params"]))["values"]
+    assert stored == params_to_dict(jc.load_params("go1"))["values"]
+
+
 def test_corrupt_or_foreign_file_is_refused(deployed, tmp_path):
     from jax_contact.export import read_artefact
 

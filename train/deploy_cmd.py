@@ -181,11 +181,17 @@ def export_to_file(
     dt = 1.0 / float(rate_hz)
     params, terrain, provenance = default_estimator(desc, dt)
     if params_path is not None:
+        from jax_contact._presets import preset_names, presets_folder
+
         params = jc.load_params(params_path)
-        raw = Path(params_path).read_bytes()
+        if not Path(params_path).exists() and params_path in preset_names():
+            raw = (presets_folder() / f"{params_path}.json").read_bytes()
+            where = {"source": "preset", "name": params_path}
+        else:
+            raw = Path(params_path).read_bytes()
+            where = {"source": "file", "path": str(Path(params_path).resolve())}
         provenance = {
-            "source": "file",
-            "path": str(Path(params_path).resolve()),
+            **where,
             "sha256": hashlib.sha256(raw).hexdigest(),
             "file_provenance": json.loads(raw).get("provenance", {}),
         }
