@@ -331,7 +331,7 @@ def check_params_source(arg: str, source: str) -> None:
     :func:`jax_contact.load_params` takes."""
     from jax_contact._presets import preset_names
 
-    if source in preset_names() and not Path(source).exists():
+    if source in preset_names() and not Path(source).is_file():
         return
     if not Path(source).exists():
         raise ValueError(

@@ -184,7 +184,7 @@ def export_to_file(
         from jax_contact._presets import preset_names, presets_folder
 
         params = jc.load_params(params_path)
-        if not Path(params_path).exists() and params_path in preset_names():
+        if not Path(params_path).is_file() and params_path in preset_names():
             raw = (presets_folder() / f"{params_path}.json").read_bytes()
             where = {"source": "preset", "name": params_path}
         else:
