@@ -4,6 +4,7 @@ argument checks use it before JAX, NumPy or h5py are imported)."""
 from __future__ import annotations
 
 from importlib import resources
+from pathlib import Path
 
 
 def presets_folder():
@@ -17,3 +18,18 @@ def preset_names() -> tuple[str, ...]:
     if not folder.is_dir():
         return ()
     return tuple(sorted(f.name[:-5] for f in folder.iterdir() if f.name.endswith(".json")))
+
+
+def preset_file(source):
+    """The shipped preset that ``source`` names, or None.
+
+    ``source`` names a preset when it is a bare name (no folder, no suffix) among
+    :func:`preset_names` and no file of that name exists: a file always wins, so a user's
+    own ``go1`` file is read, not the preset.
+    """
+    if not isinstance(source, str):
+        return None
+    p = Path(source)
+    if p.suffix or len(p.parts) != 1 or p.is_file() or source not in preset_names():
+        return None
+    return presets_folder() / f"{source}.json"

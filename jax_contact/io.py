@@ -42,7 +42,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from jax_contact._presets import preset_names, presets_folder
+from jax_contact._presets import preset_file, preset_names
 
 FORMAT_VERSION = 1
 
@@ -413,17 +413,15 @@ def load_params(path: str | os.PathLike, *, with_provenance: bool = False):
 
 def _params_text(path) -> tuple[str, str]:
     """(text, description for errors) of a parameter file or a preset name."""
-    p = Path(path)
-    is_name = isinstance(path, str) and p.suffix == "" and len(p.parts) == 1
-    if is_name and not p.is_file():
-        names = preset_names()
-        if path not in names:
-            raise ValueError(
-                f"parameter file {path!r} does not exist and is no preset name (presets:"
-                f" {', '.join(names) or 'none'})"
-            )
-        ref = presets_folder() / f"{path}.json"
+    ref = preset_file(path)
+    if ref is not None:
         return ref.read_text(), f"preset {path!r}"
+    p = Path(path)
+    if isinstance(path, str) and p.suffix == "" and len(p.parts) == 1 and not p.is_file():
+        raise ValueError(
+            f"parameter file {path!r} does not exist and is no preset name (presets:"
+            f" {', '.join(preset_names()) or 'none'})"
+        )
     try:
         return p.read_text(), f"parameter file {str(p)!r}"
     except FileNotFoundError:

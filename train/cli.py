@@ -329,9 +329,9 @@ def check_params_source(arg: str, source: str) -> None:
     """Raises ValueError unless ``source`` is an existing parameter file or the name of a
     shipped preset (``jax_contact.preset_names()``), the two things
     :func:`jax_contact.load_params` takes."""
-    from jax_contact._presets import preset_names
+    from jax_contact._presets import preset_file, preset_names
 
-    if source in preset_names() and not Path(source).is_file():
+    if preset_file(source) is not None:
         return
     if not Path(source).exists():
         raise ValueError(

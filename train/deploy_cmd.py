@@ -181,11 +181,11 @@ def export_to_file(
     dt = 1.0 / float(rate_hz)
     params, terrain, provenance = default_estimator(desc, dt)
     if params_path is not None:
-        from jax_contact._presets import preset_names, presets_folder
+        from jax_contact._presets import preset_file
 
         params = jc.load_params(params_path)
-        if not Path(params_path).is_file() and params_path in preset_names():
-            raw = (presets_folder() / f"{params_path}.json").read_bytes()
+        if (ref := preset_file(params_path)) is not None:
+            raw = ref.read_bytes()
             where = {"source": "preset", "name": params_path}
         else:
             raw = Path(params_path).read_bytes()
