@@ -90,6 +90,22 @@ trot's failures per air phase fell from 3.9 % to 0.2 % but the walk lost accurac
 chosen on their validation seed among three (Go1 and Spot 0.1, Barkour 1.0:
 ``jax_contact.train.tune_cmd.PRESET_EVENT_WEIGHTS``).
 
+Optionally (``constraint_weight`` ``lambda_c > 0``; off by default), the *cells in the
+objective*, a constrained fit of issue 15's "every cell at least as good as the
+defaults"::
+
+    + lambda_c sum_{c in cells} softplus((s_c(theta) - s_c(theta^0)) / u_c)     (cells)
+
+per window, where ``s_c`` are smooth stand-ins of the validation cells
+(:func:`cell_surrogates`: wrong flags per step, air phases with a false contact per
+phase, steps of touch-down and lift-off lateness, each counted with the flag ``l > 0``
+smoothed to ``sigmoid(l / 0.5)``), ``s_c(theta^0)`` the untuned
+parameters' on the same window (:func:`reference_cells`, once before the first epoch) and
+``u_c`` the cell's tolerance (:func:`constraint_units`, from :data:`CELL_TOLERANCE`). A
+cell worse than the defaults' by ``k`` tolerances costs ~``k lambda_c``; one better by a
+few costs ~0. ECE has no stand-in: the BCE is its proper score, and the calibration map
+follows.
+
 Optionally (``air_penalty`` ``mu > 0``; off by default: the previous session's
 diagnostic, superseded by the event term), a per-step false-contact term ``(mu / N)
 sum_{t,e,l} m_tel (1 - y_tel) h(l_tel + m)`` with the smooth hinge ``h(x) = softplus(2
@@ -118,7 +134,8 @@ loss than the defaults'). The validation air-phase failure rate is reported too.
 ``select="cells"`` an epoch is returned only if it is *no worse than epoch 0 in any
 validation cell* (:func:`no_worse`: on each validation log separately, F1, accuracy, ECE,
 the air-phase failure rate and the magnitude of both mean event delays; ties allowed),
-the lowest validation loss among those; when none is, the untuned parameters (epoch 0).
+the lowest validation loss among those; when none is, the untuned parameters (epoch 0);
+``cell_tolerance`` lets each cell be worse by that many :data:`CELL_TOLERANCE`.
 It trades the single loss's optimum for issue 15's "every cell at least as good as the
 defaults", measured on validation.
 
@@ -424,6 +441,11 @@ class TuneConfig:
       select: which validation number picks the epoch returned: ``"loss"`` (BCE plus the
         event term, the default), ``"bce"``, or ``"cells"`` (the lowest loss among the
         epochs no worse than epoch 0 in any validation cell, :func:`no_worse`).
+      cell_tolerance: with ``select="cells"``, how much worse than epoch 0 a validation
+        cell may be, in units of :data:`CELL_TOLERANCE` (0: not at all).
+      constraint_weight: ``lambda_c``, weight of the cells in the objective (0: off): the
+        penalty :func:`constraint_penalty` of each window's :func:`cell_surrogates` against
+        the untuned parameters' on the same window.
     """
 
     learning_rate: float = 0.05
@@ -441,6 +463,8 @@ class TuneConfig:
     event_temperature: float = 0.25
     event_early_s: float = 0.05
     select: str = "loss"
+    cell_tolerance: float = 0.0
+    constraint_weight: float = 0.0
 
     def __post_init__(self):
         for name in ("learning_rate", "clip_norm"):
@@ -449,7 +473,7 @@ class TuneConfig:
                 raise ValueError(f"TuneConfig.{name} must be a finite number > 0, got {v!r}")
         for name in (
             "prior_noise", "prior_other", "min_delta", "air_penalty", "air_margin",
-            "event_weight", "event_early_s",
+            "event_weight", "event_early_s", "cell_tolerance", "constraint_weight",
         ):  # fmt: skip
             v = getattr(self, name)
             if not (np.isfinite(v) and v >= 0):
@@ -493,11 +517,20 @@ class AirPhases:
         air step; rule 2's ``t0``).
       td_window: (T, E, L) bool, the air steps at most ``early`` steps before the
         touch-down that ends their phase (rule 2's early window).
+      lo_step: (T, E, L) bool, each true lift-off (a valid air step after a valid contact
+        step).
+      after_td: (T, E, L) bool, the first ``early`` valid contact steps of each stance
+        that begins with a touch-down (:func:`cell_surrogates`' touch-down lateness).
+      after_lo: (T, E, L) bool, the first ``early`` valid air steps of each air phase that
+        begins with a lift-off.
     """
 
     start: jax.Array
     td_step: jax.Array
     td_window: jax.Array
+    lo_step: jax.Array | None = None
+    after_td: jax.Array | None = None
+    after_lo: jax.Array | None = None
 
 
 @struct.dataclass
@@ -544,7 +577,27 @@ def air_phases(truth, mask, early: int) -> AirPhases:
     for t in range(air.shape[0] - 1, -1, -1):
         cur = np.where(td_step[t], 0, np.where(air[t], cur + 1, far))
         dist[t] = cur
-    return AirPhases(start=start, td_step=td_step, td_window=air & (dist <= early))
+    contact = np.asarray(mask, bool) & truth
+    prev_contact = np.concatenate([np.zeros_like(contact[:1]), contact[:-1]], axis=0)
+    lo_step = air & prev_contact
+
+    def first_steps(inside, begins):
+        # Steps since the event that began each run of ``inside`` (far where none did).
+        since = np.full(inside.shape, far, np.int64)
+        cur = np.full(inside.shape[1:], far, np.int64)
+        for t in range(inside.shape[0]):
+            cur = np.where(begins[t], 0, np.where(inside[t], cur + 1, far))
+            since[t] = cur
+        return inside & (since < early)
+
+    return AirPhases(
+        start=start,
+        td_step=td_step,
+        td_window=air & (dist <= early),
+        lo_step=lo_step,
+        after_td=first_steps(contact, td_step),
+        after_lo=first_steps(air, lo_step),
+    )
 
 
 def with_air_phases(data: TuningData, early: int) -> TuningData:
@@ -617,6 +670,18 @@ def air_event_terms(logits: jax.Array, window: TuningData, temperature: float):
     Returns:
       (sum of ``cost_a`` (), number of air phases in the window ()).
     """
+    e, has, n_phases = air_phase_maxima(logits, window, temperature)
+    return jnp.sum(jnp.where(has, jax.nn.softplus(e), 0.0)), n_phases
+
+
+def air_phase_maxima(logits: jax.Array, window: TuningData, temperature: float):
+    """The smooth maximum ``E_a`` of the logit over each air phase's scored steps.
+
+    Returns:
+      (``E`` (S,) per segment, ``has`` (S,) bool: the segment is a phase with a scored
+      step (``E`` is 0 elsewhere), the number of air phases in the window ()); segments
+      are (column, phase) pairs, so ``S`` is fixed by the window's shape.
+    """
     n_t = logits.shape[0]
     cols = int(np.prod(logits.shape[1:]))
     scored = scored_air_steps(logits, window)
@@ -635,8 +700,83 @@ def air_event_terms(logits: jax.Array, window: TuningData, temperature: float):
     z = jnp.where(sc, x - mx[seg], -60.0)
     total = jax.ops.segment_sum(jnp.where(sc, jnp.exp(z), 0.0), seg, n_seg)
     e = temperature * (mx + jnp.log(jnp.where(has, total, 1.0)))
-    cost = jnp.where(has, jax.nn.softplus(e), 0.0)
-    return jnp.sum(cost), jnp.sum(first)
+    return jnp.where(has, e, 0.0), has, jnp.sum(first)
+
+
+# The cells in the objective (``constraint_weight > 0``): one smooth stand-in per kind of
+# validation cell, and how far each may move before it counts as worse.
+CONSTRAINT_CELLS = ("errors", "events", "touchdown", "liftoff")
+
+
+def constraint_units(dt: float) -> np.ndarray:
+    """(4,) the tolerance of each of :data:`CONSTRAINT_CELLS`, in its surrogate's units:
+    :data:`CELL_TOLERANCE`'s accuracy (errors per step), air-phase failure rate (failed
+    phases per phase) and delays (ms -> steps of ``dt``)."""
+    tol = CELL_TOLERANCE
+    steps = 1e-3 / dt
+    return np.array(
+        [tol["accuracy"], tol["fail"], tol["touchdown_ms"] * steps, tol["liftoff_ms"] * steps]
+    )
+
+
+# The surrogates' logistic smoothing of the flag ``l > 0``, logit units: a step at ``l =
+# -2`` counts 0.02 of a flag, at ``l = -1`` 0.12 (docs/tuning.md: with the probability
+# itself, p = sigmoid(l), steps and phases far from the threshold dominate the sums).
+CELL_SHARPNESS = 0.5
+
+
+def cell_surrogates(
+    logits: jax.Array,
+    window: TuningData,
+    temperature: float,
+    sharpness: float = CELL_SHARPNESS,
+) -> jax.Array:
+    """(4,) smooth stand-ins for the validation cells (:data:`CONSTRAINT_CELLS`) of a window.
+
+    Each is the metric's count with the flag ``l > 0`` replaced by ``f = sigmoid(l / k)``
+    (``k = sharpness``; ``k`` = 1 would be P itself), over the window's :class:`AirPhases`:
+
+    - ``errors``: the fraction of wrong flags, ``sum m (y (1 - f) + (1 - y) f) / sum m``
+      (accuracy's and F1's stand-in);
+    - ``events``: the air-phase failure rate, ``sum_a sigmoid(E_a / k) / #air phases``
+      with ``E_a`` the smooth maximum of the logit over the phase's scored steps
+      (:func:`air_phase_maxima`, the event term's);
+    - ``touchdown``: ``sum_{after_td} (1 - f) / #touch-downs``, the steps a touch-down is
+      missed in the first ``early`` steps of its stance (for a flag that switches on ``d``
+      steps after ``t0`` it is ``d``: the delay in steps);
+    - ``liftoff``: ``sum_{after_lo} f / #lift-offs``, the same for lift-offs.
+
+    Every count is floored at 1, so a window without an event gives 0.
+    """
+    ev = jax.tree.map(jnp.asarray, window.events)
+    if ev.after_td is None:
+        raise ValueError("the cells' surrogates need AirPhases from air_phases()")
+    f = jax.nn.sigmoid(logits / sharpness)
+    mask = jnp.asarray(window.mask)
+    y = jnp.asarray(window.truth).astype(f.dtype)
+
+    def mean(total, count):
+        return total / jnp.maximum(jnp.sum(count), 1).astype(f.dtype)
+
+    wrong = jnp.where(mask, y * (1.0 - f) + (1.0 - y) * f, 0.0)
+    e, has, n_phases = air_phase_maxima(logits, window, temperature)
+    failed = jnp.sum(jnp.where(has, jax.nn.sigmoid(e / sharpness), 0.0))
+    return jnp.stack(
+        [
+            mean(jnp.sum(wrong), mask),
+            mean(failed, n_phases),
+            mean(jnp.sum(jnp.where(ev.after_td, 1.0 - f, 0.0)), ev.td_step),
+            mean(jnp.sum(jnp.where(ev.after_lo, f, 0.0)), ev.lo_step),
+        ]
+    )
+
+
+def constraint_penalty(cells: jax.Array, reference: jax.Array, units: jax.Array) -> jax.Array:
+    """() ``sum_c softplus((s_c - r_c) / u_c)``: the cells' surrogates ``s`` against the
+    untuned parameters' ``r`` on the same window, in tolerance units ``u``
+    (:func:`constraint_units`). ~0 where a cell is better by a few tolerances, ~the excess
+    in tolerances where it is worse."""
+    return jnp.sum(jax.nn.softplus((cells - reference) / units))
 
 
 def _window(data: TuningData, start: int, length: int) -> TuningData:
@@ -655,13 +795,8 @@ def _window(data: TuningData, start: int, length: int) -> TuningData:
     if pad:
         keep = jnp.asarray(np.arange(length) < stop - start)[:, None, None]
         out = out.replace(mask=out.mask & keep)
-        if out.events is not None:  # the padding holds no phase start and no touch-down
-            ev = out.events
-            out = out.replace(
-                events=ev.replace(
-                    start=ev.start & keep, td_step=ev.td_step & keep, td_window=ev.td_window & keep
-                )
-            )
+        if out.events is not None:  # the padding holds no phase start and no event
+            out = out.replace(events=jax.tree.map(lambda x: x & keep, out.events))
     return out
 
 
@@ -709,7 +844,8 @@ def window_bce(
 ) -> tuple[jax.Array, tuple]:
     """Masked BCE of one window: (sum of BCE, (final belief, number of counted steps, sum
     of the air hinge over the true air steps, sum of the event term over the window's air
-    phases, number of air phases)); the event sums are 0 unless ``event_temperature``."""
+    phases, number of air phases, the (T, E, L) logits)); the event sums are 0 unless
+    ``event_temperature``."""
     belief, logits = filter_logits(params, terrain, belief, window.meas, key=key, remat=True)
     nll = jnp.where(window.mask, _bce(logits, window.truth), 0.0)
     air = window.mask & ~window.truth.astype(bool)
@@ -720,7 +856,7 @@ def window_bce(
         if window.events is None:
             raise ValueError("the event term needs the window's AirPhases (with_air_phases)")
         event, n_phases = air_event_terms(logits, window, event_temperature)
-    return jnp.sum(nll), (belief, jnp.sum(window.mask), jnp.sum(hinge), event, n_phases)
+    return jnp.sum(nll), (belief, jnp.sum(window.mask), jnp.sum(hinge), event, n_phases, logits)
 
 
 def tuning_loss(
@@ -734,16 +870,21 @@ def tuning_loss(
     config: TuneConfig,
     *,
     key: jax.Array,
+    cells_reference: tuple[jax.Array, jax.Array] | None = None,
 ):
     """The loss of the module docstring on one window.
+
+    ``cells_reference``: with ``config.constraint_weight > 0``, the untuned parameters'
+    :func:`cell_surrogates` on this window and :func:`constraint_units`, both (4,).
 
     Returns:
       (loss (), (final belief, mean BCE of the window (), counted steps ())).
     """
     params = to_params(space, base, theta)
-    total, (belief, n, hinge, event, n_phases) = window_bce(
+    events = config.event_weight > 0 or config.constraint_weight > 0
+    total, (belief, n, hinge, event, n_phases, logits) = window_bce(
         params, terrain, belief, window, key=key, air_margin=config.air_margin,
-        event_temperature=config.event_temperature if config.event_weight > 0 else None,
+        event_temperature=config.event_temperature if events else None,
     )  # fmt: skip
     scale = 1.0 / jnp.maximum(n, 1).astype(total.dtype)
     data = total * scale
@@ -752,6 +893,15 @@ def tuning_loss(
         loss = loss + config.air_penalty * hinge * scale
     if config.event_weight > 0:
         loss = loss + config.event_weight * event / jnp.maximum(n_phases, 1).astype(total.dtype)
+    if config.constraint_weight > 0:
+        if cells_reference is None:
+            raise ValueError("constraint_weight > 0 needs the window's cells_reference")
+        reference, units = cells_reference
+        cells = cell_surrogates(logits, window, config.event_temperature)
+        penalty = constraint_penalty(
+            cells, jnp.asarray(reference, cells.dtype), jnp.asarray(units, cells.dtype)
+        )
+        loss = loss + config.constraint_weight * penalty
     return loss, (belief, data, n)
 
 
@@ -763,12 +913,14 @@ def _optimizer(config: TuneConfig) -> optax.GradientTransformation:
 
 @functools.partial(jax.jit, static_argnames=("space", "config"))
 def _train_window(
-    theta, opt_state, space, base, theta0, lower, terrain, belief, window, config, key
-):
+    theta, opt_state, space, base, theta0, lower, terrain, belief, window, config, key,
+    cells_reference=None,
+):  # fmt: skip
     grad_fn = jax.value_and_grad(tuning_loss, has_aux=True)
     (loss, (belief, data, n)), grads = grad_fn(
-        theta, space, base, theta0, terrain, belief, window, config, key=key
-    )
+        theta, space, base, theta0, terrain, belief, window, config, key=key,
+        cells_reference=cells_reference,
+    )  # fmt: skip
     updates, opt_state = _optimizer(config).update(grads, opt_state, theta)
     # Projected gradient step: back onto the floors (theta_lower_bounds) after the update.
     theta = jax.tree.map(jnp.maximum, optax.apply_updates(theta, updates), lower)
@@ -799,6 +951,35 @@ def predict_logits(
         )
         out.append(np.asarray(logits)[: min(chunk, data.n_steps - start)])
     return np.concatenate(out, axis=0)
+
+
+@functools.partial(jax.jit, static_argnames=("temperature",))
+def _window_cells(params, terrain, belief, window, key, temperature):
+    belief, logits = filter_logits(params, terrain, belief, window.meas, key=key)
+    return belief, cell_surrogates(logits, window, temperature)
+
+
+def reference_cells(
+    params: EstimatorParams,
+    terrain,
+    data: TuningData,
+    *,
+    key: jax.Array,
+    chunk: int = 400,
+    temperature: float = 0.25,
+) -> np.ndarray:
+    """(n_windows, 4) :func:`cell_surrogates` of ``params`` on each training window of a
+    log (the windows and belief carry of :func:`tune`'s epochs)."""
+    n_envs, n_legs = data.truth.shape[1:]
+    belief = init_belief_batch(params, n_envs, n_legs)
+    out = []
+    for w, start in enumerate(range(0, data.n_steps, chunk)):
+        win = _window(data, start, chunk)
+        belief, cells = _window_cells(
+            params, terrain, belief, win, jax.random.fold_in(key, w), temperature
+        )
+        out.append(np.asarray(cells))
+    return np.stack(out)
 
 
 def pooled(datas: Sequence[TuningData]) -> TuningData:
@@ -877,6 +1058,12 @@ def score_logs(
 
 
 SELECT_RULES = ("loss", "bce", "cells")
+# What "no worse" allows with ``TuneConfig.cell_tolerance = 1`` (docs/tuning.md, rule 6: the
+# measurement's resolution at 16 envs x 8 s): F1 and accuracy 0.0005 lower, ECE 0.0005
+# higher, 0.25 point more air phases with a false contact, 0.25 ms more |mean delay|.
+CELL_TOLERANCE = dict(
+    f1=0.0005, accuracy=0.0005, ece=0.0005, fail=0.0025, touchdown_ms=0.25, liftoff_ms=0.25
+)
 # The validation cells of select="cells": per log, (key, +1 higher is better / -1 lower is).
 CELL_KEYS = (
     ("f1", 1),
@@ -888,12 +1075,14 @@ CELL_KEYS = (
 )
 
 
-def no_worse(cells: Sequence[dict], reference: Sequence[dict]) -> bool:
+def no_worse(cells: Sequence[dict], reference: Sequence[dict], tolerance: float = 0.0) -> bool:
     """Whether every validation cell of ``cells`` is at least as good as ``reference``'s.
 
     Both are :func:`score_logs`' ``cells`` (one dict per validation log). A cell is a log
     and one of :data:`CELL_KEYS`; ties count as no worse, and a number that is NaN in
     both (e.g. no air phase, no event to time) is not compared; NaN in one only is worse.
+    With ``tolerance`` > 0 a cell may be worse by ``tolerance`` x its
+    :data:`CELL_TOLERANCE`.
     """
     if len(cells) != len(reference):
         raise ValueError(f"{len(cells)} validation logs' cells against {len(reference)}")
@@ -902,7 +1091,7 @@ def no_worse(cells: Sequence[dict], reference: Sequence[dict]) -> bool:
             a, b = float(got[key]), float(ref[key])
             if np.isnan(a) and np.isnan(b):
                 continue
-            if np.isnan(a) or np.isnan(b) or sign * (a - b) < 0:
+            if np.isnan(a) or np.isnan(b) or sign * (a - b) < -tolerance * CELL_TOLERANCE[key]:
                 return False
     return True
 
@@ -1010,11 +1199,25 @@ def tune(
     # The compiled training step depends on the loss and optimiser only: one program
     # whatever the epochs, patience or selection rule.
     step_config = dataclasses.replace(
-        config, select="loss", max_epochs=0, patience=1, min_delta=0.0
+        config, select="loss", max_epochs=0, patience=1, min_delta=0.0, cell_tolerance=0.0
     )
 
     def admissible(row) -> bool:
-        return config.select != "cells" or no_worse(row["val_cells"], first["val_cells"])
+        return config.select != "cells" or no_worse(
+            row["val_cells"], first["val_cells"], config.cell_tolerance
+        )
+
+    # The cells in the objective: the untuned parameters' surrogates on every training
+    # window (the same windows and belief carry as the epochs below).
+    references = [None] * len(train)
+    if config.constraint_weight > 0:
+        units = jnp.asarray(constraint_units(dt), jnp.float32)
+        params0 = to_params(space, base, theta0)
+        references = [
+            reference_cells(params0, terrain, d, key=jax.random.fold_in(key, 2 * 10**6 + i),
+                            chunk=config.chunk, temperature=config.event_temperature)
+            for i, d in enumerate(train)
+        ]  # fmt: skip
 
     stopped = False
     for epoch in range(1, config.max_epochs + 1):
@@ -1025,9 +1228,12 @@ def tune(
             for w, start in enumerate(range(0, data.n_steps, config.chunk)):
                 win = _window(data, start, config.chunk)
                 k = jax.random.fold_in(jax.random.fold_in(jax.random.fold_in(key, epoch), i), w)
+                ref = None
+                if references[i] is not None:
+                    ref = (jnp.asarray(references[i][w], jnp.float32), units)
                 theta, opt_state, belief, loss, bce, n, gn = _train_window(
                     theta, opt_state, space, base, theta0, lower, terrain, belief, win,
-                    step_config, k,
+                    step_config, k, ref,
                 )  # fmt: skip
                 losses.append(float(loss))
                 bces.append(float(bce))

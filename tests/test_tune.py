@@ -300,6 +300,10 @@ def test_no_worse_by_hand():
         ("touchdown_ms", 5.5), ("liftoff_ms", 3.1),
     ]:  # fmt: skip
         assert not jt.no_worse([dict(better[0], **{key: worse})], ref), key
+    # With a tolerance, a cell may be worse by tolerance x CELL_TOLERANCE (0.25 ms here).
+    assert jt.no_worse([dict(ref[0], touchdown_ms=5.2)], ref, tolerance=1.0)
+    assert not jt.no_worse([dict(ref[0], touchdown_ms=5.3)], ref, tolerance=1.0)
+    assert jt.no_worse([dict(ref[0], touchdown_ms=5.3)], ref, tolerance=2.0)
     nan = [dict(ref[0], fail=float("nan"))]  # no air phase: nothing to compare
     assert jt.no_worse(nan, nan) and not jt.no_worse(nan, ref) and not jt.no_worse(ref, nan)
     two = ref + [dict(ref[0], f1=0.5)]
@@ -693,3 +697,108 @@ def test_padded_window_holds_no_phase_or_touch_down():
     assert np.asarray(w.mask)[:, 0, 0].tolist() == [True] * 3 + [False] * 2
     assert np.asarray(w.events.td_step)[:, 0, 0].tolist() == [False, True, False, False, False]
     assert not np.asarray(w.events.start)[3:].any()
+
+
+# ------------------------------------------------------------ the cells in the objective
+
+
+def test_cell_surrogates_on_a_hand_example(x64):
+    # One foot, early window 2 steps:
+    #   t:      0  1  2   3   4   5   6   7  8  9  10
+    #   truth:  1  1  0   0   0   0   0   1  1  1  1
+    #   logit:  3  3  1  -1  -3  -3  -1  -1  2  3  3
+    # Lift-off at t = 2 (the first stance has no touch-down: it starts with the log), the
+    # touch-down at t = 7. after_lo = {2, 3}, after_td = {7, 8}. With the flag smoothed
+    # to f = sigmoid(l / k), k = 0.5, i.e. f = sigmoid(2 l):
+    #   touchdown = (1 - f7) + (1 - f8) = sigmoid(2) + sigmoid(-4)    (one touch-down)
+    #   liftoff   = f2 + f3 = sigmoid(2) + sigmoid(-2) = 1            (one lift-off)
+    #   errors    = (sum over contact of 1 - f + sum over air of f) / 11
+    #   events    = sigmoid(E / k) of the one air phase, E its smooth maximum
+    #               (air_phase_maxima), / 1
+    truth = np.array([1, 1, 0, 0, 0, 0, 0, 1, 1, 1, 1], bool)[:, None, None]
+    logit = np.array([3, 3, 1, -1, -3, -3, -1, -1, 2, 3, 3], np.float64)[:, None, None]
+    data = _event_data(truth, np.ones_like(truth), 2)
+    ev = data.events
+    np.testing.assert_array_equal(np.flatnonzero(ev.lo_step), [2])
+    np.testing.assert_array_equal(np.flatnonzero(ev.after_lo), [2, 3])
+    np.testing.assert_array_equal(np.flatnonzero(ev.after_td), [7, 8])
+    s = np.asarray(jt.cell_surrogates(jnp.asarray(logit), data, 0.5, sharpness=0.5))
+    sig = lambda x: 1.0 / (1.0 + np.exp(-x))  # noqa: E731
+    f, y = sig(2 * logit[:, 0, 0]), truth[:, 0, 0]
+    errors = (np.sum(1 - f[y]) + np.sum(f[~y])) / 11
+    e, has, n = jt.air_phase_maxima(jnp.asarray(logit), data, 0.5)
+    assert int(n) == 1 and int(np.sum(has)) <= 1
+    events = float(np.sum(np.where(has, sig(2 * np.asarray(e)), 0.0)))
+    np.testing.assert_allclose(
+        s, [errors, events, sig(2.0) + sig(-4.0), 1.0], rtol=1e-12, atol=1e-15
+    )
+    # The event term is softplus of the same maxima.
+    total, _ = jt.air_event_terms(jnp.asarray(logit), data, 0.5)
+    assert float(total) == pytest.approx(float(np.sum(np.where(has, np.logaddexp(0, e), 0))))
+    # A flag that switches on d steps after the touch-down is late by d steps: a logit
+    # of -30 from t = 2 to 8 and +30 elsewhere gives touchdown = 2 (and liftoff = 0).
+    late = np.where((np.arange(11) >= 2) & (np.arange(11) <= 8), -30.0, 30.0)[:, None, None]
+    got = np.asarray(jt.cell_surrogates(jnp.asarray(late), data, 0.5))
+    assert got[2] == pytest.approx(2.0) and got[3] == pytest.approx(0.0, abs=1e-12)
+    # A blip to +30 in the air phase (t = 5) is one failed phase of one: events = 1.
+    blip = late.copy()
+    blip[5] = 30.0
+    assert float(jt.cell_surrogates(jnp.asarray(blip), data, 0.5)[1]) == pytest.approx(1.0)
+    # The penalty: softplus of the excess in units; equal cells cost 4 log 2.
+    u = jnp.asarray([0.1, 0.1, 1.0, 1.0])
+    assert float(jt.constraint_penalty(jnp.asarray(s), jnp.asarray(s), u)) == pytest.approx(
+        4 * np.log(2.0)
+    )
+    worse = jnp.asarray(s) + jnp.asarray([0.0, 0.0, 3.0, 0.0])
+    want = 3 * np.log(2.0) + np.logaddexp(0.0, 3.0)
+    assert float(jt.constraint_penalty(worse, jnp.asarray(s), u)) == pytest.approx(want)
+
+
+def test_constraint_penalty_gradient_in_the_logits_matches_central_differences(x64, np_rng):
+    n_t, early, tau = 40, 3, 0.25
+    truth = (np.arange(n_t)[:, None, None] // 8) % 2 == 0
+    truth = np.broadcast_to(truth, (n_t, 1, 2)).copy()
+    logit = np.where(truth, 2.0, -2.0) + np_rng.normal(scale=1.5, size=truth.shape)
+    data = _event_data(truth, np.ones_like(truth), early)
+    ref = jnp.asarray([0.05, 0.05, 1.0, 1.0])
+    units = jnp.asarray([0.01, 0.02, 0.5, 0.5])
+    f = jax.jit(lambda x: jt.constraint_penalty(jt.cell_surrogates(x, data, tau), ref, units))
+    x = jnp.asarray(logit)
+    g = np.asarray(jax.grad(f)(x)).reshape(-1)
+    fd = np.zeros_like(g)
+    for i in range(g.size):
+        e = jnp.zeros(g.size).at[i].set(GRAD_H).reshape(x.shape)
+        fd[i] = (float(f(x + e)) - float(f(x - e))) / (2 * GRAD_H)
+    atol, rtol = GRAD_TOL
+    np.testing.assert_allclose(g, fd, atol=atol, rtol=rtol)
+    assert np.sum(np.abs(g) > 1e-3) >= g.size // 2  # not vacuous: most steps count
+
+
+def test_constraint_reference_is_the_untuned_windows_own_surrogates():
+    """reference_cells gives, per training window, the untuned filter's surrogates on the
+    windows and belief carry of tune's epochs: at theta0 each window's penalty is exactly
+    4 softplus(0) = 4 log 2 times the weight (cells equal to their reference)."""
+    train = jt.with_air_phases(_synthetic(1, n_t=600, n_envs=4), 20)
+    space = jt.make_space(4, fields=("sigma_J",))
+    base = _synthetic_params(SIGMA_J_WRONG)
+    terrain = flat(0.0, 0.05)
+    theta0 = jt.init_theta(space, base)
+    weight = 0.5
+    config = jt.TuneConfig(chunk=300, prior_noise=0.0, event_weight=0.0, constraint_weight=weight)
+    plain = dataclasses.replace(config, constraint_weight=0.0)
+    key = jax.random.key(0)
+    refs = jt.reference_cells(base, terrain, train, key=key, chunk=300)
+    assert refs.shape == (2, 4) and np.all(np.isfinite(refs))
+    units = jnp.asarray(jt.constraint_units(DT), jnp.float32)
+    loss = jax.jit(jt.tuning_loss, static_argnames=("space", "config"))
+    belief = init_belief_batch(base, 4, 1)
+    for w in range(2):
+        win = jt._window(train, 300 * w, 300)
+        got, (nxt, _, _) = loss(theta0, space, base, theta0, terrain, belief, win, config,
+                                key=key, cells_reference=(jnp.asarray(refs[w]), units))  # fmt: skip
+        want, _ = loss(theta0, space, base, theta0, terrain, belief, win, plain, key=key)
+        assert float(got) - float(want) == pytest.approx(weight * 4 * np.log(2.0), rel=1e-4)
+        belief = nxt
+    # Tuning with the cells in the objective needs the references (tune computes them).
+    with pytest.raises(ValueError, match="cells_reference"):
+        loss(theta0, space, base, theta0, terrain, belief, win, config, key=key)

@@ -141,6 +141,23 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         " log's F1, accuracy, ECE, air-phase failures and mean delays)",
     )
     p.add_argument(
+        "--cell-tolerance",
+        type=_nonnegative_float,
+        default=0.0,
+        help="with --select cells, how much worse than the defaults a validation cell may"
+        " be, in units of jax_contact.tune.CELL_TOLERANCE (F1/accuracy/ECE 0.0005, 0.25"
+        " point of air-phase failures, 0.25 ms of delay)",
+    )
+    p.add_argument(
+        "--constrain",
+        type=_nonnegative_float,
+        default=0.0,
+        metavar="WEIGHT",
+        help="weight of the cells in the objective: each tuning window's expected errors,"
+        " event term and touch-down / lift-off lateness are penalised where worse than the"
+        " defaults' on that window (jax_contact.tune.constraint_penalty; 0: off)",
+    )
+    p.add_argument(
         "--noise-floor",
         choices=("sensor", "none"),
         default="sensor",
@@ -654,6 +671,8 @@ def run(args: argparse.Namespace) -> int:
         event_weight=getattr(args, "event_weight", 0.3),
         event_temperature=getattr(args, "event_temperature", 0.25),
         select=getattr(args, "select", "loss"),
+        cell_tolerance=getattr(args, "cell_tolerance", 0.0),
+        constraint_weight=getattr(args, "constrain", 0.0),
     )
 
     def progress(row: dict) -> None:
@@ -731,6 +750,12 @@ def run(args: argparse.Namespace) -> int:
             f" of the logit over the phase's scored steps, temperature"
             f" {config.event_temperature:g})"
             if config.event_weight > 0
+            else ""
+        )
+        + (
+            f" + {config.constraint_weight:g} x sum over the cells of softplus((surrogate -"
+            " untuned surrogate) / tolerance) per window (jax_contact.tune.constraint_penalty)"
+            if config.constraint_weight > 0
             else ""
         )
         + " + Gaussian prior on the unconstrained values (jax_contact.tune)",
