@@ -446,6 +446,11 @@ class TuneConfig:
       constraint_weight: ``lambda_c``, weight of the cells in the objective (0: off): the
         penalty :func:`constraint_penalty` of each window's :func:`cell_surrogates` against
         the untuned parameters' on the same window.
+      feasible: reject an epoch whose *tuning* logs' cells (:func:`score_logs`, the hard
+        metrics) are worse than epoch 0's beyond ``cell_tolerance``: the parameters and the
+        optimiser go back to the last accepted epoch and the learning rate is halved (a
+        rejected epoch counts against ``patience``). Costs one filter pass over the tuning
+        logs per epoch.
     """
 
     learning_rate: float = 0.05
@@ -465,6 +470,7 @@ class TuneConfig:
     select: str = "loss"
     cell_tolerance: float = 0.0
     constraint_weight: float = 0.0
+    feasible: bool = False
 
     def __post_init__(self):
         for name in ("learning_rate", "clip_norm"):
@@ -906,9 +912,18 @@ def tuning_loss(
 
 
 def _optimizer(config: TuneConfig) -> optax.GradientTransformation:
-    return optax.chain(
-        optax.clip_by_global_norm(config.clip_norm), optax.adam(config.learning_rate)
-    )
+    if config.feasible:  # the learning rate in the state, so that a rejection can halve it
+        adam = optax.inject_hyperparams(optax.adam)(learning_rate=config.learning_rate)
+    else:
+        adam = optax.adam(config.learning_rate)
+    return optax.chain(optax.clip_by_global_norm(config.clip_norm), adam)
+
+
+def _halve_learning_rate(opt_state):
+    """The state of :func:`_optimizer` (``feasible``) with half the learning rate."""
+    clip, adam = opt_state
+    lr = adam.hyperparams["learning_rate"]
+    return (clip, adam._replace(hyperparams={**adam.hyperparams, "learning_rate": lr * 0.5}))
 
 
 @functools.partial(jax.jit, static_argnames=("space", "config"))
@@ -1109,7 +1124,8 @@ class TuneResult:
       history: one dict per epoch (epoch 0: before any update): ``epoch``, ``train_loss``
         (mean over the epoch's windows of the loss, NaN for epoch 0), ``train_bce``,
         ``val_bce``, ``val_event``, ``val_loss``, ``val_f1``, ``val_ece``, ``val_fail``
-        (:func:`score_logs`), ``grad_norm``, ``wall_s``.
+        (:func:`score_logs`), ``grad_norm``, ``wall_s``; with ``config.feasible`` also
+        ``train_cells`` (the tuning logs' cells) and ``rejected``.
       best_epoch: the epoch whose parameters are returned (lowest ``val_loss``, or
         ``val_bce`` with ``config.select == "bce"``, or the lowest ``val_loss`` among the
         epochs :func:`no_worse` than epoch 0 with ``"cells"``).
@@ -1207,6 +1223,22 @@ def tune(
             row["val_cells"], first["val_cells"], config.cell_tolerance
         )
 
+    def tuning_cells(th) -> list[dict]:
+        params = to_params(space, base, th)
+        logits = [
+            predict_logits(params, terrain, d, key=jax.random.fold_in(key, 3 * 10**6 + i),
+                           chunk=config.chunk)
+            for i, d in enumerate(train)
+        ]  # fmt: skip
+        return score_logs(logits, train, dt=dt, config=config)["cells"]
+
+    # The feasible-direction variant: the tuning logs' own cells at the defaults, and the
+    # last accepted point.
+    train_cells0 = None
+    if config.feasible:
+        train_cells0 = first["train_cells"] = tuning_cells(theta)
+    accepted = (theta, opt_state)
+
     # The cells in the objective: the untuned parameters' surrogates on every training
     # window (the same windows and belief carry as the epochs below).
     references = [None] * len(train)
@@ -1247,11 +1279,19 @@ def tune(
             grad_norm=float(np.mean(norms)),
         )
         row.update({f"val_{k}": v for k, v in validate(theta).items()})
+        rejected = False
+        if config.feasible:
+            row["train_cells"] = tuning_cells(theta)
+            rejected = not no_worse(row["train_cells"], train_cells0, config.cell_tolerance)
+            row["rejected"] = rejected
+            if rejected:
+                theta, opt_state = accepted[0], _halve_learning_rate(accepted[1])
+            accepted = (theta, opt_state)
         row["wall_s"] = time.perf_counter() - t_start
         history.append(row)
         if progress:
             progress(row)
-        if row[crit] < best - config.min_delta and admissible(row):
+        if not rejected and row[crit] < best - config.min_delta and admissible(row):
             best, best_theta, best_epoch, bad = row[crit], theta, epoch, 0
         else:
             bad += 1

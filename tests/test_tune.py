@@ -802,3 +802,42 @@ def test_constraint_reference_is_the_untuned_windows_own_surrogates():
     # Tuning with the cells in the objective needs the references (tune computes them).
     with pytest.raises(ValueError, match="cells_reference"):
         loss(theta0, space, base, theta0, terrain, belief, win, config, key=key)
+
+
+def test_feasible_rejects_epochs_that_worsen_the_tuning_cells():
+    """feasible=True on the recovery problem started *below* the true sigma_J (0.02 <
+    0.05): the untuned filter has no false contact in the air there (failure rate 0 on
+    the tuning log), and the BCE's way to the truth raises it, so some epochs are
+    rejected. Each epoch is rejected exactly when its tuning-log cells are worse than
+    epoch 0's (recomputed with jax_contact.metrics), and the epoch returned is an
+    accepted one."""
+    train, val = _synthetic(1, n_t=600, n_envs=4), _synthetic(2, n_t=600, n_envs=4)
+    space = jt.make_space(4, fields=("sigma_J",))
+    config = jt.TuneConfig(
+        learning_rate=1.0, max_epochs=6, patience=6, chunk=300, prior_noise=0.0, seed=0,
+        event_weight=0.0, feasible=True,
+    )  # fmt: skip
+    base = _synthetic_params(0.02)
+    res = jt.tune(base, flat(0.0, 0.05), [train], val, space, config)
+    hist = res.history
+    first = hist[0]["train_cells"]
+    logits = jt.predict_logits(base, flat(0.0, 0.05), jt.with_air_phases(train, 20),
+                               key=jax.random.key(0), chunk=300)  # fmt: skip
+    from jax_contact.metrics import evaluate
+
+    m = evaluate(jt.sigmoid_np(logits), train.truth, train.mask, dt=DT)
+    assert first[0]["f1"] == pytest.approx(m.f1, abs=1e-6)
+    assert first[0]["touchdown_ms"] == pytest.approx(abs(m.touchdown_delay_ms[0]), abs=1e-6)
+    assert first[0]["fail"] == m.air_phase_failure_rate == 0.0
+    rejected = [row["epoch"] for row in hist[1:] if row["rejected"]]
+    accepted = [row["epoch"] for row in hist[1:] if not row["rejected"]]
+    assert rejected and accepted, (rejected, accepted)  # both happen at this step size
+    for row in hist[1:]:
+        assert row["rejected"] == (not jt.no_worse(row["train_cells"], first)), row["epoch"]
+    assert res.best_epoch == 0 or not hist[res.best_epoch]["rejected"]
+    assert jt.no_worse(hist[res.best_epoch]["train_cells"], first)
+    # The halving: the optimiser's learning rate in the state.
+    opt = jt._optimizer(config)
+    state = opt.init(jt.init_theta(space, base))
+    half = jt._halve_learning_rate(state)
+    assert float(half[1].hyperparams["learning_rate"]) == pytest.approx(0.5)

@@ -158,6 +158,13 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         " defaults' on that window (jax_contact.tune.constraint_penalty; 0: off)",
     )
     p.add_argument(
+        "--feasible",
+        action="store_true",
+        help="reject an epoch whose tuning logs' cells are worse than the defaults' beyond"
+        " --cell-tolerance: back to the last accepted epoch with half the learning rate"
+        " (one more filter pass over the tuning logs per epoch)",
+    )
+    p.add_argument(
         "--noise-floor",
         choices=("sensor", "none"),
         default="sensor",
@@ -673,6 +680,7 @@ def run(args: argparse.Namespace) -> int:
         select=getattr(args, "select", "loss"),
         cell_tolerance=getattr(args, "cell_tolerance", 0.0),
         constraint_weight=getattr(args, "constrain", 0.0),
+        feasible=getattr(args, "feasible", False),
     )
 
     def progress(row: dict) -> None:
@@ -682,7 +690,7 @@ def run(args: argparse.Namespace) -> int:
             f"tune {_bar(e, config.max_epochs)} epoch {e:2d}/{config.max_epochs}{loss}"
             f"  val loss {row['val_loss']:.4f} BCE {row['val_bce']:.4f}  F1 {row['val_f1']:.4f}"
             f"  ECE {row['val_ece']:.4f}  fail {100 * row['val_fail']:.1f} %"
-            f"  {row['wall_s']:6.1f} s",
+            f"  {row['wall_s']:6.1f} s" + ("  rejected" if row.get("rejected") else ""),
             file=sys.stderr,
             flush=True,
         )
