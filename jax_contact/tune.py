@@ -956,16 +956,23 @@ def predict_logits(
     chunk: int = 400,
 ) -> np.ndarray:
     """(T, E, L) float32 filtered logits of a whole log, in windows of ``chunk`` steps."""
+    out = _over_windows(
+        params, data, chunk, key, lambda b, win, k: _forward_window(params, terrain, b, win.meas, k)
+    )
+    return np.concatenate(out, axis=0)[: data.n_steps]
+
+
+def _over_windows(params, data: TuningData, chunk: int, key, run) -> list[np.ndarray]:
+    """``run(belief, window, key) -> (belief, out)`` over a log's windows of ``chunk``
+    steps (:func:`_window`), the belief carried from one to the next as in :func:`tune`'s
+    epochs; the ``out`` of each window."""
     n_envs, n_legs = data.truth.shape[1:]
     belief = init_belief_batch(params, n_envs, n_legs)
     out = []
     for w, start in enumerate(range(0, data.n_steps, chunk)):
-        win = _window(data, start, chunk)
-        belief, logits = _forward_window(
-            params, terrain, belief, win.meas, jax.random.fold_in(key, w)
-        )
-        out.append(np.asarray(logits)[: min(chunk, data.n_steps - start)])
-    return np.concatenate(out, axis=0)
+        belief, o = run(belief, _window(data, start, chunk), jax.random.fold_in(key, w))
+        out.append(np.asarray(o))
+    return out
 
 
 @functools.partial(jax.jit, static_argnames=("temperature",))
@@ -985,16 +992,12 @@ def reference_cells(
 ) -> np.ndarray:
     """(n_windows, 4) :func:`cell_surrogates` of ``params`` on each training window of a
     log (the windows and belief carry of :func:`tune`'s epochs)."""
-    n_envs, n_legs = data.truth.shape[1:]
-    belief = init_belief_batch(params, n_envs, n_legs)
-    out = []
-    for w, start in enumerate(range(0, data.n_steps, chunk)):
-        win = _window(data, start, chunk)
-        belief, cells = _window_cells(
-            params, terrain, belief, win, jax.random.fold_in(key, w), temperature
+    return np.stack(
+        _over_windows(
+            params, data, chunk, key,
+            lambda b, win, k: _window_cells(params, terrain, b, win, k, temperature),
         )
-        out.append(np.asarray(cells))
-    return np.stack(out)
+    )  # fmt: skip
 
 
 def pooled(datas: Sequence[TuningData]) -> TuningData:

@@ -640,16 +640,9 @@ def test_event_term_matches_a_loop_oracle(x64, np_rng):
     )
 
 
-def test_event_term_gradient_in_the_logits_matches_central_differences(x64, np_rng):
-    # The term alone on a random problem whose logits cross 0 often (every scored step has
-    # a gradient); the set of scored steps does not change within +-GRAD_H.
-    n_t, early, tau = 40, 3, 0.25
-    truth = (np.arange(n_t)[:, None, None] // 8) % 2 == 0
-    truth = np.broadcast_to(truth, (n_t, 1, 2)).copy()
-    logit = np.where(truth, 2.0, -2.0) + np_rng.normal(scale=1.5, size=truth.shape)
-    data = _event_data(truth, np.ones_like(truth), early)
-    f = jax.jit(lambda x: jt.air_event_terms(x, data, tau)[0])
-    x = jnp.asarray(logit)
+def _grad_matches_central_differences(f, x) -> np.ndarray:
+    """Asserts jax.grad(f)(x) equals the central differences of f at x within GRAD_TOL;
+    returns the gradient, flat."""
     g = np.asarray(jax.grad(f)(x)).reshape(-1)
     fd = np.zeros_like(g)
     for i in range(g.size):
@@ -657,6 +650,25 @@ def test_event_term_gradient_in_the_logits_matches_central_differences(x64, np_r
         fd[i] = (float(f(x + e)) - float(f(x - e))) / (2 * GRAD_H)
     atol, rtol = GRAD_TOL
     np.testing.assert_allclose(g, fd, atol=atol, rtol=rtol)
+    return g
+
+
+def _crossing_problem(np_rng, n_t: int = 40, early: int = 3):
+    """Logits (T, 1, 2) around the truth's side that cross 0 often (alternating phases of
+    8 steps), float64, with the data's AirPhases."""
+    truth = (np.arange(n_t)[:, None, None] // 8) % 2 == 0
+    truth = np.broadcast_to(truth, (n_t, 1, 2)).copy()
+    logit = np.where(truth, 2.0, -2.0) + np_rng.normal(scale=1.5, size=truth.shape)
+    return jnp.asarray(logit), _event_data(truth, np.ones_like(truth), early)
+
+
+def test_event_term_gradient_in_the_logits_matches_central_differences(x64, np_rng):
+    # The term alone on a random problem whose logits cross 0 often (every scored step has
+    # a gradient); the set of scored steps does not change within +-GRAD_H.
+    tau = 0.25
+    x, data = _crossing_problem(np_rng)
+    f = jax.jit(lambda x: jt.air_event_terms(x, data, tau)[0])
+    g = _grad_matches_central_differences(f, x)
     scored = np.asarray(jt.scored_air_steps(x, data)).reshape(-1)
     assert np.all(g[~scored] == 0.0) and np.sum(np.abs(g[scored]) > 1e-4) >= 5
 
@@ -755,22 +767,12 @@ def test_cell_surrogates_on_a_hand_example(x64):
 
 
 def test_constraint_penalty_gradient_in_the_logits_matches_central_differences(x64, np_rng):
-    n_t, early, tau = 40, 3, 0.25
-    truth = (np.arange(n_t)[:, None, None] // 8) % 2 == 0
-    truth = np.broadcast_to(truth, (n_t, 1, 2)).copy()
-    logit = np.where(truth, 2.0, -2.0) + np_rng.normal(scale=1.5, size=truth.shape)
-    data = _event_data(truth, np.ones_like(truth), early)
+    tau = 0.25
+    x, data = _crossing_problem(np_rng)
     ref = jnp.asarray([0.05, 0.05, 1.0, 1.0])
     units = jnp.asarray([0.01, 0.02, 0.5, 0.5])
     f = jax.jit(lambda x: jt.constraint_penalty(jt.cell_surrogates(x, data, tau), ref, units))
-    x = jnp.asarray(logit)
-    g = np.asarray(jax.grad(f)(x)).reshape(-1)
-    fd = np.zeros_like(g)
-    for i in range(g.size):
-        e = jnp.zeros(g.size).at[i].set(GRAD_H).reshape(x.shape)
-        fd[i] = (float(f(x + e)) - float(f(x - e))) / (2 * GRAD_H)
-    atol, rtol = GRAD_TOL
-    np.testing.assert_allclose(g, fd, atol=atol, rtol=rtol)
+    g = _grad_matches_central_differences(f, x)
     assert np.sum(np.abs(g) > 1e-3) >= g.size // 2  # not vacuous: most steps count
 
 
