@@ -705,7 +705,7 @@ def test_padded_window_holds_no_phase_or_touch_down():
     d = jt.with_air_phases(
         jt.TuningData(meas={"x": np.zeros((7, 1))}, truth=truth, mask=np.ones_like(truth)), 2
     )
-    w = jt._window(d, 4, 5)  # steps 4..6 and two copies of step 6
+    w = jt.loss._window(d, 4, 5)  # steps 4..6 and two copies of step 6
     assert np.asarray(w.mask)[:, 0, 0].tolist() == [True] * 3 + [False] * 2
     assert np.asarray(w.events.td_step)[:, 0, 0].tolist() == [False, True, False, False, False]
     assert not np.asarray(w.events.start)[3:].any()
@@ -795,7 +795,7 @@ def test_constraint_reference_is_the_untuned_windows_own_surrogates():
     loss = jax.jit(jt.tuning_loss, static_argnames=("space", "config"))
     belief = init_belief_batch(base, 4, 1)
     for w in range(2):
-        win = jt._window(train, 300 * w, 300)
+        win = jt.loss._window(train, 300 * w, 300)
         got, (nxt, _, _) = loss(theta0, space, base, theta0, terrain, belief, win, config,
                                 key=key, cells_reference=(jnp.asarray(refs[w]), units))  # fmt: skip
         want, _ = loss(theta0, space, base, theta0, terrain, belief, win, plain, key=key)
@@ -839,7 +839,7 @@ def test_feasible_rejects_epochs_that_worsen_the_tuning_cells():
     assert res.best_epoch == 0 or not hist[res.best_epoch]["rejected"]
     assert jt.no_worse(hist[res.best_epoch]["train_cells"], first)
     # The halving: the optimiser's learning rate in the state.
-    opt = jt._optimizer(config)
+    opt = jt.fit._optimizer(config)
     state = opt.init(jt.init_theta(space, base))
-    half = jt._halve_learning_rate(state)
+    half = jt.fit._halve_learning_rate(state)
     assert float(half[1].hyperparams["learning_rate"]) == pytest.approx(0.5)

@@ -1,0 +1,210 @@
+"""A log's tuning data and its true events: air phases, touch-downs, lift-offs; the
+air-phase event term of the loss."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import struct
+
+from jax_contact.types import LegMeasurement, RobotMeasurement
+
+# ---------------------------------------------------------------------------- the data
+
+
+@struct.dataclass
+class AirPhases:
+    """Where the true air phases and touch-downs of a log are (from truth and mask alone).
+
+    Attributes:
+      start: (T, E, L) bool, the first step of each true air phase (a valid air step whose
+        previous step is not a valid air step: ``jax_contact.metrics`` rule 8).
+      td_step: (T, E, L) bool, each true touch-down (a valid contact step after a valid
+        air step; rule 2's ``t0``).
+      td_window: (T, E, L) bool, the air steps at most ``early`` steps before the
+        touch-down that ends their phase (rule 2's early window).
+      lo_step: (T, E, L) bool, each true lift-off (a valid air step after a valid contact
+        step).
+      after_td: (T, E, L) bool, the first ``early`` valid contact steps of each stance
+        that begins with a touch-down (:func:`cell_surrogates`' touch-down lateness).
+      after_lo: (T, E, L) bool, the first ``early`` valid air steps of each air phase that
+        begins with a lift-off.
+    """
+
+    start: jax.Array
+    td_step: jax.Array
+    td_window: jax.Array
+    lo_step: jax.Array | None = None
+    after_td: jax.Array | None = None
+    after_lo: jax.Array | None = None
+
+
+@struct.dataclass
+class TuningData:
+    """One log's precomputed estimator inputs and ground truth (NumPy or JAX leaves).
+
+    Attributes:
+      meas: a :class:`RobotMeasurement` with leaves of leading axes (T, E) (or a
+        :class:`LegMeasurement` with (T, E, L)): the inputs of each step, paired as the
+        estimator would see them.
+      truth: (T, E, L) bool ground-truth contact at each step.
+      mask: (T, E, L) bool, the steps that count (env valid).
+      events: the log's :class:`AirPhases` (:func:`with_air_phases`), needed by the event
+        term; None until annotated.
+    """
+
+    meas: RobotMeasurement | LegMeasurement
+    truth: jax.Array
+    mask: jax.Array
+    events: AirPhases | None = None
+
+    @property
+    def n_steps(self) -> int:
+        return int(self.truth.shape[0])
+
+
+def air_phases(truth, mask, early: int) -> AirPhases:
+    """The :class:`AirPhases` of a (T, ...) truth and mask (NumPy, whole log at once).
+
+    Args:
+      truth, mask: (T, ...) bool.
+      early: the early window in steps (``round(early_window_s / dt)``).
+    """
+    truth = np.asarray(truth, bool)
+    air = np.asarray(mask, bool) & ~truth
+    prev_air = np.concatenate([np.zeros_like(air[:1]), air[:-1]], axis=0)
+    start = air & ~prev_air
+    td_step = np.asarray(mask, bool) & truth & prev_air
+    # Steps from each air step to the touch-down that ends its phase (a large number where
+    # the phase ends otherwise: an invalid step or the end of the log).
+    far = np.iinfo(np.int32).max // 2
+    dist = np.full(air.shape, far, np.int64)
+    cur = np.full(air.shape[1:], far, np.int64)
+    for t in range(air.shape[0] - 1, -1, -1):
+        cur = np.where(td_step[t], 0, np.where(air[t], cur + 1, far))
+        dist[t] = cur
+    contact = np.asarray(mask, bool) & truth
+    prev_contact = np.concatenate([np.zeros_like(contact[:1]), contact[:-1]], axis=0)
+    lo_step = air & prev_contact
+
+    def first_steps(inside, begins):
+        # Steps since the event that began each run of ``inside`` (far where none did).
+        since = np.full(inside.shape, far, np.int64)
+        cur = np.full(inside.shape[1:], far, np.int64)
+        for t in range(inside.shape[0]):
+            cur = np.where(begins[t], 0, np.where(inside[t], cur + 1, far))
+            since[t] = cur
+        return inside & (since < early)
+
+    return AirPhases(
+        start=start,
+        td_step=td_step,
+        td_window=air & (dist <= early),
+        lo_step=lo_step,
+        after_td=first_steps(contact, td_step),
+        after_lo=first_steps(air, lo_step),
+    )
+
+
+def with_air_phases(data: TuningData, early: int) -> TuningData:
+    """``data`` with its :class:`AirPhases` (``early`` steps of early window)."""
+    return data.replace(events=air_phases(data.truth, data.mask, early))
+
+
+def scored_air_steps(logits: jax.Array, window: TuningData) -> jax.Array:
+    """(T, E, L) bool: the true air steps where a rise of the logit could be a failure.
+
+    The steps of a true air phase between the end of the lift-off's fall and the start of
+    the touch-down's rise (computed from the logits without gradient; a window's first
+    step starts its phases afresh):
+
+    - from the first step, after the flag ``logit > 0`` has been off in the phase, at which
+      the logit does not fall (``l_t >= l_{t-1}``): the stance's flag carried into the air
+      and the fall after it are the lift-off delay, not a false contact
+      (``jax_contact.metrics`` rule 7 needs a rise of the flag in the air);
+    - minus the run into the touch-down: going back from the true touch-down ``t0`` over
+      the early window (``AirPhases.td_window``), a flagged step followed by a flagged
+      step, or an unflagged one below the next logit (the rise toward the detection);
+      the detection itself (rule 4) and the approach to it are not false contacts. A
+      blip (on, then off) before the detection breaks the run and is scored.
+    """
+    lg = jax.lax.stop_gradient(logits)
+    on = lg > 0
+    air = jnp.asarray(window.mask) & ~jnp.asarray(window.truth).astype(bool)
+    ev = jax.tree.map(jnp.asarray, window.events)
+    prev = jnp.concatenate([lg[:1], lg[:-1]], axis=0)
+    nxt = jnp.concatenate([lg[1:], lg[-1:]], axis=0)
+    on_next = jnp.concatenate([on[1:], on[-1:]], axis=0)
+
+    def fwd(carry, x):
+        dropped, settled = carry
+        a, st, o, rising = x
+        dropped = a & ((~st & dropped) | ~o)
+        settled = dropped & ((~st & settled) | rising)
+        return (dropped, settled), settled
+
+    zeros = jnp.zeros(on.shape[1:], bool)
+    _, settled = jax.lax.scan(fwd, (zeros, zeros), (air, ev.start, on, lg >= prev))
+
+    def bwd(run, x):
+        td, win, into = x
+        run = td | (win & run & into)
+        return run, run
+
+    into = jnp.where(on, on_next, lg <= nxt)
+    # The window's last step: a run there is taken to go on into the next window.
+    _, run = jax.lax.scan(
+        bwd, jnp.ones(on.shape[1:], bool), (ev.td_step, ev.td_window, into), reverse=True
+    )
+    return air & settled & ~run
+
+
+def air_event_terms(logits: jax.Array, window: TuningData, temperature: float):
+    """The event term's sum over the window's air phases and their number.
+
+    For each true air phase ``a`` (:class:`AirPhases`; a phase cut by the window's start
+    counts from there) with scored steps ``S_a`` (:func:`scored_air_steps`)::
+
+        E_a = tau log sum_{t in S_a} exp(l_t / tau)      (smooth maximum of the logit)
+        cost_a = softplus(E_a) = -log(1 - sigmoid(E_a))
+
+    ``sigmoid(E_a)`` stands for the probability of at least one false contact in the phase
+    (``E_a`` lies between the largest logit and ``tau log |S_a|`` above it), so ``cost_a``
+    is the binary cross-entropy of the event "no false contact in this phase" (true for
+    every true air phase). Phases without a scored step cost 0.
+
+    Returns:
+      (sum of ``cost_a`` (), number of air phases in the window ()).
+    """
+    e, has, n_phases = air_phase_maxima(logits, window, temperature)
+    return jnp.sum(jnp.where(has, jax.nn.softplus(e), 0.0)), n_phases
+
+
+def air_phase_maxima(logits: jax.Array, window: TuningData, temperature: float):
+    """The smooth maximum ``E_a`` of the logit over each air phase's scored steps.
+
+    Returns:
+      (``E`` (S,) per segment, ``has`` (S,) bool: the segment is a phase with a scored
+      step (``E`` is 0 elsewhere), the number of air phases in the window ()); segments
+      are (column, phase) pairs, so ``S`` is fixed by the window's shape.
+    """
+    n_t = logits.shape[0]
+    cols = int(np.prod(logits.shape[1:]))
+    scored = scored_air_steps(logits, window)
+    air = jnp.asarray(window.mask) & ~jnp.asarray(window.truth).astype(bool)
+    # A phase cut by the window's start begins at its first step.
+    first = (jnp.asarray(window.events.start) & air).at[0].set(air[0])
+    pid = jnp.cumsum(first, axis=0)  # phase number along each column, >= 1 inside phases
+    col = jnp.arange(cols).reshape(logits.shape[1:])
+    n_seg = cols * (n_t + 1) + 1
+    seg = jnp.where(scored, col * (n_t + 1) + pid, n_seg - 1).reshape(-1)
+    x = (logits / temperature).reshape(-1)
+    sc = scored.reshape(-1)
+    mx = jax.ops.segment_max(jnp.where(sc, jax.lax.stop_gradient(x), -jnp.inf), seg, n_seg)
+    has = jax.ops.segment_sum(sc.astype(jnp.int32), seg, n_seg) > 0
+    mx = jnp.where(has, mx, 0.0)
+    z = jnp.where(sc, x - mx[seg], -60.0)
+    total = jax.ops.segment_sum(jnp.where(sc, jnp.exp(z), 0.0), seg, n_seg)
+    e = temperature * (mx + jnp.log(jnp.where(has, total, 1.0)))
+    return jnp.where(has, e, 0.0), has, jnp.sum(first)

@@ -1,0 +1,418 @@
+"""The tuning loop: epochs of truncated BPTT, validation, selection, the rejection step."""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import time
+from collections.abc import Callable, Sequence
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+
+from jax_contact.filter import init_belief_batch
+from jax_contact.params import EstimatorParams, validate_params
+from jax_contact.tune.calibration import sigmoid_np
+from jax_contact.tune.cells import (
+    cell_surrogates,
+    constraint_units,
+    no_worse,
+)
+from jax_contact.tune.config import TuneConfig
+from jax_contact.tune.events import TuningData, air_event_terms, with_air_phases
+from jax_contact.tune.loss import _window, filter_logits, tuning_loss
+from jax_contact.tune.space import (
+    NOISE_FIELDS,
+    ParamSpace,
+    init_theta,
+    theta_lower_bounds,
+    to_params,
+)
+
+
+def _optimizer(config: TuneConfig) -> optax.GradientTransformation:
+    if config.feasible:  # the learning rate in the state, so that a rejection can halve it
+        adam = optax.inject_hyperparams(optax.adam)(learning_rate=config.learning_rate)
+    else:
+        adam = optax.adam(config.learning_rate)
+    return optax.chain(optax.clip_by_global_norm(config.clip_norm), adam)
+
+
+def _halve_learning_rate(opt_state):
+    """The state of :func:`_optimizer` (``feasible``) with half the learning rate."""
+    clip, adam = opt_state
+    lr = adam.hyperparams["learning_rate"]
+    return (clip, adam._replace(hyperparams={**adam.hyperparams, "learning_rate": lr * 0.5}))
+
+
+@functools.partial(jax.jit, static_argnames=("space", "config"))
+def _train_window(
+    theta, opt_state, space, base, theta0, lower, terrain, belief, window, config, key,
+    cells_reference=None,
+):  # fmt: skip
+    grad_fn = jax.value_and_grad(tuning_loss, has_aux=True)
+    (loss, (belief, data, n)), grads = grad_fn(
+        theta, space, base, theta0, terrain, belief, window, config, key=key,
+        cells_reference=cells_reference,
+    )  # fmt: skip
+    updates, opt_state = _optimizer(config).update(grads, opt_state, theta)
+    # Projected gradient step: back onto the floors (theta_lower_bounds) after the update.
+    theta = jax.tree.map(jnp.maximum, optax.apply_updates(theta, updates), lower)
+    return theta, opt_state, belief, loss, data, n, optax.global_norm(grads)
+
+
+@jax.jit
+def _forward_window(params, terrain, belief, meas, key):
+    return filter_logits(params, terrain, belief, meas, key=key)
+
+
+def predict_logits(
+    params: EstimatorParams,
+    terrain,
+    data: TuningData,
+    *,
+    key: jax.Array,
+    chunk: int = 400,
+) -> np.ndarray:
+    """(T, E, L) float32 filtered logits of a whole log, in windows of ``chunk`` steps."""
+    out = _over_windows(
+        params, data, chunk, key, lambda b, win, k: _forward_window(params, terrain, b, win.meas, k)
+    )
+    return np.concatenate(out, axis=0)[: data.n_steps]
+
+
+def _over_windows(params, data: TuningData, chunk: int, key, run) -> list[np.ndarray]:
+    """``run(belief, window, key) -> (belief, out)`` over a log's windows of ``chunk``
+    steps (:func:`_window`), the belief carried from one to the next as in :func:`tune`'s
+    epochs; the ``out`` of each window."""
+    n_envs, n_legs = data.truth.shape[1:]
+    belief = init_belief_batch(params, n_envs, n_legs)
+    out = []
+    for w, start in enumerate(range(0, data.n_steps, chunk)):
+        belief, o = run(belief, _window(data, start, chunk), jax.random.fold_in(key, w))
+        out.append(np.asarray(o))
+    return out
+
+
+@functools.partial(jax.jit, static_argnames=("temperature",))
+def _window_cells(params, terrain, belief, window, key, temperature):
+    belief, logits = filter_logits(params, terrain, belief, window.meas, key=key)
+    return belief, cell_surrogates(logits, window, temperature)
+
+
+def reference_cells(
+    params: EstimatorParams,
+    terrain,
+    data: TuningData,
+    *,
+    key: jax.Array,
+    chunk: int = 400,
+    temperature: float = 0.25,
+) -> np.ndarray:
+    """(n_windows, 4) :func:`cell_surrogates` of ``params`` on each training window of a
+    log (the windows and belief carry of :func:`tune`'s epochs)."""
+    return np.stack(
+        _over_windows(
+            params, data, chunk, key,
+            lambda b, win, k: _window_cells(params, terrain, b, win, k, temperature),
+        )
+    )  # fmt: skip
+
+
+def pooled(datas: Sequence[TuningData]) -> TuningData:
+    """Truth and mask of several logs flattened into one (for pooled scores)."""
+    return TuningData(
+        meas=None,
+        truth=np.concatenate([np.asarray(d.truth).reshape(-1) for d in datas]),
+        mask=np.concatenate([np.asarray(d.mask).reshape(-1) for d in datas]),
+    )
+
+
+def score_logits(logits, data: TuningData) -> dict[str, float]:
+    """Mean BCE, F1 (flag P > 0.5) and ECE (10 bins) of logits over the masked steps."""
+    from jax_contact.metrics import expected_calibration_error, step_scores
+
+    mask = np.asarray(data.mask, bool)
+    truth = np.asarray(data.truth, bool)
+    x = np.asarray(logits, np.float64)
+    bce = np.logaddexp(0.0, -x) * truth + np.logaddexp(0.0, x) * ~truth
+    p = sigmoid_np(x)
+    return {
+        "bce": float(bce[mask].mean()) if mask.any() else float("nan"),
+        "f1": step_scores(p, truth, mask).f1,
+        "ece": expected_calibration_error(p, truth, mask),
+    }
+
+
+@functools.partial(jax.jit, static_argnames=("temperature",))
+def _event_sum(logits, window, temperature):
+    return air_event_terms(logits, window, temperature)
+
+
+def score_logs(
+    logits: Sequence, datas: Sequence[TuningData], *, dt: float, config: TuneConfig
+) -> dict:
+    """Pooled validation scores of whole logs (each (T, E, L) logits with its data).
+
+    ``bce`` (mean over masked foot-steps), ``event`` (the event term's mean over air
+    phases; NaN without :class:`AirPhases`), ``loss`` (``bce + event_weight * event``,
+    no prior), ``f1``, ``ece`` and ``fail`` (``jax_contact.metrics``' air-phase failure
+    rate: air phases with a false contact / air phases, events per log), and ``cells``:
+    per log, the numbers :func:`no_worse` compares (:data:`CELL_KEYS`).
+    """
+    from jax_contact.metrics import evaluate
+
+    out = score_logits(np.concatenate([np.asarray(x).reshape(-1) for x in logits]), pooled(datas))
+    ev_sum = n_ph = failed = n_air = 0.0
+    cells = []
+    for x, d in zip(logits, datas, strict=True):
+        if d.events is not None:
+            e, n = _event_sum(jnp.asarray(x), d.replace(meas=None), config.event_temperature)
+            ev_sum, n_ph = ev_sum + float(e), n_ph + float(n)
+        m = evaluate(sigmoid_np(x), np.asarray(d.truth, bool), np.asarray(d.mask, bool), dt=dt)
+        failed, n_air = failed + m.air_phases_with_failure, n_air + m.n_air_phases
+        cells.append(
+            dict(
+                f1=float(m.f1),
+                accuracy=float(m.accuracy),
+                ece=float(m.ece),
+                fail=float(m.air_phase_failure_rate),
+                touchdown_ms=abs(float(m.touchdown_delay_ms[0])),
+                liftoff_ms=abs(float(m.liftoff_delay_ms[0])),
+            )
+        )
+    out["event"] = ev_sum / n_ph if n_ph else float("nan")
+    out["loss"] = out["bce"] + (config.event_weight * out["event"] if n_ph else 0.0)
+    out["fail"] = failed / n_air if n_air else float("nan")
+    out["cells"] = cells
+    return out
+
+
+# ------------------------------------------------------------------------------ tuning
+
+
+@dataclasses.dataclass(frozen=True)
+class TuneResult:
+    """What :func:`tune` returns.
+
+    Attributes:
+      params: the parameters of the best validation epoch (validated).
+      theta: their unconstrained values.
+      history: one dict per epoch (epoch 0: before any update): ``epoch``, ``train_loss``
+        (mean over the epoch's windows of the loss, NaN for epoch 0), ``train_bce``,
+        ``val_bce``, ``val_event``, ``val_loss``, ``val_f1``, ``val_ece``, ``val_fail``
+        (:func:`score_logs`), ``grad_norm``, ``wall_s``; with ``config.feasible`` also
+        ``train_cells`` (the tuning logs' cells) and ``rejected``.
+      best_epoch: the epoch whose parameters are returned (lowest ``val_loss``, or
+        ``val_bce`` with ``config.select == "bce"``, or the lowest ``val_loss`` among the
+        epochs :func:`no_worse` than epoch 0 with ``"cells"``).
+      stopped_early: whether patience ran out before ``max_epochs``.
+      wall_s: total wall time, s (compilation included).
+    """
+
+    params: EstimatorParams
+    theta: dict
+    history: tuple[dict, ...]
+    best_epoch: int
+    stopped_early: bool
+    wall_s: float
+
+
+def tune(
+    base: EstimatorParams,
+    terrain,
+    train: Sequence[TuningData],
+    validation: TuningData | Sequence[TuningData],
+    space: ParamSpace,
+    config: TuneConfig = TuneConfig(),  # noqa: B008 (frozen)
+    *,
+    floor: dict | None = None,
+    progress: Callable[[dict], None] | None = None,
+) -> TuneResult:
+    """Fits the fields of ``space`` to the tuning logs (``jax_contact.tune``'s docstring).
+
+    Args:
+      base: the untuned parameters; their noise is the prior's centre.
+      terrain: the estimator's terrain model (e.g. ``jax_contact.flat(0.0, 0.05)``).
+      train: the tuning logs, each a :class:`TuningData` (NumPy leaves are fine: windows
+        are moved to the device one at a time).
+      validation: the log(s) that decide early stopping (other seeds); with several, the
+        BCE, F1 and ECE are pooled over all their steps.
+      space: what is tuned.
+      config: optimiser, windows, prior, seed.
+      floor: the smallest std of each floored noise field (``{field: array}``, e.g.
+        :func:`jax_contact.defaults.sensor_noise_floor`): every update is projected back
+        onto it (:func:`theta_lower_bounds`); None: no floor.
+      progress: called with each epoch's history dict as it completes.
+
+    Returns:
+      :class:`TuneResult`.
+
+    Raises:
+      ValueError: no tuning log, or parameters that fail validation.
+    """
+    if not train:
+        raise ValueError("tune needs at least one tuning log")
+    t_start = time.perf_counter()
+    key = jax.random.key(config.seed)
+    theta = init_theta(space, base)
+    theta0 = theta
+    lower = theta_lower_bounds(space, base, floor)
+    opt_state = _optimizer(config).init(theta)
+    val_key = jax.random.fold_in(key, 10**6)
+
+    vals = [validation] if isinstance(validation, TuningData) else list(validation)
+    if not vals:
+        raise ValueError("tune needs a validation log")
+
+    dt = float(base.dt)
+    early = int(round(config.event_early_s / dt))
+    train = [d if d.events is not None else with_air_phases(d, early) for d in train]
+    vals = [v if v.events is not None else with_air_phases(v, early) for v in vals]
+
+    def validate(th) -> dict:
+        params = to_params(space, base, th)
+        logits = [
+            predict_logits(params, terrain, v, key=jax.random.fold_in(val_key, i),
+                           chunk=config.chunk)
+            for i, v in enumerate(vals)
+        ]  # fmt: skip
+        return score_logs(logits, vals, dt=dt, config=config)
+
+    history = []
+    first = dict(epoch=0, train_loss=float("nan"), train_bce=float("nan"), grad_norm=float("nan"))
+    first.update({f"val_{k}": v for k, v in validate(theta).items()})
+    first["wall_s"] = time.perf_counter() - t_start
+    history.append(first)
+    if progress:
+        progress(first)
+    crit = "val_bce" if config.select == "bce" else "val_loss"
+    best, best_theta, best_epoch, bad = first[crit], theta, 0, 0
+
+    # The compiled training step depends on the loss and optimiser only: one program
+    # whatever the epochs, patience or selection rule.
+    step_config = dataclasses.replace(
+        config, select="loss", max_epochs=0, patience=1, min_delta=0.0, cell_tolerance=0.0
+    )
+
+    def admissible(row) -> bool:
+        return config.select != "cells" or no_worse(
+            row["val_cells"], first["val_cells"], config.cell_tolerance
+        )
+
+    def tuning_cells(th) -> list[dict]:
+        params = to_params(space, base, th)
+        logits = [
+            predict_logits(params, terrain, d, key=jax.random.fold_in(key, 3 * 10**6 + i),
+                           chunk=config.chunk)
+            for i, d in enumerate(train)
+        ]  # fmt: skip
+        return score_logs(logits, train, dt=dt, config=config)["cells"]
+
+    # The feasible-direction variant: the tuning logs' own cells at the defaults, and the
+    # last accepted point.
+    train_cells0 = None
+    if config.feasible:
+        train_cells0 = first["train_cells"] = tuning_cells(theta)
+    accepted = (theta, opt_state)
+
+    # The cells in the objective: the untuned parameters' surrogates on every training
+    # window (the same windows and belief carry as the epochs below).
+    references = [None] * len(train)
+    if config.constraint_weight > 0:
+        units = jnp.asarray(constraint_units(dt), jnp.float32)
+        params0 = to_params(space, base, theta0)
+        references = [
+            reference_cells(params0, terrain, d, key=jax.random.fold_in(key, 2 * 10**6 + i),
+                            chunk=config.chunk, temperature=config.event_temperature)
+            for i, d in enumerate(train)
+        ]  # fmt: skip
+
+    stopped = False
+    for epoch in range(1, config.max_epochs + 1):
+        losses, bces, norms, counts = [], [], [], []
+        for i, data in enumerate(train):
+            n_envs, n_legs = data.truth.shape[1:]
+            belief = init_belief_batch(to_params(space, base, theta), n_envs, n_legs)
+            for w, start in enumerate(range(0, data.n_steps, config.chunk)):
+                win = _window(data, start, config.chunk)
+                k = jax.random.fold_in(jax.random.fold_in(jax.random.fold_in(key, epoch), i), w)
+                ref = None
+                if references[i] is not None:
+                    ref = (jnp.asarray(references[i][w], jnp.float32), units)
+                theta, opt_state, belief, loss, bce, n, gn = _train_window(
+                    theta, opt_state, space, base, theta0, lower, terrain, belief, win,
+                    step_config, k, ref,
+                )  # fmt: skip
+                losses.append(float(loss))
+                bces.append(float(bce))
+                counts.append(float(n))
+                norms.append(float(gn))
+        w = np.asarray(counts) / max(sum(counts), 1.0)
+        row = dict(
+            epoch=epoch,
+            train_loss=float(np.mean(losses)),
+            train_bce=float(np.dot(w, bces)),
+            grad_norm=float(np.mean(norms)),
+        )
+        row.update({f"val_{k}": v for k, v in validate(theta).items()})
+        rejected = False
+        if config.feasible:
+            row["train_cells"] = tuning_cells(theta)
+            rejected = not no_worse(row["train_cells"], train_cells0, config.cell_tolerance)
+            row["rejected"] = rejected
+            if rejected:
+                theta, opt_state = accepted[0], _halve_learning_rate(accepted[1])
+            accepted = (theta, opt_state)
+        row["wall_s"] = time.perf_counter() - t_start
+        history.append(row)
+        if progress:
+            progress(row)
+        if not rejected and row[crit] < best - config.min_delta and admissible(row):
+            best, best_theta, best_epoch, bad = row[crit], theta, epoch, 0
+        else:
+            bad += 1
+            if bad >= config.patience:
+                stopped = epoch < config.max_epochs
+                break
+    params = jax.tree.map(np.asarray, to_params(space, base, best_theta))
+    params = jax.tree.map(jnp.asarray, params)
+    validate_params(params)
+    return TuneResult(
+        params=params,
+        theta={k: np.asarray(v) for k, v in best_theta.items()},
+        history=tuple(history),
+        best_epoch=best_epoch,
+        stopped_early=stopped,
+        wall_s=time.perf_counter() - t_start,
+    )
+
+
+def describe(space: ParamSpace, base: EstimatorParams, tuned: EstimatorParams) -> list[dict]:
+    """One row per tuned value: ``field``, ``group``, ``default``, ``tuned``, ``ratio``.
+
+    For the noise fields the value shown is the group's first coordinate (every coordinate
+    of a group is scaled by the same factor, ``ratio``).
+    """
+    rows = []
+    for f in space.fields:
+        if f in NOISE_FIELDS:
+            idx, names = space.groups_of(f)
+            a, b = np.asarray(getattr(base.noise, f)), np.asarray(getattr(tuned.noise, f))
+            for g, name in enumerate(names):
+                i = list(idx).index(g)
+                rows.append(
+                    dict(
+                        field=f,
+                        group=name,
+                        default=float(a[i]),
+                        tuned=float(b[i]),
+                        ratio=float(b[i] / a[i]),
+                    )
+                )
+        else:
+            a, b = float(getattr(base, f)), float(getattr(tuned, f))
+            rows.append(dict(field=f, group="", default=a, tuned=b, ratio=b / a))
+    return rows
