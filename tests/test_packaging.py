@@ -42,7 +42,7 @@ def test_wheel_has_one_top_level_package(wheel):
     names, _ = wheel
     top = {n.split("/")[0] for n in names}
     assert top == {"jax_contact", "jax_contact-0.1.0.dist-info"}, top
-    for module in ("envs/simulate.py", "train/cli.py", "benchmarks/suite.py"):
+    for module in ("envs/simulate.py", "train/cli.py", "benchmarks/suite.py", "tune/fit.py"):
         assert f"jax_contact/{module}" in names
     # the data files the code opens next to itself
     assert "jax_contact/envs/assets/planar_leg.xml" in names
