@@ -704,11 +704,13 @@ def run(args: argparse.Namespace) -> int:
         file=sys.stderr,
     )
     if result.best_epoch == 0:
-        why = (
-            "no epoch was no worse than the defaults in every validation cell"
-            if config.select == "cells"
-            else "no epoch improved the validation loss"
-        )
+        tried = result.history[1:]
+        if config.feasible and tried and all(row["rejected"] for row in tried):
+            why = "every epoch made a tuning log's cell worse than the defaults' (--feasible)"
+        elif config.select == "cells":
+            why = "no epoch was no worse than the defaults in every validation cell"
+        else:
+            why = "no epoch improved the validation loss"
         print(
             f"{why}: the file holds the untuned defaults"
             + (" (and the calibration map)" if args.calibrate else ""),

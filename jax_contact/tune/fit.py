@@ -272,14 +272,18 @@ def tune(
     train = [d if d.events is not None else with_air_phases(d, early) for d in train]
     vals = [v if v.events is not None else with_air_phases(v, early) for v in vals]
 
-    def validate(th) -> dict:
+    def scores(th, logs, log_key) -> dict:
+        # score_logs of the parameters th on whole logs (validation or tuning logs).
         params = to_params(space, base, th)
         logits = [
-            predict_logits(params, terrain, v, key=jax.random.fold_in(val_key, i),
+            predict_logits(params, terrain, d, key=jax.random.fold_in(log_key, i),
                            chunk=config.chunk)
-            for i, v in enumerate(vals)
+            for i, d in enumerate(logs)
         ]  # fmt: skip
-        return score_logs(logits, vals, dt=dt, config=config)
+        return score_logs(logits, logs, dt=dt, config=config)
+
+    def validate(th) -> dict:
+        return scores(th, vals, val_key)
 
     history = []
     first = dict(epoch=0, train_loss=float("nan"), train_bce=float("nan"), grad_norm=float("nan"))
@@ -303,13 +307,7 @@ def tune(
         )
 
     def tuning_cells(th) -> list[dict]:
-        params = to_params(space, base, th)
-        logits = [
-            predict_logits(params, terrain, d, key=jax.random.fold_in(key, 3 * 10**6 + i),
-                           chunk=config.chunk)
-            for i, d in enumerate(train)
-        ]  # fmt: skip
-        return score_logs(logits, train, dt=dt, config=config)["cells"]
+        return scores(th, train, jax.random.fold_in(key, 3 * 10**6))["cells"]
 
     # The feasible-direction variant: the tuning logs' own cells at the defaults, and the
     # last accepted point.
