@@ -25,7 +25,7 @@ from jax_contact.measurement import (
     measurement_terms,
     robot_leg_blocks,
 )
-from jax_contact.params import EstimatorParams
+from jax_contact.params import TERMS, EstimatorParams, Switches, switches_of
 from jax_contact.transition import log_prior_transition, log_transition_matrix
 from jax_contact.types import (
     Diagnostics,
@@ -98,8 +98,13 @@ def step(
       the transition-only prediction, the next transition is the gait prior, the foothold
       is kept, and ``diagnostics.valid`` is False.
     """
+    return _step(params, terrain, belief, meas, key)
+
+
+def _step(params, terrain, belief, meas, key, switches=None):
+    """:func:`step`, with the switches of :func:`_update`."""
     valid = measurement_is_finite(meas)
-    return _update(params, terrain, belief, leg_blocks(params, meas), valid, key)
+    return _update(params, terrain, belief, leg_blocks(params, meas), valid, key, switches)
 
 
 def _update(
@@ -109,8 +114,15 @@ def _update(
     leg: LegBlocks,
     valid: jax.Array,
     key: jax.Array,
+    switches: Switches | None = None,
 ) -> tuple[LegBelief, Diagnostics]:
-    """:func:`step` from the foot's split measurement and whether all of it was finite."""
+    """:func:`step` from the foot's split measurement and whether all of it was finite.
+
+    ``switches`` (None: :func:`jax_contact.params.switches_of` ``params``, constants) turn
+    the terms, the measured transitions, the one-sided kinematics term and the still
+    foothold on or off.
+    """
+    sw = switches_of(params) if switches is None else switches
     leg = _sanitize(leg, valid)
     # The kinematic terms, the transitions and the foothold read the newest state.
     kin = end_of_interval(params, leg)
@@ -122,24 +134,23 @@ def _update(
     prior_logit = log_prior[0] - log_prior[1]
 
     # eq. 3: the product of the terms is the sum of their log-likelihood ratios.
-    terms = measurement_terms(params, leg, tq, kin)
-    llr = sum(getattr(terms, name) for name in params.terms)
+    terms = measurement_terms(params, leg, tq, kin, sw.kinematics_neutral_below)
+    llr = sum(jnp.where(sw.terms[i], getattr(terms, name), 0.0) for i, name in enumerate(TERMS))
     # A term that is not finite on finite inputs (a numerical failure, e.g. a singular
     # leg) is no evidence: the belief keeps its prior and the step is reported invalid,
     # instead of a NaN that every later step of this foot would inherit.
     valid = valid & jnp.isfinite(llr)
     logit = jnp.where(valid, prior_logit + llr, prior_logit)
 
-    log_t = log_prior_transition(params)
-    if params.transition_model:
-        log_t_meas = log_transition_matrix(params, kin, tq, key=key)
-        log_t = jnp.where(valid & jnp.all(~jnp.isnan(log_t_meas)), log_t_meas, log_t)
+    # Without the transition model (an ablation) the gait prior alone.
+    log_t_meas = log_transition_matrix(params, kin, tq, key=key)
+    use_meas = sw.transition_model & valid & jnp.all(~jnp.isnan(log_t_meas))
+    log_t = jnp.where(use_meas, log_t_meas, log_prior_transition(params))
 
     # The foothold memory stores only confident, still stance: a false contact in the air
     # would otherwise write the swing height as terrain.
     on_ground = valid & (logit > logit_of(params.foothold_confidence))
-    if params.foothold_still:
-        on_ground = on_ground & (terms.diff_kinematics > 0.0)
+    on_ground = on_ground & (~sw.foothold_still | (terms.diff_kinematics > 0.0))
     sole = kin.p_f - kin.foot_radius * tq.normal
     new_belief = LegBelief(
         logit=logit,
@@ -165,12 +176,12 @@ def _update(
     return new_belief, diag
 
 
-def _step_legs(params, terrain, belief, meas: RobotMeasurement, keys):
+def _step_legs(params, terrain, belief, meas: RobotMeasurement, keys, switches=None):
     """:func:`step` of each foot of one robot: the legs' blocks sliced with constant
     indices, then one program vmapped over the legs."""
 
     def one(b, leg, valid, k):
-        return _update(params, terrain, b, leg, valid, k)
+        return _update(params, terrain, b, leg, valid, k, switches)
 
     legs = robot_leg_blocks(params, meas)
     return jax.vmap(one)(belief, legs, feet_are_finite(meas), keys)
@@ -206,6 +217,7 @@ def step_batch(
     meas: LegMeasurement | RobotMeasurement,
     *,
     key: jax.Array,
+    switches: Switches | None = None,
 ) -> tuple[LegBelief, Diagnostics]:
     """:func:`step` over a batch of (n_envs, n_legs) feet sharing params and terrain.
 
@@ -213,17 +225,22 @@ def step_batch(
     is either per foot (a :class:`LegMeasurement`, leaves with leading axes (n_envs,
     n_legs)) or per robot (a :class:`RobotMeasurement`, leaves with leading axis
     (n_envs,)); both give the same result, the second reads less. Each foot gets its own
-    key, split from ``key``.
+    key, split from ``key``. ``switches`` (a :class:`jax_contact.params.Switches`, for
+    ``params`` of :func:`jax_contact.params.without_switches`) gives the four static
+    switches as data, so variants differing only in them ``vmap`` as one program; None
+    reads them from ``params``.
     """
     n_envs, n_legs = belief.logit.shape
     keys = jax.random.split(key, n_envs * n_legs)
     keys = keys.reshape((n_envs, n_legs) + keys.shape[1:])
 
     if isinstance(meas, RobotMeasurement):
-        return jax.vmap(lambda b, m, k: _step_legs(params, terrain, b, m, k))(belief, meas, keys)
+        return jax.vmap(lambda b, m, k: _step_legs(params, terrain, b, m, k, switches))(
+            belief, meas, keys
+        )
 
     def one(b, m, k):
-        return step(params, terrain, b, m, key=k)
+        return _step(params, terrain, b, m, k, switches)
 
     return jax.vmap(jax.vmap(one))(belief, meas, keys)
 

@@ -300,23 +300,31 @@ def sole_gap(
 
 @jax.named_call
 def kinematics_llr(
-    params: EstimatorParams, meas: LegMeasurement | LegBlocks, terrain: TerrainQuery
+    params: EstimatorParams,
+    meas: LegMeasurement | LegBlocks,
+    terrain: TerrainQuery,
+    neutral_below: jax.Array | None = None,
 ) -> jax.Array:
     """Kinematics term (eq. 10): ``L(C) = P(phi <= 0)``, ``L(A) = 1 - P(phi <= 0)``.
 
     ``phi ~ N(gap, sigma_pf^2 + sigma_pi^2)``. Neutral on the ground, evidence for air when
     the foot is high above the terrain.
 
+    Args:
+      neutral_below: () bool, ``params.kinematics_neutral_below`` as data (None: that
+        field; see :class:`jax_contact.params.Switches`).
+
     Returns:
       () capped log-likelihood ratio.
     """
+    if neutral_below is None:
+        neutral_below = params.kinematics_neutral_below
     gap, sigma_pf = sole_gap(params, meas, terrain)
     z = gap / jnp.sqrt(sigma_pf**2 + terrain.sigma**2)
     llr = log_ndtr(-z) - log_ndtr(z)
-    if params.kinematics_neutral_below:
-        # Neutral on and below the terrain: a sole estimated below the plane (base height
-        # drift, terrain error) says nothing about contact, only a high foot says "air".
-        llr = jnp.minimum(llr, 0.0)
+    # Neutral on and below the terrain: a sole estimated below the plane (base height
+    # drift, terrain error) says nothing about contact, only a high foot says "air".
+    llr = jnp.where(neutral_below, jnp.minimum(llr, 0.0), llr)
     return cap_llr(llr, params.cap_kinematics)
 
 
@@ -325,12 +333,14 @@ def measurement_terms(
     meas: LegMeasurement | LegBlocks,
     terrain: TerrainQuery,
     kin: LegBlocks | None = None,
+    neutral_below: jax.Array | None = None,
 ) -> MeasurementTerms:
     """All three capped terms of eq. 3 for one foot.
 
     Args:
       kin: the blocks the kinematic terms read, :func:`end_of_interval` of ``meas`` when
         None.
+      neutral_below: see :func:`kinematics_llr`.
     """
     meas = leg_blocks(params, meas)
     if kin is None:
@@ -339,6 +349,6 @@ def measurement_terms(
     return MeasurementTerms(
         dynamics=dyn,
         diff_kinematics=diff_kinematics_llr(params, kin, terrain.normal),
-        kinematics=kinematics_llr(params, kin, terrain),
+        kinematics=kinematics_llr(params, kin, terrain, neutral_below),
         force=force,
     )

@@ -170,6 +170,51 @@ class EstimatorParams:
         return int(np.shape(self.noise.sigma_qd)[0])
 
 
+@struct.dataclass
+class Switches:
+    """The four structural switches of :class:`EstimatorParams` as data.
+
+    ``terms``, ``transition_model``, ``kinematics_neutral_below`` and ``foothold_still``
+    are static fields: each value is its own compiled program, and the branch it turns off
+    is not computed. The filter reads them through this class (:func:`switches_of`: NumPy
+    constants, which XLA folds, so the default program is unchanged); a caller that runs
+    several variants differing only in these switches passes them as arrays instead
+    (``step_batch(..., switches=)``) and ``vmap``s one program over the variants
+    (``train/evaluate.replay``: the reproduction's 15 ablation variants as one program,
+    not seven).
+
+    Attributes:
+      terms: (3,) bool, whether each term of :data:`TERMS` (in that order) enters eq. 3.
+      transition_model: () bool, ``EstimatorParams.transition_model``.
+      kinematics_neutral_below: () bool, ``EstimatorParams.kinematics_neutral_below``.
+      foothold_still: () bool, ``EstimatorParams.foothold_still``.
+    """
+
+    terms: jnp.ndarray
+    transition_model: jnp.ndarray
+    kinematics_neutral_below: jnp.ndarray
+    foothold_still: jnp.ndarray
+
+
+def switches_of(params: EstimatorParams) -> Switches:
+    """``params``' static switches as a :class:`Switches` of NumPy bools (constants)."""
+    return Switches(
+        terms=np.array([t in params.terms for t in TERMS]),
+        transition_model=np.bool_(params.transition_model),
+        kinematics_neutral_below=np.bool_(params.kinematics_neutral_below),
+        foothold_still=np.bool_(params.foothold_still),
+    )
+
+
+def without_switches(params: EstimatorParams) -> EstimatorParams:
+    """``params`` with the four switches at their defaults (every term, the transition
+    model, the one-sided kinematics term, the still foothold): with :func:`switches_of` of
+    the original passed as data, the same filter (``step_batch(..., switches=)``)."""
+    return params.replace(
+        terms=TERMS, transition_model=True, kinematics_neutral_below=True, foothold_still=True
+    )
+
+
 def _per_dof(name: str, value, nv: int) -> jnp.ndarray:
     arr = np.asarray(value, dtype=np.float64)
     if arr.ndim == 0:

@@ -183,3 +183,66 @@ def test_validate_robot_measurement_names_the_problem(change, match, np_rng):
     robot = _robot(np_rng).replace(**change)
     with pytest.raises(ValueError, match=match):
         jc.validate_robot_measurement(robot, NV)
+
+
+# The structural switches flipped, as the reproduction's ablation flips them one at a time;
+# two variants flip all four between them (each compiled variant costs ~10 s here).
+SWITCHED = {
+    "default": {},
+    "dynamics_only_two_sided": dict(terms=("dynamics",), kinematics_neutral_below=False),
+    "kinematic_terms_prior_any_foothold": dict(
+        terms=("diff_kinematics", "kinematics"), transition_model=False, foothold_still=False
+    ),
+}
+
+
+def test_switches_as_data_equal_the_static_fields():
+    """The variants above run as one program, vmapped over their stacked parameters (all
+    of ``without_switches``'s structure) with the switches as traced data, as
+    ``train/evaluate.replay`` runs them; each equals its own program with the static
+    fields (the one the float64 oracle checks): beliefs (the foothold written included)
+    and diagnostics, from the per-foot and the per-robot layout."""
+    from jax_contact.params import switches_of, without_switches
+
+    # This draw has a foot that stays above the foothold's confidence while the
+    # differential-kinematics term says it moves (env 0, leg 1), so the foothold switch
+    # changes what is written; one sole below the plane, where the one-sided kinematics
+    # term is neutral and the two-sided one is not.
+    robot = _robot(np.random.default_rng(0))
+    robot = robot.replace(p_f=robot.p_f.at[0, 0, 2].set(-0.05))
+    # Two quadrature nodes: the switches do not touch the rule, and the programs compile faster.
+    base = PARAMS["quadrature"].replace(n_quad=2)
+    variants = {n: base.replace(**kw) for n, kw in SWITCHED.items()}
+    # Confident contact to start with, so that the foothold switch decides what is written.
+    belief = jc.init_belief_batch(variants["default"], N_ENVS, N_LEGS)
+    belief = belief.replace(logit=jnp.full((N_ENVS, N_LEGS), 6.0))
+    key = jax.random.key(3)
+
+    def one_step(params, meas, switches=None):
+        return jc.step_batch(params, TERRAIN, belief, meas, key=key, switches=switches)
+
+    names = list(variants)
+    stacked = jax.tree.map(lambda *x: jnp.stack(x), *(without_switches(variants[n]) for n in names))
+    switches = jax.tree.map(lambda *x: jnp.stack(x), *(switches_of(variants[n]) for n in names))
+    assert jax.tree.structure(stacked) == jax.tree.structure(without_switches(variants["default"]))
+    as_data = jax.jit(jax.vmap(one_step, in_axes=(0, None, 0)))
+    got = {
+        "legs": as_data(stacked, robot.legs(), switches),
+        "robot": as_data(stacked, robot, switches),
+    }
+    for i, name in enumerate(names):
+        want = jax.jit(one_step)(variants[name], robot.legs())
+        for layout, out in got.items():
+            mine = jax.tree.map(lambda x, i=i: x[i], out)
+            _close(mine[0], want[0], f"{name} belief ({layout})")
+            _close(mine[1], want[1], f"{name} diagnostics ({layout})")
+    # Each switch changes something here, so the comparison is not vacuous: the terms and
+    # the transitions the belief, the two-sided kinematics term the sole below the plane,
+    # the foothold switch what is written.
+    belief_out, diag = got["legs"]
+    logit = np.asarray(belief_out.logit)
+    assert not np.allclose(logit[1], logit[0]) and not np.allclose(logit[2], logit[0])
+    p_kin = np.asarray(diag.p_kinematics)
+    assert p_kin[1, 0, 0] > 0.6 and abs(p_kin[0, 0, 0] - 0.5) < 1e-6, p_kin[:, 0, 0]
+    foothold = np.asarray(belief_out.foothold_valid)
+    assert (foothold[2] != foothold[0]).any(), "the foothold switch wrote nothing else"

@@ -49,6 +49,7 @@ from jax_contact.baselines import (
     kinematic_detect,
 )
 from jax_contact.metrics import evaluate
+from jax_contact.params import switches_of, without_switches
 
 DIAGNOSTIC_FIELDS = (
     "p_contact",
@@ -165,14 +166,21 @@ def _groups(tree: Mapping) -> list[list[str]]:
     Variants whose parameters differ only in values (every field a traced array, the static
     fields equal) share one group, and :func:`_replay_chunk` runs a group as one ``vmap``
     over its stacked parameters: one copy of the estimator in the compiled program per
-    structure instead of one per variant (the reproduction's 13 ablation variants are 7
-    structures, its 9 GM grid points one), which cuts the replay's compile time about in
-    half. Results equal a loop over the variants up to float rounding (same keys).
+    structure instead of one per variant. Estimators are grouped with their four
+    structural switches taken out as data (:func:`jax_contact.params.without_switches`,
+    ``Switches``), so the reproduction's 15 ablation variants are one structure (they were
+    seven: the Go1 replay's cold compile 90 -> 46 s), its GM grid another. Results equal a
+    loop over the variants up to float rounding (same keys).
     """
     by_def: dict = {}
     for name, params in tree.items():
         by_def.setdefault(jax.tree.structure(params), []).append(name)
     return list(by_def.values())
+
+
+def _canonical(estimators: Mapping) -> dict:
+    """Each estimator's parameters with its switches at their defaults (see _groups)."""
+    return {n: without_switches(p) for n, p in estimators.items()}
 
 
 def _stack(tree: Mapping, names: list[str]):
@@ -203,7 +211,7 @@ def _replay_init(
     gm_states = {n: jax.vmap(jax.vmap(gm_init))(meas0) for n in gms}
     # Carried stacked by group (see _groups), as _replay_chunk's vmaps take them.
     return (
-        [_stack(beliefs, g) for g in _groups(estimators)],
+        [_stack(beliefs, g) for g in _groups(_canonical(estimators))],
         [_stack(gm_states, g) for g in _groups(gms)],
     )
 
@@ -225,9 +233,11 @@ def _replay_chunk(
     separate_baselines,
 ):
     normal = jnp.array([0.0, 0.0, 1.0])
-    est_groups, gm_groups = _groups(estimators), _groups(gms)
+    canonical = _canonical(estimators)
+    switches = {n: switches_of(p) for n, p in estimators.items()}
+    est_groups, gm_groups = _groups(canonical), _groups(gms)
     # Each group's parameters stacked along a leading variant axis (traced once per chunk).
-    est_stacked = [_stack(estimators, g) for g in est_groups]
+    est_stacked = [(_stack(canonical, g), _stack(switches, g)) for g in est_groups]
     gm_stacked = [_stack(gms, g) for g in gm_groups]
     order = list(estimators)  # the keys are split in this order, as a loop would
 
@@ -243,11 +253,11 @@ def _replay_chunk(
             key, subs[name] = jax.random.split(key)
         out = {}
         new_beliefs = []
-        for names, params, b_in in zip(est_groups, est_stacked, beliefs, strict=True):
+        for names, (params, sw), b_in in zip(est_groups, est_stacked, beliefs, strict=True):
             k_in = jnp.stack([subs[n] for n in names])
-            b, diag = jax.vmap(lambda p, bl, k: jc.step_batch(p, terrain, bl, meas, key=k))(
-                params, b_in, k_in
-            )
+            b, diag = jax.vmap(
+                lambda p, s, bl, k: jc.step_batch(p, terrain, bl, meas, key=k, switches=s)
+            )(params, sw, b_in, k_in)
             new_beliefs.append(b)
             for i, name in enumerate(names):
                 out[name] = diag.p_contact[i]
