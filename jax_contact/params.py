@@ -125,7 +125,9 @@ class EstimatorParams:
         only gives evidence for air"); False is the two-sided ratio
         ``P(phi <= 0) / P(phi > 0)``, which reads a sole estimated below the plane (base
         height drift) as contact evidence.
-      foothold_still: static; see ``foothold_confidence``.
+      foothold_still: static; see ``foothold_confidence``. The filter reads these four
+        switches (``terms`` to ``foothold_still``) through :class:`Switches`, which can
+        also carry them as data.
       kinematics_lead: () in [0, 1], the fraction of the measured interval by which the
         state that the differential-kinematics and kinematics terms, the transitions and
         the foothold memory read is advanced: 1 reads the foot at the *end* of the
