@@ -433,3 +433,35 @@ def test_a_log_without_ground_truth_gives_p_contact(tmp_path, capsys):
     p = np.array(got["p_contact"][foot], dtype=float)
     assert p.shape == (12, 1)
     assert np.all((p[np.isfinite(p)] >= 0) & (p[np.isfinite(p)] <= 1))
+
+
+def test_sensor_limit_variants_each_remove_only_what_they_name():
+    from jax_contact.benchmarks import sensor_limits
+    from jax_contact.envs.sensors import SensorParams
+
+    v = sensor_limits.sensor_variants(18, 0.0025)
+    base = v["anymal_like"]
+    fields = [f.name for f in dataclasses.fields(SensorParams)]
+
+    def changed(p):
+        return {
+            f
+            for f in fields
+            if not np.array_equal(np.asarray(getattr(p, f)), np.asarray(getattr(base, f)))
+        }
+
+    assert changed(v["no_latency"]) == {"latency"} and v["no_latency"].latency == 0
+    assert changed(v["no_outliers"]) == {"outlier_prob"}
+    assert changed(v["no_base_drift"]) == {"bias_rw_q", "bias_rw_qd"}
+    assert changed(v["joint_qd_half"]) == {"sigma_qd"}
+    # Halved on the 12 joints (0.3 -> 0.15 rad/s, sensors.py's anymal_like), base untouched.
+    np.testing.assert_allclose(np.asarray(v["joint_qd_half"].sigma_qd)[6:], 0.15, rtol=1e-6)
+    np.testing.assert_array_equal(v["joint_qd_half"].sigma_qd[:6], base.sigma_qd[:6])
+    # noise_free keeps the one-step latency and nothing else of anymal_like; ideal is on time.
+    assert v["noise_free"].latency == base.latency == 1 and v["ideal"].latency == 0
+    for name in ("noise_free", "ideal"):
+        for f in ("sigma_q", "sigma_qd", "sigma_tau", "sigma_acc", "bias_rw_q", "bias_rw_qd"):
+            assert not np.any(np.asarray(getattr(v[name], f))), (name, f)
+        assert float(v[name].outlier_prob) == 0.0
+    with pytest.raises(SystemExit):
+        sensor_limits.main(["--envs", "0"])
