@@ -1,5 +1,5 @@
-"""Tests of envs/gaits.py: kinematics against MuJoCo, actuator inversion, phases, and
-closed-loop walking.
+"""Tests of envs/gaits.py, gait_settings.py and gait_robot.py: kinematics against MuJoCo,
+actuator inversion, phases, and closed-loop walking.
 
 The closed-loop tests step C MuJoCo with the jitted JAX controller: the controller is what
 is under test, and a jitted MJX rollout per gait would cost a minute of compilation each on
