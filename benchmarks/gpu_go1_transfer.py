@@ -265,7 +265,7 @@ def _curve(run_dir: Path) -> dict:
 
 def _tar_runs(runs: Path, path: Path) -> None:
     """Each run's run.json, CSVs and latest checkpoint, as one file."""
-    from jax_contact.train import ppo
+    from jax_contact.train import policy_eval
 
     with tarfile.open(path, "w:gz") as tar:
         for run_json in sorted(runs.glob("seed*/*/run.json")):
@@ -274,7 +274,7 @@ def _tar_runs(runs: Path, path: Path) -> None:
                 if (run / name).is_file():
                     tar.add(run / name, arcname=str((run / name).relative_to(runs)))
             try:
-                ckpt = ppo.latest_checkpoint(run)
+                ckpt = policy_eval.latest_checkpoint(run)
             except FileNotFoundError:
                 continue
             tar.add(ckpt, arcname=str(ckpt.relative_to(runs)))

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from jax_contact.envs import hop_task as H
-from jax_contact.train import ppo, tasks, transfer
+from jax_contact.train import policy_eval, ppo, tasks, transfer
 
 N = 2
 
@@ -177,7 +177,7 @@ def test_array_observation_checkpoint_round_trip(tmp_path):
     obs_spec = specs.Array((7,), jnp.dtype("float32"))
     conf = ppo_checkpoint.network_config(obs_spec, 2, True, factory)
     ppo_checkpoint.save(str(tmp_path / "checkpoints"), 10, params, conf)
-    policy, sizes = ppo.load_policy(ppo.latest_checkpoint(tmp_path))
+    policy, sizes = policy_eval.load_policy(policy_eval.latest_checkpoint(tmp_path))
     assert sizes == {"state": (7,)}
     obs = jnp.linspace(-1.0, 1.0, 14).reshape(2, 7)
     act, _ = policy(obs, jax.random.PRNGKey(0))

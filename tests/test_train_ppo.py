@@ -18,7 +18,7 @@ from brax.training.acme import running_statistics
 from brax.training.agents.ppo import checkpoint as ppo_checkpoint
 from brax.training.agents.ppo import networks as ppo_networks
 
-from jax_contact.train import figures, ppo
+from jax_contact.train import figures, policy_eval, ppo
 
 TINY = ppo.PPOConfig(
     num_timesteps=160,
@@ -107,9 +107,9 @@ def saved(tmp_path_factory):
 
 def test_checkpoint_round_trip_gives_the_same_policy(saved):
     run, net, params = saved
-    ckpt = ppo.latest_checkpoint(run)
+    ckpt = policy_eval.latest_checkpoint(run)
     assert ckpt.name == f"{160:012d}"
-    policy, sizes = ppo.load_policy(ckpt)
+    policy, sizes = policy_eval.load_policy(ckpt)
     assert sizes == SIZES
     ref = ppo_networks.make_inference_fn(net)(params, deterministic=True)
     obs = {
@@ -120,7 +120,7 @@ def test_checkpoint_round_trip_gives_the_same_policy(saved):
     want = ref(obs, jax.random.PRNGKey(1))[0]
     assert got.shape == (3, 12)
     np.testing.assert_allclose(got, want, rtol=1e-6, atol=1e-6)
-    # Why ppo.load_policy exists: Brax 0.14.2 cannot read back the None initialiser its
+    # Why policy_eval.load_policy exists: Brax 0.14.2 cannot read back the None initialiser its
     # own save wrote. If this starts passing, Brax's loader can replace ours.
     with pytest.raises(KeyError):
         ppo_checkpoint.load_config(ckpt)
@@ -148,7 +148,7 @@ def test_zero_initialised_mean_round_trips_and_holds_the_default_pose(tmp_path):
     assert kw["mean_kernel_init_fn"] == "constant"
     assert kw["mean_kernel_init_kwargs"] == {"value": 0.0}
     assert (kw["init_noise_std"], kw["distribution_type"]) == (0.5, "normal")
-    policy, _ = ppo.load_policy(tmp_path / f"{0:012d}")
+    policy, _ = policy_eval.load_policy(tmp_path / f"{0:012d}")
     obs = {k: 3.0 * jax.random.normal(jax.random.PRNGKey(5), (4,) + v) for k, v in SIZES.items()}
     np.testing.assert_array_equal(policy(obs, jax.random.PRNGKey(0))[0], np.zeros((4, 12)))
 
@@ -156,12 +156,12 @@ def test_zero_initialised_mean_round_trips_and_holds_the_default_pose(tmp_path):
 def test_evaluate_refuses_an_observation_the_network_cannot_take(saved, tmp_path):
     run, _, _ = saved
     with pytest.raises(ValueError, match=r"shape \(48,\); the checkpoint .* takes \(52,\)"):
-        ppo.evaluate_policy(run, observe="none", n_envs=2, episode_length=5)
+        policy_eval.evaluate_policy(run, observe="none", n_envs=2, episode_length=5)
     with pytest.raises(FileNotFoundError, match="no run.json"):
-        ppo.evaluate_policy(tmp_path)
+        policy_eval.evaluate_policy(tmp_path)
     (tmp_path / "run.json").write_text(run.joinpath("run.json").read_text())
     with pytest.raises(FileNotFoundError, match="no checkpoint"):
-        ppo.evaluate_policy(tmp_path)
+        policy_eval.evaluate_policy(tmp_path)
 
 
 def test_train_refuses_an_existing_run_folder(tmp_path):

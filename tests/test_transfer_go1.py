@@ -25,7 +25,7 @@ import pytest
 
 from jax_contact.benchmarks import gpu_go1_transfer as G
 from jax_contact.envs import contact_params, sensors
-from jax_contact.train import _compat, cli, ppo, transfer
+from jax_contact.train import _compat, cli, policy_eval, ppo, transfer
 
 ROOT = Path(__file__).resolve().parents[1]
 _ENTRY = Path(sys.executable).parent / "jax-contact"
@@ -77,7 +77,7 @@ def test_extra_latency_is_env_steps_in_sensor_steps():
 
 def test_go1_columns_build_their_sensors():
     """Each Go1 column's env (nothing compiled): observation slot, sensor preset, delay."""
-    envs = {c: ppo.column_env(c, ppo.SMALL) for c in transfer.COLUMNS}
+    envs = {c: policy_eval.column_env(c, ppo.SMALL) for c in transfer.COLUMNS}
     est = envs["estimate"].contact_core.sensor
     assert float(envs["estimate"].dt) == pytest.approx(0.02)
     assert float(est.dt) == pytest.approx(0.004)  # the physics rate
@@ -117,17 +117,17 @@ def test_evaluate_policy_dispatches_hop_runs_with_the_column(tmp_path, monkeypat
     run = _run_folder(tmp_path / "truth", "truth", "hop")
     seen = {}
     monkeypatch.setattr(transfer, "evaluate_run", lambda d, **kw: seen.update(kw) or {"ok": 1})
-    assert ppo.evaluate_policy(run, column="estimate_harsh", n_envs=3) == {"ok": 1}
+    assert policy_eval.evaluate_policy(run, column="estimate_harsh", n_envs=3) == {"ok": 1}
     assert seen["column"] == "estimate_harsh" and seen["observe"] is None
     assert seen["n_envs"] == 3
     with pytest.raises(ValueError, match="observe or column, not both"):
-        ppo.evaluate_policy(run, observe="truth", column="estimate")
+        policy_eval.evaluate_policy(run, observe="truth", column="estimate")
     with pytest.raises(ValueError, match="observe must be one of"):
-        ppo.evaluate_policy(run, observe="estimate_harsh")
+        policy_eval.evaluate_policy(run, observe="estimate_harsh")
     # No task in run.json is a Go1 run: it needs a checkpoint, not the hop evaluation.
     go1 = _run_folder(tmp_path / "old" / "truth", "truth", None)
     with pytest.raises(FileNotFoundError, match="no checkpoint"):
-        ppo.evaluate_policy(go1, column="estimate_lat1")
+        policy_eval.evaluate_policy(go1, column="estimate_lat1")
 
 
 class _FakeCells:
@@ -258,7 +258,7 @@ def test_policy_eval_passes_the_column(tmp_path, monkeypatch, capsys):
             "contact": dict(contact, brier=0.1),
         }
 
-    monkeypatch.setattr(ppo, "evaluate_policy", fake)
+    monkeypatch.setattr(policy_eval, "evaluate_policy", fake)
     monkeypatch.setattr(cli, "enable_compilation_cache", lambda: None)
     assert cli.main(["policy-eval", str(run), "--column", "estimate_lat2", "--envs", "2"]) == 0
     assert seen == {

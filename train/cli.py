@@ -235,12 +235,12 @@ def _cmd_train(args: argparse.Namespace) -> int:
 
 def _cmd_policy_eval(args: argparse.Namespace) -> int:
     from jax_contact.io import write_json_atomic
-    from jax_contact.train import ppo
+    from jax_contact.train import policy_eval
 
-    res = ppo.evaluate_policy(
+    res = policy_eval.evaluate_policy(
         args.run, observe=args.observe, column=args.column, n_envs=args.envs, seed=args.seed
     )
-    print(ppo.format_evaluation([res]))
+    print(policy_eval.format_evaluation([res]))
     c = res["contact"]
     print(
         f"contact estimator: touch-down delay {c['touchdown_delay_ms'][0]:.1f} +- "

@@ -25,7 +25,8 @@ A run folder ``<out>/<variant>/`` holds ``run.json`` (variant and configuration)
 ``progress.csv`` (one row per evaluation, rewritten atomically after each),
 ``training.csv`` (Brax's training-episode means), ``reward.png`` and
 ``checkpoints/<step>/`` (Brax's orbax checkpoints with their network configuration, loaded
-by :func:`load_policy`; Brax 0.14.2's own loader cannot read them, see there).
+by :func:`jax_contact.train.policy_eval.load_policy`; Brax 0.14.2's own loader cannot read
+them, see there).
 """
 
 from __future__ import annotations
@@ -34,7 +35,6 @@ import csv
 import dataclasses
 import functools
 import io
-import json
 import shutil
 import sys
 import time
@@ -42,7 +42,6 @@ from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 from mujoco_playground._src import wrapper as pg_wrapper
 
@@ -368,69 +367,6 @@ def read_progress(run_dir: str | Path, name: str = "progress.csv") -> list[dict]
         return [{k: float(v) for k, v in row.items()} for row in csv.DictReader(f)]
 
 
-def load_policy(ckpt: str | Path, *, deterministic: bool = True, parts: bool = False):
-    """A checkpoint's policy ``(obs, key) -> (action, extras)`` and its observation shapes.
-
-    Brax 0.14.2's ``ppo.checkpoint.load_policy`` cannot read the configuration its own
-    ``save`` writes when a kernel-initialiser argument is None (``KeyError: None``), which
-    is the default for ``mean_kernel_init_fn``; this reads the same files (the network
-    configuration JSON and the orbax parameters) and builds the same network.
-
-    With ``parts``, ``(make_policy, params, sizes)`` instead: Brax's
-    ``make_inference_fn(network)`` and the parameters apart, so that one compiled rollout
-    can take the parameters of several checkpoints as arguments (:mod:`jax_contact.train.transfer`).
-
-    Returns:
-      (policy, {observation key: shape}).
-    """
-    from brax.training import networks as brax_networks
-    from brax.training.acme import running_statistics
-    from brax.training.agents.ppo import checkpoint as ppo_checkpoint
-    from brax.training.agents.ppo import networks as ppo_networks
-
-    ckpt = Path(ckpt).resolve()  # orbax refuses relative paths
-    path = ckpt / "ppo_network_config.json"
-    if not path.is_file():
-        raise FileNotFoundError(f"no ppo_network_config.json in {ckpt}: not a Brax PPO checkpoint")
-    cfg = json.loads(path.read_text())
-    kwargs = {k: v for k, v in cfg["network_factory_kwargs"].items() if v is not None}
-    if "activation" in kwargs:
-        kwargs["activation"] = brax_networks.ACTIVATION[kwargs["activation"]]
-    for k, v in kwargs.items():
-        if k.endswith("kernel_init_fn"):
-            kwargs[k] = brax_networks.KERNEL_INITIALIZER[v]
-    raw = cfg["observation_size"]
-    if isinstance(raw, dict) and "shape" in raw and "dtype" in raw:  # one array, as saved
-        raw = raw["shape"]
-    if isinstance(raw, dict):
-        sizes = {k: tuple(v["shape"] if isinstance(v, dict) else v) for k, v in raw.items()}
-        net_sizes = sizes
-    else:  # an array observation (a Brax PipelineEnv's, e.g. the hop task): "state"
-        sizes = {"state": tuple(raw) if isinstance(raw, list) else (int(raw),)}
-        net_sizes = sizes["state"][0] if len(sizes["state"]) == 1 else sizes["state"]
-    net = ppo_networks.make_ppo_networks(
-        net_sizes,
-        cfg["action_size"],
-        preprocess_observations_fn=(
-            running_statistics.normalize if cfg["normalize_observations"] else lambda x, _: x
-        ),
-        **kwargs,
-    )
-    params = ppo_checkpoint.load(ckpt)
-    if parts:
-        return ppo_networks.make_inference_fn(net), params, sizes
-    return ppo_networks.make_inference_fn(net)(params, deterministic=deterministic), sizes
-
-
-def latest_checkpoint(run_dir: str | Path) -> Path:
-    """The checkpoint folder with the most steps in ``<run_dir>/checkpoints``."""
-    folder = Path(run_dir) / "checkpoints"
-    steps = sorted(p for p in folder.glob("*") if p.is_dir() and p.name.isdigit())
-    if not steps:
-        raise FileNotFoundError(f"no checkpoint in {folder}: train first (jax-contact train)")
-    return steps[-1]
-
-
 # ----------------------------------------------------------------------------- train
 
 
@@ -592,223 +528,6 @@ def train(
     )
 
 
-# -------------------------------------------------------------------------- evaluate
-
-
-def column_env(column: str, cfg: PPOConfig):
-    """The unbatched Go1 env of a transfer-matrix column for a run trained with ``cfg``.
-
-    Args:
-      column: a name of :data:`jax_contact.train.transfer.COLUMNS` or a variant
-        (:data:`VARIANTS`); :func:`jax_contact.train.transfer.column_setting` maps it to
-        (observe, sensor preset, extra env steps of latency).
-      cfg: the run's configuration (its ``sensor`` is the training preset, its ``reward``
-        the reward).
-    """
-    from jax_contact.train import transfer
-
-    observe, preset, extra = transfer.column_setting(column, cfg.sensor)
-    return make_env(observe, sensor=preset, reward=cfg.reward, extra_latency=extra)
-
-
-def policy_rollout(env, make_policy, n_envs: int, episode_length: int) -> Callable:
-    """A jitted rollout of a checkpoint's deterministic policy in ``env``, one episode per env.
-
-    The parameters are an argument, so checkpoints of the same network share one
-    compilation (:mod:`jax_contact.train.transfer`).
-
-    Args:
-      env: the unbatched env with the contact wrapper (:func:`make_env`).
-      make_policy: ``(params, deterministic) -> policy``, as ``load_policy(parts=True)``.
-      n_envs: episodes, run in parallel.
-      episode_length: env steps per episode (Playground's training wrappers truncate there).
-
-    Returns:
-      ``rollout(params, key) -> (ret, p, truth, alive, fell)``: ``ret`` (n_envs,) the
-      return over the steps alive; over (episode_length, n_envs[, n_feet]): the estimator's
-      P(contact), the simulator's contact, alive before the step, and terminated (not
-      truncated) at it.
-    """
-    benv = pg_wrapper.wrap_for_brax_training(env, episode_length=episode_length)
-
-    @jax.jit
-    def rollout(params, key):
-        policy = make_policy(params, deterministic=True)
-        k_reset, k_act = jax.random.split(key)
-        state = benv.reset(jax.random.split(k_reset, n_envs))
-
-        def body(carry, k):
-            s, alive, ret = carry
-            act, _ = policy(s.obs, k)
-            s = benv.step(s, act)
-            out = (s.info[INFO_KEY].diag.p_contact, s.info[INFO_KEY + "_truth"], alive)
-            ret = ret + jnp.where(alive, s.reward, 0.0)
-            terminated = (s.done > 0) & (s.info["truncation"] == 0)
-            return (s, alive & ~(s.done > 0), ret), out + (alive & terminated,)
-
-        carry = (state, jnp.ones(n_envs, bool), jnp.zeros(n_envs))
-        (_, _, ret), outs = jax.lax.scan(body, carry, jax.random.split(k_act, episode_length))
-        return (ret, *outs)
-
-    return rollout
-
-
-class ColumnEvaluator:
-    """Go1 checkpoints evaluated in transfer-matrix columns, sharing compiled rollouts.
-
-    One env per column (:func:`column_env`) and one compiled :func:`policy_rollout` per
-    (column, ``make_policy``): pass the same ``make_policy`` for checkpoints of the same
-    network and each column compiles once for all of them.
-
-    Args:
-      cfg: the runs' configuration (sensor preset, reward, episode length).
-      n_envs: episodes per evaluation.
-      episode_length: env steps per episode; None: ``cfg.episode_length``.
-    """
-
-    def __init__(self, cfg: PPOConfig, n_envs: int, episode_length: int | None = None):
-        self.cfg, self.n_envs = cfg, int(n_envs)
-        self.episode_length = int(episode_length or cfg.episode_length)
-        self._envs: dict = {}
-        self._fns: dict = {}
-
-    def env(self, column: str):
-        if column not in self._envs:
-            self._envs[column] = column_env(column, self.cfg)
-        return self._envs[column]
-
-    def evaluate(self, run_dir: str | Path, column: str, seed: int, loaded=None) -> dict:
-        """The latest checkpoint of ``run_dir`` in ``column`` (:func:`evaluate_policy`'s dict).
-
-        Args:
-          run_dir: a Go1 run folder.
-          column: as :func:`column_env`.
-          seed: seeds the episodes.
-          loaded: ``load_policy(ckpt, parts=True)`` of its latest checkpoint, if loaded.
-
-        Raises:
-          ValueError: the column's observation does not fit the checkpoint's network.
-        """
-        run_dir = Path(run_dir)
-        run = json.loads((run_dir / "run.json").read_text())
-        ckpt = latest_checkpoint(run_dir)
-        make_policy, params, sizes = loaded or load_policy(ckpt, parts=True)
-        env = self.env(column)
-        have = tuple(env.observation_size["state"])
-        if tuple(sizes["state"]) != have:
-            raise ValueError(
-                f"column {column!r} gives a policy observation of shape {have}; the checkpoint"
-                f" {ckpt} (trained with {run['variant']!r}) takes {tuple(sizes['state'])}"
-            )
-        key = (column, id(make_policy))
-        if key not in self._fns:  # keeps make_policy alive, so its id is not reused
-            self._fns[key] = (policy_rollout(env, make_policy, self.n_envs, self.episode_length),)
-            self._fns[key] += (make_policy,)
-        rollout = self._fns[key][0]
-        t0 = time.perf_counter()
-        ret, p, truth, alive, fell = jax.device_get(rollout(params, jax.random.PRNGKey(seed)))
-        wall = time.perf_counter() - t0
-        return {
-            "run": str(run_dir),
-            "checkpoint": str(ckpt),
-            "trained_with": run["variant"],
-            "observed": column,
-            "n_episodes": self.n_envs,
-            **rollout_metrics(ret, p, truth, alive, fell, dt=float(env.dt)),
-            "wall_s": round(wall, 1),
-        }
-
-
-def rollout_metrics(ret, p, truth, alive, fell, *, dt: float) -> dict:
-    """:func:`evaluate_policy`'s numbers from a :func:`policy_rollout`'s arrays.
-
-    Args:
-      ret: (n,) returns; p, truth: (T, n, n_feet) P(contact) and contact; alive, fell:
-        (T, n) bool, alive before each step and terminated at it.
-      dt: the env step, s (the estimator's metrics' time unit).
-
-    Returns:
-      ``return_mean``, ``return_std``, ``episode_length_mean`` (steps alive), ``fell``
-      (fraction of episodes terminated early) and ``contact`` (the estimator's metrics over
-      the steps alive, :func:`jax_contact.metrics.evaluate`).
-    """
-    from jax_contact import metrics
-
-    ret, p, alive = np.asarray(ret), np.asarray(p), np.asarray(alive, bool)
-    valid = np.broadcast_to(alive[..., None], p.shape)
-    m = metrics.evaluate(p, np.asarray(truth, bool), valid, dt=float(dt))
-    return {
-        "return_mean": float(np.mean(ret)),
-        "return_std": float(np.std(ret)),
-        "episode_length_mean": float(np.mean(alive.sum(axis=0))),
-        "fell": float(np.mean(np.asarray(fell, bool).any(axis=0))),
-        "contact": m.as_dict(),
-    }
-
-
-def evaluate_policy(
-    run_dir: str | Path,
-    *,
-    observe: str | None = None,
-    column: str | None = None,
-    n_envs: int = 64,
-    episode_length: int | None = None,
-    seed: int = 12345,
-) -> dict:
-    """Runs a run's latest checkpoint (deterministic policy) for one episode per env.
-
-    Args:
-      run_dir: a run folder written by :func:`train`.
-      observe: the contact the policy sees now (:data:`VARIANTS`, the training sensors);
-        None: the one it was trained with. ``"estimate"`` for a ``"truth"`` run is the
-        sim-to-real check.
-      column: instead of ``observe``, a transfer-matrix column
-        (:data:`jax_contact.train.transfer.COLUMNS`): ``estimate_harsh`` (the ``harsh``
-        sensors), ``estimate_lat1``/``estimate_lat2`` (the training sensors 1 or 2 env
-        steps late), ...
-      n_envs: episodes, run in parallel.
-      episode_length: env steps per episode; None: the training configuration's.
-      seed: seeds the episodes (commands, noise, the estimator's sensors).
-
-    Returns:
-      ``return_mean``, ``return_std``, ``episode_length_mean`` (steps before termination or
-      the end), ``fell`` (fraction of episodes that terminated early), and ``contact``: the
-      estimator's metrics (:func:`jax_contact.metrics.evaluate`) against the simulator's
-      contact over the steps alive, plus the checkpoint, what it was trained with and the
-      column it ``observed``. A hop run (``run.json``'s ``task``) gets its own metrics
-      (:func:`jax_contact.train.transfer.evaluate_run`).
-
-    Raises:
-      FileNotFoundError: no run.json or checkpoint.
-      ValueError: both ``observe`` and ``column``, an unknown one, or an observation the
-        checkpoint's network cannot take.
-    """
-    if observe is not None and column is not None:
-        raise ValueError(
-            f"pass observe or column, not both (got observe={observe!r}, column={column!r})"
-        )
-    if observe is not None and observe not in VARIANTS:
-        raise ValueError(f"observe must be one of {VARIANTS}, got {observe!r}")
-    run_dir = Path(run_dir)
-    if not (run_dir / "run.json").is_file():
-        raise FileNotFoundError(f"no run.json in {run_dir}: not a run folder of jax-contact train")
-    run = json.loads((run_dir / "run.json").read_text())
-    if run.get("task", "go1") != "go1":  # a hop task: its own evaluation (task metrics)
-        from jax_contact.train import transfer
-
-        return transfer.evaluate_run(
-            run_dir,
-            observe=observe,
-            column=column,
-            n_envs=n_envs,
-            episode_length=episode_length,
-            seed=seed,
-        )
-    latest_checkpoint(run_dir)  # before building envs: FileNotFoundError without one
-    ev = ColumnEvaluator(config_of(run), n_envs, episode_length)
-    return ev.evaluate(run_dir, column or observe or run["variant"], seed)
-
-
 def config_of(run: Mapping) -> PPOConfig:
     """The :class:`PPOConfig` of a ``run.json``'s contents (JSON lists back to tuples)."""
     return PPOConfig(
@@ -832,22 +551,6 @@ def eval_row(step: int, wall_s: float, metrics: Mapping, acc_key: str) -> dict:
         "eval_episode_length": float(metrics["eval/avg_episode_length"]),
         "eval_contact_accuracy": float(metrics.get(acc_key, np.nan)),
     }
-
-
-def format_evaluation(results: Sequence[dict]) -> str:
-    """A table of :func:`evaluate_policy` results."""
-    lines = [
-        f"{'trained with':>12s} {'observed':>14s} {'return':>16s} {'ep. length':>10s}"
-        f" {'fell':>5s} {'estimator acc':>13s} {'estimator F1':>12s}"
-    ]
-    for r in results:
-        c = r["contact"]
-        lines.append(
-            f"{r['trained_with']:>12s} {r['observed']:>14s}"
-            f" {r['return_mean']:8.2f} +- {r['return_std']:5.2f} {r['episode_length_mean']:10.1f}"
-            f" {r['fell']:5.2f} {c['accuracy']:13.3f} {c['f1']:12.3f}"
-        )
-    return "\n".join(lines)
 
 
 def train_variants(
@@ -892,6 +595,8 @@ def train_variants(
 
     evals = []
     if eval_envs:
+        from jax_contact.train.policy_eval import evaluate_policy, format_evaluation
+
         evals = [evaluate_policy(results[v].run_dir, n_envs=eval_envs) for v in variants]
         if "truth" in results:  # the sim-to-real check
             evals.append(

@@ -173,10 +173,10 @@ def _hop_evaluator(run: dict, cfg, n_envs: int, episode_length: int | None) -> _
 
 
 def _evaluate(ev: _Evaluator, run_dir: Path, column: str, seed: int, loaded=None) -> dict:
-    from jax_contact.train import ppo
+    from jax_contact.train import policy_eval
 
-    ckpt = ppo.latest_checkpoint(run_dir)
-    make_policy, params, sizes = loaded or ppo.load_policy(ckpt, parts=True)
+    ckpt = policy_eval.latest_checkpoint(run_dir)
+    make_policy, params, sizes = loaded or policy_eval.load_policy(ckpt, parts=True)
     rollout, env = ev.rollout_fn(column, make_policy)
     if tuple(sizes["state"]) != (env.observation_size,):
         raise ValueError(
@@ -268,16 +268,16 @@ class _HopCells:
 
 
 class _Go1Cells:
-    """Go1 joystick's cells: :class:`jax_contact.train.ppo.ColumnEvaluator`,
+    """Go1 joystick's cells: :class:`jax_contact.train.policy_eval.ColumnEvaluator`,
     :data:`GO1_METRICS`."""
 
     metrics = GO1_METRICS
 
     def __init__(self, first_run: Path, n_envs: int, episode_length: int | None):
-        from jax_contact.train import ppo
+        from jax_contact.train import policy_eval
 
         _, cfg = _run_cfg(first_run)
-        self._ev = ppo.ColumnEvaluator(cfg, n_envs, episode_length)
+        self._ev = policy_eval.ColumnEvaluator(cfg, n_envs, episode_length)
 
     def cell(self, run_dir: Path, column: str, seed: int, loaded) -> dict:
         r = self._ev.evaluate(run_dir, column, seed, loaded)
@@ -315,10 +315,10 @@ def run_task(run_dir: str | Path) -> str:
 def _load(run_dir: Path, makers: dict):
     """``load_policy(parts=True)`` of the latest checkpoint, with one ``make_policy`` per
     network configuration, so that compiled rollouts are shared across checkpoints."""
-    from jax_contact.train import ppo
+    from jax_contact.train import policy_eval
 
-    ckpt = ppo.latest_checkpoint(run_dir)
-    make_policy, params, sizes = ppo.load_policy(ckpt, parts=True)
+    ckpt = policy_eval.latest_checkpoint(run_dir)
+    make_policy, params, sizes = policy_eval.load_policy(ckpt, parts=True)
     net = (ckpt.resolve() / "ppo_network_config.json").read_text()
     return makers.setdefault(net, make_policy), params, sizes
 
