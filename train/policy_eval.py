@@ -94,8 +94,9 @@ def column_env(column: str, cfg: PPOConfig):
 
     Args:
       column: a name of :data:`jax_contact.train.transfer.COLUMNS` or a variant
-        (:data:`VARIANTS`); :func:`jax_contact.train.transfer.column_setting` maps it to
-        (observe, sensor preset, extra env steps of latency).
+        (:data:`jax_contact.train.ppo.VARIANTS`);
+        :func:`jax_contact.train.transfer.column_setting` maps it to (observe, sensor
+        preset, extra env steps of latency).
       cfg: the run's configuration (its ``sensor`` is the training preset, its ``reward``
         the reward).
     """
@@ -112,7 +113,7 @@ def policy_rollout(env, make_policy, n_envs: int, episode_length: int) -> Callab
     compilation (:mod:`jax_contact.train.transfer`).
 
     Args:
-      env: the unbatched env with the contact wrapper (:func:`make_env`).
+      env: the unbatched env with the contact wrapper (:func:`jax_contact.train.ppo.make_env`).
       make_policy: ``(params, deterministic) -> policy``, as ``load_policy(parts=True)``.
       n_envs: episodes, run in parallel.
       episode_length: env steps per episode (Playground's training wrappers truncate there).
@@ -252,10 +253,10 @@ def evaluate_policy(
     """Runs a run's latest checkpoint (deterministic policy) for one episode per env.
 
     Args:
-      run_dir: a run folder written by :func:`train`.
-      observe: the contact the policy sees now (:data:`VARIANTS`, the training sensors);
-        None: the one it was trained with. ``"estimate"`` for a ``"truth"`` run is the
-        sim-to-real check.
+      run_dir: a run folder written by :func:`jax_contact.train.ppo.train`.
+      observe: the contact the policy sees now (:data:`jax_contact.train.ppo.VARIANTS`,
+        the training sensors); None: the one it was trained with. ``"estimate"`` for a
+        ``"truth"`` run is the sim-to-real check.
       column: instead of ``observe``, a transfer-matrix column
         (:data:`jax_contact.train.transfer.COLUMNS`): ``estimate_harsh`` (the ``harsh``
         sensors), ``estimate_lat1``/``estimate_lat2`` (the training sensors 1 or 2 env
