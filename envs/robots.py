@@ -12,7 +12,9 @@ compiled from (for edits such as :func:`with_terrain`). Nothing is downloaded at
   = 0``), so the mesh geoms and mesh assets are deleted before compiling. Masses,
   inertias, joints, actuators and collision geoms stay exactly as shipped.
 - ``barkour``: ``mujoco/mjx/test_data/barkour_v0/assets/barkour_v0_mjx.xml`` from the
-  ``mujoco-mjx`` package, meshes included. Its floor is the height field it ships with.
+  ``mujoco-mjx`` package, meshes included. The scene's floor, a height field of random
+  blocks (0-5 cm), is replaced by a plane at ``z = 0`` (until 2026-12-03 it was kept, so
+  Barkour's "flat" runs before then were on those blocks: docs/model_choices.md).
 - ``planar_leg``: the paper's Section III leg, ``envs/assets/planar_leg.xml``.
 - MuJoCo Menagerie names (``anybotics_anymal_c``, ...): from a local Menagerie checkout
   named by the ``MENAGERIE_ROOT`` environment variable, the MJX variant
@@ -258,7 +260,17 @@ def _load_barkour() -> mujoco.MjSpec:
         raise RobotUnavailableError(
             f"{path} not found: the installed mujoco-mjx package does not ship barkour_v0"
         )
-    return mujoco.MjSpec.from_file(str(path))
+    spec = mujoco.MjSpec.from_file(str(path))
+    # MJX's test scene stands the robot on random blocks (height field "rand_uniform":
+    # 0-5 cm, std 1.5 cm, 14 cm cells), not a floor: give it the flat floor every other
+    # built-in robot has (the scene's own commented-out plane, at z = 0), so that the
+    # reproduction's flat scenarios are flat and its "rough" one is the only rough floor.
+    floor = spec.geom("hfield_floor")
+    hfield = spec.hfield(floor.hfieldname)
+    floor.name, floor.type, floor.hfieldname = "floor", mujoco.mjtGeom.mjGEOM_PLANE, ""
+    floor.size, floor.material = [0.0, 0.0, 0.05], "groundplane"
+    spec.delete(hfield)
+    return spec
 
 
 MENAGERIE_SCENES = ("scene_mjx.xml", "scene.xml")  # the MJX variant first

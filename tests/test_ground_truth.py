@@ -12,7 +12,8 @@ import pytest
 from mujoco import mjx
 
 from jax_contact.envs.ground_truth import foot_truth, make_truth_layout, with_contact_sensors
-from jax_contact.envs.robots import load_robot
+from jax_contact.envs.robots import load_robot, with_terrain
+from jax_contact.envs.simulate import rough_heights
 
 G = 9.81
 
@@ -110,10 +111,16 @@ def test_standing_feet_carry_the_weight(go1, drop_run):
     assert (r["dist"][late] < 0).all() and (r["dist"][late] > -5e-3).all()
 
 
+def _barkour_on_a_height_field():
+    """Barkour on the reproduction's rough floor (1.5 cm std; its own floor is a plane)."""
+    size = (10.0, 10.0)
+    return with_terrain(load_robot("barkour"), rough_heights(0.015, size_xy=size), size)
+
+
 def test_force_matches_mj_contact_force():
     """The sensor route against C MuJoCo's mj_contactForce, on a plane and a height field."""
-    for name in ("go1", "barkour"):
-        robot = with_contact_sensors(load_robot(name))
+    for robot in (load_robot("go1"), _barkour_on_a_height_field()):
+        robot = with_contact_sensors(robot)
         layout = make_truth_layout(robot)
         m = robot.mj_model
         d = mujoco.MjData(m)
@@ -140,8 +147,8 @@ def test_force_matches_mj_contact_force():
 
 
 def test_height_field_gap_matches_mj_ray():
-    """Gap to Barkour's height-field floor against a C MuJoCo ray cast straight down."""
-    robot = with_contact_sensors(load_robot("barkour"))
+    """Gap to a height-field floor against a C MuJoCo ray cast straight down."""
+    robot = with_contact_sensors(_barkour_on_a_height_field())
     layout = make_truth_layout(robot)
     m = robot.mj_model
     d = mujoco.MjData(m)

@@ -219,6 +219,25 @@ def test_load_from_path(tmp_path):
         load_robot(str(missing))
 
 
+def test_every_builtin_quadruped_stands_on_a_plane_at_zero(loaded):
+    # The reproduction's flat scenarios need a flat floor. Barkour's scene (MJX's test data)
+    # ships random blocks, a height field of 0-5 cm; load_robot swaps it for a plane.
+    for name in ("go1", "spot", "barkour"):
+        m, desc = loaded[name].mj_model, loaded[name].description
+        assert m.nhfield == 0, name
+        (floor,) = desc.floor_geom_ids
+        assert int(m.geom_type[floor]) == int(mujoco.mjtGeom.mjGEOM_PLANE), name
+        np.testing.assert_array_equal(m.geom_pos[floor], 0.0)
+        np.testing.assert_array_equal(m.geom_quat[floor], [1.0, 0.0, 0.0, 0.0])
+    # The swap keeps what the feet touch: the floor collides with them as the blocks did.
+    m = loaded["barkour"].mj_model
+    (floor,) = loaded["barkour"].description.floor_geom_ids
+    for g in loaded["barkour"].description.foot_geom_ids:
+        assert m.geom_contype[g] & m.geom_conaffinity[floor] or (
+            m.geom_contype[floor] & m.geom_conaffinity[g]
+        )
+
+
 def test_barkour_foot_names_by_body(loaded):
     m = loaded["barkour"].mj_model
     names = ("lower_leg_1to1_hind_left", "lower_leg_1to1_front_right")
