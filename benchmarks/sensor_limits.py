@@ -71,12 +71,9 @@ def run_scenario(robot: str, scenario: str, n_envs: int, duration: float, seed: 
     from jax_contact.envs.simulate import simulate
     from jax_contact.train import reproduce
     from jax_contact.train.evaluate import replay, score
-    from jax_contact.train.tune_cmd import SCENARIOS as KINDS
+    from jax_contact.train.tune_cmd import scenario_world
 
-    cfg = reproduce.ReproduceConfig(robot=robot)
-    world = reproduce._scenario_world(scenario, cfg)
-    gait = KINDS[scenario][0]
-    speeds = reproduce.SPEEDS.get(gait, (0.0, 0.0))
+    world, gait, speeds = scenario_world(robot, scenario)
     params = reproduce.quadruped_estimator_params(world.robot.description, world.dt)
     rows, truth0 = [], None
     for name, sensors in sensor_variants(world.robot.description.nv, world.dt).items():
@@ -130,8 +127,8 @@ COLUMNS = [
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--robot", default="go1", choices=ROBOTS)
-    parser.add_argument("--scenarios", nargs="+", default=["trot", "walk"], choices=SCENARIOS)
+    parser.add_argument("--robot", default="go1", help="a robot `jax-contact reproduce` takes")
+    parser.add_argument("--scenarios", nargs="+", default=["trot", "walk"], choices=list(SCENARIOS))
     parser.add_argument("--envs", type=int, default=8)
     parser.add_argument("--duration", type=float, default=4.0, help="simulated seconds")
     parser.add_argument("--seed", type=int, default=1000)

@@ -389,6 +389,16 @@ PRESET_EVENT_WEIGHTS = {"go1": 0.3, "spot": 0.1, "barkour": 1.0}
 PRESET_TUNE_ALSO = {"spot": ("contact_damping",), "barkour": ("contact_damping",)}
 
 
+def scenario_world(robot: str, scenario: str):
+    """(world, gait kind, forward speed range) of one scenario of ``jax_contact.train.reproduce``:
+    what :func:`jax_contact.envs.simulate.simulate` needs besides the sensors and sizes."""
+    from jax_contact.train import reproduce
+
+    gait, _, _ = SCENARIOS[scenario]
+    world = reproduce._scenario_world(scenario, reproduce.ReproduceConfig(robot=robot))
+    return world, gait, reproduce.SPEEDS.get(gait, (0.0, 0.0))
+
+
 def simulate_log(
     path: str | Path,
     robot: str,
@@ -407,11 +417,9 @@ def simulate_log(
     from jax_contact.train import reproduce
     from jax_contact.train.logs import READING_TIMING
 
-    gait, _, _ = SCENARIOS[scenario]
-    cfg = reproduce.ReproduceConfig(robot=robot)
-    world = reproduce._scenario_world(scenario, cfg)
-    speeds = reproduce.SPEEDS.get(gait, (0.0, 0.0))
+    world, gait, speeds = scenario_world(robot, scenario)
     roll = simulate(world, make_gait(gait), noise, n_envs, duration, seed, speed_range=speeds)
+    cfg = reproduce.ReproduceConfig(robot=robot)
     attrs = {
         "robot": robot,
         "gait": gait,
