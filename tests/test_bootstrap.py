@@ -1,0 +1,138 @@
+"""The paired env bootstrap (jax_contact.bootstrap) against hand-derived intervals."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from jax_contact.bootstrap import Difference, paired_bootstrap, verdicts
+
+T, DT = 60, 0.0025
+
+
+def _always_on_truth(n_envs: int) -> np.ndarray:
+    return np.ones((T, n_envs, 1), bool)
+
+
+def _wrong_steps(counts) -> np.ndarray:
+    """P(contact) that is right (1) everywhere except ``counts[i]`` steps of env i (0)."""
+    p = np.ones((T, len(counts), 1))
+    for i, n in enumerate(counts):
+        p[:n, i, 0] = 0.0
+    return p
+
+
+def test_identical_detectors_differ_by_exactly_nothing():
+    rng = np.random.default_rng(3)
+    truth = rng.random((T, 4, 2)) < 0.6
+    p = np.clip(truth + rng.normal(0.0, 0.3, truth.shape), 0.0, 1.0)
+    out = paired_bootstrap(p, p, truth, dt=DT, n_resamples=50)
+    for name, d in out.items():
+        if np.isfinite(d.reference):
+            assert d.delta == 0.0 and d.low == 0.0 and d.high == 0.0, name
+            assert d.verdict == "within noise", name
+
+
+@pytest.mark.parametrize(
+    "counts, low_c, high_c, verdict",
+    [
+        # Envs wrong on (0, 0, 3m) steps: a resample holds env 3 c ~ Binomial(3, 1/3) times,
+        # so the accuracy difference is -m c / T. P(c <= 2) = 26/27 = 0.963 >= 0.95 and
+        # P(c = 0) = 8/27 = 0.296 >= 0.05: the 90 % interval is c in [0, 2], i.e.
+        # [-2m/T, 0] -- one bad env of three is within noise.
+        ((0, 0, 3), 2, 0, "within noise"),
+        # Envs wrong on (m, m, 4m): the difference is -(m (3 - c) + 4m c) / (3T) =
+        # -m (1 + c) / T, interval c in [0, 2] -> [-3m/T, -m/T]: every env is worse, and
+        # the interval excludes 0.
+        ((1, 1, 4), 3, 1, "worse"),
+    ],
+)
+def test_accuracy_interval_matches_the_binomial_derivation(counts, low_c, high_c, verdict):
+    m = 5
+    truth = _always_on_truth(3)
+    reference = _wrong_steps((0, 0, 0))
+    candidate = _wrong_steps([m * c for c in counts])
+    out = paired_bootstrap(
+        reference, candidate, truth, dt=DT, statistics=("accuracy",), n_resamples=2000,
+        level=0.9, seed=1,
+    )  # fmt: skip
+    d = out["accuracy"]
+    assert d.reference == 1.0
+    assert d.delta == pytest.approx(-m * sum(counts) / (3 * T))
+    assert d.low == pytest.approx(-low_c * m / T)
+    assert d.high == pytest.approx(-high_c * m / T)
+    assert d.verdict == verdict
+    assert verdicts(out) == {"better": [], "worse": ["accuracy"] if verdict == "worse" else []}
+
+
+def test_swapping_the_detectors_mirrors_the_interval_and_the_verdict():
+    truth = _always_on_truth(3)
+    a, b = _wrong_steps((0, 0, 0)), _wrong_steps((5, 5, 20))
+    kw = dict(dt=DT, statistics=("accuracy",), n_resamples=500, level=0.9, seed=7)
+    ab = paired_bootstrap(a, b, truth, **kw)["accuracy"]
+    ba = paired_bootstrap(b, a, truth, **kw)["accuracy"]
+    assert (ba.low, ba.high) == pytest.approx((-ab.high, -ab.low))
+    assert (ab.verdict, ba.verdict) == ("worse", "better")
+
+
+def test_lower_is_better_statistics_read_the_other_way():
+    worse_ece = Difference(0.02, 0.03, 0.004, 0.016, higher_is_better=False)
+    better_ece = Difference(0.03, 0.02, -0.016, -0.004, higher_is_better=False)
+    noise = Difference(0.02, 0.021, -0.002, 0.004, higher_is_better=False)
+    assert (worse_ece.verdict, better_ece.verdict, noise.verdict) == (
+        "worse",
+        "better",
+        "within noise",
+    )
+    assert Difference(0.0, np.nan, np.nan, np.nan, True).verdict == "n/a"
+
+
+def test_same_seed_same_interval_and_a_t_e_validity_broadcasts():
+    rng = np.random.default_rng(0)
+    truth = rng.random((T, 5, 2)) < 0.5
+    a = np.clip(truth + rng.normal(0.0, 0.4, truth.shape), 0.0, 1.0)
+    b = np.clip(truth + rng.normal(0.0, 0.4, truth.shape), 0.0, 1.0)
+    valid = np.ones((T, 5), bool)
+    valid[:10, 2] = False
+    kw = dict(dt=DT, statistics=("f1", "ece"), n_resamples=40, seed=11)
+    one = paired_bootstrap(a, b, truth, valid, **kw)
+    two = paired_bootstrap(a, b, truth, np.broadcast_to(valid[..., None], truth.shape), **kw)
+    assert one == two
+
+
+def test_bad_inputs_name_the_argument():
+    truth = _always_on_truth(3)
+    p = _wrong_steps((0, 0, 0))
+    with pytest.raises(ValueError, match="candidate has shape"):
+        paired_bootstrap(p, p[:, :2], truth, dt=DT)
+    with pytest.raises(ValueError, match="at least 2 envs"):
+        paired_bootstrap(p[:, :1], p[:, :1], truth[:, :1], dt=DT)
+    with pytest.raises(ValueError, match="statistics: unknown"):
+        paired_bootstrap(p, p, truth, dt=DT, statistics=("f2",))
+    with pytest.raises(ValueError, match="level"):
+        paired_bootstrap(p, p, truth, dt=DT, level=1.0)
+    with pytest.raises(ValueError, match="n_resamples"):
+        paired_bootstrap(p, p, truth, dt=DT, n_resamples=0)
+    with pytest.raises(ValueError, match="valid has shape"):
+        paired_bootstrap(p, p, truth, np.ones((T, 2), bool), dt=DT)
+
+
+def test_comparison_table_names_the_cells_beyond_noise():
+    from jax_contact.train.tune_cmd import format_comparison
+
+    row = {
+        "f1": 0.98, "accuracy": 0.97, "air_phase_failure_rate": 0.02, "ece": 0.02,
+        "touchdown_delay_ms": [7.0, 3.0], "liftoff_delay_ms": [4.0, 2.0],
+    }  # fmt: skip
+    vs = {
+        "f1": [0.004, 0.001, 0.007, "better"],
+        "touchdown_delay_ms": [0.5, 0.1, 0.9, "worse"],
+        "ece": [0.001, -0.002, 0.003, "within noise"],
+    }
+    table = format_comparison({"trot": {"default": row, "tuned": {**row, "vs_reference": vs}}})
+    lines = table.splitlines()
+    assert lines[0].endswith("| vs reference (95 %, env bootstrap) |")
+    assert lines[2].endswith("| reference |") and lines[3].endswith("| better F1; worse TD |")
+    quiet = {**row, "vs_reference": {"ece": vs["ece"]}}
+    assert format_comparison({"trot": {"a": row, "b": quiet}}).endswith("| within noise |")
+    assert "vs reference" not in format_comparison({"trot": {"default": row}})
