@@ -391,7 +391,7 @@ def run(args: argparse.Namespace) -> dict:
 
 
 def _positive_int(text: str) -> int:
-    from jax_contact.train.cli import _positive_int as check
+    from jax_contact.train.cli_args import positive_int as check
 
     return check(text)
 

@@ -20,7 +20,7 @@ import argparse
 
 from jax_contact.benchmarks import estimator, versus
 from jax_contact.benchmarks.common import json_of_what_finished
-from jax_contact.train.cli import _positive_int  # the CLI's argument type: one rule for sizes
+from jax_contact.train.cli_args import positive_int  # the CLI's argument type: one rule for sizes
 
 
 def main(argv=None) -> dict:
@@ -29,10 +29,10 @@ def main(argv=None) -> dict:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     # Sizes are checked here, before minutes of benchmarks run on them.
     parser.add_argument(
-        "--envs", type=_positive_int, nargs="+", default=list(estimator.DEFAULT_ENVS)
+        "--envs", type=positive_int, nargs="+", default=list(estimator.DEFAULT_ENVS)
     )
-    parser.add_argument("--versus-envs", type=_positive_int, nargs="+", default=[1024, 4096])
-    parser.add_argument("--latency-calls", type=_positive_int, default=10_000)
+    parser.add_argument("--versus-envs", type=positive_int, nargs="+", default=[1024, 4096])
+    parser.add_argument("--latency-calls", type=positive_int, default=10_000)
     parser.add_argument("--json", default=None, help="write all results as one JSON here")
     args = parser.parse_args(argv)
 

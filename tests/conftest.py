@@ -8,11 +8,11 @@
   parameters shares one compilation; each counts its traces (see :class:`CountingJit`).
 
 JAX's persistent compilation cache is on for the whole suite, in the folder the command
-line uses (``jax_contact.train.cli.enable_compilation_cache``: ``~/.cache/jax-contact/xla``, or
-``$JAX_CONTACT_CACHE_DIR``, empty for off), set before JAX is imported so that every
-pytest-xdist worker and every subprocess a test starts (the CLI, the README's blocks) shares
-it: a second ``make test`` loads the programs the first one compiled. Tracing still runs,
-so tests that count traces are unaffected.
+line uses (``jax_contact.train.compile_cache.enable_compilation_cache``:
+``~/.cache/jax-contact/xla``, or ``$JAX_CONTACT_CACHE_DIR``, empty for off), set before JAX
+is imported so that every pytest-xdist worker and every subprocess a test starts (the CLI,
+the README's blocks) shares it: a second ``make test`` loads the programs the first one
+compiled. Tracing still runs, so tests that count traces are unaffected.
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ import collections
 import os
 import zlib
 
-from jax_contact.train.cli import enable_compilation_cache
+from jax_contact.train.compile_cache import enable_compilation_cache
 
 enable_compilation_cache()  # before JAX is imported: through JAX's environment variables
 # Importing JAX sets TF_CPP_MIN_LOG_LEVEL=1 when it is unset, and every subprocess a test

@@ -200,7 +200,7 @@ def test_ctrl_c_during_a_write_removes_the_temporary_file(tmp_path):
         "    open(tmp, 'w').write('partial')\n"
         "    os.kill(os.getpid(), signal.SIGINT)\n"
         "    time.sleep(20)\n"
-        "with cli._StopOnInterrupt('jax-contact test'):\n"
+        "with cli.StopOnInterrupt('jax-contact test'):\n"
         "    write_atomic(sys.argv[1], write)\n"
         "print('not reached')\n"
     )
@@ -217,7 +217,7 @@ def test_the_interrupt_handler_is_removed_afterwards():
     before = signal.getsignal(signal.SIGINT)
     fd_before = signal.set_wakeup_fd(-1)  # reading it means setting it; put it back at once
     signal.set_wakeup_fd(fd_before)
-    with cli._StopOnInterrupt("x"):
+    with cli.StopOnInterrupt("x"):
         assert signal.getsignal(signal.SIGINT) is not before
     assert signal.getsignal(signal.SIGINT) is before
     assert signal.set_wakeup_fd(fd_before) == fd_before

@@ -31,7 +31,7 @@ def add_parsers(subparsers) -> None:
     Each parser gets ``func`` (run) and ``check`` (validate, no JAX) defaults, as
     :func:`jax_contact.train.cli.main` expects.
     """
-    from jax_contact.train.cli import ROBOT_NAMES, _HelpFormatter, _positive_float, _positive_int
+    from jax_contact.train.cli_args import ROBOT_NAMES, HelpFormatter, positive_float, positive_int
 
     p = subparsers.add_parser(
         "export",
@@ -42,7 +42,7 @@ def add_parsers(subparsers) -> None:
         " parameters and their provenance. Load it with jax_contact.deploy.load. Without"
         " --params the robot's shipped defaults (jax_contact.params_for with the anymal_like"
         " sensor model) are used.",
-        formatter_class=_HelpFormatter,
+        formatter_class=HelpFormatter,
     )
     p.set_defaults(func=run_export, check=check_export)
     which = p.add_mutually_exclusive_group(required=True)
@@ -63,7 +63,7 @@ def add_parsers(subparsers) -> None:
         metavar="P.json|PRESET",
         help="parameter file (jax_contact.save_params) or a shipped preset (go1, spot, barkour)",
     )
-    p.add_argument("--rate", type=_positive_float, default=400.0, help="reading rate, Hz")
+    p.add_argument("--rate", type=positive_float, default=400.0, help="reading rate, Hz")
     p.add_argument("--seed", type=int, default=0, help="PRNG seed (Monte-Carlo touch-down only)")
     p.add_argument("--out", required=True, help=f"the {ARTEFACT_SUFFIX} file to write")
 
@@ -74,14 +74,14 @@ def add_parsers(subparsers) -> None:
         " call as a control loop would, and reports the per-call latency (median, p99, p99.9,"
         " max in us), the deadline misses at the rate and the largest |P(contact)| difference"
         " from the offline estimator on the same readings.",
-        formatter_class=_HelpFormatter,
+        formatter_class=HelpFormatter,
     )
     p.set_defaults(func=run_deploy_check, check=check_deploy_check)
     p.add_argument("artefact", help=f"a {ARTEFACT_SUFFIX} file written by `jax-contact export`")
     p.add_argument("log", help="an .h5 log written by `jax-contact simulate`")
     p.add_argument("--env", type=int, default=0, help="which env of the log to replay")
     p.add_argument(
-        "--steps", type=_positive_int, default=None, help="replay only the first N readings"
+        "--steps", type=positive_int, default=None, help="replay only the first N readings"
     )
     p.add_argument(
         "--cpu",
@@ -103,7 +103,7 @@ def add_parsers(subparsers) -> None:
 
 def check_export(args: argparse.Namespace) -> None:
     """Raises ValueError naming the argument that is wrong (no JAX import)."""
-    from jax_contact.train.cli import (
+    from jax_contact.train.cli_args import (
         check_input_file,
         check_output_file,
         check_params_source,
@@ -123,7 +123,7 @@ def check_export(args: argparse.Namespace) -> None:
 
 def check_deploy_check(args: argparse.Namespace) -> None:
     """Raises ValueError naming the argument that is wrong (no JAX import)."""
-    from jax_contact.train.cli import LOG_SUFFIXES, check_input_file, check_output_file
+    from jax_contact.train.cli_args import LOG_SUFFIXES, check_input_file, check_output_file
 
     check_input_file("artefact", args.artefact)
     check_input_file("log", args.log)
@@ -216,7 +216,7 @@ def export_to_file(
 
 
 def _robot_names() -> tuple[str, ...]:
-    from jax_contact.train.cli import ROBOT_NAMES
+    from jax_contact.train.cli_args import ROBOT_NAMES
 
     return ROBOT_NAMES
 

@@ -192,7 +192,7 @@ def parse_names(text: str | None) -> dict[str, str]:
 
 def check(args: argparse.Namespace) -> None:
     """Raises ValueError naming the argument; imports no JAX."""
-    from jax_contact.train.cli import (
+    from jax_contact.train.cli_args import (
         check_input_file,
         check_output_folder,
         check_params_source,

@@ -452,14 +452,15 @@ def main(argv: Sequence[str] | None = None) -> dict:
     import argparse
 
     from jax_contact.io import write_json_atomic
-    from jax_contact.train.cli import _positive_int, enable_compilation_cache
+    from jax_contact.train.cli_args import positive_int
+    from jax_contact.train.compile_cache import enable_compilation_cache
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("root", help="folder of seed*/{none,truth,estimate} run folders")
-    parser.add_argument("--envs", type=_positive_int, default=32, help="episodes per cell")
+    parser.add_argument("--envs", type=positive_int, default=32, help="episodes per cell")
     parser.add_argument(
         "--episode-length",
-        type=_positive_int,
+        type=positive_int,
         default=None,
         help="env steps per episode (default: the runs' configuration's)",
     )

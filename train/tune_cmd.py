@@ -69,7 +69,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     commands do.
     """
     # The CLI's argument types (one rule); imported here, once jax_contact.train.cli is loaded.
-    from jax_contact.train.cli import _positive_float, _positive_int
+    from jax_contact.train.cli_args import positive_float, positive_int
 
     p = subparsers.add_parser(
         "tune",
@@ -91,11 +91,11 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         help="validation log(s) of other seeds (.h5): early stopping on their pooled BCE",
     )
     p.add_argument("--out", required=True, help="parameter file to write (.json)")
-    p.add_argument("--epochs", type=_positive_int, default=12, help="passes over the logs at most")
-    p.add_argument("--patience", type=_positive_int, default=3, help="epochs without improvement")
-    p.add_argument("--lr", type=_positive_float, default=0.05, help="Adam step size")
-    p.add_argument("--clip", type=_positive_float, default=1.0, help="gradient norm clip")
-    p.add_argument("--chunk", type=_positive_int, default=400, help="steps per BPTT window")
+    p.add_argument("--epochs", type=positive_int, default=12, help="passes over the logs at most")
+    p.add_argument("--patience", type=positive_int, default=3, help="epochs without improvement")
+    p.add_argument("--lr", type=positive_float, default=0.05, help="Adam step size")
+    p.add_argument("--clip", type=positive_float, default=1.0, help="gradient norm clip")
+    p.add_argument("--chunk", type=positive_int, default=400, help="steps per BPTT window")
     p.add_argument(
         "--prior", type=_nonnegative_float, default=1e-3, help="weight of the prior on the stds"
     )
@@ -120,13 +120,13 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--event-temperature",
-        type=_positive_float,
+        type=positive_float,
         default=0.25,
         help="temperature of the event term's log-sum-exp, logit units",
     )
     p.add_argument(
         "--stance-time-bounds",
-        type=_positive_float,
+        type=positive_float,
         nargs=2,
         default=[0.15, 1.2],
         metavar=("LO", "HI"),
@@ -497,6 +497,8 @@ def compare(
     duration: float = 8.0,
     workdir: str | Path = "/tmp/jax-contact-presets",
     plots: str | Path | None = None,
+    bootstrap: int = 0,
+    reference: str | None = None,
 ) -> dict:
     """Default vs tuned parameters on the evaluation scenarios (docs/tuning.md's tables).
 
@@ -512,13 +514,21 @@ def compare(
         it was tuned with (:func:`jax_contact.train.logs.file_terrain_model`), the defaults
         on the plane.
       plots: a folder for one reliability diagram per scenario, or None.
+      bootstrap: if > 0, the number of env resamples of a paired bootstrap
+        (:func:`jax_contact.bootstrap.paired_bootstrap`, 95 %, seed 0) of every other row
+        against ``reference``: is each difference larger than re-running the rollouts
+        would make it?
+      reference: the row the others are compared with (default: the first variant).
 
     Returns:
-      scenario -> row -> metrics (``jax_contact.train.evaluate.score``'s dicts).
+      scenario -> row -> metrics (``jax_contact.train.evaluate.score``'s dicts); with
+      ``bootstrap``, every row but the reference also has ``"vs_reference"``: statistic ->
+      ``[delta, low, high, verdict]`` (:meth:`jax_contact.bootstrap.Difference.as_list`).
     """
 
     import jax_contact as jc
     from jax_contact import tune as jt
+    from jax_contact.bootstrap import paired_bootstrap
     from jax_contact.train.calibration import reliability_diagram
     from jax_contact.train.evaluate import replay, score
     from jax_contact.train.logs import file_terrain_model, terrain_for
@@ -529,6 +539,9 @@ def compare(
         return source, (file_terrain_model(source) if source is not None else None) or "flat"
 
     sources = {name: terrain_model_of(source) for name, source in variants.items()}
+    reference = next(iter(variants)) if reference is None else reference
+    if bootstrap and reference not in variants:
+        raise ValueError(f"reference {reference!r} is not a variant: {list(variants)}")
     results = {}
     for scenario in scenarios:
         path = Path(workdir) / f"{robot}_{scenario}_s{seed}.h5"
@@ -559,6 +572,15 @@ def compare(
         for name, cal in cals.items():
             out[f"{name}+cal"] = jt.calibrate_probability(out[name], cal)
         results[scenario] = score(out, truth, valid, dt=float(attrs["dt"]))
+        if bootstrap:
+            for name in results[scenario]:
+                if name == reference:
+                    continue
+                diffs = paired_bootstrap(
+                    out[reference], out[name], truth, valid, dt=float(attrs["dt"]),
+                    n_resamples=bootstrap,
+                )  # fmt: skip
+                results[scenario][name]["vs_reference"] = {k: d.as_list() for k, d in diffs.items()}
         if plots is not None:
             reliability_diagram(
                 out, truth, valid, Path(plots) / f"reliability_{robot}_{scenario}.png",
@@ -568,13 +590,36 @@ def compare(
     return results
 
 
+_SHORT = {
+    "f1": "F1",
+    "accuracy": "acc",
+    "air_phase_failure_rate": "fail",
+    "touchdown_delay_ms": "TD",
+    "liftoff_delay_ms": "LO",
+    "ece": "ECE",
+}
+
+
+def _verdict_cell(vs: dict | None) -> str:
+    if vs is None:
+        return "reference"
+    sides = {"better": [], "worse": []}
+    for key, (_, _, _, verdict) in vs.items():
+        if verdict in sides:
+            sides[verdict].append(_SHORT.get(key, key))
+    text = "; ".join(f"{side} {', '.join(keys)}" for side, keys in sides.items() if keys)
+    return text or "within noise"
+
+
 def format_comparison(results: dict) -> str:
-    """A Markdown table: scenario x row, the Table III cells and ECE."""
-    head = (
-        "| scenario | params | F1 | acc | air-phase fail | TD delay ms | LO delay ms | ECE |\n"
-        "|---|---|---|---|---|---|---|---|"
-    )
-    lines = [head]
+    """A Markdown table: scenario x row, the Table III cells and ECE (and, for a comparison
+    with ``bootstrap``, which cells differ from the reference beyond the rollouts' spread)."""
+    boot = any("vs_reference" in m for rows in results.values() for m in rows.values())
+    head = "| scenario | params | F1 | acc | air-phase fail | TD delay ms | LO delay ms | ECE |"
+    rule = "|---|---|---|---|---|---|---|---|"
+    if boot:
+        head, rule = head + " vs reference (95 %, env bootstrap) |", rule + "---|"
+    lines = [head, rule]
     for scenario, rows in results.items():
         for name, m in rows.items():
             td, lo = m["touchdown_delay_ms"], m["liftoff_delay_ms"]
@@ -582,6 +627,7 @@ def format_comparison(results: dict) -> str:
                 f"| {scenario} | {name} | {m['f1']:.3f} | {m['accuracy']:.3f} |"
                 f" {100 * m['air_phase_failure_rate']:.1f} % | {td[0]:.1f} ± {td[1]:.1f} |"
                 f" {lo[0]:.1f} ± {lo[1]:.1f} | {m['ece']:.3f} |"
+                + (f" {_verdict_cell(m.get('vs_reference'))} |" if boot else "")
             )
     return "\n".join(lines)
 

@@ -1,0 +1,172 @@
+"""Argument types and checks of the ``jax-contact`` command line, standard library only.
+
+They run before JAX is imported (``jax_contact.train.cli``'s module docstring), so a bad
+number, name, input file or output folder is reported at once. Types raise
+``argparse.ArgumentTypeError`` (argparse names the argument); the checks raise ValueError
+naming the argument, which the command line prints as one line.
+
+The lists of names the checks need come from modules that import JAX, so they are copied
+here; ``tests/test_cli.py`` checks that each copy equals its original.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import tempfile
+from pathlib import Path
+
+# Copies of the library's lists (importing those modules imports JAX); tests/test_cli.py
+# checks that each equals its original.
+ROBOT_NAMES = (  # jax_contact.envs.robots.ROBOT_NAMES
+    "go1",
+    "spot",
+    "barkour",
+    "planar_leg",
+    "anybotics_anymal_b",
+    "anybotics_anymal_c",
+    "boston_dynamics_spot",
+    "google_barkour_v0",
+    "google_barkour_vb",
+    "unitree_a1",
+    "unitree_go1",
+    "unitree_go2",
+)
+GAITS = ("trot", "walk", "hop")  # jax_contact.envs.gaits.KINDS
+NOISES = ("ideal", "anymal_like", "harsh")  # jax_contact.envs.sensors.PRESETS
+TERRAINS = ("flat", "rough")  # jax_contact.envs.simulate.TERRAINS
+VARIANTS = ("none", "truth", "estimate")  # jax_contact.train.ppo.VARIANTS
+COLUMNS = (  # jax_contact.train.transfer.COLUMNS
+    "truth",
+    "estimate",
+    "estimate_harsh",
+    "estimate_lat1",
+    "estimate_lat2",
+)
+TASKS = ("go1", "hop", "hop_blind")  # jax_contact.train.tasks.TASK_NAMES
+SCENES = ("planar_leg", "go1", "go1_walk", "go1_trot")  # jax_contact.train.rates.SCENES
+LOG_SUFFIXES = (".h5", ".hdf5")
+
+
+# ------------------------------------------------------------------------ argument types
+# Types raise argparse.ArgumentTypeError (argparse names the argument); the per-command
+# checks raise ValueError with the argument's name, printed by main().
+
+
+def int_at_least(minimum: int):
+    """An argparse type: an int >= ``minimum``, else an error naming the value."""
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            value = minimum - 1
+        if value < minimum:
+            raise argparse.ArgumentTypeError(f"must be an int >= {minimum}, got {text!r}")
+        return value
+
+    return parse
+
+
+positive_int = int_at_least(1)
+nonnegative_int = int_at_least(0)
+
+
+def positive_float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"must be a finite number > 0, got {text!r}")
+    return value
+
+
+def check_robot(arg: str, name: str | None) -> None:
+    """Raises ValueError unless ``name`` is a known robot or an existing MJCF file."""
+    if name is None or name in ROBOT_NAMES:
+        return
+    if name.endswith(".xml") or os.sep in name or "/" in name:  # jax_contact.envs.robots' rule
+        if not Path(name).expanduser().is_file():
+            raise ValueError(f"argument {arg}: MJCF file {name!r} does not exist")
+        return
+    raise ValueError(
+        f"argument {arg}: unknown robot {name!r}; valid names: {', '.join(ROBOT_NAMES)}, or a"
+        " path to an MJCF .xml file"
+    )
+
+
+def check_input_file(arg: str, path: str) -> None:
+    """Raises ValueError unless ``path`` is an existing file."""
+    p = Path(path)
+    if not p.exists():
+        raise ValueError(f"argument {arg}: file {path!r} does not exist")
+    if not p.is_file():
+        raise ValueError(f"argument {arg}: {path!r} is not a file")
+
+
+def check_params_source(arg: str, source: str) -> None:
+    """Raises ValueError unless ``source`` is an existing parameter file or the name of a
+    shipped preset (``jax_contact.preset_names()``), the two things
+    :func:`jax_contact.load_params` takes."""
+    from jax_contact._presets import preset_file, preset_names
+
+    if preset_file(source) is not None:
+        return
+    if not Path(source).exists():
+        raise ValueError(
+            f"argument {arg}: {source!r} is neither a file nor a shipped preset"
+            f" ({', '.join(preset_names())})"
+        )
+    check_input_file(arg, source)
+
+
+def check_output_folder(arg: str, folder: str | os.PathLike) -> None:
+    """Raises ValueError unless files can be created in ``folder`` (once created).
+
+    The nearest existing ancestor is probed by creating and removing a file in it, as the
+    atomic writes do: permission bits alone are no answer for root, nor for folders such
+    as ``/proc``.
+    """
+    p = Path(folder).expanduser().absolute()
+    if p.exists() and not p.is_dir():
+        raise ValueError(f"argument {arg}: {str(p)!r} exists and is not a folder")
+    existing = p
+    while not existing.exists():
+        existing = existing.parent
+    if not existing.is_dir():
+        raise ValueError(
+            f"argument {arg}: cannot create folder {str(p)!r}: {str(existing)!r} is a file"
+        )
+    try:
+        fd, probe = tempfile.mkstemp(dir=existing, prefix=".jax-contact-check.", suffix=".tmp")
+        os.close(fd)
+        os.unlink(probe)
+    except OSError as err:
+        raise ValueError(
+            f"argument {arg}: cannot create files in folder {str(existing)!r}"
+            f" ({err.strerror or err})"
+        ) from None
+
+
+def check_output_file(arg: str, path: str | None, suffixes: tuple[str, ...] = ()) -> None:
+    """Raises ValueError unless ``path`` (None: none) can be written: the suffix, not a
+    folder, a writable folder."""
+    if path is None:
+        return
+    p = Path(path)
+    if suffixes and p.suffix not in suffixes:
+        raise ValueError(f"argument {arg}: {path!r} must end in {' or '.join(suffixes)}")
+    if p.is_dir():
+        raise ValueError(f"argument {arg}: {path!r} is a folder; expected a file name")
+    check_output_folder(arg, p.parent)
+
+
+class HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
+    """Shows each option's default, except the uninformative None and False."""
+
+    def _get_help_string(self, action):
+        if action.default is None or action.default is False:
+            return action.help
+        return super()._get_help_string(action)

@@ -1,0 +1,100 @@
+"""Ctrl-C that stops a ``jax-contact`` command at once, leaving no partial output file.
+
+:class:`StopOnInterrupt` makes the process exit with code 130 and print one line,
+``jax-contact <command>: interrupted``. Python's own ``KeyboardInterrupt`` does not do this
+in a JAX program: the exception is raised only when the main thread next runs Python code,
+which during an XLA compilation can be minutes later, and when that code is the garbage
+collector's callback into XLA the exception is printed as ``Exception ignored in:
+<function _xla_gc_callback ...>`` and lost, so the run carries on. Instead, the signal's
+arrival is read from :func:`signal.set_wakeup_fd` by a watcher thread, which Python's
+C-level handler wakes immediately whatever the main thread is doing; the watcher removes
+the temporary files of writes in progress (:func:`jax_contact.io.abort_writes`: every
+output goes through ``jax_contact.io``'s atomic writes) and ends the process with
+``os._exit(130)``. Output written completely before the signal (e.g. the run folders of
+earlier ``train`` variants) stays.
+
+Standard library only, like the rest of the command line's front.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import sys
+import threading
+
+EXIT_INTERRUPTED = 130  # 128 + SIGINT, what a shell reports for a command stopped by Ctrl-C
+
+
+class StopOnInterrupt:
+    """Context manager: while active, SIGINT ends the process at once (module docstring).
+
+    Outside the main thread (where Python cannot install signal handlers) it does nothing
+    and Python's ``KeyboardInterrupt`` applies.
+    """
+
+    def __init__(self, prog: str):
+        self.prog = prog
+        self._active = False
+
+    def __enter__(self):
+        if threading.current_thread() is not threading.main_thread():
+            return self
+        self._read, self._write = os.pipe()
+        os.set_blocking(self._write, False)  # set_wakeup_fd requires it
+        self._watcher = threading.Thread(target=self._watch, name="jax-contact-sigint", daemon=True)
+        self._watcher.start()
+        # Wake-up fd first: a SIGINT between the two calls then still reaches the watcher.
+        self._old_fd = signal.set_wakeup_fd(self._write, warn_on_full_buffer=False)
+        self._old_handler = signal.signal(signal.SIGINT, self._note)
+        self._active = True
+        return self
+
+    @staticmethod
+    def _note(signum, frame) -> None:
+        # Runs in the main thread whenever it next runs Python code (possibly inside a GC
+        # callback, where an exception would be swallowed): nothing to do here, the
+        # watcher has already been woken by the C-level handler through the wake-up fd.
+        del signum, frame
+
+    def _watch(self) -> None:
+        while True:
+            try:
+                data = os.read(self._read, 64)
+            except OSError:
+                return
+            if not data:  # the write end was closed: the command finished
+                return
+            if signal.SIGINT in data:
+                self._stop()
+
+    def _stop(self) -> None:
+        io = sys.modules.get("jax_contact.io")  # not imported: nothing was being written
+        if io is not None:
+            io.abort_writes()  # holds io's lock from here on: no rename can follow
+        # Flush what was printed, but never wait on a main thread stuck mid-write.
+        flusher = threading.Thread(target=_flush_std, daemon=True)
+        flusher.start()
+        flusher.join(0.5)
+        try:
+            os.write(2, f"{self.prog}: interrupted\n".encode())
+        finally:
+            os._exit(EXIT_INTERRUPTED)
+
+    def __exit__(self, *exc) -> None:
+        if not self._active:
+            return
+        signal.signal(signal.SIGINT, self._old_handler)
+        signal.set_wakeup_fd(self._old_fd)
+        os.close(self._write)
+        self._watcher.join(1.0)
+        os.close(self._read)
+        self._active = False
+
+
+def _flush_std() -> None:
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except Exception:  # a closed or broken stream: nothing more to save
+            pass
