@@ -71,7 +71,7 @@ def run_scenario(robot: str, scenario: str, n_envs: int, duration: float, seed: 
     from jax_contact.envs.simulate import simulate
     from jax_contact.train import reproduce
     from jax_contact.train.evaluate import replay, score
-    from jax_contact.train.tune_cmd import scenario_world
+    from jax_contact.train.tune_presets import scenario_world
 
     world, gait, speeds = scenario_world(robot, scenario)
     params = reproduce.quadruped_estimator_params(world.robot.description, world.dt)

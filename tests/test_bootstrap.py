@@ -118,7 +118,7 @@ def test_bad_inputs_name_the_argument():
 
 
 def test_comparison_table_names_the_cells_beyond_noise():
-    from jax_contact.train.tune_cmd import format_comparison
+    from jax_contact.train.tune_presets import format_comparison
 
     row = {
         "f1": 0.98, "accuracy": 0.97, "air_phase_failure_rate": 0.02, "ece": 0.02,
@@ -136,3 +136,28 @@ def test_comparison_table_names_the_cells_beyond_noise():
     quiet = {**row, "vs_reference": {"ece": vs["ece"]}}
     assert format_comparison({"trot": {"a": row, "b": quiet}}).endswith("| within noise |")
     assert "vs reference" not in format_comparison({"trot": {"default": row}})
+
+
+def test_reproduce_compares_the_estimator_with_both_gm_tunings():
+    from jax_contact.metrics import evaluate
+    from jax_contact.train import reproduce
+
+    rng = np.random.default_rng(5)
+    truth = rng.random((T, 4, 2)) < 0.5
+    out = {
+        "probabilistic": np.clip(truth + rng.normal(0.0, 0.3, truth.shape), 0.0, 1.0),
+        "gm_walk": truth ^ (rng.random(truth.shape) < 0.2),
+        "gm_trot": truth ^ (rng.random(truth.shape) < 0.05),
+    }
+    valid = np.ones((T, 4), bool)
+    assert reproduce.vs_gm(out, truth, valid, DT, 0) is None
+    vs = reproduce.vs_gm(out, truth, valid, DT, 30)
+    est = evaluate(out["probabilistic"], truth, dt=DT)
+    for gm in ("gm_walk", "gm_trot"):
+        ref = evaluate(out[gm], truth, dt=DT)
+        delta, low, high, _ = vs[gm]["f1"]
+        assert delta == pytest.approx(est.f1 - ref.f1) and low <= high
+        assert set(vs[gm]) == set(reproduce.VS_GM_STATISTICS)
+    text = reproduce.format_vs_gm({"vs_gm": {"trot": vs}})
+    assert text.count("\n") == 2 and "trot             vs gm_trot" in text
+    assert reproduce.format_vs_gm({}) == ""

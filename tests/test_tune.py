@@ -482,7 +482,7 @@ def test_shipped_presets_load_by_name_with_their_provenance(name):
     assert len(prov["code"]["commit"]) == 40
     # The weight and optional fields the file was tuned with are the ones regenerate_preset
     # passes, and a tuned contact damping stays a foot settling in 5-100 ms (2 / b).
-    from jax_contact.train.tune_cmd import PRESET_EVENT_WEIGHTS, PRESET_TUNE_ALSO
+    from jax_contact.train.tune_presets import PRESET_EVENT_WEIGHTS, PRESET_TUNE_ALSO
 
     assert prov["config"]["event_weight"] == pytest.approx(PRESET_EVENT_WEIGHTS[name])
     also = [f for f in prov["fields"] if f in jt.OPTIONAL_FIELDS]
@@ -508,7 +508,7 @@ def test_shipped_presets_load_by_name_with_their_provenance(name):
     # Tuned with the sensor floor: no std below what the anymal_like sensors alone give,
     # recomputed here from the sensor model (not read from the file).
     from jax_contact.envs.robots import load_robot
-    from jax_contact.train.tune_cmd import sensor_floor
+    from jax_contact.train.tune_data import sensor_floor
 
     floor = sensor_floor(load_robot(name), 0.0025, "anymal_like")
     assert prov["noise_floor"] is not None

@@ -3,7 +3,7 @@
 The filter (eq. 1-3, 11-17) is differentiable end to end, so its noise model, caps and gait
 constants can be fitted to a few seconds of data with ground-truth contact instead of by
 hand. Everything here is arrays in, arrays out: the measurements of each log are
-precomputed once (``jax_contact.train.tune_cmd`` runs the MJX adapter over a log's readings), and
+precomputed once (``jax_contact.train.tune_data`` runs the MJX adapter over a log's readings), and
 the tuning loop only runs the estimator.
 
 What is tuned (a documented choice, :data:`DEFAULT_FIELDS`), through an unconstrained
@@ -88,7 +88,7 @@ trot's failures per air phase fell from 3.9 % to 0.2 % but the walk lost accurac
 (2.1 %) and left every walking number within 0.1 ms and 0.002 ECE of the defaults
 (docs/tuning.md). ``TuneConfig``'s default stays 0.3; the presets use a weight per robot
 chosen on their validation seed among three (Go1 and Spot 0.1, Barkour 1.0:
-``jax_contact.train.tune_cmd.PRESET_EVENT_WEIGHTS``).
+``jax_contact.train.tune_presets.PRESET_EVENT_WEIGHTS``).
 
 Optionally (``constraint_weight`` ``lambda_c > 0``; off by default), the *cells in the
 objective*, a constrained fit of issue 15's "every cell at least as good as the
