@@ -24,13 +24,8 @@ import pytest
 from jax_contact.envs.robots import load_robot
 from jax_contact.io import read_log
 from jax_contact.train import estimate_cmd
-from jax_contact.train.recording import (
-    Recording,
-    log_to_columns,
-    read_recording,
-    to_readings,
-    write_recording_csv,
-)
+from jax_contact.train.recording import Recording, read_recording, write_recording_csv
+from jax_contact.train.recording_convert import log_to_columns, to_readings
 
 ROOT = Path(__file__).resolve().parents[1]
 FIXTURES = ROOT / "tests" / "fixtures"
@@ -57,7 +52,7 @@ def planar_log():
 def round_trip(planar_log, tmp_path_factory):
     """evaluate on the log, and estimate on its shuffled, renamed, degree recording."""
     from jax_contact.train.logs import evaluate_file
-    from jax_contact.train.recording import estimate_recording
+    from jax_contact.train.recording_estimate import estimate_recording
 
     tmp = tmp_path_factory.mktemp("estimate")
     evaluated = evaluate_file(LOG, gm_grid_log=LOG)
@@ -429,7 +424,7 @@ def test_terrain_model_reaches_the_replay_of_evaluate_and_estimate(
     cols = log_to_columns(planar_log, names=RENAME, units="rad")
     write_recording_csv(tmp_path / "r.csv", cols)
     with pytest.raises(Stop):
-        from jax_contact.train.recording import estimate_recording
+        from jax_contact.train.recording_estimate import estimate_recording
 
         estimate_recording(
             tmp_path / "r.csv",
@@ -530,7 +525,7 @@ def test_a_params_file_is_checked_against_the_robot_and_rate(tmp_path, capsys):
 
 def test_differentiated_coordinates_get_the_differences_noise(go1_log):
     from jax_contact.train.logs import default_estimator
-    from jax_contact.train.recording import noise_for_differences
+    from jax_contact.train.recording_convert import noise_for_differences
 
     cols = log_to_columns(go1_log, velocities=False, accelerations=False)
     for k in [c for c in cols if c.startswith("base_linvel/")]:

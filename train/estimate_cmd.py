@@ -1,9 +1,9 @@
 """``jax-contact estimate RECORDING --model ROBOT``: contact estimates for a recording that
 this library did not make (a robot's log).
 
-The recording's schema, its timing and the resampling rule are in
-:mod:`jax_contact.train.recording`, which does the work
-(:func:`jax_contact.train.recording.estimate_recording`). This module only parses and checks
+The recording's schema is in :mod:`jax_contact.train.recording`, its timing and the
+resampling rule in :mod:`jax_contact.train.recording_convert`, and the work in
+:func:`jax_contact.train.recording_estimate.estimate_recording`. This module only parses and checks
 the arguments, and like ``train/cli.py`` imports no JAX, NumPy or MuJoCo at module level:
 :func:`check` runs before JAX is imported. Register it in the CLI with
 ``estimate_cmd.add_parser(sub)`` (the parser's defaults carry ``func=run`` and
@@ -30,7 +30,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         description="Runs the estimator on a recording with named columns (time, q/<joint>,"
         " optional qd/, qdd/, tau/<joint>, base_quat/w,x,y,z, base_angvel/x,y,z, optional"
         " base_pos/, base_linvel/, and contact/<foot> or force/<foot> as ground truth; the"
-        " schema and timing are in train/recording.py and docs/own_robot.md) and writes"
+        " schema and timing are in train/recording.py, train/recording_convert.py and"
+        " docs/own_robot.md) and writes"
         " P(contact) per foot, each term's probability and the transitions to"
         " OUT/estimate.h5 and OUT/estimate.csv, a figure per foot, and the metrics when the"
         " recording has ground truth. The estimator runs at the recording's rate.",
@@ -99,7 +100,7 @@ def add_feet_flag(p: argparse.ArgumentParser) -> None:
 def add_terrain_model_flag(p: argparse.ArgumentParser) -> None:
     """``--terrain-model {flat,memory}``: ``terrain_model`` of
     ``jax_contact.train.logs.evaluate_file`` and
-    ``jax_contact.train.recording.estimate_recording``."""
+    ``jax_contact.train.recording_estimate.estimate_recording``."""
     p.add_argument(
         "--terrain-model",
         choices=TERRAIN_MODELS,
@@ -213,7 +214,7 @@ def check(args: argparse.Namespace) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Runs the estimate (imports the library); returns the exit code."""
-    from jax_contact.train.recording import estimate_recording
+    from jax_contact.train.recording_estimate import estimate_recording
 
     estimate_recording(
         args.recording,

@@ -1,0 +1,467 @@
+"""A recording (:mod:`jax_contact.train.recording`'s schema) -> this library's readings.
+
+:func:`to_readings` converts the named columns of a recording into the ``qpos``, ``qvel``,
+``qacc`` and ``tau`` readings of a robot model (one env), deriving what is absent by
+backward differences and switching off the terms the recording cannot feed;
+:func:`log_to_columns` is the reverse, a simulated log written as a recording.
+
+Timing (:mod:`jax_contact.train.evaluate`'s convention): row ``j`` *is* reading ``j``. Everything in
+a row describes its instant ``t_j`` or the interval ``(t_{j-1}, t_j]`` that ends at it:
+the state measured at ``t_j``, the acceleration over the interval (the backward
+difference ``(qd_j - qd_{j-1}) / (t_j - t_{j-1})`` where it is differentiated), the
+torque that acted during it (a torque sensor's or motor current's reading at ``t_j``; a
+log that stores the command sent at ``t_j`` must shift its torque column one row later),
+and the ground truth of that interval. The estimator pairs reading ``j``'s acceleration
+and torque with reading ``j - 1``'s state, as in simulation. The first row has no
+interval before it: its differences repeat the second row's.
+
+Rate: the estimator runs at the recording's rate, ``dt`` the median step of ``time``.
+Steps that differ from it by more than 1 % are refused, or with ``resample=True`` the
+recording is resampled onto the uniform grid ``t_0 + k dt``: columns linearly
+interpolated (the quaternion then normalised), ``contact/`` columns held from the last
+sample, and grid points more than ``1.5 dt`` from every sample set to NaN (a gap).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Mapping
+
+import mujoco
+import numpy as np
+
+from jax_contact.train.recording import (
+    BASE,
+    BASE_QUAT,
+    FORCE_THRESHOLD,
+    JOINT_PREFIXES,
+    RATE_TOLERANCE,
+    TIME,
+    TRUTH_PREFIXES,
+    UNITS,
+    Recording,
+)
+
+
+@dataclasses.dataclass(frozen=True)
+class Converted:
+    """A recording as this library's readings (one env).
+
+    Attributes:
+      readings: ``qpos`` (T, 1, nq), ``qvel``, ``qacc``, ``tau`` (T, 1, nv), float64.
+      time: (T,) s, the readings' times (after any resampling).
+      dt: the period, s.
+      valid: (T, 1) bool: every used column finite at this row and the one before.
+      truth: (T, 1, L) bool ground-truth contact, or None.
+      force: (T, 1, L) ground-truth normal force, N, or None.
+      terms: the measurement terms the recording supports (``EstimatorParams.terms``).
+      has_torque: whether the recording has joint torques.
+      notes: what was derived, switched off, ignored or resampled, one line each.
+      velocity_from_position: dofs whose velocity is a difference of positions.
+      acceleration_from_position: dofs whose acceleration is a second difference of
+        positions.
+    """
+
+    readings: dict
+    time: np.ndarray
+    dt: float
+    valid: np.ndarray
+    truth: np.ndarray | None
+    force: np.ndarray | None
+    terms: tuple[str, ...]
+    has_torque: bool
+    notes: tuple[str, ...]
+    velocity_from_position: tuple[int, ...] = ()
+    acceleration_from_position: tuple[int, ...] = ()
+
+
+def model_joints(mj_model: mujoco.MjModel, base_body: int):
+    """(free joint id or None, [(name, joint id)] of every other joint), or ValueError for
+    an unnamed joint, a ball joint, or a free joint that is not the base's."""
+    free, joints = None, []
+    for j in range(mj_model.njnt):
+        kind = int(mj_model.jnt_type[j])
+        if kind == int(mujoco.mjtJoint.mjJNT_FREE):
+            if int(mj_model.jnt_bodyid[j]) != base_body or free is not None:
+                body = mj_model.body(mj_model.jnt_bodyid[j]).name
+                raise ValueError(
+                    f"the model has a free joint on body {body!r}, which is not the robot's"
+                    " base; a recording cannot give its state"
+                )
+            free = j
+            continue
+        if kind == int(mujoco.mjtJoint.mjJNT_BALL):
+            raise ValueError(f"joint {mj_model.joint(j).name!r} is a ball joint (not supported)")
+        name = mj_model.joint(j).name
+        if not name:
+            raise ValueError(f"joint {j} of the model has no name; recordings name joints")
+        joints.append((name, j))
+    return free, joints
+
+
+def _backward_diff(x: np.ndarray, dt: float) -> np.ndarray:
+    d = np.empty_like(x)
+    d[1:] = (x[1:] - x[:-1]) / dt
+    d[0] = d[1] if len(x) > 1 else 0.0
+    return d
+
+
+def _check_time(rec: Recording, resample: bool) -> tuple[Recording, float, list[str]]:
+    src = f"recording {rec.source!r}"
+    t = rec.columns[TIME]
+    if len(t) < 3:
+        raise ValueError(f"{src} has {len(t)} rows; expected at least 3")
+    bad = np.flatnonzero(~np.isfinite(t))
+    if bad.size:
+        raise ValueError(f"{src}: column 'time' is not finite at row {int(bad[0])} (0-based)")
+    step = np.diff(t)
+    bad = np.flatnonzero(step <= 0)
+    if bad.size:
+        i = int(bad[0]) + 1
+        raise ValueError(
+            f"{src}: column 'time' does not increase at row {i} (0-based): {t[i]!r} s after"
+            f" {t[i - 1]!r} s"
+        )
+    dt = float(np.median(step))
+    off = np.abs(step / dt - 1.0)
+    if off.max() <= RATE_TOLERANCE:
+        return rec, dt, []
+    worst = int(np.argmax(off))
+    if not resample:
+        raise ValueError(
+            f"{src}: irregular time steps: step {worst + 1} is {step[worst]:.6g} s, the median"
+            f" {dt:.6g} s (more than {100 * RATE_TOLERANCE:g} % apart); resample it"
+            " (--resample: linear interpolation onto a uniform grid) or fix the time column"
+        )
+    return (
+        _resample(rec, dt),
+        dt,
+        [
+            f"resampled onto a uniform {dt:.6g} s grid (steps from {step.min():.6g} to"
+            f" {step.max():.6g} s): linear interpolation, quaternion normalised, contact held,"
+            " points over 1.5 dt from every sample NaN"
+        ],
+    )
+
+
+def _resample(rec: Recording, dt: float) -> Recording:
+    t = rec.columns[TIME]
+    n = int(math.floor((t[-1] - t[0]) / dt + 1e-9)) + 1
+    grid = t[0] + dt * np.arange(n)
+    idx = np.clip(np.searchsorted(t, grid, side="right") - 1, 0, len(t) - 1)
+    nxt = np.clip(idx + 1, 0, len(t) - 1)
+    near = np.minimum(np.abs(grid - t[idx]), np.abs(t[nxt] - grid))
+    gap = near > 1.5 * dt
+    out = {TIME: grid}
+    for name, col in rec.columns.items():
+        if name == TIME:
+            continue
+        if name.startswith("contact/"):
+            val = col[idx]
+        else:
+            val = np.interp(grid, t, col)
+        out[name] = np.where(gap, np.nan, val)
+    if all(q in out for q in BASE_QUAT):
+        quat = np.stack([out[q] for q in BASE_QUAT], axis=1)
+        quat /= np.linalg.norm(quat, axis=1, keepdims=True)
+        for k, q in enumerate(BASE_QUAT):
+            out[q] = quat[:, k]
+    return Recording(out, rec.source)
+
+
+def to_readings(
+    rec: Recording,
+    robot,
+    *,
+    names: Mapping[str, str] | None = None,
+    units: str = "rad",
+    resample: bool = False,
+    force_threshold: float = FORCE_THRESHOLD,
+) -> Converted:
+    """Converts a recording to readings of ``robot`` (module docstring: schema, timing).
+
+    Args:
+      rec: from :func:`read_recording`.
+      robot: an :class:`jax_contact.envs.robots.Robot` (its model and feet).
+      names: recording name -> model name, for joints and feet whose names differ.
+      units: ``"rad"`` or ``"deg"``: the unit of hinge angles, their velocities and
+        accelerations and of the base's angular velocity and acceleration.
+      resample: resample an irregular recording instead of refusing it.
+      force_threshold: normal force above which a ``force/`` column means contact, N.
+
+    Raises:
+      ValueError: one line naming the column, joint or row that is wrong.
+    """
+    if units not in UNITS:
+        raise ValueError(f"units must be one of {UNITS}, got {units!r}")
+    src = f"recording {rec.source!r}"
+    m, desc = robot.mj_model, robot.description
+    names = dict(names or {})
+    free, joints = model_joints(m, desc.base_body_id)
+    model_names = {n for n, _ in joints} | set(desc.foot_names)
+    for log_name, model_name in names.items():
+        if model_name not in model_names:
+            raise ValueError(
+                f"names map: {log_name!r} -> {model_name!r}, but the model has no joint or foot"
+                f" {model_name!r}; joints: {[n for n, _ in joints]}, feet: {list(desc.foot_names)}"
+            )
+    rec, dt, notes = _check_time(rec, resample)
+    cols = rec.columns
+    t_len = len(cols[TIME])
+    used: set[str] = {TIME}
+    to_model = lambda n: names.get(n, n)  # noqa: E731
+    by_model: dict[str, dict[str, str]] = {p: {} for p in JOINT_PREFIXES + TRUTH_PREFIXES}
+    joint_names = {n for n, _ in joints}
+    for col in cols:
+        for prefix in JOINT_PREFIXES + TRUTH_PREFIXES:
+            if col.startswith(prefix):
+                target = to_model(col[len(prefix) :])
+                valid = joint_names if prefix in JOINT_PREFIXES else set(desc.foot_names)
+                if target not in valid:
+                    what = "joint" if prefix in JOINT_PREFIXES else "foot"
+                    raise ValueError(
+                        f"{src}: column {col!r}: the model has no {what} {target!r}"
+                        f"{' (through the names map)' if target != col[len(prefix) :] else ''};"
+                        f" its {what}s: {sorted(valid)}"
+                    )
+                by_model[prefix][target] = col
+    scale = math.pi / 180.0 if units == "deg" else 1.0
+    qpos = np.zeros((t_len, m.nq))
+    qvel = np.zeros((t_len, m.nv))
+    qacc = np.zeros((t_len, m.nv))
+    tau = np.zeros((t_len, m.nv))
+    missing_tau, missing_qd = [], []
+    vel_from_pos, acc_from_pos = [], []
+    for name, j in joints:
+        col = by_model["q/"].get(name)
+        if col is None:
+            log = next((k for k, v in names.items() if v == name), name)
+            raise ValueError(f"{src}: missing column 'q/{log}' (position of joint {name!r})")
+        hinge = int(m.jnt_type[j]) == int(mujoco.mjtJoint.mjJNT_HINGE)
+        s = scale if hinge else 1.0
+        qa, va = int(m.jnt_qposadr[j]), int(m.jnt_dofadr[j])
+        qpos[:, qa] = cols[col] * s
+        used.add(col)
+        vcol = by_model["qd/"].get(name)
+        if vcol is None:
+            qvel[:, va] = _backward_diff(qpos[:, qa], dt)
+            missing_qd.append(name)
+            vel_from_pos.append(va)
+        else:
+            qvel[:, va] = cols[vcol] * s
+            used.add(vcol)
+        acol = by_model["qdd/"].get(name)
+        if acol is None:
+            qacc[:, va] = _backward_diff(qvel[:, va], dt)
+            if vcol is None:
+                acc_from_pos.append(va)
+        else:
+            qacc[:, va] = cols[acol] * s
+            used.add(acol)
+        tcol = by_model["tau/"].get(name)
+        if tcol is None:
+            missing_tau.append(name)
+        else:
+            tau[:, va] = cols[tcol]
+            used.add(tcol)
+    if missing_qd:
+        notes.append(f"joint velocities differentiated from positions: {missing_qd}")
+    actuated = sorted(
+        {n for n, j in joints if any(int(m.actuator_trnid[a, 0]) == j for a in range(m.nu))}
+    )
+    has_torque = not any(n in missing_tau for n in actuated)
+    terms = ["dynamics", "diff_kinematics", "kinematics"]
+    if not has_torque:
+        terms.remove("dynamics")
+        tau[:] = 0.0
+        gone = [n for n in actuated if n in missing_tau]
+        notes.append(f"no joint torques for {gone}: the dynamics term is off (and the GM observer)")
+    if free is not None:
+        qa, va = int(m.jnt_qposadr[free]), int(m.jnt_dofadr[free])
+        missing = [c for c in BASE_QUAT + BASE["base_angvel"] if c not in cols]
+        if missing:
+            raise ValueError(
+                f"{src}: missing column(s) {missing} (the base's orientation quaternion w, x, y, z"
+                " and angular velocity in the base frame: the robot has a floating base)"
+            )
+        quat = np.stack([cols[c] for c in BASE_QUAT], axis=1)
+        qpos[:, qa + 3 : qa + 7] = quat / np.linalg.norm(quat, axis=1, keepdims=True)
+        angvel = np.stack([cols[c] for c in BASE["base_angvel"]], axis=1) * scale
+        qvel[:, va + 3 : va + 6] = angvel
+        used.update(BASE_QUAT + BASE["base_angvel"])
+        has = {k: all(c in cols for c in v) for k, v in BASE.items()}
+        if has["base_pos"]:
+            qpos[:, qa : qa + 3] = np.stack([cols[c] for c in BASE["base_pos"]], axis=1)
+            used.update(BASE["base_pos"])
+        else:
+            terms.remove("kinematics")
+            notes.append("no base position (base_pos/x,y,z): the kinematics term is off")
+        if has["base_linvel"]:
+            qvel[:, va : va + 3] = np.stack([cols[c] for c in BASE["base_linvel"]], axis=1)
+            used.update(BASE["base_linvel"])
+        elif has["base_pos"]:
+            qvel[:, va : va + 3] = _backward_diff(qpos[:, qa : qa + 3], dt)
+            notes.append("base linear velocity differentiated from base_pos")
+            vel_from_pos.extend(range(va, va + 3))
+        else:
+            terms.remove("diff_kinematics")
+            notes.append(
+                "no base linear velocity or position: the differential-kinematics term is off"
+                " and the dynamics use zero base linear velocity and acceleration"
+            )
+        for key, sl, s in (
+            ("base_linacc", slice(va, va + 3), 1.0),
+            ("base_angacc", slice(va + 3, va + 6), scale),
+        ):
+            if has[key]:
+                qacc[:, sl] = np.stack([cols[c] for c in BASE[key]], axis=1) * s
+                used.update(BASE[key])
+            else:
+                qacc[:, sl] = _backward_diff(qvel[:, sl], dt)
+                acc_from_pos.extend(d for d in range(sl.start, sl.stop) if d in vel_from_pos)
+    if not terms:
+        raise ValueError(f"{src}: no measurement term can run on this recording")
+    truth = force = None
+    feet = desc.foot_names
+    if by_model["contact/"] or by_model["force/"]:
+        have = set(by_model["contact/"]) | set(by_model["force/"])
+        lacking = [f for f in feet if f not in have]
+        if lacking:
+            raise ValueError(
+                f"{src}: ground truth for some feet but not {lacking}; give contact/<foot> or"
+                f" force/<foot> for every foot of {list(feet)}"
+            )
+        if len(by_model["force/"]) == len(feet):
+            force = np.stack([cols[by_model["force/"][f]] for f in feet], axis=1)[:, None]
+        truth = np.stack(
+            [
+                cols[by_model["contact/"][f]] > 0.5
+                if f in by_model["contact/"]
+                else cols[by_model["force/"][f]] > force_threshold
+                for f in feet
+            ],
+            axis=1,
+        )[:, None]
+    finite = np.all(np.isfinite(np.stack([cols[c] for c in sorted(used)], axis=1)), axis=1)
+    valid = finite & np.concatenate([[True], finite[:-1]])  # differences use the row before
+    if not valid.all():
+        notes.append(
+            f"rows with NaN (the estimator's valid = False there): {_stretches(~valid, cols[TIME])}"
+        )
+    ignored = [c for c in cols if c not in used and not c.startswith(TRUTH_PREFIXES)]
+    if ignored:
+        notes.append(f"columns not in the schema, ignored: {ignored}")
+    f32 = lambda a: a[:, None, :]  # noqa: E731
+    return Converted(
+        readings={"qpos": f32(qpos), "qvel": f32(qvel), "qacc": f32(qacc), "tau": f32(tau)},
+        time=np.asarray(cols[TIME]),
+        dt=dt,
+        valid=valid[:, None],
+        truth=truth,
+        force=force,
+        terms=tuple(terms),
+        has_torque=has_torque,
+        notes=tuple(notes),
+        velocity_from_position=tuple(sorted(vel_from_pos)),
+        acceleration_from_position=tuple(sorted(acc_from_pos)),
+    )
+
+
+def noise_for_differences(params, conv: Converted):
+    """``params`` with the noise of differentiated coordinates raised to what the
+    differences carry: a velocity that is a backward difference of positions with white
+    noise ``sigma_q`` has ``sqrt(2) sigma_q / dt`` more, an acceleration that is a second
+    difference ``sqrt(6) sigma_q / dt^2`` more (weights 1, -2, 1), added in quadrature to
+    the parameters' own ``sigma_qd`` and ``sigma_qdd``. The parameters' ``sigma_q`` (which
+    may include a bias drift that the difference cancels) makes this conservative.
+    """
+    import jax.numpy as jnp
+
+    if not conv.velocity_from_position:
+        return params
+    n, dt = params.noise, conv.dt
+    sq = np.asarray(n.sigma_q, np.float64)
+    sqd = np.array(n.sigma_qd, np.float64)
+    sqdd = np.array(n.sigma_qdd, np.float64)
+    v, a = list(conv.velocity_from_position), list(conv.acceleration_from_position)
+    sqd[v] = np.sqrt(sqd[v] ** 2 + 2.0 * (sq[v] / dt) ** 2)
+    sqdd[a] = np.sqrt(sqdd[a] ** 2 + 6.0 * (sq[a] / dt**2) ** 2)
+    noise = n.replace(
+        sigma_qd=jnp.asarray(sqd, jnp.float32), sigma_qdd=jnp.asarray(sqdd, jnp.float32)
+    )
+    return params.replace(noise=noise)
+
+
+def _stretches(mask: np.ndarray, t: np.ndarray) -> str:
+    """'rows a-b (t0-t1 s), ...' of the runs of True in ``mask``."""
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], mask.astype(int), [0]])))
+    runs = [(int(a), int(b) - 1) for a, b in zip(edges[::2], edges[1::2], strict=True)]
+    text = ", ".join(f"rows {a}-{b} ({t[a]:.4g}-{t[b]:.4g} s)" for a, b in runs[:5])
+    return text + (f" and {len(runs) - 5} more" if len(runs) > 5 else "")
+
+
+def log_to_columns(
+    log,
+    *,
+    env: int = 0,
+    names: Mapping[str, str] | None = None,
+    units: str = "rad",
+    velocities: bool = True,
+    accelerations: bool = True,
+    torques: bool = True,
+    truth_force: np.ndarray | None = None,
+) -> dict[str, np.ndarray]:
+    """One env of a simulated log (:func:`jax_contact.train.logs.load_log`) as recording columns.
+
+    Reading ``k`` becomes row ``k`` at ``time = (k + 1) dt`` (the end of its step), so
+    that :func:`to_readings` gives the log's readings back (with every column) and the
+    estimator the same probabilities.
+
+    Args:
+      names: model name -> recording name (the inverse of :func:`to_readings`' map).
+      units: ``"deg"`` writes hinge angles and angular rates in degrees.
+      velocities, accelerations, torques: write those columns.
+      truth_force: (T, E, L) normal forces to write as ``force/<foot>``.
+    """
+    r = log.readings
+    m, desc = log.robot.mj_model, log.robot.description
+    names = dict(names or {})
+    scale = 180.0 / math.pi if units == "deg" else 1.0
+    free, joints = model_joints(m, desc.base_body_id)
+    t_len = r["qpos"].shape[0]
+    cols = {TIME: (np.arange(t_len) + 1.0) * log.dt}
+    pick = lambda key, i: np.asarray(r[key][:, env, i], np.float64)  # noqa: E731
+    for name, j in joints:
+        s = scale if int(m.jnt_type[j]) == int(mujoco.mjtJoint.mjJNT_HINGE) else 1.0
+        label = names.get(name, name)
+        qa, va = int(m.jnt_qposadr[j]), int(m.jnt_dofadr[j])
+        cols[f"q/{label}"] = pick("qpos", qa) * s
+        if velocities:
+            cols[f"qd/{label}"] = pick("qvel", va) * s
+        if accelerations:
+            cols[f"qdd/{label}"] = pick("qacc", va) * s
+        if torques and any(int(m.actuator_trnid[a, 0]) == j for a in range(m.nu)):
+            cols[f"tau/{label}"] = pick("tau", va)
+    if free is not None:
+        qa, va = int(m.jnt_qposadr[free]), int(m.jnt_dofadr[free])
+        for k, c in enumerate(BASE["base_pos"]):
+            cols[c] = pick("qpos", qa + k)
+        for k, c in enumerate(BASE_QUAT):
+            cols[c] = pick("qpos", qa + 3 + k)
+        for k, c in enumerate(BASE["base_linvel"]):
+            cols[c] = pick("qvel", va + k)
+        for k, c in enumerate(BASE["base_angvel"]):
+            cols[c] = pick("qvel", va + 3 + k) * scale
+        if accelerations:
+            for k, c in enumerate(BASE["base_linacc"]):
+                cols[c] = pick("qacc", va + k)
+            for k, c in enumerate(BASE["base_angacc"]):
+                cols[c] = pick("qacc", va + 3 + k) * scale
+    for i, foot in enumerate(desc.foot_names):
+        label = names.get(foot, foot)
+        if log.truth is not None:
+            cols[f"contact/{label}"] = log.truth[:, env, i].astype(np.float64)
+        if truth_force is not None:
+            cols[f"force/{label}"] = np.asarray(truth_force[:, env, i], np.float64)
+    return cols

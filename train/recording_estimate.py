@@ -1,0 +1,166 @@
+"""``jax-contact estimate``: P(contact) per foot for a recording not made by this library.
+
+:func:`estimate_recording` reads the recording (:mod:`jax_contact.train.recording`),
+converts it (:mod:`jax_contact.train.recording_convert`), runs
+:func:`jax_contact.train.evaluate.replay` and writes per-foot P(contact), each term's
+probability and the two transition probabilities as HDF5 and CSV (atomically,
+:mod:`jax_contact.io`), a Fig.-5-style PNG per foot, and the metrics when the recording
+has ground truth.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+
+import numpy as np
+
+from jax_contact.train.recording import DIAGNOSTICS, read_recording, write_recording_csv
+from jax_contact.train.recording_convert import noise_for_differences, to_readings
+
+
+def estimate_recording(
+    path: str | Path,
+    *,
+    model: str,
+    out_dir: str | Path,
+    feet: Sequence[str] | None = None,
+    names: Mapping[str, str] | None = None,
+    params_path: str | Path | None = None,
+    units: str = "rad",
+    resample: bool = False,
+    plots: bool = True,
+    plot_seconds: float = 4.0,
+    progress: bool = True,
+    terrain_model: str | None = None,
+) -> dict:
+    """``jax-contact estimate``: P(contact) per foot for a recording (module docstring).
+
+    ``terrain_model``: the estimator's terrain model
+    (:data:`jax_contact.train.logs.TERRAIN_MODELS`): ``"flat"`` a plane at z = 0 of the
+    recording's world frame, ``"memory"`` the feet's own footholds, for a ``base_pos`` that
+    drifts (a state estimator's, over a long recording); None: the one ``params_path`` was
+    tuned with, else ``"flat"``.
+
+    Writes into ``out_dir``: ``estimate.h5`` (``time`` (T,), ``p_contact``, each of
+    :data:`DIAGNOSTICS` and ``valid`` as (T, L) arrays, ``truth/contact`` when known;
+    attributes ``model``, ``foot_names``, ``terms``, ``dt``, ``notes``), ``estimate.csv``
+    (``time`` and ``<field>/<foot>`` columns), ``<foot>.png`` per foot, and with ground
+    truth ``metrics.json``. Prints the notes (derived columns, terms off), a summary per
+    foot and, with ground truth, the metrics table of ``jax-contact evaluate``.
+
+    Returns:
+      ``notes``, ``terms``, ``foot_names``, ``dt``, ``files`` (written), ``outputs`` (the
+      replay's (T, 1, L) arrays), ``scores`` (empty without ground truth).
+    """
+    from jax_contact.baselines import make_gm_params, make_kinematic_params
+    from jax_contact.envs.robots import load_robot
+    from jax_contact.io import write_json_atomic, write_log
+    from jax_contact.train.evaluate import replay, score
+    from jax_contact.train.logs import _estimator_for, format_scores
+
+    rec = read_recording(path)
+    robot = load_robot(model, foot_names=feet)
+    conv = to_readings(rec, robot, names=names, units=units, resample=resample)
+    desc = robot.description
+    params, terrain_model, terrain = _estimator_for(desc, conv.dt, params_path, terrain_model)
+    terms = tuple(t for t in params.terms if t in conv.terms)
+    if not terms:
+        raise ValueError(
+            f"the parameters' terms {params.terms} and the recording's {conv.terms} share none"
+        )
+    params = noise_for_differences(params.replace(terms=terms), conv)
+    notes = list(conv.notes)
+    if conv.velocity_from_position:
+        notes.append(
+            "the estimator's velocity and acceleration noise of the differentiated"
+            " coordinates raised to that of the differences (sqrt(2) sigma_q / dt,"
+            " sqrt(6) sigma_q / dt^2)"
+        )
+    notes.insert(0, f"estimator terms: {', '.join(terms)}; rate {1.0 / conv.dt:.6g} Hz")
+    for line in notes:
+        print(f"note: {line}")
+    has_truth = conv.truth is not None
+    out = replay(
+        robot,
+        conv.readings,
+        estimators={"probabilistic": params},
+        terrain=terrain,
+        gms={"gm": make_gm_params()} if has_truth and conv.has_torque else None,
+        kinematic=make_kinematic_params() if has_truth else None,
+        dt=conv.dt,
+        diagnostics_of="probabilistic",
+        progress=progress,
+    )
+    out_dir = Path(out_dir)
+    feet_names = list(desc.foot_names)
+    fields = {"p_contact": out["probabilistic"]} | {
+        f: out[f"probabilistic/{f}"] for f in DIAGNOSTICS
+    }
+    fields["valid"] = out["probabilistic/valid"].astype(np.float64)
+    arrays = {"time": conv.time} | {k: np.asarray(v[:, 0], np.float32) for k, v in fields.items()}
+    if has_truth:
+        arrays["truth/contact"] = conv.truth[:, 0]
+    attrs = {
+        "model": str(model),
+        "recording": str(path),
+        "terrain_model": terrain_model,
+        "foot_names": feet_names,
+        "terms": list(terms),
+        "dt": conv.dt,
+        "notes": notes,
+        "reading_timing": "end_of_step",
+    }
+    files = [write_log(out_dir / "estimate.h5", arrays, attrs)]
+    columns = {"time": conv.time}
+    for field, value in fields.items():
+        for i, foot in enumerate(feet_names):
+            columns[f"{field}/{foot}"] = np.asarray(value[:, 0, i], np.float64)
+    files.append(write_recording_csv(out_dir / "estimate.csv", columns))
+    if plots:
+        from types import SimpleNamespace
+
+        from jax_contact.train.figures import plot_estimate
+
+        nan = np.full(out["probabilistic"].shape, np.nan)
+        shown = SimpleNamespace(
+            time=conv.time - conv.time[0],
+            contact=conv.truth if has_truth else nan,
+            force=conv.force if conv.force is not None else nan,
+        )
+        for i, foot in enumerate(feet_names):
+            files.append(
+                plot_estimate(
+                    out,
+                    shown,
+                    "probabilistic",
+                    out_dir / f"{_safe(foot)}.png",
+                    leg=i,
+                    seconds=plot_seconds,
+                    title=f"{Path(path).name}: foot {foot!r} (terms: {', '.join(terms)})",
+                )
+            )
+    p = np.asarray(out["probabilistic"])[:, 0]
+    summary = "  ".join(f"{f} {np.nanmean(p[:, i] > 0.5):.2f}" for i, f in enumerate(feet_names))
+    print(f"{len(p)} readings at {conv.dt * 1e3:.4g} ms; share of steps in contact: {summary}")
+    scores = {}
+    if has_truth:
+        scores = score(out, conv.truth, conv.valid, dt=conv.dt)
+        print(format_scores(scores, title=Path(path).name))
+        files.append(write_json_atomic(out_dir / "metrics.json", scores))
+    else:
+        print("no ground truth columns (contact/<foot> or force/<foot>): no metrics")
+    print("wrote " + ", ".join(str(f) for f in files))
+    return {
+        "notes": notes,
+        "terms": terms,
+        "foot_names": feet_names,
+        "dt": conv.dt,
+        "files": files,
+        "outputs": out,
+        "scores": scores,
+    }
+
+
+def _safe(name: str) -> str:
+    return "".join(c if c.isalnum() or c in "-_." else "_" for c in name) or "foot"
