@@ -232,3 +232,12 @@ def verdicts(differences: Mapping[str, Difference]) -> dict[str, list[str]]:
         side: [s for s, d in differences.items() if d.verdict == side]
         for side in ("better", "worse")
     }
+
+
+def format_intervals(intervals: Mapping[str, Sequence]) -> str:
+    """One line, ``"f1 +0.0040 [+0.0010, +0.0070] better; ..."``, from statistic ->
+    ``[delta, low, high, verdict]`` (:meth:`Difference.as_list`, as the JSON outputs store
+    it)."""
+    return "; ".join(
+        f"{k} {d:+.4f} [{lo:+.4f}, {hi:+.4f}] {v}" for k, (d, lo, hi, v) in intervals.items()
+    )

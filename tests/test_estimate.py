@@ -494,6 +494,10 @@ def test_evaluate_adds_the_calibrated_row_of_a_file_with_a_calibration_map(tmp_p
     assert "probabilistic+cal" in got["scores"] and "probabilistic+cal" not in plain["scores"]
     assert "probabilistic+cal" in capsys.readouterr().out  # printed in the table
     assert got["scores"]["probabilistic"] == plain["scores"]["probabilistic"]
+    # The file holds the defaults, so the defaults row that a file adds scores the same.
+    assert got["scores"]["defaults"] == got["scores"]["probabilistic"]
+    with pytest.raises(ValueError, match="needs at least 2"):  # the fixture has one env
+        logs.evaluate_file(LOG, bootstrap=10)
 
     log = logs.load_log(LOG)
     p = np.clip(np.asarray(got["outputs"]["probabilistic"], np.float64), 1e-7, 1 - 1e-7)

@@ -6,6 +6,7 @@ chunk and the replay chunk) and shared by every test here.
 
 from __future__ import annotations
 
+import json
 import os
 
 import h5py
@@ -142,10 +143,20 @@ def test_cli_evaluate_a_log(planar, tmp_path, capsys):
         roll.to_arrays(),
         {"robot": "planar_leg", "dt": world.dt, "gait": "hop", "noise": "anymal_like"},
     )
-    assert cli.main(["evaluate", str(log), "--json", str(tmp_path / "m.json")]) == 0
+    argv = ["evaluate", str(log), "--json", str(tmp_path / "m.json"), "--bootstrap", "20"]
+    assert cli.main(argv) == 0
     out = capsys.readouterr().out
     assert "probabilistic" in out and "gm" in out and "kinematic" in out
-    assert (tmp_path / "m.json").exists()
+    # The bootstrap compares each baseline with the estimator; its point estimate is the
+    # difference of the two rows' own scores in the same file.
+    result = json.loads((tmp_path / "m.json").read_text())
+    assert set(result["vs_probabilistic"]) == {"gm", "kinematic"}
+    for row in ("gm", "kinematic"):
+        delta, low, high, verdict = result["vs_probabilistic"][row]["f1"]
+        want = result["scores"]["probabilistic"]["f1"] - result["scores"][row]["f1"]
+        assert delta == pytest.approx(want) and low <= high
+        assert verdict in ("better", "worse", "within noise")
+        assert f"vs {row}" in out
 
 
 def test_cli_errors_name_the_problem(tmp_path, capsys):

@@ -164,6 +164,7 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
         params_path=args.params,
         foot_names=args.feet,
         terrain_model=args.terrain_model,
+        bootstrap=args.bootstrap,
     )
     return 0
 
@@ -417,7 +418,16 @@ def build_parser() -> argparse.ArgumentParser:
         "--params",
         default=None,
         metavar="FILE|PRESET",
-        help="estimator parameters: a jc.save_params file or a shipped preset (go1, spot, barkour)",
+        help="estimator parameters: a jc.save_params file or a shipped preset (go1, spot, barkour);"
+        " the robot's defaults then run too, as the row 'defaults'",
+    )
+    p.add_argument(
+        "--bootstrap",
+        type=nonnegative_int,
+        default=0,
+        metavar="N",
+        help="compare every other row with the estimator by a paired bootstrap of N env"
+        " resamples: each difference called better, worse or within noise (1000 is typical)",
     )
     estimate_cmd.add_terrain_model_flag(p)
     estimate_cmd.add_parser(sub)

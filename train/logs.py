@@ -299,6 +299,7 @@ def evaluate_file(
     params_path: str | Path | None = None,
     foot_names: Sequence[str] | None = None,
     terrain_model: str | None = None,
+    bootstrap: int = 0,
 ) -> dict:
     """Runs the estimator, GM observer and kinematic detector on a log; prints the metrics.
 
@@ -309,7 +310,15 @@ def evaluate_file(
     touch-downs and lift-offs, ECE. A parameter file that holds a calibration map
     (``jax-contact tune --calibrate``, the shipped presets) adds the row
     ``probabilistic+cal``: the estimator's P(contact) mapped by it
-    (:func:`jax_contact.tune.calibrate_probability`), flagged at calibrated P > 0.5.
+    (:func:`jax_contact.tune.calibrate_probability`), flagged at calibrated P > 0.5. With a
+    parameter file the robot's default parameters run too, as the row ``defaults`` (same
+    terrain model), so a tuned file is seen beside what it was tuned from.
+
+    With ``bootstrap`` > 0 (and ground truth) every other row is compared with
+    ``probabilistic`` by a paired bootstrap of that many env resamples
+    (:func:`jax_contact.bootstrap.paired_bootstrap`, 95 %, seed 0): ``probabilistic - row``
+    of F1, accuracy, air-phase failures, ``|mean|`` delays and ECE, each called better,
+    worse or within noise (the log needs at least 2 envs).
 
     A log without ground truth (no ``truth/contact``, e.g. one recorded on a robot) has no
     metrics: the estimator's P(contact) per foot is then printed as a mean per foot and,
@@ -325,9 +334,12 @@ def evaluate_file(
       terrain_model: the estimator's terrain model, one of :data:`TERRAIN_MODELS`
         (:func:`default_estimator`); None: the one ``params_path`` was tuned with, else
         ``"flat"`` (:func:`resolve_terrain_model`).
+      bootstrap: env resamples of the comparison with ``probabilistic``; 0: none.
 
     Returns:
       ``log``, ``attrs``, ``scores`` (detector -> metrics; empty without ground truth),
+      ``vs_probabilistic`` (row -> statistic -> ``[delta, low, high, verdict]``, with
+      ``bootstrap``),
       ``has_truth``, ``foot_names``, ``gm`` (the GM setting used), ``outputs`` (the
       replay's (T, E, L) arrays, not written to the JSON) and ``p_contact`` (foot -> (T, E)
       nested lists) when the log has no ground truth.
@@ -344,6 +356,13 @@ def evaluate_file(
     log = load_log(path, foot_names=foot_names)
     name, truth, desc, dt = log.name, log.truth, log.robot.description, log.dt
     params, terrain_model, terrain = _estimator_for(desc, dt, params_path, terrain_model)
+    if bootstrap and truth is not None and truth.shape[1] < 2:
+        raise ValueError(
+            f"{name} has {truth.shape[1]} env: the bootstrap resamples envs and needs at least 2"
+        )
+    estimators = {"probabilistic": params}
+    if params_path is not None:
+        estimators["defaults"] = default_estimator(desc, dt, terrain_model)[0]
     gm_name, gm = "gm", make_gm_params()
     if gm_grid_log is not None and truth is not None:
         gm_name, gm, _ = tune_gm(gm_grid_log)
@@ -351,7 +370,7 @@ def evaluate_file(
     out = replay(
         log.robot,
         log.readings,
-        estimators={"probabilistic": params},
+        estimators=estimators,
         terrain=terrain,
         # Without ground truth only the estimator's P(contact) is reported.
         gms={gm_name: gm} if truth is not None else None,
@@ -392,10 +411,34 @@ def evaluate_file(
         scores = score(out, truth, log.valid, dt=dt)
         print(format_scores(scores, title=Path(path).name))
         result["scores"] = scores
+        if bootstrap:
+            result["vs_probabilistic"] = _vs_probabilistic(
+                out, scores, truth, log.valid, dt, bootstrap
+            )
     if json_path:
         write_json_atomic(json_path, json.loads(json.dumps(result, default=_plain)))
     result["outputs"] = out  # not in the JSON: (T, E, L) arrays of every detector
     return result
+
+
+def _vs_probabilistic(out, scores, truth, valid, dt: float, n_resamples: int) -> dict:
+    """``probabilistic - row`` for every other scored row, with its env-bootstrap interval;
+    printed, one line per row."""
+    from jax_contact.bootstrap import format_intervals, paired_bootstrap
+
+    print(
+        f"probabilistic - row, 95 % interval of a paired bootstrap of {n_resamples} env resamples:"
+    )
+    vs = {}
+    for row in scores:
+        if row == "probabilistic":
+            continue
+        diffs = paired_bootstrap(
+            out[row], out["probabilistic"], truth, valid, dt=dt, n_resamples=n_resamples
+        )
+        vs[row] = {k: d.as_list() for k, d in diffs.items()}
+        print(f"  vs {row:18s} {format_intervals(vs[row])}")
+    return vs
 
 
 def _estimator_for(desc, dt: float, params_path, terrain_model: str | None):

@@ -410,16 +410,15 @@ def vs_gm(out: dict, truth, valid, dt: float, n_resamples: int) -> dict | None:
 
 def format_vs_gm(payload: dict) -> str:
     """The printed lines of :func:`vs_gm` (empty without it)."""
+    from jax_contact.bootstrap import format_intervals
+
     vs = payload.get("vs_gm")
     if not vs:
         return ""
     lines = ["probabilistic - GM, 95 % interval of a paired env bootstrap:"]
     for name, per_gm in vs.items():
         for gm, stats in per_gm.items():
-            cells = "; ".join(
-                f"{k} {d:+.4f} [{lo:+.4f}, {hi:+.4f}] {v}" for k, (d, lo, hi, v) in stats.items()
-            )
-            lines.append(f"  {name:16s} vs {gm:8s} {cells}")
+            lines.append(f"  {name:16s} vs {gm:8s} {format_intervals(stats)}")
     return "\n".join(lines)
 
 
