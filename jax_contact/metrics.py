@@ -77,6 +77,11 @@ step rather than as a bare count:
     are pooled over the events matched and evaluated under that debounce, which may be a
     different set from the ``min_on`` one (a touch-down seen only by a 2-step run is
     matched with ``min_on = 1`` but not with ``persist_steps = 3``).
+
+Per env (:func:`env_sums`): the step, phase, delay and ECE-bin sums behind F1, accuracy,
+the air-phase failure rate, the mean delays and ECE, one row per env, so that these
+metrics of any multiset of envs are weighted sums of rows (the env bootstrap of
+:mod:`jax_contact.bootstrap`).
 """
 
 from __future__ import annotations
@@ -565,3 +570,110 @@ def evaluate(
         ece=_ece(prob, tru, val, n_bins),
         n_steps=steps.n_steps,
     )
+
+
+# ----------------------------------------------------------------------------- per env
+
+
+@dataclasses.dataclass(frozen=True)
+class EnvSums:
+    """The additive counts behind the pooled metrics, one row per env (axis 1 of the batch).
+
+    Every metric below is pooled over sequences as a ratio of sums (F1 of step counts, the
+    air-phase failure rate of phase counts, a mean delay of delay sums, ECE of per-bin
+    sums), so its value over any multiset of envs (an env drawn twice counts twice, as in
+    a bootstrap resample) is the same ratio of these rows' weighted sums
+    (:meth:`pooled`), equal to :func:`evaluate` on the envs taken that way.
+
+    Attributes (each (E,), or (E, n_bins) for the bins):
+      n_steps, correct, tp, fp, fn: valid steps, correct flags, true / false positives,
+        false negatives.
+      n_air_phases, air_phases_with_failure: rules 8-9.
+      touchdown_delay_sum_ms, n_touchdown_delays: sum and number of the matched, evaluated
+        touch-down delays (rules 2-6); liftoff_*: the same for lift-offs.
+      bin_truth, bin_prob: per ECE bin, the sums of truth and of P(contact).
+    """
+
+    n_steps: np.ndarray
+    correct: np.ndarray
+    tp: np.ndarray
+    fp: np.ndarray
+    fn: np.ndarray
+    n_air_phases: np.ndarray
+    air_phases_with_failure: np.ndarray
+    touchdown_delay_sum_ms: np.ndarray
+    n_touchdown_delays: np.ndarray
+    liftoff_delay_sum_ms: np.ndarray
+    n_liftoff_delays: np.ndarray
+    bin_truth: np.ndarray
+    bin_prob: np.ndarray
+
+    def pooled(self, weights) -> dict[str, np.ndarray]:
+        """The pooled metrics of envs counted ``weights`` times.
+
+        Args:
+          weights: (..., E) counts (or any non-negative weights) per env.
+
+        Returns:
+          ``f1``, ``accuracy``, ``air_phase_failure_rate``, ``touchdown_delay_ms`` and
+          ``liftoff_delay_ms`` (the mean delays), ``ece``: each (...) float64, NaN where
+          :func:`evaluate` gives NaN (a ratio 0 / 0).
+        """
+        w = np.asarray(weights, np.float64)
+        s = {f.name: w @ getattr(self, f.name) for f in dataclasses.fields(self)}
+        gap = np.abs(s["bin_truth"] - s["bin_prob"]).sum(axis=-1)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return {
+                "f1": 2 * s["tp"] / (2 * s["tp"] + s["fp"] + s["fn"]),
+                "accuracy": s["correct"] / s["n_steps"],
+                "air_phase_failure_rate": s["air_phases_with_failure"] / s["n_air_phases"],
+                "touchdown_delay_ms": s["touchdown_delay_sum_ms"] / s["n_touchdown_delays"],
+                "liftoff_delay_ms": s["liftoff_delay_sum_ms"] / s["n_liftoff_delays"],
+                "ece": gap / s["n_steps"],
+            }
+
+
+def env_sums(
+    estimate,
+    truth,
+    valid=None,
+    *,
+    dt: float,
+    threshold: float = 0.5,
+    early_window_s: float = 0.05,
+    min_on: int = 1,
+    n_bins: int = 10,
+) -> EnvSums:
+    """:class:`EnvSums` of a (T, E, ...) batch: each env's sequences scored by the rules of
+    :func:`evaluate` (same arguments), pooled over its trailing axes (legs).
+
+    Raises:
+      ValueError: as :func:`evaluate`, or for a batch without an env axis.
+    """
+    dt = _check_positive("dt", dt)
+    early_s = _check_positive("early_window_s", early_window_s, allow_zero=True)
+    min_on = _check_int("min_on", min_on, 1)
+    n_bins = _check_int("n_bins", n_bins, 1)
+    prob, flag, tru, val = _inputs(estimate, truth, valid, threshold)
+    if prob.ndim < 2 or prob.shape[1] < 1:
+        raise ValueError(f"estimate must have shape (T, E, ...) with E >= 1, got {prob.shape}")
+    early = int(round(early_s / dt))
+    rows = []
+    for e in range(prob.shape[1]):
+        p, f, g, v = (x[:, e] for x in (prob, flag, tru, val))
+        kg, kf = _flat_codes(g, v), _flat_codes(f, v)
+        ev, failure_starts = _match_codes(kg, kf, dt, early, min_on)
+        n_air, air_failed = _air_phase_failures(kg, failure_starts)
+        fv, gv, pv = f[v], g[v], p[v]
+        idx = np.minimum((pv * n_bins).astype(np.int64), n_bins - 1)
+        rows.append(
+            (
+                fv.size, np.sum(fv == gv), np.sum(fv & gv), np.sum(fv & ~gv), np.sum(~fv & gv),
+                n_air, air_failed,
+                np.sum(ev.touchdown.delays_ms), ev.touchdown.delays_ms.size,
+                np.sum(ev.liftoff.delays_ms), ev.liftoff.delays_ms.size,
+                np.bincount(idx, gv.astype(np.float64), n_bins), np.bincount(idx, pv, n_bins),
+            )
+        )  # fmt: skip
+    cols = list(zip(*rows, strict=True))
+    return EnvSums(*(np.asarray(c, np.float64) for c in cols))

@@ -22,6 +22,40 @@ def _wrong_steps(counts) -> np.ndarray:
     return p
 
 
+def _gait_like(rng, n_envs: int, n_legs: int = 2):
+    """Truth of square-wave phases (random period and offset per sequence), a P(contact)
+    that follows it late with noise and blips, and validity with a gap in one env."""
+    t = np.arange(T * 4)[:, None, None]
+    period = rng.integers(20, 40, (1, n_envs, n_legs))
+    truth = ((t + rng.integers(0, 40, (1, n_envs, n_legs))) % period) < period * 0.6
+    late = np.roll(truth, 2, axis=0)
+    p = np.clip(0.85 * late + 0.1 + rng.normal(0.0, 0.15, truth.shape), 0.0, 1.0)
+    p[rng.random(truth.shape) < 0.02] = 0.97  # blips: false contacts in the air
+    valid = np.ones(truth.shape[:2], bool)
+    valid[50:70, 1] = False
+    return truth, p, valid
+
+
+def test_env_sums_pool_to_evaluate_on_the_resampled_envs():
+    """Each pooled metric of a multiset of envs, from the per-env sums, equals
+    ``metrics.evaluate`` on the batch of those envs (an env drawn twice appears twice)."""
+    from jax_contact.metrics import env_sums, evaluate
+
+    rng = np.random.default_rng(4)
+    truth, p, valid = _gait_like(rng, 5)
+    valid3 = np.broadcast_to(valid[..., None], truth.shape)
+    sums = env_sums(p, truth, valid3, dt=DT)
+    for idx in ([0, 1, 2, 3, 4], [1, 1, 3, 0, 0], [4, 4, 4, 2, 1], [2, 2, 2, 2, 2]):
+        want = evaluate(np.take(p, idx, 1), np.take(truth, idx, 1), np.take(valid3, idx, 1), dt=DT)
+        got = sums.pooled(np.bincount(idx, minlength=5))
+        assert want.n_air_phases > 0 and np.isfinite(want.touchdown_delay_ms[0])
+        for key in ("f1", "accuracy", "air_phase_failure_rate", "ece"):
+            assert got[key] == pytest.approx(getattr(want, key), rel=1e-12, abs=1e-15), key
+        for key in ("touchdown_delay_ms", "liftoff_delay_ms"):
+            assert got[key] == pytest.approx(getattr(want, key)[0], rel=1e-12), key
+    assert np.isnan(sums.pooled(np.zeros(5))["f1"])  # no step: 0 / 0, as evaluate's NaN
+
+
 def test_identical_detectors_differ_by_exactly_nothing():
     rng = np.random.default_rng(3)
     truth = rng.random((T, 4, 2)) < 0.6
@@ -53,7 +87,7 @@ def test_accuracy_interval_matches_the_binomial_derivation(counts, low_c, high_c
     reference = _wrong_steps((0, 0, 0))
     candidate = _wrong_steps([m * c for c in counts])
     out = paired_bootstrap(
-        reference, candidate, truth, dt=DT, statistics=("accuracy",), n_resamples=2000,
+        reference, candidate, truth, dt=DT, statistics=("accuracy",), n_resamples=20000,
         level=0.9, seed=1,
     )  # fmt: skip
     d = out["accuracy"]

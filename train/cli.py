@@ -366,10 +366,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--bootstrap",
         type=nonnegative_int,
-        default=0,
+        default=None,
         metavar="N",
-        help="also compare the estimator with each GM tuning by a paired bootstrap of N env"
-        " resamples (F1, accuracy, air-phase failures; 1000: about a minute per scenario)",
+        help="env resamples of the paired bootstrap that compares the estimator with each GM"
+        " tuning (F1, accuracy, air-phase failures; default 1000, 0: off)",
     )
     estimate_cmd.add_feet_flag(p)
 
