@@ -424,9 +424,10 @@ def test_a_log_without_ground_truth_gives_p_contact(tmp_path, capsys):
     """No truth/contact: no metrics, the estimator's P(contact) per foot (issue 18)."""
     path = _planar_log(tmp_path / "log.h5", truth=False)
     out_json = tmp_path / "p.json"
-    assert cli.main(["evaluate", str(path), "--json", str(out_json)]) == 0
+    assert cli.main(["evaluate", str(path), "--json", str(out_json), "--bootstrap", "9"]) == 0
     out = capsys.readouterr().out
     assert "no ground truth" in out and "no metrics" in out and "P(contact)" in out
+    assert "--bootstrap: no ground truth, so there is nothing to compare" in out
     got = json.loads(out_json.read_text())
     assert got["has_truth"] is False and got["scores"] == {}
     (foot,) = got["foot_names"]

@@ -405,6 +405,8 @@ def evaluate_file(
             if json_path
             else "pass --json FILE to write P(contact) per foot, step and env"
         )
+        if bootstrap:
+            print("--bootstrap: no ground truth, so there is nothing to compare")
         result["scores"] = {}
         result["p_contact"] = {f: p[..., i] for i, f in enumerate(feet)}
     else:
