@@ -290,6 +290,45 @@ def test_select_cells_keeps_the_lowest_loss_epoch_no_worse_than_the_defaults():
             assert not jt.no_worse(row["val_cells"], hist[0]["val_cells"]), row["epoch"]
 
 
+def test_select_spread_keeps_the_lowest_loss_epoch_without_a_cell_worse_beyond_the_spread():
+    """select="spread" on the recovery problem: every epoch records the validation cells
+    worse than epoch 0's beyond a paired env bootstrap (recomputed here for the epoch kept
+    from the logits of its parameters and epoch 0's), the epoch kept has none, and every
+    epoch with a lower validation loss has some."""
+    from jax_contact.bootstrap import paired_bootstrap
+
+    res, val, wrong, config = _recovery_run("spread")
+    hist = res.history
+    assert hist[0]["val_worse"] == []  # epoch 0 against itself
+    chosen = hist[res.best_epoch]
+    assert chosen["val_worse"] == []
+    for row in hist[1:]:
+        if row["val_loss"] < chosen["val_loss"] - config.min_delta:
+            assert row["val_worse"], row["epoch"]
+    key = jax.random.fold_in(jax.random.fold_in(jax.random.key(config.seed), 10**6), 0)
+    p0, p1 = (
+        jt.sigmoid_np(jt.predict_logits(p, flat(0.0, 0.05), val, key=key, chunk=300))
+        for p in (wrong, res.params)
+    )
+    diffs = paired_bootstrap(p0, p1, val.truth, val.mask, dt=DT)
+    assert not any(d.verdict == "worse" for d in diffs.values())
+
+
+def test_worse_beyond_spread_names_the_cells_a_bootstrap_calls_worse():
+    """A candidate that flips the flag on every env's first 40 steps is worse in accuracy
+    and F1 beyond the spread (every env pays alike); the reference against itself has no
+    cell worse."""
+    val = _synthetic(2)
+    truth = np.asarray(val.truth, bool)
+    good = np.where(truth, 4.0, -4.0).astype(np.float32)
+    bad = good.copy()
+    bad[:40] *= -1.0
+    assert jt.worse_beyond_spread([good], [good], [val], dt=DT) == []
+    worse = jt.worse_beyond_spread([bad], [good], [val], dt=DT)
+    assert {"log0:accuracy", "log0:f1"} <= set(worse)
+    assert jt.worse_beyond_spread([good], [bad], [val], dt=DT) == []  # better, not worse
+
+
 def test_no_worse_by_hand():
     ref = [dict(f1=0.9, accuracy=0.9, ece=0.02, fail=0.01, touchdown_ms=5.0, liftoff_ms=3.0)]
     assert jt.no_worse(ref, ref)  # ties are no worse

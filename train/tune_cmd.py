@@ -157,11 +157,12 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--select",
-        choices=("loss", "bce", "cells"),  # jax_contact.tune.SELECT_RULES
+        choices=("loss", "bce", "cells", "spread"),  # jax_contact.tune.SELECT_RULES
         default="loss",
         help="validation number that picks the epoch kept (loss: BCE + event term; cells:"
         " the lowest loss among the epochs no worse than the defaults in any validation"
-        " log's F1, accuracy, ECE, air-phase failures and mean delays)",
+        " log's F1, accuracy, ECE, air-phase failures and mean delays; spread: the same,"
+        " a cell counting as worse only beyond a 95 %% paired env-bootstrap interval)",
     )
     p.add_argument(
         "--cell-tolerance",
@@ -376,7 +377,9 @@ def run(args: argparse.Namespace) -> int:
             f"tune {_bar(e, config.max_epochs)} epoch {e:2d}/{config.max_epochs}{loss}"
             f"  val loss {row['val_loss']:.4f} BCE {row['val_bce']:.4f}  F1 {row['val_f1']:.4f}"
             f"  ECE {row['val_ece']:.4f}  fail {100 * row['val_fail']:.1f} %"
-            f"  {row['wall_s']:6.1f} s" + ("  rejected" if row.get("rejected") else ""),
+            + (f"  worse beyond spread: {len(row['val_worse'])}" if "val_worse" in row else "")
+            + f"  {row['wall_s']:6.1f} s"
+            + ("  rejected" if row.get("rejected") else ""),
             file=sys.stderr,
             flush=True,
         )
@@ -395,6 +398,8 @@ def run(args: argparse.Namespace) -> int:
             why = "every epoch made a tuning log's cell worse than the defaults' (--feasible)"
         elif config.select == "cells":
             why = "no epoch was no worse than the defaults in every validation cell"
+        elif config.select == "spread":
+            why = "every epoch had a validation cell worse than the defaults' beyond the spread"
         else:
             why = "no epoch improved the validation loss"
         print(

@@ -137,7 +137,12 @@ the air-phase failure rate and the magnitude of both mean event delays; ties all
 the lowest validation loss among those; when none is, the untuned parameters (epoch 0);
 ``cell_tolerance`` lets each cell be worse by that many :data:`CELL_TOLERANCE`.
 It trades the single loss's optimum for issue 15's "every cell at least as good as the
-defaults", measured on validation.
+defaults", measured on validation. ``select="spread"`` asks the same with a statistical
+tolerance instead of a fixed one: an epoch is admissible when no validation cell is
+worse than epoch 0's beyond the rollouts' spread (:func:`worse_beyond_spread`: the whole
+95 % interval of a paired bootstrap over the validation log's envs,
+:mod:`jax_contact.bootstrap`, on the worse side of 0). Every epoch's such cells are in
+its history (``val_worse``) whatever the rule.
 
 Randomness: the key ``jax.random.key(config.seed)`` is folded with the epoch, log and
 window numbers, so a run is reproducible (the key only feeds the Monte-Carlo touch-down;
@@ -164,6 +169,7 @@ from jax_contact.tune.cells import (
     constraint_penalty,
     constraint_units,
     no_worse,
+    worse_beyond_spread,
 )
 from jax_contact.tune.config import SELECT_RULES, TuneConfig
 from jax_contact.tune.events import (
@@ -234,6 +240,7 @@ __all__ = [
     "LOG_FIELDS",
     "make_space",
     "no_worse",
+    "worse_beyond_spread",
     "NOISE_FIELDS",
     "OPTIONAL_FIELDS",
     "ParamSpace",

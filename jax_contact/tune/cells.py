@@ -123,3 +123,49 @@ def no_worse(cells: Sequence[dict], reference: Sequence[dict], tolerance: float 
             if np.isnan(a) or np.isnan(b) or sign * (a - b) < -tolerance * CELL_TOLERANCE[key]:
                 return False
     return True
+
+
+# The cells of CELL_KEYS as jax_contact.bootstrap's statistics.
+SPREAD_STATISTICS = {
+    "f1": "f1",
+    "accuracy": "accuracy",
+    "ece": "ece",
+    "fail": "air_phase_failure_rate",
+    "touchdown_ms": "touchdown_delay_ms",
+    "liftoff_ms": "liftoff_delay_ms",
+}
+
+
+def worse_beyond_spread(
+    logits: Sequence,
+    reference_logits: Sequence,
+    datas: Sequence,
+    *,
+    dt: float,
+    n_resamples: int = 1000,
+    level: float = 0.95,
+) -> list[str]:
+    """The validation cells of ``logits`` worse than ``reference_logits``' beyond the
+    rollouts' spread: the whole 95 % interval of a paired env bootstrap
+    (:func:`jax_contact.bootstrap.paired_bootstrap`, seed 0) on the worse side of 0.
+
+    Args:
+      logits, reference_logits: per validation log, (T, E, L) fused logits.
+      datas: the logs' :class:`TuningData` (``truth`` and ``mask``); each needs 2 envs.
+      dt: period, s.
+
+    Returns:
+      ``"log<i>:<cell>"`` for each such cell (:data:`CELL_KEYS` names), empty if none.
+    """
+    from jax_contact.bootstrap import paired_bootstrap
+    from jax_contact.tune.calibration import sigmoid_np
+
+    worse = []
+    for i, (x, x0, d) in enumerate(zip(logits, reference_logits, datas, strict=True)):
+        names = {v: k for k, v in SPREAD_STATISTICS.items()}
+        diffs = paired_bootstrap(
+            sigmoid_np(x0), sigmoid_np(x), np.asarray(d.truth, bool), np.asarray(d.mask, bool),
+            dt=dt, statistics=tuple(names), n_resamples=n_resamples, level=level,
+        )  # fmt: skip
+        worse += [f"log{i}:{names[k]}" for k, diff in diffs.items() if diff.verdict == "worse"]
+    return worse

@@ -6,7 +6,7 @@ import dataclasses
 
 import numpy as np
 
-SELECT_RULES = ("loss", "bce", "cells")
+SELECT_RULES = ("loss", "bce", "cells", "spread")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -33,8 +33,11 @@ class TuneConfig:
         run that starts this close before a true touch-down and lasts into it is the
         touch-down's detection, not a false contact, and is not scored.
       select: which validation number picks the epoch returned: ``"loss"`` (BCE plus the
-        event term, the default), ``"bce"``, or ``"cells"`` (the lowest loss among the
-        epochs no worse than epoch 0 in any validation cell, :func:`no_worse`).
+        event term, the default), ``"bce"``, ``"cells"`` (the lowest loss among the
+        epochs no worse than epoch 0 in any validation cell, :func:`no_worse`), or
+        ``"spread"`` (the lowest loss among the epochs with no validation cell worse than
+        epoch 0's beyond the rollouts' spread, :func:`worse_beyond_spread`: a paired env
+        bootstrap instead of the fixed tolerances of ``"cells"``).
       cell_tolerance: with ``select="cells"``, how much worse than epoch 0 a validation
         cell may be, in units of :data:`CELL_TOLERANCE` (0: not at all).
       constraint_weight: ``lambda_c``, weight of the cells in the objective (0: off): the

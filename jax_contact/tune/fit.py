@@ -19,6 +19,7 @@ from jax_contact.tune.cells import (
     cell_surrogates,
     constraint_units,
     no_worse,
+    worse_beyond_spread,
 )
 from jax_contact.tune.config import TuneConfig
 from jax_contact.tune.events import TuningData, air_event_terms, with_air_phases
@@ -203,11 +204,14 @@ class TuneResult:
       history: one dict per epoch (epoch 0: before any update): ``epoch``, ``train_loss``
         (mean over the epoch's windows of the loss, NaN for epoch 0), ``train_bce``,
         ``val_bce``, ``val_event``, ``val_loss``, ``val_f1``, ``val_ece``, ``val_fail``
-        (:func:`score_logs`), ``grad_norm``, ``wall_s``; with ``config.feasible`` also
+        (:func:`score_logs`), ``val_worse`` (the validation cells worse than epoch 0's
+        beyond the rollouts' spread, :func:`worse_beyond_spread`; absent for a validation
+        log of one env), ``grad_norm``, ``wall_s``; with ``config.feasible`` also
         ``train_cells`` (the tuning logs' cells) and ``rejected``.
       best_epoch: the epoch whose parameters are returned (lowest ``val_loss``, or
         ``val_bce`` with ``config.select == "bce"``, or the lowest ``val_loss`` among the
-        epochs :func:`no_worse` than epoch 0 with ``"cells"``).
+        epochs :func:`no_worse` than epoch 0 with ``"cells"``, or among those with no
+        ``val_worse`` with ``"spread"``).
       stopped_early: whether patience ran out before ``max_epochs``.
       wall_s: total wall time, s (compilation included).
     """
@@ -272,19 +276,34 @@ def tune(
     train = [d if d.events is not None else with_air_phases(d, early) for d in train]
     vals = [v if v.events is not None else with_air_phases(v, early) for v in vals]
 
-    def scores(th, logs, log_key) -> dict:
-        # score_logs of the parameters th on whole logs (validation or tuning logs).
+    def logits_of(th, logs, log_key) -> list:
         params = to_params(space, base, th)
-        logits = [
-            predict_logits(params, terrain, d, key=jax.random.fold_in(log_key, i),
-                           chunk=config.chunk)
+        return [
+            np.asarray(predict_logits(params, terrain, d, key=jax.random.fold_in(log_key, i),
+                                      chunk=config.chunk))
             for i, d in enumerate(logs)
         ]  # fmt: skip
-        return score_logs(logits, logs, dt=dt, config=config)
+
+    def scores(th, logs, log_key) -> dict:
+        # score_logs of the parameters th on whole logs (validation or tuning logs).
+        return score_logs(logits_of(th, logs, log_key), logs, dt=dt, config=config)
+
+    val_logits0 = None  # epoch 0's validation logits, the reference of val_worse
 
     def validate(th) -> dict:
-        return scores(th, vals, val_key)
+        # score_logs on the validation logs, and the cells worse than epoch 0's beyond the
+        # rollouts' spread (a paired env bootstrap; needs 2 envs per log).
+        nonlocal val_logits0
+        logits = logits_of(th, vals, val_key)
+        out = score_logs(logits, vals, dt=dt, config=config)
+        if val_logits0 is None:
+            val_logits0 = logits
+        if all(v.truth.shape[1] >= 2 for v in vals):
+            out["worse"] = worse_beyond_spread(logits, val_logits0, vals, dt=dt)
+        return out
 
+    if config.select == "spread" and any(v.truth.shape[1] < 2 for v in vals):
+        raise ValueError("select='spread' resamples the validation logs' envs: each needs 2")
     history = []
     first = dict(epoch=0, train_loss=float("nan"), train_bce=float("nan"), grad_norm=float("nan"))
     first.update({f"val_{k}": v for k, v in validate(theta).items()})
@@ -302,6 +321,8 @@ def tune(
     )
 
     def admissible(row) -> bool:
+        if config.select == "spread":
+            return not row["val_worse"]
         return config.select != "cells" or no_worse(
             row["val_cells"], first["val_cells"], config.cell_tolerance
         )
