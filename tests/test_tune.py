@@ -526,6 +526,14 @@ def test_shipped_presets_load_by_name_with_their_provenance(name):
     assert prov["config"]["event_weight"] == pytest.approx(PRESET_EVENT_WEIGHTS[name])
     also = [f for f in prov["fields"] if f in jt.OPTIONAL_FIELDS]
     assert also == list(PRESET_TUNE_ALSO.get(name, ()))
+    # ... and so are the extra arguments (Spot's selection on the spread, rule 12).
+    from jax_contact.train.tune_presets import PRESET_EXTRA
+
+    extra = PRESET_EXTRA.get(name, ())
+    args = prov["arguments"]
+    for flag, value in zip(extra[::2], extra[1::2], strict=True):
+        assert str(args[flag.lstrip("-").replace("-", "_")]) == value, flag
+    assert args["select"] == ("spread" if "--select" in extra else "loss")
     if "contact_damping" in also:
         assert 20.0 <= float(params.contact_damping) <= 400.0
     else:

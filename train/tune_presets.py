@@ -5,7 +5,8 @@
   world of :func:`scenario_world`.
 - :func:`regenerate_preset` rebuilds a preset: tuning logs of seed 1000, validation logs
   of seed 1001 (never the evaluation seed 0), ``jax-contact tune`` with the robot's
-  settings (:data:`PRESET_EVENT_WEIGHTS`, :data:`PRESET_TUNE_ALSO`) and its calibration.
+  settings (:data:`PRESET_EVENT_WEIGHTS`, :data:`PRESET_TUNE_ALSO`, :data:`PRESET_EXTRA`)
+  and its calibration.
 - :func:`compare` replays the evaluation logs with the defaults and any parameter files
   and scores every Table III cell and ECE (docs/tuning.md's tables); with ``bootstrap`` it
   also says which differences exceed what re-running the rollouts would produce
@@ -39,6 +40,10 @@ PRESET_EVENT_WEIGHTS = {"go1": 0.3, "spot": 0.1, "barkour": 1.0}
 # Optional fields a preset also tunes (same page): contact_damping where tuning it lowered
 # the validation loss without more worse cells or +0.5 points of air-phase failures.
 PRESET_TUNE_ALSO = {"spot": ("contact_damping",), "barkour": ("contact_damping",)}
+# More `jax-contact tune` arguments per preset (docs/tuning.md, rule 12): Spot's file keeps
+# the lowest-loss epoch with no validation cell worse than the defaults beyond the spread,
+# fitted with the cells' smooth stand-ins in the objective.
+PRESET_EXTRA = {"spot": ("--select", "spread", "--patience", "12", "--constrain", "0.1")}
 
 
 def scenario_world(robot: str, scenario: str):
@@ -108,7 +113,8 @@ def regenerate_preset(
     trot and walk, seeds 1000 and 1001, never the evaluation seed 0) into ``workdir`` unless
     they are there, tunes with the default settings (BCE plus the air-phase event term of
     weight ``event_weight``, by default the robot's :data:`PRESET_EVENT_WEIGHTS` or 0.3;
-    the optional fields of :data:`PRESET_TUNE_ALSO` too;
+    the optional fields of :data:`PRESET_TUNE_ALSO` too, and :data:`PRESET_EXTRA`'s
+    arguments;
     ``air_penalty`` adds the per-step hinge of the previous
     session; ``extra`` more arguments of ``jax-contact tune``) and ``--calibrate``, and
     writes ``jax_contact/presets/<robot>.json`` (or ``out``).
@@ -135,7 +141,7 @@ def regenerate_preset(
     more = ["--air-penalty", str(air_penalty), "--event-weight", str(event_weight)]
     if PRESET_TUNE_ALSO.get(robot):
         more += ["--tune-also", *PRESET_TUNE_ALSO[robot]]
-    more += list(extra)
+    more += [*PRESET_EXTRA.get(robot, ()), *extra]
     from jax_contact.train.tune_cmd import main
 
     return main([*argv, "--out", str(out), "--calibrate", *more, "--note", note])
