@@ -156,6 +156,13 @@ def _check_int(name: str, value, lowest: int) -> int:
     return int(value)
 
 
+def _event_settings(dt, early_window_s, min_on) -> tuple[float, int, int]:
+    """Checked (dt, early window in steps, min_on) of the event matching (rules 1-2)."""
+    dt = _check_positive("dt", dt)
+    early_s = _check_positive("early_window_s", early_window_s, allow_zero=True)
+    return dt, int(round(early_s / dt)), _check_int("min_on", min_on, 1)
+
+
 def _flat_codes(x: np.ndarray, valid: np.ndarray) -> np.ndarray:
     """(S * (T + 1),) int8: 1 / 0 at valid steps, -1 at invalid ones, time fastest.
 
@@ -324,11 +331,9 @@ def match_events(
         or NaN at valid steps, or a bad ``dt``, ``threshold``, ``early_window_s`` or
         ``min_on``.
     """
-    dt = _check_positive("dt", dt)
-    early_s = _check_positive("early_window_s", early_window_s, allow_zero=True)
-    min_on = _check_int("min_on", min_on, 1)
+    dt, early, min_on = _event_settings(dt, early_window_s, min_on)
     _, flag, tru, val = _inputs(estimate, truth, valid, threshold)
-    return _match(flag, tru, val, dt, int(round(early_s / dt)), min_on)
+    return _match(flag, tru, val, dt, early, min_on)
 
 
 def _match(flag, tru, val, dt: float, early: int, min_on: int) -> EventMatch:
@@ -528,13 +533,10 @@ def evaluate(
     :func:`expected_calibration_error`; ``persist_steps`` (an int >= 1, independent of
     ``min_on``) is the debounce of the persistent delays (rule 11).
     """
-    dt = _check_positive("dt", dt)
-    early_s = _check_positive("early_window_s", early_window_s, allow_zero=True)
-    min_on = _check_int("min_on", min_on, 1)
+    dt, early, min_on = _event_settings(dt, early_window_s, min_on)
     n_bins = _check_int("n_bins", n_bins, 1)
     persist_steps = _check_int("persist_steps", persist_steps, 1)
     prob, flag, tru, val = _inputs(estimate, truth, valid, threshold)
-    early = int(round(early_s / dt))
     kg, kf = _flat_codes(tru, val), _flat_codes(flag, val)
     ev, failure_starts = _match_codes(kg, kf, dt, early, min_on)
     # The persistent matching is a second pass of the same rules, skipped when it is the same.
@@ -650,14 +652,11 @@ def env_sums(
     Raises:
       ValueError: as :func:`evaluate`, or for a batch without an env axis.
     """
-    dt = _check_positive("dt", dt)
-    early_s = _check_positive("early_window_s", early_window_s, allow_zero=True)
-    min_on = _check_int("min_on", min_on, 1)
+    dt, early, min_on = _event_settings(dt, early_window_s, min_on)
     n_bins = _check_int("n_bins", n_bins, 1)
     prob, flag, tru, val = _inputs(estimate, truth, valid, threshold)
     if prob.ndim < 2 or prob.shape[1] < 1:
         raise ValueError(f"estimate must have shape (T, E, ...) with E >= 1, got {prob.shape}")
-    early = int(round(early_s / dt))
     rows = []
     for e in range(prob.shape[1]):
         p, f, g, v = (x[:, e] for x in (prob, flag, tru, val))
