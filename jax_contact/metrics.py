@@ -397,17 +397,26 @@ def step_scores(estimate, truth, valid=None, *, threshold: float = 0.5) -> StepS
     return _step_scores(flag, tru, val)
 
 
-def _step_scores(flag, tru, val) -> StepScores:
+def _step_counts(flag, tru, val) -> tuple[int, int, int, int, int]:
+    """(valid steps, correct flags, true positives, false positives, false negatives)."""
     f, g = flag[val], tru[val]
-    tp = int(np.sum(f & g))
-    fp = int(np.sum(f & ~g))
-    fn = int(np.sum(~f & g))
+    return (
+        int(f.size),
+        int(np.sum(f == g)),
+        int(np.sum(f & g)),
+        int(np.sum(f & ~g)),
+        int(np.sum(~f & g)),
+    )
+
+
+def _step_scores(flag, tru, val) -> StepScores:
+    n, correct, tp, fp, fn = _step_counts(flag, tru, val)
     return StepScores(
-        accuracy=_ratio(int(np.sum(f == g)), f.size),
+        accuracy=_ratio(correct, n),
         precision=_ratio(tp, tp + fp),
         recall=_ratio(tp, tp + fn),
         f1=_ratio(2 * tp, 2 * tp + fp + fn),
-        n_steps=int(f.size),
+        n_steps=n,
     )
 
 
@@ -438,15 +447,31 @@ def expected_calibration_error(estimate, truth, valid=None, *, n_bins: int = 10)
     return _ece(prob, tru, val, n_bins)
 
 
-def _ece(prob, tru, val, n_bins: int) -> float:
+def ece_bins(prob, tru, val, n_bins: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The bins of :func:`expected_calibration_error` (and of a reliability diagram).
+
+    Args:
+      prob: (T, ...) float64 P(contact) in [0, 1].
+      tru: (T, ...) bool truth.
+      val: (T, ...) bool mask of the steps counted.
+      n_bins: equal-width bins on [0, 1] (the last also holds 1).
+
+    Returns:
+      (count, sum of truth, sum of P) per bin over the valid steps, each (n_bins,).
+    """
     p, g = prob[val], tru[val].astype(np.float64)
-    if p.size == 0:
-        return float("nan")
     idx = np.minimum((p * n_bins).astype(np.int64), n_bins - 1)
-    count = np.bincount(idx, minlength=n_bins)
-    gap = np.abs(np.bincount(idx, g, n_bins) - np.bincount(idx, p, n_bins))
-    # sum_b n_b/N |mean_g - mean_p| = sum_b |sum_g - sum_p| / N.
-    return float(np.sum(gap[count > 0]) / p.size)
+    count = np.bincount(idx, minlength=n_bins).astype(np.float64)
+    return count, np.bincount(idx, g, n_bins), np.bincount(idx, p, n_bins)
+
+
+def _ece(prob, tru, val, n_bins: int) -> float:
+    n = int(np.sum(val))
+    if n == 0:
+        return float("nan")
+    _, sum_g, sum_p = ece_bins(prob, tru, val, n_bins)
+    # sum_b n_b/N |mean_g - mean_p| = sum_b |sum_g - sum_p| / N (an empty bin adds 0).
+    return float(np.sum(np.abs(sum_g - sum_p)) / n)
 
 
 # ----------------------------------------------------------------------------- summary
@@ -663,15 +688,13 @@ def env_sums(
         kg, kf = _flat_codes(g, v), _flat_codes(f, v)
         ev, failure_starts = _match_codes(kg, kf, dt, early, min_on)
         n_air, air_failed = _air_phase_failures(kg, failure_starts)
-        fv, gv, pv = f[v], g[v], p[v]
-        idx = np.minimum((pv * n_bins).astype(np.int64), n_bins - 1)
         rows.append(
             (
-                fv.size, np.sum(fv == gv), np.sum(fv & gv), np.sum(fv & ~gv), np.sum(~fv & gv),
+                *_step_counts(f, g, v),
                 n_air, air_failed,
                 np.sum(ev.touchdown.delays_ms), ev.touchdown.delays_ms.size,
                 np.sum(ev.liftoff.delays_ms), ev.liftoff.delays_ms.size,
-                np.bincount(idx, gv.astype(np.float64), n_bins), np.bincount(idx, pv, n_bins),
+                *ece_bins(p, g, v, n_bins)[1:],
             )
         )  # fmt: skip
     cols = list(zip(*rows, strict=True))

@@ -19,6 +19,8 @@ from pathlib import Path
 
 import numpy as np
 
+from jax_contact.metrics import ece_bins
+
 
 def reliability_bins(prob, truth, valid=None, *, n_bins: int = 10) -> dict[str, np.ndarray]:
     """Per-bin statistics of the reliability diagram.
@@ -41,15 +43,11 @@ def reliability_bins(prob, truth, valid=None, *, n_bins: int = 10) -> dict[str, 
         if valid is None
         else np.broadcast_to(np.asarray(valid, bool), p.shape)
     )
-    p, g = p[v], g[v].astype(np.float64)
-    idx = np.minimum((p * n_bins).astype(np.int64), n_bins - 1)
-    count = np.bincount(idx, minlength=n_bins).astype(np.float64)
-    sum_p = np.bincount(idx, p, n_bins)
-    sum_g = np.bincount(idx, g, n_bins)
+    count, sum_g, sum_p = ece_bins(p, g, v, n_bins)
     with np.errstate(invalid="ignore", divide="ignore"):
         mean_p = np.where(count > 0, sum_p / count, np.nan)
         freq = np.where(count > 0, sum_g / count, np.nan)
-    ece = np.sum(np.abs(sum_g - sum_p)) / max(p.size, 1)
+    ece = np.sum(np.abs(sum_g - sum_p)) / max(int(np.sum(v)), 1)
     return {"count": count, "mean_p": mean_p, "freq": freq, "ece": np.asarray(ece)}
 
 
