@@ -73,14 +73,25 @@ positive_int = int_at_least(1)
 nonnegative_int = int_at_least(0)
 
 
-def positive_float(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        value = math.nan
-    if not (math.isfinite(value) and value > 0):
-        raise argparse.ArgumentTypeError(f"must be a finite number > 0, got {text!r}")
-    return value
+def float_above_zero(*, or_zero: bool):
+    """An argparse type: a finite float > 0 (``or_zero``: >= 0), else an error naming the
+    value."""
+    bound = ">= 0" if or_zero else "> 0"
+
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            value = math.nan
+        if not (math.isfinite(value) and (value >= 0 if or_zero else value > 0)):
+            raise argparse.ArgumentTypeError(f"must be a finite number {bound}, got {text!r}")
+        return value
+
+    return parse
+
+
+positive_float = float_above_zero(or_zero=False)
+nonnegative_float = float_above_zero(or_zero=True)
 
 
 def check_robot(arg: str, name: str | None) -> None:

@@ -22,7 +22,6 @@ sensor preset (``anymal_like`` unless the log says otherwise) and the default ga
 from __future__ import annotations
 
 import argparse
-import math
 import sys
 import time
 from pathlib import Path
@@ -75,16 +74,6 @@ OPTIONAL_FIELDS = ("contact_damping",)
 # -------------------------------------------------------------------------- arguments
 
 
-def _nonnegative_float(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        value = math.nan
-    if not (math.isfinite(value) and value >= 0):
-        raise argparse.ArgumentTypeError(f"must be a finite number >= 0, got {text!r}")
-    return value
-
-
 def add_parser(subparsers) -> argparse.ArgumentParser:
     """Adds the ``tune`` command to an argparse subparsers object; returns its parser.
 
@@ -92,7 +81,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     commands do.
     """
     # The CLI's argument types (one rule); imported here, once jax_contact.train.cli is loaded.
-    from jax_contact.train.cli_args import positive_float, positive_int
+    from jax_contact.train.cli_args import nonnegative_float, positive_float, positive_int
 
     p = subparsers.add_parser(
         "tune",
@@ -120,24 +109,24 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--clip", type=positive_float, default=1.0, help="gradient norm clip")
     p.add_argument("--chunk", type=positive_int, default=400, help="steps per BPTT window")
     p.add_argument(
-        "--prior", type=_nonnegative_float, default=1e-3, help="weight of the prior on the stds"
+        "--prior", type=nonnegative_float, default=1e-3, help="weight of the prior on the stds"
     )
     p.add_argument(
         "--prior-other",
-        type=_nonnegative_float,
+        type=nonnegative_float,
         default=1e-3,
         help="weight of the prior on caps, T_s, a_F",
     )
     p.add_argument("--seed", type=int, default=0, help="the run's key")
     p.add_argument(
         "--air-penalty",
-        type=_nonnegative_float,
+        type=nonnegative_float,
         default=0.0,
         help="weight of the false-contact hinge on true air steps (jax_contact.tune)",
     )
     p.add_argument(
         "--event-weight",
-        type=_nonnegative_float,
+        type=nonnegative_float,
         default=0.3,
         help="weight of the air-phase event term (jax_contact.tune; 0: plain BCE)",
     )
@@ -166,7 +155,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--cell-tolerance",
-        type=_nonnegative_float,
+        type=nonnegative_float,
         default=0.0,
         help="with --select cells, how much worse than the defaults a validation cell may"
         " be, in units of jax_contact.tune.CELL_TOLERANCE (F1/accuracy/ECE 0.0005, 0.25"
@@ -174,7 +163,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--constrain",
-        type=_nonnegative_float,
+        type=nonnegative_float,
         default=0.0,
         metavar="WEIGHT",
         help="weight of the cells in the objective: each tuning window's expected errors,"
