@@ -267,6 +267,22 @@ def test_tuning_stops_at_the_noise_floor():
     assert res.history[res.best_epoch]["val_bce"] < res.history[0]["val_bce"]
 
 
+def test_tuning_stops_at_the_plausibility_box():
+    """The recovery problem with a box of x2: sigma_J would fall from 0.2 to its true
+    0.05 m/s (x0.25, test above) but may not go below 0.2 / 2 = 0.1; projected onto the
+    box, it ends on it. sigma_qd is not tuned, so the box leaves it alone."""
+    train, val = _synthetic(1), _synthetic(2)
+    space = jt.make_space(4, fields=("sigma_J",))
+    config = jt.TuneConfig(
+        learning_rate=0.1, max_epochs=25, patience=5, chunk=300, prior_noise=0.0, seed=0,
+        event_weight=0.0, select="bce", noise_ratio=2.0,
+    )  # the recovery's training step: the box is traced, not compiled in  # fmt: skip
+    res = jt.tune(_synthetic_params(SIGMA_J_WRONG), flat(0.0, 0.05), [train], val, space, config)
+    np.testing.assert_allclose(np.asarray(res.params.noise.sigma_J), SIGMA_J_WRONG / 2, rtol=1e-5)
+    assert float(res.params.noise.sigma_qd[0]) == pytest.approx(SIGMA_QD, rel=1e-6)
+    assert res.history[res.best_epoch]["val_bce"] < res.history[0]["val_bce"]
+
+
 def test_select_cells_keeps_the_lowest_loss_epoch_no_worse_than_the_defaults():
     """select="cells" on the recovery problem (the same compiled training step): epoch 0's
     cells are jax_contact.metrics of the untuned filter on the validation log (recomputed
@@ -374,6 +390,34 @@ def test_theta_lower_bounds_by_hand():
         jt.theta_lower_bounds(space, base, {"sigma_qd": np.ones(3)})
 
 
+def test_theta_bounds_box_the_noise_by_hand():
+    """noise_ratio r = 4: every noise group in [-log 4, log 4]; a floor above -log 4 wins
+    below (group 1's log 0.5; group 0's floor log 0.125 lies outside the box); caps and
+    T_s are not boxed; r = 0 is theta_lower_bounds and +inf."""
+    sigma_qd = np.array([1, 1, 2, 2, 2, 4, 4, 4], float)
+    base = make_params(make_noise(8, sigma_qd=sigma_qd))
+    space = jt.make_space(8, dof_groups=(0, 0, 1, 1, 1, 2, 2, 2))
+    floor = {"sigma_qd": np.array([0.125, 0, 1, 0, 0, 0, 0, 0], float)}
+    lower, upper = jt.theta_bounds(space, base, floor, noise_ratio=4.0)
+    l4 = np.log(4.0)
+    np.testing.assert_allclose(np.asarray(lower["sigma_qd"]), [-l4, np.log(0.5), -l4], rtol=1e-6)
+    np.testing.assert_allclose(np.asarray(upper["sigma_qd"]), [l4, l4, l4], rtol=1e-6)
+    np.testing.assert_allclose(np.asarray(lower["sigma_d"]), -l4, rtol=1e-6)
+    for f in ("cap_dynamics", "stance_time", "takeoff_accel"):
+        assert np.isneginf(np.asarray(lower[f])).all() and np.isposinf(np.asarray(upper[f])).all()
+    lower0, upper0 = jt.theta_bounds(space, base, floor)
+    np.testing.assert_array_equal(
+        np.asarray(lower0["sigma_qd"]),
+        np.asarray(jt.theta_lower_bounds(space, base, floor)["sigma_qd"]),
+    )
+    assert all(np.isposinf(np.asarray(v)).all() for v in upper0.values())
+    for bad in (1.0, 0.5, -2.0, np.inf):
+        with pytest.raises(ValueError, match="noise_ratio"):
+            jt.theta_bounds(space, base, None, noise_ratio=bad)
+        with pytest.raises(ValueError, match="noise_ratio"):
+            jt.TuneConfig(noise_ratio=bad)
+
+
 # ----------------------------------------------------------------------- cheap checks
 
 
@@ -473,11 +517,16 @@ def test_tune_cmd_checks_arguments_without_jax(tmp_path):
         "try:\n    a.check(a)\nexcept ValueError as e:\n    print(e)\n"
         f"a = p.parse_args(['tune', {str(log)!r}, '--validate', 'missing.h5', '--out', 'x.json'])\n"
         "try:\n    a.check(a)\nexcept ValueError as e:\n    print(e)\n"
+        f"a = p.parse_args(['tune', {str(log)!r}, '--validate', {str(log)!r} + '.h5', '--out',"
+        " 'x.json', '--noise-ratio', '1'])\n"
+        "a.logs = []; a.validate = []\n"  # only the ratio left to refuse
+        "try:\n    a.check(a)\nexcept ValueError as e:\n    print(e)\n"
         "assert 'jax' not in sys.modules\n"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert "also a tuning log" in out.stdout
     assert "--validate" in out.stdout and "does not exist" in out.stdout
+    assert "argument --noise-ratio: must be 0 (no box) or > 1, got 1" in out.stdout
 
 
 def test_reliability_bins_agree_with_metrics_ece_and_the_png_is_written(np_rng, tmp_path):
@@ -512,7 +561,8 @@ def test_shipped_presets_load_by_name_with_their_provenance(name):
     # The prior keeps every std within a factor 8 of its derived value (docs/tuning.md says
     # which tuned values are not physically plausible: Barkour's base position std, 5x).
     ratios = [r["ratio"] for r in prov["tuned_vs_default"] if r["field"].startswith("sigma")]
-    assert all(1 / 8 <= r <= 8.0 for r in ratios), ratios
+    box = jt.PLAUSIBLE_NOISE_RATIO
+    assert all(1 / box <= r <= box for r in ratios), ratios
     # T_s stays a stance duration (jax_contact.tune's bounds), the loss has the event term,
     # and the file names the commit it was tuned at.
     lo, hi = prov["stance_time_bounds"]

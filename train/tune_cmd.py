@@ -185,6 +185,15 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         " (jax_contact.defaults.sensor_noise_floor); none: unbounded",
     )
     p.add_argument(
+        "--noise-ratio",
+        type=nonnegative_float,
+        default=0.0,
+        metavar="R",
+        help="plausibility box: every tuned std within a factor R (> 1) of its derived value"
+        " (8: the standing check of the shipped presets, jax_contact.tune.theta_bounds);"
+        " 0: no box",
+    )
+    p.add_argument(
         "--calibrate",
         action="store_true",
         help="also fit a temperature and bias on the fused logit (stored in the provenance)",
@@ -239,6 +248,9 @@ def check(args: argparse.Namespace) -> None:
         )
     if len(set(getattr(args, "freeze", []) or [])) >= len(DEFAULT_FIELDS):
         raise ValueError("argument --freeze: nothing left to tune")
+    ratio = getattr(args, "noise_ratio", 0.0)
+    if ratio and ratio <= 1:
+        raise ValueError(f"argument --noise-ratio: must be 0 (no box) or > 1, got {ratio:g}")
     bounds = getattr(args, "stance_time_bounds", None)
     if bounds is not None and not bounds[0] < bounds[1]:
         raise ValueError(f"argument --stance-time-bounds: LO must be < HI, got {bounds}")
@@ -356,6 +368,7 @@ def run(args: argparse.Namespace) -> int:
         select=getattr(args, "select", "loss"),
         cell_tolerance=getattr(args, "cell_tolerance", 0.0),
         constraint_weight=getattr(args, "constrain", 0.0),
+        noise_ratio=getattr(args, "noise_ratio", 0.0),
         feasible=getattr(args, "feasible", False),
     )
 

@@ -47,6 +47,13 @@ over-confidence, whatever the loss gains). Each update is projected back onto th
 gradient descent, so the gradient itself, and the finite-difference check of it, are those
 of the unbounded loss.
 
+Plausibility box (``TuneConfig.noise_ratio = r``, ``jax-contact tune --noise-ratio R``; off
+by default): every tuned std stays within ``[1/r, r]`` of its derived value,
+``|theta_g| <= log r`` (:func:`theta_bounds`), projected the same way. With ``r = 8``
+(:data:`PLAUSIBLE_NOISE_RATIO`) it is the standing check of the shipped presets made a
+bound of the fit, so a run can no longer end on a value that check refuses (Barkour's
+normal force noise at x0.016, docs/tuning.md rule 12).
+
 Not tuned: ``dt``, the swing time (used only on invalid steps), the outlier model (from the
 sensors' outlier rate), the foothold threshold, the static switches, and
 ``contact_damping`` unless asked for.
@@ -201,6 +208,7 @@ from jax_contact.tune.space import (
     LOG_FIELDS,
     NOISE_FIELDS,
     OPTIONAL_FIELDS,
+    PLAUSIBLE_NOISE_RATIO,
     SCALAR_FIELDS,
     STANCE_TIME_BOUNDS,
     TUNABLE_FIELDS,
@@ -208,6 +216,7 @@ from jax_contact.tune.space import (
     init_theta,
     make_space,
     robot_space,
+    theta_bounds,
     theta_lower_bounds,
     to_params,
 )
@@ -244,6 +253,7 @@ __all__ = [
     "NOISE_FIELDS",
     "OPTIONAL_FIELDS",
     "ParamSpace",
+    "PLAUSIBLE_NOISE_RATIO",
     "pooled",
     "predict_logits",
     "prior_penalty",
@@ -256,6 +266,7 @@ __all__ = [
     "SELECT_RULES",
     "sigmoid_np",
     "STANCE_TIME_BOUNDS",
+    "theta_bounds",
     "theta_lower_bounds",
     "to_params",
     "TUNABLE_FIELDS",

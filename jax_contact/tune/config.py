@@ -48,6 +48,10 @@ class TuneConfig:
         optimiser go back to the last accepted epoch and the learning rate is halved (a
         rejected epoch counts against ``patience``). Costs one filter pass over the tuning
         logs per epoch.
+      noise_ratio: ``r``, the plausibility box: every tuned noise std stays within a
+        factor ``r`` of its derived value (:func:`theta_bounds`, projected like the floors;
+        0: no box). :data:`PLAUSIBLE_NOISE_RATIO` (8) is the standing check of the shipped
+        presets made a bound of the fit.
     """
 
     learning_rate: float = 0.05
@@ -68,6 +72,7 @@ class TuneConfig:
     cell_tolerance: float = 0.0
     constraint_weight: float = 0.0
     feasible: bool = False
+    noise_ratio: float = 0.0
 
     def __post_init__(self):
         for name in ("learning_rate", "clip_norm"):
@@ -85,6 +90,11 @@ class TuneConfig:
             raise ValueError(
                 f"TuneConfig.event_temperature must be a finite number > 0,"
                 f" got {self.event_temperature!r}"
+            )
+        r = self.noise_ratio
+        if not (r == 0 or (np.isfinite(r) and r > 1)):
+            raise ValueError(
+                f"TuneConfig.noise_ratio must be 0 (no box) or a finite number > 1, got {r!r}"
             )
         if self.select not in SELECT_RULES:
             raise ValueError(

@@ -28,7 +28,7 @@ from jax_contact.tune.space import (
     NOISE_FIELDS,
     ParamSpace,
     init_theta,
-    theta_lower_bounds,
+    theta_bounds,
     to_params,
 )
 
@@ -50,7 +50,7 @@ def _halve_learning_rate(opt_state):
 
 @functools.partial(jax.jit, static_argnames=("space", "config"))
 def _train_window(
-    theta, opt_state, space, base, theta0, lower, terrain, belief, window, config, key,
+    theta, opt_state, space, base, theta0, bounds, terrain, belief, window, config, key,
     cells_reference=None,
 ):  # fmt: skip
     grad_fn = jax.value_and_grad(tuning_loss, has_aux=True)
@@ -59,8 +59,10 @@ def _train_window(
         cells_reference=cells_reference,
     )  # fmt: skip
     updates, opt_state = _optimizer(config).update(grads, opt_state, theta)
-    # Projected gradient step: back onto the floors (theta_lower_bounds) after the update.
-    theta = jax.tree.map(jnp.maximum, optax.apply_updates(theta, updates), lower)
+    # Projected gradient step: back into the bounds (theta_bounds: the floors and the
+    # plausibility box) after the update.
+    lower, upper = bounds
+    theta = jax.tree.map(jnp.clip, optax.apply_updates(theta, updates), lower, upper)
     return theta, opt_state, belief, loss, data, n, optax.global_norm(grads)
 
 
@@ -248,7 +250,8 @@ def tune(
       config: optimiser, windows, prior, seed.
       floor: the smallest std of each floored noise field (``{field: array}``, e.g.
         :func:`jax_contact.defaults.sensor_noise_floor`): every update is projected back
-        onto it (:func:`theta_lower_bounds`); None: no floor.
+        onto it (:func:`theta_lower_bounds`); None: no floor. ``config.noise_ratio`` adds
+        the plausibility box (:func:`theta_bounds`).
       progress: called with each epoch's history dict as it completes.
 
     Returns:
@@ -263,7 +266,7 @@ def tune(
     key = jax.random.key(config.seed)
     theta = init_theta(space, base)
     theta0 = theta
-    lower = theta_lower_bounds(space, base, floor)
+    bounds = theta_bounds(space, base, floor, config.noise_ratio)
     opt_state = _optimizer(config).init(theta)
     val_key = jax.random.fold_in(key, 10**6)
 
@@ -317,8 +320,9 @@ def tune(
     # The compiled training step depends on the loss and optimiser only: one program
     # whatever the epochs, patience or selection rule.
     step_config = dataclasses.replace(
-        config, select="loss", max_epochs=0, patience=1, min_delta=0.0, cell_tolerance=0.0
-    )
+        config, select="loss", max_epochs=0, patience=1, min_delta=0.0, cell_tolerance=0.0,
+        noise_ratio=0.0,  # the box enters as bounds, traced
+    )  # fmt: skip
 
     def admissible(row) -> bool:
         if config.select == "spread":
@@ -362,7 +366,7 @@ def tune(
                 if references[i] is not None:
                     ref = (jnp.asarray(references[i][w], jnp.float32), units)
                 theta, opt_state, belief, loss, bce, n, gn = _train_window(
-                    theta, opt_state, space, base, theta0, lower, terrain, belief, win,
+                    theta, opt_state, space, base, theta0, bounds, terrain, belief, win,
                     step_config, k, ref,
                 )  # fmt: skip
                 losses.append(float(loss))

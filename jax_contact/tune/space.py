@@ -34,6 +34,9 @@ _CAP_MAX = 1.0 - 1e-6
 # The interval T_s is tuned in, s (``jax_contact.tune``'s docstring: what a plausible T_s is).
 STANCE_TIME_BOUNDS = (0.15, 1.2)
 BOUNDED_FIELDS = ("stance_time",)
+# How far from its derived value a tuned std stays physically plausible: the standing check
+# of every shipped preset (docs/tuning.md), and the box ``TuneConfig.noise_ratio`` makes of it.
+PLAUSIBLE_NOISE_RATIO = 8.0
 
 
 # ----------------------------------------------------------------------- the search space
@@ -260,3 +263,43 @@ def theta_lower_bounds(
         # Never above the start (rounding of a std that sits exactly at its floor).
         lower[f] = jnp.asarray(np.minimum(bound, 0.0), jnp.float32)
     return lower
+
+
+def theta_bounds(
+    space: ParamSpace, base: EstimatorParams, floor: dict | None, noise_ratio: float = 0.0
+) -> tuple[dict[str, jax.Array], dict[str, jax.Array]]:
+    """Lower and upper bounds on ``theta``: the floors, and a plausibility box on the noise.
+
+    With ``noise_ratio = r > 1`` every tuned noise multiplier stays within ``[1/r, r]`` of
+    its derived value, ``-log r <= theta_g <= log r`` (the floor, when higher, wins below:
+    it is at most 0, :func:`theta_lower_bounds`). Caps, ``T_s``, ``a_F`` and the damping
+    are not boxed (their own parameterisation bounds the caps and ``T_s``).
+
+    Args:
+      space: what is tuned.
+      base: the untuned parameters (``sigma^0``).
+      floor: as in :func:`theta_lower_bounds`.
+      noise_ratio: ``r``; 0 boxes nothing.
+
+    Returns:
+      (lower, upper), each ``theta``'s structure in float32, ``-inf`` / ``+inf`` where
+      unbounded.
+
+    Raises:
+      ValueError: ``noise_ratio`` neither 0 nor > 1, or a bad floor
+        (:func:`theta_lower_bounds`).
+    """
+    r = float(noise_ratio)
+    if not (r == 0.0 or (np.isfinite(r) and r > 1.0)):
+        raise ValueError(
+            f"noise_ratio must be 0 (no box) or a finite number > 1, got {noise_ratio!r}"
+        )
+    lower = theta_lower_bounds(space, base, floor)
+    upper = {f: jnp.full_like(v, jnp.inf) for f, v in lower.items()}
+    if r > 0:
+        bound = np.float32(np.log(r))
+        for f in lower:
+            if f in NOISE_FIELDS:
+                lower[f] = jnp.maximum(lower[f], -bound)
+                upper[f] = jnp.full_like(lower[f], bound)
+    return lower, upper
