@@ -40,10 +40,23 @@ PRESET_EVENT_WEIGHTS = {"go1": 0.3, "spot": 0.1, "barkour": 1.0}
 # Optional fields a preset also tunes (same page): contact_damping where tuning it lowered
 # the validation loss without more worse cells or +0.5 points of air-phase failures.
 PRESET_TUNE_ALSO = {"spot": ("contact_damping",), "barkour": ("contact_damping",)}
-# More `jax-contact tune` arguments per preset (docs/tuning.md, rule 12): Spot's file keeps
+# More `jax-contact tune` arguments per preset (docs/tuning.md, rules 12 and 13): each file keeps
 # the lowest-loss epoch with no validation cell worse than the defaults beyond the spread,
-# fitted with the cells' smooth stand-ins in the objective.
-PRESET_EXTRA = {"spot": ("--select", "spread", "--patience", "12", "--constrain", "0.1")}
+# fitted with the cells' smooth stand-ins in the objective (Barkour's inside the x8
+# plausibility box).
+PRESET_EXTRA = {
+    "spot": ("--select", "spread", "--patience", "12", "--constrain", "0.1"),
+    "barkour": (
+        "--select",
+        "spread",
+        "--patience",
+        "12",
+        "--constrain",
+        "0.1",
+        "--noise-ratio",
+        "8.0",
+    ),  # fmt: skip
+}
 
 
 def scenario_world(robot: str, scenario: str):
