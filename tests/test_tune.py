@@ -475,12 +475,54 @@ def test_fit_calibration_recovers_temperature_and_bias(np_rng):
     logits = np_rng.normal(scale=4.0, size=200_000)
     p = 1.0 / (1.0 + np.exp(-(logits / 2.0 - 0.5)))
     truth = np_rng.random(p.shape) < p
-    cal = jt.fit_calibration(logits, truth, np.ones_like(truth))
+    cal = jt.fit_calibration(logits, truth, np.ones_like(truth), kind="affine")
     assert cal.temperature == pytest.approx(2.0, abs=0.05)
     assert cal.bias == pytest.approx(-0.5, abs=0.03)
     assert jt.Calibration.from_dict(cal.as_dict()) == cal
     got = jt.apply_calibration(np.array([2.0]), cal)
     np.testing.assert_allclose(got, 2.0 / cal.temperature + cal.bias)
+    assert cal.kind == "affine" and not cal.keeps_decisions
+
+
+def test_fit_calibration_per_side_recovers_both_temperatures_and_keeps_every_sign(np_rng):
+    # Truth drawn from sigmoid(l / 0.7) where l > 0 and sigmoid(l / 2.5) where l <= 0 (an
+    # under-confident contact side, an over-confident air side, as on the validation logs
+    # of docs/tuning.md rule 14): each side's one-parameter maximum likelihood on ~1e5
+    # samples recovers its temperature to ~2 %.
+    logits = np_rng.normal(scale=4.0, size=200_000)
+    t_true = np.where(logits > 0, 0.7, 2.5)
+    truth = np_rng.random(logits.shape) < 1.0 / (1.0 + np.exp(-logits / t_true))
+    cal = jt.fit_calibration(logits, truth, np.ones_like(truth))  # kind="sign", the default
+    assert cal.kind == "sign" and cal.keeps_decisions and cal.bias == 0.0
+    assert cal.temperature == pytest.approx(0.7, rel=0.03)
+    assert cal.temperature_air == pytest.approx(2.5, rel=0.03)
+    mapped = jt.apply_calibration(logits, cal)
+    np.testing.assert_array_equal(mapped > 0, logits > 0)  # no decision at 0.5 moves
+    side_t = np.where(logits > 0, cal.temperature, cal.temperature_air)
+    np.testing.assert_allclose(mapped, logits / side_t)
+    # The same map on a JAX array (traced inside the filter's consumers), and on P.
+    np.testing.assert_allclose(
+        np.asarray(jt.apply_calibration(jnp.asarray(logits[:100], jnp.float32), cal)),
+        mapped[:100], rtol=1e-5,
+    )  # fmt: skip
+    p = jt.calibrate_probability(np.array([0.3, 0.5, 0.9]), cal)
+    l_03, l_09 = np.log(0.3 / 0.7), np.log(0.9 / 0.1)
+    np.testing.assert_allclose(
+        p, 1 / (1 + np.exp(-np.array([l_03 / cal.temperature_air, 0.0, l_09 / cal.temperature])))
+    )
+    # Round trip, files of the affine map before (no kind, no temperature_air), errors.
+    assert jt.Calibration.from_dict(cal.as_dict()) == cal
+    old = jt.Calibration.from_dict({"temperature": 2.0, "bias": 0.7})
+    assert old.kind == "affine" and old.temperature_air is None
+    with pytest.raises(ValueError, match="has no bias"):
+        jt.Calibration(temperature=1.0, bias=0.5, temperature_air=2.0)
+    with pytest.raises(ValueError, match="temperature_air must be a finite number > 0"):
+        jt.Calibration(temperature_air=0.0)
+    with pytest.raises(ValueError, match="kind must be one of"):
+        jt.fit_calibration(logits, truth, np.ones_like(truth), kind="isotonic")
+    # A side that is never wrong has no finite maximum: its temperature stops at 0.05.
+    sep = jt.fit_calibration(np.array([1.0, 2.0, -1.0, -2.0]), np.array([1, 1, 0, 1]), np.ones(4))
+    assert sep.temperature == pytest.approx(0.05)
 
 
 def test_config_rejects_bad_values():
@@ -624,7 +666,7 @@ def test_fit_calibration_stays_finite_when_logits_sit_at_their_bounds(np_rng):
     y = y ^ flip
     mid = np_rng.random(y.shape) < 0.05
     logits[mid] = np_rng.normal(scale=2.0, size=mid.sum())
-    cal = jt.fit_calibration(logits, y, np.ones_like(y))
+    cal = jt.fit_calibration(logits, y, np.ones_like(y), kind="affine")
     assert np.isfinite(cal.temperature) and 0.5 < cal.temperature < 100
     assert np.isfinite(cal.bias) and abs(cal.bias) < 10
 

@@ -195,8 +195,13 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--calibrate",
-        action="store_true",
-        help="also fit a temperature and bias on the fused logit (stored in the provenance)",
+        nargs="?",
+        const="sign",
+        default=None,
+        choices=("sign", "affine"),  # jax_contact.tune.CALIBRATION_KINDS
+        help="also fit a calibration map on the fused logit, stored in the provenance: sign"
+        " (the default) one temperature per side of 0, which keeps every decision at P = 0.5;"
+        " affine a temperature and a bias, which moves it",
     )
     p.add_argument(
         "--freeze",
@@ -476,37 +481,59 @@ def run(args: argparse.Namespace) -> int:
         "wall_s": {"load": t_load, "tune": result.wall_s},
     }
     if args.calibrate:
-        logits = [
-            jt.predict_logits(result.params, terrain, d, key=jax.random.key(args.seed))
-            for d in train
-        ]
-        cal = jt.fit_calibration(
-            np.concatenate([lg.reshape(-1) for lg in logits]),
-            np.concatenate([np.asarray(d.truth).reshape(-1) for d in train]),
-            np.concatenate([np.asarray(d.mask).reshape(-1) for d in train]),
-        )
-        vl = np.concatenate(
-            [
-                jt.predict_logits(result.params, terrain, v, key=jax.random.key(args.seed)).reshape(
-                    -1
-                )
-                for v in vals
-            ]
-        )
-        after = jt.score_logits(jt.apply_calibration(vl, cal), jt.pooled(vals))
-        provenance["calibration"] = {
-            **cal.as_dict(),
-            "fitted_on": [i["path"] for i in infos],
-            "validation_after": after,
-        }
-        print(
-            f"calibration: T {cal.temperature:.3f}, bias {cal.bias:+.3f}; validation ECE"
-            f" {result.history[result.best_epoch]['val_ece']:.4f} -> {after['ece']:.4f}",
-            file=sys.stderr,
-        )
+        provenance["calibration"] = calibration_entry(
+            result.params, terrain, train, vals, [i["path"] for i in infos],
+            kind=args.calibrate, seed=args.seed,
+            ece_before=result.history[result.best_epoch]["val_ece"],
+        )  # fmt: skip
     jc.save_params(args.out, result.params, provenance)
     print(f"wrote {args.out}")
     return 0
+
+
+def calibration_entry(
+    params, terrain, train, vals, paths, *, kind: str, seed: int, ece_before: float | None = None
+) -> dict:
+    """The provenance's ``"calibration"``: the map of ``kind`` fitted on the tuning logs'
+    logits (:func:`jax_contact.tune.fit_calibration`), where it was fitted and its pooled
+    validation scores; prints one line. Used by ``jax-contact tune --calibrate`` and by
+    :func:`jax_contact.train.tune_presets.recalibrate_preset`.
+
+    Args:
+      params: the tuned parameters; terrain: the estimator's terrain model.
+      train, vals: the tuning and validation logs (``jax_contact.tune.TuningData``).
+      paths: the tuning logs' paths (recorded as ``fitted_on``).
+      kind: ``"sign"`` or ``"affine"``; seed: the key of the Monte-Carlo touch-down.
+      ece_before: the validation ECE without the map, for the printed line.
+    """
+    import jax
+    import numpy as np
+
+    from jax_contact import tune as jt
+
+    key = jax.random.key(seed)
+    logits = [jt.predict_logits(params, terrain, d, key=key) for d in train]
+    cal = jt.fit_calibration(
+        np.concatenate([lg.reshape(-1) for lg in logits]),
+        np.concatenate([np.asarray(d.truth).reshape(-1) for d in train]),
+        np.concatenate([np.asarray(d.mask).reshape(-1) for d in train]),
+        kind=kind,
+    )
+    vl = np.concatenate([jt.predict_logits(params, terrain, v, key=key).reshape(-1) for v in vals])
+    after = jt.score_logits(jt.apply_calibration(vl, cal), jt.pooled(vals))
+    before = "" if ece_before is None else f"{ece_before:.4f} -> "
+    print(
+        f"calibration ({cal.kind}): {_describe_calibration(cal)}; validation ECE"
+        f" {before}{after['ece']:.4f}",
+        file=sys.stderr,
+    )
+    return {**cal.as_dict(), "fitted_on": list(paths), "validation_after": after}
+
+
+def _describe_calibration(cal) -> str:
+    if cal.temperature_air is None:
+        return f"T {cal.temperature:.3f}, bias {cal.bias:+.3f}"
+    return f"T {cal.temperature:.3f} for P > 0.5, {cal.temperature_air:.3f} for P < 0.5"
 
 
 def main(argv: list[str] | None = None) -> int:

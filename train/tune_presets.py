@@ -7,6 +7,8 @@
   of seed 1001 (never the evaluation seed 0), ``jax-contact tune`` with the robot's
   settings (:data:`PRESET_EVENT_WEIGHTS`, :data:`PRESET_TUNE_ALSO`, :data:`PRESET_EXTRA`)
   and its calibration.
+- :func:`recalibrate_preset` refits only a preset's calibration map on its tuning logs
+  (docs/tuning.md, rule 14), leaving the tuned values as they are.
 - :func:`compare` replays the evaluation logs with the defaults and any parameter files
   and scores every Table III cell and ECE (docs/tuning.md's tables); with ``bootstrap`` it
   also says which differences exceed what re-running the rollouts would produce
@@ -134,13 +136,7 @@ def regenerate_preset(
 
     ``python -c "from jax_contact.train.tune_cmd import regenerate_preset as r; r('go1')"``
     """
-    workdir = Path(workdir)
-    logs = {}
-    for scenario, seed in PRESET_TUNE + PRESET_VALIDATE:
-        path = workdir / f"{robot}_{scenario}_s{seed}.h5"
-        if not path.is_file():
-            simulate_log(path, robot, scenario, seed, n_envs=n_envs, duration=duration)
-        logs[(scenario, seed)] = str(path)
+    logs = _preset_logs(robot, Path(workdir), n_envs, duration)
     if out is None:
         out = Path(__file__).resolve().parents[1] / "jax_contact" / "presets" / f"{robot}.json"
     argv = [logs[k] for k in PRESET_TUNE] + ["--validate"] + [logs[k] for k in PRESET_VALIDATE]
@@ -157,7 +153,73 @@ def regenerate_preset(
     more += [*PRESET_EXTRA.get(robot, ()), *extra]
     from jax_contact.train.tune_cmd import main
 
-    return main([*argv, "--out", str(out), "--calibrate", *more, "--note", note])
+    return main([*argv, "--out", str(out), "--calibrate", "sign", *more, "--note", note])
+
+
+def _preset_logs(robot: str, workdir: Path, n_envs: int, duration: float) -> dict:
+    """(scenario, seed) -> path of the tuning and validation logs, simulated unless there."""
+    logs = {}
+    for scenario, seed in PRESET_TUNE + PRESET_VALIDATE:
+        path = workdir / f"{robot}_{scenario}_s{seed}.h5"
+        if not path.is_file():
+            simulate_log(path, robot, scenario, seed, n_envs=n_envs, duration=duration)
+        logs[(scenario, seed)] = str(path)
+    return logs
+
+
+def recalibrate_preset(
+    robot: str,
+    out: str | Path | None = None,
+    *,
+    kind: str = "sign",
+    workdir: str | Path = "/tmp/jax-contact-presets",
+    n_envs: int = 16,
+    duration: float = 8.0,
+) -> dict:
+    """Refits a shipped preset's calibration map (``kind``,
+    :func:`jax_contact.tune.fit_calibration`) on its tuning logs and rewrites the file's
+    ``provenance["calibration"]``; nothing else in the file changes (the tuned values are
+    copied as text). The map it replaces is kept under ``"replaced"``.
+
+    ``python -c "from jax_contact.train.tune_presets import recalibrate_preset as r; r('go1')"``
+
+    Returns:
+      The new ``provenance["calibration"]``.
+    """
+    import json
+    from importlib import resources
+
+    import jax_contact as jc
+    from jax_contact.io import write_json_atomic
+    from jax_contact.train.tune_cmd import _code_version, calibration_entry
+    from jax_contact.train.tune_data import load_tuning_log
+
+    shipped = resources.files("jax_contact") / "presets" / f"{robot}.json"
+    payload = json.loads(shipped.read_text())
+    params, prov = jc.load_params(robot, with_provenance=True)
+    logs = _preset_logs(robot, Path(workdir), n_envs, duration)
+    model = prov.get("terrain_model") or "flat"
+    train, vals, terrain = [], [], None
+    for key in PRESET_TUNE:
+        data, _, _, _, terrain = load_tuning_log(logs[key], model)
+        train.append(data)
+    vals = [load_tuning_log(logs[key], model)[0] for key in PRESET_VALIDATE]
+    entry = calibration_entry(
+        params, terrain, train, vals, [logs[k] for k in PRESET_TUNE],
+        kind=kind, seed=int(prov["seeds"]["tune"]),
+    )  # fmt: skip
+    entry["refitted_by"] = {
+        "command": f"jax_contact.train.tune_presets.recalibrate_preset({robot!r}, kind={kind!r})",
+        "code": _code_version(),
+    }
+    if prov.get("calibration") is not None:
+        entry["replaced"] = {k: v for k, v in prov["calibration"].items() if k != "replaced"}
+    payload["provenance"]["calibration"] = entry
+    if out is None:
+        out = Path(__file__).resolve().parents[1] / "jax_contact" / "presets" / f"{robot}.json"
+    write_json_atomic(out, payload)
+    print(f"wrote {out}")
+    return entry
 
 
 def compare(
@@ -178,7 +240,7 @@ def compare(
     Simulates (or reuses from ``workdir``) each scenario's log of ``seed``, replays it with
     every variant on the same inputs (``jax_contact.train.evaluate.replay``) and scores it. A
     variant whose file holds a calibration map also gets a ``<name>+cal`` row: its P(contact)
-    mapped by the temperature and bias (flag at calibrated P > 0.5).
+    mapped by it (flag at calibrated P > 0.5: the raw flag for a per-side map, rule 14).
 
     Args:
       robot: the robot simulated and evaluated.

@@ -155,12 +155,18 @@ Randomness: the key ``jax.random.key(config.seed)`` is folded with the epoch, lo
 window numbers, so a run is reproducible (the key only feeds the Monte-Carlo touch-down;
 the quadrature mode is deterministic).
 
-Calibration (:func:`fit_calibration`): a temperature and a bias on the fused logit,
-``l' = l / T + c``, fitted by maximum likelihood (Newton's method in float64) on the
-tuning logs' logits and applied after the recursion (the filter itself runs on ``l``).
+Calibration (:func:`fit_calibration`): a monotone map on the fused logit, fitted by
+maximum likelihood (Newton's method in float64) on the tuning logs' logits and applied
+after the recursion (the filter itself runs on ``l``). By default one temperature per side
+of 0, ``l' = l / T_c`` for ``l > 0`` and ``l / T_a`` otherwise: it keeps the sign of every
+logit, so every decision at P = 0.5 (F1, accuracy, failures, delays) is the raw P's and
+only the probabilities move (docs/tuning.md, rule 14: on validation the air side is
+over-confident, ``T_a`` 1.8-2.6). ``kind="affine"``, ``l' = l / T + c``, is the map before;
+its bias moves the 0.5 threshold.
 """
 
 from jax_contact.tune.calibration import (
+    CALIBRATION_KINDS,
     Calibration,
     apply_calibration,
     calibrate_probability,
@@ -232,6 +238,7 @@ __all__ = [
     "BOUNDED_FIELDS",
     "calibrate_probability",
     "Calibration",
+    "CALIBRATION_KINDS",
     "calibration_of",
     "CAP_FIELDS",
     "CELL_KEYS",
