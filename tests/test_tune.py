@@ -599,6 +599,8 @@ def test_shipped_presets_load_by_name_with_their_provenance(name):
     seeds = prov["seeds"]["tuning_logs"] + prov["seeds"]["validation_logs"]
     assert seeds and all(s >= 1000 for s in seeds)
     assert {"temperature", "bias"} <= set(prov["calibration"])
+    # Its map keeps every decision at 0.5 (rule 14 of docs/tuning.md: one temperature per side).
+    assert jt.calibration_of(prov).keeps_decisions and prov["calibration"]["kind"] == "sign"
     assert prov["library_version"] and prov["history"]
     # The prior keeps every std within a factor 8 of its derived value (docs/tuning.md says
     # which tuned values are not physically plausible: Barkour's base position std, 5x).
