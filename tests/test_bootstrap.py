@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from jax_contact.bootstrap import Difference, paired_bootstrap, verdicts
+from jax_contact.bootstrap import STATISTICS, Difference, paired_bootstrap, verdicts
 
 T, DT = 60, 0.0025
 
@@ -195,3 +195,18 @@ def test_reproduce_compares_the_estimator_with_both_gm_tunings():
     text = reproduce.format_vs_gm({"vs_gm": {"trot": vs}})
     assert text.count("\n") == 2 and "trot             vs gm_trot" in text
     assert reproduce.format_vs_gm({}) == ""
+    # The row "tuned" (a preset beside the defaults): against both GM tunings and against
+    # the defaults in every statistic, each difference tuned - other.
+    out["tuned"] = np.clip(truth + rng.normal(0.0, 0.2, truth.shape), 0.0, 1.0)
+    assert reproduce.tuned_vs(out, truth, valid, DT, 0) is None
+    tv = reproduce.tuned_vs(out, truth, valid, DT, 30)
+    tuned = evaluate(out["tuned"], truth, dt=DT)
+    assert set(tv) == {"gm_walk", "gm_trot", "probabilistic"}
+    assert tv["gm_trot"]["f1"][0] == pytest.approx(
+        tuned.f1 - evaluate(out["gm_trot"], truth, dt=DT).f1
+    )
+    assert tv["probabilistic"]["ece"][0] == pytest.approx(tuned.ece - est.ece)
+    assert set(tv["probabilistic"]) == set(STATISTICS)
+    text = reproduce.format_vs_gm({"vs_gm": {"trot": vs}, "tuned_vs": {"trot": tv}})
+    assert text.count("\n") == 6 and "tuned - other row" in text
+    assert "trot             vs defaults f1 " in text and "; ece " in text.splitlines()[-1]

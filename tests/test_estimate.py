@@ -514,17 +514,17 @@ def test_evaluate_adds_the_calibrated_row_of_a_file_with_a_calibration_map(tmp_p
 
 def test_a_params_file_is_checked_against_the_robot_and_rate(tmp_path, capsys):
     import jax_contact as jc
-    from jax_contact.train.logs import _load_params_for, default_estimator
+    from jax_contact.train.logs import default_estimator, load_params_for
 
     desc = load_robot("planar_leg").description
     params, _ = default_estimator(desc, 0.005)
     jc.save_params(tmp_path / "p.json", params.replace(cap_dynamics=np.float32(0.95)))
-    got = _load_params_for(tmp_path / "p.json", desc, 0.0025)
+    got = load_params_for(tmp_path / "p.json", desc, 0.0025)
     assert float(got.cap_dynamics) == pytest.approx(0.95) and float(got.dt) == pytest.approx(0.0025)
     assert "dt = 0.005 s; the log's is 0.0025 s" in capsys.readouterr().err
     go1 = load_robot("go1").description
     with pytest.raises(ValueError, match="nv = 3; the robot has nv = 18"):
-        _load_params_for(tmp_path / "p.json", go1, 0.0025)
+        load_params_for(tmp_path / "p.json", go1, 0.0025)
 
 
 def test_differentiated_coordinates_get_the_differences_noise(go1_log):

@@ -20,6 +20,7 @@ from jax_contact.train import cli
 from jax_contact.train.evaluate import delay_one_step, replay, score
 from jax_contact.train.reproduce import (
     ABLATION_ROWS,
+    PRINTED_ROWS,
     ROWS,
     format_table,
     planar_estimator_params,
@@ -212,3 +213,24 @@ def test_table_shapes():
     assert got["accuracy"] == 0.95 and got["liftoff_delay_ms"] == [3.0, 2.0]
     text = format_table(payload)
     assert "5.0±1.0" in text and "25.0%" in text and "0.950" in text
+    # With a tuned row (the robot's preset): its cell, its comparisons and its source are
+    # stored, and the printed table shows it right after the defaults.
+    scores["tuned"] = {**cell, "f1": 0.97}
+    info = {"source": "go1", "seeds": {}, "calibration": None, "held_out": True}
+    vs = {"probabilistic": {"f1": [0.07, 0.05, 0.09, "better"]}}
+    payload = table3_json(
+        {
+            "tuned_gm": {"walk": "a", "trot": "b"},
+            "results": {"trot": {"scores": scores, "upright": 1.0, "tuned_vs": vs}},
+            "tuned_params": info,
+        }
+    )
+    assert payload["scenarios"]["trot"]["tuned"]["f1"] == 0.97
+    assert payload["tuned_vs"] == {"trot": vs} and payload["tuned_params"] == info
+    lines = format_table(payload, PRINTED_ROWS).splitlines()
+    assert lines[1].split()[0] == "probabilistic" and lines[2].split()[:4] == [
+        "tuned",
+        "5.0±1.0",
+        "3.0±2.0",
+        "0.970",
+    ]

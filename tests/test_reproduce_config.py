@@ -32,3 +32,39 @@ def test_added_mass_is_go1s_share_of_the_total_mass(robot):
     # The walk with added mass is not the plain walk (Spot's was, before).
     cfg = R.ReproduceConfig(robot=robot)
     assert R._scenario_world("walk_added_mass", cfg).added_mass != ()
+
+
+def test_the_tuned_row_is_the_robots_preset_read_through_a_map_that_keeps_decisions(capsys):
+    """Row ``tuned``: "auto" is the robot's shipped preset (Go1's file, its per-side map,
+    seed 0 held out); a robot without a preset, or None, has no row; a file whose map moves
+    the 0.5 threshold runs without it; an evaluation seed the file was tuned on is named."""
+    import jax_contact as jc
+
+    desc = load_robot("go1").description
+    row = R.tuned_estimator(R.ReproduceConfig(), desc)
+    params, prov = jc.load_params("go1", with_provenance=True)
+    np.testing.assert_array_equal(
+        np.asarray(row["params"].noise.sigma_qd), np.asarray(params.noise.sigma_qd)
+    )
+    assert row["calibration"].keeps_decisions and row["info"]["calibration"]["kind"] == "sign"
+    assert row["info"]["held_out"] and row["info"]["source"] == "go1"
+    assert row["info"]["seeds"]["tuning_logs"] == prov["seeds"]["tuning_logs"]
+    planar = load_robot("planar_leg").description
+    assert R.tuned_estimator(R.ReproduceConfig(robot="planar_leg"), planar) is None
+    assert R.tuned_estimator(R.ReproduceConfig(tuned_params=None), desc) is None
+    capsys.readouterr()
+    row = R.tuned_estimator(R.ReproduceConfig(seed=1001), desc)
+    assert not row["info"]["held_out"] and "not held out" in capsys.readouterr().err
+
+
+def test_the_tuned_row_skips_an_affine_map(tmp_path, capsys):
+    import jax_contact as jc
+
+    desc = load_robot("go1").description
+    params, prov = jc.load_params("go1", with_provenance=True)
+    path = jc.save_params(
+        tmp_path / "affine.json", params, {**prov, "calibration": {"temperature": 1.3, "bias": 0.9}}
+    )
+    row = R.tuned_estimator(R.ReproduceConfig(tuned_params=str(path)), desc)
+    assert row["calibration"] is None and row["info"]["calibration"] is None
+    assert "moves the 0.5 threshold" in capsys.readouterr().err

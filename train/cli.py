@@ -126,12 +126,16 @@ def _cmd_demo(args: argparse.Namespace) -> int:
 
 
 def _cmd_reproduce(args: argparse.Namespace) -> int:
+    import dataclasses
+
     from jax_contact.train import reproduce
 
     feet = tuple(args.feet) if args.feet else None
+    tuned = {"auto": "auto", "none": None}.get(args.params, args.params)
     cfg = _reproduce_config(
         args.size, robot=args.robot, seed=args.seed, foot_names=feet, bootstrap=args.bootstrap
     )
+    cfg = dataclasses.replace(cfg, tuned_params=tuned)
     reproduce.run(cfg, args.out)
     return 0
 
@@ -254,6 +258,8 @@ def _check_demo(args: argparse.Namespace) -> None:
 def _check_reproduce(args: argparse.Namespace) -> None:
     check_robot("--robot", args.robot)
     check_output_folder("--out", args.out)
+    if args.params not in ("auto", "none"):
+        check_params_source("--params", args.params)
 
 
 def _check_simulate(args: argparse.Namespace) -> None:
@@ -370,6 +376,13 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="N",
         help="env resamples of the paired bootstrap that compares the estimator with each GM"
         " tuning (F1, accuracy, air-phase failures; default 1000, 0: off)",
+    )
+    p.add_argument(
+        "--params",
+        default="auto",
+        metavar="FILE|PRESET",
+        help="parameters of the row 'tuned' beside the defaults: a jc.save_params file or a"
+        " shipped preset; auto (default): the robot's preset if it has one; none: no row",
     )
     estimate_cmd.add_feet_flag(p)
 

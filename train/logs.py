@@ -453,7 +453,7 @@ def _estimator_for(desc, dt: float, params_path, terrain_model: str | None):
         print(f"terrain model {model!r}: the one {str(params_path)!r} was tuned with")
     params, terrain = default_estimator(desc, dt, model)
     if params_path is not None:
-        params = _load_params_for(params_path, desc, dt)
+        params = load_params_for(params_path, desc, dt)
     return params, model, terrain
 
 
@@ -467,7 +467,7 @@ def _file_calibration(params_path):
     return calibration_of(load_params(params_path, with_provenance=True)[1])
 
 
-def _load_params_for(path, desc, dt):
+def load_params_for(path, desc, dt):
     """A params file, checked against the robot and the log's period."""
     import jax.numpy as jnp
 

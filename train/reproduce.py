@@ -16,7 +16,9 @@
    and against the fused terms without the measurement-dependent transition model.
 
 Nothing is tuned on the evaluation seeds. The estimator's parameters are fixed, documented
-defaults (:func:`quadruped_estimator_params`).
+defaults (:func:`quadruped_estimator_params`); beside them, the row ``tuned`` runs the
+robot's shipped preset (tuned by gradient on seeds 1000 and 1001, docs/tuning.md) on the
+same inputs, when the robot has one (:func:`tuned_estimator`).
 """
 
 from __future__ import annotations
@@ -71,6 +73,10 @@ class ReproduceConfig:
       foot_names: the robot's feet (geom, site or body names in leg order); None finds them.
       bootstrap: env resamples of a paired bootstrap of the estimator against each GM
         tuning on every scenario (:func:`vs_gm`; well under a second); 0 skips it.
+      tuned_params: the parameters of the row ``tuned`` beside the defaults: a parameter
+        file or preset name (``jc.load_params``), ``"auto"`` (the robot's shipped preset if
+        it has one, else no row) or None (no row). Its P is read through the file's
+        calibration map when that map keeps every decision (:func:`tuned_estimator`).
     """
 
     robot: str = "go1"
@@ -85,6 +91,7 @@ class ReproduceConfig:
     monte_carlo: bool = False
     foot_names: tuple[str, ...] | None = None
     bootstrap: int = 1000
+    tuned_params: str | None = "auto"
 
 
 DEMO = ReproduceConfig()
@@ -307,6 +314,62 @@ def section3(cfg: ReproduceConfig, out_dir: Path) -> dict:
     return {"scores": scores, "term_accuracy": term_acc}
 
 
+TUNED_ROW = "tuned"
+
+
+def tuned_estimator(cfg: ReproduceConfig, desc, dt: float = 0.0025) -> dict | None:
+    """The row ``tuned`` of Table III: ``cfg.tuned_params`` loaded and checked against the
+    robot (``jax_contact.train.logs.load_params_for``), or None for no row.
+
+    The file's calibration map is applied to the row's P after the recursion when it keeps
+    every decision at 0.5 (the per-side map of docs/tuning.md, rule 14), so F1, accuracy,
+    failures and delays are the file's own and ECE is that of its calibrated P; an affine
+    map is not applied. A warning is printed if the evaluation seed is among the seeds the
+    file was tuned or validated on (then the row is not held out), or if the file was tuned
+    on another terrain model than the plane this reproduction gives every estimator.
+
+    Returns:
+      ``{"params", "calibration" (a Calibration or None), "info"}`` (``info``: what
+      ``table3.json`` records under ``tuned_params``), or None.
+    """
+    from jax_contact.train.logs import load_params_for
+    from jax_contact.tune import calibration_of
+
+    source = cfg.tuned_params
+    if source == "auto":
+        source = cfg.robot if cfg.robot in jc.preset_names() else None
+    if source is None:
+        return None
+    params = load_params_for(source, desc, dt)
+    _, prov = jc.load_params(source, with_provenance=True)
+    cal = calibration_of(prov)
+    if cal is not None and not cal.keeps_decisions:
+        _log(f"  {source}: its calibration map moves the 0.5 threshold ({cal.kind}); not applied")
+        cal = None
+    seeds = prov.get("seeds") or {}
+    used = [*seeds.get("tuning_logs", []), *seeds.get("validation_logs", [])]
+    if cfg.seed in used:
+        _log(
+            f"  warning: {source} was tuned or validated on seed {cfg.seed}: row tuned is not"
+            " held out"
+        )
+    if (prov.get("terrain_model") or "flat") != "flat":
+        _log(
+            f"  warning: {source} was tuned with terrain model {prov['terrain_model']!r}; here"
+            " it runs on the plane"
+        )
+    info = {
+        "source": str(source),
+        "seeds": {
+            "tuning_logs": seeds.get("tuning_logs"),
+            "validation_logs": seeds.get("validation_logs"),
+        },
+        "calibration": None if cal is None else cal.as_dict(),
+        "held_out": cfg.seed not in used,
+    }
+    return {"params": params, "calibration": cal, "info": info}
+
+
 def table3(cfg: ReproduceConfig, out_dir: Path) -> dict:
     """Tunes the GM observer, evaluates every detector, returns table and ablation."""
 
@@ -315,6 +378,9 @@ def table3(cfg: ReproduceConfig, out_dir: Path) -> dict:
     estimators = ablation_variants(base)
     if cfg.monte_carlo:
         estimators["probabilistic_mc"] = base.replace(touchdown="monte_carlo")
+    tuned_row = tuned_estimator(cfg, desc, float(base.dt))
+    if tuned_row is not None:
+        estimators[TUNED_ROW] = tuned_row["params"]
     gms = gm_grid()
 
     tuned = {}
@@ -350,12 +416,21 @@ def table3(cfg: ReproduceConfig, out_dir: Path) -> dict:
             diagnostics_of="probabilistic",
         )
         out["gm_walk"], out["gm_trot"] = out[tuned["walk"]], out[tuned["trot"]]
+        if tuned_row is not None and tuned_row["calibration"] is not None:
+            from jax_contact.tune import calibrate_probability
+
+            out[TUNED_ROW] = calibrate_probability(out[TUNED_ROW], tuned_row["calibration"])
         names = [*estimators, "gm_walk", "gm_trot", "kinematic"]
         sc = score(out, roll.contact, roll.valid, dt=world.dt, names=names)
         results[name] = {
             "scores": sc,
             "upright": float(roll.valid[-1].mean()),
             "vs_gm": vs_gm(out, roll.contact, roll.valid, world.dt, cfg.bootstrap),
+            "tuned_vs": (
+                tuned_vs(out, roll.contact, roll.valid, world.dt, cfg.bootstrap)
+                if tuned_row is not None
+                else None
+            ),
             "diagnostics": {
                 "event_profiles": event_profiles(out, roll.contact, roll.valid, "probabilistic"),
                 "false_contact_terms": false_contact_terms(
@@ -376,10 +451,32 @@ def table3(cfg: ReproduceConfig, out_dir: Path) -> dict:
                 title=f"{cfg.robot} trotting, anymal_like noise (cf. Fig. 7)",
                 gm=out["gm_trot"],
             )
-    return {"tuned_gm": tuned, "results": results, "input_lag_ms": input_lag_ms(world.dt)}
+    return {
+        "tuned_gm": tuned,
+        "results": results,
+        "input_lag_ms": input_lag_ms(world.dt),
+        "tuned_params": None if tuned_row is None else tuned_row["info"],
+    }
 
 
 VS_GM_STATISTICS = ("f1", "accuracy", "air_phase_failure_rate")
+
+
+def _row_vs(out: dict, row: str, others: dict, truth, valid, dt: float, n: int) -> dict:
+    """``row - other`` for each ``other -> statistics`` of ``others``, with its 95 % paired
+    env-bootstrap interval (:func:`jax_contact.bootstrap.paired_bootstrap`, seed 0):
+    other -> statistic -> ``[delta, low, high, verdict]``."""
+    from jax_contact.bootstrap import paired_bootstrap
+
+    return {
+        other: {
+            k: d.as_list()
+            for k, d in paired_bootstrap(
+                out[other], out[row], truth, valid, dt=dt, statistics=stats, n_resamples=n,
+            ).items()
+        }
+        for other, stats in others.items()
+    }  # fmt: skip
 
 
 def vs_gm(out: dict, truth, valid, dt: float, n_resamples: int) -> dict | None:
@@ -392,31 +489,37 @@ def vs_gm(out: dict, truth, valid, dt: float, n_resamples: int) -> dict | None:
     """
     if not n_resamples:
         return None
-    from jax_contact.bootstrap import paired_bootstrap
+    gms = {gm: VS_GM_STATISTICS for gm in ("gm_walk", "gm_trot")}
+    return _row_vs(out, "probabilistic", gms, truth, valid, dt, n_resamples)
 
-    return {
-        gm: {
-            k: d.as_list()
-            for k, d in paired_bootstrap(
-                out[gm], out["probabilistic"], truth, valid, dt=dt,
-                statistics=VS_GM_STATISTICS, n_resamples=n_resamples,
-            ).items()
-        }
-        for gm in ("gm_walk", "gm_trot")
-    }  # fmt: skip
+
+def tuned_vs(out: dict, truth, valid, dt: float, n_resamples: int) -> dict | None:
+    """The row ``tuned`` against both GM tunings (as :func:`vs_gm`) and against the
+    defaults (``probabilistic``: every statistic of :data:`jax_contact.bootstrap.STATISTICS`,
+    issue 15's "every cell at least as good"), or None for ``n_resamples`` 0."""
+    if not n_resamples:
+        return None
+    from jax_contact.bootstrap import STATISTICS
+
+    others = {gm: VS_GM_STATISTICS for gm in ("gm_walk", "gm_trot")}
+    others["probabilistic"] = tuple(STATISTICS)
+    return _row_vs(out, TUNED_ROW, others, truth, valid, dt, n_resamples)
 
 
 def format_vs_gm(payload: dict) -> str:
-    """The printed lines of :func:`vs_gm` (empty without it)."""
+    """The printed lines of :func:`vs_gm` and :func:`tuned_vs` (empty without them)."""
     from jax_contact.bootstrap import format_intervals
 
-    vs = payload.get("vs_gm")
-    if not vs:
-        return ""
-    lines = ["probabilistic - GM, 95 % interval of a paired env bootstrap:"]
-    for name, per_gm in vs.items():
-        for gm, stats in per_gm.items():
-            lines.append(f"  {name:16s} vs {gm:8s} {format_intervals(stats)}")
+    lines = []
+    for key, row in (("vs_gm", "probabilistic"), ("tuned_vs", TUNED_ROW)):
+        vs = payload.get(key)
+        if not vs:
+            continue
+        lines.append(f"{row} - other row, 95 % interval of a paired env bootstrap:")
+        for name, per_row in vs.items():
+            for other, stats in per_row.items():
+                other = "defaults" if other == "probabilistic" else other
+                lines.append(f"  {name:16s} vs {other:8s} {format_intervals(stats)}")
     return "\n".join(lines)
 
 
@@ -460,6 +563,8 @@ def _cell(s: dict) -> dict:
 
 
 ROWS = ("probabilistic", "gm_walk", "gm_trot", "kinematic")
+# The printed Table III: the defaults, the tuned row when there is one, the references.
+PRINTED_ROWS = ("probabilistic", "tuned", "gm_walk", "gm_trot", "kinematic")
 ABLATION_ROWS = (
     "probabilistic",
     "paper_model",
@@ -483,12 +588,15 @@ def table3_json(t3: dict) -> dict:
     """The ``table3.json`` payload: scenario -> detector -> cell."""
     scen = {}
     for name, r in t3["results"].items():
-        rows = list(ROWS) + [k for k in ("probabilistic_mc",) if k in r["scores"]]
+        rows = list(ROWS) + [k for k in ("probabilistic_mc", TUNED_ROW) if k in r["scores"]]
         scen[name] = {row: _cell(r["scores"][row]) for row in rows}
     vs = {n: r["vs_gm"] for n, r in t3["results"].items() if r.get("vs_gm")}
+    tvs = {n: r["tuned_vs"] for n, r in t3["results"].items() if r.get("tuned_vs")}
     return {
         "scenarios": scen,
         **({"vs_gm": vs} if vs else {}),
+        **({"tuned_vs": tvs} if tvs else {}),
+        **({"tuned_params": t3["tuned_params"]} if t3.get("tuned_params") else {}),
         "tuned_gm": t3["tuned_gm"],
         "reading_timing": "end_of_step",
         "input_lag_ms": t3.get("input_lag_ms"),
@@ -534,6 +642,11 @@ def format_table(payload: dict, rows=ROWS) -> str:
     return "\n".join(lines)
 
 
+def _seeds(tuned_params: dict, key: str) -> str:
+    seeds = tuned_params["seeds"].get(key)
+    return "unknown" if not seeds else ", ".join(str(s) for s in sorted(set(seeds)))
+
+
 def run(cfg: ReproduceConfig, out_dir: str | Path) -> dict:
     """Runs everything, writes figures and JSON into ``out_dir``, prints the tables."""
     from jax_contact.io import write_json_atomic
@@ -568,8 +681,18 @@ def run(cfg: ReproduceConfig, out_dir: str | Path) -> dict:
         f"\nTable III in simulation ({cfg.robot}, 400 Hz, anymal_like noise; GM tuned on"
         f" other seeds: walk {t3['tuned_gm']['walk']}, trot {t3['tuned_gm']['trot']})"
     )
-    print(format_table(payload))
-    if payload.get("vs_gm"):
+    print(format_table(payload, PRINTED_ROWS))
+    if payload.get("tuned_params"):
+        tp = payload["tuned_params"]
+        cal = tp["calibration"]
+        print(
+            f"{TUNED_ROW}: {tp['source']} (tuned on seeds {_seeds(tp, 'tuning_logs')},"
+            f" validated on {_seeds(tp, 'validation_logs')}"
+            + ("" if tp["held_out"] else "; NOT held out")
+            + ")"
+            + (f", P read through its {cal['kind']} calibration map" if cal else "")
+        )
+    if payload.get("vs_gm") or payload.get("tuned_vs"):
         print(format_vs_gm(payload))
     print("\nAblation (same inputs):")
     print(format_table(ablation, ABLATION_ROWS))
