@@ -370,15 +370,18 @@ def tuned_estimator(cfg: ReproduceConfig, desc, dt: float = 0.0025) -> dict | No
     return {"params": params, "calibration": cal, "info": info}
 
 
-def table3(cfg: ReproduceConfig, out_dir: Path) -> dict:
-    """Tunes the GM observer, evaluates every detector, returns table and ablation."""
+def table3(cfg: ReproduceConfig, out_dir: Path, tuned_row: dict | None = None) -> dict:
+    """Tunes the GM observer, evaluates every detector, returns table and ablation.
+
+    ``tuned_row``: :func:`tuned_estimator`'s result for the row ``tuned``, or None (no
+    row); :func:`run` loads it before anything is simulated, so a bad file fails at once.
+    """
 
     desc = _robot(cfg).description
     base = quadruped_estimator_params(desc)
     estimators = ablation_variants(base)
     if cfg.monte_carlo:
         estimators["probabilistic_mc"] = base.replace(touchdown="monte_carlo")
-    tuned_row = tuned_estimator(cfg, desc, float(base.dt))
     if tuned_row is not None:
         estimators[TUNED_ROW] = tuned_row["params"]
     gms = gm_grid()
@@ -654,8 +657,9 @@ def run(cfg: ReproduceConfig, out_dir: str | Path) -> dict:
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
+    tuned_row = tuned_estimator(cfg, _robot(cfg).description)  # a bad file fails here
     s3 = section3(cfg, out_dir)
-    t3 = table3(cfg, out_dir)
+    t3 = table3(cfg, out_dir, tuned_row)
     payload = table3_json(t3)
     ablation = {
         "scenarios": {
