@@ -283,6 +283,24 @@ def test_tuning_stops_at_the_plausibility_box():
     assert res.history[res.best_epoch]["val_bce"] < res.history[0]["val_bce"]
 
 
+def test_calibration_entry_fits_a_map_that_keeps_every_flag(capsys):
+    """What `jax-contact tune --calibrate` and `recalibrate_preset` store: on the recovery
+    problem with sigma_J 4x too large (mis-scaled logits), the per-side map fitted on one
+    log lowers the other log's ECE and leaves its F1 (the flags) exactly as they were."""
+    from jax_contact.train.tune_cmd import calibration_entry
+
+    train, val = _synthetic(1), _synthetic(2)
+    wrong, terrain = _synthetic_params(SIGMA_J_WRONG), flat(0.0, 0.05)
+    entry = calibration_entry(wrong, terrain, [train], [val], ["a.h5"], kind="sign", seed=0)
+    cal = jt.Calibration.from_dict(entry)
+    assert cal.kind == "sign" and entry["fitted_on"] == ["a.h5"]
+    raw = jt.score_logits(jt.predict_logits(wrong, terrain, val, key=jax.random.key(0)), val)
+    assert entry["validation_after"]["ece"] < raw["ece"], (entry, raw)
+    assert abs(np.log(cal.temperature)) > 0.1 and abs(np.log(cal.temperature_air)) > 0.1
+    assert entry["validation_after"]["f1"] == pytest.approx(raw["f1"], abs=1e-12)
+    assert "calibration (sign): T" in capsys.readouterr().err
+
+
 def test_select_cells_keeps_the_lowest_loss_epoch_no_worse_than_the_defaults():
     """select="cells" on the recovery problem (the same compiled training step): epoch 0's
     cells are jax_contact.metrics of the untuned filter on the validation log (recomputed
