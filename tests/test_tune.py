@@ -532,6 +532,8 @@ def test_fit_calibration_per_side_recovers_both_temperatures_and_keeps_every_sig
     assert jt.Calibration.from_dict(cal.as_dict()) == cal
     old = jt.Calibration.from_dict({"temperature": 2.0, "bias": 0.7})
     assert old.kind == "affine" and old.temperature_air is None
+    with pytest.raises(ValueError, match="kind 'sign' does not match its fields"):
+        jt.Calibration.from_dict({"kind": "sign", "temperature": 2.0, "bias": 0.0})
     with pytest.raises(ValueError, match="has no bias"):
         jt.Calibration(temperature=1.0, bias=0.5, temperature_air=2.0)
     with pytest.raises(ValueError, match="temperature_air must be a finite number > 0"):

@@ -281,7 +281,7 @@ def _log_info(path, attrs, data) -> dict:
 # ---------------------------------------------------------------------------------- run
 
 
-def _code_version() -> dict:
+def code_version() -> dict:
     """The git commit of the library's checkout and whether it had changes (None outside a
     git checkout): the parameters' provenance names the model they were tuned for."""
     import subprocess
@@ -471,7 +471,7 @@ def run(args: argparse.Namespace) -> int:
         "noise_floor": (
             {f: np.asarray(v).tolist() for f, v in floor.items()} if floor is not None else None
         ),
-        "code": _code_version(),
+        "code": code_version(),
         "epochs": len(result.history) - 1,
         "best_epoch": result.best_epoch,
         "stopped_early": result.stopped_early,

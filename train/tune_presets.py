@@ -191,7 +191,7 @@ def recalibrate_preset(
 
     import jax_contact as jc
     from jax_contact.io import write_json_atomic
-    from jax_contact.train.tune_cmd import _code_version, calibration_entry
+    from jax_contact.train.tune_cmd import calibration_entry, code_version
     from jax_contact.train.tune_data import load_tuning_log
 
     shipped = resources.files("jax_contact") / "presets" / f"{robot}.json"
@@ -210,7 +210,7 @@ def recalibrate_preset(
     )  # fmt: skip
     entry["refitted_by"] = {
         "command": f"jax_contact.train.tune_presets.recalibrate_preset({robot!r}, kind={kind!r})",
-        "code": _code_version(),
+        "code": code_version(),
     }
     if prov.get("calibration") is not None:
         entry["replaced"] = {k: v for k, v in prov["calibration"].items() if k != "replaced"}

@@ -75,11 +75,17 @@ class Calibration:
         """From :meth:`as_dict` (files written before the per-side map have no
         ``temperature_air`` and are affine)."""
         air = d.get("temperature_air")
-        return cls(
+        cal = cls(
             temperature=float(d["temperature"]),
             bias=float(d.get("bias", 0.0)),
             temperature_air=None if air is None else float(air),
         )
+        if d.get("kind", cal.kind) != cal.kind:
+            raise ValueError(
+                f"calibration: kind {d['kind']!r} does not match its fields (a 'sign' map has"
+                f" temperature_air and no bias, an 'affine' one no temperature_air)"
+            )
+        return cal
 
 
 def apply_calibration(logit, calibration: Calibration):
