@@ -222,6 +222,35 @@ def paired_bootstrap(
     return out
 
 
+def row_differences(
+    outputs: Mapping[str, np.ndarray],
+    row: str,
+    others: Mapping[str, Sequence[str]],
+    truth,
+    valid=None,
+    *,
+    dt: float,
+    n_resamples: int = 1000,
+) -> dict[str, dict[str, list]]:
+    """``row - other`` for each of ``others``, as the JSON outputs store it: the paired
+    bootstrap (:func:`paired_bootstrap`, 95 %, seed 0) of ``outputs[row]`` against
+    ``outputs[other]`` on the statistics ``others[other]``.
+
+    Returns:
+      other -> statistic -> ``[delta, low, high, verdict]`` (:meth:`Difference.as_list`).
+    """
+    return {
+        other: {
+            k: d.as_list()
+            for k, d in paired_bootstrap(
+                outputs[other], outputs[row], truth, valid, dt=dt, statistics=tuple(stats),
+                n_resamples=n_resamples,
+            ).items()
+        }
+        for other, stats in others.items()
+    }  # fmt: skip
+
+
 def verdicts(differences: Mapping[str, Difference]) -> dict[str, list[str]]:
     """``{"better": [...], "worse": [...]}``: the statistics called each way (the rest are
     within noise or n/a)."""

@@ -210,3 +210,24 @@ def test_reproduce_compares_the_estimator_with_both_gm_tunings():
     text = reproduce.format_vs_gm({"vs_gm": {"trot": vs}, "tuned_vs": {"trot": tv}})
     assert text.count("\n") == 6 and "tuned - other row" in text
     assert "trot             vs defaults f1 " in text and "; ece " in text.splitlines()[-1]
+
+
+def test_row_differences_is_paired_bootstrap_per_other_row():
+    """The helper behind reproduce's, evaluate's and compare's JSON: for each other row,
+    ``row - other`` on its own statistics, exactly paired_bootstrap's as_list."""
+    from jax_contact.bootstrap import row_differences
+
+    rng = np.random.default_rng(11)
+    truth = rng.random((T, 4, 2)) < 0.5
+    out = {
+        "a": np.clip(truth + rng.normal(0.0, 0.3, truth.shape), 0.0, 1.0),
+        "b": truth ^ (rng.random(truth.shape) < 0.1),
+        "c": truth ^ (rng.random(truth.shape) < 0.02),
+    }
+    got = row_differences(out, "a", {"b": ("f1",), "c": ("ece", "accuracy")}, truth, dt=DT,
+                          n_resamples=40)  # fmt: skip
+    assert list(got) == ["b", "c"] and list(got["c"]) == ["ece", "accuracy"]
+    for other, stats in (("b", ("f1",)), ("c", ("ece", "accuracy"))):
+        want = paired_bootstrap(out[other], out["a"], truth, dt=DT, statistics=stats,
+                                n_resamples=40)  # fmt: skip
+        assert got[other] == {k: d.as_list() for k, d in want.items()}

@@ -426,20 +426,15 @@ def evaluate_file(
 def _vs_probabilistic(out, scores, truth, valid, dt: float, n_resamples: int) -> dict:
     """``probabilistic - row`` for every other scored row, with its env-bootstrap interval;
     printed, one line per row."""
-    from jax_contact.bootstrap import format_intervals, paired_bootstrap
+    from jax_contact.bootstrap import STATISTICS, format_intervals, row_differences
 
     print(
         f"probabilistic - row, 95 % interval of a paired bootstrap of {n_resamples} env resamples:"
     )
-    vs = {}
-    for row in scores:
-        if row == "probabilistic":
-            continue
-        diffs = paired_bootstrap(
-            out[row], out["probabilistic"], truth, valid, dt=dt, n_resamples=n_resamples
-        )
-        vs[row] = {k: d.as_list() for k, d in diffs.items()}
-        print(f"  vs {row:18s} {format_intervals(vs[row])}")
+    others = {row: tuple(STATISTICS) for row in scores if row != "probabilistic"}
+    vs = row_differences(out, "probabilistic", others, truth, valid, dt=dt, n_resamples=n_resamples)
+    for row, stats in vs.items():
+        print(f"  vs {row:18s} {format_intervals(stats)}")
     return vs
 
 

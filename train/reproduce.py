@@ -465,23 +465,6 @@ def table3(cfg: ReproduceConfig, out_dir: Path, tuned_row: dict | None = None) -
 VS_GM_STATISTICS = ("f1", "accuracy", "air_phase_failure_rate")
 
 
-def _row_vs(out: dict, row: str, others: dict, truth, valid, dt: float, n: int) -> dict:
-    """``row - other`` for each ``other -> statistics`` of ``others``, with its 95 % paired
-    env-bootstrap interval (:func:`jax_contact.bootstrap.paired_bootstrap`, seed 0):
-    other -> statistic -> ``[delta, low, high, verdict]``."""
-    from jax_contact.bootstrap import paired_bootstrap
-
-    return {
-        other: {
-            k: d.as_list()
-            for k, d in paired_bootstrap(
-                out[other], out[row], truth, valid, dt=dt, statistics=stats, n_resamples=n,
-            ).items()
-        }
-        for other, stats in others.items()
-    }  # fmt: skip
-
-
 def vs_gm(out: dict, truth, valid, dt: float, n_resamples: int) -> dict | None:
     """Issue 13's "better than both GM tunings": ``probabilistic - gm_*`` of F1, accuracy and
     air-phase failures with their 95 % paired env-bootstrap intervals
@@ -492,8 +475,10 @@ def vs_gm(out: dict, truth, valid, dt: float, n_resamples: int) -> dict | None:
     """
     if not n_resamples:
         return None
+    from jax_contact.bootstrap import row_differences
+
     gms = {gm: VS_GM_STATISTICS for gm in ("gm_walk", "gm_trot")}
-    return _row_vs(out, "probabilistic", gms, truth, valid, dt, n_resamples)
+    return row_differences(out, "probabilistic", gms, truth, valid, dt=dt, n_resamples=n_resamples)
 
 
 def tuned_vs(out: dict, truth, valid, dt: float, n_resamples: int) -> dict | None:
@@ -502,11 +487,11 @@ def tuned_vs(out: dict, truth, valid, dt: float, n_resamples: int) -> dict | Non
     issue 15's "every cell at least as good"), or None for ``n_resamples`` 0."""
     if not n_resamples:
         return None
-    from jax_contact.bootstrap import STATISTICS
+    from jax_contact.bootstrap import STATISTICS, row_differences
 
     others = {gm: VS_GM_STATISTICS for gm in ("gm_walk", "gm_trot")}
     others["probabilistic"] = tuple(STATISTICS)
-    return _row_vs(out, TUNED_ROW, others, truth, valid, dt, n_resamples)
+    return row_differences(out, TUNED_ROW, others, truth, valid, dt=dt, n_resamples=n_resamples)
 
 
 def format_vs_gm(payload: dict) -> str:

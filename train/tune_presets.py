@@ -263,7 +263,7 @@ def compare(
 
     import jax_contact as jc
     from jax_contact import tune as jt
-    from jax_contact.bootstrap import paired_bootstrap
+    from jax_contact.bootstrap import STATISTICS, row_differences
     from jax_contact.train.calibration import reliability_diagram
     from jax_contact.train.evaluate import replay, score
     from jax_contact.train.logs import file_terrain_model, terrain_for
@@ -311,11 +311,11 @@ def compare(
             for name in results[scenario]:
                 if name == reference:
                     continue
-                diffs = paired_bootstrap(
-                    out[reference], out[name], truth, valid, dt=float(attrs["dt"]),
-                    n_resamples=bootstrap,
+                vs = row_differences(
+                    out, name, {reference: tuple(STATISTICS)}, truth, valid,
+                    dt=float(attrs["dt"]), n_resamples=bootstrap,
                 )  # fmt: skip
-                results[scenario][name]["vs_reference"] = {k: d.as_list() for k, d in diffs.items()}
+                results[scenario][name]["vs_reference"] = vs[reference]
         if plots is not None:
             reliability_diagram(
                 out, truth, valid, Path(plots) / f"reliability_{robot}_{scenario}.png",
