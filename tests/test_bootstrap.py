@@ -172,17 +172,24 @@ def test_comparison_table_names_the_cells_beyond_noise():
     assert "vs reference" not in format_comparison({"trot": {"default": row}})
 
 
+def _detectors(rng, rows: dict) -> tuple[np.ndarray, dict]:
+    """(T, 4, 2) random truth and one output per row: the first row a probability (truth
+    plus Gaussian noise of that std, clipped), every other row flags with that share of
+    steps flipped."""
+    truth = rng.random((T, 4, 2)) < 0.5
+    (first, std), *flags = rows.items()
+    out = {first: np.clip(truth + rng.normal(0.0, std, truth.shape), 0.0, 1.0)}
+    for name, share in flags:
+        out[name] = truth ^ (rng.random(truth.shape) < share)
+    return truth, out
+
+
 def test_reproduce_compares_the_estimator_with_both_gm_tunings():
     from jax_contact.metrics import evaluate
     from jax_contact.train import reproduce
 
     rng = np.random.default_rng(5)
-    truth = rng.random((T, 4, 2)) < 0.5
-    out = {
-        "probabilistic": np.clip(truth + rng.normal(0.0, 0.3, truth.shape), 0.0, 1.0),
-        "gm_walk": truth ^ (rng.random(truth.shape) < 0.2),
-        "gm_trot": truth ^ (rng.random(truth.shape) < 0.05),
-    }
+    truth, out = _detectors(rng, {"probabilistic": 0.3, "gm_walk": 0.2, "gm_trot": 0.05})
     valid = np.ones((T, 4), bool)
     assert reproduce.vs_gm(out, truth, valid, DT, 0) is None
     vs = reproduce.vs_gm(out, truth, valid, DT, 30)
@@ -217,13 +224,7 @@ def test_row_differences_is_paired_bootstrap_per_other_row():
     ``row - other`` on its own statistics, exactly paired_bootstrap's as_list."""
     from jax_contact.bootstrap import row_differences
 
-    rng = np.random.default_rng(11)
-    truth = rng.random((T, 4, 2)) < 0.5
-    out = {
-        "a": np.clip(truth + rng.normal(0.0, 0.3, truth.shape), 0.0, 1.0),
-        "b": truth ^ (rng.random(truth.shape) < 0.1),
-        "c": truth ^ (rng.random(truth.shape) < 0.02),
-    }
+    truth, out = _detectors(np.random.default_rng(11), {"a": 0.3, "b": 0.1, "c": 0.02})
     got = row_differences(out, "a", {"b": ("f1",), "c": ("ece", "accuracy")}, truth, dt=DT,
                           n_resamples=40)  # fmt: skip
     assert list(got) == ["b", "c"] and list(got["c"]) == ["ece", "accuracy"]
