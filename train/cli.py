@@ -131,7 +131,7 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
     from jax_contact.train import reproduce
 
     feet = tuple(args.feet) if args.feet else None
-    tuned = {"auto": "auto", "none": None}.get(args.params, args.params)
+    tuned = None if args.params == "none" else args.params  # "auto", a file or a preset
     cfg = _reproduce_config(
         args.size, robot=args.robot, seed=args.seed, foot_names=feet, bootstrap=args.bootstrap
     )

@@ -46,19 +46,14 @@ PRESET_TUNE_ALSO = {"spot": ("contact_damping",), "barkour": ("contact_damping",
 # the lowest-loss epoch with no validation cell worse than the defaults beyond the spread,
 # fitted with the cells' smooth stand-ins in the objective (Barkour's inside the x8
 # plausibility box).
-PRESET_EXTRA = {
-    "spot": ("--select", "spread", "--patience", "12", "--constrain", "0.1"),
-    "barkour": (
-        "--select",
-        "spread",
-        "--patience",
-        "12",
-        "--constrain",
-        "0.1",
-        "--noise-ratio",
-        "8.0",
-    ),  # fmt: skip
-}
+_RULE_12 = ("--select", "spread", "--patience", "12", "--constrain", "0.1")
+PRESET_EXTRA = {"spot": _RULE_12, "barkour": (*_RULE_12, "--noise-ratio", "8.0")}
+
+
+def preset_path(robot: str) -> Path:
+    """The shipped preset file of ``robot`` in this checkout (what regenerate and
+    recalibrate write by default)."""
+    return Path(__file__).resolve().parents[1] / "jax_contact" / "presets" / f"{robot}.json"
 
 
 def scenario_world(robot: str, scenario: str):
@@ -138,7 +133,7 @@ def regenerate_preset(
     """
     logs = _preset_logs(robot, Path(workdir), n_envs, duration)
     if out is None:
-        out = Path(__file__).resolve().parents[1] / "jax_contact" / "presets" / f"{robot}.json"
+        out = preset_path(robot)
     argv = [logs[k] for k in PRESET_TUNE] + ["--validate"] + [logs[k] for k in PRESET_VALIDATE]
     note = (
         f'regenerate: python -c "from jax_contact.train.tune_cmd import regenerate_preset as r;'
@@ -187,16 +182,14 @@ def recalibrate_preset(
       The new ``provenance["calibration"]``.
     """
     import json
-    from importlib import resources
 
-    import jax_contact as jc
-    from jax_contact.io import write_json_atomic
+    from jax_contact.io import params_from_dict, write_json_atomic
     from jax_contact.train.tune_cmd import calibration_entry, code_version
     from jax_contact.train.tune_data import load_tuning_log
 
-    shipped = resources.files("jax_contact") / "presets" / f"{robot}.json"
-    payload = json.loads(shipped.read_text())
-    params, prov = jc.load_params(robot, with_provenance=True)
+    path = preset_path(robot)
+    payload = json.loads(path.read_text())
+    params, prov = params_from_dict(payload, source=str(path)), payload["provenance"]
     logs = _preset_logs(robot, Path(workdir), n_envs, duration)
     model = prov.get("terrain_model") or "flat"
     train, vals, terrain = [], [], None
@@ -215,8 +208,7 @@ def recalibrate_preset(
     if prov.get("calibration") is not None:
         entry["replaced"] = {k: v for k, v in prov["calibration"].items() if k != "replaced"}
     payload["provenance"]["calibration"] = entry
-    if out is None:
-        out = Path(__file__).resolve().parents[1] / "jax_contact" / "presets" / f"{robot}.json"
+    out = path if out is None else out
     write_json_atomic(out, payload)
     print(f"wrote {out}")
     return entry

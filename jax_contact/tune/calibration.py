@@ -152,12 +152,11 @@ def fit_calibration(
         raise ValueError("fit_calibration needs masked steps of both classes")
     x = np.clip(x, -50.0, 50.0)
     if kind == "sign":
-        lo, hi = _TEMPERATURE_BOUNDS
         temps = []
         for side in (x > 0, x <= 0):
+            # _newton keeps a in [1/20, 20] without a bias: only a NaN can get through.
             a = _newton(x[side], y[side], iterations, bias=False)[0] if side.any() else 1.0
-            a = float(np.clip(a, 1.0 / hi, 1.0 / lo))
-            if not np.isfinite(a) or a <= 0:
+            if not np.isfinite(a):
                 raise ValueError(f"the fitted inverse temperature is {a}; no calibration map")
             temps.append(1.0 / a)
         return Calibration(temperature=temps[0], temperature_air=temps[1])

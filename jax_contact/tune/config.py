@@ -9,6 +9,15 @@ import numpy as np
 SELECT_RULES = ("loss", "bce", "cells", "spread")
 
 
+def check_noise_ratio(r, name: str = "noise_ratio") -> float:
+    """``r`` as a float if it is 0 (no plausibility box) or a finite number > 1; else
+    ValueError naming ``name`` (``TuneConfig.noise_ratio``, :func:`theta_bounds`)."""
+    v = float(r)
+    if not (v == 0.0 or (np.isfinite(v) and v > 1.0)):
+        raise ValueError(f"{name} must be 0 (no box) or a finite number > 1, got {r!r}")
+    return v
+
+
 @dataclasses.dataclass(frozen=True)
 class TuneConfig:
     """Settings of one tuning run (frozen: override with ``dataclasses.replace``).
@@ -91,11 +100,7 @@ class TuneConfig:
                 f"TuneConfig.event_temperature must be a finite number > 0,"
                 f" got {self.event_temperature!r}"
             )
-        r = self.noise_ratio
-        if not (r == 0 or (np.isfinite(r) and r > 1)):
-            raise ValueError(
-                f"TuneConfig.noise_ratio must be 0 (no box) or a finite number > 1, got {r!r}"
-            )
+        check_noise_ratio(self.noise_ratio, "TuneConfig.noise_ratio")
         if self.select not in SELECT_RULES:
             raise ValueError(
                 f"TuneConfig.select must be one of {SELECT_RULES}, got {self.select!r}"

@@ -11,6 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jax_contact.params import EstimatorParams, NoiseParams
+from jax_contact.tune.config import check_noise_ratio
 
 NOISE_FIELDS = tuple(NoiseParams.__dataclass_fields__)
 CAP_FIELDS = (
@@ -289,11 +290,7 @@ def theta_bounds(
       ValueError: ``noise_ratio`` neither 0 nor > 1, or a bad floor
         (:func:`theta_lower_bounds`).
     """
-    r = float(noise_ratio)
-    if not (r == 0.0 or (np.isfinite(r) and r > 1.0)):
-        raise ValueError(
-            f"noise_ratio must be 0 (no box) or a finite number > 1, got {noise_ratio!r}"
-        )
+    r = check_noise_ratio(noise_ratio)
     lower = theta_lower_bounds(space, base, floor)
     upper = {f: jnp.full_like(v, jnp.inf) for f, v in lower.items()}
     if r > 0:
