@@ -14,6 +14,7 @@ from collections.abc import Sequence
 import numpy as np
 from flax import struct
 
+from jax_contact.calibration import Calibration
 from jax_contact.envs.feet import SOLES
 
 RATES = ("auto", "substep", "control")
@@ -34,8 +35,16 @@ class ContactObsConfig:
         kind of foot means).
       sensor: a preset name of :data:`jax_contact.envs.sensors.PRESETS` or a
         :class:`~jax_contact.envs.sensors.SensorParams` at the estimator's period.
-      params: :class:`jax_contact.EstimatorParams` at the estimator's period; None:
+      params: :class:`jax_contact.EstimatorParams` at the estimator's period; a parameter
+        file or shipped preset name (``"go1"``, :func:`jax_contact.load_params`; one made
+        at another period runs at the estimator's with a warning,
+        :func:`jax_contact.io.load_params_for`); None:
         :func:`jax_contact.envs.contact_params.default_estimator_params`.
+      calibration: the map applied to the belief's logit before it is observed and scored
+        (:mod:`jax_contact.calibration`; the recursion runs on the raw logit):
+        ``"auto"`` (default) the map a ``params`` file or preset holds, none otherwise;
+        None: no map; or a :class:`jax_contact.Calibration`. The wrapper's
+        ``contact_report()`` says which.
       force_rows: world axes of the contact force for legs of fewer than three joints;
         None: chosen from the leg Jacobian at the home pose, the normal (z) always kept
         (:func:`jax_contact.envs.contact_params.choose_force_rows`). The choice is reported by the
@@ -53,7 +62,8 @@ class ContactObsConfig:
       the
         update after step ``k`` evaluates the model at the state read at ``k-1`` with the
         acceleration over ``[k-1, k]`` and the torque read at ``k``; ``"raw"`` at ``k``.
-      include_logit: also observe the belief's logit, clipped to ``+-logit_clip``.
+      include_logit: also observe the belief's logit (through ``calibration``), clipped to
+        ``+-logit_clip``.
       include_terms: also observe the five per-term probabilities.
       obs_keys: the entries of a dict observation that get the features, any set of them
         (Playground's policy input ``"state"``, its critic's ``"privileged_state"``); an
@@ -80,6 +90,7 @@ class ContactObsConfig:
     feet: tuple | None = struct.field(pytree_node=False, default=None)
     sensor: object = struct.field(pytree_node=False, default="anymal_like")
     params: object = struct.field(pytree_node=False, default=None)
+    calibration: object = struct.field(pytree_node=False, default="auto")
     force_rows: tuple[int, ...] | None = struct.field(pytree_node=False, default=None)
     terrain: object = struct.field(pytree_node=False, default=None)
     rate: str = struct.field(pytree_node=False, default="auto")
@@ -133,6 +144,11 @@ def validate_config(cfg: ContactObsConfig) -> None:
         raise ValueError(f"config.truth_gap must be >= 0 (m), got {cfg.truth_gap!r}")
     if not (np.isfinite(cfg.logit_clip) and cfg.logit_clip > 0):
         raise ValueError(f"config.logit_clip must be > 0, got {cfg.logit_clip!r}")
+    if not (cfg.calibration in ("auto", None) or isinstance(cfg.calibration, Calibration)):
+        raise ValueError(
+            "config.calibration must be 'auto', None or a jax_contact.Calibration, got"
+            f" {cfg.calibration!r}"
+        )
     if cfg.feet is not None and (isinstance(cfg.feet, str) or len(cfg.feet) == 0):
         raise ValueError(f"config.feet must be a non-empty sequence, got {cfg.feet!r}")
     if cfg.force_rows is not None:

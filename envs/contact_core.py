@@ -11,6 +11,7 @@ and the observation placement. :func:`make_core` builds it from an env and a
 from __future__ import annotations
 
 import dataclasses
+import os
 from collections.abc import Mapping
 
 import jax
@@ -22,9 +23,11 @@ from flax import struct
 
 import jax_contact as jc
 from jax_contact import adapter
+from jax_contact.calibration import Calibration, apply_calibration, load_calibration, probability
 from jax_contact.envs import contact_params, contact_truth, feet, sensors
 from jax_contact.envs.contact_config import TERM_NAMES, ContactObsConfig, validate_config
 from jax_contact.envs.robots import Robot
+from jax_contact.io import load_params_for
 from jax_contact.robot import RobotDescription
 
 
@@ -69,6 +72,10 @@ class Core:
       truth_raw: the same source without ``cfg.truth_gap`` (recorded beside it).
       truth_source: which :mod:`jax_contact.envs.contact_truth` source ``truth`` reads.
       rate: ``"substep"`` or ``"control"``.
+      calibration: the map on the logit before it is observed and scored, or None
+        (``cfg.calibration`` resolved).
+      params_source: where ``params`` came from: ``"default"``, ``"given"`` or the file or
+        preset name.
     """
 
     mjx_model: object
@@ -82,6 +89,8 @@ class Core:
     truth_source: str
     rate: str
     truth_raw: object = None
+    calibration: Calibration | None = None
+    params_source: str = "given"
 
     def moved(self, est: ContactEstState, data) -> jax.Array:
         """() bool: ``data`` is not the state the wrapper last returned (an auto-reset)."""
@@ -113,7 +122,7 @@ class Core:
         belief = jax.tree.map(lambda x: jnp.broadcast_to(x, (n,) + x.shape), one)
         half = jnp.full((n,), 0.5, jnp.float32)
         diag = jc.Diagnostics(
-            p_contact=jax.nn.sigmoid(belief.logit),
+            p_contact=probability(belief.logit, self.calibration),
             p_dynamics=half,
             p_diff_kinematics=half,
             p_kinematics=half,
@@ -154,6 +163,8 @@ class Core:
             sole=self.cfg.sole,
         )
         belief, diag = jc.step_robot(self.params, self.terrain, est.belief, meas, key=k_est)
+        if self.calibration is not None:
+            diag = diag.replace(p_contact=probability(belief.logit, self.calibration))
         return ContactEstState(
             belief=belief,
             sensor=sensor,
@@ -178,7 +189,10 @@ class Core:
             return jnp.concatenate(cols).astype(jnp.float32)
         cols = [est.diag.p_contact]
         if self.cfg.include_logit:
-            cols.append(jnp.clip(est.belief.logit, -c, c))
+            logit = est.belief.logit
+            if self.calibration is not None:
+                logit = apply_calibration(logit, self.calibration)
+            cols.append(jnp.clip(logit, -c, c))
         if self.cfg.include_terms:
             cols += [jnp.nan_to_num(getattr(est.diag, n), nan=0.5) for n in TERM_NAMES]
         return jnp.concatenate(cols).astype(jnp.float32)
@@ -255,13 +269,20 @@ def make_core(env, cfg: ContactObsConfig) -> Core:
     dt = float(mj_model.opt.timestep) if rate == "substep" else float(np.asarray(env.dt))
     robot = Robot(name="wrapped env", mj_model=mj_model, description=desc, spec=None)
     sensor_params = contact_params.default_sensor_params(cfg.sensor, robot, dt)
-    params = cfg.params
+    params, params_source = cfg.params, "given"
     if params is None:
+        params_source = "default"
         params = contact_params.default_estimator_params(
             robot, dt, sensor_params, force_rows=cfg.force_rows
         )
+    elif isinstance(params, str | os.PathLike):
+        params_source = str(params)
+        params = load_params_for(params, nv=desc.nv, dt=dt, period=f"the estimator's ({rate} rate)")
     elif not isinstance(params, jc.EstimatorParams):
-        raise ValueError(f"params must be jax_contact.EstimatorParams, got {type(params).__name__}")
+        raise ValueError(
+            "params must be jax_contact.EstimatorParams, a parameter file or a preset name, got"
+            f" {type(params).__name__}"
+        )
     else:
         jc.validate_params(params)
         if params.nv != desc.nv or not np.isclose(float(params.dt), dt, rtol=1e-5):
@@ -285,6 +306,11 @@ def make_core(env, cfg: ContactObsConfig) -> Core:
             " finds none for every foot: add sensors"
             " (jax_contact.envs.ground_truth.with_contact_sensors)"
         )
+    calibration = cfg.calibration
+    if isinstance(calibration, str):  # "auto": the map of a file or preset, if any
+        calibration = (
+            load_calibration(cfg.params) if params_source not in ("default", "given") else None
+        )
     return Core(
         mjx_model=mjx_model,
         desc=desc,
@@ -297,6 +323,8 @@ def make_core(env, cfg: ContactObsConfig) -> Core:
         truth_source=source,
         rate=rate,
         truth_raw=truth_raw,
+        calibration=calibration,
+        params_source=params_source,
     )
 
 
@@ -322,4 +350,6 @@ def report(core: Core) -> dict:
         "observe": core.cfg.observe,
         "n_features": core.cfg.n_per_foot * core.desc.n_legs,
         "obs_keys": core.cfg.obs_keys,
+        "params": core.params_source,
+        "calibration": None if core.calibration is None else core.calibration.as_dict(),
     }

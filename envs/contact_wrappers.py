@@ -9,6 +9,7 @@ they do.
 from __future__ import annotations
 
 import dataclasses
+import os
 from collections.abc import Sequence
 
 import jax
@@ -206,7 +207,7 @@ def wrap_contact(
     *,
     foot_names: Sequence | None = None,
     sensor: str | sensors.SensorParams | None = None,
-    params: jc.EstimatorParams | None = None,
+    params: jc.EstimatorParams | str | os.PathLike | None = None,
     terrain=None,
 ):
     """Wraps an (unbatched) env so that its observation holds the estimated foot contact.
@@ -219,7 +220,9 @@ def wrap_contact(
         (``impl="jax"``), possibly already wrapped by unbatched wrappers.
       config: a :class:`ContactObsConfig`, which holds every option; None: the defaults.
       foot_names, sensor, params, terrain: override ``config.feet``, ``config.sensor``,
-        ``config.params``, ``config.terrain`` (kept for older callers).
+        ``config.params``, ``config.terrain`` (kept for older callers). ``params`` may be
+        a parameter file or preset name (``"go1"``): its calibration map is then applied
+        (``ContactObsConfig.calibration``).
 
     Returns:
       A :class:`BraxContactWrapper` or :class:`PlaygroundContactWrapper`.

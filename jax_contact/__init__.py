@@ -16,6 +16,8 @@ from typing import TYPE_CHECKING
 _LAZY = {
     "deploy": None,
     "export": None,
+    "Calibration": "calibration",
+    "load_calibration": "calibration",
     "GaitPrior": "defaults",
     "params_for": "defaults",
     "init_belief": "filter",
@@ -63,6 +65,7 @@ _LAZY = {
 
 if TYPE_CHECKING:  # the same names, eagerly, for type checkers and IDEs
     from jax_contact import deploy, export
+    from jax_contact.calibration import Calibration, load_calibration
     from jax_contact.defaults import GaitPrior, params_for
     from jax_contact.filter import (
         init_belief,
@@ -137,6 +140,7 @@ def __dir__():
 
 
 __all__ = [
+    "Calibration",
     "Diagnostics",
     "EstimatorParams",
     "FlatTerrain",
@@ -161,6 +165,7 @@ __all__ = [
     "init_belief_batch",
     "kinematics_llr",
     "leg_blocks",
+    "load_calibration",
     "load_params",
     "log_takeoff",
     "log_touchdown",

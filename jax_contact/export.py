@@ -28,7 +28,9 @@ File layout (``.contact``)::
 The exported function is ``update(state, key, *readings) -> (state, key, out)``: ``state``
 a float32 vector and ``key`` the raw PRNG key (both opaque to the caller; their layouts are
 in the header), ``readings`` in header order, ``out`` a float32 vector holding P(contact)
-and the diagnostics (layout in the header). Packing into a few vectors keeps the per-call
+and the diagnostics (layout in the header); P is read through the calibration map the
+header's ``calibration`` holds, if any (the parameter file's, :mod:`jax_contact.calibration`),
+the diagnostics are the raw terms. Packing into a few vectors keeps the per-call
 overhead of the Python runtime small (every argument and result is one buffer to move).
 """
 
@@ -47,6 +49,8 @@ from pathlib import Path
 import jax
 import jax.numpy as jnp
 import numpy as np
+
+from jax_contact.calibration import probability
 
 MAGIC = b"JAX-CONTACT-EXP\n"  # 16 bytes
 FORMAT = "jax-contact-deploy"
@@ -220,8 +224,14 @@ def _unpack(layout: list[dict], vec: jax.Array) -> dict[str, jax.Array]:
 # ---------------------------------------------------------------- the robot's update (MJX)
 
 
-def robot_update_fn(mj_model, desc, params, terrain, *, include_passive: bool = True):
+def robot_update_fn(
+    mj_model, desc, params, terrain, *, include_passive: bool = True, calibration=None
+):
     """The single-robot update of :func:`export_robot`, as a jittable function.
+
+    ``calibration`` (a :class:`jax_contact.Calibration` or None) maps the belief's logit
+    before the output ``p_contact`` (:func:`jax_contact.calibration.probability`); the
+    state keeps the raw logit the recursion runs on.
 
     Returns:
       ``(update, init)``: ``update(state, key, qpos, qvel, qacc, tau) -> (state, key, out)``
@@ -270,7 +280,8 @@ def robot_update_fn(mj_model, desc, params, terrain, *, include_passive: bool = 
                 "has_prev": jnp.ones(()),
             },
         )
-        out = _pack(o_layout, {"p_contact": diag.p_contact} | _diag_dict(diag))
+        p = diag.p_contact if calibration is None else probability(belief.logit, calibration)
+        out = _pack(o_layout, {"p_contact": p} | _diag_dict(diag))
         return new_state, key, out
 
     def init(seed: int = 0):
@@ -307,6 +318,7 @@ def export_robot(
     provenance: Mapping | None = None,
     seed: int = 0,
     include_passive: bool = True,
+    calibration=None,
 ) -> tuple[dict, bytes]:
     """Exports one robot's estimator update, its kinematics and dynamics included.
 
@@ -322,6 +334,9 @@ def export_robot(
       seed: seed of the PRNG key that :func:`jax_contact.deploy.Estimator.init` starts
         from (used by a Monte-Carlo touch-down only).
       include_passive: ``h`` includes the joint springs and dampers (as replay does).
+      calibration: a :class:`jax_contact.Calibration` applied to the logit before the
+        output ``p_contact`` (a parameter file's map, :func:`jax_contact.load_calibration`),
+        stored in the header; None: P is the belief's own.
 
     Returns:
       ``(header, payload)`` for :func:`write_artefact`.
@@ -345,7 +360,9 @@ def export_robot(
             f"desc has nq={desc.nq}, nv={desc.nv} but the model has nq={mj_model.nq},"
             f" nv={mj_model.nv}: derive the description from the same model"
         )
-    update, init = robot_update_fn(mj_model, desc, params, terrain, include_passive=include_passive)
+    update, init = robot_update_fn(
+        mj_model, desc, params, terrain, include_passive=include_passive, calibration=calibration
+    )
     state0, key0 = init(seed)
     zeros = [jnp.zeros(n, jnp.float32) for n in (desc.nq, desc.nv, desc.nv, desc.nv)]
     exported, _ = export_flat(update, state0, key0, *zeros)
@@ -396,6 +413,7 @@ def export_robot(
         "terrain": _terrain_header(terrain),
         "include_passive": bool(include_passive),
         "params": params_to_dict(params, provenance),
+        "calibration": None if calibration is None else calibration.as_dict(),
     }
     # As it reads back from the file (tuples become lists).
     return json.loads(json.dumps(header)), bytes(payload)

@@ -411,6 +411,43 @@ def load_params(path: str | os.PathLike, *, with_provenance: bool = False):
     return params
 
 
+def load_params_for(path: str | os.PathLike, *, nv: int, dt: float, period: str = "the log's"):
+    """:func:`load_params` of a file or preset, checked against the robot and the period
+    it will run at.
+
+    A file made at another period runs at ``dt`` (with a ``UserWarning``): its noise,
+    derived from its own ``dt`` (the differenced acceleration's ``sqrt(2) sigma_qd / dt``),
+    is kept, so a file made at a higher rate than ``dt`` believes the acceleration noisier
+    than it is (less dynamics evidence, not more).
+
+    Args:
+      path: a parameter file or preset name.
+      nv: the robot's velocity dimension.
+      dt: the estimator's period, s.
+      period: what ``dt`` is, in the warning (e.g. ``"the env's"``).
+
+    Raises:
+      ValueError: as :func:`load_params`, or the file is for another ``nv``.
+    """
+    import warnings
+
+    import jax.numpy as jnp
+
+    params = load_params(path)
+    if params.nv != nv:
+        raise ValueError(
+            f"parameter file {str(path)!r} is for nv = {params.nv}; the robot has nv = {nv}"
+        )
+    if abs(float(params.dt) - dt) > 1e-6 * dt:
+        warnings.warn(
+            f"parameter file {str(path)!r} has dt = {float(params.dt):.6g} s; {period} is"
+            f" {dt:.6g} s: using {period} (noise the file derived from its dt is kept)",
+            stacklevel=2,
+        )
+        params = params.replace(dt=jnp.float32(dt))
+    return params
+
+
 def _params_text(path) -> tuple[str, str]:
     """(text, description for errors) of a parameter file or a preset name."""
     ref = preset_file(path)

@@ -166,15 +166,21 @@ def test_header_describes_inputs_and_parameters(deployed):
     assert params_to_dict(stored)["values"] == params_to_dict(params)["values"]
 
 
-def test_a_shipped_preset_exports_by_name(tmp_path):
-    """``--params go1`` exports the shipped preset: its values, and a provenance naming the
-    preset with the SHA-256 of the shipped file (recomputed here from the package data)."""
+def test_a_shipped_preset_exports_by_name(deployed, tmp_path):
+    """``--params go1`` exports the shipped preset: its values, a provenance naming the
+    preset with the SHA-256 of the shipped file (recomputed here from the package data),
+    and its calibration map, which the exported P goes through. Reference: the offline
+    replay of the preset's parameters on the same readings, its P mapped in float64 NumPy
+    (l' = l / T_c for l > 0, l / T_a else; the map's own code is not used)."""
     import hashlib
     from importlib import resources
 
     import jax_contact as jc
+    from jax_contact import deploy
+    from jax_contact.envs.robots import load_robot
     from jax_contact.io import params_from_dict, params_to_dict
-    from jax_contact.train.deploy_cmd import export_to_file
+    from jax_contact.train.deploy_cmd import export_to_file, offline_estimate, params_and_terrain
+    from jax_contact.train.evaluate import replay
 
     h = export_to_file(tmp_path / "go1.contact", robot="go1", params_path="go1")
     prov = h["params"]["provenance"]
@@ -183,6 +189,34 @@ def test_a_shipped_preset_exports_by_name(tmp_path):
     assert prov["sha256"] == hashlib.sha256(shipped).hexdigest()
     stored = params_to_dict(params_from_dict(h["params"]))["values"]
     assert stored == params_to_dict(jc.load_params("go1"))["values"]
+    cal = json.loads(shipped)["provenance"]["calibration"]
+    assert h["calibration"]["temperature_air"] == cal["temperature_air"]
+
+    est = deploy.load(tmp_path / "go1.contact")
+    belief, ps = est.init(), []
+    readings = deployed["readings"]
+    for k in range(N_STEPS):
+        belief, p, _ = est.update(belief, {n: readings[n][k, 0] for n in est.reading_names})
+        ps.append(p)
+    got = np.stack(ps)
+    raw = replay(
+        load_robot("go1"),
+        readings,
+        estimators={"preset": jc.load_params("go1")},
+        terrain=params_and_terrain(h)[1],
+        dt=1.0 / 400.0,
+        seed=0,
+        progress=False,
+    )["preset"][:, 0].astype(np.float64)
+    logit = np.log(np.maximum(raw, 1e-38)) - np.log1p(-np.minimum(raw, 1 - 1e-7))
+    scaled = np.where(logit > 0, logit / cal["temperature"], logit / cal["temperature_air"])
+    want = 1.0 / (1.0 + np.exp(-scaled))
+    np.testing.assert_allclose(got, want, atol=P_TOL)
+    assert np.max(np.abs(got - raw)) > 0.01  # the map moved P ...
+    np.testing.assert_array_equal(got > 0.5, raw > 0.5)  # ... and kept every decision
+    # deploy-check's offline side reads P through the header's map too.
+    offline = offline_estimate(h, {k: v[:, 0] for k, v in readings.items()}, dt=1.0 / 400.0)
+    np.testing.assert_allclose(offline, got, atol=P_TOL)
 
 
 def test_corrupt_or_foreign_file_is_refused(deployed, tmp_path):

@@ -473,6 +473,38 @@ def test_a_params_file_runs_on_the_terrain_model_it_was_tuned_with(tmp_path, mon
     assert seen == ["FootholdMemory", "FlatTerrain", "FlatTerrain"]
 
 
+def test_estimate_reports_p_through_the_files_calibration_map(round_trip, tmp_path, capsys):
+    """``estimate --params`` with a file that holds a calibration map writes P through the
+    map: sigmoid(logit(P_raw) / T_c) where P_raw > 0.5, / T_a elsewhere, computed here by
+    hand from the round trip's raw P (the file holds the defaults, so the recursion is the
+    same), and records the map in the HDF5 attributes."""
+    import jax_contact as jc
+    from jax_contact.train import logs
+
+    desc = load_robot("planar_leg").description
+    params, _ = logs.default_estimator(desc, 0.0025)
+    cal = jc.Calibration(temperature=1.5, temperature_air=3.0)
+    jc.save_params(tmp_path / "cal.json", params, {"calibration": cal.as_dict()})
+    args = _parser().parse_args(
+        ["estimate", str(CSV), "--model", "planar_leg", "--out", str(tmp_path / "o")]
+        + ["--no-plots", "--params", str(tmp_path / "cal.json")]
+    )
+    args.check(args)
+    assert args.func(args) == 0
+    assert "calibration map (T 1.500 for P > 0.5, 3.000 for P < 0.5)" in capsys.readouterr().out
+    raw = np.clip(
+        round_trip.evaluated["outputs"]["probabilistic"][:, 0, 0].astype(float), 1e-7, 1 - 1e-7
+    )
+    logit = np.log(raw / (1 - raw))
+    want = 1 / (1 + np.exp(-np.where(logit > 0, logit / 1.5, logit / 3.0)))
+    got = read_recording(tmp_path / "o" / "estimate.csv").columns["p_contact/foot"]
+    np.testing.assert_allclose(got, want, atol=2e-5)
+    assert np.mean(np.abs(got - raw)) > 0.01  # the map moved P
+    np.testing.assert_array_equal(got > 0.5, raw > 0.5)  # and kept every decision
+    with h5py.File(tmp_path / "o" / "estimate.h5", "r") as f:
+        assert json.loads(f.attrs["calibration"]) == cal.as_dict()
+
+
 def test_evaluate_adds_the_calibrated_row_of_a_file_with_a_calibration_map(tmp_path, capsys):
     """A params file holding a calibration map (``jax-contact tune --calibrate``) gets a
     ``probabilistic+cal`` row: P mapped by ``sigmoid(logit(P) / T + c)`` after the
@@ -512,16 +544,16 @@ def test_evaluate_adds_the_calibrated_row_of_a_file_with_a_calibration_map(tmp_p
     assert np.mean(by_hand[valid] > 0.5) > np.mean(p[valid] > 0.5)
 
 
-def test_a_params_file_is_checked_against_the_robot_and_rate(tmp_path, capsys):
+def test_a_params_file_is_checked_against_the_robot_and_rate(tmp_path):
     import jax_contact as jc
     from jax_contact.train.logs import default_estimator, load_params_for
 
     desc = load_robot("planar_leg").description
     params, _ = default_estimator(desc, 0.005)
     jc.save_params(tmp_path / "p.json", params.replace(cap_dynamics=np.float32(0.95)))
-    got = load_params_for(tmp_path / "p.json", desc, 0.0025)
+    with pytest.warns(UserWarning, match="dt = 0.005 s; the log's is 0.0025 s"):
+        got = load_params_for(tmp_path / "p.json", desc, 0.0025)
     assert float(got.cap_dynamics) == pytest.approx(0.95) and float(got.dt) == pytest.approx(0.0025)
-    assert "dt = 0.005 s; the log's is 0.0025 s" in capsys.readouterr().err
     go1 = load_robot("go1").description
     with pytest.raises(ValueError, match="nv = 3; the robot has nv = 18"):
         load_params_for(tmp_path / "p.json", go1, 0.0025)

@@ -94,5 +94,5 @@ def test_import_is_lazy_and_every_public_name_resolves():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     lines = out.stdout.splitlines()
     assert lines[0] == "[]"
-    assert int(lines[1]) == 45
+    assert int(lines[1]) == 47
     assert lines[2] == "module 'jax_contact' has no attribute 'no_such_name'"

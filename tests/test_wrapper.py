@@ -313,6 +313,65 @@ def test_refusals(leg_robot, brax_leg, pg_leg):
         W.wrap_contact(pg_leg, **IDEAL).reset(jax.random.split(jax.random.PRNGKey(0), 2))
 
 
+# ------------------------------------------------ parameter files and calibration maps
+
+
+def test_a_parameter_file_brings_its_calibration_map(brax_leg, tmp_path):
+    """params given as a file: the wrapper runs the file's parameters and observes (and
+    scores) the belief through the file's calibration map, while the recursion runs on the
+    raw logit. Reference: the same parameters given as an object (no map) on the same
+    readings and key, mapped by hand in float64 (l' = l / T_c for l > 0, l / T_a else)."""
+    plain = W.wrap_contact(brax_leg, W.ContactObsConfig(include_logit=True), **IDEAL)
+    params = plain.contact_core.params
+    cal = jc.Calibration(temperature=2.0, temperature_air=0.5)
+    path = tmp_path / "leg.json"
+    jc.save_params(path, params, {"calibration": cal.as_dict()})
+    mapped = W.wrap_contact(
+        brax_leg, W.ContactObsConfig(include_logit=True, logit_clip=30.0, params=str(path)), **IDEAL
+    )
+    assert mapped.contact_core.calibration == cal
+    report = mapped.contact_report()
+    assert report["params"] == str(path) and report["calibration"]["temperature_air"] == 0.5
+    assert plain.contact_report()["calibration"] is None  # an object brings no map
+
+    home = jax.jit(brax_leg.reset)(jax.random.PRNGKey(0)).pipeline_state
+    d1 = jax.jit(lambda d: mjx.step(brax_leg.sys, d))(home)
+    key = jax.random.PRNGKey(5)
+
+    def run(core):
+        est = core.update(core.init(home, key), d1)
+        return est.belief.logit, est.diag.p_contact, core.features(est, d1)
+
+    raw_logit, raw_p, raw_feats = jax.jit(run, static_argnums=0)(plain.contact_core)
+    logit, p, feats = jax.jit(run, static_argnums=0)(mapped.contact_core)
+    np.testing.assert_array_equal(logit, raw_logit)  # the recursion is untouched
+    l64 = np.asarray(raw_logit, np.float64)
+    want = np.where(l64 > 0, l64 / 2.0, l64 / 0.5)
+    np.testing.assert_allclose(feats[1], np.clip(want, -30, 30), rtol=1e-6)
+    np.testing.assert_allclose(p, 1 / (1 + np.exp(-want)), rtol=1e-5, atol=1e-7)
+    np.testing.assert_allclose(feats[0], p, rtol=1e-6)
+    np.testing.assert_allclose(raw_feats[0], raw_p, rtol=1e-6)
+    assert abs(float(p[0]) - float(raw_p[0])) > 1e-3  # the map moved P
+    assert (float(p[0]) > 0.5) == (float(raw_p[0]) > 0.5)  # and kept the decision
+
+    # calibration=None turns the file's map off; an explicit map applies to an object.
+    off = W.wrap_contact(brax_leg, W.ContactObsConfig(params=str(path), calibration=None))
+    assert off.contact_core.calibration is None
+    given = W.wrap_contact(brax_leg, W.ContactObsConfig(params=params, calibration=cal))
+    assert given.contact_core.calibration == cal
+    with pytest.raises(ValueError, match="config.calibration must be"):
+        W.wrap_contact(brax_leg, W.ContactObsConfig(calibration="sign"))
+    with pytest.raises(ValueError, match="parameter file .*nope.json.* does not exist"):
+        W.wrap_contact(brax_leg, W.ContactObsConfig(params=str(tmp_path / "nope.json")))
+    with pytest.raises(ValueError, match="nv = 18; the robot has nv = 3"):
+        W.wrap_contact(brax_leg, W.ContactObsConfig(params="go1"))
+    # A file made at another period runs at the wrapper's, with a warning.
+    jc.save_params(tmp_path / "slow.json", params.replace(dt=jnp.float32(0.01)))
+    with pytest.warns(UserWarning, match="dt = 0.01 s; the estimator's"):
+        slow = W.wrap_contact(brax_leg, params=tmp_path / "slow.json")
+    assert float(slow.contact_core.params.dt) == pytest.approx(float(params.dt))
+
+
 # --------------------------------------------------------------- parameter helpers
 
 

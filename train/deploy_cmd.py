@@ -180,10 +180,12 @@ def export_to_file(
     desc = loaded.description
     dt = 1.0 / float(rate_hz)
     params, terrain, provenance = default_estimator(desc, dt)
+    calibration = None
     if params_path is not None:
         from jax_contact._presets import preset_file
 
         params = jc.load_params(params_path)
+        calibration = jc.load_calibration(params_path)
         if (ref := preset_file(params_path)) is not None:
             raw = ref.read_bytes()
             where = {"source": "preset", "name": params_path}
@@ -210,6 +212,7 @@ def export_to_file(
         robot_source=source,
         provenance=provenance,
         seed=seed,
+        calibration=calibration,
     )
     export.write_artefact(out, header, payload)
     return export.read_artefact(out)[0]  # as written, checksum verified
@@ -236,6 +239,11 @@ def run_export(args: argparse.Namespace) -> int:
         f" {', '.join(r['feet'])}) at {header['rate_hz']:g} Hz, {header['payload_bytes']} bytes"
         f" of StableHLO; parameters: {header['params']['provenance'].get('source')}"
     )
+    if (cal := header.get("calibration")) is not None:
+        from jax_contact.calibration import Calibration
+
+        described = Calibration.from_dict(cal).describe()
+        print(f"p_contact through the file's calibration map ({described})")
     return 0
 
 
@@ -270,7 +278,12 @@ def offline_estimate(header: dict, readings: dict, *, dt: float):
         seed=int(header["key"]["seed"]),
         progress=False,
     )
-    return out["export"][:, 0]
+    p = out["export"][:, 0]
+    if (cal := header.get("calibration")) is not None:  # as the export reports P
+        from jax_contact.calibration import Calibration, calibrate_probability
+
+        p = calibrate_probability(p, Calibration.from_dict(cal))
+    return p
 
 
 def realtime_replay(

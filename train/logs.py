@@ -456,31 +456,17 @@ def _file_calibration(params_path):
     """The calibration map in a parameter file's provenance, or None (no file, no map)."""
     if params_path is None:
         return None
-    from jax_contact.io import load_params
-    from jax_contact.tune import calibration_of
+    from jax_contact.calibration import load_calibration
 
-    return calibration_of(load_params(params_path, with_provenance=True)[1])
+    return load_calibration(params_path)
 
 
 def load_params_for(path, desc, dt):
-    """A params file, checked against the robot and the log's period."""
-    import jax.numpy as jnp
+    """A params file, checked against the robot and the log's period
+    (:func:`jax_contact.io.load_params_for`)."""
+    from jax_contact.io import load_params_for as load
 
-    from jax_contact.io import load_params
-
-    params = load_params(path)
-    if params.nv != desc.nv:
-        raise ValueError(
-            f"parameter file {str(path)!r} is for nv = {params.nv}; the robot has nv = {desc.nv}"
-        )
-    if abs(float(params.dt) - dt) > 1e-6 * dt:
-        print(
-            f"parameter file {str(path)!r} has dt = {float(params.dt):.6g} s; the log's is"
-            f" {dt:.6g} s: using the log's (noise the file derived from its dt is kept)",
-            file=sys.stderr,
-        )
-        params = params.replace(dt=jnp.float32(dt))
-    return params
+    return load(path, nv=desc.nv, dt=dt)
 
 
 def format_scores(scores: dict[str, dict], *, title: str = "log") -> str:

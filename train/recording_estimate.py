@@ -54,10 +54,11 @@ def estimate_recording(
       replay's (T, 1, L) arrays), ``scores`` (empty without ground truth).
     """
     from jax_contact.baselines import make_gm_params, make_kinematic_params
+    from jax_contact.calibration import calibrate_probability
     from jax_contact.envs.robots import load_robot
     from jax_contact.io import write_json_atomic, write_log
     from jax_contact.train.evaluate import replay, score
-    from jax_contact.train.logs import _estimator_for, format_scores
+    from jax_contact.train.logs import _estimator_for, _file_calibration, format_scores
 
     rec = read_recording(path)
     robot = load_robot(model, foot_names=feet)
@@ -92,6 +93,14 @@ def estimate_recording(
         diagnostics_of="probabilistic",
         progress=progress,
     )
+    calibration = _file_calibration(params_path)
+    if calibration is not None:
+        # What the file defines as its output: the belief through its calibration map
+        # (jax_contact.calibration), as the wrapper and the exported estimator report it.
+        out["probabilistic"] = calibrate_probability(out["probabilistic"], calibration)
+        line = f"p_contact through the file's calibration map ({calibration.describe()})"
+        notes.append(line)
+        print(f"note: {line}")
     out_dir = Path(out_dir)
     feet_names = list(desc.foot_names)
     fields = {"p_contact": out["probabilistic"]} | {
@@ -110,6 +119,7 @@ def estimate_recording(
         "dt": conv.dt,
         "notes": notes,
         "reading_timing": "end_of_step",
+        "calibration": None if calibration is None else calibration.as_dict(),
     }
     files = [write_log(out_dir / "estimate.h5", arrays, attrs)]
     columns = {"time": conv.time}

@@ -523,17 +523,10 @@ def calibration_entry(
     after = jt.score_logits(jt.apply_calibration(vl, cal), jt.pooled(vals))
     before = "" if ece_before is None else f"{ece_before:.4f} -> "
     print(
-        f"calibration ({cal.kind}): {_describe_calibration(cal)}; validation ECE"
-        f" {before}{after['ece']:.4f}",
+        f"calibration ({cal.kind}): {cal.describe()}; validation ECE {before}{after['ece']:.4f}",
         file=sys.stderr,
     )
     return {**cal.as_dict(), "fitted_on": list(paths), "validation_after": after}
-
-
-def _describe_calibration(cal) -> str:
-    if cal.temperature_air is None:
-        return f"T {cal.temperature:.3f}, bias {cal.bias:+.3f}"
-    return f"T {cal.temperature:.3f} for P > 0.5, {cal.temperature_air:.3f} for P < 0.5"
 
 
 def main(argv: list[str] | None = None) -> int:

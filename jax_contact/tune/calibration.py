@@ -1,122 +1,32 @@
-"""The calibration map on the fused logit, fitted after tuning."""
+"""Fitting the calibration map on the fused logit after tuning (the map itself:
+:mod:`jax_contact.calibration`)."""
 
 from __future__ import annotations
 
-import dataclasses
-
 import numpy as np
 
-# ------------------------------------------------------------------------- calibration
+from jax_contact.calibration import (
+    CALIBRATION_KINDS,
+    Calibration,
+    apply_calibration,
+    calibrate_probability,
+    calibration_of,
+    sigmoid_np,
+)
 
+__all__ = [
+    "CALIBRATION_KINDS",
+    "Calibration",
+    "apply_calibration",
+    "calibrate_probability",
+    "calibration_of",
+    "fit_calibration",
+    "sigmoid_np",
+]
 
-def sigmoid_np(logit) -> np.ndarray:
-    """P = sigmoid(logit) in float64 NumPy (no overflow)."""
-    x = np.asarray(logit, np.float64)
-    return np.exp(-np.logaddexp(0.0, -x))
-
-
-CALIBRATION_KINDS = ("sign", "affine")
 # The per-side temperatures of a "sign" map are kept in [1/20, 20]: a side whose steps are
 # all of one class (never wrong) has no finite maximum-likelihood temperature.
 _TEMPERATURE_BOUNDS = (0.05, 20.0)
-
-
-@dataclasses.dataclass(frozen=True)
-class Calibration:
-    """A monotone map on the fused logit, applied after the recursion.
-
-    Two kinds (:func:`fit_calibration`):
-
-    - affine, ``l' = l / temperature + bias`` (``temperature_air`` None);
-    - per side ("sign"), ``l' = l / temperature`` for ``l > 0`` and
-      ``l / temperature_air`` for ``l <= 0``, bias 0. It keeps the sign of every logit, so
-      a flag taken at P > 0.5 (F1, accuracy, failures, delays) is the raw P's, and only the
-      probabilities move.
-
-    The identity: temperature 1, bias 0, no ``temperature_air``.
-    """
-
-    temperature: float = 1.0
-    bias: float = 0.0
-    temperature_air: float | None = None
-
-    def __post_init__(self):
-        for name in ("temperature", "temperature_air"):
-            v = getattr(self, name)
-            if name == "temperature_air" and v is None:
-                continue
-            if not (np.isfinite(v) and v > 0):
-                raise ValueError(f"{name} must be a finite number > 0, got {v!r}")
-        if not np.isfinite(self.bias):
-            raise ValueError(f"bias must be finite, got {self.bias!r}")
-        if self.temperature_air is not None and self.bias != 0:
-            raise ValueError(
-                f"a per-side map (temperature_air set) has no bias, got bias {self.bias!r}"
-            )
-
-    @property
-    def kind(self) -> str:
-        """``"sign"`` (keeps every decision at 0.5) or ``"affine"``."""
-        return "affine" if self.temperature_air is None else "sign"
-
-    @property
-    def keeps_decisions(self) -> bool:
-        """Whether the flag P > 0.5 is unchanged by the map (a per-side map, or bias 0)."""
-        return self.temperature_air is not None or self.bias == 0
-
-    def as_dict(self) -> dict:
-        out = {"kind": self.kind, "temperature": float(self.temperature), "bias": float(self.bias)}
-        if self.temperature_air is not None:
-            out["temperature_air"] = float(self.temperature_air)
-        return out
-
-    @classmethod
-    def from_dict(cls, d) -> Calibration:
-        """From :meth:`as_dict` (files written before the per-side map have no
-        ``temperature_air`` and are affine)."""
-        air = d.get("temperature_air")
-        cal = cls(
-            temperature=float(d["temperature"]),
-            bias=float(d.get("bias", 0.0)),
-            temperature_air=None if air is None else float(air),
-        )
-        if d.get("kind", cal.kind) != cal.kind:
-            raise ValueError(
-                f"calibration: kind {d['kind']!r} does not match its fields (a 'sign' map has"
-                f" temperature_air and no bias, an 'affine' one no temperature_air)"
-            )
-        return cal
-
-
-def apply_calibration(logit, calibration: Calibration):
-    """The calibrated logit (JAX or NumPy arrays, any shape): ``logit / T + bias``, or
-    per side ``logit / T`` where ``logit > 0`` and ``logit / T_air`` elsewhere."""
-    if calibration.temperature_air is None:
-        return logit / calibration.temperature + calibration.bias
-    scale = 1.0 / calibration.temperature
-    scale_air = 1.0 / calibration.temperature_air
-    if isinstance(logit, np.ndarray | np.generic | float | int):
-        return np.where(np.asarray(logit) > 0, logit * scale, logit * scale_air)
-    import jax.numpy as jnp
-
-    return jnp.where(logit > 0, logit * scale, logit * scale_air)
-
-
-def calibrate_probability(p, calibration: Calibration) -> np.ndarray:
-    """P(contact) mapped by ``calibration`` (float64 NumPy, any shape; NaN stays NaN).
-
-    The logit of ``p`` (clipped to [1e-7, 1 - 1e-7], where the filter's float32 output
-    saturates) is mapped by :func:`apply_calibration` and turned back into a probability.
-    """
-    q = np.clip(np.asarray(p, np.float64), 1e-7, 1.0 - 1e-7)
-    return sigmoid_np(apply_calibration(np.log(q) - np.log1p(-q), calibration))
-
-
-def calibration_of(provenance) -> Calibration | None:
-    """The calibration map a parameter file's provenance holds (``jax-contact tune
-    --calibrate``), or None."""
-    cal = (provenance or {}).get("calibration")
-    return None if cal is None else Calibration.from_dict(cal)
 
 
 def fit_calibration(
