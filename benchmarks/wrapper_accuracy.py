@@ -24,6 +24,7 @@ physics step, the control rate's accuracy at env steps, and the trivial scores
 
     python -m jax_contact.benchmarks.wrapper_accuracy --seed 1 --json out/wrapper_accuracy.json
     python -m jax_contact.benchmarks.wrapper_accuracy --envs Go1JoystickFlatTerrain:trot
+    python -m jax_contact.benchmarks.wrapper_accuracy --envs Go1JoystickFlatTerrain --params go1
 
 The policies' settings were chosen on seed 0 (docs/training.md); report other seeds.
 """
@@ -156,6 +157,7 @@ def run_one(
     seed: int,
     policy: str | None = None,
     sole: str = "rolling",
+    params: str | None = None,
 ) -> dict:
     from jax_contact.envs import playground_offline
     from jax_contact.train.rates import compare_rates
@@ -172,6 +174,7 @@ def run_one(
         feedback=feedback,
         stop=stop,
         sole=sole,
+        substep_params=params,
     )
     wall = time.perf_counter() - t0
     print(f"{name}: {policy}, {n_envs} x {n_steps} steps ({wall:.0f} s)\n{res.table()}", flush=True)
@@ -192,6 +195,8 @@ def run_one(
         "foot_updates": m.n_steps,
         "seed": seed,
         "sole": sole,
+        "params": params or "defaults",
+        "ece": m.ece,
         "accuracy_raw_truth": raw.accuracy,
         "f1_raw_truth": raw.f1,
         "always_air_raw_truth": 1 - res.contact_fraction_raw,
@@ -220,13 +225,26 @@ def main(argv=None) -> int:
     parser.add_argument(
         "--sole", default="rolling", help="ContactObsConfig.sole: rolling or centre (flat feet)"
     )
+    parser.add_argument(
+        "--params",
+        default=None,
+        help="the physics-rate estimator's parameter file or preset (go1, spot, barkour), its"
+        " calibration map applied; default: the defaults",
+    )
     args = parser.parse_args(argv)
     result = {"machine": machine(), "args": vars(args), "rows": []}
     with json_of_what_finished(args.json, result):
         for entry in args.envs:
             name, _, policy = entry.partition(":")
             row = run_one(
-                name, args.steps, args.rollouts, args.skip, args.seed, policy or None, args.sole
+                name,
+                args.steps,
+                args.rollouts,
+                args.skip,
+                args.seed,
+                policy or None,
+                args.sole,
+                args.params,
             )
             result["rows"].append(row)
     cols = [
@@ -236,6 +254,7 @@ def main(argv=None) -> int:
         ("f1", "F1", "{:.3f}"),
         ("precision", "prec", "{:.3f}"),
         ("recall", "rec", "{:.3f}"),
+        ("ece", "ECE", "{:.3f}"),
         ("always_contact", "all-contact", "{:.3f}"),
         ("always_air", "all-air", "{:.3f}"),
         ("accuracy_raw_truth", "acc raw truth", "{:.3f}"),

@@ -545,6 +545,39 @@ def test_fit_calibration_per_side_recovers_both_temperatures_and_keeps_every_sig
     assert sep.temperature == pytest.approx(0.05)
 
 
+def test_load_calibration_reads_a_files_map_and_probability_applies_it(tmp_path):
+    """jc.load_calibration: a preset's map is the one in its JSON (read here with json),
+    a file without one gives None, a malformed one is refused naming the field; the JAX
+    probability() of a logit is sigmoid(l / T_c) for l > 0 and sigmoid(l / T_a) else,
+    computed here in float64 NumPy."""
+    import json
+    from importlib import resources
+
+    import jax_contact as jc
+    from jax_contact.calibration import probability
+
+    shipped = json.loads((resources.files("jax_contact") / "presets" / "spot.json").read_text())
+    want = shipped["provenance"]["calibration"]
+    cal = jc.load_calibration("spot")
+    assert (cal.temperature, cal.temperature_air) == (want["temperature"], want["temperature_air"])
+    params = jc.load_params("spot")
+    jc.save_params(tmp_path / "none.json", params, {"tool": "by hand"})
+    assert jc.load_calibration(tmp_path / "none.json") is None
+    jc.save_params(tmp_path / "bad.json", params, {"calibration": {"temperature": -1.0}})
+    with pytest.raises(ValueError, match="bad.json.*'calibration'.*temperature must be"):
+        jc.load_calibration(tmp_path / "bad.json")
+    logits = np.array([-30.0, -2.0, 0.0, 0.5, 12.0])
+    scaled = np.where(logits > 0, logits / cal.temperature, logits / cal.temperature_air)
+    np.testing.assert_allclose(
+        np.asarray(probability(jnp.asarray(logits, jnp.float32), cal)),
+        1.0 / (1.0 + np.exp(-scaled)), rtol=2e-6, atol=1e-12,
+    )  # fmt: skip
+    np.testing.assert_allclose(
+        np.asarray(probability(jnp.asarray(logits, jnp.float32))),
+        1.0 / (1.0 + np.exp(-logits)), rtol=2e-6, atol=1e-12,
+    )  # fmt: skip
+
+
 def test_config_rejects_bad_values():
     with pytest.raises(ValueError, match="learning_rate"):
         jt.TuneConfig(learning_rate=0.0)

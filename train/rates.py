@@ -187,6 +187,7 @@ def compare_rates(
     feedback: Callable | None = None,
     stop: Callable | None = None,
     sole: str = "rolling",
+    substep_params=None,
 ) -> RateComparison:
     """Measures the accuracy lost by the control-rate mode against the substep mode.
 
@@ -218,6 +219,11 @@ def compare_rates(
       stop: optional ``stop(data) -> bool``: a rollout's score ends before the first
         step whose state it flags (e.g. the robot has fallen), as at a ``done``.
       sole: ``ContactObsConfig.sole`` of both estimators.
+      substep_params: ``ContactObsConfig.params`` of the physics-rate estimator instead of
+        the defaults: a parameter file or preset name (its calibration map applied, a
+        file of another period run at the physics rate with a warning) or
+        :class:`jax_contact.EstimatorParams`; ``params_kwargs`` then apply to the
+        control rate only.
 
     Returns:
       The metrics of :func:`jax_contact.metrics.evaluate` for both, over the steps before
@@ -262,8 +268,10 @@ def compare_rates(
         sensor=sensor,
         params=make_params(dt_ctrl, dict(control_params_kwargs or {})),
     )
+    if substep_params is None:
+        substep_params = make_params(dt_sub, {})
     outer = wrap_contact(
-        inner, sub_cfg, foot_names=foot_names, sensor=sensor, params=make_params(dt_sub, {})
+        inner, sub_cfg, foot_names=foot_names, sensor=sensor, params=substep_params
     )
     if inner.contact_core.truth is None:
         raise ValueError("env's model has no ground-truth contact sensors for every foot")
