@@ -277,7 +277,18 @@ def make_core(env, cfg: ContactObsConfig) -> Core:
         )
     elif isinstance(params, str | os.PathLike):
         params_source = str(params)
-        params = load_params_for(params, nv=desc.nv, dt=dt, period=f"the estimator's ({rate} rate)")
+        derive = None
+        if isinstance(cfg.sensor, str):  # a preset can be made at the file's period too
+
+            def derive(d):
+                sp = contact_params.default_sensor_params(cfg.sensor, robot, d)
+                return contact_params.default_estimator_params(
+                    robot, d, sp, force_rows=cfg.force_rows
+                )
+
+        params = load_params_for(
+            params, nv=desc.nv, dt=dt, period=f"the estimator's ({rate} rate)", derive=derive
+        )
     elif not isinstance(params, jc.EstimatorParams):
         raise ValueError(
             "params must be jax_contact.EstimatorParams, a parameter file or a preset name, got"

@@ -265,3 +265,62 @@ def params_for(
         slip_speed=SLIP_SPEED,
     )
     return make_params(noise, **(kw | overrides))
+
+
+def change_period(params: EstimatorParams, derived_old, derived_new) -> EstimatorParams:
+    """``params`` made at one period, moved to another as :func:`params_for` moves its own.
+
+    A tuned file keeps what tuning changed, relative to what the rules derived:
+    each value becomes ``value x new / old``, where ``old`` and ``new`` are
+    :func:`params_for`'s values for the same robot and sensors at the file's period and at
+    the new one; the caps, per-step probabilities, in log-odds (``logit(cap) x
+    logit(new) / logit(old)``). So what the rules scale with the period moves with it
+    (``sigma_qdd`` ~ 1 / dt for a differenced velocity, the still-side cap's log-odds ~ dt,
+    the outlier width ~ 1 / dt) and every other value is the file's: where ``old`` equals
+    ``new`` it is kept, as is a value whose ``old`` is 0 (or a cap's 0.5 or 1).
+
+    Args:
+      params: the parameters to move (e.g. a tuned file), at ``derived_old.dt``.
+      derived_old, derived_new: :func:`params_for` (or
+        :func:`jax_contact.envs.contact_params.default_estimator_params`) of the robot at
+        the file's period and at the new one.
+
+    Returns:
+      ``params`` at ``derived_new.dt``; static fields (terms, force rows) are ``params``'.
+    """
+    import jax.numpy as jnp
+
+    def moved(name, value, old, new):
+        v, o, n = (np.asarray(x, np.float64) for x in (value, old, new))
+        same = (o == n) | (o <= 0) | (name.startswith("cap_") & ((o <= 0.5) | (o >= 1.0)))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            if name.startswith("cap_"):
+                lv, lo, ln = (np.log(x / (1.0 - x)) for x in (v, o, n))
+                out = 1.0 / (1.0 + np.exp(-lv * ln / lo))
+            else:
+                out = v * n / o
+        return jnp.asarray(np.where(same, v, out), jnp.float32)
+
+    def fields(obj, skip=()):
+        return [
+            f.name
+            for f in dataclasses.fields(obj)
+            if f.metadata.get("pytree_node", True) and f.name not in skip
+        ]
+
+    noise = {
+        n: moved(
+            n,
+            getattr(params.noise, n),
+            getattr(derived_old.noise, n),
+            getattr(derived_new.noise, n),
+        )
+        for n in fields(params.noise)
+    }
+    values = {
+        n: moved(n, getattr(params, n), getattr(derived_old, n), getattr(derived_new, n))
+        for n in fields(params, skip=("noise", "dt"))
+    }
+    return params.replace(
+        noise=params.noise.replace(**noise), dt=jnp.float32(derived_new.dt), **values
+    )

@@ -411,20 +411,31 @@ def load_params(path: str | os.PathLike, *, with_provenance: bool = False):
     return params
 
 
-def load_params_for(path: str | os.PathLike, *, nv: int, dt: float, period: str = "the log's"):
+def load_params_for(
+    path: str | os.PathLike,
+    *,
+    nv: int,
+    dt: float,
+    period: str = "the log's",
+    derive=None,
+):
     """:func:`load_params` of a file or preset, checked against the robot and the period
     it will run at.
 
-    A file made at another period runs at ``dt`` (with a ``UserWarning``): its noise,
-    derived from its own ``dt`` (the differenced acceleration's ``sqrt(2) sigma_qd / dt``),
-    is kept, so a file made at a higher rate than ``dt`` believes the acceleration noisier
-    than it is (less dynamics evidence, not more).
+    A file made at another period runs at ``dt``, with a ``UserWarning``. With ``derive``
+    (``dt -> params_for(robot, sensors, dt)`` of the caller's robot and sensors) its values
+    are moved to ``dt`` as the rules move their own
+    (:func:`jax_contact.defaults.change_period`: what tuning changed is kept relative to
+    the derived values, ``sigma_qdd`` scales as ``1 / dt``, the still-side cap's log-odds
+    as ``dt``); without it only ``dt`` changes and the rest is the file's, so a file made
+    at a higher rate believes the differenced acceleration noisier than it is.
 
     Args:
       path: a parameter file or preset name.
       nv: the robot's velocity dimension.
       dt: the estimator's period, s.
       period: what ``dt`` is, in the warning (e.g. ``"the env's"``).
+      derive: optional ``dt -> EstimatorParams``, the caller's derived parameters.
 
     Raises:
       ValueError: as :func:`load_params`, or the file is for another ``nv``.
@@ -438,13 +449,22 @@ def load_params_for(path: str | os.PathLike, *, nv: int, dt: float, period: str 
         raise ValueError(
             f"parameter file {str(path)!r} is for nv = {params.nv}; the robot has nv = {nv}"
         )
-    if abs(float(params.dt) - dt) > 1e-6 * dt:
-        warnings.warn(
-            f"parameter file {str(path)!r} has dt = {float(params.dt):.6g} s; {period} is"
-            f" {dt:.6g} s: using {period} (noise the file derived from its dt is kept)",
-            stacklevel=2,
-        )
+    file_dt = float(params.dt)
+    if abs(file_dt - dt) <= 1e-6 * dt:
+        return params
+    if derive is None:
+        how = "noise the file derived from its dt is kept"
         params = params.replace(dt=jnp.float32(dt))
+    else:
+        from jax_contact.defaults import change_period
+
+        how = "its values moved as params_for moves them, jax_contact.defaults.change_period"
+        params = change_period(params, derive(file_dt), derive(dt))
+    warnings.warn(
+        f"parameter file {str(path)!r} has dt = {file_dt:.6g} s; {period} is {dt:.6g} s:"
+        f" using {period} ({how}; a file tuned at one rate is best tuned again at another)",
+        stacklevel=2,
+    )
     return params
 
 

@@ -493,7 +493,9 @@ def test_estimate_reports_p_through_the_files_calibration_map(round_trip, tmp_pa
     assert args.func(args) == 0
     assert "calibration map (T 1.500 for P > 0.5, 3.000 for P < 0.5)" in capsys.readouterr().out
     raw = np.clip(
-        round_trip.evaluated["outputs"]["probabilistic"][:, 0, 0].astype(float), 1e-7, 1 - 1e-7
+        round_trip.evaluated["outputs"]["probabilistic"][:, 0, 0].astype(float),
+        np.finfo(np.float32).tiny,  # float32's P keeps its logit down to -87
+        1 - 1e-7,
     )
     logit = np.log(raw / (1 - raw))
     want = 1 / (1 + np.exp(-np.where(logit > 0, logit / 1.5, logit / 3.0)))
@@ -532,7 +534,9 @@ def test_evaluate_adds_the_calibrated_row_of_a_file_with_a_calibration_map(tmp_p
         logs.evaluate_file(LOG, bootstrap=10)
 
     log = logs.load_log(LOG)
-    p = np.clip(np.asarray(got["outputs"]["probabilistic"], np.float64), 1e-7, 1 - 1e-7)
+    # The float32 P keeps its logit down to -87 (its smallest normal); above 1 - 6e-8 it is 1.
+    p = np.asarray(got["outputs"]["probabilistic"], np.float64)
+    p = np.clip(p, np.finfo(np.float32).tiny, 1 - 1e-7)
     by_hand = 1.0 / (1.0 + np.exp(-(np.log(p / (1.0 - p)) / 2.0 + 0.7)))
     np.testing.assert_allclose(got["outputs"]["probabilistic+cal"], by_hand, rtol=1e-12)
     valid = np.broadcast_to(np.asarray(log.valid)[..., None], p.shape)
@@ -554,6 +558,30 @@ def test_a_params_file_is_checked_against_the_robot_and_rate(tmp_path):
     with pytest.warns(UserWarning, match="dt = 0.005 s; the log's is 0.0025 s"):
         got = load_params_for(tmp_path / "p.json", desc, 0.0025)
     assert float(got.cap_dynamics) == pytest.approx(0.95) and float(got.dt) == pytest.approx(0.0025)
+    # Moved to 400 Hz as the rules move their own (jax_contact.defaults.change_period): a
+    # file equal to the defaults at 200 Hz in a derived value becomes the defaults at
+    # 400 Hz there (the differenced acceleration noise sqrt(2) sigma_qd / dt doubles, the
+    # still-side cap's log-odds halve); what the file changed (cap_dynamics, not a
+    # function of dt) is kept.
+    at_400, _ = default_estimator(desc, 0.0025)
+    np.testing.assert_allclose(got.noise.sigma_qdd, at_400.noise.sigma_qdd, rtol=1e-6)
+    np.testing.assert_allclose(got.noise.sigma_qdd, 2 * params.noise.sigma_qdd, rtol=1e-6)
+    lo = np.log(
+        float(params.cap_diff_kinematics_still) / (1 - float(params.cap_diff_kinematics_still))
+    )
+    assert float(got.cap_diff_kinematics_still) == pytest.approx(
+        1 / (1 + np.exp(-lo / 2)), rel=1e-6
+    )
+    assert float(got.cap_diff_kinematics_still) == pytest.approx(
+        float(at_400.cap_diff_kinematics_still), rel=1e-6
+    )
+    np.testing.assert_allclose(got.noise.sigma_d, params.noise.sigma_d)  # no function of dt
+    # A tuned factor is kept: x3 on the acceleration noise at 200 Hz is x3 at 400 Hz.
+    from jax_contact.defaults import change_period
+
+    tuned = params.replace(noise=params.noise.replace(sigma_qdd=3 * params.noise.sigma_qdd))
+    moved = change_period(tuned, params, at_400)
+    np.testing.assert_allclose(moved.noise.sigma_qdd, 3 * at_400.noise.sigma_qdd, rtol=1e-6)
     go1 = load_robot("go1").description
     with pytest.raises(ValueError, match="nv = 3; the robot has nv = 18"):
         load_params_for(tmp_path / "p.json", go1, 0.0025)

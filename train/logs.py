@@ -466,7 +466,7 @@ def load_params_for(path, desc, dt):
     (:func:`jax_contact.io.load_params_for`)."""
     from jax_contact.io import load_params_for as load
 
-    return load(path, nv=desc.nv, dt=dt)
+    return load(path, nv=desc.nv, dt=dt, derive=lambda d: default_estimator(desc, d)[0])
 
 
 def format_scores(scores: dict[str, dict], *, title: str = "log") -> str:
