@@ -202,12 +202,12 @@ def test_a_shipped_preset_exports_by_name(deployed, tmp_path):
     raw = replay(
         load_robot("go1"),
         readings,
-        estimators={"preset": jc.load_params("go1")},
+        estimators={"export": jc.load_params("go1")},
         terrain=params_and_terrain(h)[1],
         dt=1.0 / 400.0,
         seed=0,
         progress=False,
-    )["preset"][:, 0].astype(np.float64)
+    )["export"][:, 0].astype(np.float64)
     logit = np.log(np.maximum(raw, 1e-38)) - np.log1p(-np.minimum(raw, 1 - 1e-7))
     scaled = np.where(logit > 0, logit / cal["temperature"], logit / cal["temperature_air"])
     want = 1.0 / (1.0 + np.exp(-scaled))
