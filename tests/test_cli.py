@@ -76,6 +76,7 @@ def test_importing_the_cli_does_not_import_jax():
         (["bench", "--versus-envs", "0"], ["argument --versus-envs"]),
         (["demo", "--out", "/proc/demo"], ["argument --out", "'/proc'"]),
         (["reproduce", "--robot", "cat"], ["argument --robot", "'cat'"]),
+        (["rates", "--params", "dog"], ["argument --params", "'dog'", "go1"]),
     ],
 )
 def test_bad_arguments_are_reported_at_once(argv, names):

@@ -442,3 +442,14 @@ def test_rate_comparison_closed_loop_and_stop(brax_leg):
     assert res.substep.n_steps == 39 * n_envs
     assert res.substep_all.n_touchdowns >= n_envs  # the feedback made it hop
     assert res.substep_all.f1 > 0.9
+
+
+def test_rates_refuses_a_file_for_another_robot_before_any_scene_runs():
+    """``jax-contact rates --params``: the file's nv is checked against every scene's robot
+    before the first scene's minute of compiling (Go1: nv 18, planar leg: nv 3)."""
+    from jax_contact.train import rates
+
+    rates.check_params(["go1_walk", "go1"], "go1")
+    rates.check_params(["planar_leg"], None)
+    with pytest.raises(ValueError, match="scene 'planar_leg' \\(planar_leg\\) has nv = 3"):
+        rates.check_params(["go1_walk", "planar_leg"], "go1")

@@ -243,9 +243,10 @@ def _cmd_rates(args: argparse.Namespace) -> int:
     from jax_contact.io import write_json_atomic
     from jax_contact.train import rates
 
+    rates.check_params(args.scenes, args.params)  # before the first scene's minute
     out = {}
     for scene in progress.bar(args.scenes, desc="rates", unit="scene"):
-        out.update(rates.run([scene], seed=args.seed, pairing=args.pairing))
+        out.update(rates.run([scene], seed=args.seed, pairing=args.pairing, params=args.params))
     if args.json:
         write_json_atomic(args.json, out)
     return 0
@@ -311,6 +312,12 @@ def _check_policy_eval(args: argparse.Namespace) -> None:
 
 def _check_json(args: argparse.Namespace) -> None:
     check_output_file("--json", args.json)
+
+
+def _check_rates(args: argparse.Namespace) -> None:
+    check_output_file("--json", args.json)
+    if args.params is not None:
+        check_params_source("--params", args.params)
 
 
 # -------------------------------------------------------------------------------- parser
@@ -521,7 +528,7 @@ def build_parser() -> argparse.ArgumentParser:
         "rates",
         "estimator at every physics step vs once per control step, same rollouts",
         _cmd_rates,
-        _check_json,
+        _check_rates,
     )
     p.add_argument(
         "--scenes",
@@ -538,6 +545,13 @@ def build_parser() -> argparse.ArgumentParser:
         default="delayed",
         choices=("delayed", "raw"),
         help="state the differenced acceleration is paired with (ContactObsConfig.pairing)",
+    )
+    p.add_argument(
+        "--params",
+        default=None,
+        metavar="FILE|PRESET",
+        help="the physics-rate estimator's parameter file or preset (e.g. go1; moved to the"
+        " scene's 4 ms, its calibration map applied); default: the defaults",
     )
     p.add_argument("--json", default=None, help="write the results here")
 

@@ -77,16 +77,44 @@ def scene(name: str, n_steps: int = N_STEPS, n_rollouts: int = N_ROLLOUTS):
     return env, acts.astype(np.float32)
 
 
-def run(scenes=SCENES, *, seed: int = 0, pairing: str = "delayed", log=print) -> dict:
+def check_params(scenes, params) -> None:
+    """Raises ValueError, before any scene runs, if the parameter file or preset ``params``
+    does not fit a scene's robot (its ``nv``)."""
+    if params is None:
+        return
+    from jax_contact.envs.robots import load_robot
+    from jax_contact.io import load_params
+
+    nv = load_params(params).nv
+    for name in scenes:
+        robot = "planar_leg" if name == "planar_leg" else "go1"
+        have = load_robot(robot).description.nv
+        if have != nv:
+            raise ValueError(
+                f"parameter file {str(params)!r} is for nv = {nv}; scene {name!r} ({robot}) has"
+                f" nv = {have}"
+            )
+
+
+def run(scenes=SCENES, *, seed: int = 0, pairing: str = "delayed", params=None, log=print) -> dict:
     """Runs :func:`compare_rates` on each scene; returns name -> metrics.
 
-    ``pairing`` is ``ContactObsConfig.pairing`` of both estimators.
+    ``pairing`` is ``ContactObsConfig.pairing`` of both estimators; ``params`` the
+    physics-rate estimator's file or preset (``compare_rates``' ``substep_params``), None
+    the defaults.
     """
     out = {}
     for name in scenes:
         env, acts = scene(name)
         t0 = time.perf_counter()
-        res = compare_rates(env, acts, key=jax.random.PRNGKey(seed), skip_s=0.2, pairing=pairing)
+        res = compare_rates(
+            env,
+            acts,
+            key=jax.random.PRNGKey(seed),
+            skip_s=0.2,
+            pairing=pairing,
+            substep_params=params,
+        )
         wall = time.perf_counter() - t0
         log(
             f"{name}: {acts.shape[0]} env steps x {acts.shape[1]} rollouts, anymal_like"
@@ -97,6 +125,7 @@ def run(scenes=SCENES, *, seed: int = 0, pairing: str = "delayed", log=print) ->
             "dt_substep": res.dt_substep,
             "dt_control": res.dt_control,
             "pairing": pairing,
+            "params": "defaults" if params is None else str(params),
             "substep": res.substep.as_dict(),
             "control": res.control.as_dict(),
             "substep_every_physics_step": res.substep_all.as_dict(),
