@@ -269,7 +269,7 @@ def make_core(env, cfg: ContactObsConfig) -> Core:
     dt = float(mj_model.opt.timestep) if rate == "substep" else float(np.asarray(env.dt))
     robot = Robot(name="wrapped env", mj_model=mj_model, description=desc, spec=None)
     sensor_params = contact_params.default_sensor_params(cfg.sensor, robot, dt)
-    params, params_source = cfg.params, "given"
+    params, params_source, file_calibration = cfg.params, "given", None
     if params is None:
         params_source = "default"
         params = contact_params.default_estimator_params(
@@ -289,6 +289,7 @@ def make_core(env, cfg: ContactObsConfig) -> Core:
         params = load_params_for(
             params, nv=desc.nv, dt=dt, period=f"the estimator's ({rate} rate)", derive=derive
         )
+        file_calibration = load_calibration(cfg.params)
     elif not isinstance(params, jc.EstimatorParams):
         raise ValueError(
             "params must be jax_contact.EstimatorParams, a parameter file or a preset name, got"
@@ -317,11 +318,8 @@ def make_core(env, cfg: ContactObsConfig) -> Core:
             " finds none for every foot: add sensors"
             " (jax_contact.envs.ground_truth.with_contact_sensors)"
         )
-    calibration = cfg.calibration
-    if isinstance(calibration, str):  # "auto": the map of a file or preset, if any
-        calibration = (
-            load_calibration(cfg.params) if params_source not in ("default", "given") else None
-        )
+    # "auto": the map of a file or preset, if any; else the config's (None or a map).
+    calibration = file_calibration if cfg.calibration == "auto" else cfg.calibration
     return Core(
         mjx_model=mjx_model,
         desc=desc,

@@ -44,6 +44,11 @@ SCENES = ("planar_leg", "go1", "go1_walk", "go1_trot")
 N_STEPS, N_ROLLOUTS = 250, 16
 
 
+def robot_of(name: str) -> str:
+    """The robot a scene runs (``planar_leg`` or ``go1``)."""
+    return "planar_leg" if name == "planar_leg" else "go1"
+
+
 def scene(name: str, n_steps: int = N_STEPS, n_rollouts: int = N_ROLLOUTS):
     """(env, actions (T, E, nu)) of a scene of the module docstring."""
     from jax_contact.envs import ground_truth
@@ -53,9 +58,7 @@ def scene(name: str, n_steps: int = N_STEPS, n_rollouts: int = N_ROLLOUTS):
     if name not in SCENES:
         raise ValueError(f"scene must be one of {SCENES}, got {name!r}")
     freq = 1.0 + 0.02 * np.arange(n_rollouts)
-    robot = ground_truth.with_contact_sensors(
-        load_robot("planar_leg" if name == "planar_leg" else "go1")
-    )
+    robot = ground_truth.with_contact_sensors(load_robot(robot_of(name)))
     if name == "planar_leg":
         env = LeggedPipelineEnv(robot, n_frames=8, position_servo=(300.0, 8.0))
         t = np.arange(1, n_steps + 1)[:, None] * float(env.dt)
@@ -87,7 +90,7 @@ def check_params(scenes, params) -> None:
 
     nv = load_params(params).nv
     for name in scenes:
-        robot = "planar_leg" if name == "planar_leg" else "go1"
+        robot = robot_of(name)
         have = load_robot(robot).description.nv
         if have != nv:
             raise ValueError(
