@@ -77,7 +77,9 @@ class ContactObsConfig:
       Playground's soft contact, :mod:`jax_contact.envs.contact_truth`; 0: the raw source).
       record_substeps: substep rate only: keep every substep's ``p_contact`` and truth
         (and, with ``truth_gap > 0``, ``truth_raw``: the source without the tolerance),
-        (n_substeps, n_legs), in ``info[info_key + "_substeps"]``.
+        (n_substeps, n_legs), and its sensor readings (``reading``, a
+        :class:`~jax_contact.envs.sensors.Readings` of (n_substeps, ...) leaves; at reset
+        the initial reading), in ``info[info_key + "_substeps"]``.
       include_passive: the estimator's ``h`` includes the joint springs and dampers.
       logit_clip: bound of the observed logit.
       sole: contact point of a flat foot (box, cylinder, mesh): ``"rolling"`` (default)

@@ -105,6 +105,8 @@ class Core:
     def record(self, est: ContactEstState, data) -> dict:
         """What one update leaves for the metrics: p_contact, and truth and hits if any."""
         rec = {"p_contact": est.diag.p_contact}
+        if self.cfg.record_substeps:
+            rec["reading"] = est.prev  # the readings of this update (its ``r``)
         if self.truth is not None:
             rec["truth"] = self.truth(data)
             rec["hit"] = (est.diag.p_contact > 0.5) == rec["truth"]
@@ -142,18 +144,22 @@ class Core:
             n_updates=jnp.int32(0),
         )
 
-    def update(self, est: ContactEstState, data) -> ContactEstState:
-        """One estimator update from the true state in ``data`` (after a physics step)."""
-        key, k_sense, k_est = jax.random.split(est.key, 3)
-        sensor, r = sensors.sensor_step(
-            self.sensor, est.sensor, data.qpos, data.qvel, data.qfrc_actuator, key=k_sense
-        )
+    def measure(self, data, prev: sensors.Readings, r: sensors.Readings):
+        """The estimator's inputs of one update (a ``RobotMeasurement``) from the readings
+        ``r`` and the ones before them, ``prev``: the state of ``prev`` (``cfg.pairing``
+        ``"delayed"``) or of ``r`` (``"raw"``), the acceleration and torque of ``r``.
+
+        ``data`` is any ``mjx.Data`` of the model: only its ``qpos`` and ``qvel`` are
+        replaced and the stages the measurement reads recomputed (``adapter.prepare``), so
+        the same inputs can be rebuilt offline from recorded readings
+        (:mod:`jax_contact.train.tune_env`).
+        """
         # The state the acceleration belongs to (ContactObsConfig.pairing). The torque is
         # always this reading's: ``data.qfrc_actuator`` after ``mjx.step`` is the force
         # computed at the step's start and applied over it, the interval ``qacc`` spans.
-        at = est.prev if self.cfg.pairing == "delayed" else r
+        at = prev if self.cfg.pairing == "delayed" else r
         d = adapter.prepare(self.mjx_model, data.replace(qpos=at.qpos, qvel=at.qvel))
-        meas = feet.measurement(
+        return feet.measurement(
             self.mjx_model,
             d,
             self.desc,
@@ -162,6 +168,14 @@ class Core:
             include_passive=self.cfg.include_passive,
             sole=self.cfg.sole,
         )
+
+    def update(self, est: ContactEstState, data) -> ContactEstState:
+        """One estimator update from the true state in ``data`` (after a physics step)."""
+        key, k_sense, k_est = jax.random.split(est.key, 3)
+        sensor, r = sensors.sensor_step(
+            self.sensor, est.sensor, data.qpos, data.qvel, data.qfrc_actuator, key=k_sense
+        )
+        meas = self.measure(data, est.prev, r)
         belief, diag = jc.step_robot(self.params, self.terrain, est.belief, meas, key=k_est)
         if self.calibration is not None:
             diag = diag.replace(p_contact=probability(belief.logit, self.calibration))
