@@ -22,6 +22,7 @@ sensor preset (``anymal_like`` unless the log says otherwise) and the default ga
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
 import time
 from pathlib import Path
@@ -80,9 +81,6 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     The parser's defaults carry ``func=run`` and ``check=check``, as ``train/cli.py``'s
     commands do.
     """
-    # The CLI's argument types (one rule); imported here, once jax_contact.train.cli is loaded.
-    from jax_contact.train.cli_args import nonnegative_float, positive_float, positive_int
-
     p = subparsers.add_parser(
         "tune",
         help="tune the estimator's parameters by gradient on logs with ground truth",
@@ -102,6 +100,25 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         metavar="LOG",
         help="validation log(s) of other seeds (.h5): early stopping on their pooled BCE",
     )
+    p.add_argument(
+        "--terrain-model",
+        choices=("flat", "memory"),  # jax_contact.train.logs.TERRAIN_MODELS
+        default="flat",
+        help="the estimator's ground while tuning, stored in the file's provenance (evaluate"
+        " and estimate then use it): flat, the plane at z = 0 (5 cm std); memory, where each"
+        " foot last stood, for a base position that drifts (docs/model_choices.md)",
+    )
+    add_tuning_options(p)
+    p.set_defaults(func=run, check=check)
+    return p
+
+
+def add_tuning_options(p: argparse.ArgumentParser) -> None:
+    """The options of ``jax-contact tune`` that are not about its inputs (``--out`` and the
+    fit's settings), shared with ``jax-contact tune-env``."""
+    # The CLI's argument types (one rule); imported here, once jax_contact.train.cli is loaded.
+    from jax_contact.train.cli_args import nonnegative_float, positive_float, positive_int
+
     p.add_argument("--out", required=True, help="parameter file to write (.json)")
     p.add_argument("--epochs", type=positive_int, default=12, help="passes over the logs at most")
     p.add_argument("--patience", type=positive_int, default=3, help="epochs without improvement")
@@ -220,17 +237,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         help="also tune these fields, which are kept at their derived values by default:"
         f" {', '.join(OPTIONAL_FIELDS)} (jax_contact.tune.OPTIONAL_FIELDS)",
     )
-    p.add_argument(
-        "--terrain-model",
-        choices=("flat", "memory"),  # jax_contact.train.logs.TERRAIN_MODELS
-        default="flat",
-        help="the estimator's ground while tuning, stored in the file's provenance (evaluate"
-        " and estimate then use it): flat, the plane at z = 0 (5 cm std); memory, where each"
-        " foot last stood, for a base position that drifts (docs/model_choices.md)",
-    )
     p.add_argument("--note", default=None, help="free text stored in the provenance")
-    p.set_defaults(func=run, check=check)
-    return p
 
 
 def check(args: argparse.Namespace) -> None:
@@ -246,6 +253,11 @@ def check(args: argparse.Namespace) -> None:
     tuning = {str(Path(p).resolve()) for p in args.logs}
     if any(str(Path(v).resolve()) in tuning for v in validate):
         raise ValueError("argument --validate: a validation log is also a tuning log")
+    check_tuning_options(args)
+
+
+def check_tuning_options(args: argparse.Namespace) -> None:
+    """The checks of :func:`add_tuning_options`' arguments (ValueError naming one)."""
     unknown = [f for f in getattr(args, "freeze", []) or [] if f not in DEFAULT_FIELDS]
     if unknown:
         raise ValueError(
@@ -311,15 +323,43 @@ def _bar(done: int, total: int, width: int = 20) -> str:
     return "[" + "#" * n + "-" * (width - n) + "]"
 
 
+@dataclasses.dataclass
+class Inputs:
+    """What a tuning run fits on, however it was obtained (logs here,
+    :mod:`jax_contact.train.tune_env` records a wrapped env's rollouts).
+
+    Attributes:
+      train, vals: the tuning and validation data (``jax_contact.tune.TuningData``).
+      infos, vinfos: one provenance dict per tuning / validation log.
+      base: the untuned parameters (the prior's centre); terrain: the estimator's terrain.
+      floor: the noise floor (``--noise-floor sensor``) or None.
+      desc: the robot's ``RobotDescription`` (the tuned groups).
+      robot: the robot's (or scene's) name, for the provenance.
+      terrain_model: the provenance's ``terrain_model``.
+      load_s: seconds spent getting the data.
+    """
+
+    train: list
+    vals: list
+    infos: list
+    vinfos: list
+    base: object
+    terrain: object
+    floor: dict | None
+    desc: object
+    robot: str
+    terrain_model: str
+    load_s: float
+
+
 def run(args: argparse.Namespace) -> int:
     """Runs ``jax-contact tune`` (arguments already checked); returns 0."""
-    import importlib.metadata
+    return fit_and_write(args, load_logs(args))
 
-    import jax
-    import numpy as np
 
-    import jax_contact as jc
-    from jax_contact import tune as jt
+def load_logs(args: argparse.Namespace) -> Inputs:
+    """The :class:`Inputs` of ``jax-contact tune``'s logs (one robot for all)."""
+    from jax_contact.envs.robots import load_robot
 
     t0 = time.perf_counter()
     train, infos = [], []
@@ -350,14 +390,32 @@ def run(args: argparse.Namespace) -> int:
         vinfos.append(_log_info(path, vattrs, val))
     t_load = time.perf_counter() - t0
     print(f"measurements precomputed in {t_load:.1f} s", file=sys.stderr)
+    return Inputs(
+        train, vals, infos, vinfos, base, terrain, floor,
+        load_robot(robot_name).description, robot_name, terrain_model, t_load,
+    )  # fmt: skip
 
-    from jax_contact.envs.robots import load_robot
 
+def fit_and_write(args: argparse.Namespace, inputs: Inputs) -> int:
+    """Tunes on ``inputs`` with ``args``' tuning options, prints the progress and the
+    tuned values, writes ``args.out`` with its provenance; returns 0."""
+    import importlib.metadata
+
+    import jax
+    import numpy as np
+
+    import jax_contact as jc
+    from jax_contact import tune as jt
+
+    t0 = time.perf_counter() - inputs.load_s
+    train, vals, infos, vinfos = inputs.train, inputs.vals, inputs.infos, inputs.vinfos
+    base, terrain, floor = inputs.base, inputs.terrain, inputs.floor
+    robot_name, terrain_model, t_load = inputs.robot, inputs.terrain_model, inputs.load_s
     frozen = list(getattr(args, "freeze", []) or [])
     also = list(dict.fromkeys(getattr(args, "tune_also", []) or []))
     fields = [f for f in jt.DEFAULT_FIELDS if f not in frozen] + also
     bounds = tuple(getattr(args, "stance_time_bounds", None) or jt.STANCE_TIME_BOUNDS)
-    space = jt.robot_space(load_robot(robot_name).description, fields, stance_time_bounds=bounds)
+    space = jt.robot_space(inputs.desc, fields, stance_time_bounds=bounds)
     config = jt.TuneConfig(
         learning_rate=args.lr,
         clip_norm=args.clip,
