@@ -198,9 +198,11 @@ README_COMMANDS = [tiny(argv) for argv in commands()]
 # Commands the README names and links to their own page, where they are shown with the
 # inputs they need (several logs, an exported artefact). tests/test_deploy.py runs export
 # and deploy-check (export_to_file, deploy_check); tests/test_tune.py tests what tune runs
-# but not the command end to end (minutes of compilation). Each page must show the command.
+# but not the command end to end (minutes of compilation); tests/test_tune_env.py runs
+# tune-env end to end on the planar leg. Each page must show the command.
 DOCUMENTED_IN = {
     "tune": "docs/tuning.md",
+    "tune-env": "docs/tuning.md",
     "export": "docs/deploy.md",
     "deploy-check": "docs/deploy.md",
 }

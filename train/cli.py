@@ -38,7 +38,13 @@ import os
 import sys
 from pathlib import Path
 
-from jax_contact.train import deploy_cmd, estimate_cmd, progress, tune_cmd  # stdlib-only at import
+from jax_contact.train import (  # stdlib-only at import
+    deploy_cmd,
+    estimate_cmd,
+    progress,
+    tune_cmd,
+    tune_env,
+)
 from jax_contact.train.cli_args import (  # noqa: F401  (COLUMNS ... SCENES: re-exported)
     COLUMNS,
     GAITS,
@@ -452,6 +458,7 @@ def build_parser() -> argparse.ArgumentParser:
     estimate_cmd.add_terrain_model_flag(p)
     estimate_cmd.add_parser(sub)
     tune_cmd.add_parser(sub)
+    tune_env.add_parser(sub)
     deploy_cmd.add_parsers(sub)
 
     p = command(

@@ -1,0 +1,136 @@
+"""``jax-contact tune-env``: tuning the wrapper's estimator on a wrapped env's own rollouts.
+
+The one claim that makes the command worth having is that it fits what the wrapper sees:
+the inputs rebuilt offline from the recorded readings (``Core.measure``) must give the
+live wrapper's beliefs. Checked on the planar-leg scene of ``jax-contact rates`` (cheap to
+compile; quadrature touch-down, so the filter is deterministic whatever the key). The
+command itself runs end to end on the same scene at the same size, so its recording loads
+from the compilation cache the first test filled.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import subprocess
+import sys
+
+import jax
+import numpy as np
+import pytest
+
+import jax_contact as jc
+from jax_contact import tune as jt
+from jax_contact.train import tune_env
+
+STEPS, ROLLOUTS = 40, 2  # 40 env steps of 20 ms = 320 physics steps of 2.5 ms
+
+
+@pytest.fixture(scope="module")
+def recorded():
+    rec, scene = tune_env.record_scene("planar_leg", 3, STEPS, ROLLOUTS)
+    return rec, scene, tune_env.tuning_data(rec, chunk=STEPS * 8)
+
+
+def test_rebuilt_inputs_give_the_live_wrappers_beliefs(recorded):
+    rec, scene, data = recorded
+    assert rec.core.params.touchdown == "quadrature"
+    assert rec.truth.shape == (STEPS * 8, ROLLOUTS, 1) and data.meas.M.shape[:2] == (STEPS * 8, 2)
+    assert rec.truth[rec.valid].any() and not rec.truth[rec.valid].all()  # it hops
+    logits = np.asarray(
+        jt.predict_logits(rec.core.params, rec.core.terrain, data, key=jax.random.key(0))
+    )
+    p = 1.0 / (1.0 + np.exp(-logits.astype(np.float64)))
+    # float32 on both sides, the same graph fused differently by XLA (tests/test_timing.py).
+    np.testing.assert_allclose(p, rec.p_contact, atol=2e-4)
+    # 0.2 s of 2.5 ms steps left out at the start; nothing ends early in this scene.
+    assert scene.skip_s == 0.2
+    assert not rec.valid[:80].any() and rec.valid[80:].all()
+
+
+def test_valid_and_held_by_hand():
+    # 3 env steps x 2 substeps, 2 envs. Env 0 is done after env step 1 (so its physics
+    # steps 2, 3 and everything after are out); env 1 reads NaN at physics step 4.
+    q = np.arange(12, dtype=np.float32).reshape(6, 2, 1)
+    q[4, 1, 0] = np.nan
+    readings = {"q": q}
+    done = np.array([[0, 0], [1, 0], [0, 0]], np.float32)
+    valid, held = tune_env.valid_and_held(readings, done, n_sub=2, dt=0.1, skip_s=0.1)
+    expected = np.array([[0, 0], [1, 1], [0, 1], [0, 1], [0, 0], [0, 0]], bool)
+    np.testing.assert_array_equal(valid, expected)
+    # Env 0 holds physics step 1's reading (2.0) from step 2 on; env 1 step 3's (7.0).
+    np.testing.assert_array_equal(held["q"][:, 0, 0], [0, 2, 2, 2, 2, 2])
+    np.testing.assert_array_equal(held["q"][:, 1, 0], [1, 3, 5, 7, 7, 7])
+
+
+def test_tune_env_writes_a_file_the_wrapper_loads(recorded, tmp_path, capsys):
+    out = tmp_path / "leg.json"
+    argv = ["planar_leg", "--seeds", "3", "--validate-seed", "4", "--out", str(out)]
+    argv += ["--steps", str(STEPS), "--rollouts", str(ROLLOUTS), "--epochs", "1"]
+    argv += ["--chunk", str(STEPS * 8), "--calibrate"]
+    assert tune_env.main(argv) == 0
+    err = capsys.readouterr().err
+    assert "recorded planar_leg seed 3" in err and "epoch  1/1" in err
+    params, prov = jc.load_params(out, with_provenance=True)
+    rec = recorded[0]
+    assert params.nv == rec.core.params.nv and float(params.dt) == pytest.approx(rec.dt)
+    assert [i["seed"] for i in prov["logs"]] == [3] and prov["validation"][0]["seed"] == 4
+    assert prov["logs"][0]["scene"] == "planar_leg" and prov["calibration"]["kind"] == "sign"
+    # Seed 3 here is the fixture's recording: the same rollouts, to the bit.
+    assert prov["logs"][0]["valid_steps"] == int(rec.valid.sum())
+    # The file goes back into the wrapper at the scene's physics rate, its map with it.
+    from jax_contact.envs.contact_config import ContactObsConfig
+    from jax_contact.envs.contact_wrappers import wrap_contact
+
+    env = tune_env.scene_rollouts("planar_leg", 1, 1, 0).env
+    core = wrap_contact(env, ContactObsConfig(params=str(out))).contact_core
+    assert core.params_source == str(out) and core.calibration is not None
+    np.testing.assert_allclose(
+        np.asarray(core.params.noise.sigma_qd), np.asarray(params.noise.sigma_qd)
+    )
+    json.loads(out.read_text())  # one complete JSON file (written atomically)
+
+
+def test_tune_env_refuses_bad_arguments_before_jax():
+    code = (
+        "import sys, argparse\n"
+        "from jax_contact.train import tune_env as t\n"
+        "assert 'jax' not in sys.modules\n"
+        "p = argparse.ArgumentParser(); s = p.add_subparsers(); t.add_parser(s)\n"
+        "for argv in (['go1', '--seeds', '1', '2', '--validate-seed', '2'],\n"
+        "             ['go1', '--seeds', '1', '1', '--validate-seed', '2'],\n"
+        "             ['go1', 'go1', '--seeds', '1', '--validate-seed', '2'],\n"
+        "             ['go1', '--seeds', '1', '--validate-seed', '2', '--noise-ratio', '1']):\n"
+        "    a = p.parse_args(['tune-env', *argv, '--out', 'x.json'])\n"
+        "    try:\n        a.check(a)\n    except ValueError as e:\n        print(e)\n"
+        "a = p.parse_args(['tune-env', 'go1', '--seeds', '1', '--validate-seed', '2', '--out',"
+        " 'x.txt'])\n"
+        "try:\n    a.check(a)\nexcept ValueError as e:\n    print(e)\n"
+        "assert 'jax' not in sys.modules\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    lines = out.stdout.splitlines()
+    assert lines == [
+        "argument --validate-seed: seed(s) [2] are also tuning seeds",
+        "argument --seeds: repeated seed in [1, 1]",
+        "argument SCENE: repeated scene in ['go1', 'go1']",
+        "argument --noise-ratio: must be 0 (no box) or > 1, got 1",
+        "argument --out: 'x.txt' must end in .json",
+    ]
+
+
+def test_an_unknown_scene_or_policy_is_named():
+    with pytest.raises(ValueError, match="unknown scene 'Go2Joystick'.*go1_trot.*SpotGetup"):
+        tune_env.check_scene("Go2Joystick")
+    with pytest.raises(ValueError, match="unknown policy 'gallop'; valid: walk, trot"):
+        tune_env.check_scene("Go1JoystickFlatTerrain:gallop")
+    tune_env.check_scene("go1_trot")
+    tune_env.check_scene("SpotFlatTerrainJoystick:trot")
+
+
+def test_scenes_of_different_estimators_are_refused(recorded):
+    rec = recorded[0]
+    other_core = dataclasses.replace(rec.core, desc=dataclasses.replace(rec.core.desc, nv=9))
+    other = tune_env.Recording(other_core, None, None, None, None, None, rec.dt)
+    with pytest.raises(ValueError, match="'b' runs another estimator \\(nv 9"):
+        tune_env._same_estimator(rec, other, "b")

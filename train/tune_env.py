@@ -1,0 +1,430 @@
+"""``jax-contact tune-env SCENE [SCENE ...] --seeds S [S ...] --validate-seed S --out FILE``: tuning
+the wrapper's estimator on a wrapped env's own rollouts.
+
+The shipped presets were tuned on this library's robots at 400 Hz. On another env (another
+model of the robot, another physics step, other feet) they carry over only in part
+(docs/training.md, "A shipped preset in the wrapper"). This command tunes on the env itself:
+
+1. It wraps the env at the physics rate as :func:`jax_contact.envs.wrap_contact` does for
+   training (the same feet, sensor model, pairing, ground truth; the wrapper's default
+   parameters at the physics step are the starting point and the prior's centre).
+2. For each seed it rolls out a scripted policy and keeps every physics step's sensor
+   readings (``ContactObsConfig.record_substeps``) and ground truth (the wrapper's, with
+   its ``truth_gap``).
+3. It rebuilds every step's estimator inputs from those readings with the code the live
+   wrapper runs (:meth:`jax_contact.envs.contact_core.Core.measure`), so what is fitted is
+   what the wrapper will see.
+4. It fits them as ``jax-contact tune`` fits logs: the same loss, options and file
+   (:mod:`jax_contact.train.tune_cmd`), with the provenance naming the scene and seeds.
+
+The file then goes back into the wrapper, ``ContactObsConfig(params="params.json")``, into
+``jax-contact rates --params`` and into ``python -m jax_contact.benchmarks.wrapper_accuracy
+--params``.
+
+Scenes (``SCENE``):
+
+- a Playground locomotion env (registry name, loaded offline by
+  :func:`jax_contact.envs.playground_offline.load`), optionally ``NAME:POLICY`` with a
+  scripted policy of :mod:`jax_contact.benchmarks.wrapper_accuracy` (``walk``, ``trot``,
+  ``hop``, ``step``, ``random``; its default per env otherwise). A seed draws the
+  rollouts' frequencies and phases (or random actions), the resets and the sensor noise.
+  Scored from 0.5 s (the drop at reset) to each rollout's first ``done``.
+- a scene of ``jax-contact rates`` (:data:`jax_contact.train.rates.SCENES`). Its actions
+  are fixed by rollout index; a seed draws the resets and the sensor noise. Scored from
+  0.2 s.
+
+Tune on some seeds, validate on another, report on a third that neither saw (the
+reports of docs/training.md use seed 1 for Playground scenes, seed 0 for the rates scenes;
+pass other seeds here).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import sys
+import time
+
+from jax_contact.train import tune_cmd
+
+STEPS, ROLLOUTS = 150, 8  # the defaults of benchmarks/wrapper_accuracy.py
+PLAYGROUND_SKIP_S, RATES_SKIP_S = 0.5, 0.2
+
+
+@dataclasses.dataclass(frozen=True)
+class Scene:
+    """One recording's rollouts: the unwrapped env, its (T, E, nu) actions, the closed-loop
+    part of the policy and its stop rule (or None), the time left out at the start (s) and
+    a one-line description."""
+
+    env: object
+    actions: object
+    feedback: object
+    stop: object
+    skip_s: float
+    description: str
+
+
+def scene_rollouts(scene: str, n_steps: int, n_envs: int, seed: int) -> Scene:
+    """The :class:`Scene` of ``scene`` (the module docstring) for one seed.
+
+    Raises:
+      ValueError: an unknown scene or policy (the message lists the valid ones).
+    """
+    from jax_contact.train import rates
+
+    if scene in rates.SCENES:
+        env, acts = rates.scene(scene, n_steps=n_steps, n_rollouts=n_envs)
+        return Scene(env, acts, None, None, RATES_SKIP_S, f"jax-contact rates scene {scene!r}")
+    from jax_contact.benchmarks import wrapper_accuracy as wa
+    from jax_contact.envs import playground_offline
+
+    name, _, policy = scene.partition(":")
+    env = playground_offline.load(name)
+    feedback, stop = wa.closed_loop_for(name, env, policy or None)
+    acts, desc = wa.actions_for(name, env, n_steps, n_envs, seed, policy or None)
+    return Scene(env, acts, feedback, stop, PLAYGROUND_SKIP_S, f"{name}: {desc}")
+
+
+@dataclasses.dataclass(frozen=True)
+class Recording:
+    """Every physics step of E rollouts as the wrapper's estimator saw it.
+
+    Attributes:
+      core: the wrapper's :class:`~jax_contact.envs.contact_core.Core` (model, feet,
+        default parameters, terrain, sensor model).
+      mj_model: the env's ``mujoco.MjModel`` (the nominal one the wrapper reads).
+      first: the readings at reset, leaves (E, ...): the first update's ``prev``.
+      readings: each physics step's readings, leaves (N, E, ...), ``N = T x n_substeps``.
+      truth: (N, E, L) bool, the wrapper's ground truth.
+      valid: (N, E) bool: after the skipped start, before the rollout's first ``done`` (or
+        ``stop``) and while every reading is finite. Readings after it hold the last
+        valid one (a rollout that ended may have NaN physics).
+      dt: the physics step, s.
+      p_contact: (N, E, L) the live wrapper's P(contact) (its defaults, its map if any).
+    """
+
+    core: object
+    mj_model: object
+    first: object
+    readings: object
+    truth: object
+    valid: object
+    dt: float
+    p_contact: object = None
+
+
+def record(
+    env, actions, *, key, feedback=None, stop=None, skip_s: float = 0.0, sensor="anymal_like"
+) -> Recording:
+    """Rolls out ``actions`` (T, E, nu) on ``env`` wrapped at the physics rate and records
+    every physics step's readings and truth (rollout ``e`` resets with ``split(key,
+    E)[e]``; ``feedback(data) -> (nu,)`` is added to each action, ``stop(data) -> bool``
+    ends a rollout's valid steps, as in :func:`jax_contact.train.rates.compare_rates`).
+
+    Raises:
+      ValueError: ``actions`` is not (T, E, nu), or the env has no ground truth.
+    """
+    import jax
+    import jax.numpy as jnp
+    import numpy as np
+
+    from jax_contact.envs.contact_config import ContactObsConfig
+    from jax_contact.envs.contact_core import model_of
+    from jax_contact.envs.contact_wrappers import wrap_contact
+
+    acts = jnp.asarray(actions)
+    if acts.ndim != 3:
+        raise ValueError(f"actions must have shape (T, E, nu), got {acts.shape}")
+    cfg = ContactObsConfig(rate="substep", record_substeps=True, sensor=sensor)
+    wrapped = wrap_contact(env, cfg)
+    core = wrapped.contact_core
+    if core.truth is None:
+        raise ValueError("env's model has no ground-truth contact for every foot: nothing to fit")
+    sub_key = cfg.info_key + "_substeps"
+
+    def step(s, a):
+        if feedback is not None:
+            a = a + feedback(wrapped.sim_data(s))
+        s = wrapped.step(s, a)
+        ended = s.done
+        if stop is not None:
+            ended = jnp.maximum(ended, jnp.asarray(stop(wrapped.sim_data(s)), ended.dtype))
+        sub = s.info[sub_key]
+        return s, (sub["reading"], sub["truth"], sub["p_contact"], ended)
+
+    @jax.jit
+    def rollout(keys, a_seq):
+        s0 = jax.vmap(wrapped.reset)(keys)
+        return s0.info[cfg.info_key].prev, jax.lax.scan(jax.vmap(step), s0, a_seq)[1]
+
+    first, (readings, truth, p_live, done) = rollout(jax.random.split(key, acts.shape[1]), acts)
+    first, readings = jax.tree.map(np.asarray, (first, readings))
+    truth, p_live, done = np.asarray(truth), np.asarray(p_live), np.asarray(done)
+    t_len, n_envs, n_sub = truth.shape[:3]
+
+    def flat(x):  # (T, E, n_sub, ...) -> (T * n_sub, E, ...), time order kept
+        return np.moveaxis(x, 2, 1).reshape((t_len * n_sub, n_envs) + x.shape[3:])
+
+    readings, truth, p_live = jax.tree.map(flat, readings), flat(truth), flat(p_live)
+    dt = float(core.params.dt)
+    valid, readings = valid_and_held(readings, done, n_sub, dt, skip_s)
+    return Recording(core, model_of(env)[1], first, readings, truth, valid, dt, p_live)
+
+
+def valid_and_held(readings, done, n_sub: int, dt: float, skip_s: float):
+    """(valid, readings) of a recording (NumPy).
+
+    Args:
+      readings: leaves (N, E, ...) of each physics step, ``N = T x n_sub``.
+      done: (T, E) the env step's ``done`` (or ``stop``).
+      n_sub: physics steps per env step; dt: the physics step, s.
+      skip_s: steps before this time are not valid.
+
+    Returns:
+      ``valid`` (N, E): from ``skip_s`` on, before the env step of the first ``done`` (that
+      step's physics steps left out) and before the first non-finite reading; and the
+      readings with every step after an env's last valid one holding that one's (the
+      tuning filter runs through masked steps too, so it must never meet a NaN).
+    """
+    import jax
+    import numpy as np
+
+    leaves = jax.tree.leaves(readings)
+    shape = leaves[0].shape[:2]
+    finite = np.ones(shape, bool)
+    for leaf in leaves:
+        finite &= np.isfinite(leaf).reshape(shape + (-1,)).all(axis=-1)
+    alive = np.repeat(np.cumsum(done, axis=0) == 0, n_sub, axis=0)
+    alive &= np.cumsum(~finite, axis=0) == 0
+    last = np.maximum(np.cumsum(alive, axis=0) - 1, 0)  # an env's last alive step so far
+    held = jax.tree.map(lambda x: np.take_along_axis(x, _expand(last, x), axis=0), readings)
+    # Physics step k starts at k dt: it counts from skip_s on (compare_rates' rule).
+    valid = alive & (np.arange(shape[0]) >= round(skip_s / dt))[:, None]
+    return valid, held
+
+
+def _expand(index, x):
+    return index.reshape(index.shape + (1,) * (x.ndim - index.ndim))
+
+
+def tuning_data(rec: Recording, chunk: int = 400):
+    """A :class:`jax_contact.tune.TuningData` of a recording: each step's estimator inputs
+    rebuilt from its readings by ``Core.measure`` (the wrapper's own code), in chunks of
+    ``chunk`` steps (one compilation)."""
+    import jax
+    import jax.numpy as jnp
+    import mujoco
+    import numpy as np
+    from mujoco import mjx
+
+    from jax_contact.tune import TuningData
+
+    core = rec.core
+    template = mjx.put_data(rec.mj_model, mujoco.MjData(rec.mj_model))
+    prev = jax.tree.map(lambda f, r: np.concatenate([f[None], r[:-1]]), rec.first, rec.readings)
+
+    @jax.jit
+    def measure(p, r):
+        one = lambda p1, r1: core.measure(template, p1, r1)  # noqa: E731
+        return jax.vmap(jax.vmap(one))(p, r)
+
+    n = rec.truth.shape[0]
+    pieces = []
+    for start in range(0, n, chunk):
+        stop = min(start + chunk, n)
+
+        def part(x, start=start, stop=stop):
+            x = x[start:stop]
+            if stop - start < chunk:  # one shape, one compilation
+                x = np.concatenate([x, np.repeat(x[-1:], chunk - x.shape[0], 0)])
+            return jnp.asarray(x)
+
+        out = measure(jax.tree.map(part, prev), jax.tree.map(part, rec.readings))
+        pieces.append(jax.tree.map(lambda a, k=stop - start: np.asarray(a)[:k], out))
+    meas = jax.tree.map(lambda *xs: np.concatenate(xs, axis=0), *pieces)
+    mask = np.broadcast_to(rec.valid[..., None], rec.truth.shape)
+    return TuningData(meas=meas, truth=rec.truth, mask=np.array(mask))
+
+
+def record_scene(scene: str, seed: int, n_steps: int = STEPS, n_envs: int = ROLLOUTS):
+    """(Recording, Scene) of one seed of ``scene`` (key ``PRNGKey(seed)``, as the
+    benchmarks' rollouts)."""
+    import jax
+
+    sc = scene_rollouts(scene, n_steps, n_envs, seed)
+    rec = record(
+        sc.env,
+        sc.actions,
+        key=jax.random.PRNGKey(seed),
+        feedback=sc.feedback,
+        stop=sc.stop,
+        skip_s=sc.skip_s,
+    )
+    return rec, sc
+
+
+# ----------------------------------------------------------------------------- command
+
+
+def add_parser(subparsers) -> argparse.ArgumentParser:
+    """Adds the ``tune-env`` command; its defaults carry ``func=run`` and ``check=check``."""
+    from jax_contact.train.cli_args import positive_int
+
+    p = subparsers.add_parser(
+        "tune-env",
+        help="tune the wrapper's estimator on a Playground env's (or rates scene's) own rollouts",
+        description="Rolls out a scripted policy on a wrapped env at the physics rate for each"
+        " seed, rebuilds the estimator's inputs from the wrapper's own sensor readings and"
+        " tunes the estimator on them as `jax-contact tune` does (the same options). The"
+        " file goes into ContactObsConfig(params=FILE), `jax-contact rates --params` and"
+        " `wrapper_accuracy --params`.",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    )
+    p.add_argument(
+        "scenes",
+        nargs="+",
+        metavar="SCENE",
+        help="a Playground locomotion env, optionally NAME:POLICY (walk, trot, hop, step,"
+        " random), or a `jax-contact rates` scene (go1, go1_walk, go1_trot, planar_leg);"
+        " several scenes of one robot are tuned on together",
+    )
+    p.add_argument("--seeds", required=True, nargs="+", type=int, metavar="S", help="tuning seeds")
+    p.add_argument(
+        "--validate-seed",
+        required=True,
+        nargs="+",
+        type=int,
+        metavar="S",
+        help="validation seed(s): early stopping on their pooled loss",
+    )
+    p.add_argument("--rollouts", type=positive_int, default=ROLLOUTS, help="rollouts per seed")
+    p.add_argument("--steps", type=positive_int, default=STEPS, help="env steps per rollout")
+    tune_cmd.add_tuning_options(p)
+    p.set_defaults(func=run, check=check)
+    return p
+
+
+def check(args: argparse.Namespace) -> None:
+    """ValueError naming the argument, before JAX is imported (the scene's name is checked
+    at the start of :func:`run`, before anything is simulated: Playground's registry
+    imports JAX)."""
+    seeds, vals = list(args.seeds), list(args.validate_seed)
+    for arg, given in (("--seeds", seeds), ("--validate-seed", vals)):
+        if len(set(given)) != len(given):
+            raise ValueError(f"argument {arg}: repeated seed in {given}")
+    both = sorted(set(seeds) & set(vals))
+    if both:
+        raise ValueError(f"argument --validate-seed: seed(s) {both} are also tuning seeds")
+    if len(set(args.scenes)) != len(args.scenes):
+        raise ValueError(f"argument SCENE: repeated scene in {list(args.scenes)}")
+    tune_cmd.check_tuning_options(args)
+
+
+def check_scene(scene: str) -> None:
+    """ValueError naming ``scene`` unless it is a rates scene or a Playground locomotion env
+    with a known policy (imports Playground's registry, hence JAX)."""
+    from jax_contact.train.rates import SCENES
+
+    if ":" not in scene and scene in SCENES:
+        return
+    from jax_contact.benchmarks.wrapper_accuracy import POLICIES
+    from jax_contact.envs.playground_offline import ENV_NAMES
+
+    name, _, policy = scene.partition(":")
+    if name not in ENV_NAMES:
+        raise ValueError(
+            f"argument SCENE: unknown scene {name!r}; valid: a `jax-contact rates` scene"
+            f" ({', '.join(SCENES)}) or a Playground locomotion env ({', '.join(ENV_NAMES)})"
+        )
+    if policy and policy not in POLICIES:
+        raise ValueError(f"argument SCENE: unknown policy {policy!r}; valid: {', '.join(POLICIES)}")
+
+
+def _same_estimator(first, other, scene: str) -> None:
+    """ValueError unless two recordings' wrappers run one estimator (model size, feet, dt)."""
+    a, b = first.core, other.core
+    same_dt = abs(first.dt - other.dt) <= 1e-6 * abs(first.dt)
+    if (a.desc.nv, tuple(a.desc.foot_names)) != (
+        b.desc.nv,
+        tuple(b.desc.foot_names),
+    ) or not same_dt:
+        raise ValueError(
+            f"argument SCENE: {scene!r} runs another estimator (nv {b.desc.nv}, feet"
+            f" {list(b.desc.foot_names)}, dt {other.dt:g} s) than the first scene's (nv"
+            f" {a.desc.nv}, feet {list(a.desc.foot_names)}, dt {first.dt:g} s)"
+        )
+
+
+def run(args: argparse.Namespace) -> int:
+    """Records every scene at every seed, tunes, writes ``args.out``; returns 0."""
+    for scene in args.scenes:
+        check_scene(scene)
+    t0 = time.perf_counter()
+    train, vals, infos, vinfos = [], [], [], []
+    first = None
+    for scene in args.scenes:
+        for seed in [*args.seeds, *args.validate_seed]:
+            t = time.perf_counter()
+            rec, sc = record_scene(scene, seed, args.steps, args.rollouts)
+            if first is None:
+                first = rec
+            _same_estimator(first, rec, scene)
+            data = tuning_data(rec, args.chunk)
+            n_valid = int(rec.valid.sum())
+            print(
+                f"recorded {scene} seed {seed}: {rec.truth.shape} (physics steps, rollouts,"
+                f" feet), {n_valid} valid steps, contact {rec.truth[rec.valid].mean():.3f}"
+                f" ({time.perf_counter() - t:.0f} s)",
+                file=sys.stderr,
+                flush=True,
+            )
+            info = {
+                "path": f"{scene} seed {seed}",
+                "scene": scene,
+                "policy": sc.description,
+                "seed": seed,
+                "n_envs": int(rec.truth.shape[1]),
+                "dt": rec.dt,
+                "noise": rec.core.cfg.sensor,
+                "steps": int(data.n_steps),
+                "valid_steps": n_valid,
+            }
+            (train if seed in args.seeds else vals).append(data)
+            (infos if seed in args.seeds else vinfos).append(info)
+    core = first.core
+    floor = None
+    if getattr(args, "noise_floor", "sensor") == "sensor":
+        from jax_contact.defaults import sensor_noise_floor
+
+        floor = sensor_noise_floor(core.desc, core.sensor, float(core.params.dt))
+    inputs = tune_cmd.Inputs(
+        train=train,
+        vals=vals,
+        infos=infos,
+        vinfos=vinfos,
+        base=core.params,
+        terrain=core.terrain,
+        floor=floor,
+        desc=core.desc,
+        robot="wrapped env " + " + ".join(args.scenes),
+        terrain_model="flat",  # the wrapper's default terrain: the floor plane
+        load_s=time.perf_counter() - t0,
+    )
+    return tune_cmd.fit_and_write(args, inputs)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m jax_contact.train.tune_env SCENE [SCENE ...] --seeds ...``."""
+    parser = argparse.ArgumentParser(prog="jax-contact")
+    add_parser(parser.add_subparsers(dest="command", required=True))
+    args = parser.parse_args(["tune-env", *(argv if argv is not None else sys.argv[1:])])
+    try:
+        args.check(args)
+    except ValueError as err:
+        parser.error(str(err))
+    return args.func(args)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
