@@ -228,8 +228,8 @@ def main(argv=None) -> int:
     parser.add_argument(
         "--params",
         default=None,
-        help="the physics-rate estimator's parameter file or preset (go1, spot, barkour), its"
-        " calibration map applied; default: the defaults",
+        help="the physics-rate estimator's parameter file or preset (go1, spot, barkour,"
+        " go1_playground), its calibration map applied; default: the defaults",
     )
     args = parser.parse_args(argv)
     result = {"machine": machine(), "args": vars(args), "rows": []}

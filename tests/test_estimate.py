@@ -338,7 +338,8 @@ def test_arguments_are_checked_without_jax(tmp_path):
         (["estimate", str(CSV), "--model", "go1", "--params", "nope.json"], "--params"),
         (
             ["estimate", str(CSV), "--model", "go1", "--params", "go2"],
-            r"--params: 'go2' is neither a file nor a shipped preset \(barkour, go1, spot\)",
+            r"--params: 'go2' is neither a file nor a shipped preset"
+            r" \(barkour, go1, go1_playground, spot\)",
         ),
     ]
     for argv, match in bad:

@@ -14,6 +14,7 @@ import dataclasses
 import json
 import subprocess
 import sys
+import warnings
 
 import jax
 import numpy as np
@@ -134,3 +135,39 @@ def test_scenes_of_different_estimators_are_refused(recorded):
     other = tune_env.Recording(other_core, None, None, None, None, None, rec.dt)
     with pytest.raises(ValueError, match="'b' runs another estimator \\(nv 9"):
         tune_env._same_estimator(rec, other, "b")
+
+
+def test_the_go1_playground_preset_is_the_wrappers_own_at_its_physics_step():
+    """``go1_playground`` (docs/tuning.md, "Tuning on a wrapped env's own rollouts"): made
+    by tune-env on Playground's Go1 at its 4 ms physics step, on seeds that are never
+    reported (the wrapper's report seed is 1, the rates scenes' 0), with a map that keeps
+    every decision, and no std below what the wrapper's sensor model alone gives (the
+    floor recomputed here from that model, not read from the file)."""
+    from jax_contact.defaults import sensor_noise_floor
+    from jax_contact.envs import playground_offline
+    from jax_contact.envs.contact_config import ContactObsConfig
+    from jax_contact.envs.contact_wrappers import wrap_contact
+
+    assert "go1_playground" in jc.preset_names()
+    params, prov = jc.load_params("go1_playground", with_provenance=True)
+    assert prov["tool"] == "jax-contact tune" and prov["arguments"]["command"] == "tune-env"
+    scenes = {i["scene"] for i in prov["logs"] + prov["validation"]}
+    assert scenes == {"Go1JoystickFlatTerrain:trot", "Go1JoystickFlatTerrain:walk"}
+    seeds = prov["seeds"]["tuning_logs"] + prov["seeds"]["validation_logs"]
+    assert seeds and all(s >= 1000 for s in seeds)
+    assert jt.calibration_of(prov).keeps_decisions and prov["calibration"]["kind"] == "sign"
+    assert len(prov["code"]["commit"]) == 40 and not prov["code"]["dirty"]
+    ratios = [r["ratio"] for r in prov["tuned_vs_default"] if r["field"].startswith("sigma")]
+    box = jt.PLAUSIBLE_NOISE_RATIO
+    assert all(1 / box <= r <= box for r in ratios), ratios
+
+    env = playground_offline.load("Go1JoystickFlatTerrain")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # made at the env's own period: nothing is moved
+        core = wrap_contact(env, ContactObsConfig(params="go1_playground")).contact_core
+    assert float(core.params.dt) == pytest.approx(float(env.mj_model.opt.timestep)) == 0.004
+    assert core.calibration is not None and core.params_source == "go1_playground"
+    floor = sensor_noise_floor(core.desc, core.sensor, 0.004)
+    for field, values in floor.items():
+        got = np.asarray(getattr(params.noise, field))
+        assert np.all(got >= values * (1 - 1e-5)), (field, got / values)
