@@ -204,6 +204,19 @@ class RateComparison:
         return "\n".join(lines)
 
 
+def policy_step(wrapped, state, action, feedback=None, stop=None):
+    """One step of a scripted policy on a wrapped env: ``feedback(data) -> (nu,)`` (on the
+    simulator's state before the step) added to ``action``, and ``ended``, the step's
+    ``done`` or ``stop(data)`` of the state after it. Returns ``(state, ended)``."""
+    if feedback is not None:
+        action = action + feedback(wrapped.sim_data(state))
+    state = wrapped.step(state, action)
+    ended = state.done
+    if stop is not None:
+        ended = jnp.maximum(ended, jnp.asarray(stop(wrapped.sim_data(state)), ended.dtype))
+    return state, ended
+
+
 def compare_rates(
     env,
     actions: jax.Array,
@@ -312,12 +325,7 @@ def compare_rates(
     # scan: vmap re-batches a scan's whole body until its carry's batching settles, and
     # the substep scan inside the step would be re-batched on every round.
     def step(s, a):
-        if feedback is not None:
-            a = a + feedback(outer.sim_data(s))
-        s = outer.step(s, a)
-        ended = s.done
-        if stop is not None:
-            ended = jnp.maximum(ended, jnp.asarray(stop(outer.sim_data(s)), ended.dtype))
+        s, ended = policy_step(outer, s, a, feedback, stop)
         info = s.info
         sub = info["contact_substep_substeps"]
         out = (

@@ -132,6 +132,7 @@ def record(
     from jax_contact.envs.contact_config import ContactObsConfig
     from jax_contact.envs.contact_core import model_of
     from jax_contact.envs.contact_wrappers import wrap_contact
+    from jax_contact.train.rates import policy_step
 
     acts = jnp.asarray(actions)
     if acts.ndim != 3:
@@ -144,12 +145,7 @@ def record(
     sub_key = cfg.info_key + "_substeps"
 
     def step(s, a):
-        if feedback is not None:
-            a = a + feedback(wrapped.sim_data(s))
-        s = wrapped.step(s, a)
-        ended = s.done
-        if stop is not None:
-            ended = jnp.maximum(ended, jnp.asarray(stop(wrapped.sim_data(s)), ended.dtype))
+        s, ended = policy_step(wrapped, s, a, feedback, stop)
         sub = s.info[sub_key]
         return s, (sub["reading"], sub["truth"], sub["p_contact"], ended)
 
