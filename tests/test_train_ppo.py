@@ -261,3 +261,23 @@ def test_eval_row_takes_the_episode_accuracy_as_brax_sums_it():
         "eval_contact_accuracy": 0.85,
     }
     assert np.isnan(ppo.eval_row(0, 0.0, m | {}, "eval/missing")["eval_contact_accuracy"])
+
+
+def test_estimator_params_reach_the_wrapper_and_the_run_record():
+    """``PPOConfig.estimator_params`` (``jax-contact train --params``) is what the wrapped
+    env runs, in training and in every transfer column; a run.json written before the field
+    existed reads back with the wrapper's defaults; the hop task refuses a file."""
+    from jax_contact.train import tasks
+
+    cfg = dataclasses.replace(TINY, estimator_params="go1_playground")
+    env = tasks.get_task("go1").make_env("estimate", cfg)
+    core = env.contact_core
+    assert core.params_source == "go1_playground" and core.calibration is not None
+    col = policy_eval.column_env("estimate_harsh", cfg).contact_core
+    assert col.params_source == "go1_playground"
+    run = {"config": dataclasses.asdict(cfg)}
+    assert ppo.config_of(json.loads(json.dumps(run))) == cfg
+    del run["config"]["estimator_params"]  # an older run.json
+    assert ppo.config_of(run).estimator_params is None
+    with pytest.raises(ValueError, match="estimator_params: the hop task"):
+        tasks.get_task("hop").make_env("estimate", cfg)

@@ -203,6 +203,10 @@ def _cmd_train(args: argparse.Namespace) -> int:
         cfg = dataclasses.replace(task.config("small"), **TINY_PPO)
     else:
         cfg = task.config(args.config)
+    if args.params is not None:
+        import dataclasses
+
+        cfg = dataclasses.replace(cfg, estimator_params=args.params)
     if args.timesteps:
         # Brax PPO rounds num_timesteps up to whole epochs (6x the request at 40,960 steps);
         # fit_timesteps makes it train exactly what was asked, or says what it trains.
@@ -303,6 +307,13 @@ def _check_train(args: argparse.Namespace) -> None:
             f"argument --config: the {args.task} task has no {args.config!r} configuration"
             f" ({', '.join(have)})"
         )
+    if args.params is not None:
+        if args.task != "go1":
+            raise ValueError(
+                f"argument --params: the {args.task} task runs the planar leg's own estimator;"
+                " --params is for the go1 task"
+            )
+        check_params_source("--params", args.params)
 
 
 def _check_policy_eval(args: argparse.Namespace) -> None:
@@ -502,6 +513,14 @@ def build_parser() -> argparse.ArgumentParser:
         type=nonnegative_int,
         default=64,
         help="episodes of the final evaluation; 0 skips it (`policy-eval` evaluates a run later)",
+    )
+    p.add_argument(
+        "--params",
+        default=None,
+        metavar="FILE|PRESET",
+        help="the wrapper's estimator parameters for the estimate variant (and the estimator"
+        " every variant is scored with): a parameter file or a shipped preset, e.g."
+        " go1_playground (go1 task only; recorded in run.json); default: the wrapper's defaults",
     )
     p.add_argument("--out", default="out/train", help="output folder (a run folder per variant)")
     p.add_argument("--overwrite", action="store_true", help="replace existing run folders")

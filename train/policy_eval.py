@@ -103,7 +103,13 @@ def column_env(column: str, cfg: PPOConfig):
     from jax_contact.train import transfer
 
     observe, preset, extra = transfer.column_setting(column, cfg.sensor)
-    return make_env(observe, sensor=preset, reward=cfg.reward, extra_latency=extra)
+    return make_env(
+        observe,
+        sensor=preset,
+        reward=cfg.reward,
+        extra_latency=extra,
+        params=cfg.estimator_params,
+    )
 
 
 def policy_rollout(env, make_policy, n_envs: int, episode_length: int) -> Callable:

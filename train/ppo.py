@@ -91,6 +91,9 @@ class PPOConfig:
       reward: ``"playground"`` (the env's reward: the scaled terms summed, times ``dt``,
         clipped below at 0) or ``"unclipped"`` (the same sum without the clip,
         :class:`UnclippedReward`).
+      estimator_params: the wrapper's estimator parameters, a parameter file or a shipped
+        preset (``ContactObsConfig.params``, its calibration map applied; e.g.
+        ``"go1_playground"``), or None for the wrapper's defaults. Go1 task only.
     """
 
     num_timesteps: int
@@ -117,6 +120,7 @@ class PPOConfig:
     num_resets_per_eval: int = 0
     sensor: str = "anymal_like"
     reward: str = "playground"
+    estimator_params: str | None = None
 
     @property
     def steps_per_training_step(self) -> int:
@@ -292,6 +296,7 @@ def make_env(
     reward: str = "playground",
     env_name: str = ENV_NAME,
     extra_latency: int = 0,
+    params: str | None = None,
 ):
     """The unbatched Go1 joystick env with the contact wrapper, observing ``observe``.
 
@@ -305,6 +310,8 @@ def make_env(
         transfer matrix's ``estimate_latK`` columns): at the wrapper's physics rate each is
         the env's substeps (Go1 joystick: 5 of 4 ms), by
         :func:`jax_contact.envs.contact_params.with_extra_latency`.
+      params: ``ContactObsConfig.params`` (a parameter file or preset name), None: the
+        wrapper's defaults.
     """
     from jax_contact.envs import playground_offline
     from jax_contact.envs import wrapper as W
@@ -317,7 +324,7 @@ def make_env(
     env = playground_offline.load(env_name)
     if reward == "unclipped":
         env = UnclippedReward(env)
-    cfg = W.ContactObsConfig(observe=observe, obs_keys=("state",), info_key=INFO_KEY)
+    cfg = W.ContactObsConfig(observe=observe, obs_keys=("state",), info_key=INFO_KEY, params=params)
     wrapped = W.wrap_contact(env, cfg, sensor=sensor)
     if extra_latency == 0:
         return wrapped

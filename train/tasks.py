@@ -74,7 +74,7 @@ class Task:
 def _go1_env(observe: str, cfg: PPOConfig):
     from jax_contact.train import ppo
 
-    return ppo.make_env(observe, sensor=cfg.sensor, reward=cfg.reward)
+    return ppo.make_env(observe, sensor=cfg.sensor, reward=cfg.reward, params=cfg.estimator_params)
 
 
 def _go1_wrap(env, **kwargs):
@@ -86,6 +86,11 @@ def _go1_wrap(env, **kwargs):
 def _hop_env(task_name: str, observe: str, cfg: PPOConfig):
     from jax_contact.envs import hop_task
 
+    if cfg.estimator_params is not None:
+        raise ValueError(
+            f"estimator_params: the {task_name} task runs the planar leg's own estimator"
+            " (jax_contact.envs.hop_task); a parameter file is taken by the go1 task only"
+        )
     task = dataclasses.replace(
         hop_task.task_config(task_name), episode_length=cfg.episode_length, sensor=cfg.sensor
     )
