@@ -462,7 +462,8 @@ def load_params_for(
         params = change_period(params, derive(file_dt), derive(dt))
     warnings.warn(
         f"parameter file {str(path)!r} has dt = {file_dt:.6g} s; {period} is {dt:.6g} s:"
-        f" using {period} ({how}; a file tuned at one rate is best tuned again at another)",
+        f" using {period} ({how}; a file tuned at one rate is best tuned again at another:"
+        " jax-contact tune on logs, jax-contact tune-env on a wrapped env)",
         stacklevel=2,
     )
     return params
