@@ -194,18 +194,16 @@ def _cmd_bench(args: argparse.Namespace) -> int:
 
 
 def _cmd_train(args: argparse.Namespace) -> int:
+    import dataclasses
+
     from jax_contact.train import ppo, tasks
 
     task = tasks.get_task(args.task)
     if args.config == "tiny":
-        import dataclasses
-
         cfg = dataclasses.replace(task.config("small"), **TINY_PPO)
     else:
         cfg = task.config(args.config)
     if args.params is not None:
-        import dataclasses
-
         cfg = dataclasses.replace(cfg, estimator_params=args.params)
     if args.timesteps:
         # Brax PPO rounds num_timesteps up to whole epochs (6x the request at 40,960 steps);

@@ -204,6 +204,13 @@ class RateComparison:
         return "\n".join(lines)
 
 
+def in_time_order(x):
+    """(T, E, n_substeps, ...) per env step -> (T * n_substeps, E, ...) per physics step,
+    time order kept (NumPy)."""
+    t_len, n_envs, n_sub = x.shape[:3]
+    return np.moveaxis(x, 2, 1).reshape((t_len * n_sub, n_envs) + x.shape[3:])
+
+
 def policy_step(wrapped, state, action, feedback=None, stop=None):
     """One step of a scripted policy on a wrapped env: ``feedback(data) -> (nu,)`` (on the
     simulator's state before the step) added to ``action``, and ``ended``, the step's
@@ -362,9 +369,7 @@ def compare_rates(
     valid_c = np.broadcast_to(valid[..., None], p_c.shape)
     valid_s = np.broadcast_to(valid[:, :, None, None], p_s.shape)
 
-    def flat(x):  # (T, E, n_frames, L) -> (T * n_frames, E, L), time order kept
-        return np.moveaxis(x, 2, 1).reshape((t_len * n_frames,) + x.shape[1:2] + x.shape[3:])
-
+    flat = in_time_order
     return RateComparison(
         substep=metrics.evaluate(p_s[:, :, -1], t_c, valid_c, dt=dt_ctrl),
         control=metrics.evaluate(p_c, t_c, valid_c, dt=dt_ctrl),

@@ -32,7 +32,6 @@ def measure_readings(robot, readings: dict, *, pairing: str = "delayed", chunk: 
       chunk: steps computed per compiled call.
     """
     import jax
-    import jax.numpy as jnp
     import numpy as np
     from mujoco import mjx
 
@@ -56,16 +55,31 @@ def measure_readings(robot, readings: dict, *, pairing: str = "delayed", chunk: 
 
         return jax.vmap(jax.vmap(one))(qp, qv, qa, ta)
 
-    n_t = qpos.shape[0]
+    return in_time_chunks(lambda xs: measure(*xs), [qpos, qvel, qacc, tau], chunk)
+
+
+def in_time_chunks(fn, xs, chunk: int):
+    """``fn`` over a pytree ``xs`` of NumPy arrays of leading (time) axis T, ``chunk`` steps
+    per call (the last chunk padded with its last step, so ``fn`` compiles once), the
+    results concatenated back to T steps as NumPy arrays."""
+    import jax
+    import jax.numpy as jnp
+    import numpy as np
+
+    n_t = jax.tree.leaves(xs)[0].shape[0]
     pieces = []
     for start in range(0, n_t, chunk):
         stop = min(start + chunk, n_t)
-        xs = [a[start:stop] for a in (qpos, qvel, qacc, tau)]
-        if stop - start < chunk:  # one shape, one compilation
-            xs = [np.concatenate([x, np.repeat(x[-1:], chunk - x.shape[0], 0)]) for x in xs]
-        out = measure(*(jnp.asarray(x) for x in xs))
+
+        def part(x, start=start, stop=stop):
+            x = x[start:stop]
+            if stop - start < chunk:  # one shape, one compilation
+                x = np.concatenate([x, np.repeat(x[-1:], chunk - x.shape[0], 0)])
+            return jnp.asarray(x)
+
+        out = fn(jax.tree.map(part, xs))
         pieces.append(jax.tree.map(lambda a, n=stop - start: np.asarray(a)[:n], out))
-    return jax.tree.map(lambda *xs: np.concatenate(xs, axis=0), *pieces)
+    return jax.tree.map(lambda *ys: np.concatenate(ys, axis=0), *pieces)
 
 
 def read_truth_log(path: str | Path):

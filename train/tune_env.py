@@ -132,7 +132,7 @@ def record(
     from jax_contact.envs.contact_config import ContactObsConfig
     from jax_contact.envs.contact_core import model_of
     from jax_contact.envs.contact_wrappers import wrap_contact
-    from jax_contact.train.rates import policy_step
+    from jax_contact.train.rates import in_time_order, policy_step
 
     acts = jnp.asarray(actions)
     if acts.ndim != 3:
@@ -157,12 +157,9 @@ def record(
     first, (readings, truth, p_live, done) = rollout(jax.random.split(key, acts.shape[1]), acts)
     first, readings = jax.tree.map(np.asarray, (first, readings))
     truth, p_live, done = np.asarray(truth), np.asarray(p_live), np.asarray(done)
-    t_len, n_envs, n_sub = truth.shape[:3]
-
-    def flat(x):  # (T, E, n_sub, ...) -> (T * n_sub, E, ...), time order kept
-        return np.moveaxis(x, 2, 1).reshape((t_len * n_sub, n_envs) + x.shape[3:])
-
-    readings, truth, p_live = jax.tree.map(flat, readings), flat(truth), flat(p_live)
+    n_sub = truth.shape[2]
+    readings = jax.tree.map(in_time_order, readings)
+    truth, p_live = in_time_order(truth), in_time_order(p_live)
     dt = float(core.params.dt)
     valid, readings = valid_and_held(readings, done, n_sub, dt, skip_s)
     return Recording(core, model_of(env)[1], first, readings, truth, valid, dt, p_live)
@@ -209,11 +206,11 @@ def tuning_data(rec: Recording, chunk: int = 400):
     rebuilt from its readings by ``Core.measure`` (the wrapper's own code), in chunks of
     ``chunk`` steps (one compilation)."""
     import jax
-    import jax.numpy as jnp
     import mujoco
     import numpy as np
     from mujoco import mjx
 
+    from jax_contact.train.tune_data import in_time_chunks
     from jax_contact.tune import TuningData
 
     core = rec.core
@@ -225,20 +222,7 @@ def tuning_data(rec: Recording, chunk: int = 400):
         one = lambda p1, r1: core.measure(template, p1, r1)  # noqa: E731
         return jax.vmap(jax.vmap(one))(p, r)
 
-    n = rec.truth.shape[0]
-    pieces = []
-    for start in range(0, n, chunk):
-        stop = min(start + chunk, n)
-
-        def part(x, start=start, stop=stop):
-            x = x[start:stop]
-            if stop - start < chunk:  # one shape, one compilation
-                x = np.concatenate([x, np.repeat(x[-1:], chunk - x.shape[0], 0)])
-            return jnp.asarray(x)
-
-        out = measure(jax.tree.map(part, prev), jax.tree.map(part, rec.readings))
-        pieces.append(jax.tree.map(lambda a, k=stop - start: np.asarray(a)[:k], out))
-    meas = jax.tree.map(lambda *xs: np.concatenate(xs, axis=0), *pieces)
+    meas = in_time_chunks(lambda xs: measure(*xs), (prev, rec.readings), chunk)
     mask = np.broadcast_to(rec.valid[..., None], rec.truth.shape)
     return TuningData(meas=meas, truth=rec.truth, mask=np.array(mask))
 
