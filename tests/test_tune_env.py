@@ -83,7 +83,7 @@ def test_tune_env_writes_a_file_the_wrapper_loads(recorded, tmp_path, capsys):
     from jax_contact.envs.contact_config import ContactObsConfig
     from jax_contact.envs.contact_wrappers import wrap_contact
 
-    env = tune_env.scene_rollouts("planar_leg", 1, 1, 0).env
+    env = tune_env.load_scene("planar_leg", 1, 1).env
     core = wrap_contact(env, ContactObsConfig(params=str(out))).contact_core
     assert core.params_source == str(out) and core.calibration is not None
     np.testing.assert_allclose(

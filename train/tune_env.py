@@ -42,6 +42,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import functools
 import sys
 import time
 
@@ -53,20 +54,21 @@ PLAYGROUND_SKIP_S, RATES_SKIP_S = 0.5, 0.2
 
 @dataclasses.dataclass(frozen=True)
 class Scene:
-    """One recording's rollouts: the unwrapped env, its (T, E, nu) actions, the closed-loop
-    part of the policy and its stop rule (or None), the time left out at the start (s) and
-    a one-line description."""
+    """A scene's rollouts: the unwrapped env, the closed-loop part of the policy and its
+    stop rule (or None), the time left out at the start (s), a one-line description, and
+    ``actions_of(seed) -> (T, E, nu)`` the open-loop actions of one seed."""
 
     env: object
-    actions: object
     feedback: object
     stop: object
     skip_s: float
     description: str
+    actions_of: object
 
 
-def scene_rollouts(scene: str, n_steps: int, n_envs: int, seed: int) -> Scene:
-    """The :class:`Scene` of ``scene`` (the module docstring) for one seed.
+def load_scene(scene: str, n_steps: int, n_envs: int) -> Scene:
+    """The :class:`Scene` of ``scene`` (the module docstring): the env is loaded once, and
+    each seed's actions are drawn by ``actions_of``.
 
     Raises:
       ValueError: an unknown scene or policy (the message lists the valid ones).
@@ -75,15 +77,21 @@ def scene_rollouts(scene: str, n_steps: int, n_envs: int, seed: int) -> Scene:
 
     if scene in rates.SCENES:
         env, acts = rates.scene(scene, n_steps=n_steps, n_rollouts=n_envs)
-        return Scene(env, acts, None, None, RATES_SKIP_S, f"jax-contact rates scene {scene!r}")
+        desc = f"jax-contact rates scene {scene!r}"
+        return Scene(env, None, None, RATES_SKIP_S, desc, lambda seed: acts)
     from jax_contact.benchmarks import wrapper_accuracy as wa
     from jax_contact.envs import playground_offline
 
     name, _, policy = scene.partition(":")
     env = playground_offline.load(name)
     feedback, stop = wa.closed_loop_for(name, env, policy or None)
-    acts, desc = wa.actions_for(name, env, n_steps, n_envs, seed, policy or None)
-    return Scene(env, acts, feedback, stop, PLAYGROUND_SKIP_S, f"{name}: {desc}")
+    # The description does not depend on the seed; drawn once here to check the policy.
+    desc = wa.actions_for(name, env, 1, 1, 0, policy or None)[1]
+
+    def actions_of(seed: int):
+        return wa.actions_for(name, env, n_steps, n_envs, seed, policy or None)[0]
+
+    return Scene(env, feedback, stop, PLAYGROUND_SKIP_S, f"{name}: {desc}", actions_of)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -114,19 +122,21 @@ class Recording:
     p_contact: object = None
 
 
-def record(
-    env, actions, *, key, feedback=None, stop=None, skip_s: float = 0.0, sensor="anymal_like"
-) -> Recording:
-    """Rolls out ``actions`` (T, E, nu) on ``env`` wrapped at the physics rate and records
-    every physics step's readings and truth (rollout ``e`` resets with ``split(key,
-    E)[e]``; ``feedback(data) -> (nu,)`` is added to each action, ``stop(data) -> bool``
-    ends a rollout's valid steps, as in :func:`jax_contact.train.rates.compare_rates`).
+def recorder(env, *, feedback=None, stop=None, skip_s: float = 0.0, sensor="anymal_like"):
+    """``record(actions, key) -> Recording``: ``env`` wrapped at the physics rate once and its
+    rollout jitted once, for every seed of a scene.
+
+    ``record`` rolls out ``actions`` (T, E, nu) and records every physics step's readings
+    and truth (rollout ``e`` resets with ``split(key, E)[e]``; ``feedback(data) -> (nu,)``
+    is added to each action, ``stop(data) -> bool`` ends a rollout's valid steps, as in
+    :func:`jax_contact.train.rates.compare_rates`). Calls with actions of one shape reuse
+    one compilation.
 
     Raises:
-      ValueError: ``actions`` is not (T, E, nu), or the env has no ground truth.
+      ValueError: the env has no ground truth; (from ``record``) ``actions`` is not
+        (T, E, nu).
     """
     import jax
-    import jax.numpy as jnp
     import numpy as np
 
     from jax_contact.envs.contact_config import ContactObsConfig
@@ -134,15 +144,14 @@ def record(
     from jax_contact.envs.contact_wrappers import wrap_contact
     from jax_contact.train.rates import in_time_order, policy_step
 
-    acts = jnp.asarray(actions)
-    if acts.ndim != 3:
-        raise ValueError(f"actions must have shape (T, E, nu), got {acts.shape}")
     cfg = ContactObsConfig(rate="substep", record_substeps=True, sensor=sensor)
     wrapped = wrap_contact(env, cfg)
     core = wrapped.contact_core
     if core.truth is None:
         raise ValueError("env's model has no ground-truth contact for every foot: nothing to fit")
     sub_key = cfg.info_key + "_substeps"
+    mj_model = model_of(env)[1]
+    dt = float(core.params.dt)
 
     def step(s, a):
         s, ended = policy_step(wrapped, s, a, feedback, stop)
@@ -154,15 +163,33 @@ def record(
         s0 = jax.vmap(wrapped.reset)(keys)
         return s0.info[cfg.info_key].prev, jax.lax.scan(jax.vmap(step), s0, a_seq)[1]
 
-    first, (readings, truth, p_live, done) = rollout(jax.random.split(key, acts.shape[1]), acts)
-    first, readings = jax.tree.map(np.asarray, (first, readings))
-    truth, p_live, done = np.asarray(truth), np.asarray(p_live), np.asarray(done)
-    n_sub = truth.shape[2]
-    readings = jax.tree.map(in_time_order, readings)
-    truth, p_live = in_time_order(truth), in_time_order(p_live)
-    dt = float(core.params.dt)
-    valid, readings = valid_and_held(readings, done, n_sub, dt, skip_s)
-    return Recording(core, model_of(env)[1], first, readings, truth, valid, dt, p_live)
+    def record_one(actions, key) -> Recording:
+        acts = np.asarray(actions)
+        if acts.ndim != 3:
+            raise ValueError(f"actions must have shape (T, E, nu), got {acts.shape}")
+        first, (readings, truth, p_live, done) = rollout(jax.random.split(key, acts.shape[1]), acts)
+        first, readings = jax.tree.map(np.asarray, (first, readings))
+        truth, p_live, done = np.asarray(truth), np.asarray(p_live), np.asarray(done)
+        n_sub = truth.shape[2]
+        readings = jax.tree.map(in_time_order, readings)
+        truth, p_live = in_time_order(truth), in_time_order(p_live)
+        valid, readings = valid_and_held(readings, done, n_sub, dt, skip_s)
+        return Recording(core, mj_model, first, readings, truth, valid, dt, p_live)
+
+    return record_one
+
+
+def record(
+    env, actions, *, key, feedback=None, stop=None, skip_s: float = 0.0, sensor="anymal_like"
+) -> Recording:
+    """One recording of ``actions`` (T, E, nu) on ``env``: :func:`recorder`'s, for a single
+    call.
+
+    Raises:
+      ValueError: ``actions`` is not (T, E, nu), or the env has no ground truth.
+    """
+    rec = recorder(env, feedback=feedback, stop=stop, skip_s=skip_s, sensor=sensor)
+    return rec(actions, key)
 
 
 def valid_and_held(readings, done, n_sub: int, dt: float, skip_s: float):
@@ -204,27 +231,37 @@ def _expand(index, x):
 def tuning_data(rec: Recording, chunk: int = 400):
     """A :class:`jax_contact.tune.TuningData` of a recording: each step's estimator inputs
     rebuilt from its readings by ``Core.measure`` (the wrapper's own code), in chunks of
-    ``chunk`` steps (one compilation)."""
+    ``chunk`` steps (one compilation per wrapped env: recordings of one :func:`recorder`
+    share it)."""
     import jax
-    import mujoco
     import numpy as np
-    from mujoco import mjx
 
     from jax_contact.train.tune_data import in_time_chunks
     from jax_contact.tune import TuningData
 
-    core = rec.core
-    template = mjx.put_data(rec.mj_model, mujoco.MjData(rec.mj_model))
+    measure = _jitted_measure(rec.core, rec.mj_model)
     prev = jax.tree.map(lambda f, r: np.concatenate([f[None], r[:-1]]), rec.first, rec.readings)
+    meas = in_time_chunks(lambda xs: measure(*xs), (prev, rec.readings), chunk)
+    mask = np.broadcast_to(rec.valid[..., None], rec.truth.shape)
+    return TuningData(meas=meas, truth=rec.truth, mask=np.array(mask))
+
+
+@functools.lru_cache(maxsize=8)
+def _jitted_measure(core, mj_model):
+    """``jit(vmap(vmap(core.measure)))`` over (time, env) of (prev, reading), one per wrapped
+    env (``Core`` and ``MjModel`` hash by identity)."""
+    import jax
+    import mujoco
+    from mujoco import mjx
+
+    template = mjx.put_data(mj_model, mujoco.MjData(mj_model))
 
     @jax.jit
     def measure(p, r):
         one = lambda p1, r1: core.measure(template, p1, r1)  # noqa: E731
         return jax.vmap(jax.vmap(one))(p, r)
 
-    meas = in_time_chunks(lambda xs: measure(*xs), (prev, rec.readings), chunk)
-    mask = np.broadcast_to(rec.valid[..., None], rec.truth.shape)
-    return TuningData(meas=meas, truth=rec.truth, mask=np.array(mask))
+    return measure
 
 
 def record_scene(scene: str, seed: int, n_steps: int = STEPS, n_envs: int = ROLLOUTS):
@@ -232,16 +269,9 @@ def record_scene(scene: str, seed: int, n_steps: int = STEPS, n_envs: int = ROLL
     benchmarks' rollouts)."""
     import jax
 
-    sc = scene_rollouts(scene, n_steps, n_envs, seed)
-    rec = record(
-        sc.env,
-        sc.actions,
-        key=jax.random.PRNGKey(seed),
-        feedback=sc.feedback,
-        stop=sc.stop,
-        skip_s=sc.skip_s,
-    )
-    return rec, sc
+    sc = load_scene(scene, n_steps, n_envs)
+    rec = recorder(sc.env, feedback=sc.feedback, stop=sc.stop, skip_s=sc.skip_s)
+    return rec(sc.actions_of(seed), jax.random.PRNGKey(seed)), sc
 
 
 # ----------------------------------------------------------------------------- command
@@ -343,10 +373,14 @@ def run(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     train, vals, infos, vinfos = [], [], [], []
     first = None
+    import jax
+
     for scene in args.scenes:
+        sc = load_scene(scene, args.steps, args.rollouts)
+        record_seed = recorder(sc.env, feedback=sc.feedback, stop=sc.stop, skip_s=sc.skip_s)
         for seed in [*args.seeds, *args.validate_seed]:
             t = time.perf_counter()
-            rec, sc = record_scene(scene, seed, args.steps, args.rollouts)
+            rec = record_seed(sc.actions_of(seed), jax.random.PRNGKey(seed))
             if first is None:
                 first = rec
             _same_estimator(first, rec, scene)
