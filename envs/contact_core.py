@@ -28,7 +28,7 @@ from jax_contact.envs import contact_params, contact_truth, feet, sensors
 from jax_contact.envs.contact_config import TERM_NAMES, ContactObsConfig, validate_config
 from jax_contact.envs.robots import Robot
 from jax_contact.io import load_params_for
-from jax_contact.robot import RobotDescription
+from jax_contact.robot import RobotDescription, model_mass
 
 
 @struct.dataclass
@@ -301,7 +301,12 @@ def make_core(env, cfg: ContactObsConfig) -> Core:
                 )
 
         params = load_params_for(
-            params, nv=desc.nv, dt=dt, period=f"the estimator's ({rate} rate)", derive=derive
+            params,
+            nv=desc.nv,
+            dt=dt,
+            period=f"the estimator's ({rate} rate)",
+            derive=derive,
+            mass_kg=model_mass(mj_model),
         )
         file_calibration = load_calibration(cfg.params)
     elif not isinstance(params, jc.EstimatorParams):

@@ -411,6 +411,11 @@ def load_params(path: str | os.PathLike, *, with_provenance: bool = False):
     return params
 
 
+# A file tuned on a robot heavier or lighter than this factor warns (load_params_for): a
+# payload or another build of the same robot stays inside it (Go1 12.7 kg, Spot 50.3 kg).
+MASS_RATIO_WARN = 1.5
+
+
 def load_params_for(
     path: str | os.PathLike,
     *,
@@ -418,9 +423,16 @@ def load_params_for(
     dt: float,
     period: str = "the log's",
     derive=None,
+    mass_kg: float | None = None,
 ):
     """:func:`load_params` of a file or preset, checked against the robot and the period
     it will run at.
+
+    With ``mass_kg`` (the robot's total mass, :func:`jax_contact.robot.model_mass`), a file
+    whose provenance records the mass of the robot it was tuned on
+    (``provenance["robot_mass_kg"]``, written by ``jax-contact tune`` and ``tune-env``)
+    warns when the two differ by more than a factor :data:`MASS_RATIO_WARN`: the file is
+    likely another robot's (a file carries over to another robot only in part).
 
     A file made at another period runs at ``dt``, with a ``UserWarning``. With ``derive``
     (``dt -> params_for(robot, sensors, dt)`` of the caller's robot and sensors) its values
@@ -436,6 +448,7 @@ def load_params_for(
       dt: the estimator's period, s.
       period: what ``dt`` is, in the warning (e.g. ``"the env's"``).
       derive: optional ``dt -> EstimatorParams``, the caller's derived parameters.
+      mass_kg: optional, the robot's total mass, kg.
 
     Raises:
       ValueError: as :func:`load_params`, or the file is for another ``nv``.
@@ -444,11 +457,23 @@ def load_params_for(
 
     import jax.numpy as jnp
 
-    params = load_params(path)
+    params, provenance = load_params(path, with_provenance=True)
     if params.nv != nv:
         raise ValueError(
             f"parameter file {str(path)!r} is for nv = {params.nv}; the robot has nv = {nv}"
         )
+    file_mass = provenance.get("robot_mass_kg")
+    if mass_kg is not None and isinstance(file_mass, int | float) and file_mass > 0:
+        ratio = max(file_mass, mass_kg) / min(file_mass, mass_kg)
+        if ratio > MASS_RATIO_WARN:
+            warnings.warn(
+                f"parameter file {str(path)!r} was tuned on a robot of {file_mass:.3g} kg"
+                f" ({provenance.get('robot', 'unnamed')!r}); this one weighs {mass_kg:.3g} kg:"
+                " it is likely another robot's, whose noise, caps and gait constants carry"
+                " over only in part (tune on this robot: jax-contact tune on its logs,"
+                " jax-contact tune-env on a wrapped env)",
+                stacklevel=2,
+            )
     file_dt = float(params.dt)
     if abs(file_dt - dt) <= 1e-6 * dt:
         return params

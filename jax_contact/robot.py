@@ -83,6 +83,11 @@ class RobotDescription:
         return len(self.leg_dofs[0])
 
 
+def model_mass(m: mujoco.MjModel) -> float:
+    """The model's total mass, kg (every body's, the world's 0 included)."""
+    return float(np.sum(m.body_mass))
+
+
 def _can_collide(m: mujoco.MjModel, a: int, b: int) -> bool:
     return bool(
         (m.geom_contype[a] & m.geom_conaffinity[b]) or (m.geom_contype[b] & m.geom_conaffinity[a])

@@ -588,6 +588,32 @@ def test_a_params_file_is_checked_against_the_robot_and_rate(tmp_path):
         load_params_for(tmp_path / "p.json", go1, 0.0025)
 
 
+def test_another_robots_file_warns_by_its_mass():
+    import warnings
+
+    import jax_contact as jc
+    from jax_contact.io import MASS_RATIO_WARN, load_params_for
+    from jax_contact.robot import model_mass
+
+    go1, spot = load_robot("go1").mj_model, load_robot("spot").mj_model
+    # The masses by hand from the MJCF's <inertial> elements: Go1's trunk 5.204 kg + four
+    # legs of 0.68 + 1.009 + 0.196 kg (hip, thigh, calf with foot) = 12.74 kg.
+    assert model_mass(go1) == pytest.approx(5.204 + 4 * (0.68 + 1.009 + 0.196), abs=0.01)
+    for name, model in (("go1", go1), ("spot", spot)):  # the presets record their robot's
+        _, prov = jc.load_params(name, with_provenance=True)
+        assert prov["robot_mass_kg"] == pytest.approx(model_mass(model))
+    # Spot's file on Go1 (50.3 kg against 12.7 kg, both nv 18) warns, naming both.
+    with pytest.warns(UserWarning, match=r"tuned on a robot of 50.3 kg \('spot'\); this one"
+                      r" weighs 12.7 kg"):  # fmt: skip
+        load_params_for("spot", nv=18, dt=0.0025, mass_kg=model_mass(go1))
+    # Go1's own file, Go1's with a payload inside the factor, or no mass given: silent.
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        load_params_for("go1", nv=18, dt=0.0025, mass_kg=model_mass(go1))
+        load_params_for("go1", nv=18, dt=0.0025, mass_kg=model_mass(go1) * 0.98 * MASS_RATIO_WARN)
+        load_params_for("spot", nv=18, dt=0.0025)
+
+
 def test_differentiated_coordinates_get_the_differences_noise(go1_log):
     from jax_contact.train.logs import default_estimator
     from jax_contact.train.recording_convert import noise_for_differences

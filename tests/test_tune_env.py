@@ -77,6 +77,8 @@ def test_tune_env_writes_a_file_the_wrapper_loads(recorded, tmp_path, capsys):
     assert params.nv == rec.core.params.nv and float(params.dt) == pytest.approx(rec.dt)
     assert [i["seed"] for i in prov["logs"]] == [3] and prov["validation"][0]["seed"] == 4
     assert prov["logs"][0]["scene"] == "planar_leg" and prov["calibration"]["kind"] == "sign"
+    # The planar leg's mass, envs/assets/planar_leg.xml: base 5.449 + thigh 2.48 + shank 0.31.
+    assert prov["robot_mass_kg"] == pytest.approx(5.449 + 2.48 + 0.31)
     # Seed 3 here is the fixture's recording: the same rollouts, to the bit.
     assert prov["logs"][0]["valid_steps"] == int(rec.valid.sum())
     # The file goes back into the wrapper at the scene's physics rate, its map with it.

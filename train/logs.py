@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from jax_contact.io import read_log, write_json_atomic, write_log
+from jax_contact.robot import model_mass
 
 
 def simulate_to_file(
@@ -355,7 +356,8 @@ def evaluate_file(
 
     log = load_log(path, foot_names=foot_names)
     name, truth, desc, dt = log.name, log.truth, log.robot.description, log.dt
-    params, terrain_model, terrain = _estimator_for(desc, dt, params_path, terrain_model)
+    mass = model_mass(log.robot.mj_model)
+    params, terrain_model, terrain = _estimator_for(desc, dt, params_path, terrain_model, mass)
     if bootstrap and truth is not None and truth.shape[1] < 2:
         raise ValueError(
             f"{name} has {truth.shape[1]} env: the bootstrap resamples envs and needs at least 2"
@@ -438,7 +440,7 @@ def _vs_probabilistic(out, scores, truth, valid, dt: float, n_resamples: int) ->
     return vs
 
 
-def _estimator_for(desc, dt: float, params_path, terrain_model: str | None):
+def _estimator_for(desc, dt: float, params_path, terrain_model: str | None, mass_kg=None):
     """(params, terrain model, terrain) of ``evaluate`` and ``estimate``: the defaults
     (:func:`default_estimator`) or ``params_path`` checked against the robot and period, on
     the terrain model given, else the file's own (:func:`resolve_terrain_model`), which is
@@ -448,7 +450,7 @@ def _estimator_for(desc, dt: float, params_path, terrain_model: str | None):
         print(f"terrain model {model!r}: the one {str(params_path)!r} was tuned with")
     params, terrain = default_estimator(desc, dt, model)
     if params_path is not None:
-        params = load_params_for(params_path, desc, dt)
+        params = load_params_for(params_path, desc, dt, mass_kg)
     return params, model, terrain
 
 
@@ -461,12 +463,13 @@ def _file_calibration(params_path):
     return load_calibration(params_path)
 
 
-def load_params_for(path, desc, dt):
-    """A params file, checked against the robot and the log's period
-    (:func:`jax_contact.io.load_params_for`)."""
+def load_params_for(path, desc, dt, mass_kg=None):
+    """A params file, checked against the robot (its ``nv`` and, given, its mass) and the
+    log's period (:func:`jax_contact.io.load_params_for`)."""
     from jax_contact.io import load_params_for as load
 
-    return load(path, nv=desc.nv, dt=dt, derive=lambda d: default_estimator(desc, d)[0])
+    derive = lambda d: default_estimator(desc, d)[0]  # noqa: E731
+    return load(path, nv=desc.nv, dt=dt, derive=derive, mass_kg=mass_kg)
 
 
 def format_scores(scores: dict[str, dict], *, title: str = "log") -> str:

@@ -57,6 +57,7 @@ def estimate_recording(
     from jax_contact.calibration import calibrate_probability
     from jax_contact.envs.robots import load_robot
     from jax_contact.io import write_json_atomic, write_log
+    from jax_contact.robot import model_mass
     from jax_contact.train.evaluate import replay, score
     from jax_contact.train.logs import _estimator_for, _file_calibration, format_scores
 
@@ -64,7 +65,9 @@ def estimate_recording(
     robot = load_robot(model, foot_names=feet)
     conv = to_readings(rec, robot, names=names, units=units, resample=resample)
     desc = robot.description
-    params, terrain_model, terrain = _estimator_for(desc, conv.dt, params_path, terrain_model)
+    params, terrain_model, terrain = _estimator_for(
+        desc, conv.dt, params_path, terrain_model, model_mass(robot.mj_model)
+    )
     terms = tuple(t for t in params.terms if t in conv.terms)
     if not terms:
         raise ValueError(

@@ -34,6 +34,7 @@ import numpy as np
 
 import jax_contact as jc
 from jax_contact.baselines import make_gm_params, make_kinematic_params
+from jax_contact.robot import model_mass
 from jax_contact.train.diagnostics import (
     TERM_FIELDS,
     event_profiles,
@@ -317,7 +318,9 @@ def section3(cfg: ReproduceConfig, out_dir: Path) -> dict:
 TUNED_ROW = "tuned"
 
 
-def tuned_estimator(cfg: ReproduceConfig, desc, dt: float = 0.0025) -> dict | None:
+def tuned_estimator(
+    cfg: ReproduceConfig, desc, dt: float = 0.0025, mass_kg: float | None = None
+) -> dict | None:
     """The row ``tuned`` of Table III: ``cfg.tuned_params`` loaded and checked against the
     robot (``jax_contact.train.logs.load_params_for``), or None for no row.
 
@@ -340,7 +343,7 @@ def tuned_estimator(cfg: ReproduceConfig, desc, dt: float = 0.0025) -> dict | No
         source = cfg.robot if cfg.robot in jc.preset_names() else None
     if source is None:
         return None
-    params = load_params_for(source, desc, dt)
+    params = load_params_for(source, desc, dt, mass_kg)
     _, prov = jc.load_params(source, with_provenance=True)
     cal = calibration_of(prov)
     if cal is not None and not cal.keeps_decisions:
@@ -642,7 +645,9 @@ def run(cfg: ReproduceConfig, out_dir: str | Path) -> dict:
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
-    tuned_row = tuned_estimator(cfg, _robot(cfg).description)  # a bad file fails here
+    robot = _robot(cfg)
+    # A bad file fails here; another robot's warns (its mass).
+    tuned_row = tuned_estimator(cfg, robot.description, mass_kg=model_mass(robot.mj_model))
     s3 = section3(cfg, out_dir)
     t3 = table3(cfg, out_dir, tuned_row)
     payload = table3_json(t3)

@@ -337,6 +337,8 @@ class Inputs:
       robot: the robot's (or scene's) name, for the provenance.
       terrain_model: the provenance's ``terrain_model``.
       load_s: seconds spent getting the data.
+      mass_kg: the robot model's total mass (``provenance["robot_mass_kg"]``: loading the
+        file for a robot of another mass warns, :func:`jax_contact.io.load_params_for`).
     """
 
     train: list
@@ -350,6 +352,7 @@ class Inputs:
     robot: str
     terrain_model: str
     load_s: float
+    mass_kg: float | None = None
 
 
 def run(args: argparse.Namespace) -> int:
@@ -360,6 +363,7 @@ def run(args: argparse.Namespace) -> int:
 def load_logs(args: argparse.Namespace) -> Inputs:
     """The :class:`Inputs` of ``jax-contact tune``'s logs (one robot for all)."""
     from jax_contact.envs.robots import load_robot
+    from jax_contact.robot import model_mass
 
     t0 = time.perf_counter()
     train, infos = [], []
@@ -390,9 +394,10 @@ def load_logs(args: argparse.Namespace) -> Inputs:
         vinfos.append(_log_info(path, vattrs, val))
     t_load = time.perf_counter() - t0
     print(f"measurements precomputed in {t_load:.1f} s", file=sys.stderr)
+    robot = load_robot(robot_name)
     return Inputs(
         train, vals, infos, vinfos, base, terrain, floor,
-        load_robot(robot_name).description, robot_name, terrain_model, t_load,
+        robot.description, robot_name, terrain_model, t_load, model_mass(robot.mj_model),
     )  # fmt: skip
 
 
@@ -490,6 +495,7 @@ def fit_and_write(args: argparse.Namespace, inputs: Inputs) -> int:
         "library_version": lib,
         "jax_version": jax.__version__,
         "robot": robot_name,
+        "robot_mass_kg": inputs.mass_kg,
         "terrain_model": terrain_model,
         "logs": infos,
         "validation": vinfos,

@@ -406,6 +406,8 @@ def run(args: argparse.Namespace) -> int:
             }
             (train if seed in args.seeds else vals).append(data)
             (infos if seed in args.seeds else vinfos).append(info)
+    from jax_contact.robot import model_mass
+
     core = first.core
     floor = None
     if getattr(args, "noise_floor", "sensor") == "sensor":
@@ -424,6 +426,7 @@ def run(args: argparse.Namespace) -> int:
         robot="wrapped env " + " + ".join(args.scenes),
         terrain_model="flat",  # the wrapper's default terrain: the floor plane
         load_s=time.perf_counter() - t0,
+        mass_kg=model_mass(first.mj_model),
     )
     return tune_cmd.fit_and_write(args, inputs)
 
