@@ -94,6 +94,69 @@ def test_tune_env_writes_a_file_the_wrapper_loads(recorded, tmp_path, capsys):
     json.loads(out.read_text())  # one complete JSON file (written atomically)
 
 
+def _constant_policy(env, c):
+    """A closed-loop policy's signature, ``(obs, key) -> (action, extras)``: ``c`` on every
+    actuator, read through the observation so that the wrapped obs must reach it."""
+    import jax.numpy as jnp
+
+    def policy(obs, key):
+        o = obs["state"] if isinstance(obs, dict) else obs
+        return jnp.full((env.action_size,), c) + 0.0 * jnp.sum(o), {}
+
+    return policy
+
+
+def test_a_policy_in_the_loop_drives_the_recording(recorded):
+    # The scene's actions minus c, plus a policy that adds c, are the scene's actions up to
+    # float32 rounding of (a - c) + c; the resets and the sensor noise draw the same keys
+    # as without a policy (its keys come from fold_in(key, 1)). So the recording is the
+    # fixture's: the same truth and beliefs within the rounding's effect (measured: P
+    # 1.1e-4, qpos 2.9e-6; without the policy's action the knee would be 0.25 rad off, and
+    # with other sensor keys qvel would differ by its 0.3 rad/s noise).
+    rec, scene, _ = recorded
+    c = 0.25
+    record = tune_env.recorder(
+        scene.env, skip_s=scene.skip_s, policy=_constant_policy(scene.env, c)
+    )
+    got = record(scene.actions_of(3) - c, jax.random.PRNGKey(3))
+    np.testing.assert_array_equal(got.truth, rec.truth)
+    np.testing.assert_array_equal(got.valid, rec.valid)
+    np.testing.assert_allclose(got.p_contact, rec.p_contact, atol=1e-3)
+    np.testing.assert_allclose(got.readings.qpos, rec.readings.qpos, atol=1e-4)
+    np.testing.assert_allclose(got.readings.qvel, rec.readings.qvel, atol=1e-2)
+
+
+def test_tune_on_env_from_python(recorded, tmp_path, capsys):
+    rec, scene, _ = recorded
+    out = tmp_path / "own.json"
+    with pytest.raises(ValueError, match="needs actions_of, policy or both"):
+        tune_env.tune_on_env(scene.env, seeds=[3], validate_seeds=[4], out=out)
+    with pytest.raises(ValueError, match="argument --validate-seed: seed\\(s\\) \\[3\\]"):
+        tune_env.tune_on_env(
+            scene.env, seeds=[3], validate_seeds=[3], out=out, actions_of=scene.actions_of
+        )
+    assert not out.exists()
+    code = tune_env.tune_on_env(
+        scene.env,
+        seeds=[3],
+        validate_seeds=[4],
+        out=out,
+        actions_of=scene.actions_of,
+        name="my leg",
+        n_steps=STEPS,
+        n_envs=ROLLOUTS,
+        skip_s=scene.skip_s,
+        options=["--epochs", "1", "--chunk", str(STEPS * 8)],
+    )
+    assert code == 0 and "recorded my leg seed 3" in capsys.readouterr().err
+    params, prov = jc.load_params(out, with_provenance=True)
+    assert prov["robot"] == "wrapped env my leg" and prov["terrain_model"] == "flat"
+    assert prov["logs"][0]["policy"] == "my leg: open-loop actions"
+    # The same actions, resets and sensor keys as the fixture's seed 3 (the command's).
+    assert prov["logs"][0]["valid_steps"] == int(rec.valid.sum())
+    assert params.nv == rec.core.params.nv
+
+
 def test_tune_env_refuses_bad_arguments_before_jax():
     code = (
         "import sys, argparse\n"

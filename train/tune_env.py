@@ -122,7 +122,16 @@ class Recording:
     p_contact: object = None
 
 
-def recorder(env, *, feedback=None, stop=None, skip_s: float = 0.0, sensor="anymal_like"):
+def recorder(
+    env,
+    *,
+    feedback=None,
+    stop=None,
+    skip_s: float = 0.0,
+    sensor="anymal_like",
+    config=None,
+    policy=None,
+):
     """``record(actions, key) -> Recording``: ``env`` wrapped at the physics rate once and its
     rollout jitted once, for every seed of a scene.
 
@@ -131,6 +140,16 @@ def recorder(env, *, feedback=None, stop=None, skip_s: float = 0.0, sensor="anym
     is added to each action, ``stop(data) -> bool`` ends a rollout's valid steps, as in
     :func:`jax_contact.train.rates.compare_rates`). Calls with actions of one shape reuse
     one compilation.
+
+    Args:
+      config: the wrapper's :class:`~jax_contact.envs.contact_config.ContactObsConfig`
+        (feet, sensors, parameters, observation placement), as in training; its rate is
+        set to ``"substep"`` and ``record_substeps`` on. None: the defaults with
+        ``sensor``.
+      policy: a closed-loop policy ``(obs, key) -> (action, extras)`` (a Brax inference
+        function, e.g. :func:`jax_contact.train.policy_eval.load_policy`'s) of the wrapped
+        env's observation; its action is added to ``actions``. Its keys are drawn from
+        ``fold_in(key, 1)``, apart from the resets' and the sensors'.
 
     Raises:
       ValueError: the env has no ground truth; (from ``record``) ``actions`` is not
@@ -144,7 +163,8 @@ def recorder(env, *, feedback=None, stop=None, skip_s: float = 0.0, sensor="anym
     from jax_contact.envs.contact_wrappers import wrap_contact
     from jax_contact.train.rates import in_time_order, policy_step
 
-    cfg = ContactObsConfig(rate="substep", record_substeps=True, sensor=sensor)
+    base = ContactObsConfig(sensor=sensor) if config is None else config
+    cfg = dataclasses.replace(base, rate="substep", record_substeps=True)
     wrapped = wrap_contact(env, cfg)
     core = wrapped.contact_core
     if core.truth is None:
@@ -153,21 +173,29 @@ def recorder(env, *, feedback=None, stop=None, skip_s: float = 0.0, sensor="anym
     mj_model = model_of(env)[1]
     dt = float(core.params.dt)
 
-    def step(s, a):
+    def step(carry, a):
+        s, k = carry
+        if policy is not None:
+            k, k_act = jax.random.split(k)
+            a = a + policy(s.obs, k_act)[0]
         s, ended = policy_step(wrapped, s, a, feedback, stop)
         sub = s.info[sub_key]
-        return s, (sub["reading"], sub["truth"], sub["p_contact"], ended)
+        return (s, k), (sub["reading"], sub["truth"], sub["p_contact"], ended)
 
     @jax.jit
-    def rollout(keys, a_seq):
+    def rollout(keys, policy_keys, a_seq):
         s0 = jax.vmap(wrapped.reset)(keys)
-        return s0.info[cfg.info_key].prev, jax.lax.scan(jax.vmap(step), s0, a_seq)[1]
+        out = jax.lax.scan(jax.vmap(step), (s0, policy_keys), a_seq)[1]
+        return s0.info[cfg.info_key].prev, out
 
     def record_one(actions, key) -> Recording:
         acts = np.asarray(actions)
         if acts.ndim != 3:
             raise ValueError(f"actions must have shape (T, E, nu), got {acts.shape}")
-        first, (readings, truth, p_live, done) = rollout(jax.random.split(key, acts.shape[1]), acts)
+        n = acts.shape[1]
+        keys = jax.random.split(key, n)
+        policy_keys = jax.random.split(jax.random.fold_in(key, 1), n)
+        first, (readings, truth, p_live, done) = rollout(keys, policy_keys, acts)
         first, readings = jax.tree.map(np.asarray, (first, readings))
         truth, p_live, done = np.asarray(truth), np.asarray(p_live), np.asarray(done)
         n_sub = truth.shape[2]
@@ -368,46 +396,153 @@ def _same_estimator(first, other, scene: str) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Records every scene at every seed, tunes, writes ``args.out``; returns 0."""
-    for scene in args.scenes:
-        check_scene(scene)
-    t0 = time.perf_counter()
-    train, vals, infos, vinfos = [], [], [], []
-    first = None
     import jax
 
     for scene in args.scenes:
-        sc = load_scene(scene, args.steps, args.rollouts)
-        record_seed = recorder(sc.env, feedback=sc.feedback, stop=sc.stop, skip_s=sc.skip_s)
+        check_scene(scene)
+
+    def recordings():
+        for scene in args.scenes:
+            sc = load_scene(scene, args.steps, args.rollouts)
+            record_seed = recorder(sc.env, feedback=sc.feedback, stop=sc.stop, skip_s=sc.skip_s)
+            for seed in [*args.seeds, *args.validate_seed]:
+                yield (
+                    scene,
+                    sc.description,
+                    seed,
+                    record_seed(sc.actions_of(seed), jax.random.PRNGKey(seed)),
+                )
+
+    return _fit(args, recordings(), "wrapped env " + " + ".join(args.scenes))
+
+
+def tune_on_env(
+    env,
+    *,
+    seeds,
+    validate_seeds,
+    out,
+    actions_of=None,
+    policy=None,
+    config=None,
+    name: str = "custom env",
+    n_steps: int = STEPS,
+    n_envs: int = ROLLOUTS,
+    skip_s: float = PLAYGROUND_SKIP_S,
+    feedback=None,
+    stop=None,
+    options=(),
+) -> int:
+    """``tune-env`` on any env the wrapper takes (a Brax ``PipelineEnv`` with the MJX
+    backend or a Playground ``MjxEnv``, with ground truth for every foot), from Python.
+
+    Each seed ``S`` is one recording of ``n_envs`` rollouts of ``n_steps`` env steps (keys
+    ``PRNGKey(S)``, as the command's): ``actions_of(S) -> (n_steps, n_envs, nu)`` open-loop
+    actions (None: zeros), plus ``policy(obs, key)``'s action if given (a trained policy's
+    inference function, on the observation of the env wrapped with ``config``, the
+    config it was trained with), plus ``feedback(data)``; ``stop(data)`` ends a rollout's
+    valid steps. Steps before ``skip_s`` seconds are left out. The fit, its file and its
+    provenance are the command's (``name`` stands for the scene).
+
+    Args:
+      options: more ``jax-contact tune-env`` options, as command-line strings (e.g.
+        ``["--calibrate", "--epochs", "20"]``).
+
+    Returns:
+      0 once ``out`` is written.
+
+    Raises:
+      ValueError: a bad option or seed (named as the command names it), or neither
+        ``actions_of`` nor ``policy`` given.
+    """
+    import jax
+    import numpy as np
+
+    if actions_of is None and policy is None:
+        raise ValueError("tune_on_env needs actions_of, policy or both: nothing drives the env")
+    if config is not None and config.terrain is not None:
+        _terrain_model(config.terrain)  # refused before anything is simulated
+    parser = argparse.ArgumentParser(prog="tune_on_env")
+    add_parser(parser.add_subparsers(dest="command", required=True))
+    argv = ["tune-env", name, "--seeds", *map(str, seeds), "--validate-seed"]
+    argv += [*map(str, validate_seeds), "--out", str(out), "--steps", str(n_steps)]
+    argv += ["--rollouts", str(n_envs), *options]
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit:  # argparse has printed the reason
+        raise ValueError(f"tune_on_env: bad options {list(options)}") from None
+    args.check(args)
+    record_seed = recorder(
+        env, feedback=feedback, stop=stop, skip_s=skip_s, config=config, policy=policy
+    )
+    zeros = np.zeros((n_steps, n_envs, env.action_size), np.float32)
+    desc = "closed-loop policy" if actions_of is None else "open-loop actions"
+    if actions_of is not None and policy is not None:
+        desc = "open-loop actions + closed-loop policy"
+
+    def recordings():
         for seed in [*args.seeds, *args.validate_seed]:
-            t = time.perf_counter()
-            rec = record_seed(sc.actions_of(seed), jax.random.PRNGKey(seed))
-            if first is None:
-                first = rec
-            _same_estimator(first, rec, scene)
-            data = tuning_data(rec, args.chunk)
-            n_valid = int(rec.valid.sum())
-            print(
-                f"recorded {scene} seed {seed}: {rec.truth.shape} (physics steps, rollouts,"
-                f" feet), {n_valid} valid steps, contact {rec.truth[rec.valid].mean():.3f}"
-                f" ({time.perf_counter() - t:.0f} s)",
-                file=sys.stderr,
-                flush=True,
-            )
-            info = {
-                "path": f"{scene} seed {seed}",
-                "scene": scene,
-                "policy": sc.description,
-                "seed": seed,
-                "n_envs": int(rec.truth.shape[1]),
-                "dt": rec.dt,
-                "noise": rec.core.cfg.sensor,
-                "steps": int(data.n_steps),
-                "valid_steps": n_valid,
-            }
-            (train if seed in args.seeds else vals).append(data)
-            (infos if seed in args.seeds else vinfos).append(info)
+            acts = zeros if actions_of is None else actions_of(seed)
+            yield name, f"{name}: {desc}", seed, record_seed(acts, jax.random.PRNGKey(seed))
+
+    return _fit(args, recordings(), f"wrapped env {name}")
+
+
+def _terrain_model(terrain) -> str:
+    """The provenance's ``terrain_model`` of the wrapper's terrain (the defaults': the floor
+    plane, ``"flat"``).
+
+    Raises:
+      ValueError: a terrain no parameter file can name (a height field).
+    """
+    from jax_contact.terrain import FlatTerrain, FootholdMemory
+
+    if isinstance(terrain, FootholdMemory):
+        return "memory"
+    if isinstance(terrain, FlatTerrain):
+        return "flat"
+    raise ValueError(
+        f"config.terrain: a {type(terrain).__name__} cannot be recorded in a parameter file;"
+        " tune with a flat terrain or a foothold memory"
+    )
+
+
+def _fit(args: argparse.Namespace, recordings, robot: str) -> int:
+    """Rebuilds the inputs of every ``(scene, description, seed, Recording)`` of
+    ``recordings``, fits them with ``args``' options and writes ``args.out``; returns 0."""
     from jax_contact.robot import model_mass
 
+    t0 = time.perf_counter()
+    train, vals, infos, vinfos = [], [], [], []
+    first = None
+    t = time.perf_counter()
+    for scene, description, seed, rec in recordings:
+        if first is None:
+            first = rec
+        _same_estimator(first, rec, scene)
+        data = tuning_data(rec, args.chunk)
+        n_valid = int(rec.valid.sum())
+        print(
+            f"recorded {scene} seed {seed}: {rec.truth.shape} (physics steps, rollouts,"
+            f" feet), {n_valid} valid steps, contact {rec.truth[rec.valid].mean():.3f}"
+            f" ({time.perf_counter() - t:.0f} s)",
+            file=sys.stderr,
+            flush=True,
+        )
+        info = {
+            "path": f"{scene} seed {seed}",
+            "scene": scene,
+            "policy": description,
+            "seed": seed,
+            "n_envs": int(rec.truth.shape[1]),
+            "dt": rec.dt,
+            "noise": rec.core.cfg.sensor,
+            "steps": int(data.n_steps),
+            "valid_steps": n_valid,
+        }
+        (train if seed in args.seeds else vals).append(data)
+        (infos if seed in args.seeds else vinfos).append(info)
+        t = time.perf_counter()
     core = first.core
     floor = None
     if getattr(args, "noise_floor", "sensor") == "sensor":
@@ -423,8 +558,8 @@ def run(args: argparse.Namespace) -> int:
         terrain=core.terrain,
         floor=floor,
         desc=core.desc,
-        robot="wrapped env " + " + ".join(args.scenes),
-        terrain_model="flat",  # the wrapper's default terrain: the floor plane
+        robot=robot,
+        terrain_model=_terrain_model(core.terrain),
         load_s=time.perf_counter() - t0,
         mass_kg=model_mass(first.mj_model),
     )
