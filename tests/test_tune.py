@@ -640,14 +640,20 @@ def test_reliability_bins_agree_with_metrics_ece_and_the_png_is_written(np_rng, 
     assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
-@pytest.mark.parametrize("name", ["go1", "spot", "barkour"])
+@pytest.mark.parametrize("name", ["go1", "spot", "barkour", "spot_walk"])
 def test_shipped_presets_load_by_name_with_their_provenance(name):
     import jax_contact as jc
+    from jax_contact.train.tune_presets import preset_plan
 
     assert name in jc.preset_names()
     params, prov = jc.load_params(name, with_provenance=True)
     assert float(params.dt) == pytest.approx(0.0025)
-    assert prov["robot"] == name
+    robot, tune_keys, val_keys = preset_plan(name)
+    assert prov["robot"] == robot
+    # Tuned and validated on the logs regenerate_preset names (spot_walk: the walk's only).
+    for infos, keys in ((prov["logs"], tune_keys), (prov["validation"], val_keys)):
+        names = [i["path"].rsplit("/", 1)[-1] for i in infos]
+        assert names == [f"{robot}_{scenario}_s{seed}.h5" for scenario, seed in keys]
     # Tuned and validated on seeds that are never evaluated (the evaluation seed is 0).
     seeds = prov["seeds"]["tuning_logs"] + prov["seeds"]["validation_logs"]
     assert seeds and all(s >= 1000 for s in seeds)
@@ -670,13 +676,13 @@ def test_shipped_presets_load_by_name_with_their_provenance(name):
     # passes, and a tuned contact damping stays a foot settling in 5-100 ms (2 / b).
     from jax_contact.train.tune_presets import PRESET_EVENT_WEIGHTS, PRESET_TUNE_ALSO
 
-    assert prov["config"]["event_weight"] == pytest.approx(PRESET_EVENT_WEIGHTS[name])
+    assert prov["config"]["event_weight"] == pytest.approx(PRESET_EVENT_WEIGHTS[robot])
     also = [f for f in prov["fields"] if f in jt.OPTIONAL_FIELDS]
-    assert also == list(PRESET_TUNE_ALSO.get(name, ()))
+    assert also == list(PRESET_TUNE_ALSO.get(robot, ()))
     # ... and so are the extra arguments (Spot's selection on the spread, rule 12).
     from jax_contact.train.tune_presets import PRESET_EXTRA
 
-    extra = PRESET_EXTRA.get(name, ())
+    extra = PRESET_EXTRA.get(robot, ())
     args = prov["arguments"]
     for flag, value in zip(extra[::2], extra[1::2], strict=True):
         assert str(args[flag.lstrip("-").replace("-", "_")]) == value, flag

@@ -48,6 +48,21 @@ PRESET_TUNE_ALSO = {"spot": ("contact_damping",), "barkour": ("contact_damping",
 # plausibility box).
 _RULE_12 = ("--select", "spread", "--patience", "12", "--constrain", "0.1")
 PRESET_EXTRA = {"spot": _RULE_12, "barkour": (*_RULE_12, "--noise-ratio", "8.0")}
+# Presets tuned on one gait's logs only, with their robot's settings (docs/tuning.md, "A
+# walking preset for Spot"): preset name -> (robot, scenarios of PRESET_TUNE kept).
+PRESET_GAITS = {"spot_walk": ("spot", ("walk",))}
+
+
+def preset_plan(name: str) -> tuple[str, tuple, tuple]:
+    """(robot, tuning logs, validation logs) of preset ``name``: the (scenario, seed) pairs
+    of :data:`PRESET_TUNE` and :data:`PRESET_VALIDATE`, those of its gait for a
+    :data:`PRESET_GAITS` preset."""
+    robot, scenarios = PRESET_GAITS.get(name, (name, None))
+
+    def keep(keys):
+        return tuple(k for k in keys if scenarios is None or k[0] in scenarios)
+
+    return robot, keep(PRESET_TUNE), keep(PRESET_VALIDATE)
 
 
 def preset_path(robot: str) -> Path:
@@ -109,7 +124,7 @@ def simulate_log(
 
 
 def regenerate_preset(
-    robot: str,
+    name: str,
     out: str | Path | None = None,
     *,
     workdir: str | Path = "/tmp/jax-contact-presets",
@@ -127,17 +142,19 @@ def regenerate_preset(
     arguments;
     ``air_penalty`` adds the per-step hinge of the previous
     session; ``extra`` more arguments of ``jax-contact tune``) and ``--calibrate``, and
-    writes ``jax_contact/presets/<robot>.json`` (or ``out``).
+    writes ``jax_contact/presets/<name>.json`` (or ``out``). ``name`` is a robot, or a
+    :data:`PRESET_GAITS` preset (its robot's settings, its gait's logs only).
 
     ``python -c "from jax_contact.train.tune_cmd import regenerate_preset as r; r('go1')"``
     """
-    logs = _preset_logs(robot, Path(workdir), n_envs, duration)
+    robot, tune_keys, val_keys = preset_plan(name)
+    logs = _preset_logs(robot, Path(workdir), n_envs, duration, tune_keys + val_keys)
     if out is None:
-        out = preset_path(robot)
-    argv = [logs[k] for k in PRESET_TUNE] + ["--validate"] + [logs[k] for k in PRESET_VALIDATE]
+        out = preset_path(name)
+    argv = [logs[k] for k in tune_keys] + ["--validate"] + [logs[k] for k in val_keys]
     note = (
         f'regenerate: python -c "from jax_contact.train.tune_cmd import regenerate_preset as r;'
-        f" r('{robot}')\" (logs: {n_envs} envs x {duration:g} s of jax_contact.train.reproduce's"
+        f" r('{name}')\" (logs: {n_envs} envs x {duration:g} s of jax_contact.train.reproduce's"
         f" scenarios, anymal_like sensors)"
     )
     if event_weight is None:
@@ -151,10 +168,13 @@ def regenerate_preset(
     return main([*argv, "--out", str(out), "--calibrate", "sign", *more, "--note", note])
 
 
-def _preset_logs(robot: str, workdir: Path, n_envs: int, duration: float) -> dict:
-    """(scenario, seed) -> path of the tuning and validation logs, simulated unless there."""
+def _preset_logs(
+    robot: str, workdir: Path, n_envs: int, duration: float, keys=PRESET_TUNE + PRESET_VALIDATE
+) -> dict:
+    """(scenario, seed) -> path of the tuning and validation logs ``keys``, simulated
+    unless there."""
     logs = {}
-    for scenario, seed in PRESET_TUNE + PRESET_VALIDATE:
+    for scenario, seed in keys:
         path = workdir / f"{robot}_{scenario}_s{seed}.h5"
         if not path.is_file():
             simulate_log(path, robot, scenario, seed, n_envs=n_envs, duration=duration)
@@ -163,7 +183,7 @@ def _preset_logs(robot: str, workdir: Path, n_envs: int, duration: float) -> dic
 
 
 def recalibrate_preset(
-    robot: str,
+    name: str,
     out: str | Path | None = None,
     *,
     kind: str = "sign",
@@ -173,7 +193,8 @@ def recalibrate_preset(
 ) -> dict:
     """Refits a shipped preset's calibration map (``kind``,
     :func:`jax_contact.tune.fit_calibration`) on its tuning logs and rewrites the file's
-    ``provenance["calibration"]``; nothing else in the file changes (the tuned values are
+    ``provenance["calibration"]`` (``name``: as :func:`regenerate_preset`'s); nothing
+    else in the file changes (the tuned values are
     copied as text). The map it replaces is kept under ``"replaced"``.
 
     ``python -c "from jax_contact.train.tune_presets import recalibrate_preset as r; r('go1')"``
@@ -187,22 +208,23 @@ def recalibrate_preset(
     from jax_contact.train.tune_cmd import calibration_entry, code_version
     from jax_contact.train.tune_data import load_tuning_log
 
-    path = preset_path(robot)
+    robot, tune_keys, val_keys = preset_plan(name)
+    path = preset_path(name)
     payload = json.loads(path.read_text())
     params, prov = params_from_dict(payload, source=str(path)), payload["provenance"]
-    logs = _preset_logs(robot, Path(workdir), n_envs, duration)
+    logs = _preset_logs(robot, Path(workdir), n_envs, duration, tune_keys + val_keys)
     model = prov.get("terrain_model") or "flat"
     train, vals, terrain = [], [], None
-    for key in PRESET_TUNE:
+    for key in tune_keys:
         data, _, _, _, terrain = load_tuning_log(logs[key], model)
         train.append(data)
-    vals = [load_tuning_log(logs[key], model)[0] for key in PRESET_VALIDATE]
+    vals = [load_tuning_log(logs[key], model)[0] for key in val_keys]
     entry = calibration_entry(
-        params, terrain, train, vals, [logs[k] for k in PRESET_TUNE],
+        params, terrain, train, vals, [logs[k] for k in tune_keys],
         kind=kind, seed=int(prov["seeds"]["tune"]),
     )  # fmt: skip
     entry["refitted_by"] = {
-        "command": f"jax_contact.train.tune_presets.recalibrate_preset({robot!r}, kind={kind!r})",
+        "command": f"jax_contact.train.tune_presets.recalibrate_preset({name!r}, kind={kind!r})",
         "code": code_version(),
     }
     if prov.get("calibration") is not None:
