@@ -710,7 +710,7 @@ def test_shipped_presets_load_by_name_with_their_provenance(name):
     from jax_contact.envs.robots import load_robot
     from jax_contact.train.tune_data import sensor_floor
 
-    floor = sensor_floor(load_robot(name), 0.0025, "anymal_like")
+    floor = sensor_floor(load_robot(robot), 0.0025, "anymal_like")
     assert prov["noise_floor"] is not None
     for field, values in floor.items():
         got = np.asarray(getattr(params.noise, field))
