@@ -640,7 +640,9 @@ def test_reliability_bins_agree_with_metrics_ece_and_the_png_is_written(np_rng, 
     assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
-@pytest.mark.parametrize("name", ["go1", "spot", "barkour", "spot_walk"])
+@pytest.mark.parametrize(
+    "name", ["go1", "spot", "barkour", "spot_walk", "barkour_trot", "barkour_walk"]
+)
 def test_shipped_presets_load_by_name_with_their_provenance(name):
     import jax_contact as jc
     from jax_contact.train.tune_presets import preset_plan

@@ -50,7 +50,11 @@ _RULE_12 = ("--select", "spread", "--patience", "12", "--constrain", "0.1")
 PRESET_EXTRA = {"spot": _RULE_12, "barkour": (*_RULE_12, "--noise-ratio", "8.0")}
 # Presets tuned on one gait's logs only, with their robot's settings (docs/tuning.md, "A
 # walking preset for Spot"): preset name -> (robot, scenarios of PRESET_TUNE kept).
-PRESET_GAITS = {"spot_walk": ("spot", ("walk",))}
+PRESET_GAITS = {
+    "spot_walk": ("spot", ("walk",)),
+    "barkour_trot": ("barkour", ("trot",)),
+    "barkour_walk": ("barkour", ("walk",)),
+}
 
 
 def preset_plan(name: str) -> tuple[str, tuple, tuple]:
