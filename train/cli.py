@@ -454,7 +454,7 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         metavar="FILE|PRESET",
         help="estimator parameters: a jc.save_params file or a shipped preset (go1, spot,"
-        " barkour, go1_playground, spot_walk); the robot's defaults then run too, as the row"
+        " barkour, go1_playground, spot_walk, ...); the robot's defaults then run too, as the row"
         " 'defaults'",
     )
     p.add_argument(

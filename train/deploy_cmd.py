@@ -62,7 +62,7 @@ def add_parsers(subparsers) -> None:
         default=None,
         metavar="P.json|PRESET",
         help="parameter file (jax_contact.save_params) or a shipped preset (go1, spot, barkour,"
-        " go1_playground, spot_walk); the exported p_contact is read through the file's"
+        " go1_playground, spot_walk, ...); the exported p_contact is read through the file's"
         " calibration map, if it has one",
     )
     p.add_argument("--rate", type=positive_float, default=400.0, help="reading rate, Hz")

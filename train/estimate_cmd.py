@@ -62,8 +62,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         default=None,
         metavar="FILE|PRESET",
         help="estimator parameters (jax_contact.save_params / jax-contact tune, or a shipped"
-        " preset: go1, spot, barkour, go1_playground, spot_walk; p_contact is read through the"
-        " file's calibration map, if it has one); default: the robot's defaults (those of"
+        " preset: go1, spot, barkour, go1_playground, spot_walk, ...; p_contact is read through"
+        " the file's calibration map, if it has one); default: the robot's defaults (those of"
         " jax-contact evaluate)",
     )
     add_terrain_model_flag(p)
