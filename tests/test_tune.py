@@ -641,7 +641,7 @@ def test_reliability_bins_agree_with_metrics_ece_and_the_png_is_written(np_rng, 
 
 
 @pytest.mark.parametrize(
-    "name", ["go1", "spot", "barkour", "spot_walk", "barkour_trot", "barkour_walk"]
+    "name", ["go1", "spot", "barkour", "spot_walk", "barkour_trot", "barkour_walk", "go1_walk"]
 )
 def test_shipped_presets_load_by_name_with_their_provenance(name):
     import jax_contact as jc

@@ -54,6 +54,7 @@ PRESET_GAITS = {
     "spot_walk": ("spot", ("walk",)),
     "barkour_trot": ("barkour", ("trot",)),
     "barkour_walk": ("barkour", ("walk",)),
+    "go1_walk": ("go1", ("walk",)),
 }
 
 
