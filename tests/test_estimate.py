@@ -339,7 +339,8 @@ def test_arguments_are_checked_without_jax(tmp_path):
         (
             ["estimate", str(CSV), "--model", "go1", "--params", "go2"],
             r"--params: 'go2' is neither a file nor a shipped preset"
-            r" \(barkour, barkour_trot, barkour_walk, go1, go1_playground, spot, spot_walk\)",
+            r" \(barkour, barkour_trot, barkour_walk, go1, go1_playground, go1_walk, spot,"
+            r" spot_walk\)",
         ),
     ]
     for argv, match in bad:
