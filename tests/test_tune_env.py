@@ -135,6 +135,15 @@ def test_tune_on_env_from_python(recorded, tmp_path, capsys):
         tune_env.tune_on_env(
             scene.env, seeds=[3], validate_seeds=[3], out=out, actions_of=scene.actions_of
         )
+    # A height field cannot be named in a parameter file: refused before any recording.
+    from jax_contact.envs.contact_config import ContactObsConfig
+
+    field = jc.height_field(np.zeros((2, 2)), origin=(0.0, 0.0), spacing=(1.0, 1.0))
+    with pytest.raises(ValueError, match="config.terrain: a HeightFieldTerrain cannot be"):
+        tune_env.tune_on_env(
+            scene.env, seeds=[3], validate_seeds=[4], out=out,
+            actions_of=scene.actions_of, config=ContactObsConfig(terrain=field),
+        )  # fmt: skip
     assert not out.exists()
     code = tune_env.tune_on_env(
         scene.env,
