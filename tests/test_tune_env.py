@@ -126,6 +126,23 @@ def test_a_policy_in_the_loop_drives_the_recording(recorded):
     np.testing.assert_allclose(got.readings.qvel, rec.readings.qvel, atol=1e-2)
 
 
+def test_a_policy_for_another_observation_is_named(recorded):
+    import jax.numpy as jnp
+
+    env = recorded[1].env
+
+    def wrong_obs(obs, key):  # a network trained on one more observation entry
+        return obs @ jnp.ones((obs.shape[-1] + 1, env.action_size)), {}
+
+    def wrong_action(obs, key):
+        return jnp.zeros(env.action_size + 1) + 0.0 * jnp.sum(obs), {}
+
+    with pytest.raises(ValueError, match="does not take the wrapped env's observation"):
+        tune_env.recorder(env, policy=wrong_obs)
+    with pytest.raises(ValueError, match=f"shape \\({env.action_size + 1},\\); the env takes"):
+        tune_env.recorder(env, policy=wrong_action)
+
+
 def test_tune_on_env_from_python(recorded, tmp_path, capsys):
     rec, scene, _ = recorded
     out = tmp_path / "own.json"

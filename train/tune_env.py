@@ -152,8 +152,9 @@ def recorder(
         ``fold_in(key, 1)``, apart from the resets' and the sensors'.
 
     Raises:
-      ValueError: the env has no ground truth; (from ``record``) ``actions`` is not
-        (T, E, nu).
+      ValueError: the env has no ground truth, or ``policy`` does not take the wrapped
+        env's observation (or returns another action size); (from ``record``)
+        ``actions`` is not (T, E, nu).
     """
     import jax
     import numpy as np
@@ -172,6 +173,8 @@ def recorder(
     sub_key = cfg.info_key + "_substeps"
     mj_model = model_of(env)[1]
     dt = float(core.params.dt)
+    if policy is not None:
+        _check_policy(policy, wrapped)
 
     def step(carry, a):
         s, k = carry
@@ -205,6 +208,28 @@ def recorder(
         return Recording(core, mj_model, first, readings, truth, valid, dt, p_live)
 
     return record_one
+
+
+def _check_policy(policy, wrapped) -> None:
+    """ValueError naming the wrapped env's observation shapes unless ``policy(obs, key)``
+    takes it and returns an action of ``wrapped.action_size`` (shapes only, nothing runs)."""
+    import jax
+
+    key = jax.random.PRNGKey(0)
+    obs = jax.eval_shape(wrapped.reset, key).obs
+    shapes = jax.tree.map(lambda x: tuple(x.shape), obs)
+    try:
+        action = jax.eval_shape(policy, obs, key)[0]
+    except Exception as err:  # noqa: BLE001  any failure to trace is the same mistake
+        raise ValueError(
+            f"policy: it does not take the wrapped env's observation {shapes} ({err});"
+            " pass the ContactObsConfig the policy was trained with as config"
+        ) from None
+    if tuple(action.shape) != (wrapped.action_size,):
+        raise ValueError(
+            f"policy: it returns an action of shape {tuple(action.shape)}; the env takes"
+            f" ({wrapped.action_size},)"
+        )
 
 
 def record(
