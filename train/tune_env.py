@@ -341,7 +341,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         " seed, rebuilds the estimator's inputs from the wrapper's own sensor readings and"
         " tunes the estimator on them as `jax-contact tune` does (the same options). The"
         " file goes into ContactObsConfig(params=FILE), `jax-contact rates --params` and"
-        " `wrapper_accuracy --params`.",
+        " `wrapper_accuracy --params`. Your own env or a trained policy: tune_on_env in"
+        " jax_contact.train.tune_env (docs/tuning.md).",
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
     p.add_argument(
