@@ -128,7 +128,6 @@ def recorder(
     feedback=None,
     stop=None,
     skip_s: float = 0.0,
-    sensor="anymal_like",
     config=None,
     policy=None,
 ):
@@ -144,8 +143,8 @@ def recorder(
     Args:
       config: the wrapper's :class:`~jax_contact.envs.contact_config.ContactObsConfig`
         (feet, sensors, parameters, observation placement), as in training; its rate is
-        set to ``"substep"`` and ``record_substeps`` on. None: the defaults with
-        ``sensor``.
+        set to ``"substep"`` and ``record_substeps`` on. None: the defaults
+        (``anymal_like`` sensors).
       policy: a closed-loop policy ``(obs, key) -> (action, extras)`` (a Brax inference
         function, e.g. :func:`jax_contact.train.policy_eval.load_policy`'s) of the wrapped
         env's observation; its action is added to ``actions``. Its keys are drawn from
@@ -164,7 +163,7 @@ def recorder(
     from jax_contact.envs.contact_wrappers import wrap_contact
     from jax_contact.train.rates import in_time_order, policy_step
 
-    base = ContactObsConfig(sensor=sensor) if config is None else config
+    base = ContactObsConfig() if config is None else config
     cfg = dataclasses.replace(base, rate="substep", record_substeps=True)
     wrapped = wrap_contact(env, cfg)
     core = wrapped.contact_core
@@ -230,19 +229,6 @@ def _check_policy(policy, wrapped) -> None:
             f"policy: it returns an action of shape {tuple(action.shape)}; the env takes"
             f" ({wrapped.action_size},)"
         )
-
-
-def record(
-    env, actions, *, key, feedback=None, stop=None, skip_s: float = 0.0, sensor="anymal_like"
-) -> Recording:
-    """One recording of ``actions`` (T, E, nu) on ``env``: :func:`recorder`'s, for a single
-    call.
-
-    Raises:
-      ValueError: ``actions`` is not (T, E, nu), or the env has no ground truth.
-    """
-    rec = recorder(env, feedback=feedback, stop=stop, skip_s=skip_s, sensor=sensor)
-    return rec(actions, key)
 
 
 def valid_and_held(readings, done, n_sub: int, dt: float, skip_s: float):
