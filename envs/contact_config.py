@@ -72,9 +72,10 @@ class ContactObsConfig:
         truth goes under ``info_key + "_truth"``, metrics under ``info_key + "/..."``.
       truth: ground-truth source, one of :data:`TRUTH_SOURCES`
       (:mod:`jax_contact.envs.contact_truth`). truth_threshold: normal force above which a foot is
-      in contact, N. truth_gap: a foot whose sole is within this distance of the floor
-      also counts as in contact, m (default 1 mm: the micro-bounces of a foot at rest in
-      Playground's soft contact, :mod:`jax_contact.envs.contact_truth`; 0: the raw source).
+      in contact, N. truth_gap: a foot whose sole is less than this distance above the
+      floor, or inside it, also counts as in contact, m (default 1 mm: the micro-bounces
+      of a foot at rest in Playground's soft contact, and a foot still inside the soft
+      floor after an impact, :mod:`jax_contact.envs.contact_truth`; 0: the raw source).
       record_substeps: substep rate only: keep every substep's ``p_contact`` and truth
         (and, with ``truth_gap > 0``, ``truth_raw``: the source without the tolerance),
         (n_substeps, n_legs), and its sensor readings (``reading``, a

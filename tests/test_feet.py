@@ -176,16 +176,22 @@ def test_contact_truth_carries_the_weight():
     np.testing.assert_allclose(f_up[-1], [weight], rtol=0.02)  # landed and settled
 
 
-def test_truth_gap_counts_a_sole_just_above_the_floor():
-    """Base at 0.51 m puts the sole's bottom at 0 (as above); qpos[0] is the rail's height
-    offset, so +0.5 mm lifts the sole 0.5 mm: the sole-floor distance reads 0.5 mm, the
-    raw truth says air, a 1 mm ``truth_gap`` says contact, and 2 mm up is air for both."""
+def _gap_readers():
+    """The box-footed leg with its sole's bottom at 0 (base at 0.51 m), and its readers:
+    sole-floor distance, the raw force truth, the truth with a 1 mm ``truth_gap``."""
     m = _model(z=0.51)
     desc, resolved = feet.describe(m)
     gap = contact_truth.contact_gap(m, resolved, desc.floor_geom_ids)
     raw, _ = contact_truth.truth_reader(m, desc, resolved, "auto", 1.0)
     tol, _ = contact_truth.truth_reader(m, desc, resolved, "auto", 1.0, gap=0.001)
-    mx = mjx.put_model(m)
+    return m, mjx.put_model(m), (gap, raw, tol)
+
+
+def test_truth_gap_counts_a_sole_just_above_the_floor():
+    """Base at 0.51 m puts the sole's bottom at 0 (as above); qpos[0] is the rail's height
+    offset, so +0.5 mm lifts the sole 0.5 mm: the sole-floor distance reads 0.5 mm, the
+    raw truth says air, a 1 mm ``truth_gap`` says contact, and 2 mm up is air for both."""
+    m, mx, (gap, raw, tol) = _gap_readers()
 
     @jax.jit
     def read(lift):
@@ -199,6 +205,35 @@ def test_truth_gap_counts_a_sole_just_above_the_floor():
     dist, r, t = (np.asarray(x) for x in read(0.002))
     np.testing.assert_allclose(dist, [0.002], atol=1e-5)
     assert not r.any() and not t.any()
+
+
+def test_truth_gap_counts_a_sole_inside_the_floor_rising_out_of_it():
+    """The sole 3 mm inside the floor: at rest the floor pushes it out (the raw force truth
+    says contact); rising at 0.5 m/s the soft constraint is already separating, its force
+    is zero (the C library's ``mj_contactForce`` on the same state, the reference), so the
+    raw truth says air. Inside the floor is touching it: with a
+    ``truth_gap`` the truth says contact in both, as Playground's ``found`` sensors do."""
+    m, mx, (gap, raw, tol) = _gap_readers()
+
+    @jax.jit
+    def read(v):
+        d = mjx.make_data(m)
+        d = d.replace(qpos=d.qpos.at[0].set(-0.003), qvel=d.qvel.at[0].set(v))
+        d = mjx.forward(mx, d)
+        return gap(d), raw(d), tol(d)
+
+    dist, r, t = (np.asarray(x) for x in read(0.0))
+    np.testing.assert_allclose(dist, [-0.003], atol=1e-5)
+    assert r.all() and t.all()
+    d_c = mujoco.MjData(m)
+    d_c.qpos[0], d_c.qvel[0] = -0.003, 0.5
+    mujoco.mj_forward(m, d_c)
+    f6 = np.zeros(6)
+    mujoco.mj_contactForce(m, d_c, 0, f6)
+    assert d_c.ncon > 0 and f6[0] == 0.0  # the reference: separating, no force
+    dist, r, t = (np.asarray(x) for x in read(0.5))
+    np.testing.assert_allclose(dist, [-0.003], atol=1e-5)
+    assert not r.any() and t.all()
 
 
 def _sole_points(m, knee: float):

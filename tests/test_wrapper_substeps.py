@@ -39,11 +39,15 @@ def pg_leg(brax_leg):
 
 
 def _reference(core, mjx_model, est, data, actions):
-    """(logits, p_contact) after each env step from an explicit per-substep loop."""
+    """(logits, p_contact) after each env step from an explicit per-substep loop. Each env
+    step first checks for an auto-reset, as the wrapper does (``Core.restart``: nothing
+    moved here, but it splits the sensors' key, so the noise draws follow it)."""
     phys = jax.jit(lambda d, a: mjx.step(mjx_model, d.replace(ctrl=a)))
     update = jax.jit(core.update)
+    restart = jax.jit(lambda e, d: core.restart(e, d, core.moved(e, d)))
     logit, p = [], []
     for a in actions:
+        est = restart(est, data)
         for _ in range(N_SUB):
             data = phys(data, jnp.asarray(a))
             est = update(est, data)

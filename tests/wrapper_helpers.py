@@ -53,7 +53,12 @@ class PlaygroundLeg(mjx_env.MjxEnv):
         self._mjx = mjx.put_model(mj_model)
 
     def reset(self, rng):
-        data = mjx.forward(self._mjx, mjx_env.make_data(self._mj, impl="jax"))
+        # From the model's home keyframe (the planar leg's qpos0 puts the foot 0.52 m
+        # inside the floor, a start no physics has).
+        data = mjx_env.make_data(self._mj, impl="jax")
+        if self._mj.nkey:
+            data = data.replace(qpos=jnp.asarray(self._mj.key_qpos[0], data.qpos.dtype))
+        data = mjx.forward(self._mjx, data)
         zero = jnp.zeros(())
         obs = {"state": jnp.concatenate([data.qpos, data.qvel])}
         return mjx_env.State(data, obs, zero, zero, {}, {"rng": rng})
