@@ -152,7 +152,7 @@ class Core:
         ``data`` is any ``mjx.Data`` of the model: only its ``qpos`` and ``qvel`` are
         replaced and the stages the measurement reads recomputed (``adapter.prepare``), so
         the same inputs can be rebuilt offline from recorded readings
-        (:mod:`jax_contact.train.tune_env`).
+        (:mod:`jax_contact.train.env_rollouts`).
         """
         # The state the acceleration belongs to (ContactObsConfig.pairing). The torque is
         # always this reading's: ``data.qfrc_actuator`` after ``mjx.step`` is the force

@@ -22,15 +22,15 @@ import pytest
 
 import jax_contact as jc
 from jax_contact import tune as jt
-from jax_contact.train import tune_env
+from jax_contact.train import env_rollouts, tune_env
 
 STEPS, ROLLOUTS = 40, 2  # 40 env steps of 20 ms = 320 physics steps of 2.5 ms
 
 
 @pytest.fixture(scope="module")
 def recorded():
-    rec, scene = tune_env.record_scene("planar_leg", 3, STEPS, ROLLOUTS)
-    return rec, scene, tune_env.tuning_data(rec, chunk=STEPS * 8)
+    rec, scene = env_rollouts.record_scene("planar_leg", 3, STEPS, ROLLOUTS)
+    return rec, scene, env_rollouts.tuning_data(rec, chunk=STEPS * 8)
 
 
 def test_rebuilt_inputs_give_the_live_wrappers_beliefs(recorded):
@@ -56,7 +56,7 @@ def test_valid_and_held_by_hand():
     q[4, 1, 0] = np.nan
     readings = {"q": q}
     done = np.array([[0, 0], [1, 0], [0, 0]], np.float32)
-    valid, held = tune_env.valid_and_held(readings, done, n_sub=2, dt=0.1, skip_s=0.1)
+    valid, held = env_rollouts.valid_and_held(readings, done, n_sub=2, dt=0.1, skip_s=0.1)
     expected = np.array([[0, 0], [1, 1], [0, 1], [0, 1], [0, 0], [0, 0]], bool)
     np.testing.assert_array_equal(valid, expected)
     # Env 0 holds physics step 1's reading (2.0) from step 2 on; env 1 step 3's (7.0).
@@ -85,7 +85,7 @@ def test_tune_env_writes_a_file_the_wrapper_loads(recorded, tmp_path, capsys):
     from jax_contact.envs.contact_config import ContactObsConfig
     from jax_contact.envs.contact_wrappers import wrap_contact
 
-    env = tune_env.load_scene("planar_leg", 1, 1).env
+    env = env_rollouts.load_scene("planar_leg", 1, 1).env
     core = wrap_contact(env, ContactObsConfig(params=str(out))).contact_core
     assert core.params_source == str(out) and core.calibration is not None
     np.testing.assert_allclose(
@@ -115,7 +115,7 @@ def test_a_policy_in_the_loop_drives_the_recording(recorded):
     # with other sensor keys qvel would differ by its 0.3 rad/s noise).
     rec, scene, _ = recorded
     c = 0.25
-    record = tune_env.recorder(
+    record = env_rollouts.recorder(
         scene.env, skip_s=scene.skip_s, policy=_constant_policy(scene.env, c)
     )
     got = record(scene.actions_of(3) - c, jax.random.PRNGKey(3))
@@ -138,9 +138,9 @@ def test_a_policy_for_another_observation_is_named(recorded):
         return jnp.zeros(env.action_size + 1) + 0.0 * jnp.sum(obs), {}
 
     with pytest.raises(ValueError, match="does not take the wrapped env's observation"):
-        tune_env.recorder(env, policy=wrong_obs)
+        env_rollouts.recorder(env, policy=wrong_obs)
     with pytest.raises(ValueError, match=f"shape \\({env.action_size + 1},\\); the env takes"):
-        tune_env.recorder(env, policy=wrong_action)
+        env_rollouts.recorder(env, policy=wrong_action)
 
 
 def test_tune_on_env_from_python(recorded, tmp_path, capsys):
@@ -223,7 +223,7 @@ def test_an_unknown_scene_or_policy_is_named():
 def test_scenes_of_different_estimators_are_refused(recorded):
     rec = recorded[0]
     other_core = dataclasses.replace(rec.core, desc=dataclasses.replace(rec.core.desc, nv=9))
-    other = tune_env.Recording(other_core, None, None, None, None, None, rec.dt)
+    other = env_rollouts.Recording(other_core, None, None, None, None, None, rec.dt)
     with pytest.raises(ValueError, match="'b' runs another estimator \\(nv 9"):
         tune_env._same_estimator(rec, other, "b")
 
