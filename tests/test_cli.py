@@ -76,6 +76,7 @@ def test_importing_the_cli_does_not_import_jax():
         (["bench", "--versus-envs", "0"], ["argument --versus-envs"]),
         (["demo", "--out", "/proc/demo"], ["argument --out", "'/proc'"]),
         (["reproduce", "--robot", "cat"], ["argument --robot", "'cat'"]),
+        (["reproduce", "--params", "per_gait"], ["argument --params", "'per_gait'"]),
         (["rates", "--params", "dog"], ["argument --params", "'dog'", "go1"]),
     ],
 )

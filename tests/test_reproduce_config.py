@@ -68,3 +68,47 @@ def test_the_tuned_row_skips_an_affine_map(tmp_path, capsys):
     row = R.tuned_estimator(R.ReproduceConfig(tuned_params=str(path)), desc)
     assert row["calibration"] is None and row["info"]["calibration"] is None
     assert "moves the 0.5 threshold" in capsys.readouterr().err
+
+
+def test_per_gait_rows_are_each_scenarios_gait_preset():
+    """``tuned_params="per-gait"``: the trot reads the robot's trot file if one is shipped
+    and the walks (plain, added mass, rough) its walk file, else the robot's own file;
+    each file is loaded once, its map kept; one line per file names its scenarios."""
+    import jax_contact as jc
+
+    assert [R.per_gait_preset("spot", s) for s in R.SCENARIOS] == [
+        "spot",
+        "spot_walk",
+        "spot_walk",
+        "spot_walk",
+    ]
+    assert R.per_gait_preset("barkour", "trot") == "barkour_trot"
+    assert R.per_gait_preset("go1", "trot") == "go1" and R.per_gait_preset("go1", "rough") == (
+        "go1_walk"
+    )
+    assert R.per_gait_preset("planar_leg", "walk") is None
+    desc = load_robot("barkour").description
+    tuned = R.tuned_estimator(R.ReproduceConfig(robot="barkour", tuned_params="per-gait"), desc)
+    rows = {s: R.tuned_row_for(tuned, s) for s in R.SCENARIOS}
+    assert rows["walk"] is rows["rough"] is rows["walk_added_mass"]
+    for scenario, want in (("trot", "barkour_trot"), ("walk", "barkour_walk")):
+        assert rows[scenario]["info"]["source"] == want
+        assert tuned["info"]["by_scenario"][scenario]["source"] == want
+        np.testing.assert_array_equal(
+            np.asarray(rows[scenario]["params"].noise.sigma_qd),
+            np.asarray(jc.load_params(want).noise.sigma_qd),
+        )
+    assert not np.array_equal(
+        np.asarray(rows["trot"]["params"].noise.sigma_qd),
+        np.asarray(rows["walk"]["params"].noise.sigma_qd),
+    )
+    lines = R.format_tuned_source(tuned["info"]).splitlines()
+    assert lines[0] == "tuned (per gait):"
+    assert lines[1].startswith("  trot: barkour_trot (tuned on seeds")
+    assert lines[2].startswith("  walk, walk_added_mass, rough: barkour_walk (tuned on seeds")
+    # One file for all: the row itself, whatever the scenario.
+    one = R.tuned_estimator(R.ReproduceConfig(robot="barkour"), desc)
+    assert R.tuned_row_for(one, "rough") is one and R.tuned_row_for(None, "trot") is None
+    planar = load_robot("planar_leg").description
+    cfg = R.ReproduceConfig(robot="planar_leg", tuned_params="per-gait")
+    assert R.tuned_estimator(cfg, planar) is None

@@ -137,7 +137,7 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
     from jax_contact.train import reproduce
 
     feet = tuple(args.feet) if args.feet else None
-    tuned = None if args.params == "none" else args.params  # "auto", a file or a preset
+    tuned = None if args.params == "none" else args.params  # auto, per-gait, a file, a preset
     cfg = _reproduce_config(
         args.size, robot=args.robot, seed=args.seed, foot_names=feet, bootstrap=args.bootstrap
     )
@@ -267,8 +267,12 @@ def _check_demo(args: argparse.Namespace) -> None:
 def _check_reproduce(args: argparse.Namespace) -> None:
     check_robot("--robot", args.robot)
     check_output_folder("--out", args.out)
-    if args.params not in ("auto", "none"):
-        check_params_source("--params", args.params)
+    modes = ("auto", "per-gait", "none")
+    if args.params not in modes:
+        try:
+            check_params_source("--params", args.params)
+        except ValueError as err:
+            raise ValueError(f"{err}; or one of {', '.join(modes)}") from None
 
 
 def _check_simulate(args: argparse.Namespace) -> None:
@@ -404,7 +408,9 @@ def build_parser() -> argparse.ArgumentParser:
         default="auto",
         metavar="FILE|PRESET",
         help="parameters of the row 'tuned' beside the defaults: a jc.save_params file or a"
-        " shipped preset; auto (default): the robot's preset if it has one; none: no row",
+        " shipped preset; auto (default): the robot's preset if it has one; per-gait: each"
+        " scenario its gait's preset (e.g. spot_walk on the walks) if shipped, else the"
+        " robot's; none: no row",
     )
     estimate_cmd.add_feet_flag(p)
 

@@ -76,7 +76,8 @@ class ReproduceConfig:
         tuning on every scenario (:func:`vs_gm`; well under a second); 0 skips it.
       tuned_params: the parameters of the row ``tuned`` beside the defaults: a parameter
         file or preset name (``jc.load_params``), ``"auto"`` (the robot's shipped preset if
-        it has one, else no row) or None (no row). Its P is read through the file's
+        it has one, else no row), ``"per-gait"`` (each scenario its gait's preset,
+        :func:`per_gait_preset`) or None (no row). Its P is read through the file's
         calibration map when that map keeps every decision (:func:`tuned_estimator`).
     """
 
@@ -237,10 +238,15 @@ def added_mass_for(robot_name: str, robot=None) -> tuple[tuple[str, float], ...]
     )
 
 
+def gait_of(scenario: str) -> str:
+    """The gait kind of a Table III scenario: the trot trots, the others walk."""
+    return "trot" if scenario == "trot" else "walk"
+
+
 def _gait(name: str):
     from jax_contact.envs.gaits import make_gait
 
-    return make_gait("trot" if name == "trot" else "walk")
+    return make_gait(gait_of(name))
 
 
 # Forward speed commands, m/s: the ranges the gait survival benchmark validated
@@ -333,16 +339,61 @@ def tuned_estimator(
 
     Returns:
       ``{"params", "calibration" (a Calibration or None), "info"}`` (``info``: what
-      ``table3.json`` records under ``tuned_params``), or None.
-    """
-    from jax_contact.train.logs import load_params_for
-    from jax_contact.tune import calibration_of
+      ``table3.json`` records under ``tuned_params``), or None. With ``"per-gait"``,
+      ``{"by_scenario": {scenario: that dict}, "info": {"source": "per-gait",
+      "by_scenario": {scenario: its info}}}`` (:func:`tuned_row_for` picks a scenario's).
 
+    Raises:
+      ValueError: ``"per-gait"`` for a robot with presets for some scenarios only.
+    """
     source = cfg.tuned_params
+    if source == PER_GAIT:
+        by = {s: per_gait_preset(cfg.robot, s) for s in SCENARIOS}
+        if not any(by.values()):
+            return None
+        missing = [s for s, src in by.items() if src is None]
+        if missing:
+            raise ValueError(f"per-gait: no preset of {cfg.robot} for {missing}")
+        files = dict.fromkeys(by.values())  # each file once, in scenario order
+        loaded = {src: _tuned_row(src, cfg, desc, dt, mass_kg) for src in files}
+        rows = {s: loaded[src] for s, src in by.items()}
+        info = {"source": PER_GAIT, "by_scenario": {s: r["info"] for s, r in rows.items()}}
+        return {"by_scenario": rows, "info": info}
     if source == "auto":
         source = cfg.robot if cfg.robot in jc.preset_names() else None
     if source is None:
         return None
+    return _tuned_row(source, cfg, desc, dt, mass_kg)
+
+
+PER_GAIT = "per-gait"
+
+
+def per_gait_preset(robot: str, scenario: str) -> str | None:
+    """The preset of the row ``tuned`` for ``scenario`` under ``tuned_params="per-gait"``:
+    the robot's preset for the scenario's gait (``<robot>_<gait>``, e.g. ``spot_walk``
+    for the walks; :data:`jax_contact.train.tune_presets.PRESET_GAITS`) if one is shipped,
+    else the robot's own preset, else None. Each file was shipped by its own rule
+    (docs/tuning.md, "Per-gait presets"); a gait's file may be worse than the robot's on
+    that gait's other scenarios (``go1_walk`` on the added mass and rough ground)."""
+    for name in (f"{robot}_{gait_of(scenario)}", robot):
+        if name in jc.preset_names():
+            return name
+    return None
+
+
+def tuned_row_for(tuned_row: dict | None, scenario: str) -> dict | None:
+    """The row ``tuned`` of one scenario (one file for all, or its gait's)."""
+    if tuned_row is None or "by_scenario" not in tuned_row:
+        return tuned_row
+    return tuned_row["by_scenario"][scenario]
+
+
+def _tuned_row(source: str, cfg: ReproduceConfig, desc, dt: float, mass_kg) -> dict:
+    """One file's row (:func:`tuned_estimator`)."""
+    from jax_contact.train.logs import load_params_for
+    from jax_contact.tune import calibration_of
+
     params = load_params_for(source, desc, dt, mass_kg)
     _, prov = jc.load_params(source, with_provenance=True)
     cal = calibration_of(prov)
@@ -385,9 +436,11 @@ def table3(cfg: ReproduceConfig, out_dir: Path, tuned_row: dict | None = None) -
     estimators = ablation_variants(base)
     if cfg.monte_carlo:
         estimators["probabilistic_mc"] = base.replace(touchdown="monte_carlo")
-    if tuned_row is not None:
-        estimators[TUNED_ROW] = tuned_row["params"]
     gms = gm_grid()
+
+    def with_tuned(scenario: str) -> dict:
+        row = tuned_row_for(tuned_row, scenario)
+        return estimators if row is None else {**estimators, TUNED_ROW: row["params"]}
 
     tuned = {}
     for gait in ("walk", "trot"):
@@ -400,7 +453,7 @@ def table3(cfg: ReproduceConfig, out_dir: Path, tuned_row: dict | None = None) -
             cfg.tune_envs,
             cfg.tune_duration,
             cfg.seed + 1000,
-            estimators,
+            with_tuned(gait),
             gms,
             diagnostics_of="probabilistic",
         )
@@ -417,16 +470,17 @@ def table3(cfg: ReproduceConfig, out_dir: Path, tuned_row: dict | None = None) -
             cfg.n_envs,
             cfg.duration,
             cfg.seed,
-            estimators,
+            with_tuned(name),
             gms,
             diagnostics_of="probabilistic",
         )
         out["gm_walk"], out["gm_trot"] = out[tuned["walk"]], out[tuned["trot"]]
-        if tuned_row is not None and tuned_row["calibration"] is not None:
+        row = tuned_row_for(tuned_row, name)
+        if row is not None and row["calibration"] is not None:
             from jax_contact.tune import calibrate_probability
 
-            out[TUNED_ROW] = calibrate_probability(out[TUNED_ROW], tuned_row["calibration"])
-        names = [*estimators, "gm_walk", "gm_trot", "kinematic"]
+            out[TUNED_ROW] = calibrate_probability(out[TUNED_ROW], row["calibration"])
+        names = [*with_tuned(name), "gm_walk", "gm_trot", "kinematic"]
         sc = score(out, roll.contact, roll.valid, dt=world.dt, names=names)
         results[name] = {
             "scores": sc,
@@ -633,6 +687,32 @@ def format_table(payload: dict, rows=ROWS) -> str:
     return "\n".join(lines)
 
 
+def format_tuned_source(tp: dict) -> str:
+    """Where the row ``tuned`` comes from: one line per file (``table3.json``'s
+    ``tuned_params``), with the scenarios each serves under ``per-gait``."""
+    if "by_scenario" not in tp:
+        return f"{TUNED_ROW}: " + _describe_source(tp)
+    by_source: dict[str, list[str]] = {}
+    for scenario, info in tp["by_scenario"].items():
+        by_source.setdefault(info["source"], []).append(scenario)
+    lines = [f"{TUNED_ROW} (per gait):"]
+    for scenarios in by_source.values():
+        info = tp["by_scenario"][scenarios[0]]
+        lines.append(f"  {', '.join(scenarios)}: " + _describe_source(info))
+    return "\n".join(lines)
+
+
+def _describe_source(tp: dict) -> str:
+    cal = tp["calibration"]
+    return (
+        f"{tp['source']} (tuned on seeds {_seeds(tp, 'tuning_logs')},"
+        f" validated on {_seeds(tp, 'validation_logs')}"
+        + ("" if tp["held_out"] else "; NOT held out")
+        + ")"
+        + (f", P read through its {cal['kind']} calibration map" if cal else "")
+    )
+
+
 def _seeds(tuned_params: dict, key: str) -> str:
     seeds = tuned_params["seeds"].get(key)
     return "unknown" if not seeds else ", ".join(str(s) for s in sorted(set(seeds)))
@@ -677,15 +757,7 @@ def run(cfg: ReproduceConfig, out_dir: str | Path) -> dict:
     )
     print(format_table(payload, PRINTED_ROWS))
     if payload.get("tuned_params"):
-        tp = payload["tuned_params"]
-        cal = tp["calibration"]
-        print(
-            f"{TUNED_ROW}: {tp['source']} (tuned on seeds {_seeds(tp, 'tuning_logs')},"
-            f" validated on {_seeds(tp, 'validation_logs')}"
-            + ("" if tp["held_out"] else "; NOT held out")
-            + ")"
-            + (f", P read through its {cal['kind']} calibration map" if cal else "")
-        )
+        print(format_tuned_source(payload["tuned_params"]))
     if payload.get("vs_gm") or payload.get("tuned_vs"):
         print(format_vs_gm(payload))
     print("\nAblation (same inputs):")
