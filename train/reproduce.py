@@ -322,6 +322,8 @@ def section3(cfg: ReproduceConfig, out_dir: Path) -> dict:
 
 
 TUNED_ROW = "tuned"
+# ReproduceConfig.tuned_params: each scenario its gait's preset (per_gait_preset).
+PER_GAIT = "per-gait"
 
 
 def tuned_estimator(
@@ -364,9 +366,6 @@ def tuned_estimator(
     if source is None:
         return None
     return _tuned_row(source, cfg, desc, dt, mass_kg)
-
-
-PER_GAIT = "per-gait"
 
 
 def per_gait_preset(robot: str, scenario: str) -> str | None:
