@@ -370,15 +370,19 @@ def tuned_estimator(
 
 def per_gait_preset(robot: str, scenario: str) -> str | None:
     """The preset of the row ``tuned`` for ``scenario`` under ``tuned_params="per-gait"``:
-    the robot's preset for the scenario's gait (``<robot>_<gait>``, e.g. ``spot_walk``
-    for the walks; :data:`jax_contact.train.tune_presets.PRESET_GAITS`) if one is shipped,
-    else the robot's own preset, else None. Each file was shipped by its own rule
-    (docs/tuning.md, "Per-gait presets"); a gait's file may be worse than the robot's on
-    that gait's other scenarios (``go1_walk`` on the added mass and rough ground)."""
-    for name in (f"{robot}_{gait_of(scenario)}", robot):
-        if name in jc.preset_names():
+    the robot's preset tuned on the scenario's gait alone
+    (:data:`jax_contact.train.tune_presets.PRESET_GAITS`, e.g. ``spot_walk`` for the
+    walks) if there is one, else the robot's own preset, else None. Each file was shipped
+    by its own rule (docs/tuning.md, "Per-gait presets"); a gait's file may be worse than
+    the robot's on that gait's other scenarios (``go1_walk`` on the added mass and rough
+    ground)."""
+    from jax_contact.train.tune_presets import PRESET_GAITS
+
+    gait = gait_of(scenario)
+    for name, (of, tuned_on) in PRESET_GAITS.items():
+        if of == robot and {gait_of(s) for s in tuned_on} == {gait}:
             return name
-    return None
+    return robot if robot in jc.preset_names() else None
 
 
 def tuned_row_for(tuned_row: dict | None, scenario: str) -> dict | None:

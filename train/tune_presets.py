@@ -48,8 +48,8 @@ PRESET_TUNE_ALSO = {"spot": ("contact_damping",), "barkour": ("contact_damping",
 # plausibility box).
 _RULE_12 = ("--select", "spread", "--patience", "12", "--constrain", "0.1")
 PRESET_EXTRA = {"spot": _RULE_12, "barkour": (*_RULE_12, "--noise-ratio", "8.0")}
-# Presets tuned on one gait's logs only, with their robot's settings (docs/tuning.md, "A
-# walking preset for Spot"): preset name -> (robot, scenarios of PRESET_TUNE kept).
+# Presets tuned on one gait's logs only, with their robot's settings (docs/tuning.md,
+# "Per-gait presets"): preset name -> (robot, scenarios of PRESET_TUNE kept).
 PRESET_GAITS = {
     "spot_walk": ("spot", ("walk",)),
     "barkour_trot": ("barkour", ("trot",)),
