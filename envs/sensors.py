@@ -220,7 +220,11 @@ def sensor_preset(
       outliers with probability 1e-3 per sample and a 10 rad/s spike (the paper
       mentions velocity outliers on ANYmal without numbers; a choice).
     - base of the planar leg (``floating_base=False``, its rail): Table II as printed,
-      position 0.04 m, velocity 0.2 m/s, ``qacc`` differentiated.
+      position 0.04 m, velocity 0.2 m/s, acceleration 2 m/s^2 (an accelerometer on the
+      base, as the floating base's IMU below). Not a difference of the rail velocity:
+      that would carry ``sqrt(2) 0.2 / 0.0025`` = 113 m/s^2 of noise, with which the
+      dynamics term reads a still, loaded foot as air (docs/model_choices.md, "A base
+      acceleration read by differencing").
     - floating base, linear: a quadruped's base state comes from a filter fusing an IMU
       with leg kinematics (Bloesch et al. 2013), not from a raw sensor, so its white
       jitter is far below Table II's rail figures while it drifts: position 0.01 m and
@@ -278,9 +282,9 @@ def sensor_preset(
     if name == "harsh":
         noise_scale, bias_scale, p_out, latency = 2.0, 3.0, 1e-2, 3
     # The floating base is a fused state estimate with an IMU (see the docstring); the
-    # planar leg's rail keeps Table II's figures.
+    # planar leg's rail keeps Table II's figures, its 2 m/s^2 acceleration included.
     base_q, base_qd, gyro = (0.01, 0.05, 0.01) if floating_base else (0.04, 0.2, 0.05)
-    accel = 0.5 if floating_base else 0.0
+    accel = 0.5 if floating_base else 2.0
     return make_sensor_params(
         nv,
         dt=dt,

@@ -224,6 +224,8 @@ def test_presets_and_vmap_matches_loop():
     np.testing.assert_allclose(anymal.sigma_q[6:], 0.02)
     leg = sensor_preset("anymal_like", 3, dt=DT, floating_base=False, base_dofs=(0,))
     np.testing.assert_allclose(leg.sigma_qd, [0.2, 0.3, 0.3])  # Table II, planar leg
+    # Table II's qdd entry for the rail (2 m/s^2, measured); the joints' qdd is differenced.
+    np.testing.assert_allclose(leg.sigma_acc, [2.0, 0.0, 0.0])
 
     qpos, qvel, tau = _home()
     keys = jax.random.split(jax.random.PRNGKey(5), 3)
