@@ -111,13 +111,13 @@ def _slow_low_swing():
 
 def test_slow_low_swing_foot_no_longer_held_in_contact(jit_step):
     """After 40 steps of stance the foot lifts 1.5 cm and moves at 0.2 m/s in free flight
-    with light torques. Measured per-step evidence (log-likelihood ratios): dynamics -1.04
-    (the light torques barely tell a free leg from a pinned one), kinematics -0.12, and
-    differential kinematics +2.20 under the paper's symmetric 0.9 cap but +1.10 under the
-    robust model's 0.75 still-side cap. So the paper's model gains contact evidence every
-    step and holds the foot on the ground; the robust model's evidence is slightly for air
-    and only the gait prior moves the belief (P(C) 0.55 after 40 steps). The issue's "air
-    within a few steps" is NOT met: see docs/model_choices.md, "Robust likelihoods"."""
+    with light torques. Measured per-step evidence (log-likelihood ratios), robust model:
+    dynamics -1.24 (the light torques barely tell a free leg from a pinned one; the rail's
+    acceleration read by an accelerometer, 2 m/s^2), kinematics -0.12, differential
+    kinematics +0.62 (its still-side cap, 0.65 at 400 Hz): -0.73 per step, so the belief
+    falls below 0.5 on the 8th swing step (20 ms) and reaches the transitions' floor. The
+    paper's symmetric 0.9 cap gives the still foot +2.20 per step (-1.08 dynamics): +1.0
+    per step for contact, and it holds the foot on the ground."""
     swing = _slow_low_swing()
     np.testing.assert_allclose(np.linalg.norm(oracle.planar_leg(*swing[:2])["v_f"]), 0.2)
     meas = _as_meas(oracle.planar_measurement(*swing))
@@ -132,7 +132,9 @@ def test_slow_low_swing_foot_no_longer_held_in_contact(jit_step):
     p = _run(jit_step, ROBUST, seq)
     paper = _run(jit_step, PAPER, seq)
     assert p[39] > 0.99 and paper[39] > 0.99
-    assert np.all(np.diff(p[40:]) < 0) and p[-1] < 0.6
+    # Falls monotonically (float32 ties once at the floor), below 0.5 within 10 steps.
+    assert np.all(np.diff(p[40:]) <= 0) and p[-1] < 0.01
+    assert 40 < np.argmax(p < 0.5) <= 50
     assert paper[-1] > 0.99
 
 
