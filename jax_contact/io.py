@@ -424,6 +424,7 @@ def load_params_for(
     period: str = "the log's",
     derive=None,
     mass_kg: float | None = None,
+    with_provenance: bool = False,
 ):
     """:func:`load_params` of a file or preset, checked against the robot and the period
     it will run at.
@@ -449,6 +450,10 @@ def load_params_for(
       period: what ``dt`` is, in the warning (e.g. ``"the env's"``).
       derive: optional ``dt -> EstimatorParams``, the caller's derived parameters.
       mass_kg: optional, the robot's total mass, kg.
+      with_provenance: also return the file's ``provenance`` dict (one read of the file).
+
+    Returns:
+      The parameters at ``dt``, or ``(params, provenance)``.
 
     Raises:
       ValueError: as :func:`load_params`, or the file is for another ``nv``.
@@ -475,23 +480,22 @@ def load_params_for(
                 stacklevel=2,
             )
     file_dt = float(params.dt)
-    if abs(file_dt - dt) <= 1e-6 * dt:
-        return params
-    if derive is None:
-        how = "noise the file derived from its dt is kept"
-        params = params.replace(dt=jnp.float32(dt))
-    else:
-        from jax_contact.defaults import change_period
+    if abs(file_dt - dt) > 1e-6 * dt:
+        if derive is None:
+            how = "noise the file derived from its dt is kept"
+            params = params.replace(dt=jnp.float32(dt))
+        else:
+            from jax_contact.defaults import change_period
 
-        how = "its values moved as params_for moves them, jax_contact.defaults.change_period"
-        params = change_period(params, derive(file_dt), derive(dt))
-    warnings.warn(
-        f"parameter file {str(path)!r} has dt = {file_dt:.6g} s; {period} is {dt:.6g} s:"
-        f" using {period} ({how}; a file tuned at one rate is best tuned again at another:"
-        " jax-contact tune on logs, jax-contact tune-env on a wrapped env)",
-        stacklevel=2,
-    )
-    return params
+            how = "its values moved as params_for moves them, jax_contact.defaults.change_period"
+            params = change_period(params, derive(file_dt), derive(dt))
+        warnings.warn(
+            f"parameter file {str(path)!r} has dt = {file_dt:.6g} s; {period} is {dt:.6g} s:"
+            f" using {period} ({how}; a file tuned at one rate is best tuned again at another:"
+            " jax-contact tune on logs, jax-contact tune-env on a wrapped env)",
+            stacklevel=2,
+        )
+    return (params, provenance) if with_provenance else params
 
 
 def _params_text(path) -> tuple[str, str]:

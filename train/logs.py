@@ -463,13 +463,15 @@ def _file_calibration(params_path):
     return load_calibration(params_path)
 
 
-def load_params_for(path, desc, dt, mass_kg=None):
+def load_params_for(path, desc, dt, mass_kg=None, *, with_provenance=False):
     """A params file, checked against the robot (its ``nv`` and, given, its mass) and the
-    log's period (:func:`jax_contact.io.load_params_for`)."""
+    log's period (:func:`jax_contact.io.load_params_for`; ``with_provenance`` as there)."""
     from jax_contact.io import load_params_for as load
 
     derive = lambda d: default_estimator(desc, d)[0]  # noqa: E731
-    return load(path, nv=desc.nv, dt=dt, derive=derive, mass_kg=mass_kg)
+    return load(
+        path, nv=desc.nv, dt=dt, derive=derive, mass_kg=mass_kg, with_provenance=with_provenance
+    )
 
 
 def format_scores(scores: dict[str, dict], *, title: str = "log") -> str:
