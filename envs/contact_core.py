@@ -23,7 +23,7 @@ from flax import struct
 
 import jax_contact as jc
 from jax_contact import adapter
-from jax_contact.calibration import Calibration, apply_calibration, load_calibration, probability
+from jax_contact.calibration import Calibration, apply_calibration, file_calibration, probability
 from jax_contact.envs import contact_params, contact_truth, feet, sensors
 from jax_contact.envs.contact_config import TERM_NAMES, ContactObsConfig, validate_config
 from jax_contact.envs.robots import Robot
@@ -283,7 +283,7 @@ def make_core(env, cfg: ContactObsConfig) -> Core:
     dt = float(mj_model.opt.timestep) if rate == "substep" else float(np.asarray(env.dt))
     robot = Robot(name="wrapped env", mj_model=mj_model, description=desc, spec=None)
     sensor_params = contact_params.default_sensor_params(cfg.sensor, robot, dt)
-    params, params_source, file_calibration = cfg.params, "given", None
+    params, params_source, calibration_in_file = cfg.params, "given", None
     if params is None:
         params_source = "default"
         params = contact_params.default_estimator_params(
@@ -300,15 +300,16 @@ def make_core(env, cfg: ContactObsConfig) -> Core:
                     robot, d, sp, force_rows=cfg.force_rows
                 )
 
-        params = load_params_for(
+        params, provenance = load_params_for(
             params,
             nv=desc.nv,
             dt=dt,
             period=f"the estimator's ({rate} rate)",
             derive=derive,
             mass_kg=model_mass(mj_model),
+            with_provenance=True,
         )
-        file_calibration = load_calibration(cfg.params)
+        calibration_in_file = file_calibration(provenance, cfg.params)
     elif not isinstance(params, jc.EstimatorParams):
         raise ValueError(
             "params must be jax_contact.EstimatorParams, a parameter file or a preset name, got"
@@ -338,7 +339,7 @@ def make_core(env, cfg: ContactObsConfig) -> Core:
             " (jax_contact.envs.ground_truth.with_contact_sensors)"
         )
     # "auto": the map of a file or preset, if any; else the config's (None or a map).
-    calibration = file_calibration if cfg.calibration == "auto" else cfg.calibration
+    calibration = calibration_in_file if cfg.calibration == "auto" else cfg.calibration
     return Core(
         mjx_model=mjx_model,
         desc=desc,

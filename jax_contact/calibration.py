@@ -136,6 +136,15 @@ def calibration_of(provenance) -> Calibration | None:
     return None if cal is None else Calibration.from_dict(cal)
 
 
+def file_calibration(provenance, source) -> Calibration | None:
+    """:func:`calibration_of` a provenance read from the file or preset ``source``, a
+    malformed map raised as a ValueError that names ``source`` and the field."""
+    try:
+        return calibration_of(provenance)
+    except (KeyError, TypeError, ValueError) as err:
+        raise ValueError(f"{str(source)!r}: provenance field 'calibration': {err}") from None
+
+
 def load_calibration(path: str | os.PathLike) -> Calibration | None:
     """The calibration map of a parameter file or shipped preset (``provenance
     ["calibration"]``, :func:`jax_contact.load_params`), or None when it has none.
@@ -146,10 +155,7 @@ def load_calibration(path: str | os.PathLike) -> Calibration | None:
     from jax_contact.io import load_params
 
     _, provenance = load_params(path, with_provenance=True)
-    try:
-        return calibration_of(provenance)
-    except (KeyError, TypeError, ValueError) as err:
-        raise ValueError(f"{str(path)!r}: provenance field 'calibration': {err}") from None
+    return file_calibration(provenance, path)
 
 
 def probability(logit, calibration: Calibration | None = None):

@@ -474,6 +474,19 @@ def test_a_params_file_runs_on_the_terrain_model_it_was_tuned_with(tmp_path, mon
             logs.evaluate_file(LOG, params_path=tmp_path / path, terrain_model=model)
     assert seen == ["FootholdMemory", "FlatTerrain", "FlatTerrain"]
 
+    # Parameters, terrain model and calibration map come from one read of the file.
+    import jax_contact.io as jc_io
+
+    reads = []
+    text = jc_io._params_text
+    monkeypatch.setattr(jc_io, "_params_text", lambda p: reads.append(p) or text(p))
+    got, model, terrain, calibration = logs._estimator_for(
+        desc, 0.0025, tmp_path / "mem.json", None
+    )
+    assert (model, type(terrain).__name__, calibration) == ("memory", "FootholdMemory", None)
+    assert len(reads) == 1
+    assert float(got.stance_time) == float(params.stance_time)
+
 
 def test_estimate_reports_p_through_the_files_calibration_map(round_trip, tmp_path, capsys):
     """``estimate --params`` with a file that holds a calibration map writes P through the

@@ -236,7 +236,12 @@ def file_terrain_model(path) -> str | None:
     from jax_contact.io import load_params
 
     _, prov = load_params(path, with_provenance=True)
-    model = prov.get("terrain_model")
+    return _terrain_model_in(prov, path)
+
+
+def _terrain_model_in(provenance: dict, path) -> str | None:
+    """``provenance["terrain_model"]`` of the file ``path``, checked, or None."""
+    model = provenance.get("terrain_model")
     if model is not None and model not in TERRAIN_MODELS:
         raise ValueError(
             f"parameter file {str(path)!r}: provenance field 'terrain_model' must be one of"
@@ -245,14 +250,19 @@ def file_terrain_model(path) -> str | None:
     return model
 
 
-def resolve_terrain_model(terrain_model: str | None, params_path) -> str:
+def resolve_terrain_model(
+    terrain_model: str | None, params_path, provenance: dict | None = None
+) -> str:
     """``--terrain-model`` as given, else the parameter file's own
     (:func:`file_terrain_model`), else ``"flat"``: parameters tuned with a foothold memory
-    are run with it unless the user says otherwise."""
+    are run with it unless the user says otherwise. ``provenance``: the file's, when the
+    caller has read it already (the file is then not read again)."""
     if terrain_model is not None:
         check_terrain_model(terrain_model)
         return terrain_model
     if params_path is not None:
+        if provenance is not None:
+            return _terrain_model_in(provenance, params_path) or "flat"
         return file_terrain_model(params_path) or "flat"
     return "flat"
 
@@ -357,7 +367,9 @@ def evaluate_file(
     log = load_log(path, foot_names=foot_names)
     name, truth, desc, dt = log.name, log.truth, log.robot.description, log.dt
     mass = model_mass(log.robot.mj_model)
-    params, terrain_model, terrain = _estimator_for(desc, dt, params_path, terrain_model, mass)
+    params, terrain_model, terrain, calibration = _estimator_for(
+        desc, dt, params_path, terrain_model, mass
+    )
     if bootstrap and truth is not None and truth.shape[1] < 2:
         raise ValueError(
             f"{name} has {truth.shape[1]} env: the bootstrap resamples envs and needs at least 2"
@@ -379,7 +391,6 @@ def evaluate_file(
         kinematic=make_kinematic_params() if truth is not None else None,
         dt=dt,
     )
-    calibration = _file_calibration(params_path)
     if calibration is not None and truth is not None:
         # The map fitted on the tuning logs, applied after the recursion: a second row,
         # flagged at calibrated P > 0.5 (as in docs/tuning.md's comparisons).
@@ -441,26 +452,26 @@ def _vs_probabilistic(out, scores, truth, valid, dt: float, n_resamples: int) ->
 
 
 def _estimator_for(desc, dt: float, params_path, terrain_model: str | None, mass_kg=None):
-    """(params, terrain model, terrain) of ``evaluate`` and ``estimate``: the defaults
-    (:func:`default_estimator`) or ``params_path`` checked against the robot and period, on
-    the terrain model given, else the file's own (:func:`resolve_terrain_model`), which is
-    then printed."""
-    model = resolve_terrain_model(terrain_model, params_path)
+    """(params, terrain model, terrain, calibration map or None) of ``evaluate`` and
+    ``estimate``: the defaults (:func:`default_estimator`) or ``params_path`` checked
+    against the robot and period, with the file's calibration map, on the terrain model
+    given, else the file's own (:func:`resolve_terrain_model`), which is then printed.
+    The file is read once."""
+    from jax_contact.calibration import file_calibration
+
+    provenance, calibration = None, None
+    if params_path is not None:
+        file_params, provenance = load_params_for(
+            params_path, desc, dt, mass_kg, with_provenance=True
+        )
+        calibration = file_calibration(provenance, params_path)
+    model = resolve_terrain_model(terrain_model, params_path, provenance)
     if terrain_model is None and model != "flat":
         print(f"terrain model {model!r}: the one {str(params_path)!r} was tuned with")
     params, terrain = default_estimator(desc, dt, model)
     if params_path is not None:
-        params = load_params_for(params_path, desc, dt, mass_kg)
-    return params, model, terrain
-
-
-def _file_calibration(params_path):
-    """The calibration map in a parameter file's provenance, or None (no file, no map)."""
-    if params_path is None:
-        return None
-    from jax_contact.calibration import load_calibration
-
-    return load_calibration(params_path)
+        params = file_params
+    return params, model, terrain, calibration
 
 
 def load_params_for(path, desc, dt, mass_kg=None, *, with_provenance=False):

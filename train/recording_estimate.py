@@ -59,13 +59,13 @@ def estimate_recording(
     from jax_contact.io import write_json_atomic, write_log
     from jax_contact.robot import model_mass
     from jax_contact.train.evaluate import replay, score
-    from jax_contact.train.logs import _estimator_for, _file_calibration, format_scores
+    from jax_contact.train.logs import _estimator_for, format_scores
 
     rec = read_recording(path)
     robot = load_robot(model, foot_names=feet)
     conv = to_readings(rec, robot, names=names, units=units, resample=resample)
     desc = robot.description
-    params, terrain_model, terrain = _estimator_for(
+    params, terrain_model, terrain, calibration = _estimator_for(
         desc, conv.dt, params_path, terrain_model, model_mass(robot.mj_model)
     )
     terms = tuple(t for t in params.terms if t in conv.terms)
@@ -96,7 +96,6 @@ def estimate_recording(
         diagnostics_of="probabilistic",
         progress=progress,
     )
-    calibration = _file_calibration(params_path)
     if calibration is not None:
         # What the file defines as its output: the belief through its calibration map
         # (jax_contact.calibration), as the wrapper and the exported estimator report it.
