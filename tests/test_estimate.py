@@ -317,6 +317,26 @@ def test_irregular_steps_are_resampled_by_the_stated_rule():
     assert any("resampled" in n for n in conv.notes)
 
 
+def test_resampling_keeps_the_contact_on_its_own_rows():
+    """A held column (contact) changes on the grid row of the sample where it changes: the
+    grid ``t_0 + k dt`` differs from the recorded times by rounding, which must not move
+    the truth one row late (that shortened every measured delay by dt)."""
+    # Times as a CSV holds them (0.0025, 0.005, ...): over 800 rows the median step is
+    # 0.0024999999999999467 s and the grid falls below the samples from row 1 on.
+    n = 800
+    t = np.round((np.arange(n) + 1) * 0.0025, 6)
+    contact = ((np.arange(n) // 37) % 2).astype(float)  # changes every 37 rows
+    cols = {"time": t.copy(), "q/rail": np.linspace(0.3, 0.4, n), "contact/foot": contact}
+    for j in ("hip", "knee"):
+        cols[f"q/{j}"] = np.linspace(0.1, 0.2, n)
+        cols[f"tau/{j}"] = np.ones(n)
+    cols["time"][200] += 0.001  # one irregular step: resampled
+    conv = to_readings(Recording(cols, "r"), load_robot("planar_leg"), resample=True)
+    # Grid row k is the sample at t[k] (row 200 holds sample 199's contact, which is the
+    # same: 200 is not a change row).
+    np.testing.assert_array_equal(conv.truth[:, 0, 0], contact)
+
+
 def test_names_map_to_a_missing_joint_is_refused():
     with pytest.raises(ValueError, match=r"names map: 'HIP' -> 'hips'"):
         to_readings(Recording(_planar_cols(), "r"), load_robot("planar_leg"), names={"HIP": "hips"})

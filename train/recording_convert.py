@@ -120,8 +120,8 @@ def _check_time(rec: Recording, resample: bool) -> tuple[Recording, float, list[
     if bad.size:
         i = int(bad[0]) + 1
         raise ValueError(
-            f"{src}: column 'time' does not increase at row {i} (0-based): {t[i]!r} s after"
-            f" {t[i - 1]!r} s"
+            f"{src}: column 'time' does not increase at row {i} (0-based): {float(t[i]):.9g} s"
+            f" after {float(t[i - 1]):.9g} s"
         )
     dt = float(np.median(step))
     off = np.abs(step / dt - 1.0)
@@ -149,7 +149,11 @@ def _resample(rec: Recording, dt: float) -> Recording:
     t = rec.columns[TIME]
     n = int(math.floor((t[-1] - t[0]) / dt + 1e-9)) + 1
     grid = t[0] + dt * np.arange(n)
-    idx = np.clip(np.searchsorted(t, grid, side="right") - 1, 0, len(t) - 1)
+    # The last sample at or before each grid point; a sample within rounding of a grid
+    # point (t_0 + k dt drifts from the recorded times by ~1e-14 s) is that grid point's,
+    # so a held column (contact) changes on the sample's row, not one row later.
+    idx = np.searchsorted(t, grid + 1e-6 * dt, side="right") - 1
+    idx = np.clip(idx, 0, len(t) - 1)
     nxt = np.clip(idx + 1, 0, len(t) - 1)
     near = np.minimum(np.abs(grid - t[idx]), np.abs(t[nxt] - grid))
     gap = near > 1.5 * dt
