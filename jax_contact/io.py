@@ -32,11 +32,13 @@ them and the robot model when the log is replayed, which keeps logs ~40x smaller
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
+import shutil
 import tempfile
 import threading
-from collections.abc import Mapping
+from collections.abc import Callable, Iterable, Mapping
 from pathlib import Path
 
 import h5py
@@ -219,12 +221,58 @@ def abort_writes() -> list[str]:
     removed = []
     for tmp in list(_PENDING):
         try:
-            os.unlink(tmp)
+            if os.path.isdir(tmp):  # a staged folder (staged_folder)
+                shutil.rmtree(tmp)
+            else:
+                os.unlink(tmp)
             removed.append(tmp)
         except OSError:
             pass
     _PENDING.clear()
     return removed
+
+
+@contextlib.contextmanager
+def staged_folder(folder: str | os.PathLike, stale: Callable[[Path], Iterable[str]] = tuple):
+    """Writes a set of output files into ``folder`` as one.
+
+    Yields a new temporary folder beside ``folder`` (same file system) to write the files
+    into. On a normal exit, under the lock of the atomic writes, the names ``stale(folder)``
+    returns (an earlier run's outputs, evaluated then) are removed from ``folder`` unless
+    rewritten, and every file of the temporary folder replaces its namesake in ``folder``
+    (created if needed; other files in it are kept). On an exception, or on Ctrl-C through
+    :func:`abort_writes`, the temporary folder is removed and ``folder`` is as it was: a
+    reader never finds this run's files mixed with an earlier run's.
+
+    Args:
+      folder: the destination folder.
+      stale: ``folder -> names`` of files in it that this run supersedes.
+
+    Yields:
+      The temporary folder (a :class:`~pathlib.Path`).
+    """
+    folder = Path(folder)
+    folder.parent.mkdir(parents=True, exist_ok=True)
+    with _LOCK:
+        tmp = tempfile.mkdtemp(dir=folder.parent, prefix=f".{folder.name}.", suffix=".tmp")
+        _PENDING.add(tmp)
+    try:
+        yield Path(tmp)
+        folder.mkdir(exist_ok=True)
+        old = set(stale(folder))
+        with _LOCK:
+            names = sorted(os.listdir(tmp))
+            for name in sorted(old - set(names)):
+                (folder / name).unlink(missing_ok=True)
+            for name in names:
+                os.replace(os.path.join(tmp, name), folder / name)
+            os.rmdir(tmp)
+            _PENDING.discard(tmp)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        with _LOCK:
+            _PENDING.discard(tmp)
+        raise
 
 
 def _umask() -> int:

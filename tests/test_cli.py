@@ -214,14 +214,70 @@ def test_ctrl_c_during_a_write_removes_the_temporary_file(tmp_path):
     assert list(tmp_path.iterdir()) == []
 
 
+@pytest.mark.parametrize("sig, code, word", [("SIGINT", 130, "interrupted"),
+                                             ("SIGTERM", 143, "terminated")])  # fmt: skip
+def test_a_signal_during_a_staged_folder_leaves_the_earlier_run(tmp_path, sig, code, word):
+    """``estimate`` writes its set of files through ``io.staged_folder``: a signal while
+    they are written leaves the folder as the earlier run left it (no file of the new run,
+    no temporary folder beside it); SIGTERM is handled like Ctrl-C, with its own code."""
+    out = tmp_path / "est"
+    out.mkdir()
+    (out / "estimate.csv").write_text("earlier")
+    (out / "metrics.json").write_text("{}")
+    script = (
+        "import os, signal, sys, time\n"
+        "from jax_contact.train import cli\n"
+        "from jax_contact.io import staged_folder, write_text_atomic\n"
+        f"with cli.StopOnInterrupt('jax-contact test'):\n"
+        "    with staged_folder(sys.argv[1]) as stage:\n"
+        "        write_text_atomic(stage / 'estimate.csv', 'new')\n"
+        f"        os.kill(os.getpid(), signal.{sig})\n"
+        "        time.sleep(20)\n"
+        "print('not reached')\n"
+    )
+    res, elapsed = _run([sys.executable, "-c", script, str(out)])
+    assert res.returncode == code, res.stderr
+    assert elapsed < 15
+    assert res.stderr == f"jax-contact test: {word}\n"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["est"]
+    assert (out / "estimate.csv").read_text() == "earlier"
+    assert sorted(p.name for p in out.iterdir()) == ["estimate.csv", "metrics.json"]
+
+
+def test_a_staged_folder_replaces_the_earlier_run_and_keeps_other_files(tmp_path):
+    """On success the new files replace their namesakes, the earlier run's files that this
+    run did not write are removed (``stale``), anything else in the folder stays; on an
+    exception the folder is untouched and the temporary folder gone."""
+    from jax_contact.io import staged_folder, write_text_atomic
+
+    out = tmp_path / "est"
+    out.mkdir()
+    for name, text in [("estimate.csv", "earlier"), ("metrics.json", "{}"), ("notes.txt", "x")]:
+        (out / name).write_text(text)
+    stale = lambda folder: ["estimate.csv", "metrics.json", "foot.png"]  # noqa: E731
+    with pytest.raises(RuntimeError):
+        with staged_folder(out, stale=stale) as stage:
+            write_text_atomic(stage / "estimate.csv", "new")
+            raise RuntimeError
+    assert (out / "estimate.csv").read_text() == "earlier"
+    with staged_folder(out, stale=stale) as stage:
+        write_text_atomic(stage / "estimate.csv", "new")
+    assert (out / "estimate.csv").read_text() == "new"
+    assert sorted(p.name for p in out.iterdir()) == ["estimate.csv", "notes.txt"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["est"]
+
+
 def test_the_interrupt_handler_is_removed_afterwards():
     """In-process callers of cli.main (tests) get their SIGINT handler and wake-up fd back."""
     before = signal.getsignal(signal.SIGINT)
     fd_before = signal.set_wakeup_fd(-1)  # reading it means setting it; put it back at once
     signal.set_wakeup_fd(fd_before)
+    term_before = signal.getsignal(signal.SIGTERM)
     with cli.StopOnInterrupt("x"):
         assert signal.getsignal(signal.SIGINT) is not before
+        assert signal.getsignal(signal.SIGTERM) is not term_before
     assert signal.getsignal(signal.SIGINT) is before
+    assert signal.getsignal(signal.SIGTERM) is term_before
     assert signal.set_wakeup_fd(fd_before) == fd_before
 
 

@@ -294,6 +294,10 @@ def _planar_cols():
         (lambda c: c["time"].__setitem__(5, c["time"][3]), r"'time' does not increase at row 5"),
         (lambda c: c["time"].__setitem__(5, c["time"][5] + 0.001), r"irregular time steps"),
         (lambda c: c.update({"contact/heel": np.ones(10)}), r"column 'contact/heel': .*no foot"),
+        (
+            lambda c: c.update({"q/hip": np.full(10, np.nan)}),
+            r"no row has every column the estimator reads finite.*never finite: \['q/hip'\]",
+        ),
     ],
 )
 def test_bad_input_is_one_line_naming_it(change, match):

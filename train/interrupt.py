@@ -10,7 +10,8 @@ arrival is read from :func:`signal.set_wakeup_fd` by a watcher thread, which Pyt
 C-level handler wakes immediately whatever the main thread is doing; the watcher removes
 the temporary files of writes in progress (:func:`jax_contact.io.abort_writes`: every
 output goes through ``jax_contact.io``'s atomic writes) and ends the process with
-``os._exit(130)``. Output written completely before the signal (e.g. the run folders of
+``os._exit(130)`` (SIGTERM, e.g. from ``kill`` or ``timeout``: the same, exit code 143).
+Output written completely before the signal (e.g. the run folders of
 earlier ``train`` variants) stays.
 
 Standard library only, like the rest of the command line's front.
@@ -24,10 +25,12 @@ import sys
 import threading
 
 EXIT_INTERRUPTED = 130  # 128 + SIGINT, what a shell reports for a command stopped by Ctrl-C
+EXIT_TERMINATED = 143  # 128 + SIGTERM (kill, timeout, a job scheduler)
 
 
 class StopOnInterrupt:
-    """Context manager: while active, SIGINT ends the process at once (module docstring).
+    """Context manager: while active, SIGINT ends the process at once (module docstring),
+    and SIGTERM the same way (exit code 143, ``terminated``).
 
     Outside the main thread (where Python cannot install signal handlers) it does nothing
     and Python's ``KeyboardInterrupt`` applies.
@@ -47,6 +50,7 @@ class StopOnInterrupt:
         # Wake-up fd first: a SIGINT between the two calls then still reaches the watcher.
         self._old_fd = signal.set_wakeup_fd(self._write, warn_on_full_buffer=False)
         self._old_handler = signal.signal(signal.SIGINT, self._note)
+        self._old_term = signal.signal(signal.SIGTERM, self._note)
         self._active = True
         return self
 
@@ -67,8 +71,10 @@ class StopOnInterrupt:
                 return
             if signal.SIGINT in data:
                 self._stop()
+            if signal.SIGTERM in data:
+                self._stop("terminated", EXIT_TERMINATED)
 
-    def _stop(self) -> None:
+    def _stop(self, what: str = "interrupted", code: int = EXIT_INTERRUPTED) -> None:
         io = sys.modules.get("jax_contact.io")  # not imported: nothing was being written
         if io is not None:
             io.abort_writes()  # holds io's lock from here on: no rename can follow
@@ -77,14 +83,15 @@ class StopOnInterrupt:
         flusher.start()
         flusher.join(0.5)
         try:
-            os.write(2, f"{self.prog}: interrupted\n".encode())
+            os.write(2, f"{self.prog}: {what}\n".encode())
         finally:
-            os._exit(EXIT_INTERRUPTED)
+            os._exit(code)
 
     def __exit__(self, *exc) -> None:
         if not self._active:
             return
         signal.signal(signal.SIGINT, self._old_handler)
+        signal.signal(signal.SIGTERM, self._old_term)
         signal.set_wakeup_fd(self._old_fd)
         os.close(self._write)
         self._watcher.join(1.0)

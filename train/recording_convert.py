@@ -349,6 +349,17 @@ def to_readings(
         )[:, None]
     finite = np.all(np.isfinite(np.stack([cols[c] for c in sorted(used)], axis=1)), axis=1)
     valid = finite & np.concatenate([[True], finite[:-1]])  # differences use the row before
+    if not valid.any():
+        never = [c for c in sorted(used) if not np.isfinite(cols[c]).any()]
+        which = (
+            f"never finite: {never[:5]}{' ...' if len(never) > 5 else ''}"
+            if never
+            else "NaN or inf in every row or in the row before it"
+        )
+        raise ValueError(
+            f"recording {rec.source!r}: no row has every column the estimator reads finite,"
+            f" and the row before it ({len(valid)} rows; {which})"
+        )
     if not valid.all():
         notes.append(
             f"rows with NaN (the estimator's valid = False there): {_stretches(~valid, cols[TIME])}"

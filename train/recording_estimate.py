@@ -56,10 +56,10 @@ def estimate_recording(
     from jax_contact.baselines import make_gm_params, make_kinematic_params
     from jax_contact.calibration import calibrate_probability
     from jax_contact.envs.robots import load_robot
-    from jax_contact.io import write_json_atomic, write_log
+    from jax_contact.io import staged_folder
     from jax_contact.robot import model_mass
-    from jax_contact.train.evaluate import replay, score
-    from jax_contact.train.logs import _estimator_for, format_scores
+    from jax_contact.train.evaluate import replay
+    from jax_contact.train.logs import _estimator_for
 
     rec = read_recording(path)
     robot = load_robot(model, foot_names=feet)
@@ -104,6 +104,70 @@ def estimate_recording(
         notes.append(line)
         print(f"note: {line}")
     out_dir = Path(out_dir)
+    with staged_folder(out_dir, stale=_earlier_outputs) as stage:
+        files, scores = _write_outputs(
+            stage,
+            out,
+            conv,
+            desc,
+            notes,
+            terms,
+            calibration,
+            has_truth,
+            plots,
+            plot_seconds,
+            model=model,
+            path=path,
+            terrain_model=terrain_model,
+        )
+    files = [out_dir / f.name for f in files]
+    print("wrote " + ", ".join(str(f) for f in files))
+    return {
+        "notes": notes,
+        "terms": terms,
+        "foot_names": list(desc.foot_names),
+        "dt": conv.dt,
+        "files": files,
+        "outputs": out,
+        "scores": scores,
+    }
+
+
+def _earlier_outputs(folder: Path) -> list[str]:
+    """The files an earlier ``estimate`` wrote into ``folder``: its fixed names and the
+    PNG of each foot its ``estimate.h5`` names (unreadable: the fixed names only)."""
+    names = ["estimate.h5", "estimate.csv", "metrics.json"]
+    try:
+        from jax_contact.io import read_log
+
+        _, attrs = read_log(folder / "estimate.h5")
+        names += [f"{_safe(f)}.png" for f in attrs.get("foot_names", [])]
+    except (OSError, ValueError):
+        pass
+    return names
+
+
+def _write_outputs(
+    out_dir,
+    out,
+    conv,
+    desc,
+    notes,
+    terms,
+    calibration,
+    has_truth,
+    plots,
+    plot_seconds,
+    *,
+    model,
+    path,
+    terrain_model,
+):
+    """Writes ``estimate``'s files into ``out_dir``; returns (paths, scores)."""
+    from jax_contact.io import write_json_atomic, write_log
+    from jax_contact.train.evaluate import score
+    from jax_contact.train.logs import format_scores
+
     feet_names = list(desc.foot_names)
     fields = {"p_contact": out["probabilistic"]} | {
         f: out[f"probabilistic/{f}"] for f in DIAGNOSTICS
@@ -154,7 +218,10 @@ def estimate_recording(
             )
     p = np.asarray(out["probabilistic"])[:, 0]
     summary = "  ".join(f"{f} {np.nanmean(p[:, i] > 0.5):.2f}" for i, f in enumerate(feet_names))
-    print(f"{len(p)} readings at {conv.dt * 1e3:.4g} ms; share of steps in contact: {summary}")
+    print(
+        f"{len(p)} readings at {conv.dt * 1e3:.4g} ms; share of steps estimated in contact"
+        f" (P > 0.5): {summary}"
+    )
     scores = {}
     if has_truth:
         scores = score(out, conv.truth, conv.valid, dt=conv.dt)
@@ -162,16 +229,7 @@ def estimate_recording(
         files.append(write_json_atomic(out_dir / "metrics.json", scores))
     else:
         print("no ground truth columns (contact/<foot> or force/<foot>): no metrics")
-    print("wrote " + ", ".join(str(f) for f in files))
-    return {
-        "notes": notes,
-        "terms": terms,
-        "foot_names": feet_names,
-        "dt": conv.dt,
-        "files": files,
-        "outputs": out,
-        "scores": scores,
-    }
+    return files, scores
 
 
 def _safe(name: str) -> str:
