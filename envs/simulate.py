@@ -265,7 +265,7 @@ def simulate(
       A :class:`Rollout` with ``T = round(duration / dt)`` steps.
 
     Raises:
-      ValueError: a non-positive ``n_envs`` or ``duration``.
+      ValueError: a non-positive ``n_envs``, or a ``duration`` of fewer than 2 steps.
     """
     if not isinstance(n_envs, int | np.integer) or n_envs < 1:
         raise ValueError(f"n_envs must be a positive int, got {n_envs!r}")
@@ -278,6 +278,11 @@ def simulate(
     m = mjx.put_model(world.sim_model)
     dt = world.dt
     n_steps = int(round(duration / dt))
+    if n_steps < 2:  # every consumer of a log differences a reading with the one before
+        raise ValueError(
+            f"duration {duration!r} s is {n_steps} step(s) of {dt:.6g} s; a log needs at"
+            f" least 2 (duration >= {2 * dt:.6g} s)"
+        )
     chunk = max(1, min(n_steps, int(round(chunk_s / dt))))
 
     key = jax.random.key(seed)

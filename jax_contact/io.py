@@ -183,10 +183,13 @@ def write_atomic(path: str | os.PathLike, write) -> Path:
       write: callable taking the temporary file's path (a ``str``).
     """
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with _LOCK:
-        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-        _PENDING.add(tmp)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with _LOCK:
+            fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+            _PENDING.add(tmp)
+    except OSError as err:  # name the file asked for, not the temporary one
+        raise OSError(err.errno, f"cannot create {str(path)!r} ({err.strerror})") from None
     os.close(fd)
     try:
         write(tmp)
@@ -426,7 +429,16 @@ def params_from_dict(payload: Mapping, *, source: str = "params"):
 
 
 def save_params(path: str | os.PathLike, params, provenance: Mapping | None = None) -> Path:
-    """Writes ``params`` as a versioned JSON file (atomically); returns the path."""
+    """Writes ``params`` as a versioned JSON file (atomically); returns the path.
+
+    Raises:
+      ValueError: ``params`` fails :func:`jax_contact.validate_params` (the field named;
+        nothing is written: a NaN would be written as ``null`` and the file not load).
+      OSError: the file cannot be created (its path named).
+    """
+    from jax_contact.params import validate_params
+
+    validate_params(params)
     return write_json_atomic(path, params_to_dict(params, provenance))
 
 

@@ -271,6 +271,15 @@ def make_noise(
     return noise
 
 
+def _shown(v) -> str:
+    """A value for an error message: a scalar as a plain number (``nan``, ``-0.1``), not
+    NumPy's ``array(-0.1, dtype=float32)``; anything else as a list."""
+    a = np.asarray(v)
+    if a.dtype.kind in "fiub":
+        return f"{a.item():g}" if a.shape == () else str(a.tolist())
+    return repr(v)
+
+
 def validate_noise(noise: NoiseParams) -> None:
     """Raises ``ValueError`` naming the field if any standard deviation is not > 0."""
     nv = None
@@ -290,7 +299,7 @@ def validate_noise(noise: NoiseParams) -> None:
                 )
         if not np.all(np.isfinite(arr)) or np.any(arr <= 0):
             raise ValueError(
-                f"noise.{name} must be finite and > 0 everywhere, got min {arr.min()!r}"
+                f"noise.{name} must be finite and > 0 everywhere, got min {_shown(arr.min())}"
             )
 
 
@@ -386,7 +395,7 @@ def validate_params(params: EstimatorParams) -> None:
     for name in ("dt", "stance_time", "swing_time", "takeoff_accel"):
         v = np.asarray(getattr(params, name))
         if v.shape != () or not np.isfinite(v) or v <= 0:
-            raise ValueError(f"{name} must be a finite scalar > 0, got {v!r}")
+            raise ValueError(f"{name} must be a finite scalar > 0, got {_shown(v)}")
     if float(params.stance_time) <= float(params.dt):
         raise ValueError(
             f"stance_time ({float(params.stance_time)}) must exceed dt ({float(params.dt)}):"
@@ -405,30 +414,32 @@ def validate_params(params: EstimatorParams) -> None:
     ):
         v = np.asarray(getattr(params, name))
         if v.shape != () or not (0.5 < float(v) <= 1.0):
-            raise ValueError(f"{name} must lie in (0.5, 1], got {v!r}")
+            raise ValueError(f"{name} must lie in (0.5, 1], got {_shown(v)}")
     for name in ("outlier_prob", "slip_prob"):
         v = np.asarray(getattr(params, name))
         if v.shape != () or not (0.0 <= float(v) < 1.0):
-            raise ValueError(f"{name} must lie in [0, 1), got {v!r}")
+            raise ValueError(f"{name} must lie in [0, 1), got {_shown(v)}")
     for name in ("outlier_qdd", "outlier_v", "slip_speed"):
         v = np.asarray(getattr(params, name))
         if v.shape != () or not np.isfinite(v) or v <= 0:
-            raise ValueError(f"{name} must be a finite scalar > 0{_UNITS.get(name, '')}, got {v!r}")
+            raise ValueError(
+                f"{name} must be a finite scalar > 0{_UNITS.get(name, '')}, got {_shown(v)}"
+            )
     v = np.asarray(params.foothold_confidence)
     if v.shape != () or not (0.0 < float(v) < 1.0):
-        raise ValueError(f"foothold_confidence must lie in (0, 1), got {v!r}")
+        raise ValueError(f"foothold_confidence must lie in (0, 1), got {_shown(v)}")
     for name in ("inv_damping", "contact_damping", "min_push"):
         v = np.asarray(getattr(params, name))
         if v.shape != () or not np.isfinite(v) or v < 0:
             raise ValueError(
-                f"{name} must be a finite scalar >= 0{_UNITS.get(name, '')}, got {v!r}"
+                f"{name} must be a finite scalar >= 0{_UNITS.get(name, '')}, got {_shown(v)}"
             )
     v = np.asarray(params.kinematics_lead)
     if v.shape != () or not (0.0 <= float(v) <= 1.0):
-        raise ValueError(f"kinematics_lead must lie in [0, 1], got {v!r}")
+        raise ValueError(f"kinematics_lead must lie in [0, 1], got {_shown(v)}")
     v = np.asarray(params.initial_contact)
     if v.shape != () or not (0.0 < float(v) < 1.0):
-        raise ValueError(f"initial_contact must lie in (0, 1), got {v!r}")
+        raise ValueError(f"initial_contact must lie in (0, 1), got {_shown(v)}")
     if not isinstance(params.n_samples, int | np.integer) or params.n_samples < 1:
         raise ValueError(f"n_samples must be an int >= 1, got {params.n_samples!r}")
     if not isinstance(params.n_quad, int | np.integer) or params.n_quad < 1:

@@ -78,6 +78,13 @@ def test_importing_the_cli_does_not_import_jax():
         (["reproduce", "--robot", "cat"], ["argument --robot", "'cat'"]),
         (["reproduce", "--params", "per_gait"], ["argument --params", "'per_gait'"]),
         (["rates", "--params", "dog"], ["argument --params", "'dog'", "go1"]),
+        (
+            ["simulate", "out.h5", "--seed", "99999999999999999999"],
+            ["argument --seed", "2147483647"],
+        ),
+        (["simulate", "out.h5", "--seed", "-1"], ["argument --seed", "'-1'"]),
+        (["evaluate", "README.md", "--bootstrap", "99999999999"], ["argument --bootstrap"]),
+        (["tune", "README.md", "--validate", "x.h5", "--out", "t.json"], ["argument LOG"]),
     ],
 )
 def test_bad_arguments_are_reported_at_once(argv, names):
@@ -92,6 +99,22 @@ def test_bad_arguments_are_reported_at_once(argv, names):
         assert name in errors[0], (name, errors[0])
     assert "Traceback" not in res.stderr
     assert not (ROOT / "out.h5").exists() and not (ROOT / "out.txt").exists()
+
+
+@pytest.mark.parametrize("command", ["tune", "tune-env"])
+def test_tuning_refuses_an_unwritable_out_before_it_tunes(tmp_path, command):
+    """--out is probed before minutes of tuning (it used to fail after them, naming the
+    temporary file)."""
+    for name in ("a.h5", "b.h5"):
+        (tmp_path / name).write_bytes(b"")
+    inputs = {
+        "tune": [str(tmp_path / "a.h5"), "--validate", str(tmp_path / "b.h5")],
+        "tune-env": ["planar_leg", "--seeds", "0", "--validate-seed", "1"],
+    }[command]
+    res, elapsed = _run(CLI + [command, *inputs, "--out", "/proc/t.json"], timeout=30)
+    assert res.returncode == 2, (res.stdout, res.stderr)
+    assert "argument --out" in res.stderr and "'/proc'" in res.stderr, res.stderr
+    assert elapsed < 10
 
 
 def test_output_folder_check_creates_nothing(tmp_path):

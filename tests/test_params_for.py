@@ -120,6 +120,19 @@ def test_params_file_round_trip(go1, tmp_path):
     assert float(old_p.min_push) == 0.0 and float(old_p.slip_prob) == 0.0
 
 
+def test_save_params_refuses_invalid_params_and_names_an_unwritable_path(go1, tmp_path):
+    """A NaN would be written as null and the file would not load: refused before writing,
+    naming the field and its value as a plain number; an unwritable destination is named
+    (not the temporary file beside it)."""
+    p = jc.params_for(go1, sensor_preset("anymal_like", go1.nv, dt=DT), DT)
+    with pytest.raises(ValueError, match=r"^stance_time must be a finite scalar > 0, got nan$"):
+        jc.save_params(tmp_path / "nan.json", p.replace(stance_time=np.float32(np.nan)))
+    assert list(tmp_path.iterdir()) == []
+    (tmp_path / "file").write_text("x")
+    with pytest.raises(OSError, match=r"cannot create '.*file/sub/p\.json'"):
+        jc.save_params(tmp_path / "file" / "sub" / "p.json", p)
+
+
 def test_bad_params_file_names_the_field(go1, tmp_path):
     sp = sensor_preset("anymal_like", go1.nv, dt=DT)
     payload = jc.io.params_to_dict(jc.params_for(go1, sp, DT))

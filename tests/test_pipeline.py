@@ -37,6 +37,15 @@ def planar():
     return world, roll
 
 
+def test_a_rollout_shorter_than_two_steps_is_refused(planar):
+    """Every consumer of a log differences a reading with the one before: a duration of
+    one step (here 0.003 s at 2.5 ms) or none is refused before anything compiles."""
+    world, _ = planar
+    for duration in (0.001, 0.003):
+        with pytest.raises(ValueError, match=r"duration .* a log needs at least 2"):
+            simulate(world, "hop", "anymal_like", 1, duration, 0, progress=False)
+
+
 @pytest.fixture(scope="module")
 def replayed(planar):
     world, roll = planar

@@ -167,9 +167,13 @@ def test_evaluate_refuses_an_observation_the_network_cannot_take(saved, tmp_path
 def test_train_refuses_an_existing_run_folder(tmp_path):
     (tmp_path / "estimate").mkdir()
     (tmp_path / "estimate" / "progress.csv").write_text("keep me\n")
-    with pytest.raises(ValueError, match="exists and is not empty"):
+    with pytest.raises(ValueError, match="exists and is not empty: pass --overwrite"):
         ppo.train("estimate", TINY, tmp_path)
     assert (tmp_path / "estimate" / "progress.csv").read_text() == "keep me\n"
+    # A run whose training never returned (Ctrl-C) is named as such.
+    (tmp_path / "estimate" / "run.json").write_text('{"variant": "estimate", "finished": false}')
+    with pytest.raises(ValueError, match="holds an unfinished run .*: pass --overwrite"):
+        ppo.train("estimate", TINY, tmp_path)
 
 
 def test_progress_csv_and_curve_files(tmp_path):

@@ -56,6 +56,7 @@ from jax_contact.train.cli_args import (  # noqa: F401  (COLUMNS ... SCENES: re-
     TERRAINS,
     VARIANTS,
     HelpFormatter,
+    bootstrap_int,
     check_input_file,
     check_output_file,
     check_output_folder,
@@ -64,6 +65,7 @@ from jax_contact.train.cli_args import (  # noqa: F401  (COLUMNS ... SCENES: re-
     nonnegative_int,
     positive_float,
     positive_int,
+    seed_int,
 )
 from jax_contact.train.compile_cache import (  # noqa: F401  (re-exported)
     CACHE_ENV,
@@ -366,7 +368,7 @@ def build_parser() -> argparse.ArgumentParser:
         _check_demo,
     )
     p.add_argument("--out", default="out/demo", help="output folder")
-    p.add_argument("--seed", type=int, default=0, help="evaluation seed")
+    p.add_argument("--seed", type=seed_int, default=0, help="evaluation seed")
     p.add_argument(
         "--size",
         choices=REPRODUCE_SIZES,
@@ -393,11 +395,11 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="ROBOT",
         help=f"quadruped of Table III (default: go1): {robots}",
     )
-    p.add_argument("--seed", type=int, default=None, help="evaluation seed (default: 0)")
+    p.add_argument("--seed", type=seed_int, default=None, help="evaluation seed (default: 0)")
     p.add_argument("--out", default="out/reproduce", help="output folder")
     p.add_argument(
         "--bootstrap",
-        type=nonnegative_int,
+        type=bootstrap_int,
         default=None,
         metavar="N",
         help="env resamples of the paired bootstrap that compares the estimator with each GM"
@@ -432,7 +434,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--terrain", default="flat", choices=TERRAINS, help="floor")
     p.add_argument("--envs", type=positive_int, default=16, help="robots simulated at once")
     p.add_argument("--duration", type=positive_float, default=10.0, help="simulated seconds")
-    p.add_argument("--seed", type=int, default=0, help="seeds states, commands and noise")
+    p.add_argument("--seed", type=seed_int, default=0, help="seeds states, commands and noise")
     estimate_cmd.add_feet_flag(p)
     estimate_cmd.add_gait_flags(p)
 
@@ -465,7 +467,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--bootstrap",
-        type=nonnegative_int,
+        type=bootstrap_int,
         default=0,
         metavar="N",
         help="compare every other row with the estimator by a paired bootstrap of N env"
@@ -512,7 +514,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="env steps to train (default: the configuration's); trained exactly, with fewer"
         " evaluations if needed, or rounded up to a whole training step (a message says so)",
     )
-    p.add_argument("--seed", type=int, default=0, help="PPO seed")
+    p.add_argument("--seed", type=seed_int, default=0, help="PPO seed")
     p.add_argument(
         "--eval-envs",
         type=nonnegative_int,
@@ -552,7 +554,7 @@ def build_parser() -> argparse.ArgumentParser:
         " estimate_lat1/2 (the training sensors 1/2 env steps late), truth, estimate",
     )
     p.add_argument("--envs", type=positive_int, default=64, help="episodes, run in parallel")
-    p.add_argument("--seed", type=int, default=12345, help="seeds the episodes")
+    p.add_argument("--seed", type=seed_int, default=12345, help="seeds the episodes")
     p.add_argument("--json", default=None, help="write the evaluation here")
 
     p = command(
@@ -570,7 +572,7 @@ def build_parser() -> argparse.ArgumentParser:
         " half-sine (feet slammed and sliding: a stress test); go1_walk, go1_trot: Go1"
         " gaits in place (jax_contact.train.rates)",
     )
-    p.add_argument("--seed", type=int, default=0, help="seed of the rollouts")
+    p.add_argument("--seed", type=seed_int, default=0, help="seed of the rollouts")
     p.add_argument(
         "--pairing",
         default="delayed",

@@ -72,6 +72,31 @@ def int_at_least(minimum: int):
 positive_int = int_at_least(1)
 nonnegative_int = int_at_least(0)
 
+SEED_MAX = 2**31 - 1  # a seed is a non-negative int32: what jax.random.key and NumPy take
+
+
+def int_between(minimum: int, maximum: int):
+    """An argparse type: an int in [``minimum``, ``maximum``], else an error naming the
+    value and the range."""
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            value = minimum - 1
+        if not minimum <= value <= maximum:
+            raise argparse.ArgumentTypeError(
+                f"must be an int from {minimum} to {maximum}, got {text!r}"
+            )
+        return value
+
+    return parse
+
+
+seed_int = int_between(0, SEED_MAX)
+# Env resamples of a paired bootstrap: 1000 is typical; far more only costs memory.
+bootstrap_int = int_between(0, 1_000_000)
+
 
 def float_above_zero(*, or_zero: bool):
     """An argparse type: a finite float > 0 (``or_zero``: >= 0), else an error naming the

@@ -31,7 +31,13 @@ def add_parsers(subparsers) -> None:
     Each parser gets ``func`` (run) and ``check`` (validate, no JAX) defaults, as
     :func:`jax_contact.train.cli.main` expects.
     """
-    from jax_contact.train.cli_args import ROBOT_NAMES, HelpFormatter, positive_float, positive_int
+    from jax_contact.train.cli_args import (
+        ROBOT_NAMES,
+        HelpFormatter,
+        positive_float,
+        positive_int,
+        seed_int,
+    )
 
     p = subparsers.add_parser(
         "export",
@@ -66,7 +72,9 @@ def add_parsers(subparsers) -> None:
         " calibration map, if it has one",
     )
     p.add_argument("--rate", type=positive_float, default=400.0, help="reading rate, Hz")
-    p.add_argument("--seed", type=int, default=0, help="PRNG seed (Monte-Carlo touch-down only)")
+    p.add_argument(
+        "--seed", type=seed_int, default=0, help="PRNG seed (Monte-Carlo touch-down only)"
+    )
     p.add_argument("--out", required=True, help=f"the {ARTEFACT_SUFFIX} file to write")
 
     p = subparsers.add_parser(

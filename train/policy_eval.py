@@ -20,7 +20,14 @@ import jax.numpy as jnp
 import numpy as np
 from mujoco_playground._src import wrapper as pg_wrapper
 
-from jax_contact.train.ppo import INFO_KEY, VARIANTS, PPOConfig, config_of, make_env
+from jax_contact.train.ppo import (
+    INFO_KEY,
+    VARIANTS,
+    PPOConfig,
+    config_of,
+    make_env,
+    unfinished_run,
+)
 
 
 def load_policy(ckpt: str | Path, *, deterministic: bool = True, parts: bool = False):
@@ -82,7 +89,13 @@ def latest_checkpoint(run_dir: str | Path) -> Path:
     folder = Path(run_dir) / "checkpoints"
     steps = sorted(p for p in folder.glob("*") if p.is_dir() and p.name.isdigit())
     if not steps:
-        raise FileNotFoundError(f"no checkpoint in {folder}: train first (jax-contact train)")
+        why = (
+            "its training stopped before the first checkpoint (run.json: finished false);"
+            " train again with --overwrite"
+            if unfinished_run(Path(run_dir))
+            else "train first (jax-contact train)"
+        )
+        raise FileNotFoundError(f"no checkpoint in {folder}: {why}")
     return steps[-1]
 
 

@@ -437,19 +437,21 @@ def train(
     run_dir = Path(out_dir) / variant
     if run_dir.exists() and any(run_dir.iterdir()):
         if not overwrite:
-            raise ValueError(f"run folder {run_dir} exists and is not empty: pass overwrite")
+            what = "exists and is not empty"
+            if unfinished_run(run_dir):
+                what = "holds an unfinished run (interrupted, or training in another process)"
+            raise ValueError(f"run folder {run_dir} {what}: pass --overwrite to replace it")
         shutil.rmtree(run_dir)
     run_dir.mkdir(parents=True, exist_ok=True)
-    write_json_atomic(
-        run_dir / "run.json",
-        {
-            "variant": variant,
-            "env": spec.env_name,
-            "task": spec.name,
-            "seed": seed,
-            "config": dataclasses.asdict(cfg),
-        },
-    )
+    run_info = {
+        "variant": variant,
+        "env": spec.env_name,
+        "task": spec.name,
+        "seed": seed,
+        "config": dataclasses.asdict(cfg),
+        "finished": False,  # set when the training returns
+    }
+    write_json_atomic(run_dir / "run.json", run_info)
 
     env = spec.make_env(variant, cfg)
     eval_env = spec.make_env(variant, cfg)
@@ -525,6 +527,7 @@ def train(
         title=f"{spec.env_name}, {variant}",
         training={variant: train_rows},
     )
+    write_json_atomic(run_dir / "run.json", run_info | {"finished": True})
     log(f"[{variant}] done in {wall:.0f} s; {run_dir}")
     return RunResult(
         run_dir=run_dir,
@@ -533,6 +536,17 @@ def train(
         wall_s=wall,
         first_eval_s=rows[0]["wall_s"],
     )
+
+
+def unfinished_run(run_dir: Path) -> bool:
+    """True if ``run_dir/run.json`` says its training never returned (``finished`` false;
+    runs written before the key count as finished)."""
+    import json
+
+    try:
+        return json.loads((run_dir / "run.json").read_text()).get("finished") is False
+    except (OSError, ValueError, AttributeError):
+        return False
 
 
 def config_of(run: Mapping) -> PPOConfig:

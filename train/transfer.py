@@ -452,7 +452,7 @@ def main(argv: Sequence[str] | None = None) -> dict:
     import argparse
 
     from jax_contact.io import write_json_atomic
-    from jax_contact.train.cli_args import positive_int
+    from jax_contact.train.cli_args import positive_int, seed_int
     from jax_contact.train.compile_cache import enable_compilation_cache
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -464,7 +464,7 @@ def main(argv: Sequence[str] | None = None) -> dict:
         default=None,
         help="env steps per episode (default: the runs' configuration's)",
     )
-    parser.add_argument("--seed", type=int, default=12345, help="seeds the episodes")
+    parser.add_argument("--seed", type=seed_int, default=12345, help="seeds the episodes")
     parser.add_argument("--json", default=None, help="write the matrix here")
     args = parser.parse_args(argv)
     try:

@@ -117,7 +117,7 @@ def add_tuning_options(p: argparse.ArgumentParser) -> None:
     """The options of ``jax-contact tune`` that are not about its inputs (``--out`` and the
     fit's settings), shared with ``jax-contact tune-env``."""
     # The CLI's argument types (one rule); imported here, once jax_contact.train.cli is loaded.
-    from jax_contact.train.cli_args import nonnegative_float, positive_float, positive_int
+    from jax_contact.train.cli_args import nonnegative_float, positive_float, positive_int, seed_int
 
     p.add_argument("--out", required=True, help="parameter file to write (.json)")
     p.add_argument("--epochs", type=positive_int, default=12, help="passes over the logs at most")
@@ -134,7 +134,7 @@ def add_tuning_options(p: argparse.ArgumentParser) -> None:
         default=1e-3,
         help="weight of the prior on caps, T_s, a_F",
     )
-    p.add_argument("--seed", type=int, default=0, help="the run's key")
+    p.add_argument("--seed", type=seed_int, default=0, help="the run's key")
     p.add_argument(
         "--air-penalty",
         type=nonnegative_float,
@@ -271,16 +271,11 @@ def check_tuning_options(args: argparse.Namespace) -> None:
     bounds = getattr(args, "stance_time_bounds", None)
     if bounds is not None and not bounds[0] < bounds[1]:
         raise ValueError(f"argument --stance-time-bounds: LO must be < HI, got {bounds}")
-    out = Path(args.out)
-    if out.suffix != ".json":
-        raise ValueError(f"argument --out: {args.out!r} must end in .json")
-    if out.is_dir():
-        raise ValueError(f"argument --out: {args.out!r} is a folder; expected a file name")
-    parent = out.parent.expanduser().absolute()
-    while not parent.exists():
-        parent = parent.parent
-    if not parent.is_dir():
-        raise ValueError(f"argument --out: cannot create {args.out!r} ({str(parent)!r} is a file)")
+    # The suffix, not a folder, and a folder files can be created in (probed, as the
+    # atomic write will): checked before minutes of tuning, not after.
+    from jax_contact.train.cli_args import check_output_file
+
+    check_output_file("--out", args.out, (".json",))
 
 
 def _log_info(path, attrs, data) -> dict:

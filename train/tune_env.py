@@ -60,7 +60,7 @@ from jax_contact.train.env_rollouts import (
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
     """Adds the ``tune-env`` command; its defaults carry ``func=run`` and ``check=check``."""
-    from jax_contact.train.cli_args import positive_int
+    from jax_contact.train.cli_args import positive_int, seed_int
 
     p = subparsers.add_parser(
         "tune-env",
@@ -81,12 +81,14 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         " random), or a `jax-contact rates` scene (go1, go1_walk, go1_trot, planar_leg);"
         " several scenes of one robot are tuned on together",
     )
-    p.add_argument("--seeds", required=True, nargs="+", type=int, metavar="S", help="tuning seeds")
+    p.add_argument(
+        "--seeds", required=True, nargs="+", type=seed_int, metavar="S", help="tuning seeds"
+    )
     p.add_argument(
         "--validate-seed",
         required=True,
         nargs="+",
-        type=int,
+        type=seed_int,
         metavar="S",
         help="validation seed(s): early stopping on their pooled loss",
     )
