@@ -365,12 +365,12 @@ def load_robot(
     elif _looks_like_path(name):
         path = Path(name).expanduser()
         if not path.is_file():
-            raise ValueError(f"name: MJCF file {str(path)!r} does not exist")
-        spec, source = mujoco.MjSpec.from_file(str(path)), path
+            raise ValueError(f"MJCF file {str(path)!r} does not exist")
+        spec, source = _spec_from_file(path), path
         try:
             _strip_meshes(spec, path, keep_colliding=True)
         except ValueError:  # some inertia comes from a mesh: the model needs its files
-            spec = mujoco.MjSpec.from_file(str(path))
+            spec = _spec_from_file(path)
     else:
         raise ValueError(
             f"unknown robot {name!r}; valid names: {', '.join(ROBOT_NAMES)}, or a path to an"
@@ -383,13 +383,29 @@ def load_robot(
         raise ValueError(
             f"gait must be a jax_contact.envs.gaits.GaitSettings, got {type(gait).__name__}"
         )
+    try:
+        description = derive_description(mj_model, foot_names)
+    except ValueError as err:
+        if source is None:
+            raise
+        raise ValueError(f"MJCF file {str(source)!r}: {err}") from None
     return Robot(
         name=name,
         mj_model=mj_model,
-        description=derive_description(mj_model, foot_names),
+        description=description,
         spec=spec,
         gait=gait,
     )
+
+
+def _spec_from_file(path: Path) -> mujoco.MjSpec:
+    """``MjSpec.from_file``, its parse error (two lines, no file name) as one line naming
+    the file."""
+    try:
+        return mujoco.MjSpec.from_file(str(path))
+    except ValueError as err:
+        reason = " ".join(str(err).split())
+        raise ValueError(f"MJCF file {str(path)!r} cannot be read: {reason}") from None
 
 
 def with_terrain(

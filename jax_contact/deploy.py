@@ -96,7 +96,10 @@ class Estimator:
           ``(belief, p_contact, diagnostics)``: the next belief, (n_feet,) P(contact) per
           foot, and per foot ``p_dynamics``, ``p_diff_kinematics``, ``p_kinematics``,
           ``p_takeoff``, ``p_touchdown`` (n_feet,), ``force`` (n_feet, 3) N and ``valid``
-          (n_feet,) bool (False: a non-finite reading, the step predicted only).
+          (n_feet,) bool (False: a non-finite reading, the step predicted only; there the
+          three terms' probabilities and ``force`` are NaN, "no measurement", as in
+          :class:`jax_contact.Diagnostics`, while ``p_contact`` and the transitions are
+          the prediction's).
 
         Raises:
           ValueError: a missing or unknown reading, or one of the wrong length (named).

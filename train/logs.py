@@ -60,8 +60,12 @@ def simulate_to_file(
     world = build_world(loaded, terrain=terrain, roughness=roughness)
     resolved = world.robot.gait_settings
     speeds = resolved.speed_range(gait)
+    from jax_contact.envs.robots import ROBOT_NAMES
+
     attrs = {
-        "robot": robot,
+        # An MJCF path as an absolute path: the log is then read from any folder, and two
+        # spellings of one file are one robot.
+        "robot": robot if robot in ROBOT_NAMES else str(Path(robot).expanduser().resolve()),
         "gait": gait,
         "noise": noise,
         "terrain": terrain,
