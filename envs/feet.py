@@ -231,7 +231,8 @@ def _resolve(m, d, spec, floor_ids, colliders) -> Foot:
         geoms = [g for g in colliders if m.geom_bodyid[g] == b]
         spheres = [g for g in geoms if int(m.geom_type[g]) == int(_T.mjGEOM_SPHERE)]
         return _body_foot(m, d, name, b, spheres or geoms)
-    valid = sorted({_name_of(m, G, g) or _name_of(m, B, m.geom_bodyid[g]) for g in colliders})
+    geom_names = {_name_of(m, G, g) for g in colliders} - {None, ""}
+    valid = sorted(geom_names | {_name_of(m, B, m.geom_bodyid[g]) for g in colliders} - {None, ""})
     raise ValueError(
         f"foot {name!r} is no geom, site or body of the model; valid names (floor-touching"
         f" geoms or their bodies; any site or body): {valid}"
