@@ -560,6 +560,8 @@ def load_params_for(
 
 def _params_text(path) -> tuple[str, str]:
     """(text, description for errors) of a parameter file or a preset name."""
+    if not isinstance(path, str | os.PathLike):
+        raise ValueError(f"a parameter file is a path or a preset name, got {type(path).__name__}")
     ref = preset_file(path)
     if ref is not None:
         return ref.read_text(), f"preset {path!r}"
@@ -573,5 +575,7 @@ def _params_text(path) -> tuple[str, str]:
         return p.read_text(), f"parameter file {str(p)!r}"
     except FileNotFoundError:
         raise ValueError(f"parameter file {str(p)!r} does not exist") from None
+    except IsADirectoryError:
+        raise ValueError(f"parameter file {str(p)!r} is a folder") from None
     except UnicodeDecodeError as err:
         raise ValueError(f"parameter file {str(p)!r} is not JSON: {err}") from None

@@ -341,6 +341,16 @@ def test_resampling_keeps_the_contact_on_its_own_rows():
     np.testing.assert_array_equal(conv.truth[:, 0, 0], contact)
 
 
+def test_a_names_entry_for_a_column_the_recording_lacks_is_refused():
+    """A typo in the map (a joint's recording name that no column has) is named, where it
+    used to be ignored; a foot's entry may be unused (no ground truth, no foot column)."""
+    cols = _planar_cols()
+    with pytest.raises(ValueError, match=r"names map: \['hipp'\] name no column"):
+        to_readings(Recording(cols, "rec.csv"), load_robot("planar_leg"), names={"hipp": "hip"})
+    conv = to_readings(Recording(cols, "rec.csv"), load_robot("planar_leg"), names={"toe": "foot"})
+    assert conv.truth is None
+
+
 def test_names_map_to_a_missing_joint_is_refused():
     with pytest.raises(ValueError, match=r"names map: 'HIP' -> 'hips'"):
         to_readings(Recording(_planar_cols(), "r"), load_robot("planar_leg"), names={"HIP": "hips"})

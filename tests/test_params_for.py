@@ -215,3 +215,10 @@ def test_still_side_cap_is_a_rate_of_evidence(go1):
         sp = sensor_preset("anymal_like", go1.nv, dt=dt)
         got = float(jc.params_for(go1, sp, dt).cap_diff_kinematics_still)
         assert got == pytest.approx(want, abs=1e-6)
+
+
+def test_load_params_of_a_folder_or_of_no_path_is_one_clear_error(tmp_path):
+    with pytest.raises(ValueError, match=r"parameter file '.*' is a folder"):
+        jc.load_params(tmp_path)
+    with pytest.raises(ValueError, match="a path or a preset name, got NoneType"):
+        jc.load_params(None)

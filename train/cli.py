@@ -323,7 +323,8 @@ def _check_train(args: argparse.Namespace) -> None:
 def _check_policy_eval(args: argparse.Namespace) -> None:
     run = Path(args.run)
     if not run.is_dir():
-        raise ValueError(f"argument run: folder {args.run!r} does not exist")
+        what = "is a file, not a run folder" if run.exists() else "does not exist"
+        raise ValueError(f"argument run: folder {args.run!r} {what}")
     if not (run / "run.json").is_file():
         raise ValueError(
             f"argument run: {args.run!r} is not a run folder of `jax-contact train` (no run.json)"

@@ -212,6 +212,14 @@ def to_readings(
             )
     rec, dt, notes = _check_time(rec, resample)
     cols = rec.columns
+    named = {c[len(p) :] for c in cols for p in JOINT_PREFIXES + TRUTH_PREFIXES if c.startswith(p)}
+    # A joint's entry must name a column (every joint has one): a typo would otherwise pass
+    # unnoticed. A foot's may not: a recording without ground truth has no foot columns.
+    unused = sorted(k for k, v in names.items() if k not in named and v not in desc.foot_names)
+    if unused:
+        raise ValueError(
+            f"names map: {unused} name no column of {src} (its joints and feet: {sorted(named)})"
+        )
     t_len = len(cols[TIME])
     used: set[str] = {TIME}
     to_model = lambda n: names.get(n, n)  # noqa: E731
