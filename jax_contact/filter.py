@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from jax_contact._math import logit as logit_of
 from jax_contact.measurement import (
@@ -54,7 +55,14 @@ def init_belief(params: EstimatorParams) -> LegBelief:
 
 
 def init_belief_batch(params: EstimatorParams, n_envs: int, n_legs: int) -> LegBelief:
-    """:func:`init_belief` broadcast to leading axes (n_envs, n_legs)."""
+    """:func:`init_belief` broadcast to leading axes (n_envs, n_legs).
+
+    Raises:
+      ValueError: ``n_envs`` or ``n_legs`` is not a positive int.
+    """
+    for name, n in (("n_envs", n_envs), ("n_legs", n_legs)):
+        if not isinstance(n, int | np.integer) or n < 1:
+            raise ValueError(f"{name} must be a positive int, got {n!r}")
     one = init_belief(params)
     return jax.tree.map(lambda x: jnp.broadcast_to(x, (n_envs, n_legs) + x.shape), one)
 
@@ -98,7 +106,39 @@ def step(
       the transition-only prediction, the next transition is the gait prior, the foothold
       is kept, and ``diagnostics.valid`` is False.
     """
+    if isinstance(meas, RobotMeasurement):
+        raise ValueError(
+            "step: meas is a RobotMeasurement (every foot of a robot); step takes one foot's"
+            " LegMeasurement: use step_robot (one robot) or step_batch (a batch)"
+        )
+    _check_shapes("step", params, belief, meas, ())
     return _step(params, terrain, belief, meas, key)
+
+
+def _check_shapes(fn: str, params, belief, meas, batch: tuple[int, ...]) -> None:
+    """Trace-time check (static shapes only, no cost in the compiled program) that
+    ``meas`` and ``belief`` fit ``params`` and each other: ``batch`` is the leading shape
+    ``meas``'s per-robot (or per-foot) fields must have. Raises ValueError naming the
+    argument, the field and both shapes."""
+    robot = isinstance(meas, RobotMeasurement)
+    if not robot and not isinstance(meas, LegMeasurement):
+        raise ValueError(
+            f"{fn}: meas must be a LegMeasurement or RobotMeasurement, got {type(meas).__name__}"
+        )
+    want = batch + (params.nv,)
+    if tuple(meas.qdd.shape) != want:
+        what = "the leading axes of the batch" if batch else "unbatched"
+        raise ValueError(
+            f"{fn}: meas.qdd has shape {tuple(meas.qdd.shape)}; expected {want} ({what}, then"
+            f" params' nv = {params.nv}): parameters of another robot, or a measurement"
+            " batched differently"
+        )
+    legs = (meas.n_legs,) if robot else ()
+    if tuple(belief.logit.shape) != batch + legs:
+        raise ValueError(
+            f"{fn}: belief has shape {tuple(belief.logit.shape)} (its logit); the measurement"
+            f" needs {batch + legs}"
+        )
 
 
 def _step(params, terrain, belief, meas, key, switches=None):
@@ -207,6 +247,12 @@ def step_robot(
       :func:`step` of each foot on ``meas.leg(i)`` with the i-th of
       ``jax.random.split(key, n_legs)``.
     """
+    if not isinstance(meas, RobotMeasurement):
+        raise ValueError(
+            f"step_robot: meas must be a RobotMeasurement, got {type(meas).__name__} (one"
+            " foot's LegMeasurement goes to step)"
+        )
+    _check_shapes("step_robot", params, belief, meas, ())
     return _step_legs(params, terrain, belief, meas, jax.random.split(key, meas.n_legs))
 
 
@@ -230,7 +276,14 @@ def step_batch(
     switches as data, so variants differing only in them ``vmap`` as one program; None
     reads them from ``params``.
     """
+    if belief.logit.ndim != 2:
+        raise ValueError(
+            f"step_batch: belief has shape {tuple(belief.logit.shape)} (its logit); expected"
+            " (n_envs, n_legs): init_belief_batch"
+        )
     n_envs, n_legs = belief.logit.shape
+    batch = (n_envs,) if isinstance(meas, RobotMeasurement) else (n_envs, n_legs)
+    _check_shapes("step_batch", params, belief, meas, batch)
     keys = jax.random.split(key, n_envs * n_legs)
     keys = keys.reshape((n_envs, n_legs) + keys.shape[1:])
 

@@ -203,6 +203,34 @@ def test_validate_measurement_names_field_and_shapes(field, bad_shape, lead):
         assert "expected" in str(info.value)
 
 
+def test_the_update_names_a_measurement_or_belief_that_does_not_fit():
+    """Shapes are checked where the update is traced (static, no cost once compiled): a
+    batched measurement given to ``step``, parameters of another robot, a belief of
+    another batch, a negative batch size; each error names the argument and both shapes
+    (they used to surface as XLA's slice or concatenate errors)."""
+    from jax_contact import step_batch
+
+    params, key = PARAMS["quadrature"], jax.random.key(0)
+    one = _as_meas(_meas_fields())
+    batched = _as_meas(_meas_fields((N_ENVS, N_LEGS)))
+    belief = init_belief_batch(params, N_ENVS, N_LEGS)
+    b0 = jax.tree.map(lambda x: x[0, 0], belief)
+    with pytest.raises(ValueError, match=r"step: meas\.qdd has shape \(2, 2, 3\); expected \(3,\)"):
+        step(params, TERRAIN, b0, batched, key=key)
+    other = make_params(make_noise(NV), force_rows=(0, 2))  # nv 4, not 3
+    with pytest.raises(ValueError, match=r"meas\.qdd has shape \(3,\); expected \(4,\).*nv = 4"):
+        step(other, TERRAIN, init_belief_batch(other, 1, 1), one, key=key)
+    # The batch is read from the belief, so the measurement is the one named.
+    with pytest.raises(
+        ValueError, match=r"step_batch: meas\.qdd .* \(2, 2, 3\); expected \(3, 2, 3\)"
+    ):
+        step_batch(params, TERRAIN, init_belief_batch(params, 3, N_LEGS), batched, key=key)
+    with pytest.raises(ValueError, match=r"step_batch: belief has shape \(\).*\(n_envs, n_legs\)"):
+        step_batch(params, TERRAIN, b0, batched, key=key)
+    with pytest.raises(ValueError, match="n_envs must be a positive int, got -1"):
+        init_belief_batch(params, -1, N_LEGS)
+
+
 def test_validate_measurement_other_mistakes():
     fields = _meas_fields((2, 2))
     fields["p_f"] = np.zeros((2, 3, 3))  # a batch axis that disagrees with qd's
