@@ -341,6 +341,11 @@ def test_resampling_keeps_the_contact_on_its_own_rows():
     np.testing.assert_array_equal(conv.truth[:, 0, 0], contact)
 
 
+def test_a_simulate_log_given_as_a_recording_says_which_command_reads_it():
+    with pytest.raises(ValueError, match=r"is a log of `jax-contact simulate`.*evaluate"):
+        read_recording(LOG)
+
+
 def test_a_names_entry_for_a_column_the_recording_lacks_is_refused():
     """A typo in the map (a joint's recording name that no column has) is named, where it
     used to be ignored; a foot's entry may be unused (no ground truth, no foot column)."""

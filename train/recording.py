@@ -135,6 +135,11 @@ def read_recording(path: str | Path) -> Recording:
             raise ValueError(
                 f"{src} cannot be read as HDF5 ({' '.join(str(err).split())})"
             ) from None
+    if "readings/qpos" in columns and "time" in columns:  # a jax_contact.io log
+        raise ValueError(
+            f"{src} is a log of `jax-contact simulate` (readings/qpos, ... per env): run"
+            " `jax-contact evaluate` on it; `estimate` reads a recording of named columns"
+        )
     out = {}
     for name, col in columns.items():
         if col.ndim != 1:
