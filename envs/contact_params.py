@@ -222,7 +222,7 @@ def default_terrain(mj_model: mujoco.MjModel, desc: RobotDescription, sigma: flo
     """A flat terrain at the floor plane's height, ``sigma_pi`` = 5 cm (a choice).
 
     Sharper than the paper's 0.2 m so that the kinematics term can tell a foot held a few
-    cm above the floor from contact (MODEL.md). For a height-field floor the mean floor
+    cm above the floor from contact (docs/model.md). For a height-field floor the mean floor
     height is used with ``sigma`` raised to the field's height range; pass a
     :func:`jax_contact.height_field` terrain for better.
     """

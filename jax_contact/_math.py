@@ -179,7 +179,7 @@ def cap_bound(cap: jax.Array) -> jax.Array:
 
 
 def cap_llr(llr: jax.Array, cap: jax.Array, cap_contact: jax.Array | None = None) -> jax.Array:
-    """Clips a log-likelihood ratio to +-logit(cap): the term's confidence cap (MODEL.md).
+    """Clips a log-likelihood ratio to +-logit(cap): the term's confidence cap (docs/model.md).
 
     With ``cap_contact`` the contact side (positive ratios) is clipped to
     ``logit(cap_contact)`` instead. A cap of exactly 1 leaves that side unbounded.

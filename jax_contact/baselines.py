@@ -1,4 +1,4 @@
-"""Baseline contact detectors the estimator is compared with (MODEL.md, "The baseline").
+"""Baseline contact detectors the estimator is compared with (docs/model.md, "The baseline").
 
 * The generalized-momentum (GM) observer of De Luca et al., the paper's baseline (Table III):
   a first-order filter of the external joint torque, mapped to a foot force through the
@@ -246,7 +246,7 @@ def gm_step(
     ``r`` is a first-order low-pass of ``-J_fl^T F`` with pole ``1 - K_I dt``.
 
     The foot force is the damped least-squares solution of ``J_fl^T F = -r`` (see
-    ``_foot_force``); the ground's reaction on the foot is ``-F`` (MODEL.md, "Sign"), so the
+    ``_foot_force``); the ground's reaction on the foot is ``-F`` (docs/model.md, "Sign"), so the
     contact flag is ``-e . F > threshold``.
 
     A measurement with a NaN or inf leaves the state unchanged and repeats the last force.

@@ -13,7 +13,7 @@ outlier_size`` and the scalar ``outlier_prob``, e.g. ``jax_contact.envs.sensors.
   0.01 m/s (rad/s) so ideal sensors never make the filter infinitely sure.
 - ``sigma_qdd``: where a coordinate's acceleration is measured directly (``sigma_acc > 0``,
   an IMU's accelerometer) that noise; else the raw backward difference of the noisy
-  velocity, ``sqrt(2) sigma_qd_white / dt`` (MODEL.md; the bias cancels in the
+  velocity, ``sqrt(2) sigma_qd_white / dt`` (docs/model.md; the bias cancels in the
   difference); floor 0.1.
 - ``sigma_d = sqrt(disturbance^2 + sigma_tau^2)``: Table II's 2 N m model error plus the
   torque sensors' noise, which enters the equation of motion the same way.
@@ -98,7 +98,7 @@ class GaitPrior:
         differential-kinematics term (eq. 9), rad/s (m/s for prismatic joints).
       takeoff_accel: ``a_F``, the largest take-off acceleration of the foot along the
         terrain normal (eq. 15), m/s^2. 100 m/s^2 was chosen on the reproduction's
-        tuning seed (Go1 trot and walk, seed 1000; 200 m/s^2, MODEL.md's figure for the
+        tuning seed (Go1 trot and walk, seed 1000; 200 m/s^2, docs/model.md's figure for the
         planar leg, lifted off 0.7 ms later there), never on an evaluation seed.
 
     The defaults (``T_s`` 0.3 s, swing 0.2 s, 25 rad/s: Table I's joint limit) describe a

@@ -2,7 +2,7 @@
 
 Each term returns the *log-likelihood ratio* ``log L(C) - log L(A)`` of one foot's
 measurement under the contact (C) and air (A) hypotheses, already clipped to the term's
-confidence cap (MODEL.md, "State and recursion"). Only ratios enter the recursion, since
+confidence cap (docs/model.md, "State and recursion"). Only ratios enter the recursion, since
 eq. 2 normalises ``alpha`` over the two states.
 """
 
@@ -132,7 +132,7 @@ def dynamics_llr(
     With ``params.unilateral`` the contact hypothesis is weighted by ``P(-e . F > f_min)``
     under ``F ~ N(F_hat, Sigma_f)``, ``f_min = params.min_push`` (0 by default: ``P(e . F <
     0)``): a foot that the ground would have to *pull*, or with ``f_min > 0`` a foot that
-    bears almost no load, is evidence for air (a documented choice, MODEL.md "Sign";
+    bears almost no load, is evidence for air (a documented choice, docs/model.md "Sign";
     docs/model_choices.md, "A loaded contact").
 
     Args:

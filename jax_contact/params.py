@@ -21,7 +21,7 @@ TERMS = ("dynamics", "diff_kinematics", "kinematics")
 
 @struct.dataclass
 class NoiseParams:
-    """Standard deviations of the Gaussian noise model (MODEL.md; paper Table II).
+    """Standard deviations of the Gaussian noise model (docs/model.md; paper Table II).
 
     Per-coordinate entries have length ``nv`` and are indexed by each leg's dofs, so one
     object serves every leg of a robot.
@@ -62,7 +62,7 @@ class EstimatorParams:
       takeoff_accel: () ``a_F``, the largest take-off acceleration of the foot along the
         terrain normal, m/s^2; ``u_max = a_F dt`` (eq. 15).
       cap_dynamics, cap_diff_kinematics, cap_kinematics: () confidence caps in (0.5, 1]:
-        each term's log-likelihood ratio is clipped to ``+-logit(cap)`` (MODEL.md).
+        each term's log-likelihood ratio is clipped to ``+-logit(cap)`` (docs/model.md).
       cap_diff_kinematics_still: () cap of the differential-kinematics term on the
         contact side only: a still foot is weaker evidence for contact than a moving foot
         is for air, since a swinging foot is slow near its apex and at lift-off
@@ -121,7 +121,7 @@ class EstimatorParams:
       transition_model: static; if False the measurement-dependent transitions (eq.
         11-17) are replaced by the gait prior alone, for ablations.
       kinematics_neutral_below: static; if True (default) the kinematics term is neutral
-        wherever the sole is at or below the terrain (MODEL.md: "neutral on the ground and
+        wherever the sole is at or below the terrain (docs/model.md: "neutral on the ground and
         only gives evidence for air"); False is the two-sided ratio
         ``P(phi <= 0) / P(phi > 0)``, which reads a sole estimated below the plane (base
         height drift) as contact evidence.
@@ -250,7 +250,7 @@ def make_noise(
 
     Scalars are broadcast to every coordinate (or every axis for ``sigma_f``, ``sigma_J``).
     The defaults are Table II's joint values with ``sigma_qdd`` for a raw 400 Hz difference
-    of ``qd`` (``sqrt(2) * 0.3 / 0.0025`` ~ 170 rad/s^2) and the MODEL.md choices
+    of ``qd`` (``sqrt(2) * 0.3 / 0.0025`` ~ 170 rad/s^2) and the docs/model.md choices
     ``Sigma_f`` = 10 N, ``Sigma_J`` = 0.05 m/s, prior 25 rad/s (Table I's joint limit).
 
     Raises:
@@ -339,7 +339,7 @@ def make_params(
     """Builds and validates :class:`EstimatorParams`.
 
     Defaults: 400 Hz (the paper's rate on ANYmal), ``T_s`` = 0.3 s, ``a_F`` = 200 m/s^2,
-    caps 0.99 / 0.9 / 0.99 (dynamics / differential kinematics / kinematics; MODEL.md),
+    caps 0.99 / 0.9 / 0.99 (dynamics / differential kinematics / kinematics; docs/model.md),
     the paper's rigid contact constraint (``contact_damping`` 0).
 
     Raises:

@@ -28,7 +28,7 @@ from jax_contact.params import EstimatorParams
 from jax_contact.types import LegBlocks, LegMeasurement, TerrainQuery
 
 # Transition probabilities are floored here (in log space) so that no state becomes
-# unreachable: a belief can always recover, even after a million steps (MODEL.md).
+# unreachable: a belief can always recover, even after a million steps (docs/model.md).
 LOG_FLOOR = -30.0
 
 

@@ -4,7 +4,7 @@ All of these are *unbatched*: they describe one foot of one robot at one time st
 Batches over legs and environments are made with ``jax.vmap`` at the edge (see
 ``jax_contact.filter.step_batch``), so every leaf below gains leading axes there.
 
-Notation follows ``MODEL.md``: ``nv`` generalised velocities, ``n_l`` joints of the leg,
+Notation follows ``docs/model.md``: ``nv`` generalised velocities, ``n_l`` joints of the leg,
 ``n_b = nv - n_l`` the other coordinates (base and the other legs).
 """
 
@@ -225,7 +225,7 @@ class TerrainQuery:
 class LegBelief:
     """The filter's state for one foot, carried from step to step.
 
-    The belief is kept as a logit so that it never rounds to exactly 0 or 1 (MODEL.md,
+    The belief is kept as a logit so that it never rounds to exactly 0 or 1 (docs/model.md,
     "State and recursion"). The transition matrix for the *next* step is built from this
     step's measurements (eq. 11-17 use the measurements at ``t-1``) and stored here.
 

@@ -1,8 +1,8 @@
 """An independent float64 NumPy/SciPy oracle of the contact estimator, for tests only.
 
-Written from ``/work/shared/MODEL.md`` alone, with explicit loops, and sharing no code with
-``jax_contact`` (which it never imports). It follows the modelling choices the library
-documents:
+Written from the project's model specification alone (docs/model.md restates it), with
+explicit loops, and sharing no code with ``jax_contact`` (which it never imports). It
+follows the modelling choices the library documents:
 
 * dynamics (eq. 4-7): only the rows ``force_rows`` of ``J``; the contact force from the
   damped operational-space system ``(J M^-1 J^T + inv_damping I) F = ...``, solved here as
@@ -18,7 +18,7 @@ documents:
 * every term's log-likelihood ratio clipped to ``+-logit(cap)`` (no clipping for cap = 1);
 * take-off (eq. 11-15) with the ``1 / u_max`` of the uniform density and Bayes'
   normalisation against the gait prior ``dt / T_s``;
-* touch-down (eq. 16-17, Algorithm 1 with MODEL.md's sign), as a nested adaptive
+* touch-down (eq. 16-17, Algorithm 1 with docs/model.md's sign), as a nested adaptive
   ``scipy.integrate.quad`` over the foot height and the *truncated terrain height* (the
   velocity is integrated analytically, as in Algorithm 1) -- a different route from the
   library's quadrature, which integrates the terrain height analytically -- or by a NumPy
@@ -392,7 +392,7 @@ def kinematics(p: Params, m: Meas, tq: Query) -> float:
     s = math.sqrt(s_pf**2 + tq.sigma**2)
     llr = stats.norm.logcdf(0.0, loc=gap, scale=s) - stats.norm.logsf(0.0, loc=gap, scale=s)
     if p.kinematics_neutral_below:
-        llr = min(llr, 0.0)  # neutral on and below the terrain (MODEL.md)
+        llr = min(llr, 0.0)  # neutral on and below the terrain (docs/model.md)
     return cap(llr, p.cap_kinematics)
 
 
@@ -852,7 +852,7 @@ def round32(tree):
     return arr
 
 
-# Table II's noise for the planar leg, (base z, hip, knee); Sigma_f, Sigma_J: MODEL.md's
+# Table II's noise for the planar leg, (base z, hip, knee); Sigma_f, Sigma_J: docs/model.md's
 # choices; the velocity prior from Table I's 25 rad/s joint limit.
 TABLE_II = dict(
     sigma_q=(0.04, 0.02, 0.02),

@@ -266,7 +266,7 @@ def test_foot_falling_fast_just_above_the_ground(sigma_pi, expected, jit_step):
 
     * sigma_pi = 1 cm: (Phi(0.3) - Phi(-0.2)) / Phi(0.3) = 0.3191. A 1 cm terrain may lie
       a centimetre lower, so one step of 5 mm lands with probability ~1/3 only; it is
-      still 30 times MODEL.md's ~1e-2 for a foot falling at 2 m/s over a vague terrain.
+      still 30 times docs/model.md's ~1e-2 for a foot falling at 2 m/s over a vague terrain.
     * sigma_pi = 1 mm (e.g. the foothold memory at the same spot):
       (Phi(3) - Phi(-2)) / Phi(3) = 0.9772: touch-down is near certain.
     """

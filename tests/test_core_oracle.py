@@ -377,7 +377,7 @@ def test_touchdown_oracle_self_consistent():
     2e5 draws with SciPy's truncated normal; tolerance 5 sample standard errors.
     """
     cases = [
-        (0.05, 0.01, 0.2, -2.0, 0.1, 0.0025),  # MODEL.md: ~1e-2 at 2 m/s, vague terrain
+        (0.05, 0.01, 0.2, -2.0, 0.1, 0.0025),  # docs/model.md: ~1e-2 at 2 m/s, vague terrain
         (0.003, 0.0005, 0.01, -2.0, 0.03, 0.0025),
         (-0.02, 0.01, 0.05, -1.0, 0.1, 0.0025),
         (0.0, 0.04, 0.01, -0.5, 0.2, 0.0025),  # sigma_pf > sigma_pi
@@ -387,7 +387,7 @@ def test_touchdown_oracle_self_consistent():
         assert abs(p_ca + p_aa - 1.0) < 1e-10, c
         mc, sd = oracle.touchdown_mc(*c, n=200_000, seed=3)
         assert abs(mc - p_ca) < 5 * sd / math.sqrt(200_000) + 1e-12, (c, mc, p_ca)
-    # MODEL.md: "about 1e-2 per 2.5 ms step for a foot falling at 2 m/s" with sigma_pi 0.2 m.
+    # docs/model.md: "about 1e-2 per 2.5 ms step for a foot falling at 2 m/s" with sigma_pi 0.2 m.
     assert 5e-3 < oracle.touchdown(*cases[0])[0] < 3e-2
 
 
