@@ -584,8 +584,10 @@ def build_parser() -> argparse.ArgumentParser:
         "--params",
         default=None,
         metavar="FILE|PRESET",
-        help="the physics-rate estimator's parameter file or preset (e.g. go1; moved to the"
-        " scene's 4 ms, its calibration map applied); default: the defaults",
+        help="the physics-rate estimator's parameter file or preset, for every scene, so"
+        " with --scenes of one robot (e.g. --scenes go1 go1_trot go1_walk --params"
+        " go1_playground; moved to the scene's 4 ms, its calibration map applied); default:"
+        " the defaults",
     )
     p.add_argument("--json", default=None, help="write the results here")
 

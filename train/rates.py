@@ -95,7 +95,7 @@ def check_params(scenes, params) -> None:
         if have != nv:
             raise ValueError(
                 f"parameter file {str(params)!r} is for nv = {nv}; scene {name!r} ({robot}) has"
-                f" nv = {have}"
+                f" nv = {have}: --params applies to every scene, so pass --scenes of one robot"
             )
 
 
