@@ -22,6 +22,7 @@ OBSERVE = ("estimate", "truth", "none")
 PAIRINGS = ("delayed", "raw")
 TRUTH_SOURCES = ("auto", "force_sensors", "found_sensors", "touch_sensors", "contacts", "none")
 TERM_NAMES = ("p_dynamics", "p_diff_kinematics", "p_kinematics", "p_takeoff", "p_touchdown")
+DEFAULT_OBS_KEYS = ("state",)  # Playground's policy input; an array observation: appended
 
 
 @struct.dataclass
@@ -67,7 +68,8 @@ class ContactObsConfig:
       include_terms: also observe the five per-term probabilities.
       obs_keys: the entries of a dict observation that get the features, any set of them
         (Playground's policy input ``"state"``, its critic's ``"privileged_state"``); an
-        array observation gets them appended and ignores this.
+        array observation gets them appended, and any other value than the default is
+        refused for it (where the observation size is first read, or at reset).
       info_key: ``state.info`` key of the estimator state (:class:`ContactEstState`); the
         truth goes under ``info_key + "_truth"``, metrics under ``info_key + "/..."``.
       truth: ground-truth source, one of :data:`TRUTH_SOURCES`
@@ -101,7 +103,7 @@ class ContactObsConfig:
     pairing: str = struct.field(pytree_node=False, default="delayed")
     include_logit: bool = struct.field(pytree_node=False, default=False)
     include_terms: bool = struct.field(pytree_node=False, default=False)
-    obs_keys: tuple[str, ...] = struct.field(pytree_node=False, default=("state",))
+    obs_keys: tuple[str, ...] = struct.field(pytree_node=False, default=DEFAULT_OBS_KEYS)
     info_key: str = struct.field(pytree_node=False, default="contact_est")
     truth: str = struct.field(pytree_node=False, default="auto")
     truth_threshold: float = struct.field(pytree_node=False, default=1.0)

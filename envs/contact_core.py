@@ -25,7 +25,12 @@ import jax_contact as jc
 from jax_contact import adapter
 from jax_contact.calibration import Calibration, apply_calibration, file_calibration, probability
 from jax_contact.envs import contact_params, contact_truth, feet, sensors
-from jax_contact.envs.contact_config import TERM_NAMES, ContactObsConfig, validate_config
+from jax_contact.envs.contact_config import (
+    DEFAULT_OBS_KEYS,
+    TERM_NAMES,
+    ContactObsConfig,
+    validate_config,
+)
 from jax_contact.envs.robots import Robot
 from jax_contact.io import load_params_for
 from jax_contact.robot import RobotDescription, model_mass
@@ -211,15 +216,27 @@ class Core:
             cols += [jnp.nan_to_num(getattr(est.diag, n), nan=0.5) for n in TERM_NAMES]
         return jnp.concatenate(cols).astype(jnp.float32)
 
-    def add_features(self, obs, feats: jax.Array):
-        if feats.shape[-1] == 0:
-            return obs
+    def _check_placement(self, obs) -> None:
+        """The configured ``obs_keys`` fit the observation (a dict's keys, or an array:
+        then only the default placement, appended to it)."""
+        keys = self.cfg.obs_keys
         if isinstance(obs, Mapping):
-            missing = [k for k in self.cfg.obs_keys if k not in obs]
+            missing = [k for k in keys if k not in obs]
             if missing:
                 raise ValueError(
                     f"config.obs_keys {missing} not in the observation; its keys: {list(obs)}"
                 )
+        elif tuple(keys) != DEFAULT_OBS_KEYS:
+            raise ValueError(
+                f"config.obs_keys {list(keys)}: the observation is an array, not a dict of"
+                " keys; the features are appended to it (leave obs_keys at its default)"
+            )
+
+    def add_features(self, obs, feats: jax.Array):
+        if feats.shape[-1] == 0:
+            return obs
+        self._check_placement(obs)
+        if isinstance(obs, Mapping):
             out = dict(obs)
             for k in self.cfg.obs_keys:
                 out[k] = jnp.concatenate([obs[k], feats.astype(obs[k].dtype)], axis=-1)
@@ -230,13 +247,10 @@ class Core:
         n = self.cfg.n_per_foot * self.desc.n_legs
         if n == 0:
             return size
+        self._check_placement(size)
         if isinstance(size, Mapping):
             out = dict(size)
             for k in self.cfg.obs_keys:
-                if k not in size:
-                    raise ValueError(
-                        f"config.obs_keys: {k!r} not in the observation; its keys: {list(size)}"
-                    )
                 shape = (size[k],) if isinstance(size[k], int) else tuple(size[k])
                 out[k] = shape[:-1] + (shape[-1] + n,)
             return out

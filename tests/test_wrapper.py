@@ -282,6 +282,11 @@ def test_refusals(leg_robot, brax_leg, pg_leg):
         W.wrap_contact(pg_leg, W.ContactObsConfig(rate="control", record_substeps=True))
     with pytest.raises(ValueError, match="config.obs_keys"):
         _ = W.wrap_contact(pg_leg, W.ContactObsConfig(obs_keys=("policy",))).observation_size
+    # An array observation takes the features at its end; keys asked for are refused, not
+    # silently ignored (a user feeding the critic would get nothing separate).
+    keys = W.ContactObsConfig(obs_keys=("state", "privileged_state"))
+    with pytest.raises(ValueError, match=r"obs_keys \['state', 'privileged_state'\]: .* array"):
+        _ = W.wrap_contact(brax_leg, keys).observation_size
 
     class Generalized(PipelineEnv):
         reset = step = None
