@@ -188,7 +188,8 @@ def expected_outputs(argv: list[str]) -> list[str]:
         out = opts.get("--out", ["out/train"])[0]
         variants = opts.get("--variants", list(cli.VARIANTS))
         files += [f"{out}/summary.json", f"{out}/reward_curves.png"]
-        files += [f"{out}/{v}/{name}" for v in variants for name in ("run.json", "progress.csv")]
+        names = ("run.json", "progress.csv", "training.csv")  # the module docstring's files
+        files += [f"{out}/{v}/{name}" for v in variants for name in names]
     return files
 
 

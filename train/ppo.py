@@ -23,7 +23,8 @@ configuration is ours: :data:`SMALL` (this 2-core CPU, under 20 minutes per vari
 
 A run folder ``<out>/<variant>/`` holds ``run.json`` (variant and configuration),
 ``progress.csv`` (one row per evaluation, rewritten atomically after each),
-``training.csv`` (Brax's training-episode means), ``reward.png`` and
+``training.csv`` (Brax's training-episode means, every two training steps: only its
+header for a shorter run, e.g. ``--config tiny``), ``reward.png`` and
 ``checkpoints/<step>/`` (Brax's orbax checkpoints with their network configuration, loaded
 by :func:`jax_contact.train.policy_eval.load_policy`; Brax 0.14.2's own loader cannot read
 them, see there).
@@ -521,6 +522,8 @@ def train(
         save_checkpoint_path=str((run_dir / "checkpoints").resolve()),
     )
     wall = time.perf_counter() - t0
+    if not train_rows:  # Brax reports them every two training steps: none in a shorter run
+        write_text_atomic(run_dir / "training.csv", _csv_text(train_rows, TRAIN_FIELDS))
     figures.plot_reward_curves(
         {variant: rows},
         run_dir / "reward.png",
