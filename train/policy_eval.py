@@ -336,4 +336,8 @@ def format_evaluation(results: Sequence[dict]) -> str:
             f" {r['return_mean']:8.2f} +- {r['return_std']:5.2f} {r['episode_length_mean']:10.1f}"
             f" {r['fell']:5.2f} {c['accuracy']:13.3f} {c['f1']:12.3f}"
         )
+    lines.append(
+        "return: episode sum, mean +- std over episodes; fell: share of episodes that fell;"
+        " estimator acc, F1: per foot-step against the simulator's contact"
+    )
     return "\n".join(lines)

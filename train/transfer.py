@@ -455,7 +455,9 @@ def main(argv: Sequence[str] | None = None) -> dict:
     from jax_contact.train.cli_args import positive_int, seed_int
     from jax_contact.train.compile_cache import enable_compilation_cache
 
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(
+        prog="python -m jax_contact.train.transfer", description=__doc__.splitlines()[0]
+    )
     parser.add_argument("root", help="folder of seed*/{none,truth,estimate} run folders")
     parser.add_argument("--envs", type=positive_int, default=32, help="episodes per cell")
     parser.add_argument(
