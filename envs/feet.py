@@ -301,12 +301,20 @@ def describe(m: mujoco.MjModel, feet=None) -> tuple[RobotDescription, tuple[Foot
             n = _JOINT_DOFS[int(m.jnt_type[j])]
             actuated.update(range(int(m.jnt_dofadr[j]), int(m.jnt_dofadr[j]) + n))
     legs, bases = [], []
+    # Feet the user did not name were found by a rule; say so, since a model that is no
+    # legged robot (a cart-pole) fails here on a "foot" nobody called one.
+    found = (
+        ""
+        if feet
+        else f" (feet found by rule: {[f.name for f in resolved]}; is this a legged robot?"
+        " name its feet with foot_names)"
+    )
     for f in resolved:
         base, dofs = _leg(m, f.body_id)
         if not dofs:
-            raise ValueError(f"foot {f.name!r} has no leg: no joint between it and the base")
+            raise ValueError(f"foot {f.name!r} has no leg: no joint between it and the base{found}")
         if not actuated.intersection(dofs):
-            raise ValueError(f"foot {f.name!r}: none of its leg's joints is actuated")
+            raise ValueError(f"foot {f.name!r}: none of its leg's joints is actuated{found}")
         legs.append(tuple(dofs))
         bases.append(base)
     if len({len(x) for x in legs}) != 1:

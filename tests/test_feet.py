@@ -317,3 +317,18 @@ def test_robot_measurement_places_site_feet_and_refuses_flat_soles():
     desc, _ = feet.describe(m)
     with pytest.raises(ValueError, match=r"feet \['sole'\] are flat soles.*feet.measurement"):
         adapter.robot_measurement(mjx.put_model(m), mjx.put_data(m, mujoco.MjData(m)), desc)
+
+
+def test_a_model_that_is_no_legged_robot_is_told_so():
+    """A cart-pole's pole reaches the floor, so the rule finds it as a foot; the error says
+    the feet were found by rule, which ones, and how to name them (it used to name only a
+    "foot 'pole_1'" the user never called one)."""
+    xml = """<mujoco><worldbody><geom type="plane" size="5 5 .1"/>
+    <body name="cart" pos="0 0 .5"><joint name="slide" type="slide" axis="1 0 0"/>
+      <geom type="box" size=".1 .1 .1"/>
+      <body name="pole"><joint name="hinge" type="hinge" axis="0 1 0"/>
+        <geom name="pole_1" type="capsule" fromto="0 0 0 0 0 -.45" size=".02"/></body></body>
+    </worldbody><actuator><motor joint="slide"/></actuator></mujoco>"""
+    m = mujoco.MjModel.from_xml_string(xml)
+    with pytest.raises(ValueError, match=r"feet found by rule: \['pole_1'\]; is this a legged"):
+        feet.describe(m)
