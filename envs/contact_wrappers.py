@@ -45,6 +45,27 @@ def _merge(config, foot_names, sensor, params, terrain) -> ContactObsConfig:
     return dataclasses.replace(cfg, **over) if over else cfg
 
 
+def _check_nesting(env, core: Core) -> None:
+    """Refuses, when wrapping, what the wrapped step would refuse when traced: a second
+    physics-rate wrapper over one env, or two wrappers with one ``info_key``. Walks the
+    ``env`` attributes of the wrappers below."""
+    inner = env
+    while inner is not None:
+        other = getattr(inner, "_core", None)
+        if isinstance(other, Core):
+            if core.rate == "substep" and other.rate == "substep":
+                raise ValueError(
+                    "the env is already wrapped by a physics-rate contact wrapper: only one"
+                    " can run at the physics rate (give the others config.rate='control')"
+                )
+            if other.cfg.info_key == core.cfg.info_key:
+                raise ValueError(
+                    f"the env is already wrapped by a contact wrapper with info_key"
+                    f" {core.cfg.info_key!r}: give this wrapper another config.info_key"
+                )
+        inner = getattr(inner, "env", None)
+
+
 class _ContactMixin:
     """reset / step shared by the Brax and the Playground wrapper."""
 
@@ -53,6 +74,7 @@ class _ContactMixin:
     def _init_contact(self, config, foot_names, sensor, params, terrain) -> None:
         cfg = _merge(config, foot_names, sensor, params, terrain)
         self._core = contact_core.make_core(self.env, cfg)
+        _check_nesting(self.env, self._core)
         key = cfg.info_key
         self._truth_key = key + "_truth"
         self._substeps_key = key + "_substeps"

@@ -101,10 +101,18 @@ def test_hook_restored_after_error_and_refuses_nesting(pg_leg, brax_leg):
         jax.eval_shape(failing.step, state, jnp.zeros(2))
     assert mjx_env.step is original
     wrapped = W.wrap_contact(pg_leg)
-    twice = W.wrap_contact(wrapped, W.ContactObsConfig(info_key="again"))
-    state = jax.eval_shape(twice.reset, jax.random.PRNGKey(0))
-    with pytest.raises(ValueError, match="already hooked"):
-        jax.eval_shape(twice.step, state, jnp.zeros(2))
+    # Refused when wrapping: a second physics-rate wrapper, or one info_key twice.
+    with pytest.raises(ValueError, match="already wrapped by a physics-rate contact wrapper"):
+        W.wrap_contact(wrapped, W.ContactObsConfig(info_key="again"))
+    with pytest.raises(ValueError, match="already wrapped .* info_key 'contact_est'"):
+        W.wrap_contact(wrapped, W.ContactObsConfig(rate="control"))
+    # The hook itself refuses a second hook (a nesting the wrapper chain does not show).
+    from jax_contact.envs import substeps
+
+    with substeps.hooked(mjx_env, "step", lambda *a: None):
+        with pytest.raises(ValueError, match="already hooked"):
+            with substeps.hooked(mjx_env, "step", lambda *a: None):
+                pass
     assert mjx_env.step is original
     # A control-rate wrapper nests inside a physics-rate one.
     inner = W.wrap_contact(pg_leg, W.ContactObsConfig(rate="control", info_key="ctrl"))
