@@ -420,6 +420,15 @@ def params_from_dict(payload: Mapping, *, source: str = "params"):
     nv = payload.get("nv")
     if not isinstance(nv, int) or nv < 1:
         raise ValueError(f"{source}: nv must be a positive int, got {nv!r}")
+    lengths = {
+        len(v)
+        for k, v in payload["noise"].items()
+        if k not in ("sigma_f", "sigma_J") and isinstance(v, list)
+    }
+    if len(lengths) == 1 and nv not in lengths:  # the header, not one vector, disagrees
+        raise ValueError(
+            f"{source}: nv is {nv} but every per-dof noise vector has {lengths.pop()} entries"
+        )
     try:
         noise = make_noise(nv, **payload["noise"])
         params = make_params(noise, **payload["values"], **payload["options"])

@@ -141,6 +141,7 @@ def test_bad_params_file_names_the_field(go1, tmp_path):
         "extra": (lambda d: d["noise"].update(sigma_x=[1.0]), "unknown field.*sigma_x"),
         "bad value": (lambda d: d["values"].update(cap_transition=2.0), "cap_transition"),
         "bad shape": (lambda d: d["noise"].update(sigma_qd=[0.3] * 3), "sigma_qd"),
+        "bad nv": (lambda d: d.update(nv=5), "nv is 5 but every per-dof noise vector has 18"),
         "version": (lambda d: d.update(version=99), "version 99"),
     }
     for name, (mutate, pattern) in cases.items():
