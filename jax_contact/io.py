@@ -236,7 +236,7 @@ def abort_writes() -> list[str]:
 
 
 @contextlib.contextmanager
-def staged_folder(folder: str | os.PathLike, stale: Callable[[Path], Iterable[str]] = tuple):
+def staged_folder(folder: str | os.PathLike, stale: Callable[[Path], Iterable[str]] | None = None):
     """Writes a set of output files into ``folder`` as one.
 
     Yields a new temporary folder beside ``folder`` (same file system) to write the files
@@ -249,7 +249,7 @@ def staged_folder(folder: str | os.PathLike, stale: Callable[[Path], Iterable[st
 
     Args:
       folder: the destination folder.
-      stale: ``folder -> names`` of files in it that this run supersedes.
+      stale: ``folder -> names`` of files in it that this run supersedes; None: none.
 
     Yields:
       The temporary folder (a :class:`~pathlib.Path`).
@@ -262,7 +262,7 @@ def staged_folder(folder: str | os.PathLike, stale: Callable[[Path], Iterable[st
     try:
         yield Path(tmp)
         folder.mkdir(exist_ok=True)
-        old = set(stale(folder))
+        old = set(stale(folder)) if stale is not None else set()
         with _LOCK:
             names = sorted(os.listdir(tmp))
             for name in sorted(old - set(names)):

@@ -288,6 +288,11 @@ def test_a_staged_folder_replaces_the_earlier_run_and_keeps_other_files(tmp_path
     assert (out / "estimate.csv").read_text() == "new"
     assert sorted(p.name for p in out.iterdir()) == ["estimate.csv", "notes.txt"]
     assert sorted(p.name for p in tmp_path.iterdir()) == ["est"]
+    # Without ``stale`` nothing is removed; a new folder is created.
+    with staged_folder(tmp_path / "new") as stage:
+        write_text_atomic(stage / "a.txt", "a")
+    assert [p.name for p in (tmp_path / "new").iterdir()] == ["a.txt"]
+    assert sorted(p.name for p in out.iterdir()) == ["estimate.csv", "notes.txt"]
 
 
 def test_the_interrupt_handler_is_removed_afterwards():
