@@ -56,10 +56,10 @@ def estimate_recording(
     from jax_contact.baselines import make_gm_params, make_kinematic_params
     from jax_contact.calibration import calibrate_probability
     from jax_contact.envs.robots import load_robot
-    from jax_contact.io import staged_folder
+    from jax_contact.io import staged_folder, write_json_atomic, write_log
     from jax_contact.robot import model_mass
-    from jax_contact.train.evaluate import replay
-    from jax_contact.train.logs import _estimator_for
+    from jax_contact.train.evaluate import replay, score
+    from jax_contact.train.logs import _estimator_for, format_scores
 
     rec = read_recording(path)
     robot = load_robot(model, foot_names=feet)
@@ -105,27 +105,77 @@ def estimate_recording(
         print(f"note: {line}")
     out_dir = Path(out_dir)
     with staged_folder(out_dir, stale=_earlier_outputs) as stage:
-        files, scores = _write_outputs(
-            stage,
-            out,
-            conv,
-            desc,
-            notes,
-            terms,
-            calibration,
-            has_truth,
-            plots,
-            plot_seconds,
-            model=model,
-            path=path,
-            terrain_model=terrain_model,
+        feet_names = list(desc.foot_names)
+        fields = {"p_contact": out["probabilistic"]} | {
+            f: out[f"probabilistic/{f}"] for f in DIAGNOSTICS
+        }
+        fields["valid"] = out["probabilistic/valid"].astype(np.float64)
+        arrays = {"time": conv.time} | {
+            k: np.asarray(v[:, 0], np.float32) for k, v in fields.items()
+        }
+        if has_truth:
+            arrays["truth/contact"] = conv.truth[:, 0]
+        attrs = {
+            "model": str(model),
+            "recording": str(path),
+            "terrain_model": terrain_model,
+            "foot_names": feet_names,
+            "terms": list(terms),
+            "dt": conv.dt,
+            "notes": notes,
+            "reading_timing": "end_of_step",
+            "calibration": None if calibration is None else calibration.as_dict(),
+        }
+        files = [write_log(stage / "estimate.h5", arrays, attrs)]
+        columns = {"time": conv.time}
+        for field, value in fields.items():
+            for i, foot in enumerate(feet_names):
+                columns[f"{field}/{foot}"] = np.asarray(value[:, 0, i], np.float64)
+        files.append(write_recording_csv(stage / "estimate.csv", columns))
+        if plots:
+            from types import SimpleNamespace
+
+            from jax_contact.train.figures import plot_estimate
+
+            nan = np.full(out["probabilistic"].shape, np.nan)
+            shown = SimpleNamespace(
+                time=conv.time - conv.time[0],
+                contact=conv.truth if has_truth else nan,
+                force=conv.force if conv.force is not None else nan,
+            )
+            for i, foot in enumerate(feet_names):
+                files.append(
+                    plot_estimate(
+                        out,
+                        shown,
+                        "probabilistic",
+                        stage / f"{_safe(foot)}.png",
+                        leg=i,
+                        seconds=plot_seconds,
+                        title=f"{Path(path).name}: foot {foot!r} (terms: {', '.join(terms)})",
+                    )
+                )
+        p = np.asarray(out["probabilistic"])[:, 0]
+        summary = "  ".join(
+            f"{f} {np.nanmean(p[:, i] > 0.5):.2f}" for i, f in enumerate(feet_names)
         )
+        print(
+            f"{len(p)} readings at {conv.dt * 1e3:.4g} ms; share of steps estimated in contact"
+            f" (P > 0.5): {summary}"
+        )
+        scores = {}
+        if has_truth:
+            scores = score(out, conv.truth, conv.valid, dt=conv.dt)
+            print(format_scores(scores, title=Path(path).name))
+            files.append(write_json_atomic(stage / "metrics.json", scores))
+        else:
+            print("no ground truth columns (contact/<foot> or force/<foot>): no metrics")
     files = [out_dir / f.name for f in files]
     print("wrote " + ", ".join(str(f) for f in files))
     return {
         "notes": notes,
         "terms": terms,
-        "foot_names": list(desc.foot_names),
+        "foot_names": feet_names,
         "dt": conv.dt,
         "files": files,
         "outputs": out,
@@ -145,91 +195,6 @@ def _earlier_outputs(folder: Path) -> list[str]:
     except (OSError, ValueError):
         pass
     return names
-
-
-def _write_outputs(
-    out_dir,
-    out,
-    conv,
-    desc,
-    notes,
-    terms,
-    calibration,
-    has_truth,
-    plots,
-    plot_seconds,
-    *,
-    model,
-    path,
-    terrain_model,
-):
-    """Writes ``estimate``'s files into ``out_dir``; returns (paths, scores)."""
-    from jax_contact.io import write_json_atomic, write_log
-    from jax_contact.train.evaluate import score
-    from jax_contact.train.logs import format_scores
-
-    feet_names = list(desc.foot_names)
-    fields = {"p_contact": out["probabilistic"]} | {
-        f: out[f"probabilistic/{f}"] for f in DIAGNOSTICS
-    }
-    fields["valid"] = out["probabilistic/valid"].astype(np.float64)
-    arrays = {"time": conv.time} | {k: np.asarray(v[:, 0], np.float32) for k, v in fields.items()}
-    if has_truth:
-        arrays["truth/contact"] = conv.truth[:, 0]
-    attrs = {
-        "model": str(model),
-        "recording": str(path),
-        "terrain_model": terrain_model,
-        "foot_names": feet_names,
-        "terms": list(terms),
-        "dt": conv.dt,
-        "notes": notes,
-        "reading_timing": "end_of_step",
-        "calibration": None if calibration is None else calibration.as_dict(),
-    }
-    files = [write_log(out_dir / "estimate.h5", arrays, attrs)]
-    columns = {"time": conv.time}
-    for field, value in fields.items():
-        for i, foot in enumerate(feet_names):
-            columns[f"{field}/{foot}"] = np.asarray(value[:, 0, i], np.float64)
-    files.append(write_recording_csv(out_dir / "estimate.csv", columns))
-    if plots:
-        from types import SimpleNamespace
-
-        from jax_contact.train.figures import plot_estimate
-
-        nan = np.full(out["probabilistic"].shape, np.nan)
-        shown = SimpleNamespace(
-            time=conv.time - conv.time[0],
-            contact=conv.truth if has_truth else nan,
-            force=conv.force if conv.force is not None else nan,
-        )
-        for i, foot in enumerate(feet_names):
-            files.append(
-                plot_estimate(
-                    out,
-                    shown,
-                    "probabilistic",
-                    out_dir / f"{_safe(foot)}.png",
-                    leg=i,
-                    seconds=plot_seconds,
-                    title=f"{Path(path).name}: foot {foot!r} (terms: {', '.join(terms)})",
-                )
-            )
-    p = np.asarray(out["probabilistic"])[:, 0]
-    summary = "  ".join(f"{f} {np.nanmean(p[:, i] > 0.5):.2f}" for i, f in enumerate(feet_names))
-    print(
-        f"{len(p)} readings at {conv.dt * 1e3:.4g} ms; share of steps estimated in contact"
-        f" (P > 0.5): {summary}"
-    )
-    scores = {}
-    if has_truth:
-        scores = score(out, conv.truth, conv.valid, dt=conv.dt)
-        print(format_scores(scores, title=Path(path).name))
-        files.append(write_json_atomic(out_dir / "metrics.json", scores))
-    else:
-        print("no ground truth columns (contact/<foot> or force/<foot>): no metrics")
-    return files, scores
 
 
 def _safe(name: str) -> str:
