@@ -54,45 +54,27 @@ LOG_SUFFIXES = (".h5", ".hdf5")
 # checks raise ValueError with the argument's name, printed by main().
 
 
-def int_at_least(minimum: int):
-    """An argparse type: an int >= ``minimum``, else an error naming the value."""
+def int_between(minimum: int, maximum: int | None = None):
+    """An argparse type: an int >= ``minimum`` (and, given, <= ``maximum``), else an error
+    naming the value and the bound."""
+    bound = f">= {minimum}" if maximum is None else f"from {minimum} to {maximum}"
 
     def parse(text: str) -> int:
         try:
             value = int(text)
         except ValueError:
             value = minimum - 1
-        if value < minimum:
-            raise argparse.ArgumentTypeError(f"must be an int >= {minimum}, got {text!r}")
+        if value < minimum or (maximum is not None and value > maximum):
+            raise argparse.ArgumentTypeError(f"must be an int {bound}, got {text!r}")
         return value
 
     return parse
 
 
-positive_int = int_at_least(1)
-nonnegative_int = int_at_least(0)
+positive_int = int_between(1)
+nonnegative_int = int_between(0)
 
 SEED_MAX = 2**31 - 1  # a seed is a non-negative int32: what jax.random.key and NumPy take
-
-
-def int_between(minimum: int, maximum: int):
-    """An argparse type: an int in [``minimum``, ``maximum``], else an error naming the
-    value and the range."""
-
-    def parse(text: str) -> int:
-        try:
-            value = int(text)
-        except ValueError:
-            value = minimum - 1
-        if not minimum <= value <= maximum:
-            raise argparse.ArgumentTypeError(
-                f"must be an int from {minimum} to {maximum}, got {text!r}"
-            )
-        return value
-
-    return parse
-
-
 seed_int = int_between(0, SEED_MAX)
 # Env resamples of a paired bootstrap: 1000 is typical; far more only costs memory.
 bootstrap_int = int_between(0, 1_000_000)
