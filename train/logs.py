@@ -46,7 +46,7 @@ def simulate_to_file(
     """
     from jax_contact.envs.gaits import GaitSettings, make_gait
     from jax_contact.envs.gaits import gait_settings as settings_of
-    from jax_contact.envs.robots import load_robot
+    from jax_contact.envs.robots import ROBOT_NAMES, load_robot
     from jax_contact.envs.simulate import build_world, simulate
 
     path = Path(path)
@@ -60,8 +60,6 @@ def simulate_to_file(
     world = build_world(loaded, terrain=terrain, roughness=roughness)
     resolved = world.robot.gait_settings
     speeds = resolved.speed_range(gait)
-    from jax_contact.envs.robots import ROBOT_NAMES
-
     attrs = {
         # An MJCF path as an absolute path: the log is then read from any folder, and two
         # spellings of one file are one robot.

@@ -212,22 +212,16 @@ def to_readings(
             )
     rec, dt, notes = _check_time(rec, resample)
     cols = rec.columns
-    named = {c[len(p) :] for c in cols for p in JOINT_PREFIXES + TRUTH_PREFIXES if c.startswith(p)}
-    # A joint's entry must name a column (every joint has one): a typo would otherwise pass
-    # unnoticed. A foot's may not: a recording without ground truth has no foot columns.
-    unused = sorted(k for k, v in names.items() if k not in named and v not in desc.foot_names)
-    if unused:
-        raise ValueError(
-            f"names map: {unused} name no column of {src} (its joints and feet: {sorted(named)})"
-        )
     t_len = len(cols[TIME])
     used: set[str] = {TIME}
     to_model = lambda n: names.get(n, n)  # noqa: E731
     by_model: dict[str, dict[str, str]] = {p: {} for p in JOINT_PREFIXES + TRUTH_PREFIXES}
     joint_names = {n for n, _ in joints}
+    named = set()  # the recording's joint and foot names, before the names map
     for col in cols:
         for prefix in JOINT_PREFIXES + TRUTH_PREFIXES:
             if col.startswith(prefix):
+                named.add(col[len(prefix) :])
                 target = to_model(col[len(prefix) :])
                 valid = joint_names if prefix in JOINT_PREFIXES else set(desc.foot_names)
                 if target not in valid:
@@ -238,6 +232,13 @@ def to_readings(
                         f" its {what}s: {sorted(valid)}"
                     )
                 by_model[prefix][target] = col
+    # A joint's entry must name a column (every joint has one): a typo would otherwise pass
+    # unnoticed. A foot's may not: a recording without ground truth has no foot columns.
+    unused = sorted(k for k, v in names.items() if k not in named and v not in desc.foot_names)
+    if unused:
+        raise ValueError(
+            f"names map: {unused} name no column of {src} (its joints and feet: {sorted(named)})"
+        )
     scale = math.pi / 180.0 if units == "deg" else 1.0
     qpos = np.zeros((t_len, m.nq))
     qvel = np.zeros((t_len, m.nv))
