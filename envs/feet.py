@@ -231,8 +231,10 @@ def _resolve(m, d, spec, floor_ids, colliders) -> Foot:
         geoms = [g for g in colliders if m.geom_bodyid[g] == b]
         spheres = [g for g in geoms if int(m.geom_type[g]) == int(_T.mjGEOM_SPHERE)]
         return _body_foot(m, d, name, b, spheres or geoms)
-    geom_names = {_name_of(m, G, g) for g in colliders} - {None, ""}
-    valid = sorted(geom_names | {_name_of(m, B, m.geom_bodyid[g]) for g in colliders} - {None, ""})
+    named = {_name_of(m, G, g) for g in colliders} | {
+        _name_of(m, B, m.geom_bodyid[g]) for g in colliders
+    }
+    valid = sorted(named - {""})  # _name_of gives "" for an unnamed geom or body
     raise ValueError(
         f"foot {name!r} is no geom, site or body of the model; valid names (floor-touching"
         f" geoms or their bodies; any site or body): {valid}"
