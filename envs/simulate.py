@@ -235,6 +235,25 @@ def default_sensor_params(world: World, noise: str | SensorParams) -> SensorPara
     )
 
 
+def _check_gait_fits(gait: GaitParams, robot: Robot) -> None:
+    """Refuses a gait the robot's legs cannot run (it would simulate, meaninglessly).
+
+    The hop (:func:`jax_contact.envs.gaits.make_gait`) drives one leg's base up and down
+    its rail; the trot and the walk carry a body on legs that take turns, so a single
+    leg on its rail would only drop its base at every swing.
+    """
+    n_legs = robot.description.n_legs
+    if gait.family == "hop" and n_legs != 1:
+        raise ValueError(
+            f"gait 'hop' runs a one-legged robot (the planar leg); {robot.name!r} has"
+            f" {n_legs} legs: use 'trot' or 'walk'"
+        )
+    if gait.family != "hop" and n_legs < 2:
+        raise ValueError(
+            f"gait {gait.kind!r} needs two or more legs; {robot.name!r} has one: use 'hop'"
+        )
+
+
 def simulate(
     world: World,
     gait: GaitParams | str,
@@ -265,13 +284,16 @@ def simulate(
       A :class:`Rollout` with ``T = round(duration / dt)`` steps.
 
     Raises:
-      ValueError: a non-positive ``n_envs``, or a ``duration`` of fewer than 2 steps.
+      ValueError: a non-positive ``n_envs``, a ``duration`` of fewer than 2 steps, or a
+        gait the robot cannot run (the hop needs one leg, the trot and the walk two or
+        more).
     """
     if not isinstance(n_envs, int | np.integer) or n_envs < 1:
         raise ValueError(f"n_envs must be a positive int, got {n_envs!r}")
     if not (np.isfinite(duration) and duration > 0):
         raise ValueError(f"duration must be > 0 (s), got {duration!r}")
     gait = make_gait(gait) if isinstance(gait, str) else gait
+    _check_gait_fits(gait, world.robot)
     sensors = default_sensor_params(world, noise)
     grobot = make_gait_robot(world.robot)
     layout = make_truth_layout(world.robot)

@@ -46,6 +46,19 @@ def test_a_rollout_shorter_than_two_steps_is_refused(planar):
             simulate(world, "hop", "anymal_like", 1, duration, 0, progress=False)
 
 
+def test_a_gait_the_robot_cannot_run_is_refused(planar):
+    """The planar leg on its rail cannot trot or walk (it would only drop its base at each
+    swing) and a quadruped cannot hop: refused, naming the gait and the robot's legs,
+    before anything compiles."""
+    world, _ = planar
+    for kind in ("trot", "walk"):
+        with pytest.raises(ValueError, match=rf"gait '{kind}' needs two or more legs.*'hop'"):
+            simulate(world, kind, "anymal_like", 1, 0.1, 0, progress=False)
+    go1 = build_world("go1")
+    with pytest.raises(ValueError, match=r"gait 'hop' runs a one-legged robot.*4 legs"):
+        simulate(go1, "hop", "anymal_like", 1, 0.1, 0, progress=False)
+
+
 @pytest.fixture(scope="module")
 def replayed(planar):
     world, roll = planar
