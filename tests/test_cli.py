@@ -510,16 +510,35 @@ def test_a_log_without_ground_truth_gives_p_contact(tmp_path, capsys):
     """No truth/contact: no metrics, the estimator's P(contact) per foot (issue 18)."""
     path = _planar_log(tmp_path / "log.h5", truth=False)
     out_json = tmp_path / "p.json"
-    assert cli.main(["evaluate", str(path), "--json", str(out_json), "--bootstrap", "9"]) == 0
+    plots = tmp_path / "plots"
+    argv = ["evaluate", str(path), "--json", str(out_json), "--bootstrap", "9", "--plots", str(plots)]
+    assert cli.main(argv) == 0
     out = capsys.readouterr().out
     assert "no ground truth" in out and "no metrics" in out and "P(contact)" in out
     assert "--bootstrap: no ground truth, so there is nothing to compare" in out
+    assert "--plots: no ground truth, so no reliability diagram" in out and not plots.exists()
     got = json.loads(out_json.read_text())
     assert got["has_truth"] is False and got["scores"] == {}
     (foot,) = got["foot_names"]
     p = np.array(got["p_contact"][foot], dtype=float)
     assert p.shape == (12, 1)
     assert np.all((p[np.isfinite(p)] >= 0) & (p[np.isfinite(p)] <= 1))
+
+
+def test_evaluate_plots_writes_the_reliability_diagram_of_every_scored_row(tmp_path, capsys):
+    """``evaluate --plots DIR`` (issue 15): one PNG, named after the log, one curve per
+    detector; an unwritable folder is refused before anything runs."""
+    rng = np.random.default_rng(1)
+    truth = rng.random((40, 2, 1)) < 0.5
+    path = _planar_log(tmp_path / "hop.h5", n_t=40, n_envs=2, **{"truth/contact": truth})
+    plots = tmp_path / "plots"
+    assert cli.main(["evaluate", str(path), "--plots", str(plots)]) == 0
+    png = plots / "reliability_hop.png"
+    assert f"wrote {png}" in capsys.readouterr().out
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and os.listdir(plots) == [png.name]
+    (tmp_path / "file").write_text("")
+    assert cli.main(["evaluate", str(path), "--plots", str(tmp_path / "file")]) == 2
+    assert "argument --plots" in capsys.readouterr().err
 
 
 def test_sensor_limit_variants_each_remove_only_what_they_name():

@@ -179,6 +179,7 @@ def expected_outputs(argv: list[str]) -> list[str]:
     if cmd in ("demo", "reproduce"):
         out = opts.get("--out", [f"out/{cmd}"])[0]
         files += [f"{out}/table3.json", f"{out}/ablation.json", f"{out}/section3_fig5.png"]
+        files += [f"{out}/table3_trot_fig7.png", f"{out}/reliability_trot.png"]
     elif cmd == "simulate":
         files.append(argv[1])
     elif cmd == "estimate":

@@ -635,6 +635,11 @@ def test_reliability_bins_agree_with_metrics_ece_and_the_png_is_written(np_rng, 
     b = reliability_bins(p, truth, v3)
     assert float(b["ece"]) == pytest.approx(expected_calibration_error(p, truth, v3), abs=1e-12)
     assert b["count"].sum() == v3.sum()
+    # A (T, E) mask of a (T, E, L) batch is broadcast over the legs, as the docstring says.
+    b2 = reliability_bins(p, truth, valid)
+    assert np.array_equal(b2["count"], b["count"]) and float(b2["ece"]) == float(b["ece"])
+    with pytest.raises(ValueError, match=r"valid has shape \(50, 3\); expected \(50, 2, 4\)"):
+        reliability_bins(p, truth, np.ones((50, 3), bool))
     out = reliability_diagram({"a": p, "b": np.sqrt(p), "a/diag": p}, truth, valid,
                               tmp_path / "fig" / "rel.png", title="test")  # fmt: skip
     assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

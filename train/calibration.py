@@ -7,9 +7,10 @@ and plots each bin's observed contact frequency against its mean prediction; the
 is perfect calibration. The legend gives each detector's ECE (the bins' gaps weighted by
 their share of the steps), so the plot and the number agree by construction.
 
-Used by ``jax-contact tune`` (docs/tuning.md) and meant for the reproduction's figures and
-``jax-contact evaluate --plots DIR``: :func:`reliability_diagram` takes the ``replay``
-outputs as they are.
+Drawn by ``jax-contact evaluate LOG --plots DIR`` (``DIR/reliability_<log stem>.png``),
+by the reproduction (``reliability_<scenario>.png`` beside its other figures) and by
+``jax_contact.train.tune_presets.compare(..., plots=DIR)``: :func:`reliability_diagram`
+takes the ``replay`` outputs as they are.
 """
 
 from __future__ import annotations
@@ -28,7 +29,8 @@ def reliability_bins(prob, truth, valid=None, *, n_bins: int = 10) -> dict[str, 
     Args:
       prob: (T, ...) P(contact) in [0, 1] (or bool flags).
       truth: (T, ...) bool ground truth.
-      valid: optional (T, ...) bool mask (broadcast against ``prob``).
+      valid: optional bool mask of ``prob``'s shape, or of its leading axes (e.g. (T, E)
+        for a (T, E, L) ``prob``), broadcast over the rest.
       n_bins: equal-width bins on [0, 1].
 
     Returns:
@@ -38,17 +40,26 @@ def reliability_bins(prob, truth, valid=None, *, n_bins: int = 10) -> dict[str, 
     """
     p = np.asarray(prob, np.float64)
     g = np.asarray(truth, bool)
-    v = (
-        np.ones(p.shape, bool)
-        if valid is None
-        else np.broadcast_to(np.asarray(valid, bool), p.shape)
-    )
+    v = np.ones(p.shape, bool) if valid is None else _mask_like(valid, p.shape)
     count, sum_g, sum_p = ece_bins(p, g, v, n_bins)
     with np.errstate(invalid="ignore", divide="ignore"):
         mean_p = np.where(count > 0, sum_p / count, np.nan)
         freq = np.where(count > 0, sum_g / count, np.nan)
     ece = np.sum(np.abs(sum_g - sum_p)) / max(int(np.sum(v)), 1)
     return {"count": count, "mean_p": mean_p, "freq": freq, "ece": np.asarray(ece)}
+
+
+def _mask_like(valid, shape: tuple[int, ...]) -> np.ndarray:
+    """``valid`` broadcast to ``shape``: a mask of ``shape``'s leading axes gets the rest
+    appended (a (T, E) mask of a (T, E, L) batch); a clear error if it does not fit."""
+    v = np.asarray(valid, bool)
+    v = v.reshape(v.shape + (1,) * (len(shape) - v.ndim)) if v.ndim < len(shape) else v
+    try:
+        return np.broadcast_to(v, shape)
+    except ValueError:
+        raise ValueError(
+            f"valid has shape {np.shape(valid)}; expected {shape} or its leading axes"
+        ) from None
 
 
 def reliability_diagram(
@@ -86,9 +97,7 @@ def reliability_diagram(
     from jax_contact.io import write_atomic
 
     truth = np.asarray(truth, bool)
-    valid = np.asarray(valid, bool)
-    if valid.ndim == truth.ndim - 1:
-        valid = valid[..., None]
+    valid = _mask_like(valid, truth.shape)
     names = names or [k for k in outputs if "/" not in k]
     fig, (ax, hist) = plt.subplots(
         2, 1, figsize=(5.5, 6.5), sharex=True, gridspec_kw={"height_ratios": [3, 1]}

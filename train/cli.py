@@ -177,6 +177,7 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
         foot_names=args.feet,
         terrain_model=args.terrain_model,
         bootstrap=args.bootstrap,
+        plots_dir=args.plots,
     )
     return 0
 
@@ -297,6 +298,8 @@ def _check_simulate(args: argparse.Namespace) -> None:
 def _check_evaluate(args: argparse.Namespace) -> None:
     check_input_file("log", args.log)
     check_output_file("--json", args.json)
+    if args.plots is not None:
+        check_output_folder("--plots", args.plots)
     if args.gm_grid:
         check_input_file("--gm-grid", args.gm_grid)
     if args.params:
@@ -451,6 +454,13 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("log", help="an .h5 log written by `jax-contact simulate`")
     p.add_argument("--json", default=None, help="write the metrics (or P(contact)) here")
+    p.add_argument(
+        "--plots",
+        default=None,
+        metavar="DIR",
+        help="write the reliability diagram of every detector (ECE in the legend) to"
+        " DIR/reliability_<log name>.png (needs ground truth)",
+    )
     estimate_cmd.add_feet_flag(p)
     p.add_argument(
         "--gm-grid",

@@ -313,6 +313,7 @@ def evaluate_file(
     foot_names: Sequence[str] | None = None,
     terrain_model: str | None = None,
     bootstrap: int = 0,
+    plots_dir: str | Path | None = None,
 ) -> dict:
     """Runs the estimator, GM observer and kinematic detector on a log; prints the metrics.
 
@@ -348,6 +349,10 @@ def evaluate_file(
         (:func:`default_estimator`); None: the one ``params_path`` was tuned with, else
         ``"flat"`` (:func:`resolve_terrain_model`).
       bootstrap: env resamples of the comparison with ``probabilistic``; 0: none.
+      plots_dir: write the reliability diagram of every scored row
+        (:func:`jax_contact.train.calibration.reliability_diagram`, ECE in the legend) to
+        ``plots_dir/reliability_<log stem>.png``; without ground truth nothing is drawn
+        (a line says so).
 
     Returns:
       ``log``, ``attrs``, ``scores`` (detector -> metrics; empty without ground truth),
@@ -422,6 +427,8 @@ def evaluate_file(
         )
         if bootstrap:
             print("--bootstrap: no ground truth, so there is nothing to compare")
+        if plots_dir is not None:
+            print("--plots: no ground truth, so no reliability diagram")
         result["scores"] = {}
         result["p_contact"] = {f: p[..., i] for i, f in enumerate(feet)}
     else:
@@ -432,6 +439,19 @@ def evaluate_file(
             result["vs_probabilistic"] = _vs_probabilistic(
                 out, scores, truth, log.valid, dt, bootstrap
             )
+        if plots_dir is not None:
+            from jax_contact.train.calibration import reliability_diagram
+
+            png = reliability_diagram(
+                out,
+                truth,
+                log.valid,
+                Path(plots_dir) / f"reliability_{Path(path).stem}.png",
+                names=list(scores),
+                title=f"{Path(path).name}: reliability of P(contact)",
+            )
+            print(f"wrote {png}")
+            result["plots"] = [str(png)]
     if json_path:
         write_json_atomic(json_path, json.loads(json.dumps(result, default=_plain)))
     result["outputs"] = out  # not in the JSON: (T, E, L) arrays of every detector

@@ -500,6 +500,16 @@ def table3(cfg: ReproduceConfig, out_dir: Path, tuned_row: dict | None = None) -
                 ),
             },
         }
+        from jax_contact.train.calibration import reliability_diagram
+
+        reliability_diagram(
+            out,
+            roll.contact,
+            roll.valid,
+            out_dir / f"reliability_{name}.png",
+            names=names,
+            title=f"{cfg.robot} {name}, seed {cfg.seed}: reliability of P(contact)",
+        )
         if name == "trot":
             from jax_contact.train.figures import plot_estimate
 
