@@ -511,7 +511,16 @@ def test_a_log_without_ground_truth_gives_p_contact(tmp_path, capsys):
     path = _planar_log(tmp_path / "log.h5", truth=False)
     out_json = tmp_path / "p.json"
     plots = tmp_path / "plots"
-    argv = ["evaluate", str(path), "--json", str(out_json), "--bootstrap", "9", "--plots", str(plots)]
+    argv = [
+        "evaluate",
+        str(path),
+        "--json",
+        str(out_json),
+        "--bootstrap",
+        "9",
+        "--plots",
+        str(plots),
+    ]
     assert cli.main(argv) == 0
     out = capsys.readouterr().out
     assert "no ground truth" in out and "no metrics" in out and "P(contact)" in out
