@@ -88,6 +88,11 @@ class Calibration:
     def from_dict(cls, d) -> Calibration:
         """From :meth:`as_dict` (files written before the per-side map have no
         ``temperature_air`` and are affine)."""
+        if not isinstance(d, dict) or "temperature" not in d:
+            raise ValueError(
+                f"calibration: expected a mapping with 'temperature' (and 'bias' or"
+                f" 'temperature_air'), got {d!r}"
+            )
         air = d.get("temperature_air")
         cal = cls(
             temperature=float(d["temperature"]),

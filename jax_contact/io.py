@@ -33,6 +33,7 @@ them and the robot model when the log is replayed, which keeps logs ~40x smaller
 from __future__ import annotations
 
 import contextlib
+import errno
 import json
 import os
 import shutil
@@ -183,6 +184,8 @@ def write_atomic(path: str | os.PathLike, write) -> Path:
       write: callable taking the temporary file's path (a ``str``).
     """
     path = Path(path)
+    if path.is_dir():  # refused before any write (os.replace would name the temporary file)
+        raise IsADirectoryError(errno.EISDIR, f"cannot create {str(path)!r}: it is a folder")
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         with _LOCK:
@@ -355,6 +358,12 @@ def _param_sections() -> dict[str, tuple[str, ...]]:
     }
 
 
+# The top-level keys of a parameter file (params_to_dict); any other is refused on reading.
+PARAMS_KEYS = (
+    "format", "version", "library_version", "nv", "noise", "values", "options", "provenance"
+)  # fmt: skip
+
+
 def params_to_dict(params, provenance: Mapping | None = None) -> dict:
     """:class:`~jax_contact.EstimatorParams` as the versioned JSON payload of a params file.
 
@@ -404,9 +413,32 @@ def params_from_dict(payload: Mapping, *, source: str = "params"):
             f"{source}: version {payload.get('version')!r} is not supported (this library reads"
             f" version {PARAMS_VERSION})"
         )
+    extra = set(payload) - set(PARAMS_KEYS)
+    if extra:
+        raise ValueError(
+            f"{source}: unknown top-level key(s) {sorted(extra)} (a parameter file has"
+            f" {list(PARAMS_KEYS)}; free-form notes go into 'provenance')"
+        )
     for section in ("noise", "values", "options"):
         if not isinstance(payload.get(section), Mapping):
             raise ValueError(f"{source}: missing section {section!r}")
+    provenance = payload.get("provenance")
+    if provenance is not None and not isinstance(provenance, Mapping):
+        raise ValueError(
+            f"{source}: 'provenance' must be a mapping (JSON object), got"
+            f" {type(provenance).__name__}"
+        )
+    mass = (provenance or {}).get("robot_mass_kg")
+    if mass is not None and not (
+        isinstance(mass, int | float)
+        and not isinstance(mass, bool)
+        and np.isfinite(mass)
+        and mass > 0
+    ):
+        raise ValueError(
+            f"{source}: provenance field 'robot_mass_kg' must be a positive number of kg"
+            f" (or absent), got {mass!r}"
+        )
     want = {section: set(names) for section, names in _param_sections().items()}
     payload = dict(payload)
     for section, added in LATER_FIELDS.items():
@@ -571,6 +603,8 @@ def _params_text(path) -> tuple[str, str]:
     """(text, description for errors) of a parameter file or a preset name."""
     if not isinstance(path, str | os.PathLike):
         raise ValueError(f"a parameter file is a path or a preset name, got {type(path).__name__}")
+    if str(path).strip() == "":
+        raise ValueError("a parameter file is a path or a preset name, got an empty string")
     ref = preset_file(path)
     if ref is not None:
         return ref.read_text(), f"preset {path!r}"

@@ -550,6 +550,44 @@ def test_evaluate_plots_writes_the_reliability_diagram_of_every_scored_row(tmp_p
     assert "argument --plots" in capsys.readouterr().err
 
 
+def test_tune_refuses_mixed_copied_and_unscoreable_logs(tmp_path):
+    """``jax-contact tune``'s logs (tune_cmd.load_logs) are refused before any fit when they
+    mix sensor models or periods (the fit would start from whichever came first), when a
+    validation log is a tuning log's run under another name, when a log has no step that
+    counts, and when the tuning logs hold one class only."""
+    from jax_contact.train import tune_cmd
+
+    rng = np.random.default_rng(2)
+    truth = {"truth/contact": rng.random((12, 1, 1)) < 0.5}
+    attrs = {"robot": "planar_leg", "dt": 0.0025, "noise": "anymal_like", "gait": "hop"}
+    attrs["reading_timing"] = "end_of_step"  # as simulate writes today
+
+    def log(name, seed, **kw):
+        a = {**attrs, "seed": seed, **kw.pop("attrs", {})}
+        return str(_planar_log(tmp_path / name, attrs=a, **{**truth, **kw}))
+
+    def refused(logs, validate, match):
+        args = argparse.Namespace(
+            logs=logs, validate=validate, terrain_model="flat", noise_floor="none"
+        )
+        with pytest.raises(ValueError, match=match):
+            tune_cmd.load_logs(args)
+
+    a, b = log("a.h5", 0), log("b.h5", 1)
+    harsh = log("harsh.h5", 2, attrs={"noise": "harsh"})
+    refused([a, harsh], [b], r"argument LOG: log '.*harsh.h5' has sensor noise 'harsh'; the"
+            r" first tuning log '.*a.h5' has 'anymal_like'")  # fmt: skip
+    slow = log("slow.h5", 3, attrs={"dt": 0.005})
+    refused([a], [slow], r"argument --validate: log '.*slow.h5' has period dt 0.005")
+    copy = tmp_path / "copy.h5"
+    copy.write_bytes(Path(a).read_bytes())
+    refused([a], [str(copy)], r"'.*copy.h5' is the same run .* seed 0\) as tuning log")
+    dead = log("dead.h5", 4, valid=np.zeros((12, 1), bool))
+    refused([a], [dead], r"validation log '.*dead.h5' has no step that counts")
+    on = log("on.h5", 5, **{"truth/contact": np.ones((12, 1, 1), bool)})
+    refused([on], [b], r"the tuning logs have no air step among their 12 counted steps")
+
+
 def test_sensor_limit_variants_each_remove_only_what_they_name():
     from jax_contact.benchmarks import sensor_limits
     from jax_contact.envs.sensors import SensorParams

@@ -143,6 +143,12 @@ def test_bad_params_file_names_the_field(go1, tmp_path):
         "bad shape": (lambda d: d["noise"].update(sigma_qd=[0.3] * 3), "sigma_qd"),
         "bad nv": (lambda d: d.update(nv=5), "nv is 5 but every per-dof noise vector has 18"),
         "version": (lambda d: d.update(version=99), "version 99"),
+        "top-level": (lambda d: d.update(notes="x"), r"unknown top-level key\(s\) \['notes'\]"),
+        "provenance": (lambda d: d.update(provenance=[1]), "'provenance' must be a mapping"),
+        "mass": (
+            lambda d: d["provenance"].update(robot_mass_kg="heavy"),
+            "'robot_mass_kg' must be a positive number of kg.*'heavy'",
+        ),
     }
     for name, (mutate, pattern) in cases.items():
         d = json.loads(json.dumps(payload))
@@ -223,3 +229,25 @@ def test_load_params_of_a_folder_or_of_no_path_is_one_clear_error(tmp_path):
         jc.load_params(tmp_path)
     with pytest.raises(ValueError, match="a path or a preset name, got NoneType"):
         jc.load_params(None)
+    with pytest.raises(ValueError, match="a path or a preset name, got an empty string"):
+        jc.load_params("")
+
+
+def test_save_params_into_a_folder_names_it_and_writes_nothing(go1, tmp_path):
+    p = jc.params_for(go1, sensor_preset("anymal_like", go1.nv, dt=DT), DT)
+    (tmp_path / "rt").mkdir()
+    with pytest.raises(IsADirectoryError, match=r"cannot create '.*rt': it is a folder"):
+        jc.save_params(tmp_path / "rt", p)
+    assert [f.name for f in tmp_path.iterdir()] == ["rt"] and not any((tmp_path / "rt").iterdir())
+
+
+def test_a_calibration_map_without_its_temperature_is_named(tmp_path):
+    from jax_contact.calibration import load_calibration
+
+    payload = json.loads(jc.io._params_text("go1")[0])
+    payload["provenance"]["calibration"] = {"kind": "sign", "temperature_air": 2.0}
+    path = tmp_path / "cal.json"
+    path.write_text(json.dumps(payload))
+    with pytest.raises(ValueError, match=r"'calibration': calibration: expected a mapping with"
+                       r" 'temperature'"):  # fmt: skip
+        load_calibration(path)

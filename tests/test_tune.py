@@ -231,6 +231,19 @@ def _recovery_run(select: str):
     return jt.tune(wrong, flat(0.0, 0.05), [train], val, space, config), val, wrong, config
 
 
+def test_tune_refuses_logs_it_cannot_learn_from():
+    """A validation log with no step that counts, or tuning logs of one class, are refused
+    naming the log before anything compiles (they gave NaN epochs and a written file)."""
+    data = _synthetic(1, n_t=50, n_envs=2)
+    dead = data.replace(mask=np.zeros_like(data.mask))
+    stance = data.replace(truth=np.ones_like(data.truth))
+    space, params = jt.make_space(4, fields=("sigma_J",)), _synthetic_params(SIGMA_J_WRONG)
+    with pytest.raises(ValueError, match=r"validation log 2 of 2 has no step that counts"):
+        jt.tune(params, flat(0.0, 0.05), [data], [data, dead], space)
+    with pytest.raises(ValueError, match=r"tuning logs have no air step among their 100"):
+        jt.tune(params, flat(0.0, 0.05), [stance], data, space)
+
+
 def test_tuning_recovers_a_mis_set_noise_std():
     res, val, _, _ = _recovery_run("bce")
     got = float(res.params.noise.sigma_J[0])

@@ -77,6 +77,7 @@ def test_tune_env_writes_a_file_the_wrapper_loads(recorded, tmp_path, capsys):
     assert params.nv == rec.core.params.nv and float(params.dt) == pytest.approx(rec.dt)
     assert [i["seed"] for i in prov["logs"]] == [3] and prov["validation"][0]["seed"] == 4
     assert prov["logs"][0]["scene"] == "planar_leg" and prov["calibration"]["kind"] == "sign"
+    assert prov["tool"] == "jax-contact tune-env"
     # The planar leg's mass, envs/assets/planar_leg.xml: base 5.449 + thigh 2.48 + shank 0.31.
     assert prov["robot_mass_kg"] == pytest.approx(5.449 + 2.48 + 0.31)
     # Seed 3 here is the fixture's recording: the same rollouts, to the bit.
@@ -228,6 +229,21 @@ def test_scenes_of_different_estimators_are_refused(recorded):
         tune_env._same_estimator(rec, other, "b")
 
 
+def test_rollouts_with_no_step_that_counts_are_refused_before_the_fit(recorded):
+    """Rollouts no longer than the skipped start (here the fixture's, masked out) are
+    refused naming the scene, the seed and --steps, not tuned on NaN and written."""
+    import argparse
+
+    rec = recorded[0]
+    dead = dataclasses.replace(rec, valid=np.zeros_like(rec.valid))
+    args = argparse.Namespace(steps=STEPS, chunk=STEPS * 8, seeds=[3], validate_seed=[4])
+    with pytest.raises(ValueError, match=r"planar_leg seed 3: no step counts .* raise --steps"):
+        tune_env._fit(args, [("planar_leg", "d", 3, dead)], "planar_leg")
+    # The recorder knows its core and period before any rollout (checked across scenes).
+    record = env_rollouts.recorder(env_rollouts.load_scene("planar_leg", 1, 1).env)
+    assert record.core.desc.nv == rec.core.desc.nv and record.dt == pytest.approx(rec.dt)
+
+
 def test_the_go1_playground_preset_is_the_wrappers_own_at_its_physics_step():
     """``go1_playground`` (docs/tuning.md, "Tuning on a wrapped env's own rollouts"): made
     by tune-env on Playground's Go1 at its 4 ms physics step, on seeds that are never
@@ -241,7 +257,7 @@ def test_the_go1_playground_preset_is_the_wrappers_own_at_its_physics_step():
 
     assert "go1_playground" in jc.preset_names()
     params, prov = jc.load_params("go1_playground", with_provenance=True)
-    assert prov["tool"] == "jax-contact tune" and prov["arguments"]["command"] == "tune-env"
+    assert prov["tool"] == "jax-contact tune-env" and prov["arguments"]["command"] == "tune-env"
     scenes = {i["scene"] for i in prov["logs"] + prov["validation"]}
     assert scenes == {"Go1JoystickFlatTerrain:trot", "Go1JoystickFlatTerrain:walk"}
     seeds = prov["seeds"]["tuning_logs"] + prov["seeds"]["validation_logs"]

@@ -98,7 +98,8 @@ def recorder(
     policy=None,
 ):
     """``record(actions, key) -> Recording``: ``env`` wrapped at the physics rate once and its
-    rollout jitted once, for every seed of a scene.
+    rollout jitted once, for every seed of a scene. ``record.core`` and ``record.dt`` are
+    its recordings' estimator core and period, before any rollout.
 
     ``record`` rolls out ``actions`` (T, E, nu) and records every physics step's readings
     and truth (rollout ``e`` resets with ``split(key, E)[e]``; ``feedback(data) -> (nu,)``
@@ -172,6 +173,9 @@ def recorder(
         valid, readings = valid_and_held(readings, done, n_sub, dt, skip_s)
         return Recording(core, mj_model, first, readings, truth, valid, dt, p_live)
 
+    # What every Recording of it will hold, known before anything is rolled out (tune-env
+    # checks its scenes' estimators against each other with it).
+    record_one.core, record_one.dt = core, dt
     return record_one
 
 

@@ -278,8 +278,40 @@ def check_tuning_options(args: argparse.Namespace) -> None:
     check_output_file("--out", args.out, (".json",))
 
 
+def _noise_of(attrs) -> str:
+    """A log's sensor model (``simulate``'s ``noise`` attribute; ``anymal_like`` if unset)."""
+    return str(attrs.get("noise", "anymal_like"))
+
+
+def _same_setup(arg: str, path, attrs, first: dict) -> None:
+    """Refuses a log of another robot, period or sensor model than the first tuning log's
+    (``first``, its :func:`_log_info`): the fit starts from one robot's defaults for one
+    sensor model and floors its noise there, so a mixed set would be tuned from whichever
+    log came first."""
+    for key, shown in (("robot", "robot"), ("dt", "period dt"), ("noise", "sensor noise")):
+        got = _noise_of(attrs) if key == "noise" else attrs[key]
+        want = first.get(key, "anymal_like") if key == "noise" else first[key]
+        same = float(got) == float(want) if key == "dt" else str(got) == str(want)
+        if not same:
+            raise ValueError(
+                f"argument {arg}: log {str(path)!r} has {shown} {got!r}; the first tuning log"
+                f" {first['path']!r} has {want!r}: tune on logs of one robot, period and"
+                " sensor model"
+            )
+
+
+def _run_key(info: dict) -> tuple:
+    """What makes two logs the same run: robot, gait, scenario, terrain, roughness, seed,
+    envs, steps (a copy of a tuning log given as a validation log is caught by it; logs without a
+    seed are never the same run)."""
+    if info.get("seed") is None:
+        return ("path", info["path"])
+    keys = ("robot", "gait", "scenario", "terrain", "roughness", "seed", "n_envs", "steps")
+    return tuple(str(info.get(k)) for k in keys)
+
+
 def _log_info(path, attrs, data) -> dict:
-    keys = ("robot", "gait", "terrain", "noise", "seed", "n_envs", "dt", "roughness")
+    keys = ("robot", "gait", "scenario", "terrain", "noise", "seed", "n_envs", "dt", "roughness")
     info = {"path": str(path), **{k: attrs[k] for k in keys if k in attrs}}
     info["steps"] = int(data.n_steps)
     return info
@@ -360,33 +392,43 @@ def load_logs(args: argparse.Namespace) -> Inputs:
     from jax_contact.envs.robots import load_robot
     from jax_contact.robot import model_mass
 
+    from jax_contact.tune import check_scored_steps
+
     t0 = time.perf_counter()
     train, infos = [], []
-    base = terrain = robot_name = floor = None
+    base = terrain = floor = None
     terrain_model = getattr(args, "terrain_model", "flat")
     for path in args.logs:
         data, robot, attrs, params, terr = load_tuning_log(path, terrain_model)
-        if floor is None and getattr(args, "noise_floor", "sensor") == "sensor":
-            floor = sensor_floor(robot, float(attrs["dt"]), str(attrs.get("noise", "anymal_like")))
-        if robot_name is not None and attrs["robot"] != robot_name:
-            raise ValueError(
-                f"log {path!r} is of robot {attrs['robot']!r}; the first log's is {robot_name!r}"
-            )
-        robot_name, base, terrain = attrs["robot"], params, terr
+        if not infos:
+            # The starting parameters, terrain and noise floor are the first log's; the
+            # others must share its robot, period and sensors (_same_setup).
+            base, terrain = params, terr
+            if getattr(args, "noise_floor", "sensor") == "sensor":
+                floor = sensor_floor(robot, float(attrs["dt"]), _noise_of(attrs))
+        else:
+            _same_setup("LOG", path, attrs, infos[0])
         train.append(data)
         infos.append(_log_info(path, attrs, data))
         print(f"loaded {path}: {data.truth.shape} (T, envs, feet)", file=sys.stderr)
+    check_scored_steps(train, "tuning log", names=[repr(str(p)) for p in args.logs])
+    robot_name = infos[0]["robot"]
+    tuned_on = {_run_key(i): i["path"] for i in infos}
     vals, vinfos = [], []
     validate = [args.validate] if isinstance(args.validate, str) else list(args.validate)
     for path in validate:
         val, _, vattrs, _, _ = load_tuning_log(path, terrain_model)
-        if vattrs["robot"] != robot_name:
+        _same_setup("--validate", path, vattrs, infos[0])
+        info = _log_info(path, vattrs, val)
+        if _run_key(info) in tuned_on:
             raise ValueError(
-                f"argument --validate: log {path!r} is of robot {vattrs['robot']!r}, the"
-                f" tuning logs' is {robot_name!r}"
+                f"argument --validate: log {str(path)!r} is the same run (robot, gait, terrain,"
+                f" seed {info.get('seed')}) as tuning log {tuned_on[_run_key(info)]!r}:"
+                " validation needs other seeds"
             )
         vals.append(val)
-        vinfos.append(_log_info(path, vattrs, val))
+        vinfos.append(info)
+    check_scored_steps(vals, "validation log", names=[repr(str(p)) for p in validate])
     t_load = time.perf_counter() - t0
     print(f"measurements precomputed in {t_load:.1f} s", file=sys.stderr)
     robot = load_robot(robot_name)
@@ -484,7 +526,7 @@ def fit_and_write(args: argparse.Namespace, inputs: Inputs) -> int:
     except importlib.metadata.PackageNotFoundError:
         lib = "unknown"
     provenance = {
-        "tool": "jax-contact tune",
+        "tool": f"jax-contact {getattr(args, 'command', None) or 'tune'}",  # or tune-env
         "arguments": {k: v for k, v in vars(args).items() if k not in ("func", "check")},
         "note": args.note,
         "library_version": lib,

@@ -48,6 +48,7 @@ import time
 from jax_contact.train import tune_cmd
 from jax_contact.train.env_rollouts import (
     PLAYGROUND_SKIP_S,
+    RATES_SKIP_S,
     ROLLOUTS,
     STEPS,
     load_scene,
@@ -93,7 +94,13 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         help="validation seed(s): early stopping on their pooled loss",
     )
     p.add_argument("--rollouts", type=positive_int, default=ROLLOUTS, help="rollouts per seed")
-    p.add_argument("--steps", type=positive_int, default=STEPS, help="env steps per rollout")
+    p.add_argument(
+        "--steps",
+        type=positive_int,
+        default=STEPS,
+        help=f"env steps per rollout (default {STEPS}); the first {PLAYGROUND_SKIP_S} s"
+        f" ({RATES_SKIP_S} s on a rates scene) after the reset are not scored",
+    )
     tune_cmd.add_tuning_options(p)
     p.set_defaults(func=run, check=check)
     return p
@@ -136,7 +143,8 @@ def check_scene(scene: str) -> None:
 
 
 def _same_estimator(first, other, scene: str) -> None:
-    """ValueError unless two recordings' wrappers run one estimator (model size, feet, dt)."""
+    """ValueError unless two recordings' (or recorders') wrappers run one estimator (model
+    size, feet, dt)."""
     a, b = first.core, other.core
     same_dt = abs(first.dt - other.dt) <= 1e-6 * abs(first.dt)
     if (a.desc.nv, tuple(a.desc.foot_names)) != (
@@ -157,10 +165,17 @@ def run(args: argparse.Namespace) -> int:
     for scene in args.scenes:
         check_scene(scene)
 
+    # Every scene is loaded and wrapped (nothing compiled) before the first rollout, so a
+    # scene of another robot is refused at once, not after the first scene's recordings.
+    scenes = [load_scene(scene, args.steps, args.rollouts) for scene in args.scenes]
+    recorders = [
+        recorder(sc.env, feedback=sc.feedback, stop=sc.stop, skip_s=sc.skip_s) for sc in scenes
+    ]
+    for scene, record_seed in zip(args.scenes, recorders, strict=True):
+        _same_estimator(recorders[0], record_seed, scene)
+
     def recordings():
-        for scene in args.scenes:
-            sc = load_scene(scene, args.steps, args.rollouts)
-            record_seed = recorder(sc.env, feedback=sc.feedback, stop=sc.stop, skip_s=sc.skip_s)
+        for scene, sc, record_seed in zip(args.scenes, scenes, recorders, strict=True):
             for seed in [*args.seeds, *args.validate_seed]:
                 yield (
                     scene,
@@ -276,8 +291,15 @@ def _fit(args: argparse.Namespace, recordings, robot: str) -> int:
         if first is None:
             first = rec
         _same_estimator(first, rec, scene)
-        data = tuning_data(rec, args.chunk)
         n_valid = int(rec.valid.sum())
+        if n_valid == 0:
+            raise ValueError(
+                f"{scene} seed {seed}: no step counts in {rec.truth.shape[0]} physics steps"
+                f" per rollout ({args.steps} env steps): the start of each rollout is left out"
+                f" ({PLAYGROUND_SKIP_S} s on Playground envs, {RATES_SKIP_S} s on the rates"
+                " scenes) and a rollout ends at its first done: raise --steps"
+            )
+        data = tuning_data(rec, args.chunk)
         print(
             f"recorded {scene} seed {seed}: {rec.truth.shape} (physics steps, rollouts,"
             f" feet), {n_valid} valid steps, contact {rec.truth[rec.valid].mean():.3f}"

@@ -191,6 +191,7 @@ from jax_contact.tune.events import (
     air_event_terms,
     air_phase_maxima,
     air_phases,
+    check_scored_steps,
     scored_air_steps,
     with_air_phases,
 )
@@ -245,6 +246,7 @@ __all__ = [
     "CELL_SHARPNESS",
     "cell_surrogates",
     "CELL_TOLERANCE",
+    "check_scored_steps",
     "CONSTRAINT_CELLS",
     "constraint_penalty",
     "constraint_units",

@@ -3,6 +3,8 @@ air-phase event term of the loss."""
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -62,6 +64,41 @@ class TuningData:
     @property
     def n_steps(self) -> int:
         return int(self.truth.shape[0])
+
+
+def check_scored_steps(logs: Sequence[TuningData], what: str, names=None) -> None:
+    """Refuses logs the loss cannot learn from, before anything is fitted.
+
+    Every log needs steps that count (``mask`` true somewhere), and the logs together need
+    both contact and air among them: on one class alone the BCE is minimised by calling
+    everything that class, and F1, ECE and a calibration map are undefined.
+
+    Args:
+      logs: the tuning (or validation) logs.
+      what: what they are, for the message (``"tuning log"``, ``"validation log"``).
+      names: each log's name for the message (e.g. its path); None: its 1-based index.
+
+    Raises:
+      ValueError: naming the log without a counted step, or the class the logs lack.
+    """
+    names = [f"{i + 1} of {len(logs)}" for i in range(len(logs))] if names is None else names
+    n_contact = n_air = 0
+    for d, name in zip(logs, names, strict=True):
+        mask = np.asarray(d.mask, bool)
+        truth = np.broadcast_to(np.asarray(d.truth, bool), mask.shape)
+        if not mask.any():
+            raise ValueError(
+                f"{what} {name} has no step that counts (its valid mask is false everywhere:"
+                " a robot that fell at once, or a log no longer than the skipped start)"
+            )
+        n_contact += int(np.sum(truth & mask))
+        n_air += int(np.sum(~truth & mask))
+    if logs and (n_contact == 0 or n_air == 0):
+        lack = "contact" if n_contact == 0 else "air"
+        raise ValueError(
+            f"the {what}s have no {lack} step among their {n_contact + n_air} counted steps:"
+            " tuning needs both classes"
+        )
 
 
 def air_phases(truth, mask, early: int) -> AirPhases:

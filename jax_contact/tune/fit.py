@@ -22,7 +22,12 @@ from jax_contact.tune.cells import (
     worse_beyond_spread,
 )
 from jax_contact.tune.config import TuneConfig
-from jax_contact.tune.events import TuningData, air_event_terms, with_air_phases
+from jax_contact.tune.events import (
+    TuningData,
+    air_event_terms,
+    check_scored_steps,
+    with_air_phases,
+)
 from jax_contact.tune.loss import _window, filter_logits, tuning_loss
 from jax_contact.tune.space import (
     NOISE_FIELDS,
@@ -258,7 +263,8 @@ def tune(
       :class:`TuneResult`.
 
     Raises:
-      ValueError: no tuning log, or parameters that fail validation.
+      ValueError: no tuning log, a log without a step that counts, logs without both
+        contact and air (:func:`check_scored_steps`), or parameters that fail validation.
     """
     if not train:
         raise ValueError("tune needs at least one tuning log")
@@ -273,6 +279,8 @@ def tune(
     vals = [validation] if isinstance(validation, TuningData) else list(validation)
     if not vals:
         raise ValueError("tune needs a validation log")
+    check_scored_steps(train, "tuning log")
+    check_scored_steps(vals, "validation log")
 
     dt = float(base.dt)
     early = int(round(config.event_early_s / dt))
