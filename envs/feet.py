@@ -52,7 +52,7 @@ import mujoco
 import numpy as np
 
 from jax_contact import adapter
-from jax_contact.robot import RobotDescription
+from jax_contact.robot import RobotDescription, model_mass
 from jax_contact.types import RobotMeasurement
 
 _T = mujoco.mjtGeom
@@ -342,6 +342,7 @@ def describe(m: mujoco.MjModel, feet=None) -> tuple[RobotDescription, tuple[Foot
         floor_geom_ids=used or tuple(floor_ids),
         nq=int(m.nq),
         nv=int(m.nv),
+        mass_kg=model_mass(m),
     )
     return desc, resolved
 

@@ -18,6 +18,15 @@ outlier_size`` and the scalar ``outlier_prob``, e.g. ``jax_contact.envs.sensors.
 - ``sigma_d = sqrt(disturbance^2 + sigma_tau^2)``: Table II's 2 N m model error plus the
   torque sensors' noise, which enters the equation of motion the same way.
 - the swing prior of eq. 9 from the gait (:class:`GaitPrior`, ``swing_joint_speed``).
+- ``sigma_f``, the contact force uncertainty (every axis): 10 N, at most
+  :data:`FORCE_SHARE` = 0.4 of one foot's share of the robot's weight (``mass_kg g /
+  n_legs``, :func:`contact_force_std`). The unilateral weight of the dynamics term,
+  ``P(e . F < 0)`` under ``F ~ N(F_hat, sigma_f^2)``, tells a loaded foot from an unloaded
+  one only if ``sigma_f`` is below the load; a foot bearing its share then loses at most
+  ``log Phi(2.5)`` = -0.006 per step to it. On a light robot a fixed 10 N was a constant
+  push to air on every loaded foot (a 3.4 kg hexapod standing still read as airborne).
+  Every robot of 2.55 kg per leg or more (Go1, Spot, Barkour, the planar leg, every
+  Playground locomotion env) keeps 10 N.
 
 Robustness (docs/model_choices.md, "Robust likelihoods"): the outlier component's weight
 ``eps = clip(2 n_l p, 0.01, 0.5)`` from the sensors' per-sample outlier probability ``p``
@@ -98,7 +107,7 @@ class GaitPrior:
         differential-kinematics term (eq. 9), rad/s (m/s for prismatic joints).
       takeoff_accel: ``a_F``, the largest take-off acceleration of the foot along the
         terrain normal (eq. 15), m/s^2. 100 m/s^2 was chosen on the reproduction's
-        tuning seed (Go1 trot and walk, seed 1000; 200 m/s^2, docs/model.md's figure for the
+        tuning seed (Go1 trot and walk, seed 1000; 200 m/s^2, docs/model.md's example for the
         planar leg, lifted off 0.7 ms later there), never on an evaluation seed.
 
     The defaults (``T_s`` 0.3 s, swing 0.2 s, 25 rad/s: Table I's joint limit) describe a
@@ -178,6 +187,22 @@ def sensor_noise_floor(desc, sensors, dt: float) -> dict[str, np.ndarray]:
     return _sensor_noise(_sensor_fields(sensors, int(desc.nv)), dt, bias_horizon_s=0.0)
 
 
+# The contact force uncertainty's ceiling, N (this library's choice: Table II's entry is
+# garbled in the paper), and its largest share of one foot's standing load.
+SIGMA_F_MAX, FORCE_SHARE, GRAVITY = 10.0, 0.4, 9.81
+
+
+def contact_force_std(desc) -> float:
+    """``sigma_f`` of :func:`params_for` (module docstring): ``min(10 N, 0.4 m g / n_legs)``,
+    10 N where the description has no mass (``mass_kg`` None), N."""
+    mass = getattr(desc, "mass_kg", None)
+    if mass is None:
+        return SIGMA_F_MAX
+    if not (np.isfinite(mass) and mass > 0):
+        raise ValueError(f"desc.mass_kg must be a finite number > 0 (kg) or None, got {mass!r}")
+    return float(min(SIGMA_F_MAX, FORCE_SHARE * mass * GRAVITY / desc.n_legs))
+
+
 def params_for(
     desc,
     sensors,
@@ -241,6 +266,7 @@ def params_for(
         sigma_qd=drift["sigma_qd"],
         sigma_qdd=white["sigma_qdd"],
         sigma_d=np.sqrt(disturbance**2 + white["sigma_d"] ** 2),
+        sigma_f=contact_force_std(desc),
         sigma_qd_prior=gait.swing_joint_speed,
     )
     spike = float(np.max(s["outlier_size"]))

@@ -34,10 +34,12 @@ class NoiseParams:
         and rad/s^2.
       sigma_d: (nv,) generalised disturbance / model error ``w_d``, N and N m.
       sigma_f: (3,) contact force uncertainty ``Sigma_f`` per world axis, N (Table II's
-        entry is garbled in the paper; 10 N is this library's default choice).
+        entry is garbled in the paper; 10 N is this library's default choice, at most 0.4
+        of a foot's share of the weight: :func:`jax_contact.defaults.contact_force_std`).
       sigma_J: (3,) foot velocity noise of the no-slip hypothesis ``Sigma_J``, m/s.
       sigma_qd_prior: (nv,) prior spread of a swinging leg's joint velocities (eq. 9),
-        rad/s; by default from the joint velocity limits.
+        rad/s; by default the gait prior's ``swing_joint_speed`` (25 rad/s, Table I's
+        joint speed limit of the planar leg; ``jax_contact.defaults.GaitPrior``).
     """
 
     sigma_q: jnp.ndarray
@@ -121,8 +123,8 @@ class EstimatorParams:
       transition_model: static; if False the measurement-dependent transitions (eq.
         11-17) are replaced by the gait prior alone, for ablations.
       kinematics_neutral_below: static; if True (default) the kinematics term is neutral
-        wherever the sole is at or below the terrain (docs/model.md: "neutral on the ground and
-        only gives evidence for air"); False is the two-sided ratio
+        wherever the sole is at or below the terrain (docs/model.md, "Kinematics": neutral
+        on the ground, evidence for air above it); False is the two-sided ratio
         ``P(phi <= 0) / P(phi > 0)``, which reads a sole estimated below the plane (base
         height drift) as contact evidence.
       foothold_still: static; see ``foothold_confidence``. The filter reads these four
@@ -250,8 +252,9 @@ def make_noise(
 
     Scalars are broadcast to every coordinate (or every axis for ``sigma_f``, ``sigma_J``).
     The defaults are Table II's joint values with ``sigma_qdd`` for a raw 400 Hz difference
-    of ``qd`` (``sqrt(2) * 0.3 / 0.0025`` ~ 170 rad/s^2) and the docs/model.md choices
-    ``Sigma_f`` = 10 N, ``Sigma_J`` = 0.05 m/s, prior 25 rad/s (Table I's joint limit).
+    of ``qd`` (``sqrt(2) * 0.3 / 0.0025`` ~ 170 rad/s^2) and this library's choices
+    ``Sigma_f`` = 10 N (Table II's entry is garbled; :func:`jax_contact.params_for` lowers
+    it on a light robot), ``Sigma_J`` = 0.05 m/s, prior 25 rad/s (Table I's joint limit).
 
     Raises:
       ValueError: a field has the wrong shape or a non-positive or non-finite entry.

@@ -57,6 +57,8 @@ class RobotDescription:
       floor_geom_ids: world geoms (plane or height field) that some foot can touch.
       nq: number of generalised coordinates.
       nv: number of generalised velocities.
+      mass_kg: the model's total mass (:func:`model_mass`), kg; None where unknown. It
+        scales the contact force uncertainty that :func:`jax_contact.params_for` derives.
     """
 
     foot_names: tuple[str, ...]
@@ -72,6 +74,7 @@ class RobotDescription:
     nq: int
     nv: int
     foot_soles: tuple[tuple[tuple[float, float, float], ...], ...] = ()
+    mass_kg: float | None = None
 
     @property
     def n_legs(self) -> int:
@@ -263,4 +266,5 @@ def derive_description(
         floor_geom_ids=used_floors,
         nq=int(m.nq),
         nv=int(m.nv),
+        mass_kg=model_mass(m),
     )

@@ -165,6 +165,25 @@ def test_bad_params_file_names_the_field(go1, tmp_path):
         jc.load_params(tmp_path / "absent.json")
 
 
+def test_contact_force_std_is_at_most_a_share_of_a_foots_load(go1):
+    """sigma_f = min(10 N, 0.4 m g / n_legs): Go1 (12.74 kg, 0.4 x 31.2 N = 12.5 N) keeps
+    10 N; a 5 kg quadruped gets 0.4 x 5 x 9.81 / 4 = 4.905 N; a description without a mass
+    10 N, as before the rule."""
+    import dataclasses
+
+    sp = sensor_preset("anymal_like", go1.nv, dt=DT)
+    assert go1.mass_kg == pytest.approx(12.74, abs=0.01)
+    np.testing.assert_allclose(np.asarray(jc.params_for(go1, sp, DT).noise.sigma_f), 10.0)
+    light = dataclasses.replace(go1, mass_kg=5.0)
+    np.testing.assert_allclose(
+        np.asarray(jc.params_for(light, sp, DT).noise.sigma_f), 4.905, rtol=1e-6
+    )
+    unknown = dataclasses.replace(go1, mass_kg=None)
+    np.testing.assert_allclose(np.asarray(jc.params_for(unknown, sp, DT).noise.sigma_f), 10.0)
+    with pytest.raises(ValueError, match="desc.mass_kg must be a finite number > 0"):
+        jc.params_for(dataclasses.replace(go1, mass_kg=-1.0), sp, DT)
+
+
 def test_contact_damping_from_the_contact_time_constant(go1):
     """Critical damping of a contact that settles in T: b = 2 / T (20 ms -> 100 1/s)."""
     sp = sensor_preset("anymal_like", go1.nv, dt=DT)
