@@ -298,6 +298,13 @@ def step_batch(
     return jax.vmap(jax.vmap(one))(belief, meas, keys)
 
 
+def _like(new: LegBelief, old: LegBelief) -> LegBelief:
+    """``new`` in ``old``'s dtypes: a scan's carry keeps the initial belief's type (float32
+    parameters fed float64 measurements under ``jax_enable_x64`` compute in float64, and
+    the carry must not change type)."""
+    return jax.tree.map(lambda n, o: n.astype(o.dtype), new, old)
+
+
 def run(
     params: EstimatorParams,
     terrain,
@@ -321,8 +328,8 @@ def run(
     def body(carry, meas):
         b, k = carry
         k, sub = jax.random.split(k)
-        b, diag = step_batch(params, terrain, b, meas, key=sub)
-        return (b, k), diag
+        new, diag = step_batch(params, terrain, b, meas, key=sub)
+        return (_like(new, b), k), diag
 
     (belief, _), diags = jax.lax.scan(body, (belief, key), meas_seq)
     return belief, diags
@@ -354,7 +361,7 @@ def sequence_bce(
         b, k = carry
         meas, y = inputs
         k, sub = jax.random.split(k)
-        b, _ = step_batch(params, terrain, b, meas, key=sub)
+        b = _like(step_batch(params, terrain, b, meas, key=sub)[0], b)
         y = y.astype(b.logit.dtype)
         nll = -(y * jax.nn.log_sigmoid(b.logit) + (1.0 - y) * jax.nn.log_sigmoid(-b.logit))
         return (b, k), nll

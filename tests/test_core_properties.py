@@ -295,6 +295,28 @@ def test_run_and_sequence_bce_trace_under_x64(x64):
     assert out.dtype == jnp.float64 and out.shape == ()
 
 
+def test_float32_params_run_on_float64_measurements_under_x64(x64):
+    """make_params builds float32 parameters; under x64 a user's measurements are float64
+    and step_batch computes in float64. run and sequence_bce keep the initial belief's
+    float32 carry (they raised a scan carry TypeError) and agree with the float32 run."""
+    from jax_contact.filter import run
+
+    params = PARAMS["quadrature"]
+    fields = oracle.planar_measurement(*oracle.planar_stance())
+    meas = LegMeasurement(
+        **{k: jnp.asarray(np.broadcast_to(v, (4, 1, 1) + np.shape(v))) for k, v in fields.items()}
+    )
+    assert meas.qdd.dtype == jnp.float64 and params.dt.dtype == jnp.float32
+    b0 = init_belief_batch(params, 1, 1)
+    belief, diag = run(params, TERRAIN, b0, meas, key=jax.random.key(0))
+    assert belief.logit.dtype == jnp.float32
+    meas32 = jax.tree.map(lambda x: x.astype(jnp.float32) if x.dtype == jnp.float64 else x, meas)
+    _, diag32 = run(params, TERRAIN, b0, meas32, key=jax.random.key(0))
+    np.testing.assert_allclose(np.asarray(diag.p_contact), np.asarray(diag32.p_contact), atol=1e-5)
+    bce = sequence_bce(params, TERRAIN, meas, jnp.ones((4, 1, 1)), key=jax.random.key(0))
+    assert np.isfinite(float(bce))
+
+
 def test_stabilised_contact_reads_a_sinking_foot_as_contact():
     """A foot that still moves into the ground at 0.3 m/s and decelerates as the
     stabilised contact predicts (``J qdd + Jdot qd = -b u e``, b = 100 1/s) is contact
