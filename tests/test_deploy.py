@@ -92,9 +92,17 @@ try:
     est.update(belief, {n: log[n][0, 0] for n in ("qpos", "qvel", "qacc")})
 except ValueError as err:
     errors["missing_tau"] = str(err)
+# A NaN velocity is the invalid step of the call that reads it, and the next, clean call
+# is valid (it pairs with its own state): once flagged on the call after.
+bad = {n: log[n][5, 0].copy() for n in est.reading_names}
+bad["qvel"][0] = np.nan
+b2, p_nan, d_nan = est.update(belief, bad)
+b2, p_next, d_next = est.update(b2, {n: log[n][6, 0] for n in est.reading_names})
+nan_calls = [np.asarray(d_nan["valid"]).tolist(), np.asarray(d_next["valid"]).tolist(),
+             bool(np.isfinite(p_nan).all() and np.isfinite(p_next).all())]
 loaded = sorted(m for m, v in sys.modules.items() if v is not None and m.split(".")[0] == "mujoco")
 np.savez(sys.argv[3], p=np.stack(ps), valid=np.stack(valid))
-print(json.dumps({"errors": errors, "mujoco_modules": loaded}))
+print(json.dumps({"errors": errors, "mujoco_modules": loaded, "nan_calls": nan_calls}))
 """
 
 
@@ -131,6 +139,11 @@ def test_artefact_without_mujoco_matches_replay(child, live):
     np.testing.assert_allclose(child["p"], live, rtol=0, atol=P_TOL)
     # Not a trivially constant estimate: the trot makes and breaks contact.
     assert ((child["p"].max(axis=0) > 0.9) & (child["p"].min(axis=0) < 0.1)).any()
+
+
+def test_a_non_finite_state_is_the_invalid_step_of_its_own_call(child):
+    invalid, after, finite = child["nan_calls"]
+    assert invalid == [False] * 4 and after == [True] * 4 and finite
 
 
 def test_wrong_reading_names_the_field(child):
