@@ -232,6 +232,37 @@ def test_a_shipped_preset_exports_by_name(deployed, tmp_path):
     np.testing.assert_allclose(offline, got, atol=P_TOL)
 
 
+def test_export_checks_a_params_file_as_evaluate_does(tmp_path):
+    """``export --params`` reads the file as ``evaluate`` does: another robot's preset
+    (Spot's, 50.3 kg, on Go1's 12.7 kg) warns, and a file of another period is moved to the
+    export's rate with a warning (it was written unchecked, or refused)."""
+    import warnings
+
+    from jax_contact.io import params_from_dict
+    from jax_contact.train.deploy_cmd import export_to_file
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        h = export_to_file(tmp_path / "x.contact", robot="go1", params_path="spot", rate_hz=250)
+    said = " | ".join(str(w.message) for w in caught)
+    assert "tuned on a robot of 50.3 kg ('spot'); this one weighs 12.7 kg" in said
+    assert "has dt = 0.0025 s" in said and "0.004 s" in said
+    assert float(params_from_dict(h["params"]).dt) == pytest.approx(0.004)
+    assert h["params"]["provenance"]["name"] == "spot"
+    with pytest.raises(ValueError, match=r"argument --params: .*nv = 3; the robot has nv = 18"):
+        export_to_file(tmp_path / "y.contact", robot="go1", params_path=_planar_file(tmp_path))
+    assert not (tmp_path / "y.contact").exists()
+
+
+def _planar_file(tmp_path) -> str:
+    import jax_contact as jc
+    from jax_contact.train.reproduce import planar_estimator_params
+
+    path = tmp_path / "planar.json"
+    jc.save_params(path, planar_estimator_params(3, 0.0025))
+    return str(path)
+
+
 def test_corrupt_or_foreign_file_is_refused(deployed, tmp_path):
     from jax_contact.export import read_artefact
 

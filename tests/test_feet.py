@@ -145,6 +145,21 @@ def test_force_rows_keep_the_normal():
         W.wrap_contact(env, W.ContactObsConfig(force_rows=(0, 3)))
 
 
+def test_evaluate_and_export_defaults_choose_a_short_legs_force_rows():
+    """``evaluate``, ``estimate`` and ``export`` build their defaults with
+    ``train.logs.default_estimator``: a floating-base robot of two-joint legs gets the
+    wrapper's force rows (the test above: (1, 2)), not the planar leg's estimator (it
+    raised 'nv must be the planar leg's 3'); without the model it says what it needs."""
+    from jax_contact.train.logs import default_estimator
+
+    m = mujoco.MjModel.from_xml_string(ANT)
+    desc, _ = feet.describe(m)
+    params, _ = default_estimator(desc, 0.0025, mj_model=m)
+    assert params.force_rows == (1, 2) and params.nv == desc.nv == 8
+    with pytest.raises(ValueError, match=r"legs of 2 joints.*pass mj_model"):
+        default_estimator(desc, 0.0025)
+
+
 def test_contact_truth_carries_the_weight():
     """Sole resting on the floor (base at 0.51 m puts the sole's bottom at 0): after 1 s
     the summed normal force of its contacts is the robot's weight (hand check: the rail

@@ -153,21 +153,32 @@ def check_deploy_check(args: argparse.Namespace) -> None:
 # -------------------------------------------------------------------------------- export
 
 
-def default_estimator(desc, dt: float):
-    """The robot's shipped estimator, ``(params, terrain, provenance)``: the choice of
-    ``jax-contact evaluate`` (:func:`jax_contact.train.logs.default_estimator`), with where it came
-    from."""
-    from jax_contact.train.logs import default_estimator as shipped
+DEFAULTS_PROVENANCE = {
+    "source": "defaults",
+    "function": "jax_contact.train.logs.default_estimator",
+    "rule": "jax_contact.params_for with the anymal_like sensor model"
+    " (jax_contact.envs.sensors); the planar leg's Section III estimator for one two-joint"
+    " leg on a rail",
+}
 
-    params, terrain = shipped(desc, dt)
-    provenance = {
-        "source": "defaults",
-        "function": "jax_contact.train.logs.default_estimator",
-        "rule": "jax_contact.params_for with the anymal_like sensor model"
-        " (jax_contact.envs.sensors); the planar leg's Section III estimator for two-joint legs",
-        "dt": dt,
+
+def _file_provenance(params_path: str) -> dict:
+    """Where a parameter file or preset came from, its SHA-256 and its own provenance."""
+    import hashlib
+
+    from jax_contact._presets import preset_file
+
+    if (ref := preset_file(params_path)) is not None:
+        raw = ref.read_bytes()
+        where = {"source": "preset", "name": params_path}
+    else:
+        raw = Path(params_path).read_bytes()
+        where = {"source": "file", "path": str(Path(params_path).resolve())}
+    return {
+        **where,
+        "sha256": hashlib.sha256(raw).hexdigest(),
+        "file_provenance": json.loads(raw).get("provenance", {}),
     }
-    return params, terrain, provenance
 
 
 def export_to_file(
@@ -179,39 +190,37 @@ def export_to_file(
     rate_hz: float = 400.0,
     seed: int = 0,
 ) -> dict:
-    """Exports ``robot`` (a name or an MJCF path) to ``out``; returns the header."""
-    import hashlib
+    """Exports ``robot`` (a name or an MJCF path) to ``out``; returns the header.
 
-    import jax_contact as jc
+    The parameters are those of ``jax-contact evaluate`` (:func:`jax_contact.train.logs.
+    default_estimator`), or ``params_path``'s checked as ``evaluate`` checks them (its
+    ``nv``; a file tuned on a robot of another mass warns; a file of another period is
+    moved to ``1 / rate_hz`` with a warning), with its calibration map and terrain model.
+
+    Raises:
+      ValueError: naming ``--params`` for a file that does not fit the robot, as
+        :func:`jax_contact.train.logs.load_params_for`.
+    """
     from jax_contact import export
     from jax_contact.envs.robots import load_robot
+    from jax_contact.robot import model_mass
+    from jax_contact.train.logs import _estimator_for
 
     loaded = load_robot(robot, foot_names=feet)
     desc = loaded.description
     dt = 1.0 / float(rate_hz)
-    params, terrain, provenance = default_estimator(desc, dt)
-    calibration = None
-    if params_path is not None:
-        from jax_contact._presets import preset_file
-
-        params = jc.load_params(params_path)
-        calibration = jc.load_calibration(params_path)
-        if (ref := preset_file(params_path)) is not None:
-            raw = ref.read_bytes()
-            where = {"source": "preset", "name": params_path}
-        else:
-            raw = Path(params_path).read_bytes()
-            where = {"source": "file", "path": str(Path(params_path).resolve())}
-        provenance = {
-            **where,
-            "sha256": hashlib.sha256(raw).hexdigest(),
-            "file_provenance": json.loads(raw).get("provenance", {}),
-        }
-        if params.nv != desc.nv:
-            raise ValueError(
-                f"argument --params: {params_path!r} has nv={params.nv} but robot {robot!r}"
-                f" has nv={desc.nv}"
-            )
+    try:
+        params, _, terrain, calibration = _estimator_for(
+            desc, dt, params_path, None, model_mass(loaded.mj_model), mj_model=loaded.mj_model
+        )
+    except ValueError as err:
+        if params_path is None:
+            raise
+        raise ValueError(f"argument --params: {err}") from None
+    if params_path is None:
+        provenance = {**DEFAULTS_PROVENANCE, "dt": dt}
+    else:
+        provenance = _file_provenance(params_path)
     source = robot if robot in _robot_names() else str(Path(robot).resolve())
     header, payload = export.export_robot(
         loaded.mj_model,
@@ -267,9 +276,19 @@ def params_and_terrain(header: dict):
 
     params = params_from_dict(header["params"], source="export header")
     t = header["terrain"]
-    if t.get("type") != "FlatTerrain":
-        raise ValueError(f"deploy-check replays flat terrain models only, got {t.get('type')!r}")
-    return params, jc.flat(float(t["height"]), float(t["sigma"]))
+
+    def plane(t):
+        if t.get("type") != "FlatTerrain":
+            raise ValueError(
+                "deploy-check replays a plane or a foothold memory over one, got"
+                f" {t.get('type')!r}"
+            )
+        return jc.flat(float(t["height"]), float(t["sigma"]))
+
+    if t.get("type") == "FootholdMemory":  # a file tuned with --terrain-model memory
+        keys = ("sigma_foothold", "growth", "smoothing")
+        return params, jc.foothold_memory(plane(t["fallback"]), **{k: float(t[k]) for k in keys})
+    return params, plane(t)
 
 
 def offline_estimate(header: dict, readings: dict, *, dt: float):

@@ -191,13 +191,21 @@ TERRAIN_MODELS = ("flat", "memory")
 FOOTHOLD_MEMORY = dict(sigma_foothold=0.02, growth=0.3, smoothing=0.05)
 
 
-def default_estimator(desc, dt: float, terrain_model: str = "flat"):
-    """(EstimatorParams, terrain) that ``evaluate`` and ``estimate`` use for a robot: the
-    planar leg's Section III estimator for 2-joint legs, else Table III's (the one source:
-    :func:`jax_contact.params_for` with ``anymal_like`` sensors,
-    ``jax_contact.train.reproduce``). ``terrain_model`` (:data:`TERRAIN_MODELS`): ``"flat"``
-    the plane of the reproduction, ``"memory"`` a :func:`jax_contact.foothold_memory` over
-    it with :data:`FOOTHOLD_MEMORY`, for base positions that drift."""
+def default_estimator(desc, dt: float, terrain_model: str = "flat", *, mj_model=None):
+    """(EstimatorParams, terrain) that ``evaluate``, ``estimate`` and ``export`` use for a
+    robot: the planar leg's Section III estimator for one 2-joint leg on a rail, else Table
+    III's (the one source: :func:`jax_contact.params_for` with ``anymal_like`` sensors,
+    ``jax_contact.train.reproduce``). Legs of fewer than three joints on a floating base
+    (a biped's, Brax's ant's) resist the force axes their Jacobian spans
+    (:func:`jax_contact.envs.contact_params.choose_force_rows`, which needs ``mj_model``).
+    ``terrain_model`` (:data:`TERRAIN_MODELS`): ``"flat"`` the plane of the reproduction,
+    ``"memory"`` a :func:`jax_contact.foothold_memory` over it with :data:`FOOTHOLD_MEMORY`,
+    for base positions that drift.
+
+    Raises:
+      ValueError: an unknown terrain model, or legs of fewer than three joints (not the
+        planar leg's) without ``mj_model``.
+    """
     import jax_contact as jc
     from jax_contact.train.reproduce import (
         TERRAIN_SIGMA,
@@ -206,8 +214,19 @@ def default_estimator(desc, dt: float, terrain_model: str = "flat"):
     )
 
     check_terrain_model(terrain_model)
-    if desc.n_leg_dofs == 2:
+    if desc.n_leg_dofs == 2 and desc.n_legs == 1 and len(desc.base_dofs) < 6:
         params, plane = planar_estimator_params(desc.nv, dt), jc.flat(0.0, 0.2)
+    elif desc.n_leg_dofs < 3:
+        if mj_model is None:
+            raise ValueError(
+                f"legs of {desc.n_leg_dofs} joints: their force axes are chosen from the"
+                " robot's model (pass mj_model)"
+            )
+        from jax_contact.envs.contact_params import choose_force_rows
+
+        rows = choose_force_rows(mj_model, desc)
+        params = quadruped_estimator_params(desc, dt, force_rows=rows)
+        plane = jc.flat(0.0, TERRAIN_SIGMA)
     else:
         params, plane = quadruped_estimator_params(desc, dt), jc.flat(0.0, TERRAIN_SIGMA)
     return params, terrain_for(plane, terrain_model)
@@ -375,7 +394,7 @@ def evaluate_file(
     name, truth, desc, dt = log.name, log.truth, log.robot.description, log.dt
     mass = model_mass(log.robot.mj_model)
     params, terrain_model, terrain, calibration = _estimator_for(
-        desc, dt, params_path, terrain_model, mass
+        desc, dt, params_path, terrain_model, mass, mj_model=log.robot.mj_model
     )
     if bootstrap and truth is not None and truth.shape[1] < 2:
         raise ValueError(
@@ -383,7 +402,9 @@ def evaluate_file(
         )
     estimators = {"probabilistic": params}
     if params_path is not None:
-        estimators["defaults"] = default_estimator(desc, dt, terrain_model)[0]
+        estimators["defaults"] = default_estimator(
+            desc, dt, terrain_model, mj_model=log.robot.mj_model
+        )[0]
     gm_name, gm = "gm", make_gm_params()
     if gm_grid_log is not None and truth is not None:
         gm_name, gm, _ = tune_gm(gm_grid_log)
@@ -473,7 +494,9 @@ def _vs_probabilistic(out, scores, truth, valid, dt: float, n_resamples: int) ->
     return vs
 
 
-def _estimator_for(desc, dt: float, params_path, terrain_model: str | None, mass_kg=None):
+def _estimator_for(
+    desc, dt: float, params_path, terrain_model: str | None, mass_kg=None, *, mj_model=None
+):
     """(params, terrain model, terrain, calibration map or None) of ``evaluate`` and
     ``estimate``: the defaults (:func:`default_estimator`) or ``params_path`` checked
     against the robot and period, with the file's calibration map, on the terrain model
@@ -484,24 +507,25 @@ def _estimator_for(desc, dt: float, params_path, terrain_model: str | None, mass
     provenance, calibration = None, None
     if params_path is not None:
         file_params, provenance = load_params_for(
-            params_path, desc, dt, mass_kg, with_provenance=True
+            params_path, desc, dt, mass_kg, with_provenance=True, mj_model=mj_model
         )
         calibration = file_calibration(provenance, params_path)
     model = resolve_terrain_model(terrain_model, params_path, provenance)
     if terrain_model is None and model != "flat":
         print(f"terrain model {model!r}: the one {str(params_path)!r} was tuned with")
-    params, terrain = default_estimator(desc, dt, model)
+    params, terrain = default_estimator(desc, dt, model, mj_model=mj_model)
     if params_path is not None:
         params = file_params
     return params, model, terrain, calibration
 
 
-def load_params_for(path, desc, dt, mass_kg=None, *, with_provenance=False):
+def load_params_for(path, desc, dt, mass_kg=None, *, with_provenance=False, mj_model=None):
     """A params file, checked against the robot (its ``nv`` and, given, its mass) and the
-    log's period (:func:`jax_contact.io.load_params_for`; ``with_provenance`` as there)."""
+    log's period (:func:`jax_contact.io.load_params_for`; ``with_provenance`` as there;
+    ``mj_model`` as :func:`default_estimator`'s, whose values move the file's period)."""
     from jax_contact.io import load_params_for as load
 
-    derive = lambda d: default_estimator(desc, d)[0]  # noqa: E731
+    derive = lambda d: default_estimator(desc, d, mj_model=mj_model)[0]  # noqa: E731
     return load(
         path, nv=desc.nv, dt=dt, derive=derive, mass_kg=mass_kg, with_provenance=with_provenance
     )

@@ -66,8 +66,9 @@ def estimate_recording(
     conv = to_readings(rec, robot, names=names, units=units, resample=resample)
     desc = robot.description
     params, terrain_model, terrain, calibration = _estimator_for(
-        desc, conv.dt, params_path, terrain_model, model_mass(robot.mj_model)
-    )
+        desc, conv.dt, params_path, terrain_model, model_mass(robot.mj_model),
+        mj_model=robot.mj_model,
+    )  # fmt: skip
     terms = tuple(t for t in params.terms if t in conv.terms)
     if not terms:
         raise ValueError(

@@ -391,7 +391,6 @@ def load_logs(args: argparse.Namespace) -> Inputs:
     """The :class:`Inputs` of ``jax-contact tune``'s logs (one robot for all)."""
     from jax_contact.envs.robots import load_robot
     from jax_contact.robot import model_mass
-
     from jax_contact.tune import check_scored_steps
 
     t0 = time.perf_counter()
