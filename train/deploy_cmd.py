@@ -280,8 +280,7 @@ def params_and_terrain(header: dict):
     def plane(t):
         if t.get("type") != "FlatTerrain":
             raise ValueError(
-                "deploy-check replays a plane or a foothold memory over one, got"
-                f" {t.get('type')!r}"
+                f"deploy-check replays a plane or a foothold memory over one, got {t.get('type')!r}"
             )
         return jc.flat(float(t["height"]), float(t["sigma"]))
 
