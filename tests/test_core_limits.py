@@ -139,6 +139,25 @@ def test_foothold_memory_averages_the_stance_height(jit_step):
             np.testing.assert_allclose(np.asarray(belief.foothold), [0.0, 0.0, z], atol=1e-7)
 
 
+def test_height_field_normal_of_a_plane_is_exact_on_its_border():
+    """Heights [[0, .1], [.2, .3]] on a 1 m grid are the plane z = 0.1 x + 0.2 y, whose
+    normal is (-0.1, -0.2, 1) / |.| everywhere on the grid, its corners and edges included
+    (the clip's derivative of 1/2 at a bound halved the slope there); outside the grid the
+    surface is continued flat (normal z)."""
+    from jax_contact import height_field
+
+    hf = height_field([[0.0, 0.1], [0.2, 0.3]], origin=(0.0, 0.0), spacing=(1.0, 1.0))
+    want = np.array([-0.1, -0.2, 1.0]) / math.sqrt(1.05)
+    none = (jnp.zeros(3), jnp.array(False))
+    for x, y in ((0.0, 0.0), (1.0, 0.0), (0.0, 1.0), (1.0, 1.0), (0.5, 0.5), (0.0, 0.3)):
+        q = hf.query(jnp.array([x, y, 0.5]), *none)
+        np.testing.assert_allclose(np.asarray(q.normal), want, atol=1e-6, err_msg=str((x, y)))
+        assert float(q.height) == pytest.approx(0.1 * x + 0.2 * y, abs=1e-6)
+    q = hf.query(jnp.array([2.0, 3.0, 0.5]), *none)
+    np.testing.assert_allclose(np.asarray(q.normal), [0.0, 0.0, 1.0], atol=1e-7)
+    assert float(q.height) == pytest.approx(0.3, abs=1e-6)
+
+
 def test_fast_swing_foot_high_above_the_ground(jit_step):
     """The free leg swinging with its foot 0.2 m up at ~2 m/s (qd = (0, 6, -3) rad/s),
     qdd = M^-1 (tau - h) the free dynamics (rail included) under tau = (0, 5, -3) N m.
