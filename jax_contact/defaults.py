@@ -60,10 +60,17 @@ velocity still ~0); chosen on Go1's tuning seed (1000).
 from __future__ import annotations
 
 import dataclasses
+import numbers
 
 import numpy as np
 
 from jax_contact.params import EstimatorParams, make_noise, make_params
+
+
+def _is_number(v) -> bool:
+    """A real scalar, Python's or NumPy's (``np.float32(0.3)``), not a bool or a string."""
+    return isinstance(v, numbers.Real) and not isinstance(v, bool | np.bool_)
+
 
 # The differential-kinematics term's still-side evidence per second: logit(0.65) per 2.5 ms
 # step, chosen at 400 Hz on Go1's tuning seed (docs/model_choices.md).
@@ -122,7 +129,7 @@ class GaitPrior:
     def __post_init__(self):
         for f in dataclasses.fields(self):
             v = getattr(self, f.name)
-            if not (isinstance(v, int | float) and np.isfinite(v) and v > 0):
+            if not (_is_number(v) and np.isfinite(v) and v > 0):
                 raise ValueError(f"GaitPrior.{f.name} must be a finite number > 0, got {v!r}")
 
 
@@ -241,12 +248,12 @@ def params_for(
     gait = GaitPrior() if gait is None else gait
     if not isinstance(gait, GaitPrior):
         raise ValueError(f"gait must be a GaitPrior, got {type(gait).__name__}")
-    if not (np.isfinite(dt) and dt > 0):
+    if not (_is_number(dt) and np.isfinite(dt) and dt > 0):
         raise ValueError(f"dt must be a finite float > 0 (s), got {dt!r}")
     for name, v in (("disturbance", disturbance), ("bias_horizon_s", bias_horizon_s)):
-        if not (np.isfinite(v) and v >= 0):
+        if not (_is_number(v) and np.isfinite(v) and v >= 0):
             raise ValueError(f"{name} must be a finite number >= 0, got {v!r}")
-    if not (isinstance(contact_timeconst, int | float) and contact_timeconst > 0):
+    if not (_is_number(contact_timeconst) and contact_timeconst > 0):
         raise ValueError(f"contact_timeconst must be a number > 0 (s), got {contact_timeconst!r}")
     nv, n_l = int(desc.nv), int(desc.n_leg_dofs)
     if force_rows is None:
@@ -256,6 +263,12 @@ def params_for(
                 " (e.g. (0, 2) for a leg in the x-z plane)"
             )
         force_rows = (0, 1, 2)
+    elif len(tuple(force_rows)) > n_l:
+        raise ValueError(
+            f"force_rows {tuple(force_rows)}: legs of {n_l} joints span at most {n_l} force"
+            " axes (the operational-space matrix of more is singular and its forces blow up);"
+            " keep the normal and the largest tangential ones"
+        )
     s = _sensor_fields(sensors, nv)
 
     white = _sensor_noise(s, dt, bias_horizon_s=0.0)

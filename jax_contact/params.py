@@ -350,6 +350,18 @@ def make_params(
         (0.5, 1], ``n_samples`` or ``n_quad`` below 1, an unknown ``touchdown`` mode or
         invalid ``force_rows``.
     """
+    flags = dict(
+        unilateral=unilateral,
+        transition_model=transition_model,
+        kinematics_neutral_below=kinematics_neutral_below,
+        foothold_still=foothold_still,
+    )
+    for name, flag in flags.items():  # bool("no") is True: a string is a mistake
+        if not isinstance(flag, bool | np.bool_):
+            raise ValueError(f"{name} must be True or False, got {flag!r}")
+    for name, seq in (("terms", terms), ("force_rows", force_rows)):
+        if isinstance(seq, str) or not isinstance(seq, Sequence | np.ndarray):
+            raise ValueError(f"{name} must be a sequence (e.g. a tuple), got {seq!r}")
     params = EstimatorParams(
         noise=noise,
         dt=jnp.float32(dt),

@@ -96,6 +96,23 @@ def test_params_for_names_bad_input(go1):
     sp = sensor_preset("anymal_like", planar.nv, dt=DT, floating_base=False, base_dofs=(0,))
     with pytest.raises(ValueError, match="pass force_rows"):
         jc.params_for(planar, sp, DT)
+    # A 2-joint leg spans two force axes; a third made the force estimate blow up.
+    with pytest.raises(ValueError, match=r"force_rows \(0, 1, 2\): legs of 2 joints span at"):
+        jc.params_for(planar, sp, DT, force_rows=(0, 1, 2))
+    sp = sensor_preset("anymal_like", go1.nv, dt=DT)
+    for bad in ("x", None):
+        with pytest.raises(ValueError, match="dt must be a finite float > 0"):
+            jc.params_for(go1, sp, bad)
+    # NumPy scalars are numbers (they were refused as not int | float).
+    p = jc.params_for(go1, sp, np.float32(DT), contact_timeconst=np.float32(0.02),
+                      gait=jc.GaitPrior(stance_time=np.float32(0.3)))  # fmt: skip
+    assert float(p.stance_time) == pytest.approx(0.3) and float(p.dt) == pytest.approx(DT)
+    # Static flags and sequences are typed: bool("no") and tuple("dynamics") were accepted.
+    noise = p.noise
+    with pytest.raises(ValueError, match="unilateral must be True or False, got 'no'"):
+        jc.make_params(noise, unilateral="no")
+    with pytest.raises(ValueError, match="terms must be a sequence .* got 'dynamics'"):
+        jc.make_params(noise, terms="dynamics")
 
 
 def test_params_file_round_trip(go1, tmp_path):
