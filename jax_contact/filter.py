@@ -36,6 +36,8 @@ from jax_contact.types import (
     RobotMeasurement,
     feet_are_finite,
     measurement_is_finite,
+    validate_measurement,
+    validate_robot_measurement,
 )
 
 
@@ -126,10 +128,10 @@ def _check_shapes(fn: str, params, belief, meas, batch: tuple[int, ...]) -> None
             f"{fn}: meas must be a LegMeasurement or RobotMeasurement, got {type(meas).__name__}"
         )
     want = batch + (params.nv,)
-    if tuple(meas.qdd.shape) != want:
+    if tuple(np.shape(meas.qdd)) != want:
         what = "the leading axes of the batch" if batch else "unbatched"
         raise ValueError(
-            f"{fn}: meas.qdd has shape {tuple(meas.qdd.shape)}; expected {want} ({what}, then"
+            f"{fn}: meas.qdd has shape {tuple(np.shape(meas.qdd))}; expected {want} ({what}, then"
             f" params' nv = {params.nv}): parameters of another robot, or a measurement"
             " batched differently"
         )
@@ -139,6 +141,14 @@ def _check_shapes(fn: str, params, belief, meas, batch: tuple[int, ...]) -> None
             f"{fn}: belief has shape {tuple(belief.logit.shape)} (its logit); the measurement"
             f" needs {batch + legs}"
         )
+    # Every other field (M, J, qd, ... and the legs' indices where they are known), named.
+    try:
+        if robot:
+            validate_robot_measurement(meas, params.nv)
+        else:
+            validate_measurement(meas, params.nv)
+    except ValueError as err:
+        raise ValueError(f"{fn}: {err}") from None
 
 
 def _step(params, terrain, belief, meas, key, switches=None):

@@ -311,6 +311,8 @@ def validate_measurement(meas: LegMeasurement, nv: int | None = None) -> tuple[i
     """
     import numpy as np
 
+    if not isinstance(meas, LegMeasurement):
+        raise ValueError(f"expected a LegMeasurement, got {type(meas).__name__}")
     batch, n = _batch_and_nv(meas, nv)
     n_l = np.shape(meas.leg_dofs)[-1] if np.ndim(meas.leg_dofs) else -1
     expected = {
@@ -329,10 +331,21 @@ def validate_measurement(meas: LegMeasurement, nv: int | None = None) -> tuple[i
     }
     _check_shapes(meas, expected, batch, f"nv = {n}, n_leg_dofs = {n_l}")
     for name in ("leg_dofs", "other_dofs"):
-        if not np.issubdtype(np.asarray(getattr(meas, name)).dtype, np.integer):
+        x = getattr(meas, name)
+        dtype = x.dtype if hasattr(x, "dtype") else np.asarray(x).dtype  # a tracer has one
+        if not np.issubdtype(dtype, np.integer):
             raise ValueError(f"measurement field {name!r} must hold integer indices")
     if n_l < 1 or n_l > n:
         raise ValueError(f"leg_dofs must hold between 1 and nv = {n} indices, got {n_l}")
+    try:  # the values, where they are known (not while traced)
+        legs = np.asarray(meas.leg_dofs).reshape(-1, n_l)
+    except jax.errors.TracerArrayConversionError:
+        return batch
+    for leg in np.unique(legs, axis=0):
+        if len(set(leg.tolist())) != n_l or not np.all((leg >= 0) & (leg < n)):
+            raise ValueError(
+                f"leg_dofs {leg.tolist()} must be {n_l} distinct indices into nv = {n}"
+            )
     return batch
 
 
@@ -354,7 +367,13 @@ def _check_shapes(meas, expected: dict, batch: tuple[int, ...], what: str) -> No
     import numpy as np
 
     for name, tail in expected.items():
-        shape = np.shape(getattr(meas, name))
+        value = getattr(meas, name)
+        if isinstance(value, list | tuple):  # vmap would map it as a pytree of scalars
+            raise ValueError(
+                f"measurement field {name!r} must be an array (NumPy or JAX), got"
+                f" {type(value).__name__}"
+            )
+        shape = np.shape(value)
         if shape != batch + tail:
             raise ValueError(
                 f"measurement field {name!r} has shape {shape}, expected {batch + tail} "
@@ -374,6 +393,8 @@ def validate_robot_measurement(meas: RobotMeasurement, nv: int | None = None) ->
     Raises:
       ValueError: naming the field and the shapes, or the leg whose indices are wrong.
     """
+    if not isinstance(meas, RobotMeasurement):
+        raise ValueError(f"expected a RobotMeasurement, got {type(meas).__name__}")
     batch, n = _batch_and_nv(meas, nv)
     legs = meas.leg_dofs
     if not legs or len({len(leg) for leg in legs}) != 1 or not legs[0]:

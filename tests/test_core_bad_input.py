@@ -229,6 +229,22 @@ def test_the_update_names_a_measurement_or_belief_that_does_not_fit():
         step_batch(params, TERRAIN, b0, batched, key=key)
     with pytest.raises(ValueError, match="n_envs must be a positive int, got -1"):
         init_belief_batch(params, -1, N_LEGS)
+    # Every other field is checked too, named (they gave XLA slice or vmap size errors).
+    bad_m = batched.replace(M=batched.M[..., :2, :2])
+    with pytest.raises(ValueError, match=r"step_batch: measurement field 'M' has shape \(2, 2, 2"):
+        step_batch(params, TERRAIN, belief, bad_m, key=key)
+    bad_r = batched.replace(foot_radius=np.zeros((N_ENVS, 1)))
+    with pytest.raises(ValueError, match=r"step_batch: measurement field 'foot_radius'"):
+        step_batch(params, TERRAIN, belief, bad_r, key=key)
+    as_list = one.replace(qd=np.asarray(one.qd).tolist())
+    with pytest.raises(ValueError, match=r"step: measurement field 'qd' must be an array .* list"):
+        step(params, TERRAIN, b0, as_list, key=key)
+    # Leg indices out of range or repeated (a step that silently read the prior).
+    assert one.leg_dofs.tolist() == [1, 2]  # the planar leg: hip and knee after the rail
+    for legs in ([1, 3], [1, 1]):
+        bad = one.replace(leg_dofs=np.array(legs, np.int32))
+        with pytest.raises(ValueError, match=r"step: leg_dofs .* distinct indices into nv = 3"):
+            step(params, TERRAIN, b0, bad, key=key)
 
 
 def test_validate_measurement_other_mistakes():
