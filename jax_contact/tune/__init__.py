@@ -94,7 +94,7 @@ trot's failures per air phase fell from 3.9 % to 0.2 % but the walk lost accurac
 -> 0.977), 4 ms of touch-down delay and ECE (0.013 -> 0.021); ``w_e = 0.3`` halved them
 (2.1 %) and left every walking number within 0.1 ms and 0.002 ECE of the defaults
 (docs/tuning.md). ``TuneConfig``'s default stays 0.3; the presets use a weight per robot
-chosen on their validation seed among three (Go1 and Spot 0.1, Barkour 1.0:
+chosen on their validation seed among three (Go1 0.3, Spot 0.1, Barkour 1.0:
 ``jax_contact.train.tune_presets.PRESET_EVENT_WEIGHTS``).
 
 Optionally (``constraint_weight`` ``lambda_c > 0``; off by default), the *cells in the
