@@ -507,7 +507,7 @@ def table3(cfg: ReproduceConfig, out_dir: Path, tuned_row: dict | None = None) -
             roll.contact,
             roll.valid,
             out_dir / f"reliability_{name}.png",
-            names=names,
+            names=[r for r in PRINTED_ROWS if r in out],  # the table's rows, not the ablation's
             title=f"{cfg.robot} {name}, seed {cfg.seed}: reliability of P(contact)",
         )
         if name == "trot":
