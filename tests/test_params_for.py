@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -199,6 +200,19 @@ def test_contact_force_std_is_at_most_a_share_of_a_foots_load(go1):
     np.testing.assert_allclose(np.asarray(jc.params_for(unknown, sp, DT).noise.sigma_f), 10.0)
     with pytest.raises(ValueError, match="desc.mass_kg must be a finite number > 0"):
         jc.params_for(dataclasses.replace(go1, mass_kg=-1.0), sp, DT)
+
+
+def test_a_light_robots_contact_force_std_is_derived_from_its_mass():
+    """tests/fixtures/hexapod.xml: base 2 kg + 6 legs x (0.05 + 0.1 + 0.08 + 0.01) kg =
+    3.44 kg; sigma_f = 0.4 x 3.44 x 9.81 / 6 = 2.24976 N (10 N would exceed every foot's
+    share of the weight, 5.62 N)."""
+    robot = load_robot(str(Path(__file__).parent / "fixtures" / "hexapod.xml"))
+    desc = robot.description
+    assert desc.n_legs == 6 and desc.mass_kg == pytest.approx(3.44, abs=1e-9)
+    sp = sensor_preset("anymal_like", desc.nv, dt=DT)
+    np.testing.assert_allclose(
+        np.asarray(jc.params_for(desc, sp, DT).noise.sigma_f), 2.24976, rtol=1e-6
+    )
 
 
 def test_contact_damping_from_the_contact_time_constant(go1):
