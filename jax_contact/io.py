@@ -395,15 +395,10 @@ def params_to_dict(params, provenance: Mapping | None = None) -> dict:
     }
 
 
-def params_from_dict(payload: Mapping, *, source: str = "params"):
-    """The inverse of :func:`params_to_dict`, validated; errors name ``source`` and the field.
-
-    Raises:
-      ValueError: not a params payload, an unknown version, a missing or extra field, or
-        a value that :func:`jax_contact.make_params` / ``make_noise`` rejects.
-    """
-    from jax_contact.params import make_noise, make_params
-
+def check_params_header(payload, source: str) -> None:
+    """The checks of :func:`params_from_dict` that need no JAX: the format, version,
+    top-level keys, sections and the provenance's type (the command line runs them before
+    JAX loads). Raises ValueError naming ``source`` and the field."""
     if not isinstance(payload, Mapping) or payload.get("format") != PARAMS_FORMAT:
         raise ValueError(
             f"{source}: not a jax-contact parameter file (no format {PARAMS_FORMAT!r})"
@@ -439,6 +434,35 @@ def params_from_dict(payload: Mapping, *, source: str = "params"):
             f"{source}: provenance field 'robot_mass_kg' must be a positive number of kg"
             f" (or absent), got {mass!r}"
         )
+
+
+def read_params_file(path) -> tuple[dict, str]:
+    """``(payload, description for errors)`` of a parameter file or preset name, its
+    header checked (:func:`check_params_header`); no JAX is imported.
+
+    Raises:
+      ValueError: the file is missing (or the name is no preset), not JSON, or its header
+        is wrong (named).
+    """
+    text, source = _params_text(path)
+    try:
+        payload = json.loads(text)
+    except (json.JSONDecodeError, UnicodeDecodeError) as err:
+        raise ValueError(f"{source} is not JSON: {err}") from None
+    check_params_header(payload, source)
+    return payload, source
+
+
+def params_from_dict(payload: Mapping, *, source: str = "params"):
+    """The inverse of :func:`params_to_dict`, validated; errors name ``source`` and the field.
+
+    Raises:
+      ValueError: not a params payload, an unknown version, a missing or extra field, or
+        a value that :func:`jax_contact.make_params` / ``make_noise`` rejects.
+    """
+    from jax_contact.params import make_noise, make_params
+
+    check_params_header(payload, source)
     want = {section: set(names) for section, names in _param_sections().items()}
     payload = dict(payload)
     for section, added in LATER_FIELDS.items():
@@ -501,11 +525,7 @@ def load_params(path: str | os.PathLike, *, with_provenance: bool = False):
       ValueError: the file is missing (or the name is no preset), is not JSON, or a field
         is wrong (named).
     """
-    text, source = _params_text(path)
-    try:
-        payload = json.loads(text)
-    except (json.JSONDecodeError, UnicodeDecodeError) as err:
-        raise ValueError(f"{source} is not JSON: {err}") from None
+    payload, source = read_params_file(path)
     params = params_from_dict(payload, source=source)
     if with_provenance:
         return params, dict(payload.get("provenance") or {})

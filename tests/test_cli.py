@@ -85,6 +85,7 @@ def test_importing_the_cli_does_not_import_jax():
         (["simulate", "out.h5", "--seed", "-1"], ["argument --seed", "'-1'"]),
         (["evaluate", "README.md", "--bootstrap", "99999999999"], ["argument --bootstrap"]),
         (["tune", "README.md", "--validate", "x.h5", "--out", "t.json"], ["argument LOG"]),
+        (["evaluate", "README.md", "--params", "pyproject.toml"], ["argument --params", "JSON"]),
     ],
 )
 def test_bad_arguments_are_reported_at_once(argv, names):

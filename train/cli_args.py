@@ -125,10 +125,12 @@ def check_input_file(arg: str, path: str) -> None:
 
 
 def check_params_source(arg: str, source: str) -> None:
-    """Raises ValueError unless ``source`` is an existing parameter file or the name of a
-    shipped preset (``jax_contact.preset_names()``), the two things
-    :func:`jax_contact.load_params` takes."""
+    """Raises ValueError unless ``source`` is the name of a shipped preset
+    (``jax_contact.preset_names()``) or an existing parameter file whose JSON header reads
+    (:func:`jax_contact.io.read_params_file`), the two things :func:`jax_contact.load_params`
+    takes. No JAX is imported."""
     from jax_contact._presets import preset_file, preset_names
+    from jax_contact.io import read_params_file
 
     if preset_file(source) is not None:
         return
@@ -138,6 +140,10 @@ def check_params_source(arg: str, source: str) -> None:
             f" ({', '.join(preset_names())})"
         )
     check_input_file(arg, source)
+    try:  # JSON and header, before JAX loads (the values are checked once it has)
+        read_params_file(source)
+    except ValueError as err:
+        raise ValueError(f"argument {arg}: {err}") from None
 
 
 def check_output_folder(arg: str, folder: str | os.PathLike) -> None:
