@@ -114,12 +114,14 @@ class _ContactMixin:
         metrics = dict(state.metrics)
         if core.truth is not None:
             info[self._truth_key] = core.truth(data)
-            n, hits, prev = score["n"], score["hits"], score["mean"]
+            n, hits = score["n"], score["hits"]
             mean = jnp.where(n > 0, hits / jnp.maximum(n, 1.0), 0.0)
-            info[self._score_key] = {"n": n, "hits": hits, "mean": mean}
-            # Brax's EpisodeWrapper and EvalWrapper sum every metric over the episode: an
-            # increment of the running accuracy sums to the episode's accuracy.
-            metrics[self._metric_key] = mean - prev
+            info[self._score_key] = {**score, "mean": mean}
+            # Brax's EpisodeWrapper and EvalWrapper sum every metric over the episode, once
+            # per training-wrapper step (of action_repeat env steps): the increment of the
+            # running accuracy since that step began (score["base"], _outer_base) sums to
+            # the episode's accuracy.
+            metrics[self._metric_key] = mean - score["base"]
         if core.cfg.record_substeps:
             info[self._substeps_key] = rec
         obs = core.add_features(state.obs, core.features(est, data))
@@ -144,6 +146,7 @@ class _ContactMixin:
         data = getattr(state, self._DATA)
         est = self._core.init(data, jax.random.fold_in(rng, _KEY_TAG))
         zero = jnp.zeros((), jnp.float32)
+        score = {"n": zero, "hits": zero, "mean": zero, "base": zero, "tag": zero - 1.0}
         rec = None
         if self._core.cfg.record_substeps:
             n = self._n_substeps()
@@ -151,7 +154,7 @@ class _ContactMixin:
                 lambda x: jnp.broadcast_to(x, (n,) + x.shape), self._core.record(est, data)
             )
             rec.pop("hit", None)
-        return self._finish(state, est, {"n": zero, "hits": zero, "mean": zero}, rec)
+        return self._finish(state, est, score, rec)
 
     def _n_substeps(self) -> int:
         return self._n_sub
@@ -164,7 +167,7 @@ class _ContactMixin:
         est = core.restart(est, data, moved)
         if core.truth is not None:
             old = state.info[self._score_key]
-            score = {k: jnp.where(moved, 0.0, v) for k, v in old.items()}
+            score = _outer_base({k: jnp.where(moved, 0.0, v) for k, v in old.items()}, state)
         else:
             score = None
         if core.rate == "control":
@@ -185,10 +188,24 @@ class _ContactMixin:
         if score is not None:
             hits = jnp.sum(jnp.mean(rec.pop("hit").astype(jnp.float32), axis=-1))
             n_new = jnp.float32(rec["p_contact"].shape[0])
-            score = {"n": score["n"] + n_new, "hits": score["hits"] + hits, "mean": score["mean"]}
+            score = {**score, "n": score["n"] + n_new, "hits": score["hits"] + hits}
         if core.cfg.record_substeps:
             rec = jax.tree.map(lambda x: x[-self._n_substeps() :], rec)
         return self._finish(nstate, est, score, rec)
+
+
+def _outer_base(score: dict, state) -> dict:
+    """``score`` with ``base``, the running accuracy when the current training-wrapper step
+    began. Brax's ``EpisodeWrapper`` runs ``action_repeat`` env steps in a scan and adds
+    only the last one's metrics; its counter ``info["steps"]`` is the same for all of them
+    and changes between its steps (``tag`` keeps the value ``base`` was taken at). Without
+    that counter every env step is its own (the increment of one step)."""
+    steps = state.info.get("steps")
+    if steps is None:
+        return {**score, "base": score["mean"]}
+    steps = jnp.asarray(steps, jnp.float32)
+    fresh = steps != score["tag"]
+    return {**score, "base": jnp.where(fresh, score["mean"], score["base"]), "tag": steps}
 
 
 class BraxContactWrapper(_ContactMixin, brax_base.Wrapper):

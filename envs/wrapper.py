@@ -41,9 +41,11 @@ each foot's true contact and ``info[info_key + "_score"]`` the episode's running
 
 Metrics. ``metrics[info_key + "/accuracy"]`` is the *increment* of the episode's running
 accuracy (over every estimator update: every physics step at the substep rate, feet
-averaged), so that Brax's ``EpisodeWrapper`` and ``EvalWrapper``, which sum each metric over
-an episode, report the episode's accuracy (``episode_metrics[...]``,
-``eval/episode_contact_est/accuracy``), not ~episode length times it.
+averaged) since the training wrappers' step began, so that Brax's ``EpisodeWrapper`` and
+``EvalWrapper``, which sum each metric over an episode once per step of ``action_repeat``
+env steps, report the episode's accuracy (``episode_metrics[...]``,
+``eval/episode_contact_est/accuracy``), not ~episode length times it. The step is read from
+``EpisodeWrapper``'s ``info["steps"]``; without it, each env step is one.
 
 Resets. ``reset`` starts a fresh belief and sensors. The training wrappers' auto-reset
 swaps in the first state but carries ``info`` over, so the wrapper also restarts whenever

@@ -148,3 +148,21 @@ def test_accuracy_metric_is_the_episode_mean_through_brax_wrappers(pg_leg):
     got_train = np.asarray(state.info["episode_metrics"]["contact_est/accuracy"])
     np.testing.assert_allclose(got_eval, want, rtol=1e-5)
     np.testing.assert_allclose(got_train, want, rtol=1e-5)
+
+
+def test_accuracy_metric_with_action_repeat(pg_leg):
+    """With ``action_repeat`` = 2 EpisodeWrapper adds only the last of its two env steps'
+    metrics: the wrapper's increment runs from the start of the training step, so the
+    episode metric is still the running accuracy (it read 0.0 and -0.2 against 0.66 and
+    0.48 with per-env-step increments)."""
+    env = W.wrap_contact(pg_leg)
+    train = pg_wrapper.wrap_for_brax_training(env, episode_length=2 * EPISODE, action_repeat=2)
+    n_envs = 2
+    state = jax.jit(train.reset)(jax.random.split(jax.random.PRNGKey(1), n_envs))
+    step = jax.jit(train.step)
+    for a in KNEE[:EPISODE]:
+        state = step(state, jnp.broadcast_to(jnp.asarray(a), (n_envs, 2)))
+        got = np.asarray(state.info["episode_metrics"]["contact_est/accuracy"])
+        want = np.asarray(state.info["contact_est_score"]["mean"])
+        np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-6)
+    assert np.all(np.asarray(state.done) == 1.0) and np.all((want > 0.3) & (want < 1.0))
