@@ -9,13 +9,18 @@ callers, only override fields of it). Nothing in it is mutated: override with
 
 from __future__ import annotations
 
+import numbers
 from collections.abc import Sequence
 
 import numpy as np
 from flax import struct
 
 from jax_contact.calibration import Calibration
-from jax_contact.envs.feet import SOLES
+from jax_contact.envs.feet import SOLES, FootSpec
+from jax_contact.terrain import FlatTerrain, FootholdMemory, HeightFieldTerrain
+
+# What config.terrain may be (None: the default plane).
+TERRAIN_MODELS = (FlatTerrain, HeightFieldTerrain, FootholdMemory)
 
 RATES = ("auto", "substep", "control")
 OBSERVE = ("estimate", "truth", "none")
@@ -46,10 +51,11 @@ class ContactObsConfig:
         ``"auto"`` (default) the map a ``params`` file or preset holds, none otherwise;
         None: no map; or a :class:`jax_contact.Calibration`. The wrapper's
         ``contact_report()`` says which.
-      force_rows: world axes of the contact force for legs of fewer than three joints;
-        None: chosen from the leg Jacobian at the home pose, the normal (z) always kept
-        (:func:`jax_contact.envs.contact_params.choose_force_rows`). The choice is reported by the
-        wrapper's ``contact_report()``.
+      force_rows: world axes of the contact force, for the parameters the wrapper derives
+        (refused beside ``params``, which have their own); None: all three for legs of
+        three or more joints, else chosen from the leg Jacobian at the home pose, the
+        normal (z) always kept (:func:`jax_contact.envs.contact_params.choose_force_rows`).
+        The choice is reported by the wrapper's ``contact_report()``.
       terrain: a :mod:`jax_contact.terrain` model; None:
         :func:`jax_contact.envs.contact_params.default_terrain`.
       rate: ``"substep"``: an estimator update after every physics step (Brax and
@@ -143,20 +149,52 @@ def validate_config(cfg: ContactObsConfig) -> None:
         raise ValueError(f"config.obs_keys must be a tuple of str, got {cfg.obs_keys!r}")
     if not cfg.info_key or not isinstance(cfg.info_key, str):
         raise ValueError(f"config.info_key must be a non-empty str, got {cfg.info_key!r}")
-    if not (np.isfinite(cfg.truth_threshold) and cfg.truth_threshold >= 0):
-        raise ValueError(f"config.truth_threshold must be >= 0 (N), got {cfg.truth_threshold!r}")
-    if not (np.isfinite(cfg.truth_gap) and cfg.truth_gap >= 0):
-        raise ValueError(f"config.truth_gap must be >= 0 (m), got {cfg.truth_gap!r}")
-    if not (np.isfinite(cfg.logit_clip) and cfg.logit_clip > 0):
-        raise ValueError(f"config.logit_clip must be > 0, got {cfg.logit_clip!r}")
+    if not cfg.obs_keys and cfg.observe != "none":
+        raise ValueError(
+            "config.obs_keys is empty: the features would go nowhere (observe='none' runs and"
+            " scores the estimator without observing it)"
+        )
+    for name in ("include_logit", "include_terms", "record_substeps", "include_passive"):
+        flag = getattr(cfg, name)
+        if not isinstance(flag, bool | np.bool_):  # bool("no") is True, int(2) counts twice
+            raise ValueError(f"config.{name} must be True or False, got {flag!r}")
+    for name, low, unit in (
+        ("truth_threshold", ">= 0", " (N)"),
+        ("truth_gap", ">= 0", " (m)"),
+        ("logit_clip", "> 0", ""),
+    ):
+        v = getattr(cfg, name)
+        number = isinstance(v, numbers.Real) and not isinstance(v, bool | np.bool_)
+        if not (number and np.isfinite(v) and (v >= 0 if low == ">= 0" else v > 0)):
+            raise ValueError(f"config.{name} must be a number {low}{unit}, got {v!r}")
+    if cfg.terrain is not None and not isinstance(cfg.terrain, TERRAIN_MODELS):
+        raise ValueError(
+            "config.terrain must be None or a jax_contact.terrain model (jc.flat,"
+            f" jc.height_field, jc.foothold_memory), got {cfg.terrain!r}"
+        )
     if not (cfg.calibration in ("auto", None) or isinstance(cfg.calibration, Calibration)):
         raise ValueError(
             "config.calibration must be 'auto', None or a jax_contact.Calibration, got"
             f" {cfg.calibration!r}"
         )
-    if cfg.feet is not None and (isinstance(cfg.feet, str) or len(cfg.feet) == 0):
-        raise ValueError(f"config.feet must be a non-empty sequence, got {cfg.feet!r}")
+    if cfg.feet is not None:
+        if isinstance(cfg.feet, str) or not isinstance(cfg.feet, Sequence) or not cfg.feet:
+            raise ValueError(f"config.feet must be a non-empty sequence, got {cfg.feet!r}")
+        for i, foot in enumerate(cfg.feet):
+            if not isinstance(foot, str | FootSpec):
+                raise ValueError(
+                    f"config.feet[{i}] must be a name (str) or a FootSpec, got {foot!r}"
+                )
     if cfg.force_rows is not None:
+        if isinstance(cfg.force_rows, str) or not isinstance(cfg.force_rows, Sequence):
+            raise ValueError(
+                f"config.force_rows must be a sequence of axes, got {cfg.force_rows!r}"
+            )
         rows = tuple(cfg.force_rows)
         if not rows or len(set(rows)) != len(rows) or not set(rows) <= {0, 1, 2}:
             raise ValueError(f"config.force_rows must be distinct axes of 0, 1, 2, got {rows!r}")
+        if cfg.params is not None:
+            raise ValueError(
+                "config.force_rows shapes the parameters the wrapper derives; config.params"
+                " brings its own (their force_rows): give one of them"
+            )

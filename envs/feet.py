@@ -217,7 +217,11 @@ def _resolve(m, d, spec, floor_ids, colliders) -> Foot:
             geoms = tuple(g for g in colliders if m.geom_bodyid[g] == b)
         return Foot(spec.name, "body", b, tuple(map(float, spec.offset)), float(spec.radius), geoms)
     name = spec.name if isinstance(spec, FootSpec) else spec
+    if not isinstance(name, str):  # mj_name2id of a non-str can crash the interpreter
+        raise ValueError(f"foot {name!r}: a foot is named by a str (or a FootSpec)")
     g = mujoco.mj_name2id(m, G, name)
+    if g >= 0 and m.geom_bodyid[g] == 0:
+        raise ValueError(f"foot {name!r} is a geom of the world body (the floor?), not a foot")
     if g >= 0:
         kind, p, r, sole = _geom_point(m, d, g)
         return Foot(name, kind, int(m.geom_bodyid[g]), tuple(p), r, (g,), sole)

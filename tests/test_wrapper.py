@@ -318,6 +318,31 @@ def test_refusals(leg_robot, brax_leg, pg_leg):
         W.wrap_contact(pg_leg, **IDEAL).reset(jax.random.split(jax.random.PRNGKey(0), 2))
 
 
+@pytest.mark.parametrize(
+    "fields, match",
+    [
+        # A non-str foot name segfaulted the interpreter in mj_name2id.
+        (dict(feet=(None,)), r"config.feet\[0\] must be a name \(str\) or a FootSpec"),
+        (dict(feet=5), "config.feet must be a non-empty sequence"),
+        (dict(feet=("floor",)), "'floor' is a geom of the world body"),
+        # include_terms=2 counted the terms twice in observation_size.
+        (dict(include_terms=2), "config.include_terms must be True or False, got 2"),
+        (dict(include_logit="yes"), "config.include_logit must be True or False"),
+        (dict(include_passive="no"), "config.include_passive must be True or False"),
+        (dict(truth_threshold="1"), r"config.truth_threshold must be a number >= 0 \(N\)"),
+        (dict(logit_clip=None), "config.logit_clip must be a number > 0, got None"),
+        (dict(terrain="flat"), "config.terrain must be None or a jax_contact.terrain model"),
+        (dict(force_rows=2), "config.force_rows must be a sequence of axes, got 2"),
+        # force_rows was silently dropped beside a parameter file.
+        (dict(force_rows=(2,), params="go1"), "config.force_rows .* give one of them"),
+        (dict(obs_keys=()), "config.obs_keys is empty"),
+    ],
+)
+def test_config_fields_are_checked_and_named(brax_leg, fields, match):
+    with pytest.raises(ValueError, match=match):
+        W.wrap_contact(brax_leg, W.ContactObsConfig(**fields))
+
+
 # ------------------------------------------------ parameter files and calibration maps
 
 
