@@ -151,6 +151,9 @@ def machine() -> dict:
         "devices": [str(d) for d in jax.devices()],
         "xla_flags": os.environ.get("XLA_FLAGS", ""),
         "cpu_affinity": affinity,
+        # With the persistent cache on (jax-contact's CLI turns it on), a program compiled
+        # in an earlier run is loaded from it: "compile s" is then the load, not a compile.
+        "compilation_cache_dir": jax.config.jax_compilation_cache_dir or None,
     }
 
 

@@ -32,6 +32,7 @@ from jax_contact.benchmarks.common import (
 )
 from jax_contact.export import export_flat, load_exported
 from jax_contact.io import write_json_atomic
+from jax_contact.train.cli_args import check_output_file, positive_int
 
 DEFAULT_ENVS = (1, 64, 256, 1024, 4096, 16384)
 MODES = ("quadrature", "monte_carlo")
@@ -172,9 +173,9 @@ _THROUGHPUT_COLUMNS = [
 
 def main(argv=None) -> dict:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--envs", type=int, nargs="+", default=list(DEFAULT_ENVS))
-    parser.add_argument("--samples", type=int, default=500, help="Monte-Carlo samples")
-    parser.add_argument("--latency-calls", type=int, default=10_000)
+    parser.add_argument("--envs", type=positive_int, nargs="+", default=list(DEFAULT_ENVS))
+    parser.add_argument("--samples", type=positive_int, default=500, help="Monte-Carlo samples")
+    parser.add_argument("--latency-calls", type=positive_int, default=10_000)
     parser.add_argument("--latency-only", action="store_true", help="skip the throughput")
     parser.add_argument(
         "--cpu",
@@ -191,12 +192,21 @@ def main(argv=None) -> dict:
     )
     parser.add_argument("--json", default=None, help="write results as JSON here")
     args = parser.parse_args(argv)
+    try:  # before minutes of measuring, not after them
+        check_output_file("--json", args.json, (".json",))
+    except ValueError as err:
+        parser.error(str(err).removeprefix("argument --json: "))
     if args.cpu is not None:
         pin_to_cpu(args.cpu)
     jnp.zeros(())  # initialise the backend (after any pinning) before timing anything
 
     print(f"# estimator on {jax.default_backend()} ({jax.devices()[0]})")
     print(f"# measurement layout: {args.layout}")
+    if jax.config.jax_compilation_cache_dir:
+        print(
+            f"# persistent compilation cache on ({jax.config.jax_compilation_cache_dir}): a"
+            " program compiled in an earlier run is loaded, and 'compile s' is that load"
+        )
     rows = (
         []
         if args.latency_only
@@ -231,13 +241,16 @@ def main(argv=None) -> dict:
                     "leg_updates_per_s",
                     "compile_s",
                     "update_ms",
+                    "bytes_per_env",
                 )
             }
             for r in rows
         ],
         "latency_batch1_us": {"median": lat["jit"]["median_us"], "p99": lat["jit"]["p99_us"]},
         "latency_batch1_detail": lat,
+        # The headline memory figure: the 4096-env Monte-Carlo row, else the last row's.
         "bytes_per_env": at[0]["bytes_per_env"],
+        "bytes_per_env_of": {k: at[0].get(k) for k in ("envs", "mode")},
         "linearity": lin,
     }
     if args.json:

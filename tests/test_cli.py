@@ -385,6 +385,30 @@ def test_a_failed_sharding_subprocess_shows_its_stderr():
         versus.sharded(4, 8, script=script)
 
 
+@pytest.mark.parametrize(
+    "module, argv",
+    [
+        ("estimator", ["--envs", "0"]),
+        ("estimator", ["--latency-calls", "0"]),
+        ("estimator", ["--samples", "-1"]),
+        ("estimator", ["--json", "/proc/x.json"]),
+        ("suite", ["--json", "/proc/x.json"]),
+        ("versus", ["--json", "/proc/x.json"]),
+    ],
+)
+def test_benchmark_scripts_check_their_arguments_before_measuring(module, argv, capsys):
+    """Run directly, the scripts refused a bad size or an unwritable --json only after
+    minutes of compiling and measuring (IndexError, StatisticsError, a lost result)."""
+    import importlib
+
+    main = importlib.import_module(f"jax_contact.benchmarks.{module}").main
+    with pytest.raises(SystemExit) as stop:
+        main(argv)
+    assert stop.value.code == 2
+    err = capsys.readouterr().err
+    assert ("must be an int >= 1" in err) or ("'/proc'" in err), err
+
+
 def test_bench_writes_what_finished_when_a_part_fails(tmp_path, monkeypatch):
     from jax_contact.benchmarks import estimator, suite, versus
 

@@ -345,6 +345,16 @@ def test_readme_command_runs(argv, ran):
             json.loads((workdir / f).read_text())  # complete, valid JSON
     if argv[0] == "policy-eval":
         assert "estimator acc" in res.stdout, res.stdout
+    if argv[0] == "bench":  # memory per row, and whether compile times are cache loads
+        got = json.loads((workdir / argv[argv.index("--json") + 1]).read_text())
+        assert all(r["bytes_per_env"] > 0 for r in got["throughput"])
+        assert got["bytes_per_env_of"]["envs"] == got["throughput"][-1]["envs"]
+        assert "compilation_cache_dir" in got["machine"]
+    if argv[0] == "rates":  # the JSON holds every row and line the table prints
+        (scene,) = json.loads((workdir / argv[argv.index("--json") + 1]).read_text()).values()
+        assert scene["always_contact_accuracy"] + scene["always_air_accuracy"] == pytest.approx(1.0)
+        assert scene["substep_every_physics_step_raw_truth"]["n_steps"] > 0
+        assert scene["nonfinite_rollouts"] == 0 and "wall_s_with_compile" in scene
 
 
 def _called_with(argv: list[str], monkeypatch) -> tuple:
