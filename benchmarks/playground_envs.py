@@ -20,6 +20,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jax_contact.benchmarks.common import json_of_what_finished, machine, print_table
+from jax_contact.train.cli_args import check_output_file, positive_int
 
 
 def run_one(name: str, n_steps: int) -> dict:
@@ -76,8 +77,18 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--json", default=None, help="write the results here")
     parser.add_argument("--names", nargs="*", default=None, help="registry names (default all)")
-    parser.add_argument("--steps", type=int, default=50, help="env steps per env")
+    parser.add_argument("--steps", type=positive_int, default=50, help="env steps per env")
     args = parser.parse_args(argv)
+    unknown = [n for n in args.names or () if n not in playground_offline.ENV_NAMES]
+    if unknown:  # refused before anything loads (it was an error row and exit 0)
+        parser.error(
+            f"argument --names: unknown env(s) {unknown}; valid:"
+            f" {', '.join(playground_offline.ENV_NAMES)}"
+        )
+    try:
+        check_output_file("--json", args.json, (".json",))
+    except ValueError as err:
+        parser.error(str(err).removeprefix("argument --json: "))
     names = args.names or list(playground_offline.offline_names())
     result = {"machine": machine(), "steps": args.steps, "rows": []}
     with json_of_what_finished(args.json, result):
@@ -101,7 +112,10 @@ def main(argv=None) -> int:
         ("accuracy_standing", "acc (stand)", "{:.3f}"),
     ]
     print_table(result["rows"], cols)
-    return 0
+    failed = [r["env"] for r in result["rows"] if "error" in r]
+    if failed:
+        print(f"{len(failed)} env(s) failed (their error is in the JSON and above): {failed}")
+    return 1 if failed else 0
 
 
 if __name__ == "__main__":

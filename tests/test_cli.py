@@ -394,6 +394,8 @@ def test_a_failed_sharding_subprocess_shows_its_stderr():
         ("estimator", ["--json", "/proc/x.json"]),
         ("suite", ["--json", "/proc/x.json"]),
         ("versus", ["--json", "/proc/x.json"]),
+        ("playground_envs", ["--names", "Bogus"]),  # was an error row and exit 0
+        ("playground_envs", ["--steps", "0"]),
     ],
 )
 def test_benchmark_scripts_check_their_arguments_before_measuring(module, argv, capsys):
@@ -406,7 +408,9 @@ def test_benchmark_scripts_check_their_arguments_before_measuring(module, argv, 
         main(argv)
     assert stop.value.code == 2
     err = capsys.readouterr().err
-    assert ("must be an int >= 1" in err) or ("'/proc'" in err), err
+    assert any(w in err for w in ("must be an int >= 1", "'/proc'", "unknown env(s) ['Bogus']")), (
+        err
+    )
 
 
 def test_bench_writes_what_finished_when_a_part_fails(tmp_path, monkeypatch):
