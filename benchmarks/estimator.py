@@ -53,9 +53,12 @@ def params_for(mode: str, n_samples: int = 500) -> jc.EstimatorParams:
     return jc.make_params(jc.make_noise(NV), touchdown=mode, n_samples=n_samples)
 
 
-def throughput(envs, modes=MODES, n_samples: int = 500, layout: str = "robot") -> list[dict]:
-    """Leg-updates per second of one full update at each batch size and mode."""
-    rows = []
+def throughput(
+    envs, modes=MODES, n_samples: int = 500, layout: str = "robot", *, rows: list | None = None
+) -> list[dict]:
+    """Leg-updates per second of one full update at each batch size and mode; each row is
+    appended to ``rows`` (a new list if None) as soon as it is measured."""
+    rows = [] if rows is None else rows
     terrain = jc.flat()
     for n in envs:
         meas = synthetic(n, layout, N_LEGS, NV)
@@ -171,7 +174,9 @@ _THROUGHPUT_COLUMNS = [
 ]
 
 
-def main(argv=None) -> dict:
+def main(argv=None, *, into: dict | None = None) -> dict:
+    """Runs the benchmark of the module docstring; ``into`` (a dict) is filled as results
+    come, so a caller keeps what finished if a later part fails or is interrupted."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--envs", type=positive_int, nargs="+", default=list(DEFAULT_ENVS))
     parser.add_argument("--samples", type=positive_int, default=500, help="Monte-Carlo samples")
@@ -207,11 +212,11 @@ def main(argv=None) -> dict:
             f"# persistent compilation cache on ({jax.config.jax_compilation_cache_dir}): a"
             " program compiled in an earlier run is loaded, and 'compile s' is that load"
         )
-    rows = (
-        []
-        if args.latency_only
-        else throughput(args.envs, n_samples=args.samples, layout=args.layout)
-    )
+    result = {} if into is None else into
+    result.update(machine=machine(), layout=args.layout)
+    rows = result.setdefault("throughput", [])  # the rows as they are measured
+    if not args.latency_only:
+        throughput(args.envs, n_samples=args.samples, layout=args.layout, rows=rows)
     lat = latency(args.latency_calls)
     print("\n# single-robot latency (4 legs; Monte-Carlo 500 and per-foot unless named)")
     print_table(
@@ -228,31 +233,16 @@ def main(argv=None) -> dict:
         print("\n# cost per env at the largest batch / at 1024 envs:", lin)
     at = [r for r in rows if r["envs"] == 4096 and r["mode"] == "monte_carlo"] or rows[-1:]
     at = at or [{"bytes_per_env": None}]
-    result = {
-        "machine": machine(),
-        "layout": args.layout,
-        "throughput": [
-            {
-                k: r[k]
-                for k in (
-                    "envs",
-                    "mode",
-                    "n_samples",
-                    "leg_updates_per_s",
-                    "compile_s",
-                    "update_ms",
-                    "bytes_per_env",
-                )
-            }
-            for r in rows
-        ],
-        "latency_batch1_us": {"median": lat["jit"]["median_us"], "p99": lat["jit"]["p99_us"]},
-        "latency_batch1_detail": lat,
-        # The headline memory figure: the 4096-env Monte-Carlo row, else the last row's.
-        "bytes_per_env": at[0]["bytes_per_env"],
-        "bytes_per_env_of": {k: at[0].get(k) for k in ("envs", "mode")},
-        "linearity": lin,
-    }
+    result.update(
+        {
+            "latency_batch1_us": {"median": lat["jit"]["median_us"], "p99": lat["jit"]["p99_us"]},
+            "latency_batch1_detail": lat,
+            # The headline memory figure: the 4096-env Monte-Carlo row, else the last row's.
+            "bytes_per_env": at[0]["bytes_per_env"],
+            "bytes_per_env_of": {k: at[0].get(k) for k in ("envs", "mode")},
+            "linearity": lin,
+        }
+    )
     if args.json:
         write_json_atomic(args.json, result)
         print(f"\nwrote {args.json}")

@@ -45,10 +45,10 @@ def main(argv=None) -> dict:
 
     result: dict = {}
     with json_of_what_finished(args.json, result):
-        est = estimator.main(
-            ["--envs", *map(str, args.envs), "--latency-calls", str(args.latency_calls)]
+        estimator.main(  # fills result as it measures: what finished stays on Ctrl-C
+            ["--envs", *map(str, args.envs), "--latency-calls", str(args.latency_calls)],
+            into=result,
         )
-        result.update(est)
         print()
         vs: dict = {}
         try:

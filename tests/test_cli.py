@@ -413,10 +413,32 @@ def test_benchmark_scripts_check_their_arguments_before_measuring(module, argv, 
     )
 
 
+def test_bench_keeps_the_estimator_rows_measured_before_a_failure(tmp_path, monkeypatch):
+    """The estimator part fills the suite's result as it measures: a failure (or Ctrl-C)
+    in its latency part keeps the throughput rows already measured (the JSON held only
+    the error)."""
+    from jax_contact.benchmarks import estimator, suite
+
+    row = {"envs": 4, "mode": "quadrature", "update_ms": 1.0, "bytes_per_env": 10.0}
+    monkeypatch.setattr(estimator, "throughput", lambda *a, rows, **k: rows.append(row))
+
+    def fail(*a, **k):
+        raise RuntimeError("latency broke")
+
+    monkeypatch.setattr(estimator, "latency", fail)
+    path = tmp_path / "bench.json"
+    with pytest.raises(RuntimeError, match="latency broke"):
+        suite.main(["--json", str(path), "--envs", "4", "--versus-envs", "4"])
+    got = json.loads(path.read_text())
+    assert got["throughput"] == [row] and "latency broke" in got["error"]
+
+
 def test_bench_writes_what_finished_when_a_part_fails(tmp_path, monkeypatch):
     from jax_contact.benchmarks import estimator, suite, versus
 
-    monkeypatch.setattr(estimator, "main", lambda argv: {"machine": "m", "throughput": [1]})
+    monkeypatch.setattr(
+        estimator, "main", lambda argv, into: into.update(machine="m", throughput=[1])
+    )
     monkeypatch.setattr(
         versus,
         "ratio_vs_mjx",
