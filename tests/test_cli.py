@@ -417,24 +417,30 @@ def test_bench_keeps_the_estimator_rows_measured_before_a_failure(tmp_path, monk
     """The estimator part fills the suite's result as it measures: a failure (or Ctrl-C)
     in its latency part keeps the throughput rows already measured (the JSON held only
     the error)."""
-    from jax_contact.benchmarks import estimator, suite
+    from jax_contact.benchmarks import estimator
 
     row = {"envs": 4, "mode": "quadrature", "update_ms": 1.0, "bytes_per_env": 10.0}
     monkeypatch.setattr(estimator, "throughput", lambda *a, rows, **k: rows.append(row))
-
-    def fail(*a, **k):
-        raise RuntimeError("latency broke")
-
-    monkeypatch.setattr(estimator, "latency", fail)
-    path = tmp_path / "bench.json"
-    with pytest.raises(RuntimeError, match="latency broke"):
-        suite.main(["--json", str(path), "--envs", "4", "--versus-envs", "4"])
-    got = json.loads(path.read_text())
+    got = _suite_json_when(monkeypatch, tmp_path, estimator, "latency", "latency broke")
     assert got["throughput"] == [row] and "latency broke" in got["error"]
 
 
+def _suite_json_when(monkeypatch, tmp_path, module, name: str, message: str) -> dict:
+    """The suite's JSON when ``module.name`` raises ``RuntimeError(message)``."""
+    from jax_contact.benchmarks import suite
+
+    def fail(*a, **k):
+        raise RuntimeError(message)
+
+    monkeypatch.setattr(module, name, fail)
+    path = tmp_path / "bench.json"
+    with pytest.raises(RuntimeError, match=message):
+        suite.main(["--json", str(path), "--envs", "4", "--versus-envs", "4"])
+    return json.loads(path.read_text())
+
+
 def test_bench_writes_what_finished_when_a_part_fails(tmp_path, monkeypatch):
-    from jax_contact.benchmarks import estimator, suite, versus
+    from jax_contact.benchmarks import estimator, versus
 
     monkeypatch.setattr(
         estimator, "main", lambda argv, into: into.update(machine="m", throughput=[1])
@@ -446,15 +452,7 @@ def test_bench_writes_what_finished_when_a_part_fails(tmp_path, monkeypatch):
     )
     monkeypatch.setattr(versus, "print_table", lambda *a: None)
     monkeypatch.setattr(versus, "machine", lambda: "m")
-
-    def fail(*a, **k):
-        raise RuntimeError("numpy part broke")
-
-    monkeypatch.setattr(versus, "numpy_speedup", fail)
-    path = tmp_path / "bench.json"
-    with pytest.raises(RuntimeError, match="numpy part broke"):
-        suite.main(["--json", str(path), "--envs", "4", "--versus-envs", "4"])
-    got = json.loads(path.read_text())
+    got = _suite_json_when(monkeypatch, tmp_path, versus, "numpy_speedup", "numpy part broke")
     assert got["throughput"] == [1] and got["ratio_vs_mjx_step"]["4"]["q"] == 1.0
     assert "numpy part broke" in got["error"] and "sharding" not in got
 
