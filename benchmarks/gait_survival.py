@@ -43,6 +43,7 @@ from jax_contact.envs.sensors import perturb_qpos
 from jax_contact.envs.simulate import upright as is_upright
 from jax_contact.io import write_json_atomic
 from jax_contact.robot import derive_description
+from jax_contact.train.cli_args import positive_float, positive_int
 
 # Forward-speed command ranges (m/s), per gait.
 SPEEDS = {"trot": (0.0, 0.5), "walk": (0.0, 0.15)}
@@ -232,9 +233,9 @@ def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--robots", nargs="+", default=["go1", "spot"])
     parser.add_argument("--gaits", nargs="+", default=["trot", "walk"], choices=list(SPEEDS))
-    parser.add_argument("--n-envs", type=int, default=256)
-    parser.add_argument("--duration", type=float, default=20.0, help="simulated seconds")
-    parser.add_argument("--chunk", type=float, default=2.0, help="seconds per jitted scan")
+    parser.add_argument("--n-envs", type=positive_int, default=256)
+    parser.add_argument("--duration", type=positive_float, default=20.0, help="simulated seconds")
+    parser.add_argument("--chunk", type=positive_float, default=2.0, help="seconds per jitted scan")
     parser.add_argument("--min-air", type=float, default=0.02, help="s off the ground")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", type=Path, default=Path("out/gait_survival.json"))

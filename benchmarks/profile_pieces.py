@@ -37,6 +37,8 @@ import jax_contact as jc
 from jax_contact import filter as filter_
 from jax_contact import measurement, transition
 from jax_contact.benchmarks.common import kernel_count, synthetic_robot_measurements
+from jax_contact.params import TOUCHDOWN_MODES
+from jax_contact.train.cli_args import positive_int
 from jax_contact.types import feet_are_finite
 
 N_LEGS, NV = 4, 18
@@ -195,9 +197,11 @@ def trace_step(fn, args, out_dir: str, calls: int = 10) -> list[dict]:
 
 def main(argv=None) -> list[dict]:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--envs", type=int, default=1024)
-    parser.add_argument("--modes", nargs="+", default=["quadrature", "monte_carlo"])
-    parser.add_argument("--repeats", type=int, default=20)
+    parser.add_argument("--envs", type=positive_int, default=1024)
+    parser.add_argument(
+        "--modes", nargs="+", default=["quadrature", "monte_carlo"], choices=TOUCHDOWN_MODES
+    )
+    parser.add_argument("--repeats", type=positive_int, default=20)
     parser.add_argument("--trace", metavar="DIR", help="also profile step_batch into DIR")
     args = parser.parse_args(argv)
     n, legs = args.envs, args.envs * N_LEGS

@@ -22,6 +22,7 @@ import jax
 import jax.numpy as jnp
 
 from jax_contact.benchmarks.common import json_of_what_finished, machine, print_table
+from jax_contact.train.cli_args import positive_int
 
 
 def _variants(name: str):
@@ -71,8 +72,10 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--json", default=None)
     parser.add_argument("--env", default="Go1JoystickFlatTerrain")
-    parser.add_argument("--sizes", type=int, nargs="*", default=[1, 256, 1024])
-    parser.add_argument("--calls", type=int, default=5, help="timed calls per variant and size")
+    parser.add_argument("--sizes", type=positive_int, nargs="+", default=[1, 256, 1024])
+    parser.add_argument(
+        "--calls", type=positive_int, default=5, help="timed calls per variant and size"
+    )
     args = parser.parse_args(argv)
     result = {"machine": machine(), "args": vars(args), "rows": []}
     with json_of_what_finished(args.json, result):

@@ -396,6 +396,9 @@ def test_a_failed_sharding_subprocess_shows_its_stderr():
         ("versus", ["--json", "/proc/x.json"]),
         ("playground_envs", ["--names", "Bogus"]),  # was an error row and exit 0
         ("playground_envs", ["--steps", "0"]),
+        ("profile_pieces", ["--repeats", "0"]),  # StatisticsError after compiling
+        ("gait_survival", ["--n-envs", "0"]),  # a table of NaN and exit 0
+        ("wrapper_throughput", ["--calls", "0"]),
     ],
 )
 def test_benchmark_scripts_check_their_arguments_before_measuring(module, argv, capsys):
