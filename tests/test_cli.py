@@ -451,12 +451,18 @@ def test_bench_writes_what_finished_when_a_part_fails(tmp_path, monkeypatch):
     monkeypatch.setattr(
         versus,
         "ratio_vs_mjx",
-        lambda n: {"ratio": {"q": 1.0}, "ratio_with_adapter": {"q": 2.0}, "median_ms": {"q": 3.0}},
+        lambda n: {
+            "ratio": {"q": 1.0},
+            "ratio_with_adapter": {"q": 2.0},
+            "median_ms": {"q": 3.0},
+            "first_call_s": {"q": 4.0},
+        },
     )
     monkeypatch.setattr(versus, "print_table", lambda *a: None)
     monkeypatch.setattr(versus, "machine", lambda: "m")
     got = _suite_json_when(monkeypatch, tmp_path, versus, "numpy_speedup", "numpy part broke")
     assert got["throughput"] == [1] and got["ratio_vs_mjx_step"]["4"]["q"] == 1.0
+    assert got["ratio_vs_mjx_step"]["4"]["first_call_s"] == {"q": 4.0}  # compile apart
     assert "numpy part broke" in got["error"] and "sharding" not in got
 
 
