@@ -138,6 +138,18 @@ def pin_to_cpu(cpu: int) -> None:
     os.sched_setaffinity(0, {cpu})
 
 
+def check_json_arg(parser, path: str | None) -> None:
+    """``parser.error`` (exit 2) unless ``--json`` ``path`` (None: none) can be written,
+    checked before minutes of measuring rather than after them
+    (:func:`jax_contact.train.cli_args.check_output_file`, the CLI's rule)."""
+    from jax_contact.train.cli_args import check_output_file
+
+    try:
+        check_output_file("--json", path, (".json",))
+    except ValueError as err:
+        parser.error(str(err).removeprefix("argument --json: "))
+
+
 def machine() -> dict:
     """What the numbers were measured on."""
     affinity = sorted(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else None

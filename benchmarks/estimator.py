@@ -22,6 +22,7 @@ import numpy as np
 
 import jax_contact as jc
 from jax_contact.benchmarks.common import (
+    check_json_arg,
     compile_and_time,
     format_table,
     kernel_count,
@@ -32,7 +33,7 @@ from jax_contact.benchmarks.common import (
 )
 from jax_contact.export import export_flat, load_exported
 from jax_contact.io import write_json_atomic
-from jax_contact.train.cli_args import check_output_file, positive_int
+from jax_contact.train.cli_args import positive_int
 
 DEFAULT_ENVS = (1, 64, 256, 1024, 4096, 16384)
 MODES = ("quadrature", "monte_carlo")
@@ -197,10 +198,7 @@ def main(argv=None, *, into: dict | None = None) -> dict:
     )
     parser.add_argument("--json", default=None, help="write results as JSON here")
     args = parser.parse_args(argv)
-    try:  # before minutes of measuring, not after them
-        check_output_file("--json", args.json, (".json",))
-    except ValueError as err:
-        parser.error(str(err).removeprefix("argument --json: "))
+    check_json_arg(parser, args.json)
     if args.cpu is not None:
         pin_to_cpu(args.cpu)
     jnp.zeros(())  # initialise the backend (after any pinning) before timing anything

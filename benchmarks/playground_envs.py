@@ -19,8 +19,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jax_contact.benchmarks.common import json_of_what_finished, machine, print_table
-from jax_contact.train.cli_args import check_output_file, positive_int
+from jax_contact.benchmarks.common import (
+    check_json_arg,
+    json_of_what_finished,
+    machine,
+    print_table,
+)
+from jax_contact.train.cli_args import positive_int
 
 
 def run_one(name: str, n_steps: int) -> dict:
@@ -85,10 +90,7 @@ def main(argv=None) -> int:
             f"argument --names: unknown env(s) {unknown}; valid:"
             f" {', '.join(playground_offline.ENV_NAMES)}"
         )
-    try:
-        check_output_file("--json", args.json, (".json",))
-    except ValueError as err:
-        parser.error(str(err).removeprefix("argument --json: "))
+    check_json_arg(parser, args.json)
     names = args.names or list(playground_offline.offline_names())
     result = {"machine": machine(), "steps": args.steps, "rows": []}
     with json_of_what_finished(args.json, result):

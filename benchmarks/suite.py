@@ -19,11 +19,8 @@ from __future__ import annotations
 import argparse
 
 from jax_contact.benchmarks import estimator, versus
-from jax_contact.benchmarks.common import json_of_what_finished
-from jax_contact.train.cli_args import (  # the CLI's argument types: one rule for sizes
-    check_output_file,
-    positive_int,
-)
+from jax_contact.benchmarks.common import check_json_arg, json_of_what_finished
+from jax_contact.train.cli_args import positive_int  # the CLI's argument type: one rule for sizes
 
 
 def main(argv=None) -> dict:
@@ -38,10 +35,7 @@ def main(argv=None) -> dict:
     parser.add_argument("--latency-calls", type=positive_int, default=10_000)
     parser.add_argument("--json", default=None, help="write all results as one JSON here")
     args = parser.parse_args(argv)
-    try:  # before minutes of measuring, not after them
-        check_output_file("--json", args.json, (".json",))
-    except ValueError as err:
-        parser.error(str(err).removeprefix("argument --json: "))
+    check_json_arg(parser, args.json)
 
     result: dict = {}
     with json_of_what_finished(args.json, result):

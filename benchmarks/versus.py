@@ -34,12 +34,12 @@ import numpy as np
 
 import jax_contact as jc
 from jax_contact.benchmarks.common import (
+    check_json_arg,
     json_of_what_finished,
     machine,
     print_table,
     synthetic_measurements,
 )
-from jax_contact.train.cli_args import check_output_file
 
 # The folder that holds the jax_contact package (the checkout, or site-packages once
 # installed from a wheel): the sharding subprocess imports the library from there, and
@@ -334,10 +334,7 @@ def main(argv=None) -> dict:
     parser.add_argument("--numpy-robots", type=int, default=8)
     parser.add_argument("--json", default=None)
     args = parser.parse_args(argv)
-    try:  # before minutes of measuring, not after them
-        check_output_file("--json", args.json, (".json",))
-    except ValueError as err:
-        parser.error(str(err).removeprefix("argument --json: "))
+    check_json_arg(parser, args.json)
     try:
         check_sizes(args.envs, args.numpy_robots)
     except ValueError as err:
