@@ -9,13 +9,13 @@ callers, only override fields of it). Nothing in it is mutated: override with
 
 from __future__ import annotations
 
-import numbers
 from collections.abc import Sequence
 
 import numpy as np
 from flax import struct
 
 from jax_contact.calibration import Calibration
+from jax_contact.defaults import is_number
 from jax_contact.envs.feet import SOLES, FootSpec
 from jax_contact.terrain import FlatTerrain, FootholdMemory, HeightFieldTerrain
 
@@ -164,8 +164,7 @@ def validate_config(cfg: ContactObsConfig) -> None:
         ("logit_clip", "> 0", ""),
     ):
         v = getattr(cfg, name)
-        number = isinstance(v, numbers.Real) and not isinstance(v, bool | np.bool_)
-        if not (number and np.isfinite(v) and (v >= 0 if low == ">= 0" else v > 0)):
+        if not (is_number(v) and np.isfinite(v) and (v >= 0 if low == ">= 0" else v > 0)):
             raise ValueError(f"config.{name} must be a number {low}{unit}, got {v!r}")
     if cfg.terrain is not None and not isinstance(cfg.terrain, TERRAIN_MODELS):
         raise ValueError(

@@ -67,7 +67,7 @@ import numpy as np
 from jax_contact.params import EstimatorParams, make_noise, make_params
 
 
-def _is_number(v) -> bool:
+def is_number(v) -> bool:
     """A real scalar, Python's or NumPy's (``np.float32(0.3)``), not a bool or a string."""
     return isinstance(v, numbers.Real) and not isinstance(v, bool | np.bool_)
 
@@ -129,7 +129,7 @@ class GaitPrior:
     def __post_init__(self):
         for f in dataclasses.fields(self):
             v = getattr(self, f.name)
-            if not (_is_number(v) and np.isfinite(v) and v > 0):
+            if not (is_number(v) and np.isfinite(v) and v > 0):
                 raise ValueError(f"GaitPrior.{f.name} must be a finite number > 0, got {v!r}")
 
 
@@ -248,12 +248,12 @@ def params_for(
     gait = GaitPrior() if gait is None else gait
     if not isinstance(gait, GaitPrior):
         raise ValueError(f"gait must be a GaitPrior, got {type(gait).__name__}")
-    if not (_is_number(dt) and np.isfinite(dt) and dt > 0):
+    if not (is_number(dt) and np.isfinite(dt) and dt > 0):
         raise ValueError(f"dt must be a finite float > 0 (s), got {dt!r}")
     for name, v in (("disturbance", disturbance), ("bias_horizon_s", bias_horizon_s)):
-        if not (_is_number(v) and np.isfinite(v) and v >= 0):
+        if not (is_number(v) and np.isfinite(v) and v >= 0):
             raise ValueError(f"{name} must be a finite number >= 0, got {v!r}")
-    if not (_is_number(contact_timeconst) and contact_timeconst > 0):
+    if not (is_number(contact_timeconst) and contact_timeconst > 0):
         raise ValueError(f"contact_timeconst must be a number > 0 (s), got {contact_timeconst!r}")
     nv, n_l = int(desc.nv), int(desc.n_leg_dofs)
     if force_rows is None:
