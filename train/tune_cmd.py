@@ -283,20 +283,23 @@ def _noise_of(attrs) -> str:
     return str(attrs.get("noise", "anymal_like"))
 
 
+def _setup(d) -> dict:
+    """What the fit starts from, of a log's attributes or its :func:`_log_info`."""
+    return {"robot": str(d["robot"]), "period dt": float(d["dt"]), "sensor noise": _noise_of(d)}
+
+
 def _same_setup(arg: str, path, attrs, first: dict) -> None:
     """Refuses a log of another robot, period or sensor model than the first tuning log's
     (``first``, its :func:`_log_info`): the fit starts from one robot's defaults for one
     sensor model and floors its noise there, so a mixed set would be tuned from whichever
     log came first."""
-    for key, shown in (("robot", "robot"), ("dt", "period dt"), ("noise", "sensor noise")):
-        got = _noise_of(attrs) if key == "noise" else attrs[key]
-        want = first.get(key, "anymal_like") if key == "noise" else first[key]
-        same = float(got) == float(want) if key == "dt" else str(got) == str(want)
-        if not same:
+    got, want = _setup(attrs), _setup(first)
+    for shown in got:
+        if got[shown] != want[shown]:
             raise ValueError(
-                f"argument {arg}: log {str(path)!r} has {shown} {got!r}; the first tuning log"
-                f" {first['path']!r} has {want!r}: tune on logs of one robot, period and"
-                " sensor model"
+                f"argument {arg}: log {str(path)!r} has {shown} {got[shown]!r}; the first"
+                f" tuning log {first['path']!r} has {want[shown]!r}: tune on logs of one"
+                " robot, period and sensor model"
             )
 
 
