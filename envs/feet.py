@@ -52,13 +52,11 @@ import mujoco
 import numpy as np
 
 from jax_contact import adapter
-from jax_contact.robot import RobotDescription, model_mass
+from jax_contact.robot import RobotDescription, actuated_dofs, leg_of, model_mass
 from jax_contact.types import RobotMeasurement
 
 _T = mujoco.mjtGeom
 _FLOOR_TYPES = (int(_T.mjGEOM_PLANE), int(_T.mjGEOM_HFIELD))
-_JOINT_TRN = (int(mujoco.mjtTrn.mjTRN_JOINT), int(mujoco.mjtTrn.mjTRN_JOINTINPARENT))
-_JOINT_DOFS = (6, 3, 1, 1)  # free, ball, slide, hinge
 SOLES = ("rolling", "centre")
 # Softness of the rolling sole's lowest point, m: corners this much higher weigh 1/e.
 SOLE_SOFTNESS = 0.002
@@ -122,26 +120,6 @@ def _chain(m, body: int) -> list[int]:
         out.append(body)
         body = int(m.body_parentid[body])
     return out
-
-
-def _leg(m, body: int) -> tuple[int, list[int]]:
-    """(base body, sorted dofs between ``body`` and the base): as jax_contact.robot."""
-    chain = _chain(m, body)
-    free = int(mujoco.mjtJoint.mjJNT_FREE)
-    with_free = [
-        b
-        for b in chain
-        if any(
-            int(m.jnt_type[j]) == free
-            for j in range(m.body_jntadr[b], m.body_jntadr[b] + m.body_jntnum[b])
-        )
-    ]
-    base = with_free[0] if with_free else chain[-1]
-    dofs = []
-    for b in chain[: chain.index(base)]:
-        start, n = int(m.body_dofadr[b]), int(m.body_dofnum[b])
-        dofs += list(range(start, start + n))
-    return base, sorted(dofs)
 
 
 def _home_data(m) -> mujoco.MjData:
@@ -278,7 +256,8 @@ def find_feet(m: mujoco.MjModel, feet=None) -> tuple[tuple[Foot, ...], list[int]
         if len({(f.body_id, f.point) for f in out}) != len(out):
             raise ValueError(f"feet name the same foot twice: {[f.name for f in out]}")
         return out, floor_ids
-    on_legs = [g for g in colliders if _leg(m, int(m.geom_bodyid[g]))[1]]
+    actuated = actuated_dofs(m)
+    on_legs = [g for g in colliders if leg_of(m, int(m.geom_bodyid[g]), actuated)[1]]
     spheres = [g for g in on_legs if int(m.geom_type[g]) == int(_T.mjGEOM_SPHERE)]
     chosen = spheres or on_legs
     if not chosen:
@@ -300,12 +279,7 @@ def find_feet(m: mujoco.MjModel, feet=None) -> tuple[tuple[Foot, ...], list[int]
 def describe(m: mujoco.MjModel, feet=None) -> tuple[RobotDescription, tuple[Foot, ...]]:
     """The description the estimator needs, and the resolved feet, of a compiled model."""
     resolved, floor_ids = find_feet(m, feet)
-    actuated = set()
-    for a in range(m.nu):
-        if int(m.actuator_trntype[a]) in _JOINT_TRN:
-            j = int(m.actuator_trnid[a, 0])
-            n = _JOINT_DOFS[int(m.jnt_type[j])]
-            actuated.update(range(int(m.jnt_dofadr[j]), int(m.jnt_dofadr[j]) + n))
+    actuated = actuated_dofs(m)
     legs, bases = [], []
     # Feet the user did not name were found by a rule; say so, since a model that is no
     # legged robot (a cart-pole) fails here on a "foot" nobody called one.
@@ -316,7 +290,7 @@ def describe(m: mujoco.MjModel, feet=None) -> tuple[RobotDescription, tuple[Foot
         " name its feet with foot_names)"
     )
     for f in resolved:
-        base, dofs = _leg(m, f.body_id)
+        base, dofs = leg_of(m, f.body_id, actuated)
         if not dofs:
             raise ValueError(f"foot {f.name!r} has no leg: no joint between it and the base{found}")
         if not actuated.intersection(dofs):

@@ -240,9 +240,16 @@ def _check_gait_fits(gait: GaitParams, robot: Robot) -> None:
 
     The hop (:func:`jax_contact.envs.gaits.make_gait`) drives one leg's base up and down
     its rail; the trot and the walk carry a body on legs that take turns, so a single
-    leg on its rail would only drop its base at every swing.
+    leg on its rail would only drop its base at every swing. A robot fixed to the world
+    has no base to move.
     """
     n_legs = robot.description.n_legs
+    if not robot.description.base_dofs:
+        raise ValueError(
+            f"robot {robot.name!r} is fixed to the world (no free joint and no passive base"
+            " joint): the scripted gaits move a base; record the leg's readings and use"
+            " `jax-contact estimate` (docs/own_robot.md, route 2)"
+        )
     if gait.family == "hop" and n_legs != 1:
         raise ValueError(
             f"gait 'hop' runs a one-legged robot (the planar leg); {robot.name!r} has"

@@ -50,7 +50,8 @@ def _taker(indices):
                 runs.append([i, i + 1])
 
         def take(x, axis):
-            parts = [jax.lax.slice_in_dim(x, a, b, axis=axis) for a, b in runs]
+            # No indices (a leg fixed to the world has no other coordinates): an empty block.
+            parts = [jax.lax.slice_in_dim(x, a, b, axis=axis) for a, b in runs or [[0, 0]]]
             return parts[0] if len(parts) == 1 else jnp.concatenate(parts, axis=axis)
 
         return take

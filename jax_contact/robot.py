@@ -32,6 +32,7 @@ _FLOOR_TYPES = (int(mujoco.mjtGeom.mjGEOM_PLANE), int(mujoco.mjtGeom.mjGEOM_HFIE
 _JOINT_TRANSMISSIONS = (int(mujoco.mjtTrn.mjTRN_JOINT), int(mujoco.mjtTrn.mjTRN_JOINTINPARENT))
 # dofs per joint type, indexed by mjtJoint (free, ball, slide, hinge)
 _JOINT_DOFS = (6, 3, 1, 1)
+_ROTARY = (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_BALL))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -115,9 +116,26 @@ def _body_dofs(m: mujoco.MjModel, body: int) -> list[int]:
     return list(range(start, start + num)) if num > 0 else []
 
 
-def _leg(m: mujoco.MjModel, geom: int) -> tuple[int, list[int]]:
-    """(base body, sorted dofs of the joints between the geom's body and the base)."""
-    chain = _body_chain(m, int(m.geom_bodyid[geom]))
+def actuated_dofs(m: mujoco.MjModel) -> set[int]:
+    """The dofs of every joint a joint actuator drives (``joint`` or ``jointinparent``)."""
+    out: set[int] = set()
+    for a in range(m.nu):
+        if int(m.actuator_trntype[a]) in _JOINT_TRANSMISSIONS:
+            j = int(m.actuator_trnid[a, 0])
+            start = int(m.jnt_dofadr[j])
+            out.update(range(start, start + _JOINT_DOFS[int(m.jnt_type[j])]))
+    return out
+
+
+def leg_of(m: mujoco.MjModel, body: int, actuated: set[int]) -> tuple[int, list[int]]:
+    """(base body, sorted dofs of the joints between ``body`` and the base).
+
+    The base is the body with the free joint on ``body``'s chain. Without one, it is the
+    chain's top body (a mount: the planar leg's passive rail, a cart), unless that body
+    turns on actuated hinges: then it is a hip bolted to the world, the base is the world
+    (body 0, no dofs) and the hip is a leg joint like the others.
+    """
+    chain = _body_chain(m, body)
     free = [
         b
         for b in chain
@@ -126,8 +144,18 @@ def _leg(m: mujoco.MjModel, geom: int) -> tuple[int, list[int]]:
             for j in range(m.body_jntadr[b], m.body_jntadr[b] + m.body_jntnum[b])
         )
     ]
-    base = free[0] if free else chain[-1]
-    leg_bodies = chain[: chain.index(base)]
+    top = chain[-1]
+    top_joints = range(m.body_jntadr[top], m.body_jntadr[top] + m.body_jntnum[top])
+    hip = bool(actuated.intersection(_body_dofs(m, top))) and all(
+        int(m.jnt_type[j]) in _ROTARY for j in top_joints
+    )
+    if free:
+        base = free[0]
+    elif hip:
+        base = 0
+    else:
+        base = top
+    leg_bodies = chain[: chain.index(base)] if base else chain
     return base, sorted(d for b in leg_bodies for d in _body_dofs(m, b))
 
 
@@ -184,9 +212,10 @@ def derive_description(
             " with the floor (check contype/conaffinity)"
         )
 
+    actuated = actuated_dofs(m)
     if foot_names is None:
         # A sphere on the base itself (a bumper) can touch the floor but is no foot.
-        feet = _distal([g for g in candidates if _leg(m, g)[1]], m)
+        feet = _distal([g for g in candidates if leg_of(m, int(m.geom_bodyid[g]), actuated)[1]], m)
         if not feet:
             raise ValueError(
                 "mj_model has no floor contact through a leg: the sphere geoms that can touch"
@@ -217,17 +246,9 @@ def derive_description(
         if len(set(feet)) != len(feet):
             raise ValueError(f"foot_names name the same foot twice: {list(foot_names)}")
 
-    actuated = set()
-    for a in range(m.nu):
-        if int(m.actuator_trntype[a]) in _JOINT_TRANSMISSIONS:
-            j = int(m.actuator_trnid[a, 0])
-            actuated.update(
-                range(int(m.jnt_dofadr[j]), int(m.jnt_dofadr[j]) + _JOINT_DOFS[int(m.jnt_type[j])])
-            )
-
     legs, bases = [], []
     for g in feet:
-        base, dofs = _leg(m, g)
+        base, dofs = leg_of(m, int(m.geom_bodyid[g]), actuated)
         label = _geom_label(m, g)
         if not dofs:
             raise ValueError(f"foot {label!r} has no leg: no joint between it and the base")

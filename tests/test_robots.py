@@ -184,6 +184,68 @@ def test_planar_leg_stands_and_only_the_foot_touches():
     assert pairs == {(m.geom("floor").id, m.geom("foot").id)}
 
 
+FIXED_LEG_XML = Path(__file__).parent / "fixtures" / "fixed_leg.xml"
+
+
+def test_fixed_base_leg_has_no_base_coordinates():
+    """A leg bolted to the world: its actuated hip is a leg joint, not the base's (the
+    planar leg's passive rail stays its base, test above)."""
+    from jax_contact.envs.feet import describe
+
+    m = mujoco.MjModel.from_xml_path(str(FIXED_LEG_XML))
+    for desc in (derive_description(m), describe(m)[0]):
+        assert desc.leg_dofs == ((0, 1),) and desc.other_dofs == ((),)
+        assert desc.base_dofs == () and desc.base_body_id == 0
+
+
+def test_fixed_base_leg_force_is_the_floors():
+    """The dynamics term on a fixed-base leg (no other coordinates: empty base blocks)
+    gives the contact force MuJoCo's C library resolves (``mj_contactForce``), and its
+    default parameters treat both joints as joints (``anymal_like``: 0.3 rad/s each)."""
+    import jax.numpy as jnp
+
+    from jax_contact import adapter
+    from jax_contact.measurement import dynamics_llr
+    from jax_contact.train.logs import default_estimator
+
+    m = mujoco.MjModel.from_xml_path(str(FIXED_LEG_XML))
+    d = mujoco.MjData(m)
+    desc = derive_description(m)
+    params, _ = default_estimator(desc, 0.0025, mj_model=m)
+    np.testing.assert_allclose(np.asarray(params.noise.sigma_qd), [0.3, 0.3], rtol=1e-6)
+    assert tuple(params.force_rows) == (0, 2)  # a leg in the x-z plane
+    normal = jnp.array([0.0, 0.0, 1.0])
+    mx = mjx.put_model(m)
+    # Pressed: a PD hold whose pose would put the sole 9 mm below the floor
+    # (0.40 - 0.2 cos 0.3 - 0.2 cos(-0.15) - 0.02 = -0.009 m before the leg yields);
+    # lifted: the knee folded, the foot 0.1 m up.
+    for target, pressed in (((0.3, -0.45), True), ((0.5, -1.6), False)):
+        mujoco.mj_resetData(m, d)
+        d.qpos[:] = target
+        for _ in range(800):  # 2 s: settled
+            d.ctrl[:] = np.clip(20.0 * (np.asarray(target) - d.qpos) - d.qvel, -30, 30)
+            mujoco.mj_step(m, d)
+        f_on_foot = np.zeros(3)
+        for i in range(d.ncon):
+            c = np.zeros(6)
+            mujoco.mj_contactForce(m, d, i, c)
+            f_on_foot += d.contact[i].frame.reshape(3, 3).T @ c[:3]
+        dx = adapter.prepare(mx, mjx.put_data(m, d))
+        meas = adapter.robot_measurement(
+            mx, dx, desc, qdd=jnp.asarray(d.qacc), tau=jnp.asarray(d.qfrc_actuator)
+        )
+        llr, force = dynamics_llr(params, meas.leg(0), normal)
+        if pressed:
+            assert f_on_foot[2] > 20.0  # the ground carries the leg's push
+            # The force the foot exerts on the ground is minus the floor's on the foot.
+            np.testing.assert_allclose(np.asarray(force)[[0, 2]], -f_on_foot[[0, 2]], atol=1.0)
+            assert float(llr) > 0.5
+        else:
+            assert d.ncon == 0
+            np.testing.assert_allclose(np.asarray(force)[[0, 2]], 0.0, atol=1.0)
+            assert float(llr) < 0.0
+
+
 def test_unknown_name_lists_valid_ones():
     with pytest.raises(ValueError, match="unknown robot 'go3'") as err:
         load_robot("go3")

@@ -193,7 +193,7 @@ FOOTHOLD_MEMORY = dict(sigma_foothold=0.02, growth=0.3, smoothing=0.05)
 
 def default_estimator(desc, dt: float, terrain_model: str = "flat", *, mj_model=None):
     """(EstimatorParams, terrain) that ``evaluate``, ``estimate`` and ``export`` use for a
-    robot: the planar leg's Section III estimator for one 2-joint leg on a rail, else Table
+    robot: the planar leg's Section III estimator for one 2-joint leg on a 1-dof rail, else Table
     III's (the one source: :func:`jax_contact.params_for` with ``anymal_like`` sensors,
     ``jax_contact.train.reproduce``). Legs of fewer than three joints on a floating base
     (a biped's, Brax's ant's) resist the force axes their Jacobian spans
@@ -214,7 +214,7 @@ def default_estimator(desc, dt: float, terrain_model: str = "flat", *, mj_model=
     )
 
     check_terrain_model(terrain_model)
-    if desc.n_leg_dofs == 2 and desc.n_legs == 1 and len(desc.base_dofs) < 6:
+    if desc.n_leg_dofs == 2 and desc.n_legs == 1 and len(desc.base_dofs) == 1 and desc.nv == 3:
         params, plane = planar_estimator_params(desc.nv, dt), jc.flat(0.0, 0.2)
     elif desc.n_leg_dofs < 3:
         if mj_model is None:

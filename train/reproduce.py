@@ -135,10 +135,20 @@ def planar_estimator_params(nv: int = 3, dt: float = 0.0025, **overrides) -> jc.
 def quadruped_estimator_params(desc, dt: float = 0.0025, **overrides) -> jc.EstimatorParams:
     """Table III's estimator: :func:`jax_contact.params_for` with the ``anymal_like``
     sensors of a floating-base quadruped and the default gait prior (the one source of
-    parameters; the wrapper and ``jax-contact evaluate`` build the same)."""
+    parameters; the wrapper and ``jax-contact evaluate`` build the same). A robot whose
+    base is not free (``desc.base_dofs`` not the free joint's 6: a leg on a rail or fixed
+    to the world) gets the sensors of :func:`jax_contact.envs.sensors.sensor_preset`'s
+    fixed base on its base coordinates."""
     from jax_contact.envs.sensors import sensor_preset
 
-    sp = sensor_preset("anymal_like", desc.nv, dt=dt)
+    floating = len(desc.base_dofs) == 6
+    sp = sensor_preset(
+        "anymal_like",
+        desc.nv,
+        dt=dt,
+        floating_base=floating,
+        base_dofs=None if floating else desc.base_dofs,
+    )
     return jc.params_for(desc, sp, dt, **overrides)
 
 
