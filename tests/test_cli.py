@@ -238,6 +238,27 @@ def test_ctrl_c_during_a_write_removes_the_temporary_file(tmp_path):
     assert list(tmp_path.iterdir()) == []
 
 
+def test_ctrl_c_while_the_io_module_is_still_importing(tmp_path):
+    """A signal during start-up, while ``jax_contact.io`` is half imported (no
+    ``abort_writes`` yet), still stops the command with 130: the watcher thread used to die
+    on the AttributeError, and every later Ctrl-C was ignored (a helper's run carried on and
+    replaced the earlier outputs)."""
+    script = (
+        "import os, signal, sys, time, types\n"
+        "from jax_contact.train import cli\n"
+        "sys.modules['jax_contact.io'] = types.ModuleType('jax_contact.io')  # mid-import\n"
+        "with cli.StopOnInterrupt('jax-contact test'):\n"
+        "    os.kill(os.getpid(), signal.SIGINT)\n"
+        "    time.sleep(20)\n"
+        "print('not reached')\n"
+    )
+    res, elapsed = _run([sys.executable, "-c", script])
+    assert res.returncode == 130, res.stderr
+    assert elapsed < 15
+    assert res.stderr == "jax-contact test: interrupted\n"
+    assert "not reached" not in res.stdout
+
+
 @pytest.mark.parametrize("sig, code, word", [("SIGINT", 130, "interrupted"),
                                              ("SIGTERM", 143, "terminated")])  # fmt: skip
 def test_a_signal_during_a_staged_folder_leaves_the_earlier_run(tmp_path, sig, code, word):

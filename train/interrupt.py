@@ -75,17 +75,19 @@ class StopOnInterrupt:
                 self._stop("terminated", EXIT_TERMINATED)
 
     def _stop(self, what: str = "interrupted", code: int = EXIT_INTERRUPTED) -> None:
-        io = sys.modules.get("jax_contact.io")  # not imported: nothing was being written
-        if io is not None:
-            io.abort_writes()  # holds io's lock from here on: no rename can follow
-        # Flush what was printed, but never wait on a main thread stuck mid-write.
-        flusher = threading.Thread(target=_flush_std, daemon=True)
-        flusher.start()
-        flusher.join(0.5)
         try:
+            # Not imported, or still being imported (a signal during start-up): nothing
+            # has been written through it yet, so there is nothing to abort.
+            abort = getattr(sys.modules.get("jax_contact.io"), "abort_writes", None)
+            if abort is not None:
+                abort()  # holds io's lock from here on: no rename can follow
+            # Flush what was printed, but never wait on a main thread stuck mid-write.
+            flusher = threading.Thread(target=_flush_std, daemon=True)
+            flusher.start()
+            flusher.join(0.5)
             os.write(2, f"{self.prog}: {what}\n".encode())
         finally:
-            os._exit(code)
+            os._exit(code)  # whatever failed above, the command stops
 
     def __exit__(self, *exc) -> None:
         if not self._active:
