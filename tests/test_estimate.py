@@ -144,6 +144,42 @@ def test_estimate_writes_hdf5_csv_png_and_metrics(round_trip):
     assert not list(out.glob(".*.tmp"))  # atomic writes leave no temporary file
 
 
+def test_missing_ground_truth_is_left_out_of_the_metrics(round_trip, tmp_path, capsys):
+    """Blank truth cells (rows 50-59 of the foot's contact and force columns) are neither
+    contact nor air: a note names the rows, ``truth/known`` marks them, and the metrics are
+    those of the same outputs with those rows masked (they used to count as air, silently)."""
+    from jax_contact.metrics import evaluate
+    from jax_contact.train.recording_estimate import estimate_recording
+
+    cols = dict(read_recording(round_trip.tmp / "robot.csv").columns)
+    for name in ("contact/toe", "force/toe"):
+        cols[name] = cols[name].copy()
+        cols[name][50:60] = np.nan
+    write_recording_csv(tmp_path / "gap.csv", cols)
+    got = estimate_recording(
+        tmp_path / "gap.csv",
+        model="planar_leg",
+        out_dir=tmp_path / "out",
+        names={v: k for k, v in RENAME.items()},
+        units="deg",
+        plots=False,
+        progress=False,
+    )
+    assert any("ground truth is missing" in n and "rows 50-59" in n for n in got["notes"])
+    with h5py.File(tmp_path / "out" / "estimate.h5", "r") as f:
+        known = f["truth/known"][:, 0]
+    assert np.flatnonzero(~known).tolist() == list(range(50, 60))
+    full = round_trip.estimated
+    truth = read_log(LOG)[0]["truth/contact"]  # (T, 1, 1)
+    mask = np.ones(truth.shape, bool)
+    mask[50:60] = False
+    want = evaluate(full["outputs"]["probabilistic"], truth, mask, dt=0.0025).as_dict()
+    scores = got["scores"]["probabilistic"]
+    assert scores["n_steps"] == full["scores"]["probabilistic"]["n_steps"] - 10
+    for key in ("n_steps", "f1", "accuracy", "ece", "missed_liftoffs"):
+        assert scores[key] == pytest.approx(want[key]), key
+
+
 def test_the_command_runs_on_the_shipped_sample(round_trip, tmp_path, capsys):
     args = _parser().parse_args(
         ["estimate", str(CSV), "--model", "planar_leg", "--out", str(tmp_path), "--no-plots"]

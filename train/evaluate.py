@@ -310,10 +310,13 @@ def score(
     Args:
       outputs: from :func:`replay`.
       truth: (T, E, L) bool ground-truth contact.
-      valid: (T, E) bool env validity; broadcast over legs.
+      valid: (T, E) bool env validity, broadcast over legs; or (T, E, L) per foot.
       dt: period, s.
       names: which outputs to score (default: every P(contact) and flag output).
     """
-    valid_tel = np.broadcast_to(np.asarray(valid)[..., None], truth.shape)
+    valid = np.asarray(valid)
+    if valid.shape != truth.shape:
+        valid = np.broadcast_to(valid[..., None], truth.shape)
+    valid_tel = valid
     names = names or [k for k in outputs if "/" not in k]
     return {n: evaluate(outputs[n], truth, valid_tel, dt=dt).as_dict() for n in names}

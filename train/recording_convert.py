@@ -54,6 +54,8 @@ class Converted:
       dt: the period, s.
       valid: (T, 1) bool: every used column finite at this row and the one before.
       truth: (T, 1, L) bool ground-truth contact, or None.
+      truth_known: (T, 1, L) bool: the foot's truth column is finite at this row (a
+        missing value is no contact or air: metrics leave it out), or None.
       force: (T, 1, L) ground-truth normal force, N, or None.
       terms: the measurement terms the recording supports (``EstimatorParams.terms``).
       has_torque: whether the recording has joint torques.
@@ -68,6 +70,7 @@ class Converted:
     dt: float
     valid: np.ndarray
     truth: np.ndarray | None
+    truth_known: np.ndarray | None
     force: np.ndarray | None
     terms: tuple[str, ...]
     has_torque: bool
@@ -335,7 +338,7 @@ def to_readings(
                 acc_from_pos.extend(d for d in range(sl.start, sl.stop) if d in vel_from_pos)
     if not terms:
         raise ValueError(f"{src}: no measurement term can run on this recording")
-    truth = force = None
+    truth = truth_known = force = None
     feet = desc.foot_names
     if by_model["contact/"] or by_model["force/"]:
         have = set(by_model["contact/"]) | set(by_model["force/"])
@@ -347,15 +350,24 @@ def to_readings(
             )
         if len(by_model["force/"]) == len(feet):
             force = np.stack([cols[by_model["force/"][f]] for f in feet], axis=1)[:, None]
-        truth = np.stack(
-            [
-                cols[by_model["contact/"][f]] > 0.5
-                if f in by_model["contact/"]
-                else cols[by_model["force/"][f]] > force_threshold
-                for f in feet
-            ],
-            axis=1,
-        )[:, None]
+        source = [
+            (cols[by_model["contact/"][f]], 0.5)
+            if f in by_model["contact/"]
+            else (cols[by_model["force/"][f]], force_threshold)
+            for f in feet
+        ]
+        truth = np.stack([col > bound for col, bound in source], axis=1)[:, None]
+        truth_known = np.stack([np.isfinite(col) for col, _ in source], axis=1)[:, None]
+        if not truth_known.any():
+            raise ValueError(
+                f"{src}: the ground-truth columns hold no finite value; drop them to estimate"
+                " without metrics"
+            )
+        if not truth_known.all():
+            notes.append(
+                "rows where a foot's ground truth is missing (left out of the metrics): "
+                + _stretches(~truth_known.all(axis=(1, 2)), cols[TIME])
+            )
     finite = np.all(np.isfinite(np.stack([cols[c] for c in sorted(used)], axis=1)), axis=1)
     valid = finite & np.concatenate([[True], finite[:-1]])  # differences use the row before
     if not valid.any():
@@ -383,6 +395,7 @@ def to_readings(
         dt=dt,
         valid=valid[:, None],
         truth=truth,
+        truth_known=truth_known,
         force=force,
         terms=tuple(terms),
         has_torque=has_torque,

@@ -116,6 +116,7 @@ def estimate_recording(
         }
         if has_truth:
             arrays["truth/contact"] = conv.truth[:, 0]
+            arrays["truth/known"] = conv.truth_known[:, 0]
         attrs = {
             "model": str(model),
             "recording": str(path),
@@ -141,7 +142,7 @@ def estimate_recording(
             nan = np.full(out["probabilistic"].shape, np.nan)
             shown = SimpleNamespace(
                 time=conv.time - conv.time[0],
-                contact=conv.truth if has_truth else nan,
+                contact=np.where(conv.truth_known, conv.truth, np.nan) if has_truth else nan,
                 force=conv.force if conv.force is not None else nan,
             )
             for i, foot in enumerate(feet_names):
@@ -166,7 +167,9 @@ def estimate_recording(
         )
         scores = {}
         if has_truth:
-            scores = score(out, conv.truth, conv.valid, dt=conv.dt)
+            # Steps whose truth is missing are scored as neither contact nor air.
+            scored = conv.valid[..., None] & conv.truth_known
+            scores = score(out, conv.truth, scored, dt=conv.dt)
             print(format_scores(scores, title=Path(path).name))
             files.append(write_json_atomic(stage / "metrics.json", scores))
         else:
