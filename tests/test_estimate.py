@@ -309,6 +309,22 @@ def test_a_nan_stretch_marks_those_rows_invalid(go1_log):
     assert any("rows 10-13" in n for n in conv.notes)
 
 
+def test_angles_outside_the_joint_range_are_flagged_with_the_unit_hint(go1_log):
+    """Go1's home pose near its joints' ranges in radians passes quietly; the same log in
+    degrees read as radians leaves the hinges' ranges (Go1's calf joint: -2.818 to -0.888
+    rad, home -1.8 rad, i.e. -103 in degrees), and each such column gets a warning that
+    names it and suggests --units deg."""
+    cols = log_to_columns(go1_log)
+    conv = to_readings(Recording(cols, "r"), go1_log.robot)
+    assert not [n for n in conv.notes if n.startswith("WARNING")]
+    deg = {
+        k: v * (180 / np.pi) if k.startswith(("q/", "qd/", "qdd/")) else v for k, v in cols.items()
+    }
+    notes = to_readings(Recording(deg, "r"), go1_log.robot).notes
+    warned = [n for n in notes if n.startswith("WARNING column 'q/FL_calf_joint'")]
+    assert len(warned) == 1 and "100% of rows" in warned[0] and "--units deg" in warned[0]
+
+
 # --------------------------------------------------------------------------- bad input
 
 

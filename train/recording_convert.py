@@ -259,6 +259,19 @@ def to_readings(
         qa, va = int(m.jnt_qposadr[j]), int(m.jnt_dofadr[j])
         qpos[:, qa] = cols[col] * s
         used.add(col)
+        outside = _outside_range(m, j, qpos[:, qa])
+        if outside:
+            hint = (
+                "; are they degrees? pass --units deg (names=..., units='deg' in Python)"
+                if hinge and units == "rad" and outside[1] > 2 * math.pi
+                else ""
+            )
+            notes.append(
+                f"WARNING column {col!r}: outside joint {name!r}'s range"
+                f" [{m.jnt_range[j, 0]:.4g}, {m.jnt_range[j, 1]:.4g}]"
+                f" {'rad' if hinge else 'm'} on {outside[0]:.0%} of rows (largest"
+                f" {outside[1]:.4g}){hint}"
+            )
         vcol = by_model["qd/"].get(name)
         if vcol is None:
             qvel[:, va] = _backward_diff(qpos[:, qa], dt)
@@ -428,6 +441,24 @@ def noise_for_differences(params, conv: Converted):
         sigma_qd=jnp.asarray(sqd, jnp.float32), sigma_qdd=jnp.asarray(sqdd, jnp.float32)
     )
     return params.replace(noise=noise)
+
+
+# A joint's reading may leave its range by sensor noise and compliance; beyond this many
+# rad (m) on more than this share of rows it is another unit or another joint.
+RANGE_SLACK, RANGE_SHARE = 0.1, 0.05
+
+
+def _outside_range(m, j: int, q: np.ndarray) -> tuple[float, float] | None:
+    """(share of finite rows, largest |q|) if ``q`` leaves limited joint ``j``'s range by
+    more than :data:`RANGE_SLACK` on more than :data:`RANGE_SHARE` of them, else None."""
+    if not m.jnt_limited[j]:
+        return None
+    q = q[np.isfinite(q)]
+    lo, hi = m.jnt_range[j]
+    out = (q < lo - RANGE_SLACK) | (q > hi + RANGE_SLACK)
+    if q.size == 0 or out.mean() <= RANGE_SHARE:
+        return None
+    return float(out.mean()), float(np.abs(q).max())
 
 
 def _stretches(mask: np.ndarray, t: np.ndarray) -> str:

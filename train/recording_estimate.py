@@ -84,7 +84,9 @@ def estimate_recording(
         )
     notes.insert(0, f"estimator terms: {', '.join(terms)}; rate {1.0 / conv.dt:.6g} Hz")
     for line in notes:
-        print(f"note: {line}")
+        # A reading that looks like another unit or frame is a warning, the rest notes.
+        warned = line.removeprefix("WARNING ")
+        print(f"warning: {warned}" if warned != line else f"note: {line}")
     has_truth = conv.truth is not None
     out = replay(
         robot,
@@ -165,6 +167,13 @@ def estimate_recording(
             f"{len(p)} readings at {conv.dt * 1e3:.4g} ms; share of steps estimated in contact"
             f" (P > 0.5): {summary}"
         )
+        if np.all(np.nanmean(p > 0.5, axis=0) < 0.01):
+            print(
+                "warning: every foot reads air on more than 99 % of the steps; if the robot"
+                " stood or walked, check the angles' unit (--units), the base quaternion's"
+                " order (w, x, y, z) and that the floor is at z = 0 in base_pos's frame"
+                " (else --terrain-model memory)"
+            )
         scores = {}
         if has_truth:
             # Steps whose truth is missing are scored as neither contact nor air.
