@@ -180,6 +180,27 @@ def test_missing_ground_truth_is_left_out_of_the_metrics(round_trip, tmp_path, c
         assert scores[key] == pytest.approx(want[key]), key
 
 
+def test_a_degree_recording_read_as_radians_warns(round_trip, tmp_path, capsys):
+    """The round trip's recording holds degrees; read as radians (no units='deg') the hip
+    leaves its +-1.6 rad range and the leg reads air throughout: both are printed as
+    warnings (before, only the usual notes and a summary of 0.00)."""
+    from jax_contact.train.recording_estimate import estimate_recording
+
+    got = estimate_recording(
+        round_trip.tmp / "robot.csv",
+        model="planar_leg",
+        out_dir=tmp_path / "out",
+        names={v: k for k, v in RENAME.items()},
+        plots=False,
+        progress=False,
+    )
+    text = capsys.readouterr().out
+    assert "warning: column 'q/HIP_J': outside the range of joint 'hip', [-1.6, 1.6] rad" in text
+    assert "pass --units deg" in text
+    assert np.mean(got["outputs"]["probabilistic"] > 0.5) < 0.01
+    assert "warning: every foot reads air on more than 99 % of the steps" in text
+
+
 def test_the_command_runs_on_the_shipped_sample(round_trip, tmp_path, capsys):
     args = _parser().parse_args(
         ["estimate", str(CSV), "--model", "planar_leg", "--out", str(tmp_path), "--no-plots"]

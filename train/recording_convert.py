@@ -267,7 +267,7 @@ def to_readings(
                 else ""
             )
             notes.append(
-                f"WARNING column {col!r}: outside joint {name!r}'s range"
+                f"WARNING column {col!r}: outside the range of joint {name!r},"
                 f" [{m.jnt_range[j, 0]:.4g}, {m.jnt_range[j, 1]:.4g}]"
                 f" {'rad' if hinge else 'm'} on {outside[0]:.0%} of rows (largest"
                 f" {outside[1]:.4g}){hint}"
