@@ -365,6 +365,14 @@ def _planar_cols():
         (lambda c: c.pop("q/knee"), r"missing column 'q/knee' \(position of joint 'knee'\)"),
         (lambda c: c.update({"q/ankle": c["q/hip"]}), r"column 'q/ankle': the model has no joint"),
         (lambda c: c["time"].__setitem__(5, c["time"][3]), r"'time' does not increase at row 5"),
+        (
+            lambda c: c["time"].__setitem__(5, c["time"][4]),
+            r"does not increase at row 5 .*a repeated row \(drop duplicates\)\?",
+        ),
+        (
+            lambda c: c.update({"time": c["time"] * 1e9}),
+            r"'time' steps by 2\.5e\+06 \(median\): time must be in seconds.*nanoseconds",
+        ),
         (lambda c: c["time"].__setitem__(5, c["time"][5] + 0.001), r"irregular time steps"),
         (lambda c: c.update({"contact/heel": np.ones(10)}), r"column 'contact/heel': .*no foot"),
         (

@@ -110,6 +110,11 @@ def _backward_diff(x: np.ndarray, dt: float) -> np.ndarray:
     return d
 
 
+# The longest reading period accepted, s: slower is no contact estimate (and is most often
+# a time column in milliseconds or nanoseconds).
+MAX_PERIOD = 0.1
+
+
 def _check_time(rec: Recording, resample: bool) -> tuple[Recording, float, list[str]]:
     src = f"recording {rec.source!r}"
     t = rec.columns[TIME]
@@ -122,11 +127,18 @@ def _check_time(rec: Recording, resample: bool) -> tuple[Recording, float, list[
     bad = np.flatnonzero(step <= 0)
     if bad.size:
         i = int(bad[0]) + 1
+        again = "; a repeated row (drop duplicates)?" if t[i] == t[i - 1] else ""
         raise ValueError(
             f"{src}: column 'time' does not increase at row {i} (0-based): {float(t[i]):.9g} s"
-            f" after {float(t[i - 1]):.9g} s"
+            f" after {float(t[i - 1]):.9g} s{again}"
         )
     dt = float(np.median(step))
+    if dt > MAX_PERIOD:
+        raise ValueError(
+            f"{src}: column 'time' steps by {dt:.6g} (median): time must be in seconds, at"
+            f" least {1 / MAX_PERIOD:g} readings per second (milliseconds? divide by 1e3;"
+            " nanoseconds, as ROS stamps? by 1e9)"
+        )
     off = np.abs(step / dt - 1.0)
     if off.max() <= RATE_TOLERANCE:
         return rec, dt, []
