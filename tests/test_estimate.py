@@ -201,6 +201,17 @@ def test_a_degree_recording_read_as_radians_warns(round_trip, tmp_path, capsys):
     assert "warning: every foot reads air on more than 99 % of the steps" in text
 
 
+def test_the_python_call_checks_its_output_folder_first(tmp_path):
+    """``estimate_recording`` refuses an ``out_dir`` that is a file before reading anything
+    (the recording named here does not exist): it used to run the whole replay and then
+    raise a bare FileExistsError."""
+    from jax_contact.train.recording_estimate import estimate_recording
+
+    (tmp_path / "afile").write_text("x")
+    with pytest.raises(ValueError, match=r"argument out_dir: .*afile' exists and is not a folder"):
+        estimate_recording(tmp_path / "none.csv", model="planar_leg", out_dir=tmp_path / "afile")
+
+
 def test_the_command_runs_on_the_shipped_sample(round_trip, tmp_path, capsys):
     args = _parser().parse_args(
         ["estimate", str(CSV), "--model", "planar_leg", "--out", str(tmp_path), "--no-plots"]

@@ -52,6 +52,10 @@ def estimate_recording(
     Returns:
       ``notes``, ``terms``, ``foot_names``, ``dt``, ``files`` (written), ``outputs`` (the
       replay's (T, 1, L) arrays), ``scores`` (empty without ground truth).
+
+    Raises:
+      ValueError: ``out_dir`` is a file or cannot take files (before any work), or the
+        recording, model or parameters are wrong (one line naming the column or file).
     """
     from jax_contact.baselines import make_gm_params, make_kinematic_params
     from jax_contact.calibration import calibrate_probability
@@ -59,8 +63,11 @@ def estimate_recording(
     from jax_contact.io import staged_folder, write_json_atomic, write_log
     from jax_contact.robot import model_mass
     from jax_contact.train.evaluate import replay, score
+    from jax_contact.train.cli_args import check_output_folder
     from jax_contact.train.logs import _estimator_for, format_scores
 
+    # Before any work: the folder must take files (the command checks it the same way).
+    check_output_folder("out_dir", out_dir)
     rec = read_recording(path)
     robot = load_robot(model, foot_names=feet)
     conv = to_readings(rec, robot, names=names, units=units, resample=resample)
