@@ -62,8 +62,8 @@ def estimate_recording(
     from jax_contact.envs.robots import load_robot
     from jax_contact.io import staged_folder, write_json_atomic, write_log
     from jax_contact.robot import model_mass
-    from jax_contact.train.evaluate import replay, score
     from jax_contact.train.cli_args import check_output_folder
+    from jax_contact.train.evaluate import replay, score
     from jax_contact.train.logs import _estimator_for, format_scores
 
     # Before any work: the folder must take files (the command checks it the same way).
