@@ -316,6 +316,19 @@ def test_missing_velocities_accelerations_and_torques_are_derived(go1_log):
     assert "joint velocities differentiated from positions" in text
 
 
+def test_positions_alone_switch_the_dynamics_term_off(go1_log):
+    """With torques but no qd/ or qdd/ columns the legs' accelerations would be second
+    differences of positions (0.02 rad at 400 Hz: 7800 rad/s^2 of noise): the dynamics term
+    is off, with a note naming the dofs; with velocities recorded it stays on."""
+    cols = log_to_columns(go1_log, velocities=False, accelerations=False)
+    conv = to_readings(Recording(cols, "r"), go1_log.robot)
+    assert conv.has_torque and "dynamics" not in conv.terms
+    note = [n for n in conv.notes if "second differences of positions" in n]
+    assert len(note) == 1 and "dofs [6, 7, 8, 9, 10, 11, 12, 13, 14, 15, 16, 17]" in note[0]
+    with_qd = log_to_columns(go1_log, accelerations=False)
+    assert "dynamics" in to_readings(Recording(with_qd, "r"), go1_log.robot).terms
+
+
 def test_without_base_position_and_velocity_only_the_dynamics_run(go1_log):
     cols = log_to_columns(go1_log)
     for k in [c for c in cols if c.startswith(("base_pos/", "base_linvel/"))]:

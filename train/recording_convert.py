@@ -361,6 +361,17 @@ def to_readings(
             else:
                 qacc[:, sl] = _backward_diff(qvel[:, sl], dt)
                 acc_from_pos.extend(d for d in range(sl.start, sl.stop) if d in vel_from_pos)
+    legs_twice = sorted({d for leg in desc.leg_dofs for d in leg} & set(acc_from_pos))
+    if "dynamics" in terms and legs_twice:
+        # A second difference of positions carries sqrt(6) sigma_q / dt^2 of noise (7800
+        # rad/s^2 for 0.02 rad at 400 Hz), above any acceleration a leg makes; with it the
+        # dynamics term only added its noise (the planar leg's sample: F1 0.014 with it,
+        # 0.673 without; docs/own_robot.md).
+        terms.remove("dynamics")
+        notes.append(
+            "leg joint accelerations would be second differences of positions (no qd/ or"
+            f" qdd/ columns for dofs {legs_twice}): the dynamics term is off"
+        )
     if not terms:
         raise ValueError(f"{src}: no measurement term can run on this recording")
     truth = truth_known = force = None
