@@ -117,9 +117,14 @@ def read_log(path: str | os.PathLike) -> tuple[dict[str, np.ndarray], dict]:
     try:
         f = h5py.File(path, "r")
     except OSError as err:  # h5py's messages name neither the file nor what was expected
+        recording = (
+            "; a recording of columns (CSV, NPZ) is read by `jax-contact estimate`"
+            if path.suffix.lower() in (".csv", ".npz", ".txt")
+            else ""
+        )
         raise ValueError(
             f"log file {str(path)!r} cannot be read as HDF5 ({_h5_reason(err)}); expected an"
-            " .h5 file written by `jax-contact simulate` (jax_contact.io.write_log)"
+            f" .h5 file written by `jax-contact simulate` (jax_contact.io.write_log){recording}"
         ) from None
     with f:
         version = f.attrs.get("format_version")

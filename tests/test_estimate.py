@@ -212,6 +212,40 @@ def test_the_python_call_checks_its_output_folder_first(tmp_path):
         estimate_recording(tmp_path / "none.csv", model="planar_leg", out_dir=tmp_path / "afile")
 
 
+def test_a_rerun_says_which_earlier_outputs_it_removed(round_trip, tmp_path, capsys):
+    """A run without ground truth into a folder holding an earlier run's metrics.json
+    removes it (the folder then holds one run) and says so; a note of the user's stays."""
+    from jax_contact.train.recording_estimate import estimate_recording
+
+    cols = read_recording(round_trip.tmp / "robot.csv").columns
+    write_recording_csv(
+        tmp_path / "no_truth.csv", {k: v for k, v in cols.items() if "/toe" not in k}
+    )
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "metrics.json").write_text("{}")
+    (out / "notes.txt").write_text("mine")
+    estimate_recording(
+        tmp_path / "no_truth.csv",
+        model="planar_leg",
+        out_dir=out,
+        names={v: k for k, v in RENAME.items() if k != "foot"},
+        units="deg",
+        plots=False,
+        progress=False,
+    )
+    text = capsys.readouterr().out
+    assert "removed the earlier run's ['metrics.json']" in text
+    assert sorted(p.name for p in out.iterdir()) == ["estimate.csv", "estimate.h5", "notes.txt"]
+
+
+def test_evaluate_on_a_recording_points_to_estimate():
+    from jax_contact.io import read_log
+
+    with pytest.raises(ValueError, match=r"cannot be read as HDF5.*read by `jax-contact estimate`"):
+        read_log(CSV)
+
+
 def test_the_command_runs_on_the_shipped_sample(round_trip, tmp_path, capsys):
     args = _parser().parse_args(
         ["estimate", str(CSV), "--model", "planar_leg", "--out", str(tmp_path), "--no-plots"]

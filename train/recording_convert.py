@@ -244,7 +244,7 @@ def to_readings(
                     raise ValueError(
                         f"{src}: column {col!r}: the model has no {what} {target!r}"
                         f"{' (through the names map)' if target != col[len(prefix) :] else ''};"
-                        f" its {what}s: {sorted(valid)}"
+                        f" its {'feet' if what == 'foot' else 'joints'}: {sorted(valid)}"
                     )
                 by_model[prefix][target] = col
     # A joint's entry must name a column (every joint has one): a typo would otherwise pass
@@ -419,7 +419,9 @@ def to_readings(
         )
     if not valid.all():
         notes.append(
-            f"rows with NaN (the estimator's valid = False there): {_stretches(~valid, cols[TIME])}"
+            "readings with NaN, or a NaN in the row before (their differences reach it):"
+            f" {_stretches(~valid, cols[TIME])}; the steps that use them are predicted only"
+            " (valid = False in the output)"
         )
     ignored = [c for c in cols if c not in used and not c.startswith(TRUTH_PREFIXES)]
     if ignored:

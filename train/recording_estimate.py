@@ -114,6 +114,7 @@ def estimate_recording(
         notes.append(line)
         print(f"note: {line}")
     out_dir = Path(out_dir)
+    earlier = [n for n in _earlier_outputs(out_dir) if (out_dir / n).is_file()]
     with staged_folder(out_dir, stale=_earlier_outputs) as stage:
         feet_names = list(desc.foot_names)
         fields = {"p_contact": out["probabilistic"]} | {
@@ -192,6 +193,9 @@ def estimate_recording(
             print("no ground truth columns (contact/<foot> or force/<foot>): no metrics")
     files = [out_dir / f.name for f in files]
     print("wrote " + ", ".join(str(f) for f in files))
+    removed = sorted(set(earlier) - {f.name for f in files})
+    if removed:
+        print(f"removed the earlier run's {removed} from {str(out_dir)!r} (not written this time)")
     return {
         "notes": notes,
         "terms": terms,
