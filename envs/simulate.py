@@ -39,6 +39,7 @@ from jax_contact.envs.gaits import GaitParams, gait_control, make_gait, make_gai
 from jax_contact.envs.ground_truth import foot_truth, make_truth_layout, with_contact_sensors
 from jax_contact.envs.robots import Robot, load_robot, with_terrain
 from jax_contact.envs.sensors import SensorParams, add_mass, sensor_init, sensor_preset, sensor_step
+from jax_contact.robot import actuated_dofs
 
 TERRAINS = ("flat", "rough")
 UPRIGHT_MIN_Z_AXIS = 0.7  # base z-axis . world z, as in the gait survival benchmark
@@ -244,6 +245,16 @@ def _check_gait_fits(gait: GaitParams, robot: Robot) -> None:
     has no base to move.
     """
     n_legs = robot.description.n_legs
+    on_legs = {d for leg in robot.description.leg_dofs for d in leg}
+    limp = sorted(actuated_dofs(robot.mj_model) - on_legs - set(robot.description.base_dofs))
+    if limp:
+        joints = sorted({robot.mj_model.joint(int(robot.mj_model.dof_jntid[d])).name for d in limp})
+        feet = list(robot.description.foot_names)
+        raise ValueError(
+            f"actuated joints {joints} are on no leg of the feet {feet}:"
+            " the scripted gaits drive the named feet's legs only, and would leave these limp;"
+            " name every foot (--feet)"
+        )
     if not robot.description.base_dofs:
         raise ValueError(
             f"robot {robot.name!r} is fixed to the world (no free joint and no passive base"

@@ -317,6 +317,21 @@ def test_a_staged_folder_replaces_the_earlier_run_and_keeps_other_files(tmp_path
     assert sorted(p.name for p in out.iterdir()) == ["estimate.csv", "notes.txt"]
 
 
+def test_a_library_warning_prints_as_one_line_while_a_command_runs(capsys):
+    """UserWarnings print as '<prog>: warning: <message>' (they printed the raising file,
+    line and source line); other categories and the handler after the command are as
+    Python has them."""
+    import warnings
+
+    from jax_contact.train import cli
+
+    before = warnings.showwarning
+    with cli._warnings_as_lines("jax-contact x"):
+        warnings.warn("a file tuned at 200 Hz", UserWarning, stacklevel=1)
+    assert capsys.readouterr().err == "jax-contact x: warning: a file tuned at 200 Hz\n"
+    assert warnings.showwarning is before
+
+
 def test_the_interrupt_handler_is_removed_afterwards():
     """In-process callers of cli.main (tests) get their SIGINT handler and wake-up fd back."""
     before = signal.getsignal(signal.SIGINT)

@@ -307,6 +307,9 @@ def test_cli_arguments_are_checked_without_jax(tmp_path):
     )
     with pytest.raises(ValueError, match="--params"):
         args.check(args)
+    args = parser.parse_args(["export", "--robot", "go1", "--rate", "4", "--out", "a.contact"])
+    with pytest.raises(ValueError, match=r"argument --rate: 4 Hz; .* at least 10 readings"):
+        args.check(args)  # it failed later on "swing_time must exceed dt"
     with pytest.raises(SystemExit):  # --robot and --model together
         parser.parse_args(["export", "--robot", "go1", "--model", "a.xml", "--out", "a.contact"])
     (tmp_path / "a.contact").write_bytes(b"x")

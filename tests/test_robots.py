@@ -246,6 +246,60 @@ def test_fixed_base_leg_force_is_the_floors():
             assert float(llr) < 0.0
 
 
+def test_a_log_replayed_on_an_edited_model_warns(tmp_path):
+    """Simulated logs store the model's physics fingerprint; two loads of a robot agree,
+    a heavier calf does not, and load_log warns when the robot's name loads differently
+    (it replayed through the edited model silently)."""
+    import shutil
+    import warnings
+
+    import h5py
+
+    from jax_contact.robot import model_fingerprint
+    from jax_contact.train.logs import load_log
+
+    go1 = load_robot("go1").mj_model
+    assert model_fingerprint(go1) == model_fingerprint(load_robot("go1").mj_model)
+    heavier = load_robot("go1").mj_model
+    heavier.body_mass[heavier.body("FR_calf").id] += 0.05
+    assert model_fingerprint(heavier) != model_fingerprint(go1)
+    log = tmp_path / "log.h5"
+    shutil.copy(Path(__file__).parent / "fixtures" / "planar_leg_hop.h5", log)
+    planar = load_robot("planar_leg").mj_model
+    with h5py.File(log, "a") as f:
+        f.attrs["model_sha256"] = model_fingerprint(planar)
+    with warnings.catch_warnings():  # the same model: silent
+        warnings.simplefilter("error")
+        load_log(log)
+    with h5py.File(log, "a") as f:
+        f.attrs["model_sha256"] = model_fingerprint(go1)
+    with pytest.warns(UserWarning, match="differs from the one the log was simulated with"):
+        load_log(log)
+
+
+def test_simulate_refuses_feet_that_leave_a_leg_limp():
+    from jax_contact.envs.gaits import make_gait
+    from jax_contact.envs.simulate import _check_gait_fits
+
+    robot = load_robot("go1", foot_names=["FR", "FL", "RR"])
+    with pytest.raises(ValueError, match=r"actuated joints \['RL_calf_joint'.*name every foot"):
+        _check_gait_fits(make_gait("trot"), robot)
+    _check_gait_fits(make_gait("trot"), load_robot("go1"))  # all four: accepted
+
+
+def test_short_air_phases_by_hand():
+    from jax_contact.train.logs import short_air_phases
+
+    # Air at step 0 (cut by the start: not counted), steps 5-6 (2 steps, short), 10-15
+    # (6 steps), and 18-19 (cut by the end).
+    truth = np.ones((20, 1, 1), bool)
+    truth[0] = truth[5:7] = truth[10:16] = truth[18:] = False
+    valid = np.ones((20, 1), bool)
+    assert short_air_phases(truth, valid, 4) == (1, 2)
+    valid[12] = False  # splits 10-15: neither part lies between two valid contact steps
+    assert short_air_phases(truth, valid, 4) == (1, 1)
+
+
 def test_unknown_name_lists_valid_ones():
     with pytest.raises(ValueError, match="unknown robot 'go3'") as err:
         load_robot("go3")

@@ -34,8 +34,10 @@ and a ``command(...)`` block with its arguments in :func:`build_parser`.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import sys
+import warnings
 from pathlib import Path
 
 from jax_contact.train import (  # stdlib-only at import
@@ -641,6 +643,23 @@ def _quiet_xla_logs() -> None:
         os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "3")
 
 
+@contextlib.contextmanager
+def _warnings_as_lines(prog: str):
+    """While a command runs, a library warning (``UserWarning``) prints as one line,
+    ``<prog>: warning: <message>``, not with the file, line and source of its raise."""
+    with warnings.catch_warnings():
+        shown = warnings.showwarning
+
+        def show(message, category, filename, lineno, file=None, line=None):
+            if issubclass(category, UserWarning):
+                print(f"{prog}: warning: {message}", file=file or sys.stderr)
+            else:
+                shown(message, category, filename, lineno, file, line)
+
+        warnings.showwarning = show
+        yield
+
+
 def main(argv: list[str] | None = None) -> int:
     """Runs ``jax-contact`` with ``argv`` (default: ``sys.argv[1:]``); returns the exit code:
     0, 2 for a bad argument or input (one line on stderr), 130 when interrupted."""
@@ -658,7 +677,7 @@ def main(argv: list[str] | None = None) -> int:
     _quiet_xla_logs()
     enable_compilation_cache()
     try:
-        with StopOnInterrupt(prog):
+        with StopOnInterrupt(prog), _warnings_as_lines(prog):
             with progress.status(prog, "loading JAX and MuJoCo", "loaded JAX and MuJoCo"):
                 import jax  # noqa: F401  (what every command imports first, and the slow part)
                 from mujoco import mjx  # noqa: F401

@@ -111,6 +111,9 @@ def add_parsers(subparsers) -> None:
 # ------------------------------------------------------------------------- argument checks
 
 
+MIN_RATE_HZ = 10.0  # as recordings' (jax_contact.train.recording_convert.MAX_PERIOD)
+
+
 def check_export(args: argparse.Namespace) -> None:
     """Raises ValueError naming the argument that is wrong (no JAX import)."""
     from jax_contact.train.cli_args import (
@@ -126,6 +129,11 @@ def check_export(args: argparse.Namespace) -> None:
         check_input_file("--model", args.model)
         if not args.model.endswith(".xml"):
             raise ValueError(f"argument --model: {args.model!r} must be an MJCF .xml file")
+    if args.rate < MIN_RATE_HZ:
+        raise ValueError(
+            f"argument --rate: {args.rate:g} Hz; the estimator needs at least {MIN_RATE_HZ:g}"
+            " readings per second (a swing is over in a few tenths of a second)"
+        )
     if args.params is not None:
         check_params_source("--params", args.params)
     check_output_file("--out", args.out, (ARTEFACT_SUFFIX,))
@@ -211,7 +219,13 @@ def export_to_file(
     dt = 1.0 / float(rate_hz)
     try:
         params, _, terrain, calibration = _estimator_for(
-            desc, dt, params_path, None, model_mass(loaded.mj_model), mj_model=loaded.mj_model
+            desc,
+            dt,
+            params_path,
+            None,
+            model_mass(loaded.mj_model),
+            mj_model=loaded.mj_model,
+            period="the export's",
         )
     except ValueError as err:
         if params_path is None:
@@ -399,8 +413,10 @@ def deploy_check(
             )
     if robot_name != header["robot"]["source"]:
         print(
-            f"{name} is of robot {robot_name!r}, {str(artefact)!r} of"
-            f" {header['robot']['source']!r}: their readings have the same sizes, replaying",
+            f"warning: {name} is of robot {robot_name!r}, {str(artefact)!r} of"
+            f" {header['robot']['source']!r}: their readings have the same sizes, so the"
+            " check runs, but its P(contact) is not an estimate of this log's robot (the"
+            " latency and the agreement with the library's own estimate still hold)",
             file=sys.stderr,
         )
     one = {k: np.ascontiguousarray(v[:steps, env], np.float32) for k, v in readings.items()}

@@ -10,13 +10,14 @@ from __future__ import annotations
 import dataclasses
 import json
 import sys
+import warnings
 from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
 
 from jax_contact.io import read_log, write_json_atomic, write_log
-from jax_contact.robot import model_mass
+from jax_contact.robot import model_fingerprint, model_mass
 
 
 def simulate_to_file(
@@ -77,13 +78,26 @@ def simulate_to_file(
         "foot_names": list(loaded.description.foot_names),
         "gait_settings": dataclasses.asdict(resolved),
         "reading_timing": READING_TIMING,
+        # The nominal model's physics (load_log warns when the robot loads differently).
+        "model_sha256": model_fingerprint(loaded.mj_model),
     }
+    if abs(loaded.mj_model.opt.timestep - world.dt) > 1e-12:
+        print(
+            f"note: the model's timestep {loaded.mj_model.opt.timestep:g} s is replaced by"
+            f" {world.dt:g} s: the physics runs at the estimator's rate, one reading per step"
+        )
     roll = simulate(world, make_gait(gait), noise, n_envs, duration, seed, speed_range=speeds)
     write_log(path, roll.to_arrays(), attrs)
     n_valid = int(roll.valid[-1].sum())
     print(
         f"wrote {path}: {roll.qpos.shape[0]} steps x {n_envs} envs ({n_valid} upright at the end)"
     )
+    if 2 * n_valid < n_envs:
+        print(
+            f"warning: {n_envs - n_valid} of {n_envs} robots fell (their steps from the fall"
+            " on are invalid, not scored): check the gait settings (--kp, --kd, --base-height,"
+            " --home-key) and that --feet names every foot"
+        )
     return path
 
 
@@ -169,6 +183,14 @@ def load_log(path: str | Path, *, foot_names: Sequence[str] | None = None) -> Lo
     except ValueError as err:
         raise ValueError(f"{name}: robot {robot_name!r}: {err}") from None
     desc = robot.description
+    stored = attrs.get("model_sha256")
+    if stored and stored != model_fingerprint(robot.mj_model):
+        warnings.warn(
+            f"{name}: robot {robot_name!r} loads today as a model that differs from the one"
+            " the log was simulated with (its physics' fingerprint, model_sha256): the"
+            " replay reads these readings through another model",
+            stacklevel=2,
+        )
     for key, size, what in (("qpos", desc.nq, "nq"), ("qvel", desc.nv, "nv")):
         if readings[key].shape[-1] != size:
             raise ValueError(
@@ -455,6 +477,14 @@ def evaluate_file(
     else:
         scores = score(out, truth, log.valid, dt=dt)
         print(format_scores(scores, title=Path(path).name))
+        short, n_air = short_air_phases(truth, log.valid, BOUNCE_STEPS)
+        if n_air and short > 0.25 * n_air:
+            print(
+                f"note: {short} of {n_air} true air phases last at most {BOUNCE_STEPS} steps"
+                f" ({BOUNCE_STEPS * dt * 1e3:.3g} ms), most often a resting foot's load dropping"
+                " for a step (the floor's soft contact): every detector's missed lift-offs"
+                " (mLO) count them; truth/distance in the log holds the sole's height"
+            )
         result["scores"] = scores
         if bootstrap:
             result["vs_probabilistic"] = _vs_probabilistic(
@@ -479,6 +509,27 @@ def evaluate_file(
     return result
 
 
+BOUNCE_STEPS = 4  # an air phase this short is most often a bounce of a resting foot
+
+
+def short_air_phases(truth, valid, max_steps: int) -> tuple[int, int]:
+    """(air phases of at most ``max_steps`` steps, all air phases) of (T, E, L) ``truth``
+    with (T, E) ``valid``: maximal runs of valid air steps between two valid contact
+    steps (phases cut by an invalid step or the log's ends are not counted)."""
+    air = ~np.asarray(truth, bool) & np.asarray(valid, bool)[..., None]
+    on = np.asarray(truth, bool) & np.asarray(valid, bool)[..., None]
+    short = total = 0
+    for e in range(air.shape[1]):
+        for leg in range(air.shape[2]):
+            a, c = air[:, e, leg], on[:, e, leg]
+            edges = np.flatnonzero(np.diff(np.concatenate([[0], a.astype(int), [0]])))
+            for start, stop in zip(edges[::2], edges[1::2], strict=True):
+                if start > 0 and stop < len(a) and c[start - 1] and c[stop]:
+                    total += 1
+                    short += int(stop - start <= max_steps)
+    return short, total
+
+
 def _vs_probabilistic(out, scores, truth, valid, dt: float, n_resamples: int) -> dict:
     """``probabilistic - row`` for every other scored row, with its env-bootstrap interval;
     printed, one line per row."""
@@ -495,19 +546,27 @@ def _vs_probabilistic(out, scores, truth, valid, dt: float, n_resamples: int) ->
 
 
 def _estimator_for(
-    desc, dt: float, params_path, terrain_model: str | None, mass_kg=None, *, mj_model=None
+    desc,
+    dt: float,
+    params_path,
+    terrain_model: str | None,
+    mass_kg=None,
+    *,
+    mj_model=None,
+    period: str = "the log's",
 ):
     """(params, terrain model, terrain, calibration map or None) of ``evaluate`` and
     ``estimate``: the defaults (:func:`default_estimator`) or ``params_path`` checked
     against the robot and period, with the file's calibration map, on the terrain model
     given, else the file's own (:func:`resolve_terrain_model`), which is then printed.
-    The file is read once."""
+    The file is read once; ``period`` names ``dt`` in the warning of a file of another
+    period (e.g. ``"the export's"``)."""
     from jax_contact.calibration import file_calibration
 
     provenance, calibration = None, None
     if params_path is not None:
         file_params, provenance = load_params_for(
-            params_path, desc, dt, mass_kg, with_provenance=True, mj_model=mj_model
+            params_path, desc, dt, mass_kg, with_provenance=True, mj_model=mj_model, period=period
         )
         calibration = file_calibration(provenance, params_path)
     model = resolve_terrain_model(terrain_model, params_path, provenance)
@@ -519,7 +578,9 @@ def _estimator_for(
     return params, model, terrain, calibration
 
 
-def load_params_for(path, desc, dt, mass_kg=None, *, with_provenance=False, mj_model=None):
+def load_params_for(
+    path, desc, dt, mass_kg=None, *, with_provenance=False, mj_model=None, period="the log's"
+):
     """A params file, checked against the robot (its ``nv`` and, given, its mass) and the
     log's period (:func:`jax_contact.io.load_params_for`; ``with_provenance`` as there;
     ``mj_model`` as :func:`default_estimator`'s, whose values move the file's period)."""
@@ -527,7 +588,13 @@ def load_params_for(path, desc, dt, mass_kg=None, *, with_provenance=False, mj_m
 
     derive = lambda d: default_estimator(desc, d, mj_model=mj_model)[0]  # noqa: E731
     return load(
-        path, nv=desc.nv, dt=dt, derive=derive, mass_kg=mass_kg, with_provenance=with_provenance
+        path,
+        nv=desc.nv,
+        dt=dt,
+        derive=derive,
+        mass_kg=mass_kg,
+        with_provenance=with_provenance,
+        period=period,
     )
 
 
