@@ -1063,3 +1063,26 @@ def test_feasible_rejects_epochs_that_worsen_the_tuning_cells():
     state = opt.init(jt.init_theta(space, base))
     half = jt.fit._halve_learning_rate(state)
     assert float(half[1].hyperparams["learning_rate"]) == pytest.approx(0.5)
+
+
+def test_values_far_from_their_derived_ones_are_named():
+    """The tune command's warning lists rows of describe's table beyond a factor 4 either
+    way (the hexapod's fit: sigma_f normal x4.12, sigma_d x4.46; cap_dynamics x0.936 is
+    not one), with the boundary itself inside."""
+    from jax_contact.train.tune_cmd import far_from_derived
+
+    table = [
+        {"field": "sigma_f", "group": "normal", "ratio": 4.12},
+        {"field": "sigma_d", "group": "joint0", "ratio": 4.46},
+        {"field": "cap_dynamics", "group": "", "ratio": 0.936},
+        {"field": "takeoff_accel", "group": "", "ratio": 0.2},
+        {"field": "stance_time", "group": "", "ratio": 0.25},
+    ]
+    assert far_from_derived(table) == [
+        "sigma_f normal x4.12",
+        "sigma_d joint0 x4.46",
+        "takeoff_accel x0.2",
+    ]
+    # factor 5: x0.2 is on the boundary (inside); factor 4.2: x4.12 inside, x4.46 not.
+    assert far_from_derived(table, factor=5.0) == []
+    assert far_from_derived(table, factor=4.2) == ["sigma_d joint0 x4.46", "takeoff_accel x0.2"]

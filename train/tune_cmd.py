@@ -440,6 +440,20 @@ def load_logs(args: argparse.Namespace) -> Inputs:
     )  # fmt: skip
 
 
+FAR_FACTOR = 4.0  # a tuned value this far from its derived one is reported
+
+
+def far_from_derived(table, factor: float = FAR_FACTOR) -> list[str]:
+    """``"<field> <group> x<ratio>"`` for each row of :func:`jax_contact.tune.describe`'s
+    table whose tuned value is over ``factor`` times, or under ``1 / factor`` of, its
+    derived default."""
+    return [
+        " ".join(x for x in (r["field"], r["group"], f"x{r['ratio']:.3g}") if x)
+        for r in table
+        if not (1.0 / factor <= r["ratio"] <= factor)
+    ]
+
+
 def fit_and_write(args: argparse.Namespace, inputs: Inputs) -> int:
     """Tunes on ``inputs`` with ``args``' tuning options, prints the progress and the
     tuned values, writes ``args.out`` with its provenance; returns 0."""
@@ -521,6 +535,15 @@ def fit_and_write(args: argparse.Namespace, inputs: Inputs) -> int:
         print(
             f"  {r['field']:26s} {r['group']:16s} {r['default']:10.4g} -> {r['tuned']:10.4g}"
             f"  (x{r['ratio']:.3g})",
+            file=sys.stderr,
+        )
+    far = far_from_derived(table)
+    if far:
+        print(
+            f"warning: tuned values beyond a factor {FAR_FACTOR:g} of their physically derived"
+            f" ones: {', '.join(far)}; a noise far from the sensor's or a gait constant far"
+            " from the gait's is a warning sign (docs/tuning.md, plausibility; --noise-ratio"
+            " bounds the stds)",
             file=sys.stderr,
         )
     try:
