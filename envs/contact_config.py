@@ -158,13 +158,14 @@ def validate_config(cfg: ContactObsConfig) -> None:
         flag = getattr(cfg, name)
         if not isinstance(flag, bool | np.bool_):  # bool("no") is True, int(2) counts twice
             raise ValueError(f"config.{name} must be True or False, got {flag!r}")
-    for name, low, unit in (
-        ("truth_threshold", ">= 0", " (N)"),
-        ("truth_gap", ">= 0", " (m)"),
-        ("logit_clip", "> 0", ""),
+    for name, zero_ok, unit in (
+        ("truth_threshold", True, " (N)"),
+        ("truth_gap", True, " (m)"),
+        ("logit_clip", False, ""),
     ):
         v = getattr(cfg, name)
-        if not (is_number(v) and np.isfinite(v) and (v >= 0 if low == ">= 0" else v > 0)):
+        if not (is_number(v) and np.isfinite(v) and (v > 0 or (zero_ok and v == 0))):
+            low = ">= 0" if zero_ok else "> 0"
             raise ValueError(f"config.{name} must be a number {low}{unit}, got {v!r}")
     if cfg.terrain is not None and not isinstance(cfg.terrain, TERRAIN_MODELS):
         raise ValueError(

@@ -52,7 +52,7 @@ import mujoco
 import numpy as np
 
 from jax_contact import adapter
-from jax_contact.robot import RobotDescription, actuated_dofs, leg_of, model_mass
+from jax_contact.robot import RobotDescription, actuated_dofs, body_chain, leg_of, model_mass
 from jax_contact.types import RobotMeasurement
 
 _T = mujoco.mjtGeom
@@ -112,14 +112,6 @@ def touches(m: mujoco.MjModel, g: int, floor_ids) -> bool:
         if (a == g and b in floor_ids) or (b == g and a in floor_ids):
             return True
     return False
-
-
-def _chain(m, body: int) -> list[int]:
-    out = []
-    while body != 0:
-        out.append(body)
-        body = int(m.body_parentid[body])
-    return out
 
 
 def _home_data(m) -> mujoco.MjData:
@@ -267,7 +259,7 @@ def find_feet(m: mujoco.MjModel, feet=None) -> tuple[tuple[Foot, ...], list[int]
         )
     bodies = list(dict.fromkeys(int(m.geom_bodyid[g]) for g in chosen))
     if not spheres:  # keep the ends of the legs: no floor-touching geom further down
-        bodies = [b for b in bodies if not any(b in _chain(m, o)[1:] for o in bodies)]
+        bodies = [b for b in bodies if not any(b in body_chain(m, o)[1:] for o in bodies)]
     out = []
     for b in bodies:
         geoms = [g for g in chosen if m.geom_bodyid[g] == b]

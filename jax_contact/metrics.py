@@ -201,6 +201,18 @@ def _runs(k: np.ndarray):
     return start, end, value, start_edge, end_edge
 
 
+def short_air_phases(truth, valid, max_steps: int) -> tuple[int, int]:
+    """(air phases of at most ``max_steps`` steps, all air phases) of ``truth`` (T, ...)
+    with ``valid`` of its shape: the maximal runs of valid air steps with a valid step on
+    both sides (so contact there; phases cut by an invalid step or an end are not counted).
+    A log's bounce-like air phases (a resting foot's load dropping for a step)."""
+    tru = np.asarray(truth, bool)
+    k = _flat_codes(tru, np.broadcast_to(np.asarray(valid, bool), tru.shape))
+    start, end, value, start_edge, end_edge = _runs(k)
+    between = (value == 0) & start_edge & end_edge
+    return int(np.sum(between & (end - start <= max_steps))), int(np.sum(between))
+
+
 # ----------------------------------------------------------------------------- events
 
 

@@ -129,7 +129,7 @@ def _geom_label(m: mujoco.MjModel, g: int) -> str:
     return m.geom(g).name or m.body(m.geom_bodyid[g]).name
 
 
-def _body_chain(m: mujoco.MjModel, body: int) -> list[int]:
+def body_chain(m: mujoco.MjModel, body: int) -> list[int]:
     """Bodies from ``body`` up to (not including) the world, ``body`` first."""
     chain = []
     while body != 0:
@@ -162,24 +162,17 @@ def leg_of(m: mujoco.MjModel, body: int, actuated: set[int]) -> tuple[int, list[
     turns on actuated hinges: then it is a hip bolted to the world, the base is the world
     (body 0, no dofs) and the hip is a leg joint like the others.
     """
-    chain = _body_chain(m, body)
-    free = [
-        b
-        for b in chain
-        if any(
-            int(m.jnt_type[j]) == int(mujoco.mjtJoint.mjJNT_FREE)
-            for j in range(m.body_jntadr[b], m.body_jntadr[b] + m.body_jntnum[b])
-        )
-    ]
+    chain = body_chain(m, body)
+    joints = lambda b: range(m.body_jntadr[b], m.body_jntadr[b] + m.body_jntnum[b])  # noqa: E731
+    free = int(mujoco.mjtJoint.mjJNT_FREE)
+    with_free = [b for b in chain if any(int(m.jnt_type[j]) == free for j in joints(b))]
     top = chain[-1]
-    top_joints = range(m.body_jntadr[top], m.body_jntadr[top] + m.body_jntnum[top])
-    hip = bool(actuated.intersection(_body_dofs(m, top))) and all(
-        int(m.jnt_type[j]) in _ROTARY for j in top_joints
-    )
-    if free:
-        base = free[0]
-    elif hip:
-        base = 0
+    if with_free:
+        base = with_free[0]
+    elif actuated.intersection(_body_dofs(m, top)) and all(
+        int(m.jnt_type[j]) in _ROTARY for j in joints(top)
+    ):
+        base = 0  # a hip bolted to the world
     else:
         base = top
     leg_bodies = chain[: chain.index(base)] if base else chain
@@ -190,7 +183,7 @@ def _distal(spheres: list[int], m: mujoco.MjModel) -> list[int]:
     """The distal sphere of each joint chain among ``spheres``, in geom order."""
     bodies = {int(m.geom_bodyid[g]) for g in spheres}
     # A body is inner if another candidate body hangs below it.
-    inner = {b for c in bodies for b in _body_chain(m, c)[1:]}
+    inner = {b for c in bodies for b in body_chain(m, c)[1:]}
     out = []
     for b in sorted(bodies - inner):
         on_body = [g for g in spheres if int(m.geom_bodyid[g]) == b]

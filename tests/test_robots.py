@@ -288,13 +288,13 @@ def test_simulate_refuses_feet_that_leave_a_leg_limp():
 
 
 def test_short_air_phases_by_hand():
-    from jax_contact.train.logs import short_air_phases
+    from jax_contact.metrics import short_air_phases
 
     # Air at step 0 (cut by the start: not counted), steps 5-6 (2 steps, short), 10-15
     # (6 steps), and 18-19 (cut by the end).
     truth = np.ones((20, 1, 1), bool)
     truth[0] = truth[5:7] = truth[10:16] = truth[18:] = False
-    valid = np.ones((20, 1), bool)
+    valid = np.ones((20, 1, 1), bool)
     assert short_air_phases(truth, valid, 4) == (1, 2)
     valid[12] = False  # splits 10-15: neither part lies between two valid contact steps
     assert short_air_phases(truth, valid, 4) == (1, 1)

@@ -47,6 +47,10 @@ COLUMNS = (  # jax_contact.train.transfer.COLUMNS
 TASKS = ("go1", "hop", "hop_blind")  # jax_contact.train.tasks.TASK_NAMES
 SCENES = ("planar_leg", "go1", "go1_walk", "go1_trot")  # jax_contact.train.rates.SCENES
 LOG_SUFFIXES = (".h5", ".hdf5")
+# The fewest readings per second the estimator takes, for an export's rate and a
+# recording's (slower is no contact estimate, and in a recording most often a time column
+# in milliseconds or nanoseconds).
+MIN_RATE_HZ = 10.0
 
 
 # ------------------------------------------------------------------------ argument types

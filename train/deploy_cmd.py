@@ -111,12 +111,10 @@ def add_parsers(subparsers) -> None:
 # ------------------------------------------------------------------------- argument checks
 
 
-MIN_RATE_HZ = 10.0  # as recordings' (jax_contact.train.recording_convert.MAX_PERIOD)
-
-
 def check_export(args: argparse.Namespace) -> None:
     """Raises ValueError naming the argument that is wrong (no JAX import)."""
     from jax_contact.train.cli_args import (
+        MIN_RATE_HZ,
         check_input_file,
         check_output_file,
         check_params_source,

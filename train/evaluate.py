@@ -317,6 +317,5 @@ def score(
     valid = np.asarray(valid)
     if valid.shape != truth.shape:
         valid = np.broadcast_to(valid[..., None], truth.shape)
-    valid_tel = valid
     names = names or [k for k in outputs if "/" not in k]
-    return {n: evaluate(outputs[n], truth, valid_tel, dt=dt).as_dict() for n in names}
+    return {n: evaluate(outputs[n], truth, valid, dt=dt).as_dict() for n in names}

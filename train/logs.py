@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from jax_contact.io import read_log, write_json_atomic, write_log
+from jax_contact.metrics import short_air_phases
 from jax_contact.robot import model_fingerprint, model_mass
 
 
@@ -477,7 +478,8 @@ def evaluate_file(
     else:
         scores = score(out, truth, log.valid, dt=dt)
         print(format_scores(scores, title=Path(path).name))
-        short, n_air = short_air_phases(truth, log.valid, BOUNCE_STEPS)
+        valid_tel = np.broadcast_to(np.asarray(log.valid)[..., None], truth.shape)
+        short, n_air = short_air_phases(truth, valid_tel, BOUNCE_STEPS)
         if n_air and short > 0.25 * n_air:
             print(
                 f"note: {short} of {n_air} true air phases last at most {BOUNCE_STEPS} steps"
@@ -510,24 +512,6 @@ def evaluate_file(
 
 
 BOUNCE_STEPS = 4  # an air phase this short is most often a bounce of a resting foot
-
-
-def short_air_phases(truth, valid, max_steps: int) -> tuple[int, int]:
-    """(air phases of at most ``max_steps`` steps, all air phases) of (T, E, L) ``truth``
-    with (T, E) ``valid``: maximal runs of valid air steps between two valid contact
-    steps (phases cut by an invalid step or the log's ends are not counted)."""
-    air = ~np.asarray(truth, bool) & np.asarray(valid, bool)[..., None]
-    on = np.asarray(truth, bool) & np.asarray(valid, bool)[..., None]
-    short = total = 0
-    for e in range(air.shape[1]):
-        for leg in range(air.shape[2]):
-            a, c = air[:, e, leg], on[:, e, leg]
-            edges = np.flatnonzero(np.diff(np.concatenate([[0], a.astype(int), [0]])))
-            for start, stop in zip(edges[::2], edges[1::2], strict=True):
-                if start > 0 and stop < len(a) and c[start - 1] and c[stop]:
-                    total += 1
-                    short += int(stop - start <= max_steps)
-    return short, total
 
 
 def _vs_probabilistic(out, scores, truth, valid, dt: float, n_resamples: int) -> dict:

@@ -31,6 +31,7 @@ from collections.abc import Mapping
 import mujoco
 import numpy as np
 
+from jax_contact.train.cli_args import MIN_RATE_HZ
 from jax_contact.train.recording import (
     BASE,
     BASE_QUAT,
@@ -110,9 +111,8 @@ def _backward_diff(x: np.ndarray, dt: float) -> np.ndarray:
     return d
 
 
-# The longest reading period accepted, s: slower is no contact estimate (and is most often
-# a time column in milliseconds or nanoseconds).
-MAX_PERIOD = 0.1
+# The longest reading period accepted, s (cli_args.MIN_RATE_HZ, which says why).
+MAX_PERIOD = 1.0 / MIN_RATE_HZ
 
 
 def _check_time(rec: Recording, resample: bool) -> tuple[Recording, float, list[str]]:

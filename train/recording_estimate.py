@@ -114,8 +114,9 @@ def estimate_recording(
         notes.append(line)
         print(f"note: {line}")
     out_dir = Path(out_dir)
+    # The earlier run's outputs, read once: they are superseded, and named if not rewritten.
     earlier = [n for n in _earlier_outputs(out_dir) if (out_dir / n).is_file()]
-    with staged_folder(out_dir, stale=_earlier_outputs) as stage:
+    with staged_folder(out_dir, stale=lambda _: earlier) as stage:
         feet_names = list(desc.foot_names)
         fields = {"p_contact": out["probabilistic"]} | {
             f: out[f"probabilistic/{f}"] for f in DIAGNOSTICS
