@@ -404,6 +404,55 @@ def test_angles_outside_the_joint_range_are_flagged_with_the_unit_hint(go1_log):
     assert len(warned) == 1 and "100% of rows" in warned[0] and "--units deg" in warned[0]
 
 
+def test_a_quaternion_in_x_y_z_w_order_warns_with_the_order_hint(go1_log):
+    """R[2, 2] = 1 - 2 (x^2 + y^2) is the world z of the base's z axis.
+
+    - The log's own orientations (near Go1's home, the identity): upright, no warning.
+    - Upright and yawed a half turn, (w, x, y, z) = (0, 0, 0, 1), written in x, y, z, w
+      order: the columns w, x, y, z hold (0, 0, 1, 0), a half turn about y, R[2, 2] = -1 on
+      every row: the warning; read back as x, y, z, w the real x, y are columns w, x = 0,
+      R[2, 2] = +1: the order hint.
+    - Upside down, a half turn about (1, 1, 0) / sqrt(2), (0, s, s, 0) with s = 0.5**0.5,
+      in the right order: R[2, 2] = 1 - 2 (s^2 + s^2) = -1: the warning; read as x, y, z,
+      w the real x, y are (0, s), R[2, 2] = 1 - 2 s^2 = 0, not upright: no order hint.
+    """
+    cols = log_to_columns(go1_log)
+    conv = to_readings(Recording(cols, "r"), go1_log.robot)
+    assert not [n for n in conv.notes if "z axis" in n]
+    t_len, s = len(cols["time"]), 0.5**0.5
+
+    def warned(w, x, y, z):
+        quat = {
+            f"base_quat/{c}": np.full(t_len, v) for c, v in zip("wxyz", (w, x, y, z), strict=True)
+        }
+        notes = to_readings(Recording(dict(cols, **quat), "r"), go1_log.robot).notes
+        return [n for n in notes if "z axis" in n]
+
+    yawed = warned(0.0, 0.0, 1.0, 0.0)
+    assert len(yawed) == 1 and yawed[0].startswith("WARNING columns ['base_quat/w'")
+    assert "points down on 100% of rows" in yawed[0] and "x, y, z, w order" in yawed[0]
+    flipped = warned(0.0, s, s, 0.0)
+    assert len(flipped) == 1 and "x, y, z, w order" not in flipped[0]
+
+
+def test_a_joint_the_model_lacks_is_dropped_by_mapping_it_to_nothing(go1_log):
+    """A recording with a column for a joint the model does not have (a gripper) is refused
+    naming it; mapped to "" its columns are dropped with a note and the readings equal the
+    recording's without them."""
+    cols = log_to_columns(go1_log)
+    plain = to_readings(Recording(cols, "r"), go1_log.robot)
+    extra = dict(cols, **{"q/gripper": np.ones(len(cols["time"])), "tau/gripper": cols["time"]})
+    with pytest.raises(ValueError, match=r"column 'q/gripper'.*--names gripper="):
+        to_readings(Recording(extra, "r"), go1_log.robot)
+    conv = to_readings(Recording(extra, "r"), go1_log.robot, names={"gripper": ""})
+    for key in ("qpos", "qvel", "qacc", "tau"):
+        np.testing.assert_array_equal(conv.readings[key], plain.readings[key], err_msg=key)
+    assert "columns dropped by the names map: ['q/gripper', 'tau/gripper']" in conv.notes
+    from jax_contact.train.estimate_cmd import parse_names
+
+    assert parse_names("gripper=,FL=front_left") == {"gripper": "", "FL": "front_left"}
+
+
 # --------------------------------------------------------------------------- bad input
 
 

@@ -55,7 +55,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         default=None,
         metavar="MAP",
         help="recording name -> model name for joints and feet whose names differ: a JSON"
-        ' file {"log name": "model name"} or inline log=model,log2=model2',
+        ' file {"log name": "model name"} or inline log=model,log2=model2; a name mapped to'
+        " nothing (log=, or null in the file) drops its columns (a joint the model lacks)",
     )
     p.add_argument(
         "--params",
@@ -178,16 +179,21 @@ def parse_names(text: str | None) -> dict[str, str]:
         except (json.JSONDecodeError, UnicodeDecodeError) as err:
             raise ValueError(f"argument --names: {text!r} is not JSON ({err})") from None
         ok = isinstance(payload, dict) and all(
-            isinstance(k, str) and isinstance(v, str) for k, v in payload.items()
+            isinstance(k, str) and k and (v is None or isinstance(v, str))
+            for k, v in payload.items()
         )
         if not ok:
-            raise ValueError(f"argument --names: {text!r} must hold one object of name: name")
-        return payload
+            raise ValueError(
+                f"argument --names: {text!r} must hold one object of name: name (or null)"
+            )
+        return {k: v or "" for k, v in payload.items()}
     out = {}
     for item in text.split(","):
         parts = [x.strip() for x in item.split("=")]
-        if len(parts) != 2 or not all(parts):
-            raise ValueError(f"argument --names: {item!r} is not log_name=model_name")
+        if len(parts) != 2 or not parts[0]:
+            raise ValueError(
+                f"argument --names: {item!r} is not log_name=model_name (or log_name= to drop)"
+            )
         out[parts[0]] = parts[1]
     return out
 

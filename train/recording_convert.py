@@ -203,7 +203,8 @@ def to_readings(
     Args:
       rec: from :func:`read_recording`.
       robot: an :class:`jax_contact.envs.robots.Robot` (its model and feet).
-      names: recording name -> model name, for joints and feet whose names differ.
+      names: recording name -> model name, for joints and feet whose names differ; a
+        name mapped to ``""`` (or None) has its columns dropped (a joint the model lacks).
       units: ``"rad"`` or ``"deg"``: the unit of hinge angles, their velocities and
         accelerations and of the base's angular velocity and acceleration.
       resample: resample an irregular recording instead of refusing it.
@@ -216,11 +217,11 @@ def to_readings(
         raise ValueError(f"units must be one of {UNITS}, got {units!r}")
     src = f"recording {rec.source!r}"
     m, desc = robot.mj_model, robot.description
-    names = dict(names or {})
+    names = {k: v or "" for k, v in (names or {}).items()}
     free, joints = model_joints(m, desc.base_body_id)
     model_names = {n for n, _ in joints} | set(desc.foot_names)
     for log_name, model_name in names.items():
-        if model_name not in model_names:
+        if model_name and model_name not in model_names:
             raise ValueError(
                 f"names map: {log_name!r} -> {model_name!r}, but the model has no joint or foot"
                 f" {model_name!r}; joints: {[n for n, _ in joints]}, feet: {list(desc.foot_names)}"
@@ -233,11 +234,15 @@ def to_readings(
     by_model: dict[str, dict[str, str]] = {p: {} for p in JOINT_PREFIXES + TRUTH_PREFIXES}
     joint_names = {n for n, _ in joints}
     named = set()  # the recording's joint and foot names, before the names map
+    dropped = []  # columns of names the map sends to "" (a joint or foot the model lacks)
     for col in cols:
         for prefix in JOINT_PREFIXES + TRUTH_PREFIXES:
             if col.startswith(prefix):
                 named.add(col[len(prefix) :])
                 target = to_model(col[len(prefix) :])
+                if target == "":
+                    dropped.append(col)
+                    break
                 valid = joint_names if prefix in JOINT_PREFIXES else set(desc.foot_names)
                 if target not in valid:
                     what = "joint" if prefix in JOINT_PREFIXES else "foot"
@@ -245,6 +250,8 @@ def to_readings(
                         f"{src}: column {col!r}: the model has no {what} {target!r}"
                         f"{' (through the names map)' if target != col[len(prefix) :] else ''};"
                         f" its {'feet' if what == 'foot' else 'joints'}: {sorted(valid)}"
+                        f" (a name mapped to nothing, --names {col[len(prefix) :]}=, is"
+                        " dropped)"
                     )
                 by_model[prefix][target] = col
     # A joint's entry must name a column (every joint has one): a typo would otherwise pass
@@ -328,6 +335,9 @@ def to_readings(
             )
         quat = np.stack([cols[c] for c in BASE_QUAT], axis=1)
         qpos[:, qa + 3 : qa + 7] = quat / np.linalg.norm(quat, axis=1, keepdims=True)
+        upside = _upside_down(quat)
+        if upside:
+            notes.append(f"WARNING columns {list(BASE_QUAT)}: {upside}")
         angvel = np.stack([cols[c] for c in BASE["base_angvel"]], axis=1) * scale
         qvel[:, va + 3 : va + 6] = angvel
         used.update(BASE_QUAT + BASE["base_angvel"])
@@ -423,7 +433,11 @@ def to_readings(
             f" {_stretches(~valid, cols[TIME])}; the steps that use them are predicted only"
             " (valid = False in the output)"
         )
-    ignored = [c for c in cols if c not in used and not c.startswith(TRUTH_PREFIXES)]
+    if dropped:
+        notes.append(f"columns dropped by the names map: {dropped}")
+    ignored = [
+        c for c in cols if c not in used and c not in dropped and not c.startswith(TRUTH_PREFIXES)
+    ]
     if ignored:
         notes.append(f"columns not in the schema, ignored: {ignored}")
     f32 = lambda a: a[:, None, :]  # noqa: E731
@@ -484,6 +498,44 @@ def _outside_range(m, j: int, q: np.ndarray) -> tuple[float, float] | None:
     if q.size == 0 or out.mean() <= RANGE_SHARE:
         return None
     return float(out.mean()), float(np.abs(q).max())
+
+
+# Above this share of rows with the base's z axis pointing down, a recording of a robot
+# that stood or walked has its quaternion in another order or frame.
+UPSIDE_DOWN_SHARE = 0.5
+
+
+def _upside_down(quat: np.ndarray) -> str | None:
+    """A warning if the base's z axis points down on more than :data:`UPSIDE_DOWN_SHARE`
+    of the finite rows of ``quat`` ((T, 4), w, x, y, z, base -> world), else None.
+
+    The world z component of the base's z axis is ``R[2, 2] = 1 - 2 (x^2 + y^2)`` of the
+    unit quaternion. An upright robot's quaternion written in x, y, z, w order (ROS,
+    Eigen's ``coeffs()``, SciPy) into these columns reads as a half turn about a
+    horizontal axis, ``R[2, 2]`` near -1; read back in that order, ``R[2, 2]`` is near
+    +1, and the warning says so.
+    """
+    q = quat[np.all(np.isfinite(quat), axis=1)]
+    q = q / np.maximum(np.linalg.norm(q, axis=1, keepdims=True), 1e-12)
+    if len(q) == 0:
+        return None
+    down = 1.0 - 2.0 * (q[:, 1] ** 2 + q[:, 2] ** 2) < 0.0
+    if down.mean() <= UPSIDE_DOWN_SHARE:
+        return None
+    # Columns (w, x, y, z) holding (x, y, z, w): the real x and y are columns w and x.
+    swapped_up = 1.0 - 2.0 * (q[:, 0] ** 2 + q[:, 1] ** 2) > 0.0
+    hint = (
+        "; read as x, y, z, w it is upright on"
+        f" {swapped_up.mean():.0%}: the columns look like x, y, z, w order (ROS, Eigen"
+        " coeffs(), SciPy), write them as w, x, y, z"
+        if swapped_up.mean() > UPSIDE_DOWN_SHARE
+        else ""
+    )
+    return (
+        f"the base's z axis points down on {down.mean():.0%} of rows (base -> world,"
+        f" w, x, y, z){hint}; if the robot did not lie upside down, the orientation is"
+        " wrong and so is every term that uses it"
+    )
 
 
 def _stretches(mask: np.ndarray, t: np.ndarray) -> str:
