@@ -28,7 +28,8 @@ from jax_contact.params import EstimatorParams
 from jax_contact.types import LegBlocks, LegMeasurement, TerrainQuery
 
 # Transition probabilities are floored here (in log space) so that no state becomes
-# unreachable: a belief can always recover, even after a million steps (docs/model.md).
+# unreachable: a belief can always recover, even after a million steps
+# (docs/model_choices.md, "transition floors").
 LOG_FLOOR = -30.0
 
 
@@ -50,9 +51,9 @@ def log_takeoff(params: EstimatorParams, u: jax.Array, sigma_v: jax.Array) -> ja
 
     Gait prior ``P(A | C) = dt / T_s`` (eq. 12). Staying on the ground, the foot is still:
     ``u ~ N(0, sigma_v^2)`` (eq. 13). Taking off, its velocity is uniform on ``[0, u_max]``,
-    ``u_max = a_F dt``, blurred by the velocity noise (eq. 15 with the ``1 / u_max`` of the
-    uniform density that the printed equation omits). Bayes' rule, normalised over the
-    next state (eq. 11).
+    ``u_max = a_F dt``, blurred by the velocity noise (eq. 14, ``v_f + w_v``; eq. 15 with
+    the ``1 / u_max`` of the uniform density that the printed equation omits). Bayes'
+    rule, normalised over the next state (eq. 11).
     """
     u_max = params.takeoff_accel * params.dt
     p_off = params.dt / params.stance_time

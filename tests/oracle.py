@@ -10,8 +10,14 @@ follows the modelling choices the library documents:
   ``Sigma_d = diag(sigma_d_l^2) + M_lb diag(sigma_qdd_b^2) M_lb^T``; the stabilised
   contact constraint ``J qdd + Jdot qd = -contact_damping min(e . v_f, 0) e`` with its
   velocity noise added to ``Sigma_f``; with ``unilateral`` the
-  contact log-likelihood gains ``log Phi(-(e.F) / sqrt(sum_r e_r^2 sigma_f,r^2))``;
-* differential kinematics (eq. 8-9): all three rows of ``J``;
+  contact log-likelihood gains ``log Phi((-(e.F) - min_push) / sqrt(sum_r e_r^2
+  sigma_f,r^2))``;
+* differential kinematics (eq. 8-9): all three rows of ``J``; with ``slip_prob`` rho the
+  contact hypothesis is the mixture of the still foot and a foot sliding along the
+  terrain's tangent plane; the kinematic terms read the state ``kinematics_lead`` of the
+  way to the end of the measured interval;
+* the outlier model: the dynamics and differential-kinematics densities of both hypotheses
+  mixed with one shared broad uniform component of weight ``outlier_prob``;
 * kinematics (eq. 10): the sole ``p_f - r e``, the terrain point ``p_i`` below the foot
   centre at the terrain's height, gap ``e . (p_sole - p_i)``,
   ``sigma_pf^2 = e^T J diag(sigma_q^2) J^T e``, ``phi ~ N(gap, sigma_pf^2 + sigma_pi^2)``;
@@ -23,12 +29,15 @@ follows the modelling choices the library documents:
   velocity is integrated analytically, as in Algorithm 1) -- a different route from the
   library's quadrature, which integrates the terrain height analytically -- or by a NumPy
   Monte-Carlo with ``scipy.stats.truncnorm`` draws;
-* log transition entries floored at ``LOG_FLOOR``;
+* log transition entries floored at ``LOG_FLOOR``; with ``cap_transition`` < 1 each
+  transition's leaving log-odds clipped from above to ``logit(cap_transition)``;
 * the recursion (eq. 1-2) in probability space with explicit normalisation, the belief
   reported as a logit, the transition built from step ``t``'s measurement used at ``t+1``;
 * an invalid (non-finite) measurement: transition-only prediction, next transition the
   gait prior, foothold kept, ``valid = False``;
-* the foothold (sole point) remembered whenever the posterior logit is > 0.
+* the foothold (sole point) remembered when the posterior exceeds
+  ``foothold_confidence`` and (with ``foothold_still``) the differential-kinematics term
+  says the foot is still.
 """
 
 from __future__ import annotations
@@ -852,8 +861,8 @@ def round32(tree):
     return arr
 
 
-# Table II's noise for the planar leg, (base z, hip, knee); Sigma_f, Sigma_J: docs/model.md's
-# choices; the velocity prior from Table I's 25 rad/s joint limit.
+# Table II's noise for the planar leg, (base z, hip, knee); Sigma_f, Sigma_J:
+# docs/model_choices.md's choices; the velocity prior from Table I's 25 rad/s joint limit.
 TABLE_II = dict(
     sigma_q=(0.04, 0.02, 0.02),
     sigma_qd=(0.2, 0.3, 0.3),

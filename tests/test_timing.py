@@ -93,8 +93,9 @@ def ideal_log():
 
 def test_simulated_readings_are_end_of_step(ideal_log):
     """Float64 MuJoCo oracle of the convention: with the state of reading k - 1, the
-    acceleration and torque of reading k satisfy eq. (1) without contact force (foot in
-    the air); the torque of reading k - 1 (the convention before) does not."""
+    acceleration and torque of reading k satisfy the equation of motion, eq. (4), without
+    contact force (foot in the air); the torque of reading k - 1 (the convention before)
+    does not."""
     world, roll = ideal_log
     mj = world.robot.mj_model
     d = mujoco.MjData(mj)

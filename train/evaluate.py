@@ -14,7 +14,8 @@ reading ``k`` describes the interval that *starts* at ``q_k``, the state of read
 ``k - 1`` (MuJoCo's semi-implicit Euler step ``qd_{k+1} = qd_k + dt qdd_k``; on a robot the
 same half-step offset holds), and so does the torque of reading ``k``. The estimator's
 dynamics at ``k`` are therefore evaluated at the state of reading ``k - 1`` with the
-acceleration and torque of reading ``k``: one consistent sample of eq. (1). Pairing the
+acceleration and torque of reading ``k``: one consistent sample of the equation of
+motion, eq. (4). Pairing the
 acceleration with the state of reading ``k`` instead (``pairing="raw"``) mixes two
 instants: a swinging leg under PD control changes its velocity-dependent forces within a
 step, and the dynamics term then called most air phases contact (ideal sensors, planar
