@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -199,6 +200,47 @@ def test_a_degree_recording_read_as_radians_warns(round_trip, tmp_path, capsys):
     assert "pass --units deg" in text
     assert np.mean(got["outputs"]["probabilistic"] > 0.5) < 0.01
     assert "warning: every foot reads air on more than 99 % of the steps" in text
+
+
+def test_torques_of_the_wrong_sign_warn_naming_the_foot(round_trip, tmp_path, capsys):
+    """The planar sample's torques, negated (a joint axis opposite the model's): the
+    dynamics term reads air on 94 % of the steps where the foot stands still (15 % with
+    the recorded torques, the round trip above, which does not warn)."""
+    from jax_contact.train.recording_estimate import estimate_recording
+
+    assert not [n for n in round_trip.estimated["notes"] if "dynamics term reads air" in n]
+    rec = read_recording(CSV)
+    cols = {k: -v if k.startswith("tau/") else v for k, v in rec.columns.items()}
+    write_recording_csv(tmp_path / "flipped.csv", cols)
+    got = estimate_recording(
+        tmp_path / "flipped.csv", model="planar_leg", out_dir=tmp_path / "out", plots=False,
+        progress=False,
+    )  # fmt: skip
+    text = capsys.readouterr().out
+    warned = [n for n in got["notes"] if "dynamics term reads air" in n]
+    assert len(warned) == 1 and "warning: the dynamics term reads air" in text
+    assert re.search(r"\(foot 9\d%;", warned[0]) and "tau/ columns' sign" in warned[0]
+
+
+def test_the_torque_check_counts_only_valid_still_steps():
+    """Hand counts: foot a is still on 50 valid steps, the dynamics term says air on 41 of
+    them (82 % > 80 %): named. Foot b: the same with 40 of 50 (80 %, not above): quiet.
+    Foot c: air on every still step but only 39 of them valid: too few to judge."""
+    from jax_contact.train.recording_estimate import dynamics_disagrees
+
+    t = 60
+    p_dk = np.zeros((t, 3))
+    p_dk[:50] = 0.65
+    p_dyn = np.full((t, 3), 0.9)
+    p_dyn[:41, 0] = 0.1
+    p_dyn[:40, 1] = 0.1
+    p_dyn[:, 2] = 0.1
+    valid = np.ones((t, 3), bool)
+    valid[39:, 2] = False
+    text = dynamics_disagrees(p_dyn, p_dk, valid, ["a", "b", "c"])
+    assert text.startswith("the dynamics term reads air on most steps where the foot stands")
+    assert "(a 82%;" in text and " b " not in text and " c " not in text
+    assert dynamics_disagrees(p_dyn[:, 1:], p_dk[:, 1:], valid[:, 1:], ["b", "c"]) is None
 
 
 def test_the_python_call_checks_its_output_folder_first(tmp_path):
