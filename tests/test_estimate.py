@@ -477,6 +477,46 @@ def test_a_quaternion_in_x_y_z_w_order_warns_with_the_order_hint(go1_log):
     assert len(flipped) == 1 and "x, y, z, w order" not in flipped[0]
 
 
+def test_a_base_velocity_in_the_base_frame_warns():
+    """A base yawed by a quarter turn walks +x in the world at 0.5 m/s for 1 s at 400 Hz,
+    its position read with 1 mm of noise. In the world frame its velocity is (0.5, 0, 0);
+    in its own frame (0, -0.5, 0) (R_z(90 deg)^T (0.5, 0, 0)). Over 0.1 s windows the
+    world-frame integral misses the displacement by the noise only (~1.4 mm); the body-frame
+    one read as world by |(0.05, 0.05)| = 7.1 cm, and rotated back by the noise only: the
+    warning, naming both errors. Without a turn (yaw 0) the frames coincide: quiet."""
+    from jax_contact.train.recording_convert import _velocity_in_base_frame
+
+    dt, t_len = 0.0025, 400
+    rng = np.random.default_rng(0)
+    t = np.arange(t_len) * dt
+    pos = np.stack([0.5 * t, np.zeros(t_len), np.full(t_len, 0.3)], 1)
+    pos = pos + rng.normal(0, 1e-3, pos.shape)
+    yawed = np.tile([0.5**0.5, 0.0, 0.0, 0.5**0.5], (t_len, 1))  # 90 deg about z
+    world = np.tile([0.5, 0.0, 0.0], (t_len, 1))
+    body = np.tile([0.0, -0.5, 0.0], (t_len, 1))
+    assert _velocity_in_base_frame(pos, world, yawed, dt) is None
+    text = _velocity_in_base_frame(pos, body, yawed, dt)
+    assert text.startswith("base_pos moves as base_linvel rotated by base_quat says")
+    assert re.search(r"\(median error 0\.\d+ cm per 0\.1 s\).*\(7\.\d cm\)", text)
+    upright = np.tile([1.0, 0.0, 0.0, 0.0], (t_len, 1))
+    assert _velocity_in_base_frame(pos, world, upright, dt) is None
+    # A NaN row leaves out the windows over it, and the rest still decide.
+    pos[200] = np.nan
+    assert "looks like the base frame" in _velocity_in_base_frame(pos, body, yawed, dt)
+
+
+def test_an_accelerometer_reading_as_base_acceleration_warns(go1_log):
+    """The log's base acceleration averages ~0 (random, zero mean): quiet. With gravity
+    added, as an IMU's specific force at rest reads (0, 0, +9.81): the warning."""
+    cols = log_to_columns(go1_log)
+    assert not [n for n in to_readings(Recording(cols, "r"), go1_log.robot).notes if "9.81" in n]
+    imu = dict(cols, **{"base_linacc/z": cols["base_linacc/z"] + 9.81})
+    notes = to_readings(Recording(imu, "r"), go1_log.robot).notes
+    warned = [n for n in notes if "base_linacc/z averages" in n]
+    assert len(warned) == 1 and warned[0].startswith("WARNING columns ['base_linacc/x'")
+    assert "an accelerometer's reading" in warned[0]
+
+
 def test_a_joint_the_model_lacks_is_dropped_by_mapping_it_to_nothing(go1_log):
     """A recording with a column for a joint the model does not have (a gripper) is refused
     naming it; mapped to "" its columns are dropped with a note and the readings equal the

@@ -351,6 +351,12 @@ def to_readings(
         if has["base_linvel"]:
             qvel[:, va : va + 3] = np.stack([cols[c] for c in BASE["base_linvel"]], axis=1)
             used.update(BASE["base_linvel"])
+            if has["base_pos"]:
+                body = _velocity_in_base_frame(
+                    qpos[:, qa : qa + 3], qvel[:, va : va + 3], qpos[:, qa + 3 : qa + 7], dt
+                )
+                if body:
+                    notes.append(f"WARNING columns {list(BASE['base_linvel'])}: {body}")
         elif has["base_pos"]:
             qvel[:, va : va + 3] = _backward_diff(qpos[:, qa : qa + 3], dt)
             notes.append("base linear velocity differentiated from base_pos")
@@ -368,6 +374,8 @@ def to_readings(
             if has[key]:
                 qacc[:, sl] = np.stack([cols[c] for c in BASE[key]], axis=1) * s
                 used.update(BASE[key])
+                if key == "base_linacc" and (held := _holds_gravity(qacc[:, sl])):
+                    notes.append(f"WARNING columns {list(BASE[key])}: {held}")
             else:
                 qacc[:, sl] = _backward_diff(qvel[:, sl], dt)
                 acc_from_pos.extend(d for d in range(sl.start, sl.stop) if d in vel_from_pos)
@@ -535,6 +543,80 @@ def _upside_down(quat: np.ndarray) -> str | None:
         f"the base's z axis points down on {down.mean():.0%} of rows (base -> world,"
         f" w, x, y, z){hint}; if the robot did not lie upside down, the orientation is"
         " wrong and so is every term that uses it"
+    )
+
+
+def _rotate(quat: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """(T, 3) ``v`` rotated by the unit quaternions (T, 4) w, x, y, z:
+    ``v + 2 w (u x v) + 2 u x (u x v)`` with ``u = (x, y, z)``."""
+    w, u = quat[:, :1], quat[:, 1:]
+    c = np.cross(u, v)
+    return v + 2.0 * w * c + 2.0 * np.cross(u, c)
+
+
+# The base velocity check compares displacements over this window, s: at 400 Hz a 1 mm
+# position noise is 0.6 m/s on one step's difference and 1.4 cm on a 0.1 s displacement.
+FRAME_WINDOW_S = 0.1
+
+
+def _velocity_in_base_frame(
+    pos: np.ndarray, vel: np.ndarray, quat: np.ndarray, dt: float
+) -> str | None:
+    """A warning if ``vel`` (T, 3) fits ``pos``'s displacements far better rotated from the
+    base frame to the world (``quat`` (T, 4), base -> world) than as given, else None.
+
+    Over each window of :data:`FRAME_WINDOW_S` the displacement of ``pos`` is compared
+    with the trapezoidal integral of ``vel`` as given (the schema's world frame) and of
+    ``vel`` rotated by the base's orientation (a state estimator's body-frame velocity, as
+    ROS odometry's twist). Warns when the rotated integral's median error is under half
+    the given one's and the given one's exceeds 2 cm (0.2 m/s over the window). A robot that
+    never turns has both alike and is not warned about (nor wrong: the frames coincide).
+    """
+    ok = np.all(np.isfinite(np.concatenate([pos, vel, quat], axis=1)), axis=1)
+    n = max(1, round(FRAME_WINDOW_S / dt))
+    bad_before = np.concatenate([[0], np.cumsum(~ok)])  # bad rows among 0 .. k-1
+    windows = bad_before[n + 1 :] - bad_before[: -n - 1] == 0  # rows k .. k+n all finite
+    if not windows.any():
+        return None
+    pos, vel = np.where(ok[:, None], pos, 0.0), np.where(ok[:, None], vel, 0.0)
+    quat = np.where(ok[:, None], quat, [1.0, 0.0, 0.0, 0.0])
+    quat = quat / np.linalg.norm(quat, axis=1, keepdims=True)
+
+    def error(v):
+        steps = 0.5 * (v[1:] + v[:-1]) * dt  # displacement over (t_{k-1}, t_k]
+        travelled = np.concatenate([np.zeros((1, 3)), np.cumsum(steps, axis=0)])
+        miss = pos[n:] - pos[:-n] - (travelled[n:] - travelled[:-n])
+        return float(np.median(np.linalg.norm(miss[windows], axis=1)))
+
+    as_given, rotated = error(vel), error(_rotate(quat, vel))
+    if not (rotated < 0.5 * as_given and as_given > 0.02):
+        return None
+    return (
+        f"base_pos moves as base_linvel rotated by base_quat says (median error"
+        f" {rotated * 100:.2g} cm per {FRAME_WINDOW_S:g} s), not as base_linvel says"
+        f" ({as_given * 100:.2g} cm): it looks like the base frame (e.g. ROS odometry's"
+        " twist); the schema wants the world frame: rotate it by the base's orientation"
+        " or drop the base_linvel columns (then differenced from base_pos)"
+    )
+
+
+# A recording's mean vertical acceleration in the world is ~0 (the robot stays on the
+# floor); within this of 9.81 m/s^2 it holds gravity, as an accelerometer's reading does.
+GRAVITY_SLACK = 2.0
+
+
+def _holds_gravity(acc: np.ndarray) -> str | None:
+    """A warning if the mean of ``acc`` (T, 3)'s z column is within
+    :data:`GRAVITY_SLACK` of +-9.81 m/s^2, else None."""
+    z = acc[:, 2][np.isfinite(acc[:, 2])]
+    if z.size == 0 or abs(abs(float(z.mean())) - 9.81) > GRAVITY_SLACK:
+        return None
+    return (
+        f"base_linacc/z averages {z.mean():.3g} m/s^2 over the recording, where a robot"
+        " that stays on the floor averages ~0: it looks like an accelerometer's reading"
+        " (gravity included, perhaps in the base frame); the schema wants the world-frame"
+        " acceleration without gravity (R f + g for an IMU's specific force f, g = (0, 0,"
+        " -9.81)), or drop the base_linacc columns (then differenced from base_linvel)"
     )
 
 
