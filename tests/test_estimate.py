@@ -477,6 +477,29 @@ def test_a_quaternion_in_x_y_z_w_order_warns_with_the_order_hint(go1_log):
     assert len(flipped) == 1 and "x, y, z, w order" not in flipped[0]
 
 
+def test_a_joint_velocity_of_another_sign_or_unit_warns():
+    """The shipped planar sample (its columns agree: no warning). With qd/hip negated,
+    q/hip changes by -1 times qd/hip's integral over 0.1 s windows (the sample's own
+    integration error makes it -1.02, hence the two digits checked), and qdd/hip, which
+    still belongs to the true velocity, integrates to -1 times qd/hip's change as well;
+    qd/knee in degrees per second: 1/57.3 = 0.0175, named as degrees. The rail is a slide
+    joint: its velocity in mm/s (x1000) is 'another unit', never degrees."""
+    rec = read_recording(CSV)
+    robot = load_robot("planar_leg")
+    assert not [n for n in to_readings(rec, robot).notes if n.startswith("WARNING")]
+    cols = dict(rec.columns)
+    cols["qd/hip"] = -cols["qd/hip"]
+    cols["qd/knee"] = np.degrees(cols["qd/knee"])
+    cols["qd/rail"] = 1000 * cols["qd/rail"]
+    warned = {n.split("'")[1]: n for n in to_readings(Recording(cols, "r"), robot).notes
+              if n.startswith("WARNING")}  # fmt: skip
+    assert re.search(r"'q/hip' changes by -1\.0\d times its integral", warned["qd/hip"])
+    assert "the opposite sign" in warned["qd/hip"] and "the opposite sign" in warned["qdd/hip"]
+    assert re.search(r"changes by 0\.017\d times", warned["qd/knee"])
+    assert "degrees against radians" in warned["qd/knee"]
+    assert "another unit" in warned["qd/rail"] and "degrees" not in warned["qd/rail"]
+
+
 def test_a_base_velocity_in_the_base_frame_warns():
     """A base yawed by a quarter turn walks +x in the world at 0.5 m/s for 1 s at 400 Hz,
     its position read with 1 mm of noise. In the world frame its velocity is (0.5, 0, 0);

@@ -42,14 +42,17 @@ column                        needed    meaning, unit
 Columns the schema does not name are ignored (their names are listed). A missing needed
 column, a ``q/`` column of a joint the model lacks (the names map can drop it: a name
 mapped to ``""``), a time that does not increase, or an irregular rate is an error naming
-it. Readings that look like another convention are warned about: a base orientation
-whose z axis points down on most rows (with a hint when the columns look like x, y, z, w
-order), a base velocity that fits ``base_pos`` only rotated from the base frame, a base
-acceleration that holds gravity, and (after the replay) torques that cannot hold the feet
-up (:func:`jax_contact.train.recording_estimate.dynamics_disagrees`). A row with a NaN in a column that is used is not
-dropped: the estimator receives the NaN and its per-leg validity (``valid = False``: the
-belief only follows the transition prior) handles it; the rows are listed in the output
-and left out of the metrics.
+it. Readings that look like another convention are warned about: a joint's ``qd/`` or
+``qdd/`` column that does not integrate to the change of the column it is the derivative
+of (sign, degrees), a base orientation whose z axis points down on most rows (with a hint
+when the columns look like x, y, z, w order), a base velocity that fits ``base_pos`` only
+rotated from the base frame, a base acceleration that holds gravity, and (after the
+replay) torques that cannot hold the feet up
+(:func:`jax_contact.train.recording_estimate.dynamics_disagrees`).
+
+A row with a NaN in a column that is used is not dropped: the estimator receives the NaN
+and its per-leg validity (``valid = False``: the belief only follows the transition
+prior) handles it; the rows are listed in the output and left out of the metrics.
 
 The conversion of a recording into readings (the timing of a row, the rate, resampling)
 is :mod:`jax_contact.train.recording_convert`; the ``jax-contact estimate`` job is

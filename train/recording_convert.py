@@ -299,6 +299,8 @@ def to_readings(
         else:
             qvel[:, va] = cols[vcol] * s
             used.add(vcol)
+            if off := _derivative_mismatch(qpos[:, qa], qvel[:, va], dt, "qd/", col, hinge):
+                notes.append(f"WARNING column {vcol!r}: {off}")
         acol = by_model["qdd/"].get(name)
         if acol is None:
             qacc[:, va] = _backward_diff(qvel[:, va], dt)
@@ -307,6 +309,10 @@ def to_readings(
         else:
             qacc[:, va] = cols[acol] * s
             used.add(acol)
+            if vcol and (
+                off := _derivative_mismatch(qvel[:, va], qacc[:, va], dt, "qdd/", vcol, hinge)
+            ):
+                notes.append(f"WARNING column {acol!r}: {off}")
         tcol = by_model["tau/"].get(name)
         if tcol is None:
             missing_tau.append(name)
@@ -554,9 +560,63 @@ def _rotate(quat: np.ndarray, v: np.ndarray) -> np.ndarray:
     return v + 2.0 * w * c + 2.0 * np.cross(u, c)
 
 
-# The base velocity check compares displacements over this window, s: at 400 Hz a 1 mm
-# position noise is 0.6 m/s on one step's difference and 1.4 cm on a 0.1 s displacement.
+# The checks of a reading against its derivative compare changes over this window, s: at
+# 400 Hz a 1 mm position noise is 0.6 m/s on one step's difference and 1.4 cm on a 0.1 s
+# displacement.
 FRAME_WINDOW_S = 0.1
+
+
+def _window_changes(
+    x: np.ndarray, rate: np.ndarray, dt: float, ok: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """``(change, integral)``, each (W, d): over every window of :data:`FRAME_WINDOW_S`
+    whose rows are all finite (and ``ok``), the change of ``x`` (T, d) and the trapezoidal
+    integral of its recorded derivative ``rate`` (T, d) over the same interval."""
+    x, rate = x.reshape(len(x), -1), rate.reshape(len(rate), -1)
+    good = np.all(np.isfinite(x), axis=1) & np.all(np.isfinite(rate), axis=1)
+    if ok is not None:
+        good &= ok
+    n = max(1, round(FRAME_WINDOW_S / dt))
+    bad_before = np.concatenate([[0], np.cumsum(~good)])  # bad rows among 0 .. k-1
+    windows = bad_before[n + 1 :] - bad_before[: -n - 1] == 0  # rows k .. k+n all good
+    x, rate = np.where(good[:, None], x, 0.0), np.where(good[:, None], rate, 0.0)
+    steps = 0.5 * (rate[1:] + rate[:-1]) * dt  # over (t_{k-1}, t_k]
+    travelled = np.concatenate([np.zeros((1, x.shape[1])), np.cumsum(steps, axis=0)])
+    if len(x) <= n:
+        return np.zeros((0, x.shape[1])), np.zeros((0, x.shape[1]))
+    return (x[n:] - x[:-n])[windows], (travelled[n:] - travelled[:-n])[windows]
+
+
+# A recorded derivative whose integral follows its reading's change with a slope outside
+# this range is another unit, sign or column; judged only where the integral moves by more
+# than the second value (rad or m; rad/s or m/s for accelerations) at its RMS.
+SLOPE_RANGE, MOVES = (0.5, 2.0), {"qd/": 0.02, "qdd/": 0.5}
+
+
+def _derivative_mismatch(
+    x: np.ndarray, rate: np.ndarray, dt: float, kind: str, of: str, hinge: bool
+) -> str | None:
+    """A warning if the recorded derivative ``rate`` (T,) does not integrate to the change
+    of ``x`` (T,), column ``of``, over :data:`FRAME_WINDOW_S` windows (least-squares slope
+    of the change on the integral outside :data:`SLOPE_RANGE`), else None; ``kind`` is
+    ``"qd/"`` or ``"qdd/"``; ``hinge``: the joint turns (a factor of 57.3 is then named
+    as degrees against radians)."""
+    change, integral = _window_changes(x, rate, dt)
+    if len(change) < 10 or np.sqrt(np.mean(integral**2)) < MOVES[kind]:
+        return None
+    slope = float(np.sum(change * integral) / np.sum(integral**2))
+    if SLOPE_RANGE[0] <= slope <= SLOPE_RANGE[1]:
+        return None
+    if slope < -SLOPE_RANGE[0]:
+        hint = ": the opposite sign (a joint direction that differs between the columns)"
+    elif hinge and (1 / 80 < abs(slope) < 1 / 40 or 40 < abs(slope) < 80):
+        hint = ": a factor of about 57.3, degrees against radians"
+    else:
+        hint = ": another unit, or another joint's column"
+    return (
+        f"over {FRAME_WINDOW_S:g} s windows {of!r} changes by {slope:.3g} times its"
+        f" integral (1 when they agree){hint}"
+    )
 
 
 def _velocity_in_base_frame(
@@ -572,21 +632,15 @@ def _velocity_in_base_frame(
     the given one's and the given one's exceeds 2 cm (0.2 m/s over the window). A robot that
     never turns has both alike and is not warned about (nor wrong: the frames coincide).
     """
-    ok = np.all(np.isfinite(np.concatenate([pos, vel, quat], axis=1)), axis=1)
-    n = max(1, round(FRAME_WINDOW_S / dt))
-    bad_before = np.concatenate([[0], np.cumsum(~ok)])  # bad rows among 0 .. k-1
-    windows = bad_before[n + 1 :] - bad_before[: -n - 1] == 0  # rows k .. k+n all finite
-    if not windows.any():
-        return None
-    pos, vel = np.where(ok[:, None], pos, 0.0), np.where(ok[:, None], vel, 0.0)
+    ok = np.all(np.isfinite(quat), axis=1)
     quat = np.where(ok[:, None], quat, [1.0, 0.0, 0.0, 0.0])
     quat = quat / np.linalg.norm(quat, axis=1, keepdims=True)
 
     def error(v):
-        steps = 0.5 * (v[1:] + v[:-1]) * dt  # displacement over (t_{k-1}, t_k]
-        travelled = np.concatenate([np.zeros((1, 3)), np.cumsum(steps, axis=0)])
-        miss = pos[n:] - pos[:-n] - (travelled[n:] - travelled[:-n])
-        return float(np.median(np.linalg.norm(miss[windows], axis=1)))
+        moved, integral = _window_changes(pos, v, dt, ok)
+        if len(moved) == 0:
+            return 0.0
+        return float(np.median(np.linalg.norm(moved - integral, axis=1)))
 
     as_given, rotated = error(vel), error(_rotate(quat, vel))
     if not (rotated < 0.5 * as_given and as_given > 0.02):
