@@ -500,6 +500,31 @@ def test_a_joint_velocity_of_another_sign_or_unit_warns():
     assert "another unit" in warned["qd/rail"] and "degrees" not in warned["qd/rail"]
 
 
+def test_a_gyroscope_rate_in_degrees_or_world_axes_warns():
+    """A base yawed by 45 degrees rolls about its own x axis at 1 rad/s for 1 s at 400 Hz:
+    q(t) = q_yaw(45) q_x(t). In its frame the rate is (1, 0, 0): quiet. In degrees per
+    second the base turns by 1/57.3 = 0.0175 times the integral: named as degrees. About
+    world axes the rate is R_yaw (1, 0, 0) = (0.707, 0.707, 0): its integral projects on
+    the body-frame turn with slope cos 45 = 0.707 (inside [0.5, 2]), but the turn about
+    world axes, q_{k+n} q_k^-1, matches it exactly: named as the world frame."""
+    from jax_contact.train.recording_convert import _angular_velocity_mismatch
+
+    dt, t_len = 0.0025, 400
+    t = np.arange(t_len) * dt
+    c, s = np.cos(np.pi / 8), np.sin(np.pi / 8)  # half of 45 degrees
+    # q_yaw(45) q_x(t) = (c, 0, 0, s) (cos t/2, sin t/2, 0, 0), multiplied out.
+    quat = np.stack(
+        [c * np.cos(t / 2), c * np.sin(t / 2), s * np.sin(t / 2), s * np.cos(t / 2)], axis=1
+    )
+    body = np.tile([1.0, 0.0, 0.0], (t_len, 1))
+    world = np.tile([0.5**0.5, 0.5**0.5, 0.0], (t_len, 1))
+    assert _angular_velocity_mismatch(quat, body, dt) is None
+    deg = _angular_velocity_mismatch(quat, np.degrees(body), dt)
+    assert re.search(r"turns by 0\.0175 times the integral", deg) and "--units deg" in deg
+    text = _angular_velocity_mismatch(quat, world, dt)
+    assert text.startswith("base_quat turns as base_angvel says about world axes")
+
+
 def test_a_base_velocity_in_the_base_frame_warns():
     """A base yawed by a quarter turn walks +x in the world at 0.5 m/s for 1 s at 400 Hz,
     its position read with 1 mm of noise. In the world frame its velocity is (0.5, 0, 0);

@@ -44,9 +44,11 @@ column, a ``q/`` column of a joint the model lacks (the names map can drop it: a
 mapped to ``""``), a time that does not increase, or an irregular rate is an error naming
 it. Readings that look like another convention are warned about: a joint's ``qd/`` or
 ``qdd/`` column that does not integrate to the change of the column it is the derivative
-of (sign, degrees), a base orientation whose z axis points down on most rows (with a hint
-when the columns look like x, y, z, w order), a base velocity that fits ``base_pos`` only
-rotated from the base frame, a base acceleration that holds gravity, and (after the
+of (sign, degrees), a gyroscope rate that does not integrate to the base orientation's
+turns (degrees, sign, world axes), a base orientation whose z axis points down on most
+rows (with a hint when the columns look like x, y, z, w order), a base velocity that fits
+``base_pos`` only rotated from the base frame, a base acceleration that holds gravity,
+and (after the
 replay) torques that cannot hold the feet up
 (:func:`jax_contact.train.recording_estimate.dynamics_disagrees`).
 

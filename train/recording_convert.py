@@ -346,6 +346,8 @@ def to_readings(
             notes.append(f"WARNING columns {list(BASE_QUAT)}: {upside}")
         angvel = np.stack([cols[c] for c in BASE["base_angvel"]], axis=1) * scale
         qvel[:, va + 3 : va + 6] = angvel
+        if turned := _angular_velocity_mismatch(quat, angvel, dt):
+            notes.append(f"WARNING columns {list(BASE['base_angvel'])}: {turned}")
         used.update(BASE_QUAT + BASE["base_angvel"])
         has = {k: all(c in cols for c in v) for k, v in BASE.items()}
         if has["base_pos"]:
@@ -567,11 +569,15 @@ FRAME_WINDOW_S = 0.1
 
 
 def _window_changes(
-    x: np.ndarray, rate: np.ndarray, dt: float, ok: np.ndarray | None = None
+    x: np.ndarray, rate: np.ndarray, dt: float, ok: np.ndarray | None = None, change=None
 ) -> tuple[np.ndarray, np.ndarray]:
     """``(change, integral)``, each (W, d): over every window of :data:`FRAME_WINDOW_S`
     whose rows are all finite (and ``ok``), the change of ``x`` (T, d) and the trapezoidal
-    integral of its recorded derivative ``rate`` (T, d) over the same interval."""
+    integral of its recorded derivative ``rate`` (T, d) over the same interval.
+
+    ``change``: optional ``(x_start, x_end) -> (W, d)`` for a reading that does not change
+    by subtraction (an orientation); default ``x_end - x_start``.
+    """
     x, rate = x.reshape(len(x), -1), rate.reshape(len(rate), -1)
     good = np.all(np.isfinite(x), axis=1) & np.all(np.isfinite(rate), axis=1)
     if ok is not None:
@@ -581,10 +587,12 @@ def _window_changes(
     windows = bad_before[n + 1 :] - bad_before[: -n - 1] == 0  # rows k .. k+n all good
     x, rate = np.where(good[:, None], x, 0.0), np.where(good[:, None], rate, 0.0)
     steps = 0.5 * (rate[1:] + rate[:-1]) * dt  # over (t_{k-1}, t_k]
-    travelled = np.concatenate([np.zeros((1, x.shape[1])), np.cumsum(steps, axis=0)])
+    travelled = np.concatenate([np.zeros((1, rate.shape[1])), np.cumsum(steps, axis=0)])
     if len(x) <= n:
-        return np.zeros((0, x.shape[1])), np.zeros((0, x.shape[1]))
-    return (x[n:] - x[:-n])[windows], (travelled[n:] - travelled[:-n])[windows]
+        return np.zeros((0, rate.shape[1])), np.zeros((0, rate.shape[1]))
+    start, end = x[:-n][windows], x[n:][windows]
+    moved = end - start if change is None else change(start, end)
+    return moved, (travelled[n:] - travelled[:-n])[windows]
 
 
 # A recorded derivative whose integral follows its reading's change with a slope outside
@@ -652,6 +660,71 @@ def _velocity_in_base_frame(
         " twist); the schema wants the world frame: rotate it by the base's orientation"
         " or drop the base_linvel columns (then differenced from base_pos)"
     )
+
+
+def _quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(N, 4) Hamilton products ``a b`` of w, x, y, z quaternions."""
+    aw, av, bw, bv = a[:, :1], a[:, 1:], b[:, :1], b[:, 1:]
+    return np.concatenate(
+        [aw * bw - np.sum(av * bv, axis=1, keepdims=True), aw * bv + bw * av + np.cross(av, bv)],
+        axis=1,
+    )
+
+
+def _rotation_vector(q: np.ndarray) -> np.ndarray:
+    """(N, 3) axis times angle of unit quaternions (N, 4), the angle in [0, pi]."""
+    q = np.where(q[:, :1] < 0, -q, q)
+    norm = np.linalg.norm(q[:, 1:], axis=1, keepdims=True)
+    angle = 2.0 * np.arctan2(norm, q[:, :1])
+    return q[:, 1:] * np.where(norm > 1e-12, angle / np.maximum(norm, 1e-12), 2.0)
+
+
+def _angular_velocity_mismatch(quat: np.ndarray, angvel: np.ndarray, dt: float) -> str | None:
+    """A warning if ``angvel`` (T, 3) does not integrate to the turns of ``quat`` (T, 4,
+    base -> world) in the base frame, else None.
+
+    Over each :data:`FRAME_WINDOW_S` window the base's turn in its own frame, the rotation
+    vector of ``q_k^-1 q_{k+n}``, should equal the integral of the gyroscope's rate (the
+    schema's base frame). Named: a least-squares slope of the turn on the integral outside
+    :data:`SLOPE_RANGE` (degrees per second, a sign), or a world-frame rate (the turn
+    ``q_{k+n} q_k^-1``, world axes, fits with under half the error). Judged only where the
+    integral's RMS exceeds 0.02 rad (0.2 rad/s).
+    """
+    quat = quat / np.linalg.norm(quat, axis=1, keepdims=True)
+    inverse = np.array([1.0, -1.0, -1.0, -1.0])  # the conjugate of a unit quaternion
+
+    def body(q0, q1):
+        return _rotation_vector(_quat_mul(q0 * inverse, q1))
+
+    def world(q0, q1):
+        return _rotation_vector(_quat_mul(q1, q0 * inverse))
+
+    turn, integral = _window_changes(quat, angvel, dt, change=body)
+    if len(turn) < 10 or np.sqrt(np.mean(np.sum(integral**2, axis=1))) < 0.02:
+        return None
+    slope = float(np.sum(turn * integral) / np.sum(integral**2))
+    if not SLOPE_RANGE[0] <= slope <= SLOPE_RANGE[1]:
+        hint = (
+            ": degrees per second against radians? (--units deg reads every angle and rate"
+            " in degrees)"
+            if 40 < abs(slope) < 80 or 1 / 80 < abs(slope) < 1 / 40
+            else ": another unit, sign, axis order or frame (the schema's is the base's,"
+            " a gyroscope's)"
+        )
+        return (
+            f"over {FRAME_WINDOW_S:g} s windows the base turns by {slope:.3g} times the"
+            f" integral of base_angvel (1 when they agree){hint}"
+        )
+    turn_world, _ = _window_changes(quat, angvel, dt, change=world)
+    in_body = float(np.median(np.linalg.norm(turn - integral, axis=1)))
+    in_world = float(np.median(np.linalg.norm(turn_world - integral, axis=1)))
+    if in_world < 0.5 * in_body and in_body > 0.005:
+        return (
+            f"base_quat turns as base_angvel says about world axes (median error"
+            f" {in_world:.2g} rad per {FRAME_WINDOW_S:g} s), not about the base's own"
+            f" ({in_body:.2g} rad): the schema wants the base frame (a gyroscope's reading)"
+        )
+    return None
 
 
 # A recording's mean vertical acceleration in the world is ~0 (the robot stays on the
