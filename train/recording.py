@@ -48,8 +48,7 @@ of (sign, degrees), a gyroscope rate that does not integrate to the base orienta
 turns (degrees, sign, world axes), a base orientation whose z axis points down on most
 rows (with a hint when the columns look like x, y, z, w order), a base velocity that fits
 ``base_pos`` only rotated from the base frame, a base acceleration that holds gravity,
-and (after the
-replay) torques that cannot hold the feet up
+and (after the replay) torques that cannot hold the feet up
 (:func:`jax_contact.train.recording_estimate.dynamics_disagrees`).
 
 A row with a NaN in a column that is used is not dropped: the estimator receives the NaN
