@@ -226,7 +226,7 @@ def test_the_torque_check_counts_only_valid_still_steps():
     """Hand counts: foot a is still on 50 valid steps, the dynamics term says air on 41 of
     them (82 % > 80 %): named. Foot b: the same with 40 of 50 (80 %, not above): quiet.
     Foot c: air on every still step but only 39 of them valid: too few to judge."""
-    from jax_contact.train.recording_estimate import dynamics_disagrees
+    from jax_contact.train.recording_checks import dynamics_disagrees
 
     t = 60
     p_dk = np.zeros((t, 3))
@@ -507,7 +507,7 @@ def test_a_gyroscope_rate_in_degrees_or_world_axes_warns():
     world axes the rate is R_yaw (1, 0, 0) = (0.707, 0.707, 0): its integral projects on
     the body-frame turn with slope cos 45 = 0.707 (inside [0.5, 2]), but the turn about
     world axes, q_{k+n} q_k^-1, matches it exactly: named as the world frame."""
-    from jax_contact.train.recording_convert import _angular_velocity_mismatch
+    from jax_contact.train.recording_checks import angular_velocity_mismatch
 
     dt, t_len = 0.0025, 400
     t = np.arange(t_len) * dt
@@ -518,10 +518,10 @@ def test_a_gyroscope_rate_in_degrees_or_world_axes_warns():
     )
     body = np.tile([1.0, 0.0, 0.0], (t_len, 1))
     world = np.tile([0.5**0.5, 0.5**0.5, 0.0], (t_len, 1))
-    assert _angular_velocity_mismatch(quat, body, dt) is None
-    deg = _angular_velocity_mismatch(quat, np.degrees(body), dt)
+    assert angular_velocity_mismatch(quat, body, dt) is None
+    deg = angular_velocity_mismatch(quat, np.degrees(body), dt)
     assert re.search(r"turns by 0\.0175 times the integral", deg) and "--units deg" in deg
-    text = _angular_velocity_mismatch(quat, world, dt)
+    text = angular_velocity_mismatch(quat, world, dt)
     assert text.startswith("base_quat turns as base_angvel says about world axes")
 
 
@@ -532,7 +532,7 @@ def test_a_base_velocity_in_the_base_frame_warns():
     world-frame integral misses the displacement by the noise only (~1.4 mm); the body-frame
     one read as world by |(0.05, 0.05)| = 7.1 cm, and rotated back by the noise only: the
     warning, naming both errors. Without a turn (yaw 0) the frames coincide: quiet."""
-    from jax_contact.train.recording_convert import _velocity_in_base_frame
+    from jax_contact.train.recording_checks import velocity_in_base_frame
 
     dt, t_len = 0.0025, 400
     rng = np.random.default_rng(0)
@@ -542,15 +542,15 @@ def test_a_base_velocity_in_the_base_frame_warns():
     yawed = np.tile([0.5**0.5, 0.0, 0.0, 0.5**0.5], (t_len, 1))  # 90 deg about z
     world = np.tile([0.5, 0.0, 0.0], (t_len, 1))
     body = np.tile([0.0, -0.5, 0.0], (t_len, 1))
-    assert _velocity_in_base_frame(pos, world, yawed, dt) is None
-    text = _velocity_in_base_frame(pos, body, yawed, dt)
+    assert velocity_in_base_frame(pos, world, yawed, dt) is None
+    text = velocity_in_base_frame(pos, body, yawed, dt)
     assert text.startswith("base_pos moves as base_linvel rotated by base_quat says")
     assert re.search(r"\(median error 0\.\d+ cm per 0\.1 s\).*\(7\.\d cm\)", text)
     upright = np.tile([1.0, 0.0, 0.0, 0.0], (t_len, 1))
-    assert _velocity_in_base_frame(pos, world, upright, dt) is None
+    assert velocity_in_base_frame(pos, world, upright, dt) is None
     # A NaN row leaves out the windows over it, and the rest still decide.
     pos[200] = np.nan
-    assert "looks like the base frame" in _velocity_in_base_frame(pos, body, yawed, dt)
+    assert "looks like the base frame" in velocity_in_base_frame(pos, body, yawed, dt)
 
 
 def test_an_accelerometer_reading_as_base_acceleration_warns(go1_log):

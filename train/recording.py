@@ -49,7 +49,7 @@ turns (degrees, sign, world axes), a base orientation whose z axis points down o
 rows (with a hint when the columns look like x, y, z, w order), a base velocity that fits
 ``base_pos`` only rotated from the base frame, a base acceleration that holds gravity,
 and (after the replay) torques that cannot hold the feet up
-(:func:`jax_contact.train.recording_estimate.dynamics_disagrees`).
+(:mod:`jax_contact.train.recording_checks`).
 
 A row with a NaN in a column that is used is not dropped: the estimator receives the NaN
 and its per-leg validity (``valid = False``: the belief only follows the transition

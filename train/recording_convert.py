@@ -43,6 +43,14 @@ from jax_contact.train.recording import (
     UNITS,
     Recording,
 )
+from jax_contact.train.recording_checks import (
+    angular_velocity_mismatch,
+    derivative_mismatch,
+    holds_gravity,
+    outside_range,
+    upside_down,
+    velocity_in_base_frame,
+)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -278,7 +286,7 @@ def to_readings(
         qa, va = int(m.jnt_qposadr[j]), int(m.jnt_dofadr[j])
         qpos[:, qa] = cols[col] * s
         used.add(col)
-        outside = _outside_range(m, j, qpos[:, qa])
+        outside = outside_range(m, j, qpos[:, qa])
         if outside:
             hint = (
                 "; are they degrees? pass --units deg (names=..., units='deg' in Python)"
@@ -299,7 +307,7 @@ def to_readings(
         else:
             qvel[:, va] = cols[vcol] * s
             used.add(vcol)
-            if off := _derivative_mismatch(qpos[:, qa], qvel[:, va], dt, "qd/", col, hinge):
+            if off := derivative_mismatch(qpos[:, qa], qvel[:, va], dt, "qd/", col, hinge):
                 notes.append(f"WARNING column {vcol!r}: {off}")
         acol = by_model["qdd/"].get(name)
         if acol is None:
@@ -310,7 +318,7 @@ def to_readings(
             qacc[:, va] = cols[acol] * s
             used.add(acol)
             if vcol and (
-                off := _derivative_mismatch(qvel[:, va], qacc[:, va], dt, "qdd/", vcol, hinge)
+                off := derivative_mismatch(qvel[:, va], qacc[:, va], dt, "qdd/", vcol, hinge)
             ):
                 notes.append(f"WARNING column {acol!r}: {off}")
         tcol = by_model["tau/"].get(name)
@@ -341,12 +349,12 @@ def to_readings(
             )
         quat = np.stack([cols[c] for c in BASE_QUAT], axis=1)
         qpos[:, qa + 3 : qa + 7] = quat / np.linalg.norm(quat, axis=1, keepdims=True)
-        upside = _upside_down(quat)
+        upside = upside_down(quat)
         if upside:
             notes.append(f"WARNING columns {list(BASE_QUAT)}: {upside}")
         angvel = np.stack([cols[c] for c in BASE["base_angvel"]], axis=1) * scale
         qvel[:, va + 3 : va + 6] = angvel
-        if turned := _angular_velocity_mismatch(quat, angvel, dt):
+        if turned := angular_velocity_mismatch(quat, angvel, dt):
             notes.append(f"WARNING columns {list(BASE['base_angvel'])}: {turned}")
         used.update(BASE_QUAT + BASE["base_angvel"])
         has = {k: all(c in cols for c in v) for k, v in BASE.items()}
@@ -360,7 +368,7 @@ def to_readings(
             qvel[:, va : va + 3] = np.stack([cols[c] for c in BASE["base_linvel"]], axis=1)
             used.update(BASE["base_linvel"])
             if has["base_pos"]:
-                body = _velocity_in_base_frame(
+                body = velocity_in_base_frame(
                     qpos[:, qa : qa + 3], qvel[:, va : va + 3], qpos[:, qa + 3 : qa + 7], dt
                 )
                 if body:
@@ -382,7 +390,7 @@ def to_readings(
             if has[key]:
                 qacc[:, sl] = np.stack([cols[c] for c in BASE[key]], axis=1) * s
                 used.update(BASE[key])
-                if key == "base_linacc" and (held := _holds_gravity(qacc[:, sl])):
+                if key == "base_linacc" and (held := holds_gravity(qacc[:, sl])):
                     notes.append(f"WARNING columns {list(BASE[key])}: {held}")
             else:
                 qacc[:, sl] = _backward_diff(qvel[:, sl], dt)
@@ -496,255 +504,6 @@ def noise_for_differences(params, conv: Converted):
         sigma_qd=jnp.asarray(sqd, jnp.float32), sigma_qdd=jnp.asarray(sqdd, jnp.float32)
     )
     return params.replace(noise=noise)
-
-
-# A joint's reading may leave its range by sensor noise and compliance; beyond this many
-# rad (m) on more than this share of rows it is another unit or another joint.
-RANGE_SLACK, RANGE_SHARE = 0.1, 0.05
-
-
-def _outside_range(m, j: int, q: np.ndarray) -> tuple[float, float] | None:
-    """(share of finite rows, largest |q|) if ``q`` leaves limited joint ``j``'s range by
-    more than :data:`RANGE_SLACK` on more than :data:`RANGE_SHARE` of them, else None."""
-    if not m.jnt_limited[j]:
-        return None
-    q = q[np.isfinite(q)]
-    lo, hi = m.jnt_range[j]
-    out = (q < lo - RANGE_SLACK) | (q > hi + RANGE_SLACK)
-    if q.size == 0 or out.mean() <= RANGE_SHARE:
-        return None
-    return float(out.mean()), float(np.abs(q).max())
-
-
-# Above this share of rows with the base's z axis pointing down, a recording of a robot
-# that stood or walked has its quaternion in another order or frame.
-UPSIDE_DOWN_SHARE = 0.5
-
-
-def _upside_down(quat: np.ndarray) -> str | None:
-    """A warning if the base's z axis points down on more than :data:`UPSIDE_DOWN_SHARE`
-    of the finite rows of ``quat`` ((T, 4), w, x, y, z, base -> world), else None.
-
-    The world z component of the base's z axis is ``R[2, 2] = 1 - 2 (x^2 + y^2)`` of the
-    unit quaternion. An upright robot's quaternion written in x, y, z, w order (ROS,
-    Eigen's ``coeffs()``, SciPy) into these columns reads as a half turn about a
-    horizontal axis, ``R[2, 2]`` near -1; read back in that order, ``R[2, 2]`` is near
-    +1, and the warning says so.
-    """
-    q = quat[np.all(np.isfinite(quat), axis=1)]
-    q = q / np.maximum(np.linalg.norm(q, axis=1, keepdims=True), 1e-12)
-    if len(q) == 0:
-        return None
-    down = 1.0 - 2.0 * (q[:, 1] ** 2 + q[:, 2] ** 2) < 0.0
-    if down.mean() <= UPSIDE_DOWN_SHARE:
-        return None
-    # Columns (w, x, y, z) holding (x, y, z, w): the real x and y are columns w and x.
-    swapped_up = 1.0 - 2.0 * (q[:, 0] ** 2 + q[:, 1] ** 2) > 0.0
-    hint = (
-        "; read as x, y, z, w it is upright on"
-        f" {swapped_up.mean():.0%}: the columns look like x, y, z, w order (ROS, Eigen"
-        " coeffs(), SciPy), write them as w, x, y, z"
-        if swapped_up.mean() > UPSIDE_DOWN_SHARE
-        else ""
-    )
-    return (
-        f"the base's z axis points down on {down.mean():.0%} of rows (base -> world,"
-        f" w, x, y, z){hint}; if the robot did not lie upside down, the orientation is"
-        " wrong and so is every term that uses it"
-    )
-
-
-def _rotate(quat: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """(T, 3) ``v`` rotated by the unit quaternions (T, 4) w, x, y, z:
-    ``v + 2 w (u x v) + 2 u x (u x v)`` with ``u = (x, y, z)``."""
-    w, u = quat[:, :1], quat[:, 1:]
-    c = np.cross(u, v)
-    return v + 2.0 * w * c + 2.0 * np.cross(u, c)
-
-
-# The checks of a reading against its derivative compare changes over this window, s: at
-# 400 Hz a 1 mm position noise is 0.6 m/s on one step's difference and 1.4 cm on a 0.1 s
-# displacement.
-FRAME_WINDOW_S = 0.1
-
-
-def _window_changes(
-    x: np.ndarray, rate: np.ndarray, dt: float, ok: np.ndarray | None = None, change=None
-) -> tuple[np.ndarray, np.ndarray]:
-    """``(change, integral)``, each (W, d): over every window of :data:`FRAME_WINDOW_S`
-    whose rows are all finite (and ``ok``), the change of ``x`` (T, d) and the trapezoidal
-    integral of its recorded derivative ``rate`` (T, d) over the same interval.
-
-    ``change``: optional ``(x_start, x_end) -> (W, d)`` for a reading that does not change
-    by subtraction (an orientation); default ``x_end - x_start``.
-    """
-    x, rate = x.reshape(len(x), -1), rate.reshape(len(rate), -1)
-    good = np.all(np.isfinite(x), axis=1) & np.all(np.isfinite(rate), axis=1)
-    if ok is not None:
-        good &= ok
-    n = max(1, round(FRAME_WINDOW_S / dt))
-    bad_before = np.concatenate([[0], np.cumsum(~good)])  # bad rows among 0 .. k-1
-    windows = bad_before[n + 1 :] - bad_before[: -n - 1] == 0  # rows k .. k+n all good
-    x, rate = np.where(good[:, None], x, 0.0), np.where(good[:, None], rate, 0.0)
-    steps = 0.5 * (rate[1:] + rate[:-1]) * dt  # over (t_{k-1}, t_k]
-    travelled = np.concatenate([np.zeros((1, rate.shape[1])), np.cumsum(steps, axis=0)])
-    if len(x) <= n:
-        return np.zeros((0, rate.shape[1])), np.zeros((0, rate.shape[1]))
-    start, end = x[:-n][windows], x[n:][windows]
-    moved = end - start if change is None else change(start, end)
-    return moved, (travelled[n:] - travelled[:-n])[windows]
-
-
-# A recorded derivative whose integral follows its reading's change with a slope outside
-# this range is another unit, sign or column; judged only where the integral moves by more
-# than the second value (rad or m; rad/s or m/s for accelerations) at its RMS.
-SLOPE_RANGE, MOVES = (0.5, 2.0), {"qd/": 0.02, "qdd/": 0.5}
-
-
-def _derivative_mismatch(
-    x: np.ndarray, rate: np.ndarray, dt: float, kind: str, of: str, hinge: bool
-) -> str | None:
-    """A warning if the recorded derivative ``rate`` (T,) does not integrate to the change
-    of ``x`` (T,), column ``of``, over :data:`FRAME_WINDOW_S` windows (least-squares slope
-    of the change on the integral outside :data:`SLOPE_RANGE`), else None; ``kind`` is
-    ``"qd/"`` or ``"qdd/"``; ``hinge``: the joint turns (a factor of 57.3 is then named
-    as degrees against radians)."""
-    change, integral = _window_changes(x, rate, dt)
-    if len(change) < 10 or np.sqrt(np.mean(integral**2)) < MOVES[kind]:
-        return None
-    slope = float(np.sum(change * integral) / np.sum(integral**2))
-    if SLOPE_RANGE[0] <= slope <= SLOPE_RANGE[1]:
-        return None
-    if slope < -SLOPE_RANGE[0]:
-        hint = ": the opposite sign (a joint direction that differs between the columns)"
-    elif hinge and (1 / 80 < abs(slope) < 1 / 40 or 40 < abs(slope) < 80):
-        hint = ": a factor of about 57.3, degrees against radians"
-    else:
-        hint = ": another unit, or another joint's column"
-    return (
-        f"over {FRAME_WINDOW_S:g} s windows {of!r} changes by {slope:.3g} times its"
-        f" integral (1 when they agree){hint}"
-    )
-
-
-def _velocity_in_base_frame(
-    pos: np.ndarray, vel: np.ndarray, quat: np.ndarray, dt: float
-) -> str | None:
-    """A warning if ``vel`` (T, 3) fits ``pos``'s displacements far better rotated from the
-    base frame to the world (``quat`` (T, 4), base -> world) than as given, else None.
-
-    Over each window of :data:`FRAME_WINDOW_S` the displacement of ``pos`` is compared
-    with the trapezoidal integral of ``vel`` as given (the schema's world frame) and of
-    ``vel`` rotated by the base's orientation (a state estimator's body-frame velocity, as
-    ROS odometry's twist). Warns when the rotated integral's median error is under half
-    the given one's and the given one's exceeds 2 cm (0.2 m/s over the window). A robot that
-    never turns has both alike and is not warned about (nor wrong: the frames coincide).
-    """
-    ok = np.all(np.isfinite(quat), axis=1)
-    quat = np.where(ok[:, None], quat, [1.0, 0.0, 0.0, 0.0])
-    quat = quat / np.linalg.norm(quat, axis=1, keepdims=True)
-
-    def error(v):
-        moved, integral = _window_changes(pos, v, dt, ok)
-        if len(moved) == 0:
-            return 0.0
-        return float(np.median(np.linalg.norm(moved - integral, axis=1)))
-
-    as_given, rotated = error(vel), error(_rotate(quat, vel))
-    if not (rotated < 0.5 * as_given and as_given > 0.02):
-        return None
-    return (
-        f"base_pos moves as base_linvel rotated by base_quat says (median error"
-        f" {rotated * 100:.2g} cm per {FRAME_WINDOW_S:g} s), not as base_linvel says"
-        f" ({as_given * 100:.2g} cm): it looks like the base frame (e.g. ROS odometry's"
-        " twist); the schema wants the world frame: rotate it by the base's orientation"
-        " or drop the base_linvel columns (then differenced from base_pos)"
-    )
-
-
-def _quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """(N, 4) Hamilton products ``a b`` of w, x, y, z quaternions."""
-    aw, av, bw, bv = a[:, :1], a[:, 1:], b[:, :1], b[:, 1:]
-    return np.concatenate(
-        [aw * bw - np.sum(av * bv, axis=1, keepdims=True), aw * bv + bw * av + np.cross(av, bv)],
-        axis=1,
-    )
-
-
-def _rotation_vector(q: np.ndarray) -> np.ndarray:
-    """(N, 3) axis times angle of unit quaternions (N, 4), the angle in [0, pi]."""
-    q = np.where(q[:, :1] < 0, -q, q)
-    norm = np.linalg.norm(q[:, 1:], axis=1, keepdims=True)
-    angle = 2.0 * np.arctan2(norm, q[:, :1])
-    return q[:, 1:] * np.where(norm > 1e-12, angle / np.maximum(norm, 1e-12), 2.0)
-
-
-def _angular_velocity_mismatch(quat: np.ndarray, angvel: np.ndarray, dt: float) -> str | None:
-    """A warning if ``angvel`` (T, 3) does not integrate to the turns of ``quat`` (T, 4,
-    base -> world) in the base frame, else None.
-
-    Over each :data:`FRAME_WINDOW_S` window the base's turn in its own frame, the rotation
-    vector of ``q_k^-1 q_{k+n}``, should equal the integral of the gyroscope's rate (the
-    schema's base frame). Named: a least-squares slope of the turn on the integral outside
-    :data:`SLOPE_RANGE` (degrees per second, a sign), or a world-frame rate (the turn
-    ``q_{k+n} q_k^-1``, world axes, fits with under half the error). Judged only where the
-    integral's RMS exceeds 0.02 rad (0.2 rad/s).
-    """
-    quat = quat / np.linalg.norm(quat, axis=1, keepdims=True)
-    inverse = np.array([1.0, -1.0, -1.0, -1.0])  # the conjugate of a unit quaternion
-
-    def body(q0, q1):
-        return _rotation_vector(_quat_mul(q0 * inverse, q1))
-
-    def world(q0, q1):
-        return _rotation_vector(_quat_mul(q1, q0 * inverse))
-
-    turn, integral = _window_changes(quat, angvel, dt, change=body)
-    if len(turn) < 10 or np.sqrt(np.mean(np.sum(integral**2, axis=1))) < 0.02:
-        return None
-    slope = float(np.sum(turn * integral) / np.sum(integral**2))
-    if not SLOPE_RANGE[0] <= slope <= SLOPE_RANGE[1]:
-        hint = (
-            ": degrees per second against radians? (--units deg reads every angle and rate"
-            " in degrees)"
-            if 40 < abs(slope) < 80 or 1 / 80 < abs(slope) < 1 / 40
-            else ": another unit, sign, axis order or frame (the schema's is the base's,"
-            " a gyroscope's)"
-        )
-        return (
-            f"over {FRAME_WINDOW_S:g} s windows the base turns by {slope:.3g} times the"
-            f" integral of base_angvel (1 when they agree){hint}"
-        )
-    turn_world, _ = _window_changes(quat, angvel, dt, change=world)
-    in_body = float(np.median(np.linalg.norm(turn - integral, axis=1)))
-    in_world = float(np.median(np.linalg.norm(turn_world - integral, axis=1)))
-    if in_world < 0.5 * in_body and in_body > 0.005:
-        return (
-            f"base_quat turns as base_angvel says about world axes (median error"
-            f" {in_world:.2g} rad per {FRAME_WINDOW_S:g} s), not about the base's own"
-            f" ({in_body:.2g} rad): the schema wants the base frame (a gyroscope's reading)"
-        )
-    return None
-
-
-# A recording's mean vertical acceleration in the world is ~0 (the robot stays on the
-# floor); within this of 9.81 m/s^2 it holds gravity, as an accelerometer's reading does.
-GRAVITY_SLACK = 2.0
-
-
-def _holds_gravity(acc: np.ndarray) -> str | None:
-    """A warning if the mean of ``acc`` (T, 3)'s z column is within
-    :data:`GRAVITY_SLACK` of +-9.81 m/s^2, else None."""
-    z = acc[:, 2][np.isfinite(acc[:, 2])]
-    if z.size == 0 or abs(abs(float(z.mean())) - 9.81) > GRAVITY_SLACK:
-        return None
-    return (
-        f"base_linacc/z averages {z.mean():.3g} m/s^2 over the recording, where a robot"
-        " that stays on the floor averages ~0: it looks like an accelerometer's reading"
-        " (gravity included, perhaps in the base frame); the schema wants the world-frame"
-        " acceleration without gravity (R f + g for an IMU's specific force f, g = (0, 0,"
-        " -9.81)), or drop the base_linacc columns (then differenced from base_linvel)"
-    )
 
 
 def _stretches(mask: np.ndarray, t: np.ndarray) -> str:

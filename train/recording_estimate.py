@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from jax_contact.train.recording import DIAGNOSTICS, read_recording, write_recording_csv
+from jax_contact.train.recording_checks import dynamics_disagrees
 from jax_contact.train.recording_convert import noise_for_differences, to_readings
 
 
@@ -216,54 +217,6 @@ def estimate_recording(
         "outputs": out,
         "scores": scores,
     }
-
-
-# A foot whose dynamics term reads air on more than this share of the steps where the
-# differential-kinematics term reads it still (at least MIN_STILL_STEPS of them) is not
-# held up by its torques. Measured (tests/test_estimate.py; docs/own_robot.md): 0.10-0.37
-# per foot with the recorded torques, 0.86-0.97 with their signs flipped, on Go1, Spot and
-# Barkour trotting and walking and the planar leg; a 3.4 kg hexapod, whose loads are near
-# anymal_like's torque noise, 0.67-0.77 with its own torques.
-DYNAMICS_AIR_WHEN_STILL, MIN_STILL_STEPS = 0.8, 40
-
-
-def dynamics_disagrees(
-    p_dynamics: np.ndarray,
-    p_diff_kinematics: np.ndarray,
-    valid: np.ndarray,
-    foot_names: Sequence[str],
-) -> str | None:
-    """A warning naming the feet whose torques look wrong, else None.
-
-    A foot that stands still (the differential-kinematics term above 0.5) is usually
-    loaded, and the dynamics term then reads contact; torques of the wrong sign (a joint
-    axis opposite the model's, a motor current's convention) or scale (amperes, the motor
-    side of a gearbox) cannot push the foot into the ground, and it reads air on nearly
-    every such step. Steps with ``valid`` False are left out.
-
-    Args:
-      p_dynamics, p_diff_kinematics: (T, L) each term's probability of contact.
-      valid: (T, L) the estimator's per-leg validity.
-      foot_names: (L,) names for the message.
-    """
-    still = (p_diff_kinematics > 0.5) & valid.astype(bool)
-    n_still = still.sum(axis=0)
-    share = ((p_dynamics < 0.5) & still).sum(axis=0) / np.maximum(n_still, 1)
-    bad = [
-        f"{name} {s:.0%}"
-        for name, s, n in zip(foot_names, share, n_still, strict=True)
-        if n >= MIN_STILL_STEPS and s > DYNAMICS_AIR_WHEN_STILL
-    ]
-    if not bad:
-        return None
-    return (
-        "the dynamics term reads air on most steps where the foot stands still ("
-        + ", ".join(bad)
-        + "; with a recording's own torques it is well under half): check the tau/ columns'"
-        " sign (positive along the model's joint axis, as MuJoCo's qfrc_actuator) and unit"
-        " (N m at the joint, not amperes or the motor side of a gearbox); on a light robot"
-        " the sensor model's torque noise may swamp its loads (jax-contact tune)"
-    )
 
 
 def _earlier_outputs(folder: Path) -> list[str]:
