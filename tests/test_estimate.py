@@ -525,6 +525,32 @@ def test_a_gyroscope_rate_in_degrees_or_world_axes_warns():
     assert text.startswith("base_quat turns as base_angvel says about world axes")
 
 
+def test_force_truth_says_what_the_threshold_made_of_each_foot(tmp_path, capsys):
+    """The planar sample's force/foot column with a 20 N offset (a foot sensor's raw
+    reading) is contact on every row at the 1 N default, which the note says (100 %, its
+    minimum 20 N); --force-threshold 21 gives back the sample's own truth (its contact/foot
+    is its force/foot above 1 N)."""
+    rec = read_recording(CSV)
+    robot = load_robot("planar_leg")
+    plain = to_readings(rec, robot)
+    share = np.mean(rec.columns["force/foot"] > 1.0)
+    assert f"contact on foot {share:.0%} (min 0 N)" in "\n".join(plain.notes)
+    cols = dict(rec.columns)
+    del cols["contact/foot"]
+    cols["force/foot"] = cols["force/foot"] + 20.0
+    biased = to_readings(Recording(cols, "r"), robot)
+    assert biased.truth.all()
+    assert "contact on foot 100% (min 20 N)" in "\n".join(biased.notes)
+    write_recording_csv(tmp_path / "biased.csv", cols)
+    args = _parser().parse_args(
+        ["estimate", str(tmp_path / "biased.csv"), "--model", "planar_leg", "--out",
+         str(tmp_path / "out"), "--no-plots", "--force-threshold", "21"]
+    )  # fmt: skip
+    args.check(args)
+    fixed = to_readings(Recording(cols, "r"), robot, force_threshold=args.force_threshold)
+    np.testing.assert_array_equal(fixed.truth, plain.truth)
+
+
 def test_a_base_velocity_in_the_base_frame_warns():
     """A base yawed by a quarter turn walks +x in the world at 0.5 m/s for 1 s at 400 Hz,
     its position read with 1 mm of noise. In the world frame its velocity is (0.5, 0, 0);
@@ -739,6 +765,7 @@ def test_the_commands_copies_equal_the_librarys():
 
     assert estimate_cmd.RECORDING_SUFFIXES == recording.SUFFIXES
     assert estimate_cmd.UNITS == recording.UNITS
+    assert estimate_cmd.FORCE_THRESHOLD == recording.FORCE_THRESHOLD
     from jax_contact.train import logs
 
     assert estimate_cmd.TERRAIN_MODELS == logs.TERRAIN_MODELS

@@ -14,12 +14,14 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 from pathlib import Path
 
 RECORDING_SUFFIXES = (".csv", ".npz", ".h5", ".hdf5")  # jax_contact.train.recording.SUFFIXES
 UNITS = ("rad", "deg")  # jax_contact.train.recording.UNITS
 TERRAIN_MODELS = ("flat", "memory")  # jax_contact.train.logs.TERRAIN_MODELS
+FORCE_THRESHOLD = 1.0  # N, jax_contact.train.recording.FORCE_THRESHOLD
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
@@ -75,6 +77,14 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         "--resample",
         action="store_true",
         help="resample irregular time steps onto a uniform grid (linear) instead of refusing",
+    )
+    p.add_argument(
+        "--force-threshold",
+        type=float,
+        default=FORCE_THRESHOLD,
+        metavar="N",
+        help="a force/<foot> column above this is contact (N; default 1, the simulator's);"
+        " raise it for a foot sensor with an offset",
     )
     p.add_argument("--out", default="out/estimate", help="output folder")
     p.add_argument("--no-plots", action="store_true", help="skip the PNG per foot")
@@ -216,6 +226,8 @@ def check(args: argparse.Namespace) -> None:
     if args.params is not None:
         check_params_source("--params", args.params)
     parse_names(args.names)
+    if not math.isfinite(args.force_threshold):
+        raise ValueError(f"argument --force-threshold: must be finite, got {args.force_threshold}")
     check_output_folder("--out", args.out)
 
 
@@ -233,6 +245,7 @@ def run(args: argparse.Namespace) -> int:
         terrain_model=args.terrain_model,
         units=args.units,
         resample=args.resample,
+        force_threshold=args.force_threshold,
         plots=not args.no_plots,
     )
     return 0

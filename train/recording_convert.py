@@ -438,6 +438,20 @@ def to_readings(
                 "rows where a foot's ground truth is missing (left out of the metrics): "
                 + _stretches(~truth_known.all(axis=(1, 2)), cols[TIME])
             )
+        if by_model["force/"]:
+            # What the threshold made of each force column: a sensor with an offset (a foot
+            # force sensor's raw reading) reads "contact" on every row, and says so here.
+            shares = ", ".join(
+                f"{f} {np.mean(col[np.isfinite(col)] > force_threshold):.0%}"
+                f" (min {np.nanmin(col):.3g} N)"
+                for f, col in ((f, cols[c]) for f, c in by_model["force/"].items())
+                if np.isfinite(col).any()
+            )
+            notes.append(
+                f"ground truth from force/ above {force_threshold:g} N: contact on {shares};"
+                " a foot that left the ground but reads contact on every row has a sensor"
+                " offset (--force-threshold)"
+            )
     finite = np.all(np.isfinite(np.stack([cols[c] for c in sorted(used)], axis=1)), axis=1)
     valid = finite & np.concatenate([[True], finite[:-1]])  # differences use the row before
     if not valid.any():

@@ -15,7 +15,12 @@ from pathlib import Path
 
 import numpy as np
 
-from jax_contact.train.recording import DIAGNOSTICS, read_recording, write_recording_csv
+from jax_contact.train.recording import (
+    DIAGNOSTICS,
+    FORCE_THRESHOLD,
+    read_recording,
+    write_recording_csv,
+)
 from jax_contact.train.recording_checks import dynamics_disagrees
 from jax_contact.train.recording_convert import noise_for_differences, to_readings
 
@@ -34,6 +39,7 @@ def estimate_recording(
     plot_seconds: float = 4.0,
     progress: bool = True,
     terrain_model: str | None = None,
+    force_threshold: float = FORCE_THRESHOLD,
 ) -> dict:
     """``jax-contact estimate``: P(contact) per foot for a recording (module docstring).
 
@@ -41,7 +47,8 @@ def estimate_recording(
     (:data:`jax_contact.train.logs.TERRAIN_MODELS`): ``"flat"`` a plane at z = 0 of the
     recording's world frame, ``"memory"`` the feet's own footholds, for a ``base_pos`` that
     drifts (a state estimator's, over a long recording); None: the one ``params_path`` was
-    tuned with, else ``"flat"``.
+    tuned with, else ``"flat"``. ``force_threshold``: a ``force/<foot>`` column above it
+    is contact, N (raise it for a foot sensor with an offset).
 
     Writes into ``out_dir``: ``estimate.h5`` (``time`` (T,), ``p_contact``, each of
     :data:`DIAGNOSTICS` and ``valid`` as (T, L) arrays, ``truth/contact`` when known;
@@ -71,7 +78,9 @@ def estimate_recording(
     check_output_folder("out_dir", out_dir)
     rec = read_recording(path)
     robot = load_robot(model, foot_names=feet)
-    conv = to_readings(rec, robot, names=names, units=units, resample=resample)
+    conv = to_readings(
+        rec, robot, names=names, units=units, resample=resample, force_threshold=force_threshold
+    )
     desc = robot.description
     params, terrain_model, terrain, calibration = _estimator_for(
         desc, conv.dt, params_path, terrain_model, model_mass(robot.mj_model),
