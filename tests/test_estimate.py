@@ -220,6 +220,18 @@ def test_torques_of_the_wrong_sign_warn_naming_the_foot(round_trip, tmp_path, ca
     warned = [n for n in got["notes"] if "dynamics term reads air" in n]
     assert len(warned) == 1 and "warning: the dynamics term reads air" in text
     assert re.search(r"\(foot 9\d%;", warned[0]) and "tau/ columns' sign" in warned[0]
+    assert "consequence of the warnings above" not in warned[0]  # the only warning
+    # With the rail's acceleration negated as well, its warning comes first and the torque
+    # warning defers to it (the dynamics term reads that acceleration too).
+    cols["qdd/rail"] = -cols["qdd/rail"]
+    write_recording_csv(tmp_path / "two.csv", cols)
+    got = estimate_recording(
+        tmp_path / "two.csv", model="planar_leg", out_dir=tmp_path / "two", plots=False,
+        progress=False,
+    )  # fmt: skip
+    warned = [n for n in got["notes"] if n.startswith("WARNING")]
+    assert [n.split("'")[1] for n in warned[:1]] == ["qdd/rail"] and len(warned) == 2
+    assert warned[1].endswith("or a consequence of the warnings above (fix those first)")
 
 
 def test_the_torque_check_counts_only_valid_still_steps():

@@ -124,6 +124,8 @@ def estimate_recording(
             desc.foot_names,
         )
         if disagrees:
+            if any(n.startswith("WARNING") for n in notes):
+                disagrees += "; or a consequence of the warnings above (fix those first)"
             notes.append(f"WARNING {disagrees}")
             print(f"warning: {disagrees}")
     if calibration is not None:
