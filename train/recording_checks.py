@@ -99,13 +99,13 @@ def window_changes(
     if ok is not None:
         good &= ok
     n = max(1, round(FRAME_WINDOW_S / dt))
+    if len(x) <= n:
+        return np.zeros((0, rate.shape[1])), np.zeros((0, rate.shape[1]))
     bad_before = np.concatenate([[0], np.cumsum(~good)])  # bad rows among 0 .. k-1
     windows = bad_before[n + 1 :] - bad_before[: -n - 1] == 0  # rows k .. k+n all good
     x, rate = np.where(good[:, None], x, 0.0), np.where(good[:, None], rate, 0.0)
     steps = 0.5 * (rate[1:] + rate[:-1]) * dt  # over (t_{k-1}, t_k]
     travelled = np.concatenate([np.zeros((1, rate.shape[1])), np.cumsum(steps, axis=0)])
-    if len(x) <= n:
-        return np.zeros((0, rate.shape[1])), np.zeros((0, rate.shape[1]))
     start, end = x[:-n][windows], x[n:][windows]
     moved = end - start if change is None else change(start, end)
     return moved, (travelled[n:] - travelled[:-n])[windows]
