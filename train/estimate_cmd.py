@@ -31,7 +31,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         help="contact estimates for your own recording (CSV, NPZ, HDF5) and robot model",
         description="Runs the estimator on a recording with named columns (time, q/<joint>,"
         " optional qd/, qdd/, tau/<joint>, base_quat/w,x,y,z, base_angvel/x,y,z, optional"
-        " base_pos/, base_linvel/, and contact/<foot> or force/<foot> as ground truth; the"
+        " base_pos/, base_linvel/, base_linacc/, base_angacc/, and contact/<foot> or"
+        " force/<foot> as ground truth; the"
         " schema and timing are in train/recording.py, train/recording_convert.py and"
         " docs/own_robot.md) and writes"
         " P(contact) per foot, each term's probability and the transitions to"
@@ -181,7 +182,11 @@ def parse_names(text: str | None) -> dict[str, str]:
     if not text:
         return {}
     path = Path(text)
-    if path.suffix == ".json" or path.is_file():
+    try:
+        is_file = path.is_file()
+    except OSError:  # an inline map longer than a file name may be
+        is_file = False
+    if path.suffix == ".json" or is_file:
         try:
             payload = json.loads(path.read_text())
         except FileNotFoundError:

@@ -221,8 +221,8 @@ def angular_velocity_mismatch(quat: np.ndarray, angvel: np.ndarray, dt: float) -
     slope = float(np.sum(turn * integral) / np.sum(integral**2))
     if not SLOPE_RANGE[0] <= slope <= SLOPE_RANGE[1]:
         hint = (
-            ": degrees per second against radians? (--units deg reads every angle and rate"
-            " in degrees)"
+            ": degrees per second against radians? convert base_angvel to rad/s (--units deg"
+            " would read every angle and rate in degrees, the joints' too)"
             if 40 < abs(slope) < 80 or 1 / 80 < abs(slope) < 1 / 40
             else ": another unit, sign, axis order or frame (the schema's is the base's,"
             " a gyroscope's)"

@@ -257,9 +257,9 @@ def to_readings(
                     raise ValueError(
                         f"{src}: column {col!r}: the model has no {what} {target!r}"
                         f"{' (through the names map)' if target != col[len(prefix) :] else ''};"
-                        f" its {'feet' if what == 'foot' else 'joints'}: {sorted(valid)}"
-                        f" (a name mapped to nothing, --names {col[len(prefix) :]}=, is"
-                        " dropped)"
+                        f" its {'feet' if what == 'foot' else 'joints'}: {sorted(valid)};"
+                        f" map it to one (--names {col[len(prefix) :]}=<model {what}>) or drop"
+                        f" it (--names {col[len(prefix) :]}=)"
                     )
                 by_model[prefix][target] = col
     # A joint's entry must name a column (every joint has one): a typo would otherwise pass
@@ -299,7 +299,7 @@ def to_readings(
                 f" {'rad' if hinge else 'm'} on {outside[0]:.0%} of rows (largest"
                 f" {outside[1]:.4g}){hint}"
             )
-        vcol = by_model["qd/"].get(name)
+        vcol, vcol_named = by_model["qd/"].get(name), False
         if vcol is None:
             qvel[:, va] = _backward_diff(qpos[:, qa], dt)
             missing_qd.append(name)
@@ -309,6 +309,7 @@ def to_readings(
             used.add(vcol)
             if off := derivative_mismatch(qpos[:, qa], qvel[:, va], dt, "qd/", col, hinge):
                 notes.append(f"WARNING column {vcol!r}: {off}")
+                vcol_named = True  # its qdd/ is not judged against it
         acol = by_model["qdd/"].get(name)
         if acol is None:
             qacc[:, va] = _backward_diff(qvel[:, va], dt)
@@ -317,8 +318,10 @@ def to_readings(
         else:
             qacc[:, va] = cols[acol] * s
             used.add(acol)
-            if vcol and (
-                off := derivative_mismatch(qvel[:, va], qacc[:, va], dt, "qdd/", vcol, hinge)
+            if (
+                vcol
+                and not vcol_named
+                and (off := derivative_mismatch(qvel[:, va], qacc[:, va], dt, "qdd/", vcol, hinge))
             ):
                 notes.append(f"WARNING column {acol!r}: {off}")
         tcol = by_model["tau/"].get(name)
@@ -354,8 +357,10 @@ def to_readings(
             notes.append(f"WARNING columns {list(BASE_QUAT)}: {upside}")
         angvel = np.stack([cols[c] for c in BASE["base_angvel"]], axis=1) * scale
         qvel[:, va + 3 : va + 6] = angvel
+        # A wrong orientation also fails the checks that read it; they say so.
+        after_quat = "; or a consequence of the base_quat warning above" if upside else ""
         if turned := angular_velocity_mismatch(quat, angvel, dt):
-            notes.append(f"WARNING columns {list(BASE['base_angvel'])}: {turned}")
+            notes.append(f"WARNING columns {list(BASE['base_angvel'])}: {turned}{after_quat}")
         used.update(BASE_QUAT + BASE["base_angvel"])
         has = {k: all(c in cols for c in v) for k, v in BASE.items()}
         if has["base_pos"]:
@@ -372,7 +377,7 @@ def to_readings(
                     qpos[:, qa : qa + 3], qvel[:, va : va + 3], qpos[:, qa + 3 : qa + 7], dt
                 )
                 if body:
-                    notes.append(f"WARNING columns {list(BASE['base_linvel'])}: {body}")
+                    notes.append(f"WARNING columns {list(BASE['base_linvel'])}: {body}{after_quat}")
         elif has["base_pos"]:
             qvel[:, va : va + 3] = _backward_diff(qpos[:, qa : qa + 3], dt)
             notes.append("base linear velocity differentiated from base_pos")
@@ -441,17 +446,21 @@ def to_readings(
         if by_model["force/"]:
             # What the threshold made of each force column: a sensor with an offset (a foot
             # force sensor's raw reading) reads "contact" on every row, and says so here.
-            shares = ", ".join(
-                f"{f} {np.mean(col[np.isfinite(col)] > force_threshold):.0%}"
-                f" (min {np.nanmin(col):.3g} N)"
+            read = {
+                f: (np.mean(col[np.isfinite(col)] > force_threshold), np.nanmin(col))
                 for f, col in ((f, cols[c]) for f, c in by_model["force/"].items())
                 if np.isfinite(col).any()
-            )
-            notes.append(
+            }
+            shares = ", ".join(f"{f} {s:.0%} (min {low:.3g} N)" for f, (s, low) in read.items())
+            line = (
                 f"ground truth from force/ above {force_threshold:g} N: contact on {shares};"
                 " a foot that left the ground but reads contact on every row has a sensor"
                 " offset (--force-threshold)"
             )
+            # Every foot on the ground on every row: a robot that stood still, or sensors
+            # whose air reading is above the threshold; the metrics then mean nothing.
+            always = all(s >= ALWAYS_LOADED for s, _ in read.values())
+            notes.append(f"WARNING {line}; if it stood throughout, ignore this" if always else line)
     finite = np.all(np.isfinite(np.stack([cols[c] for c in sorted(used)], axis=1)), axis=1)
     valid = finite & np.concatenate([[True], finite[:-1]])  # differences use the row before
     if not valid.any():
@@ -518,6 +527,11 @@ def noise_for_differences(params, conv: Converted):
         sigma_qd=jnp.asarray(sqd, jnp.float32), sigma_qdd=jnp.asarray(sqdd, jnp.float32)
     )
     return params.replace(noise=noise)
+
+
+# A force/ truth column above the threshold on at least this share of rows, on every foot,
+# is warned about (a walking robot lifts each foot; an offset sensor never reads below).
+ALWAYS_LOADED = 0.995
 
 
 def _stretches(mask: np.ndarray, t: np.ndarray) -> str:
