@@ -568,6 +568,35 @@ def test_force_truth_says_what_the_threshold_made_of_each_foot(tmp_path, capsys)
     np.testing.assert_array_equal(fixed.truth, plain.truth)
 
 
+def test_checks_that_read_a_wrong_quaternion_say_so(go1_log):
+    """Go1 held still for 1 s at 400 Hz, its base yawed a half turn and rolling about its
+    own x axis at 1 rad/s: q(t) = (0, 0, 0, 1) (cos t/2, sin t/2, 0, 0) = (0, 0, sin t/2,
+    cos t/2), upright (R[2, 2] = cos t > 0.5). Written in x, y, z, w order the columns read
+    (0, sin t/2, cos t/2, 0): R[2, 2] = -1, the quaternion warning; and its turns are about
+    the base's z axis (q0^-1 q1 = (cos d/2, 0, 0, sin d/2)) while the gyroscope's (1, 0, 0)
+    integrates about x: slope 0, the gyroscope warning, which names the quaternion's as a
+    possible cause. In the right order neither fires."""
+    t_len, dt = 400, 0.0025
+    t = np.arange(t_len) * dt
+    cols = {k: np.full(t_len, v[0]) for k, v in log_to_columns(go1_log).items()}
+    cols["time"] = t + dt
+    for k in cols:
+        if k.startswith(("qd/", "qdd/", "base_linvel/", "base_linacc/", "base_angacc/")):
+            cols[k] = np.zeros(t_len)
+    cols.update({f"base_angvel/{c}": np.full(t_len, float(c == "x")) for c in "xyz"})
+    right = (np.zeros(t_len), np.zeros(t_len), np.sin(t / 2), np.cos(t / 2))
+    for order, values in (("wxyz", right), ("xyzw", right[1:] + right[:1])):
+        cols.update({f"base_quat/{c}": v for c, v in zip("wxyz", values, strict=True)})
+        warned = [
+            n for n in to_readings(Recording(cols, "r"), go1_log.robot).notes if n[:7] == "WARNING"
+        ]
+        if order == "wxyz":
+            assert warned == []
+        else:
+            assert [n.split("'")[1] for n in warned] == ["base_quat/w", "base_angvel/x"]
+            assert warned[1].endswith("; or a consequence of the base_quat warning above")
+
+
 def test_a_base_velocity_in_the_base_frame_warns():
     """A base yawed by a quarter turn walks +x in the world at 0.5 m/s for 1 s at 400 Hz,
     its position read with 1 mm of noise. In the world frame its velocity is (0.5, 0, 0);
