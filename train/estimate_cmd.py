@@ -26,6 +26,8 @@ FORCE_THRESHOLD = 1.0  # N, jax_contact.train.recording.FORCE_THRESHOLD
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
     """Adds the ``estimate`` command to an argparse subparsers object; returns its parser."""
+    from jax_contact.train.cli_args import HelpFormatter
+
     p = subparsers.add_parser(
         "estimate",
         help="contact estimates for your own recording (CSV, NPZ, HDF5) and robot model",
@@ -38,7 +40,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         " P(contact) per foot, each term's probability and the transitions to"
         " OUT/estimate.h5 and OUT/estimate.csv, a figure per foot, and the metrics when the"
         " recording has ground truth. The estimator runs at the recording's rate.",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+        formatter_class=HelpFormatter,
     )
     p.add_argument("recording", help="the recording: .csv (header row), .npz or .h5")
     p.add_argument(

@@ -81,6 +81,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     The parser's defaults carry ``func=run`` and ``check=check``, as ``train/cli.py``'s
     commands do.
     """
+    from jax_contact.train.cli_args import HelpFormatter
+
     p = subparsers.add_parser(
         "tune",
         help="tune the estimator's parameters by gradient on logs with ground truth",
@@ -90,7 +92,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         " gradient clipping and early stopping on --validate (a log of another seed). Writes"
         " a versioned parameter JSON with its provenance, which `jax_contact.load_params`"
         " reads.",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+        formatter_class=HelpFormatter,
     )
     p.add_argument("logs", nargs="+", metavar="LOG", help="tuning logs (.h5 with truth/contact)")
     p.add_argument(

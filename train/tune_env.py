@@ -61,7 +61,7 @@ from jax_contact.train.env_rollouts import (
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
     """Adds the ``tune-env`` command; its defaults carry ``func=run`` and ``check=check``."""
-    from jax_contact.train.cli_args import positive_int, seed_int
+    from jax_contact.train.cli_args import HelpFormatter, positive_int, seed_int
 
     p = subparsers.add_parser(
         "tune-env",
@@ -72,7 +72,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         " file goes into ContactObsConfig(params=FILE), `jax-contact rates --params` and"
         " `wrapper_accuracy --params`. Your own env or a trained policy: tune_on_env in"
         " jax_contact.train.tune_env (docs/tuning.md).",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+        formatter_class=HelpFormatter,
     )
     p.add_argument(
         "scenes",
