@@ -3,9 +3,10 @@
 cause, never a refusal: a joint outside its range (degrees), a derivative column that does
 not integrate to the column it derives from (sign, degrees), a base orientation upside down
 (x, y, z, w order), a gyroscope rate about the wrong axes or in degrees, a base velocity in
-the base frame, a base acceleration that holds gravity, and, on the estimator's output,
-torques that cannot hold the feet up. Each returns the warning's text or None; the
-measurements behind each bound are in docs/own_robot.md.
+the base frame, a base acceleration that holds gravity, force truth in contact on every
+row (an offset sensor), and, on the estimator's output, torques that cannot hold the feet
+up. Each returns the warning's text or None (:func:`force_truth` always says what it
+read); the measurements behind each bound are in docs/own_robot.md.
 """
 
 from __future__ import annotations
@@ -19,9 +20,10 @@ import numpy as np
 RANGE_SLACK, RANGE_SHARE = 0.1, 0.05
 
 
-def outside_range(m, j: int, q: np.ndarray) -> tuple[float, float] | None:
-    """(share of finite rows, largest |q|) if ``q`` leaves limited joint ``j``'s range by
-    more than :data:`RANGE_SLACK` on more than :data:`RANGE_SHARE` of them, else None."""
+def outside_range(m, j: int, q: np.ndarray, *, name: str, hinge: bool, units: str) -> str | None:
+    """A warning if ``q`` leaves limited joint ``j`` (``name``)'s range by more than
+    :data:`RANGE_SLACK` on more than :data:`RANGE_SHARE` of its finite rows, else None; on
+    a ``hinge`` read in radians that exceeds 2 pi it suggests degrees."""
     if not m.jnt_limited[j]:
         return None
     q = q[np.isfinite(q)]
@@ -29,7 +31,16 @@ def outside_range(m, j: int, q: np.ndarray) -> tuple[float, float] | None:
     out = (q < lo - RANGE_SLACK) | (q > hi + RANGE_SLACK)
     if q.size == 0 or out.mean() <= RANGE_SHARE:
         return None
-    return float(out.mean()), float(np.abs(q).max())
+    largest = float(np.abs(q).max())
+    hint = (
+        "; are they degrees? pass --units deg (names=..., units='deg' in Python)"
+        if hinge and units == "rad" and largest > 2 * np.pi
+        else ""
+    )
+    return (
+        f"outside the range of joint {name!r}, [{lo:.4g}, {hi:.4g}] {'rad' if hinge else 'm'}"
+        f" on {out.mean():.0%} of rows (largest {largest:.4g}){hint}"
+    )
 
 
 # Above this share of rows with the base's z axis pointing down, a recording of a robot
@@ -117,6 +128,11 @@ def window_changes(
 SLOPE_RANGE, MOVES = (0.5, 2.0), {"qd/": 0.02, "qdd/": 0.5}
 
 
+def _looks_like_degrees(slope: float) -> bool:
+    """A slope near 180 / pi = 57.3 or its inverse: one column in degrees, one in radians."""
+    return 40 < abs(slope) < 80 or 1 / 80 < abs(slope) < 1 / 40
+
+
 def derivative_mismatch(
     x: np.ndarray, rate: np.ndarray, dt: float, kind: str, of: str, hinge: bool
 ) -> str | None:
@@ -133,7 +149,7 @@ def derivative_mismatch(
         return None
     if slope < -SLOPE_RANGE[0]:
         hint = ": the opposite sign (a joint direction that differs between the columns)"
-    elif hinge and (1 / 80 < abs(slope) < 1 / 40 or 40 < abs(slope) < 80):
+    elif hinge and _looks_like_degrees(slope):
         hint = ": a factor of about 57.3, degrees against radians"
     else:
         hint = ": another unit, or another joint's column"
@@ -153,8 +169,9 @@ def velocity_in_base_frame(
     with the trapezoidal integral of ``vel`` as given (the schema's world frame) and of
     ``vel`` rotated by the base's orientation (a state estimator's body-frame velocity, as
     ROS odometry's twist). Warns when the rotated integral's median error is under half
-    the given one's and the given one's exceeds 2 cm (0.2 m/s over the window). A robot that
-    never turns has both alike and is not warned about (nor wrong: the frames coincide).
+    the given one's and the given one's exceeds 2 cm (0.2 m/s over the window). The frames
+    coincide only while the base heads along the world's x axis (then nothing is wrong),
+    and a slow robot's displacement may be within the position noise: neither is named.
     """
     ok = np.all(np.isfinite(quat), axis=1)
     quat = np.where(ok[:, None], quat, [1.0, 0.0, 0.0, 0.0])
@@ -223,7 +240,7 @@ def angular_velocity_mismatch(quat: np.ndarray, angvel: np.ndarray, dt: float) -
         hint = (
             ": degrees per second against radians? convert base_angvel to rad/s (--units deg"
             " would read every angle and rate in degrees, the joints' too)"
-            if 40 < abs(slope) < 80 or 1 / 80 < abs(slope) < 1 / 40
+            if _looks_like_degrees(slope)
             else ": another unit, sign, axis order or frame (the schema's is the base's,"
             " a gyroscope's)"
         )
@@ -309,3 +326,29 @@ def dynamics_disagrees(
         " (N m at the joint, not amperes or the motor side of a gearbox); on a light robot"
         " the sensor model's torque noise may swamp its loads (jax-contact tune)"
     )
+
+
+# A force/ truth column above the threshold on at least this share of rows, on every foot,
+# is warned about (a walking robot lifts each foot; an offset sensor never reads below).
+ALWAYS_LOADED = 0.995
+
+
+def force_truth(forces: dict[str, np.ndarray], threshold: float) -> tuple[str, bool]:
+    """What ``threshold`` (N) makes of each foot's ``force/`` truth column (foot -> (T,)):
+    ``(text, warn)``, the share of rows in contact and the minimum force per foot, and
+    whether every foot is in contact on at least :data:`ALWAYS_LOADED` of its rows (a
+    robot that stood throughout, or sensors whose air reading is above the threshold: the
+    metrics then mean nothing)."""
+    read = {
+        f: (np.mean(col[np.isfinite(col)] > threshold), np.nanmin(col))
+        for f, col in forces.items()
+        if np.isfinite(col).any()
+    }
+    shares = ", ".join(f"{f} {s:.0%} (min {low:.3g} N)" for f, (s, low) in read.items())
+    text = (
+        f"ground truth from force/ above {threshold:g} N: contact on {shares}; a foot that"
+        " left the ground but reads contact on every row has a sensor offset"
+        " (--force-threshold)"
+    )
+    warn = all(s >= ALWAYS_LOADED for s, _ in read.values())
+    return (text + "; if it stood throughout, ignore this" if warn else text), warn

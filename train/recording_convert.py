@@ -46,6 +46,7 @@ from jax_contact.train.recording import (
 from jax_contact.train.recording_checks import (
     angular_velocity_mismatch,
     derivative_mismatch,
+    force_truth,
     holds_gravity,
     outside_range,
     upside_down,
@@ -286,19 +287,8 @@ def to_readings(
         qa, va = int(m.jnt_qposadr[j]), int(m.jnt_dofadr[j])
         qpos[:, qa] = cols[col] * s
         used.add(col)
-        outside = outside_range(m, j, qpos[:, qa])
-        if outside:
-            hint = (
-                "; are they degrees? pass --units deg (names=..., units='deg' in Python)"
-                if hinge and units == "rad" and outside[1] > 2 * math.pi
-                else ""
-            )
-            notes.append(
-                f"WARNING column {col!r}: outside the range of joint {name!r},"
-                f" [{m.jnt_range[j, 0]:.4g}, {m.jnt_range[j, 1]:.4g}]"
-                f" {'rad' if hinge else 'm'} on {outside[0]:.0%} of rows (largest"
-                f" {outside[1]:.4g}){hint}"
-            )
+        if outside := outside_range(m, j, qpos[:, qa], name=name, hinge=hinge, units=units):
+            notes.append(f"WARNING column {col!r}: {outside}")
         vcol, vcol_named = by_model["qd/"].get(name), False
         if vcol is None:
             qvel[:, va] = _backward_diff(qpos[:, qa], dt)
@@ -444,23 +434,11 @@ def to_readings(
                 + _stretches(~truth_known.all(axis=(1, 2)), cols[TIME])
             )
         if by_model["force/"]:
-            # What the threshold made of each force column: a sensor with an offset (a foot
-            # force sensor's raw reading) reads "contact" on every row, and says so here.
-            read = {
-                f: (np.mean(col[np.isfinite(col)] > force_threshold), np.nanmin(col))
-                for f, col in ((f, cols[c]) for f, c in by_model["force/"].items())
-                if np.isfinite(col).any()
-            }
-            shares = ", ".join(f"{f} {s:.0%} (min {low:.3g} N)" for f, (s, low) in read.items())
-            line = (
-                f"ground truth from force/ above {force_threshold:g} N: contact on {shares};"
-                " a foot that left the ground but reads contact on every row has a sensor"
-                " offset (--force-threshold)"
-            )
-            # Every foot on the ground on every row: a robot that stood still, or sensors
-            # whose air reading is above the threshold; the metrics then mean nothing.
-            always = all(s >= ALWAYS_LOADED for s, _ in read.values())
-            notes.append(f"WARNING {line}; if it stood throughout, ignore this" if always else line)
+            # A sensor with an offset (a foot force sensor's raw reading) reads "contact" on
+            # every row: what the threshold made of each column is said.
+            forces = {f: cols[c] for f, c in by_model["force/"].items()}
+            line, warn = force_truth(forces, force_threshold)
+            notes.append(f"WARNING {line}" if warn else line)
     finite = np.all(np.isfinite(np.stack([cols[c] for c in sorted(used)], axis=1)), axis=1)
     valid = finite & np.concatenate([[True], finite[:-1]])  # differences use the row before
     if not valid.any():
@@ -527,11 +505,6 @@ def noise_for_differences(params, conv: Converted):
         sigma_qd=jnp.asarray(sqd, jnp.float32), sigma_qdd=jnp.asarray(sqdd, jnp.float32)
     )
     return params.replace(noise=noise)
-
-
-# A force/ truth column above the threshold on at least this share of rows, on every foot,
-# is warned about (a walking robot lifts each foot; an offset sensor never reads below).
-ALWAYS_LOADED = 0.995
 
 
 def _stretches(mask: np.ndarray, t: np.ndarray) -> str:
