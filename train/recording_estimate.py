@@ -101,9 +101,7 @@ def estimate_recording(
         )
     notes.insert(0, f"estimator terms: {', '.join(terms)}; rate {1.0 / conv.dt:.6g} Hz")
     for line in notes:
-        # A reading that looks like another unit or frame is a warning, the rest notes.
-        warned = line.removeprefix("WARNING ")
-        print(f"warning: {warned}" if warned != line else f"note: {line}")
+        _say(line)
     has_truth = conv.truth is not None
     out = replay(
         robot,
@@ -127,14 +125,14 @@ def estimate_recording(
             if any(n.startswith("WARNING") for n in notes):
                 disagrees += "; or a consequence of the warnings above (fix those first)"
             notes.append(f"WARNING {disagrees}")
-            print(f"warning: {disagrees}")
+            _say(notes[-1])
     if calibration is not None:
         # What the file defines as its output: the belief through its calibration map
         # (jax_contact.calibration), as the wrapper and the exported estimator report it.
         out["probabilistic"] = calibrate_probability(out["probabilistic"], calibration)
         line = f"p_contact through the file's calibration map ({calibration.describe()})"
         notes.append(line)
-        print(f"note: {line}")
+        _say(line)
     out_dir = Path(out_dir)
     # The earlier run's outputs, read once: they are superseded, and named if not rewritten.
     earlier = [n for n in _earlier_outputs(out_dir) if (out_dir / n).is_file()]
@@ -228,6 +226,13 @@ def estimate_recording(
         "outputs": out,
         "scores": scores,
     }
+
+
+def _say(note: str) -> None:
+    """Prints one of the run's notes: those that flag a reading as another unit or frame
+    (prefixed ``WARNING ``, as :func:`to_readings` writes them) as ``warning:``."""
+    warned = note.removeprefix("WARNING ")
+    print(f"warning: {warned}" if warned != note else f"note: {note}")
 
 
 def _earlier_outputs(folder: Path) -> list[str]:
