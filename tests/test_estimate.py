@@ -34,6 +34,15 @@ LOG = FIXTURES / "planar_leg_hop.h5"
 CSV = FIXTURES / "planar_leg_hop.csv"
 # Model name -> the recording's name for it.
 RENAME = {"rail": "slider_z", "hip": "HIP_J", "knee": "KNEE_J", "foot": "toe"}
+# How the round trip's recording reads back: its names and its degrees.
+AS_RECORDED = {"names": {v: k for k, v in RENAME.items()}, "units": "deg"}
+
+
+def _estimate(path, out_dir, **kw):
+    """``estimate_recording`` of a planar-leg recording, without the progress line."""
+    from jax_contact.train.recording_estimate import estimate_recording
+
+    return estimate_recording(path, model="planar_leg", out_dir=out_dir, progress=False, **kw)
 
 
 def _parser():
@@ -53,7 +62,6 @@ def planar_log():
 def round_trip(planar_log, tmp_path_factory):
     """evaluate on the log, and estimate on its shuffled, renamed, degree recording."""
     from jax_contact.train.logs import evaluate_file
-    from jax_contact.train.recording_estimate import estimate_recording
 
     tmp = tmp_path_factory.mktemp("estimate")
     evaluated = evaluate_file(LOG, gm_grid_log=LOG)
@@ -61,14 +69,7 @@ def round_trip(planar_log, tmp_path_factory):
     cols = log_to_columns(planar_log, names=RENAME, units="deg", truth_force=arrays["truth/force"])
     order = np.random.default_rng(0).permutation(list(cols))
     write_recording_csv(tmp / "robot.csv", {k: cols[k] for k in order})
-    estimated = estimate_recording(
-        tmp / "robot.csv",
-        model="planar_leg",
-        out_dir=tmp / "out",
-        names={v: k for k, v in RENAME.items()},
-        units="deg",
-        progress=False,
-    )
+    estimated = _estimate(tmp / "robot.csv", tmp / "out", **AS_RECORDED)
     return SimpleNamespace(evaluated=evaluated, estimated=estimated, tmp=tmp, order=order)
 
 
@@ -150,22 +151,13 @@ def test_missing_ground_truth_is_left_out_of_the_metrics(round_trip, tmp_path, c
     contact nor air: a note names the rows, ``truth/known`` marks them, and the metrics are
     those of the same outputs with those rows masked (they used to count as air, silently)."""
     from jax_contact.metrics import evaluate
-    from jax_contact.train.recording_estimate import estimate_recording
 
     cols = dict(read_recording(round_trip.tmp / "robot.csv").columns)
     for name in ("contact/toe", "force/toe"):
         cols[name] = cols[name].copy()
         cols[name][50:60] = np.nan
     write_recording_csv(tmp_path / "gap.csv", cols)
-    got = estimate_recording(
-        tmp_path / "gap.csv",
-        model="planar_leg",
-        out_dir=tmp_path / "out",
-        names={v: k for k, v in RENAME.items()},
-        units="deg",
-        plots=False,
-        progress=False,
-    )
+    got = _estimate(tmp_path / "gap.csv", tmp_path / "out", plots=False, **AS_RECORDED)
     assert any("ground truth is missing" in n and "rows 50-59" in n for n in got["notes"])
     with h5py.File(tmp_path / "out" / "estimate.h5", "r") as f:
         known = f["truth/known"][:, 0]
@@ -185,15 +177,9 @@ def test_a_degree_recording_read_as_radians_warns(round_trip, tmp_path, capsys):
     """The round trip's recording holds degrees; read as radians (no units='deg') the hip
     leaves its +-1.6 rad range and the leg reads air throughout: both are printed as
     warnings (before, only the usual notes and a summary of 0.00)."""
-    from jax_contact.train.recording_estimate import estimate_recording
 
-    got = estimate_recording(
-        round_trip.tmp / "robot.csv",
-        model="planar_leg",
-        out_dir=tmp_path / "out",
-        names={v: k for k, v in RENAME.items()},
-        plots=False,
-        progress=False,
+    got = _estimate(
+        round_trip.tmp / "robot.csv", tmp_path / "out", names=AS_RECORDED["names"], plots=False
     )
     text = capsys.readouterr().out
     assert "warning: column 'q/HIP_J': outside the range of joint 'hip', [-1.6, 1.6] rad" in text
@@ -206,16 +192,12 @@ def test_torques_of_the_wrong_sign_warn_naming_the_foot(round_trip, tmp_path, ca
     """The planar sample's torques, negated (a joint axis opposite the model's): the
     dynamics term reads air on 94 % of the steps where the foot stands still (15 % with
     the recorded torques, the round trip above, which does not warn)."""
-    from jax_contact.train.recording_estimate import estimate_recording
 
     assert not [n for n in round_trip.estimated["notes"] if "dynamics term reads air" in n]
     rec = read_recording(CSV)
     cols = {k: -v if k.startswith("tau/") else v for k, v in rec.columns.items()}
     write_recording_csv(tmp_path / "flipped.csv", cols)
-    got = estimate_recording(
-        tmp_path / "flipped.csv", model="planar_leg", out_dir=tmp_path / "out", plots=False,
-        progress=False,
-    )  # fmt: skip
+    got = _estimate(tmp_path / "flipped.csv", tmp_path / "out", plots=False)
     text = capsys.readouterr().out
     warned = [n for n in got["notes"] if "dynamics term reads air" in n]
     assert len(warned) == 1 and "warning: the dynamics term reads air" in text
@@ -225,10 +207,7 @@ def test_torques_of_the_wrong_sign_warn_naming_the_foot(round_trip, tmp_path, ca
     # warning defers to it (the dynamics term reads that acceleration too).
     cols["qdd/rail"] = -cols["qdd/rail"]
     write_recording_csv(tmp_path / "two.csv", cols)
-    got = estimate_recording(
-        tmp_path / "two.csv", model="planar_leg", out_dir=tmp_path / "two", plots=False,
-        progress=False,
-    )  # fmt: skip
+    got = _estimate(tmp_path / "two.csv", tmp_path / "two", plots=False)
     warned = [n for n in got["notes"] if n.startswith("WARNING")]
     assert [n.split("'")[1] for n in warned[:1]] == ["qdd/rail"] and len(warned) == 2
     assert warned[1].endswith("or a consequence of the warnings above (fix those first)")
@@ -269,7 +248,6 @@ def test_the_python_call_checks_its_output_folder_first(tmp_path):
 def test_a_rerun_says_which_earlier_outputs_it_removed(round_trip, tmp_path, capsys):
     """A run without ground truth into a folder holding an earlier run's metrics.json
     removes it (the folder then holds one run) and says so; a note of the user's stays."""
-    from jax_contact.train.recording_estimate import estimate_recording
 
     cols = read_recording(round_trip.tmp / "robot.csv").columns
     write_recording_csv(
@@ -279,14 +257,12 @@ def test_a_rerun_says_which_earlier_outputs_it_removed(round_trip, tmp_path, cap
     out.mkdir()
     (out / "metrics.json").write_text("{}")
     (out / "notes.txt").write_text("mine")
-    estimate_recording(
+    _estimate(
         tmp_path / "no_truth.csv",
-        model="planar_leg",
-        out_dir=out,
+        out,
         names={v: k for k, v in RENAME.items() if k != "foot"},
         units="deg",
         plots=False,
-        progress=False,
     )
     text = capsys.readouterr().out
     assert "removed the earlier run's ['metrics.json']" in text
@@ -859,15 +835,8 @@ def test_terrain_model_reaches_the_replay_of_evaluate_and_estimate(
     cols = log_to_columns(planar_log, names=RENAME, units="rad")
     write_recording_csv(tmp_path / "r.csv", cols)
     with pytest.raises(Stop):
-        from jax_contact.train.recording_estimate import estimate_recording
-
-        estimate_recording(
-            tmp_path / "r.csv",
-            model="planar_leg",
-            out_dir=tmp_path / "out",
-            names={v: k for k, v in RENAME.items()},
-            progress=False,
-            terrain_model="memory",
+        _estimate(
+            tmp_path / "r.csv", tmp_path / "out", names=AS_RECORDED["names"], terrain_model="memory"
         )
     assert [type(t).__name__ for t in seen] == ["FootholdMemory", "FootholdMemory"]
 
