@@ -201,7 +201,9 @@ def test_torques_of_the_wrong_sign_warn_naming_the_foot(round_trip, tmp_path, ca
     text = capsys.readouterr().out
     warned = [n for n in got["notes"] if "dynamics term reads air" in n]
     assert len(warned) == 1 and "warning: the dynamics term reads air" in text
-    assert re.search(r"\(foot 9\d%;", warned[0]) and "tau/ columns' sign" in warned[0]
+    # The planar leg's one foot, with its leg's two torque columns (the rail has none).
+    assert re.search(r"\(foot 9\d% \[tau/hip, tau/knee\];", warned[0])
+    assert "check those tau/ columns' sign" in warned[0]
     assert "consequence of the warnings above" not in warned[0]  # the only warning
     # With the rail's acceleration negated as well, its warning comes first and the torque
     # warning defers to it (the dynamics term reads that acceleration too).
@@ -231,6 +233,9 @@ def test_the_torque_check_counts_only_valid_still_steps():
     text = dynamics_disagrees(p_dyn, p_dk, valid, ["a", "b", "c"])
     assert text.startswith("the dynamics term reads air on most steps where the foot stands")
     assert "(a 82%;" in text and " b " not in text and " c " not in text
+    cols = [["tau/a1", "tau/a2"], ["tau/b1"], ["tau/c1"]]
+    text = dynamics_disagrees(p_dyn, p_dk, valid, ["a", "b", "c"], cols)
+    assert "(a 82% [tau/a1, tau/a2];" in text and "tau/b1" not in text
     assert dynamics_disagrees(p_dyn[:, 1:], p_dk[:, 1:], valid[:, 1:], ["b", "c"]) is None
 
 

@@ -294,34 +294,39 @@ def dynamics_disagrees(
     p_diff_kinematics: np.ndarray,
     valid: np.ndarray,
     foot_names: Sequence[str],
+    foot_columns: Sequence[Sequence[str]] | None = None,
 ) -> str | None:
-    """A warning naming the feet whose torques look wrong, else None.
+    """A warning naming the feet whose torques look wrong, and their torque columns, else None.
 
     A foot that stands still (the differential-kinematics term above 0.5) is usually
     loaded, and the dynamics term then reads contact; torques of the wrong sign (a joint
     axis opposite the model's, a motor current's convention) or scale (amperes, the motor
     side of a gearbox) cannot push the foot into the ground, and it reads air on nearly
-    every such step. Steps with ``valid`` False are left out.
+    every such step. Steps with ``valid`` False are left out. The term is one per leg, so
+    it cannot say which of a leg's joints is wrong: the message lists them all.
 
     Args:
       p_dynamics, p_diff_kinematics: (T, L) each term's probability of contact.
       valid: (T, L) the estimator's per-leg validity.
       foot_names: (L,) names for the message.
+      foot_columns: (L,) per foot, the recording's ``tau/`` columns of its leg's joints
+        (listed after the foot's name), or None.
     """
     still = (p_diff_kinematics > 0.5) & valid.astype(bool)
     n_still = still.sum(axis=0)
     share = ((p_dynamics < 0.5) & still).sum(axis=0) / np.maximum(n_still, 1)
+    columns = foot_columns if foot_columns is not None else [()] * len(foot_names)
     bad = [
-        f"{name} {s:.0%}"
-        for name, s, n in zip(foot_names, share, n_still, strict=True)
+        f"{name} {s:.0%}" + (f" [{', '.join(cols)}]" if cols else "")
+        for name, s, n, cols in zip(foot_names, share, n_still, columns, strict=True)
         if n >= MIN_STILL_STEPS and s > DYNAMICS_AIR_WHEN_STILL
     ]
     if not bad:
         return None
     return (
         "the dynamics term reads air on most steps where the foot stands still ("
-        + ", ".join(bad)
-        + "; with a recording's own torques it is well under half): check the tau/ columns'"
+        + "; ".join(bad)
+        + "; with a recording's own torques it is well under half): check those tau/ columns'"
         " sign (positive along the model's joint axis, as MuJoCo's qfrc_actuator) and unit"
         " (N m at the joint, not amperes or the motor side of a gearbox); on a light robot"
         " the sensor model's torque noise may swamp its loads (jax-contact tune)"

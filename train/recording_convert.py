@@ -73,6 +73,7 @@ class Converted:
       velocity_from_position: dofs whose velocity is a difference of positions.
       acceleration_from_position: dofs whose acceleration is a second difference of
         positions.
+      tau_columns: dof -> the recording's ``tau/`` column that filled it (for messages).
     """
 
     readings: dict
@@ -87,6 +88,7 @@ class Converted:
     notes: tuple[str, ...]
     velocity_from_position: tuple[int, ...] = ()
     acceleration_from_position: tuple[int, ...] = ()
+    tau_columns: Mapping[int, str] = dataclasses.field(default_factory=dict)
 
 
 def model_joints(mj_model: mujoco.MjModel, base_body: int):
@@ -276,6 +278,7 @@ def to_readings(
     qacc = np.zeros((t_len, m.nv))
     tau = np.zeros((t_len, m.nv))
     missing_tau, missing_qd = [], []
+    tau_columns = {}
     vel_from_pos, acc_from_pos = [], []
     for name, j in joints:
         col = by_model["q/"].get(name)
@@ -319,6 +322,7 @@ def to_readings(
             missing_tau.append(name)
         else:
             tau[:, va] = cols[tcol]
+            tau_columns[va] = tcol
             used.add(tcol)
     if missing_qd:
         notes.append(f"joint velocities differentiated from positions: {missing_qd}")
@@ -479,6 +483,7 @@ def to_readings(
         notes=tuple(notes),
         velocity_from_position=tuple(sorted(vel_from_pos)),
         acceleration_from_position=tuple(sorted(acc_from_pos)),
+        tau_columns=tau_columns,
     )
 
 

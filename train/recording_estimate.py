@@ -120,6 +120,7 @@ def estimate_recording(
             np.asarray(out["probabilistic/p_diff_kinematics"])[:, 0],
             np.asarray(out["probabilistic/valid"])[:, 0],
             desc.foot_names,
+            [[conv.tau_columns[d] for d in leg if d in conv.tau_columns] for leg in desc.leg_dofs],
         )
         if disagrees:
             if any(n.startswith("WARNING") for n in notes):
