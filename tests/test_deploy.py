@@ -15,6 +15,7 @@ import sys
 import textwrap
 from pathlib import Path
 
+import h5py
 import numpy as np
 import pytest
 
@@ -292,6 +293,50 @@ def test_deploy_check_reports_latency_and_agreement(deployed, live, tmp_path):
     assert res["steps"] == N_STEPS
 
 
+def test_deploy_check_reads_a_recording_and_warns_as_estimate(deployed, live, tmp_path, capsys):
+    """The module's log written as a recording of named columns (a real robot's log) runs
+    through the artefact like the log itself: the same P(contact), so the same share of
+    steps in contact per foot as the offline replay of the log (``live``). Its columns are
+    checked as ``jax-contact estimate`` checks them, and a recording without torques is
+    refused (the exported dynamics term would read zeros)."""
+    from jax_contact.train.deploy_cmd import deploy_check, is_recording
+    from jax_contact.train.logs import load_log
+    from jax_contact.train.recording import write_recording_csv
+    from jax_contact.train.recording_convert import log_to_columns
+
+    cols = log_to_columns(load_log(deployed["log"]), env=0)
+    write_recording_csv(tmp_path / "rec.csv", cols)
+    res = deploy_check(deployed["artefact"], tmp_path / "rec.csv", pace=False)
+    assert res["steps"] == N_STEPS and res["max_abs_diff"] <= P_TOL and not res["warnings"]
+    want = np.mean(live > 0.5, axis=0)
+    got = np.array(list(res["contact_share"].values()))
+    assert list(res["contact_share"]) == list(deployed["header"]["robot"]["feet"])
+    np.testing.assert_allclose(got, want, atol=1.0 / N_STEPS)  # one step's flag, rounding
+    assert "share of steps estimated in contact (P > 0.5): FR " in capsys.readouterr().out
+    # An HDF5 recording is told from a simulate log (which also has a time dataset).
+    with h5py.File(tmp_path / "rec.h5", "w") as f:
+        for name, col in cols.items():
+            f[name] = col  # "q/FR_hip_joint" is the dataset FR_hip_joint of group q
+    assert is_recording(tmp_path / "rec.h5") and not is_recording(deployed["log"])
+    # A knee in degrees: estimate's warning, printed before the replay.
+    damaged = {**cols, "q/FR_calf_joint": np.rad2deg(cols["q/FR_calf_joint"])}
+    write_recording_csv(tmp_path / "deg.csv", damaged)
+    deploy_check(deployed["artefact"], tmp_path / "deg.csv", pace=False, steps=20)
+    assert "warning: column 'q/FR_calf_joint': outside the range" in capsys.readouterr().out
+    # One leg's torques negated: the torque check, from the exported update's own terms.
+    fr = [k for k in cols if k.startswith("tau/FR_")]
+    write_recording_csv(tmp_path / "fr.csv", {**cols, **{k: -cols[k] for k in fr}})
+    res = deploy_check(deployed["artefact"], tmp_path / "fr.csv", pace=False)
+    assert res["warnings"] and res["warnings"][0].startswith("the dynamics term reads air")
+    assert "(FR 9" in res["warnings"][0] and f"[{', '.join(fr)}]" in res["warnings"][0]
+    no_tau = {k: v for k, v in cols.items() if not k.startswith("tau/")}
+    write_recording_csv(tmp_path / "no_tau.csv", no_tau)
+    with pytest.raises(ValueError, match=r"no_tau.csv' has no tau/ column .* dynamics term"):
+        deploy_check(deployed["artefact"], tmp_path / "no_tau.csv", pace=False)
+    with pytest.raises(ValueError, match="argument --env: a recording holds one robot"):
+        deploy_check(deployed["artefact"], tmp_path / "rec.csv", env=1)
+
+
 def test_cli_arguments_are_checked_without_jax(tmp_path):
     import argparse
 
@@ -316,8 +361,16 @@ def test_cli_arguments_are_checked_without_jax(tmp_path):
     args = parser.parse_args(["deploy-check", str(tmp_path / "a.contact"), str(tmp_path / "l.h5")])
     with pytest.raises(ValueError, match="argument log"):
         args.check(args)
+    (tmp_path / "l.txt").write_text("x")
+    args = parser.parse_args(["deploy-check", str(tmp_path / "a.contact"), str(tmp_path / "l.txt")])
+    with pytest.raises(ValueError, match=r"argument log: .*l.txt' must end in .csv, .npz, .h5"):
+        args.check(args)
     log = tmp_path / "l.h5"
     log.write_bytes(b"x")
+    art = str(tmp_path / "a.contact")
+    args = parser.parse_args(["deploy-check", art, str(log), "--names", "a"])
+    with pytest.raises(ValueError, match="argument --names: 'a' is not log_name=model_name"):
+        args.check(args)
     args = parser.parse_args(
         ["deploy-check", str(tmp_path / "a.contact"), str(log), "--cpu", "999"]
     )

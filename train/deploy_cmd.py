@@ -3,7 +3,9 @@
 - ``export`` writes one ``.contact`` file (:mod:`jax_contact.export`): the single-robot update
   with the robot's kinematics and dynamics traced in, and a JSON header (readings, state,
   outputs, parameters and their provenance, versions).
-- ``deploy-check`` feeds a log (``jax-contact simulate``) at its rate through the loaded file
+- ``deploy-check`` feeds a log (``jax-contact simulate``), or a recording of the robot in
+  ``jax-contact estimate``'s format (its columns checked and warned about as there), at its
+  rate through the loaded file
   (:mod:`jax_contact.deploy`), one reading per call as a control loop would, and reports
   the per-call latency (median, p99, p99.9, max), the deadline misses at the rate and the
   largest |P(contact)| difference from the offline estimator (``jax_contact.train.evaluate.replay``
@@ -38,6 +40,7 @@ def add_parsers(subparsers) -> None:
         positive_int,
         seed_int,
     )
+    from jax_contact.train.estimate_cmd import add_recording_flags
 
     p = subparsers.add_parser(
         "export",
@@ -88,8 +91,14 @@ def add_parsers(subparsers) -> None:
     )
     p.set_defaults(func=run_deploy_check, check=check_deploy_check)
     p.add_argument("artefact", help=f"a {ARTEFACT_SUFFIX} file written by `jax-contact export`")
-    p.add_argument("log", help="an .h5 log written by `jax-contact simulate`")
+    p.add_argument(
+        "log",
+        help="an .h5 log written by `jax-contact simulate`, or a recording of the robot (.csv,"
+        " .npz or .h5 with a time column, as `jax-contact estimate` reads it; --names, --units"
+        " and --resample as there)",
+    )
     p.add_argument("--env", type=int, default=0, help="which env of the log to replay")
+    add_recording_flags(p)
     p.add_argument(
         "--steps", type=positive_int, default=None, help="replay only the first N readings"
     )
@@ -139,14 +148,16 @@ def check_export(args: argparse.Namespace) -> None:
 
 def check_deploy_check(args: argparse.Namespace) -> None:
     """Raises ValueError naming the argument that is wrong (no JAX import)."""
-    from jax_contact.train.cli_args import LOG_SUFFIXES, check_input_file, check_output_file
+    from jax_contact.train.cli_args import check_input_file, check_output_file
+    from jax_contact.train.estimate_cmd import RECORDING_SUFFIXES, parse_names
 
     check_input_file("artefact", args.artefact)
     check_input_file("log", args.log)
-    if Path(args.log).suffix not in LOG_SUFFIXES:
-        raise ValueError(f"argument log: {args.log!r} must end in {' or '.join(LOG_SUFFIXES)}")
+    if Path(args.log).suffix.lower() not in RECORDING_SUFFIXES:
+        raise ValueError(f"argument log: {args.log!r} must end in {', '.join(RECORDING_SUFFIXES)}")
     if args.env < 0:
         raise ValueError(f"argument --env: must be >= 0, got {args.env}")
+    parse_names(args.names)
     if args.cpu is not None:
         allowed = sorted(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else []
         if args.cpu not in allowed:
@@ -326,6 +337,10 @@ def offline_estimate(header: dict, readings: dict, *, dt: float):
     return p
 
 
+# The exported update's diagnostics that deploy-check keeps (the torque check reads them).
+CHECKED_DIAGNOSTICS = ("p_dynamics", "p_diff_kinematics", "valid")  # TORQUE_CHECK_INPUTS
+
+
 def realtime_replay(
     est, readings: dict, *, period_s: float, pace: bool = True, spin_s: float = 3e-4
 ) -> dict:
@@ -337,7 +352,8 @@ def realtime_replay(
     after the next release. Without ``pace`` the calls run back to back (no deadlines).
 
     Returns:
-      ``latency_s`` (T,), ``p_contact`` (T, L), ``deadline_misses``.
+      ``latency_s`` (T,), ``p_contact`` (T, L), ``deadline_misses``, and the
+      :data:`CHECKED_DIAGNOSTICS` of each call, (T, L).
     """
     import time
 
@@ -352,6 +368,7 @@ def realtime_replay(
     belief = est.init()
     latency = np.empty(n_t)
     p = np.empty((n_t, len(est.feet)), np.float32)
+    diags = []
     misses = 0
     clock = time.perf_counter
     t0 = clock() + 0.01
@@ -364,12 +381,14 @@ def realtime_replay(
             while clock() < release:
                 pass
         start = clock()
-        belief, p[k], _ = est.update(belief, steps[k])
+        belief, p[k], diag = est.update(belief, steps[k])
         end = clock()
         latency[k] = end - start
+        diags.append(diag)  # read after the loop
         if pace and end > t0 + (k + 1) * period_s:
             misses += 1
-    return {"latency_s": latency, "p_contact": p, "deadline_misses": misses}
+    terms = {k: np.stack([np.asarray(d[k]) for d in diags]) for k in CHECKED_DIAGNOSTICS}
+    return {"latency_s": latency, "p_contact": p, "deadline_misses": misses, **terms}
 
 
 def deploy_check(
@@ -380,20 +399,37 @@ def deploy_check(
     steps: int | None = None,
     pace: bool = True,
     json_path: str | Path | None = None,
+    names: dict[str, str] | None = None,
+    units: str = "rad",
+    resample: bool = False,
 ) -> dict:
-    """The ``deploy-check`` command as a function; returns its JSON payload."""
+    """The ``deploy-check`` command as a function; returns its JSON payload.
+
+    ``log`` is a ``jax-contact simulate`` log, or a recording of the robot
+    (:func:`is_recording`), read with ``names``,
+    ``units`` and ``resample`` as ``jax-contact estimate`` reads it, its convention checks
+    printed as there.
+    """
     import numpy as np
 
     from jax_contact import deploy
     from jax_contact.export import read_artefact
     from jax_contact.io import write_json_atomic
     from jax_contact.train.logs import load_log
+    from jax_contact.train.recording_estimate import contact_summary, print_note, torque_note
 
     header, _ = read_artefact(artefact)
-    # Checked, and re-aligned to end-of-step readings if older (what the export pairs).
-    loaded = load_log(log)
-    name, dt, readings = loaded.name, loaded.dt, loaded.readings
-    robot_name = loaded.attrs.get("robot")
+    if is_recording(log):
+        if env != 0:
+            raise ValueError(f"argument --env: a recording holds one robot (env 0), got {env}")
+        name, conv, desc = _recording_readings(header, log, names, units, resample)
+        dt, readings, robot_name = conv.dt, conv.readings, header["robot"]["source"]
+    else:
+        conv = None
+        # Checked, and re-aligned to end-of-step readings if older (what the export pairs).
+        loaded = load_log(log)
+        name, dt, readings = loaded.name, loaded.dt, loaded.readings
+        robot_name = loaded.attrs.get("robot")
     if abs(dt * header["rate_hz"] - 1.0) > 1e-6:
         raise ValueError(
             f"{name} is at {1.0 / dt:g} Hz but {str(artefact)!r} was exported for"
@@ -439,7 +475,29 @@ def deploy_check(
         },
         "deadline_misses": int(rt["deadline_misses"]),
         "max_abs_diff": float(np.nanmax(diff)) if np.isfinite(diff).any() else float("nan"),
+        "contact_share": {
+            foot: float(np.nanmean(rt["p_contact"][:, i] > 0.5))
+            for i, foot in enumerate(header["robot"]["feet"])
+        },
     }
+    summary = contact_summary(
+        rt["p_contact"],
+        header["robot"]["feet"],
+        floor_hint="export with a file tuned with --terrain-model memory",
+    )
+    notes = list(conv.notes) if conv is not None else []
+    torque = None
+    if conv is not None and {"dynamics", "diff_kinematics"} <= set(
+        params_and_terrain(header)[0].terms
+    ):
+        torque = torque_note(rt, desc, conv, notes)
+    # Every warning of the run, in the order printed: the recording's, the torque check's
+    # and the summary's (every foot reads air).
+    result["warnings"] = [
+        *(n.removeprefix("WARNING ") for n in notes if n.startswith("WARNING ")),
+        *([torque.removeprefix("WARNING ")] if torque else []),
+        *(line.removeprefix("warning: ") for line in summary.split("\n")[1:]),
+    ]
     lat = result["latency_us"]
     print(
         f"{result['steps']} readings of env {env} at {result['rate_hz']:g} Hz through"
@@ -447,14 +505,63 @@ def deploy_check(
         f" {lat['p99']:.1f}, p99.9 {lat['p999']:.1f}, max {lat['max']:.1f} us\n  deadline"
         f" misses ({1e3 * dt:g} ms period): "
         + (f"{result['deadline_misses']}" if pace else "not paced (--no-pace)")
-        + f"\n  max |P(contact) - offline estimate|: {result['max_abs_diff']:.2e}"
+        + f"\n  max |P(contact) - offline estimate|: {result['max_abs_diff']:.2e}\n  "
+        + summary
     )
+    if torque:
+        print_note(torque)
     if json_path:
         write_json_atomic(json_path, result)
     return result
 
 
+def is_recording(path: str | Path) -> bool:
+    """Whether ``path`` is a recording (:mod:`jax_contact.train.recording`) rather than a
+    ``jax-contact simulate`` log: a CSV or NPZ file, or an HDF5 file with a ``time``
+    dataset at its root and no ``readings`` group."""
+    path = Path(path)
+    if path.suffix.lower() in (".csv", ".npz"):
+        return True
+    import h5py
+
+    try:
+        with h5py.File(path, "r") as f:  # a simulate log also has time, beside readings/
+            return isinstance(f.get("time"), h5py.Dataset) and "readings" not in f
+    except OSError:
+        return False  # not HDF5: load_log names the file and the reason
+
+
+def _recording_readings(header: dict, log, names, units: str, resample: bool):
+    """(name, :class:`~jax_contact.train.recording_convert.Converted`, robot description)
+    of a recording of the artefact's robot, its notes and warnings printed as ``jax-contact
+    estimate`` prints them.
+
+    Raises:
+      ValueError: as :func:`jax_contact.train.recording_convert.to_readings`, or the
+        recording lacks torques that the exported estimator's dynamics term reads.
+    """
+    from jax_contact.envs.robots import load_robot
+    from jax_contact.train.recording import read_recording
+    from jax_contact.train.recording_convert import to_readings
+    from jax_contact.train.recording_estimate import print_note
+
+    robot = load_robot(header["robot"]["source"], foot_names=header["robot"]["feet"])
+    conv = to_readings(read_recording(log), robot, names=names, units=units, resample=resample)
+    name = f"recording {str(log)!r}"
+    if not conv.has_torque and "dynamics" in params_and_terrain(header)[0].terms:
+        raise ValueError(
+            f"{name} has no tau/ column for some actuated joint, but the exported estimator's"
+            " dynamics term reads every joint torque (the readings would hold zeros): record"
+            " the torques, or run `jax-contact estimate`, which leaves the term out"
+        )
+    for note in conv.notes:
+        print_note(note)
+    return name, conv, robot.description
+
+
 def run_deploy_check(args: argparse.Namespace) -> int:
+    from jax_contact.train.estimate_cmd import parse_names
+
     if args.cpu is not None:
         if "jax" in sys.modules:  # the CPU client sizes its thread pool when it starts
             print("jax-contact deploy-check: --cpu after jax was imported", file=sys.stderr)
@@ -466,6 +573,9 @@ def run_deploy_check(args: argparse.Namespace) -> int:
         steps=args.steps,
         pace=not args.no_pace,
         json_path=args.json,
+        names=parse_names(args.names),
+        units=args.units,
+        resample=args.resample,
     )
     return 0
 

@@ -56,14 +56,6 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         help="foot geom or body names, in leg order (default: found in the model)",
     )
     p.add_argument(
-        "--names",
-        default=None,
-        metavar="MAP",
-        help="recording name -> model name for joints and feet whose names differ: a JSON"
-        ' file {"log name": "model name"} or inline log=model,log2=model2; a name mapped to'
-        " nothing (log=, or null in the file) drops its columns (a joint the model lacks)",
-    )
-    p.add_argument(
         "--params",
         default=None,
         metavar="FILE|PRESET",
@@ -73,14 +65,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         " jax-contact evaluate)",
     )
     add_terrain_model_flag(p)
-    p.add_argument(
-        "--units", choices=UNITS, default="rad", help="unit of joint angles and angular rates"
-    )
-    p.add_argument(
-        "--resample",
-        action="store_true",
-        help="resample irregular time steps onto a uniform grid (linear) instead of refusing",
-    )
+    add_recording_flags(p)
     p.add_argument(
         "--force-threshold",
         type=float,
@@ -96,6 +81,28 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 
 
 # ------------------------------------------- robot flags for simulate / evaluate / reproduce
+
+
+def add_recording_flags(p: argparse.ArgumentParser) -> None:
+    """``--names``, ``--units`` and ``--resample``: how a recording's columns are read
+    (:func:`jax_contact.train.recording_convert.to_readings`), for ``estimate`` and
+    ``deploy-check``; :func:`parse_names` reads the first."""
+    p.add_argument(
+        "--names",
+        default=None,
+        metavar="MAP",
+        help="recording name -> model name for joints and feet whose names differ: a JSON"
+        ' file {"log name": "model name"} or inline log=model,log2=model2; a name mapped to'
+        " nothing (log=, or null in the file) drops its columns (a joint the model lacks)",
+    )
+    p.add_argument(
+        "--units", choices=UNITS, default="rad", help="unit of joint angles and angular rates"
+    )
+    p.add_argument(
+        "--resample",
+        action="store_true",
+        help="resample irregular time steps onto a uniform grid (linear) instead of refusing",
+    )
 
 
 def add_feet_flag(p: argparse.ArgumentParser) -> None:

@@ -101,7 +101,7 @@ def estimate_recording(
         )
     notes.insert(0, f"estimator terms: {', '.join(terms)}; rate {1.0 / conv.dt:.6g} Hz")
     for line in notes:
-        _say(line)
+        print_note(line)
     has_truth = conv.truth is not None
     out = replay(
         robot,
@@ -115,25 +115,17 @@ def estimate_recording(
         progress=progress,
     )
     if "dynamics" in terms and "diff_kinematics" in terms:
-        disagrees = dynamics_disagrees(
-            np.asarray(out["probabilistic/p_dynamics"])[:, 0],
-            np.asarray(out["probabilistic/p_diff_kinematics"])[:, 0],
-            np.asarray(out["probabilistic/valid"])[:, 0],
-            desc.foot_names,
-            [[conv.tau_columns[d] for d in leg if d in conv.tau_columns] for leg in desc.leg_dofs],
-        )
-        if disagrees:
-            if any(n.startswith("WARNING") for n in notes):
-                disagrees += "; or a consequence of the warnings above (fix those first)"
-            notes.append(f"WARNING {disagrees}")
-            _say(notes[-1])
+        terms_of = {k: np.asarray(out[f"probabilistic/{k}"])[:, 0] for k in TORQUE_CHECK_INPUTS}
+        if warned := torque_note(terms_of, desc, conv, notes):
+            notes.append(warned)
+            print_note(warned)
     if calibration is not None:
         # What the file defines as its output: the belief through its calibration map
         # (jax_contact.calibration), as the wrapper and the exported estimator report it.
         out["probabilistic"] = calibrate_probability(out["probabilistic"], calibration)
         line = f"p_contact through the file's calibration map ({calibration.describe()})"
         notes.append(line)
-        _say(line)
+        print_note(line)
     out_dir = Path(out_dir)
     # The earlier run's outputs, read once: they are superseded, and named if not rewritten.
     earlier = [n for n in _earlier_outputs(out_dir) if (out_dir / n).is_file()]
@@ -190,20 +182,7 @@ def estimate_recording(
                     )
                 )
         p = np.asarray(out["probabilistic"])[:, 0]
-        summary = "  ".join(
-            f"{f} {np.nanmean(p[:, i] > 0.5):.2f}" for i, f in enumerate(feet_names)
-        )
-        print(
-            f"{len(p)} readings at {conv.dt * 1e3:.4g} ms; share of steps estimated in contact"
-            f" (P > 0.5): {summary}"
-        )
-        if np.all(np.nanmean(p > 0.5, axis=0) < 0.01):
-            print(
-                "warning: every foot reads air on more than 99 % of the steps; if the robot"
-                " stood or walked, check the angles' unit (--units), the base quaternion's"
-                " order (w, x, y, z) and that the floor is at z = 0 in base_pos's frame"
-                " (else --terrain-model memory)"
-            )
+        print(f"{len(p)} readings at {conv.dt * 1e3:.4g} ms; " + contact_summary(p, feet_names))
         scores = {}
         if has_truth:
             # Steps whose truth is missing are scored as neither contact nor air.
@@ -229,7 +208,53 @@ def estimate_recording(
     }
 
 
-def _say(note: str) -> None:
+# The per-step diagnostics (each (T, L)) that :func:`torque_note` reads.
+TORQUE_CHECK_INPUTS = ("p_dynamics", "p_diff_kinematics", "valid")
+
+
+def torque_note(terms_of: Mapping[str, np.ndarray], desc, conv, notes: Sequence[str]):
+    """The torque check's note (``"WARNING ..."``) for a recording's estimate, or None.
+
+    Args:
+      terms_of: :data:`TORQUE_CHECK_INPUTS` -> (T, L) of the estimate of the recording.
+      desc: the robot description (feet and their legs' dofs).
+      conv: the recording as :func:`~jax_contact.train.recording_convert.to_readings`
+        converted it (its ``tau/`` columns, named in the warning).
+      notes: the notes so far: after an earlier warning the torque warning says it may be
+        that one's consequence (a wrong quaternion or base acceleration also makes the
+        dynamics term read air).
+    """
+    columns = [[conv.tau_columns[d] for d in leg if d in conv.tau_columns] for leg in desc.leg_dofs]
+    disagrees = dynamics_disagrees(
+        *(terms_of[k] for k in TORQUE_CHECK_INPUTS), desc.foot_names, columns
+    )
+    if not disagrees:
+        return None
+    if any(n.startswith("WARNING") for n in notes):
+        disagrees += "; or a consequence of the warnings above (fix those first)"
+    return f"WARNING {disagrees}"
+
+
+def contact_summary(
+    p: np.ndarray, feet: Sequence[str], floor_hint: str = "--terrain-model memory"
+) -> str:
+    """One line of each foot's share of steps with ``p`` (T, L) above 0.5, and a warning
+    line (``warning: ...``) when every foot reads air on more than 99 % of them: a robot
+    that stood or walked does not, a recording read in the wrong unit, quaternion order or
+    floor height does (``floor_hint``: what to do about a floor that is not at z = 0)."""
+    summary = "  ".join(f"{f} {np.nanmean(p[:, i] > 0.5):.2f}" for i, f in enumerate(feet))
+    line = f"share of steps estimated in contact (P > 0.5): {summary}"
+    if np.all(np.nanmean(p > 0.5, axis=0) < 0.01):
+        line += (
+            "\nwarning: every foot reads air on more than 99 % of the steps; if the robot"
+            " stood or walked, check the angles' unit (--units), the base quaternion's"
+            " order (w, x, y, z) and that the floor is at z = 0 in base_pos's frame"
+            f" (else {floor_hint})"
+        )
+    return line
+
+
+def print_note(note: str) -> None:
     """Prints one of the run's notes: those that flag a reading as another unit or frame
     (prefixed ``WARNING ``, as :func:`to_readings` writes them) as ``warning:``."""
     warned = note.removeprefix("WARNING ")
