@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import shutil
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -174,6 +176,63 @@ def test_train_refuses_an_existing_run_folder(tmp_path):
     (tmp_path / "estimate" / "run.json").write_text('{"variant": "estimate", "finished": false}')
     with pytest.raises(ValueError, match="holds an unfinished run .*: pass --overwrite"):
         ppo.train("estimate", TINY, tmp_path)
+
+
+def _fake_train(calls):
+    """``ppo.train`` without training: the run folder's run.json and one progress row."""
+
+    def train(variant, cfg, out_dir, *, seed=0, overwrite=False, log=print, task="go1"):
+        calls.append(variant)
+        run_dir = Path(out_dir) / variant
+        if ppo.check_run_folder(run_dir, overwrite):
+            shutil.rmtree(run_dir)
+        run_dir.mkdir(parents=True)
+        (run_dir / "run.json").write_text(json.dumps({"variant": variant, "finished": True}))
+        row = dict.fromkeys(ppo.CSV_FIELDS, 1.0) | {"step": len(calls)}
+        return ppo.RunResult(run_dir, [row], [], wall_s=1.0, first_eval_s=0.5)
+
+    return train
+
+
+def test_a_second_train_into_the_same_folder_keeps_the_first(tmp_path, monkeypatch):
+    """`train --variants estimate` then `train --variants none` into one --out: the summary
+    and the curve files hold both runs (the second call used to drop the first's); a
+    summary of another configuration or seed is refused before any training, as is an
+    existing run folder of any variant asked for."""
+    calls = []
+    monkeypatch.setattr(ppo, "train", _fake_train(calls))
+    log = []
+    ppo.train_variants(TINY, tmp_path, variants=["estimate"], eval_envs=0, log=log.append)
+    first = json.loads((tmp_path / "summary.json").read_text())
+    summary = ppo.train_variants(TINY, tmp_path, variants=["none"], eval_envs=0, log=log.append)
+    assert list(summary["runs"]) == ["estimate", "none"]
+    assert summary["runs"]["estimate"] == first["runs"]["estimate"]
+    csv_rows = (tmp_path / "reward_curves.csv").read_text().splitlines()[1:]
+    assert [r.split(",")[:2] for r in csv_rows] == [["estimate", "1"], ["none", "2"]]
+    assert any("kept the earlier runs" in m and "estimate" in m for m in log)
+    assert any(m.startswith("wrote summary.json") for m in log)
+    # Another seed: refused before training, nothing changed; --overwrite replaces it.
+    before = (tmp_path / "summary.json").read_text()
+    with pytest.raises(
+        ValueError, match=r"summary.json holds the runs \['estimate', 'none'\] of another seed"
+    ):
+        ppo.train_variants(TINY, tmp_path, variants=["truth"], seed=1, eval_envs=0, log=log.append)
+    assert calls == ["estimate", "none"] and (tmp_path / "summary.json").read_text() == before
+    summary = ppo.train_variants(
+        TINY, tmp_path, variants=["truth"], seed=1, overwrite=True, eval_envs=0, log=log.append
+    )
+    assert list(summary["runs"]) == ["truth"]
+    # "estimate" (its folder removed) and "none" asked for, "none" already trained: refused
+    # before "estimate" trains.
+    shutil.rmtree(tmp_path / "estimate")
+    with pytest.raises(ValueError, match=r"run folder .*none exists and is not empty"):
+        ppo.train_variants(TINY, tmp_path, variants=["estimate", "none"], seed=1, eval_envs=0)
+    assert calls == ["estimate", "none", "truth"]
+    other = tmp_path / "other"
+    other.mkdir()
+    (other / "summary.json").write_text("{")
+    with pytest.raises(ValueError, match="summary.json is not a summary of jax-contact train"):
+        ppo.train_variants(TINY, other, variants=["truth"], eval_envs=0)
 
 
 def test_progress_csv_and_curve_files(tmp_path):

@@ -36,6 +36,7 @@ import csv
 import dataclasses
 import functools
 import io
+import json
 import shutil
 import sys
 import time
@@ -436,12 +437,7 @@ def train(
     spec = tasks.get_task(task)
     cfg.validate()
     run_dir = Path(out_dir) / variant
-    if run_dir.exists() and any(run_dir.iterdir()):
-        if not overwrite:
-            what = "exists and is not empty"
-            if unfinished_run(run_dir):
-                what = "holds an unfinished run (interrupted, or training in another process)"
-            raise ValueError(f"run folder {run_dir} {what}: pass --overwrite to replace it")
+    if check_run_folder(run_dir, overwrite):
         shutil.rmtree(run_dir)
     run_dir.mkdir(parents=True, exist_ok=True)
     run_info = {
@@ -541,6 +537,23 @@ def train(
     )
 
 
+def check_run_folder(run_dir: Path, overwrite: bool) -> bool:
+    """Whether ``run_dir`` holds files that ``overwrite`` lets a new run replace.
+
+    Raises:
+      ValueError: it holds files and ``overwrite`` is False (naming the folder, and an
+        unfinished run as such).
+    """
+    if not (run_dir.exists() and any(run_dir.iterdir())):
+        return False
+    if not overwrite:
+        what = "exists and is not empty"
+        if unfinished_run(run_dir):
+            what = "holds an unfinished run (interrupted, or training in another process)"
+        raise ValueError(f"run folder {run_dir} {what}: pass --overwrite to replace it")
+    return True
+
+
 def unfinished_run(run_dir: Path) -> bool:
     """True if ``run_dir/run.json`` says its training never returned (``finished`` false;
     runs written before the key count as finished)."""
@@ -599,12 +612,32 @@ def train_variants(
     from jax_contact.train import figures
 
     out_dir = Path(out_dir)
+    env_name = ENV_NAME if task == "go1" else task
+    # Before any training: every run folder is free (or may be replaced), and the runs of
+    # an earlier call into the same folder are kept.
+    for v in variants:
+        check_run_folder(out_dir / v, overwrite)
+    kept_runs, kept_evals = earlier_runs(out_dir, env_name, cfg, seed, variants, overwrite)
     results = {
         v: train(v, cfg, out_dir, seed=seed, overwrite=overwrite, log=log, task=task)
         for v in variants
     }
-    curves = {v: r.rows for v, r in results.items()}
-    training = {v: r.train_rows for v, r in results.items()}
+    runs = dict(kept_runs)
+    runs.update(
+        {
+            v: {
+                "wall_s": round(r.wall_s, 1),
+                "first_eval_s": r.first_eval_s,
+                "curve": r.rows,
+                "training_curve": r.train_rows,
+            }
+            for v, r in results.items()
+        }
+    )
+    if kept_runs:
+        log(f"kept the earlier runs in {out_dir} in its summary: {', '.join(kept_runs)}")
+    curves = {v: r["curve"] for v, r in runs.items()}
+    training = {v: r["training_curve"] for v, r in runs.items()}
     for name, data, fields in (
         ("reward_curves.csv", curves, CSV_FIELDS),
         ("training_curves.csv", training, TRAIN_FIELDS),
@@ -630,23 +663,66 @@ def train_variants(
     else:
         log("final evaluation skipped (eval_envs=0); `jax-contact policy-eval RUN` runs it")
     summary = {
-        "env": ENV_NAME if task == "go1" else task,
+        "env": env_name,
         "config": dataclasses.asdict(cfg),
         "seed": seed,
         "machine": {"backend": jax.default_backend(), "devices": [str(d) for d in jax.devices()]},
-        "runs": {
-            v: {
-                "wall_s": round(r.wall_s, 1),
-                "first_eval_s": r.first_eval_s,
-                "curve": r.rows,
-                "training_curve": r.train_rows,
-            }
-            for v, r in results.items()
-        },
-        "evaluation": evals,
+        "runs": runs,
+        "evaluation": kept_evals + evals,
     }
     write_json_atomic(out_dir / "summary.json", summary)
+    written = ["summary.json", "reward_curves.csv", "training_curves.csv", "reward_curves.png"]
+    log(f"wrote {', '.join(written)} and the run folders {', '.join(results)} in {out_dir}")
     return summary
+
+
+def earlier_runs(
+    out_dir: Path,
+    env_name: str,
+    cfg: PPOConfig,
+    seed: int,
+    variants: Sequence[str],
+    overwrite: bool,
+) -> tuple[dict, list]:
+    """The runs and evaluations of an earlier :func:`train_variants` into ``out_dir`` that
+    this call keeps in its summary: those of other variants whose run folder is still there,
+    from a ``summary.json`` of the same env, configuration and seed. With ``overwrite`` a
+    summary that does not fit is replaced; without it, refused.
+
+    Raises:
+      ValueError: naming ``summary.json`` and what differs (before any training).
+    """
+    path = out_dir / "summary.json"
+    if not path.is_file():
+        return {}, []
+    try:
+        earlier = json.loads(path.read_text())
+        ok = isinstance(earlier, dict) and isinstance(earlier.get("runs"), dict)
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError):
+        ok = False
+    if not ok:
+        if overwrite:
+            return {}, []
+        raise ValueError(
+            f"{path} is not a summary of jax-contact train: pass another --out, or --overwrite"
+            " to replace it"
+        )
+    config = json.loads(json.dumps(dataclasses.asdict(cfg)))  # tuples as JSON lists
+    ours = {"env": env_name, "config": config, "seed": seed}
+    differs = [k for k, v in ours.items() if earlier.get(k) != v]
+    others = [v for v in earlier["runs"] if v not in variants]
+    if differs and others:
+        if overwrite:
+            return {}, []
+        raise ValueError(
+            f"{path} holds the runs {others} of another {' and '.join(differs)}"
+            f" ({', '.join(f'{k} {earlier.get(k)!r}' for k in differs if k != 'config')}"
+            f"{'; see its config' if 'config' in differs else ''}): pass another --out, or"
+            " --overwrite to replace that summary (their run folders stay)"
+        )
+    kept = {v: earlier["runs"][v] for v in others if (out_dir / v / "run.json").is_file()}
+    evals = [e for e in earlier.get("evaluation", []) if e.get("trained_with") in kept]
+    return kept, evals
 
 
 def main_log(msg: str) -> None:
