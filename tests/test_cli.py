@@ -86,6 +86,9 @@ def test_importing_the_cli_does_not_import_jax():
         (["evaluate", "README.md", "--bootstrap", "99999999999"], ["argument --bootstrap"]),
         (["tune", "README.md", "--validate", "x.h5", "--out", "t.json"], ["argument LOG"]),
         (["evaluate", "README.md", "--params", "pyproject.toml"], ["argument --params", "JSON"]),
+        # An unknown option: the command's usage and prog (it used to be the top level's).
+        (["train", "--contact", "estimate"], ["unrecognized arguments: --contact estimate"]),
+        (["policy-eval", "README.md"], ["argument run", "'README.md' is a file"]),
     ],
 )
 def test_bad_arguments_are_reported_at_once(argv, names):

@@ -166,6 +166,55 @@ def test_evaluate_refuses_an_observation_the_network_cannot_take(saved, tmp_path
         policy_eval.evaluate_policy(tmp_path)
 
 
+def test_a_damaged_run_folder_is_named_in_one_line(saved, tmp_path):
+    """What a user's disk can do to a run folder: each is a ValueError naming the file (the
+    CLI prints it as one line), where JSON's and orbax's own messages named none."""
+    run, _, _ = saved
+    copy = tmp_path / "truth"
+    shutil.copytree(run, copy)
+    good = (copy / "run.json").read_text()
+    for text, match in (
+        ("hello", r"truth/run.json is not JSON \(Expecting value"),
+        ("[1]", "run.json holds no JSON object"),
+        (good.replace('"truth"', '"bogus"'), r"variant 'bogus' is not one of \('none'"),
+        (good.replace('"num_envs"', '"n_envs"'), r"config is not a PPOConfig .*'n_envs'"),
+    ):
+        (copy / "run.json").write_text(text)
+        with pytest.raises(ValueError, match=match):
+            policy_eval.evaluate_policy(copy, n_envs=2)
+    (copy / "run.json").write_text(good)
+    ckpt = policy_eval.latest_checkpoint(copy)
+    with pytest.raises(
+        FileNotFoundError, match=f"checkpoint folder: pass its run folder, '{copy}'"
+    ):
+        policy_eval.evaluate_policy(ckpt)
+    config = ckpt / "ppo_network_config.json"
+    config.write_text("{")
+    with pytest.raises(ValueError, match=r"ppo_network_config.json is not JSON .*--overwrite"):
+        policy_eval.load_policy(ckpt)
+    config.write_text("{}")
+    with pytest.raises(ValueError, match=r"not a Brax PPO network config \(missing \['network"):
+        policy_eval.load_policy(ckpt)
+    shutil.copy(run / ckpt.relative_to(copy) / config.name, config)
+    for blob in (ckpt / "d").rglob("*"):  # every data file cut short
+        if blob.is_file():
+            blob.write_bytes(blob.read_bytes()[:10])
+    with pytest.raises(ValueError, match=f"the parameters in {ckpt} cannot be read"):
+        policy_eval.load_policy(ckpt)
+
+
+def test_an_unfinished_run_is_evaluated_with_a_warning(saved, tmp_path):
+    run, _, _ = saved
+    copy = tmp_path / "truth"
+    shutil.copytree(run, copy)
+    info = json.loads((copy / "run.json").read_text()) | {"finished": False}
+    (copy / "run.json").write_text(json.dumps(info))
+    # The warning comes before any env is built; the observation check then refuses.
+    with pytest.warns(UserWarning, match=r"training did not finish .* checkpoint, 000000000160"):
+        with pytest.raises(ValueError, match=r"observing 'none' gives a policy observation"):
+            policy_eval.evaluate_policy(copy, observe="none", n_envs=2, episode_length=5)
+
+
 def test_train_refuses_an_existing_run_folder(tmp_path):
     (tmp_path / "estimate").mkdir()
     (tmp_path / "estimate" / "progress.csv").write_text("keep me\n")

@@ -65,6 +65,7 @@ from jax_contact.train.cli_args import (  # noqa: F401  (COLUMNS ... SCENES: re-
     check_params_source,
     check_robot,
     nonnegative_int,
+    not_a_run_folder,
     positive_float,
     positive_int,
     seed_int,
@@ -327,13 +328,10 @@ def _check_train(args: argparse.Namespace) -> None:
 
 def _check_policy_eval(args: argparse.Namespace) -> None:
     run = Path(args.run)
-    if not run.is_dir():
-        what = "is a file, not a run folder" if run.exists() else "does not exist"
-        raise ValueError(f"argument run: folder {args.run!r} {what}")
+    if not run.exists():
+        raise ValueError(f"argument run: folder {args.run!r} does not exist")
     if not (run / "run.json").is_file():
-        raise ValueError(
-            f"argument run: {args.run!r} is not a run folder of `jax-contact train` (no run.json)"
-        )
+        raise ValueError(f"argument run: {not_a_run_folder(run)}")
     check_output_file("--json", args.json)
 
 
@@ -631,6 +629,8 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         help="timed calls per single-robot latency row (default: 10000)",
     )
+    for p in sub.choices.values():  # main() reports an unknown option with its command's usage
+        p.set_defaults(command_parser=p)
     return parser
 
 
@@ -664,7 +664,11 @@ def main(argv: list[str] | None = None) -> int:
     """Runs ``jax-contact`` with ``argv`` (default: ``sys.argv[1:]``); returns the exit code:
     0, 2 for a bad argument or input (one line on stderr), 130 when interrupted."""
     parser = build_parser()
-    args = parser.parse_args(argv)
+    args, unknown = parser.parse_known_args(argv)
+    if unknown:  # argparse's own message, with the command's usage rather than the top one
+        (getattr(args, "command_parser", None) or parser).error(
+            f"unrecognized arguments: {' '.join(unknown)}"
+        )
     if not getattr(args, "func", None):
         parser.print_help()
         return EXIT_USAGE

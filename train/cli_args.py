@@ -119,6 +119,18 @@ def check_robot(arg: str, name: str | None) -> None:
     )
 
 
+def not_a_run_folder(path: str | os.PathLike) -> str:
+    """Why ``path`` is no run folder of ``jax-contact train`` (it has no ``run.json``), with
+    the run folder to pass instead when it is one of its checkpoint folders."""
+    path = Path(path)
+    if path.is_file():
+        return f"{str(path)!r} is a file; pass a run folder of jax-contact train (OUT/<variant>)"
+    hint = ""
+    if path.parent.name == "checkpoints":
+        hint = f"; it is a checkpoint folder: pass its run folder, {str(path.parent.parent)!r}"
+    return f"{str(path)!r} is not a run folder of jax-contact train (no run.json){hint}"
+
+
 def check_input_file(arg: str, path: str) -> None:
     """Raises ValueError unless ``path`` is an existing file."""
     p = Path(path)

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import json
 import time
+import warnings
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
@@ -26,6 +27,7 @@ from jax_contact.train.ppo import (
     PPOConfig,
     config_of,
     make_env,
+    read_run,
     unfinished_run,
 )
 
@@ -54,7 +56,15 @@ def load_policy(ckpt: str | Path, *, deterministic: bool = True, parts: bool = F
     path = ckpt / "ppo_network_config.json"
     if not path.is_file():
         raise FileNotFoundError(f"no ppo_network_config.json in {ckpt}: not a Brax PPO checkpoint")
-    cfg = json.loads(path.read_text())
+    damaged = "the checkpoint is damaged or incomplete; train again with --overwrite"
+    try:
+        cfg = json.loads(path.read_text())
+    except (UnicodeDecodeError, json.JSONDecodeError) as err:
+        raise ValueError(f"{path} is not JSON ({err}): {damaged}") from None
+    needed = ("network_factory_kwargs", "observation_size", "action_size", "normalize_observations")
+    missing = [k for k in needed if not isinstance(cfg, dict) or k not in cfg]
+    if missing or not isinstance(cfg["network_factory_kwargs"], dict):
+        raise ValueError(f"{path} is not a Brax PPO network config (missing {missing}): {damaged}")
     kwargs = {k: v for k, v in cfg["network_factory_kwargs"].items() if v is not None}
     if "activation" in kwargs:
         kwargs["activation"] = brax_networks.ACTIVATION[kwargs["activation"]]
@@ -78,7 +88,14 @@ def load_policy(ckpt: str | Path, *, deterministic: bool = True, parts: bool = F
         ),
         **kwargs,
     )
-    params = ppo_checkpoint.load(ckpt)
+    try:
+        params = ppo_checkpoint.load(ckpt)
+    except Exception as err:  # orbax / tensorstore: a wall of JSON specs; one line instead
+        first = " ".join(str(err).split())
+        short = first if len(first) <= 240 else first[:240] + " ..."
+        raise ValueError(
+            f"the parameters in {ckpt} cannot be read ({type(err).__name__}: {short}): {damaged}"
+        ) from None
     if parts:
         return ppo_networks.make_inference_fn(net), params, sizes
     return ppo_networks.make_inference_fn(net)(params, deterministic=deterministic), sizes
@@ -204,15 +221,16 @@ class ColumnEvaluator:
           ValueError: the column's observation does not fit the checkpoint's network.
         """
         run_dir = Path(run_dir)
-        run = json.loads((run_dir / "run.json").read_text())
+        run = read_run(run_dir)
         ckpt = latest_checkpoint(run_dir)
         make_policy, params, sizes = loaded or load_policy(ckpt, parts=True)
         env = self.env(column)
         have = tuple(env.observation_size["state"])
         if tuple(sizes["state"]) != have:
             raise ValueError(
-                f"column {column!r} gives a policy observation of shape {have}; the checkpoint"
-                f" {ckpt} (trained with {run['variant']!r}) takes {tuple(sizes['state'])}"
+                f"observing {column!r} gives a policy observation of shape {have}; the"
+                f" checkpoint {ckpt} (trained with {run['variant']!r}) takes"
+                f" {tuple(sizes['state'])}"
             )
         key = (column, id(make_policy))
         if key not in self._fns:  # keeps make_policy alive, so its id is not reused
@@ -226,6 +244,7 @@ class ColumnEvaluator:
             "run": str(run_dir),
             "checkpoint": str(ckpt),
             "trained_with": run["variant"],
+            "run_finished": run.get("finished", True),
             "observed": column,
             "n_episodes": self.n_envs,
             **rollout_metrics(ret, p, truth, alive, fell, dt=float(env.dt)),
@@ -304,9 +323,7 @@ def evaluate_policy(
     if observe is not None and observe not in VARIANTS:
         raise ValueError(f"observe must be one of {VARIANTS}, got {observe!r}")
     run_dir = Path(run_dir)
-    if not (run_dir / "run.json").is_file():
-        raise FileNotFoundError(f"no run.json in {run_dir}: not a run folder of jax-contact train")
-    run = json.loads((run_dir / "run.json").read_text())
+    run = read_run(run_dir)
     if run.get("task", "go1") != "go1":  # a hop task: its own evaluation (task metrics)
         from jax_contact.train import transfer
 
@@ -318,7 +335,13 @@ def evaluate_policy(
             episode_length=episode_length,
             seed=seed,
         )
-    latest_checkpoint(run_dir)  # before building envs: FileNotFoundError without one
+    ckpt = latest_checkpoint(run_dir)  # before building envs: FileNotFoundError without one
+    if run.get("finished") is False:
+        warnings.warn(
+            f"{run_dir}'s training did not finish (run.json: finished false; interrupted, or"
+            f" still training): evaluating its latest checkpoint, {ckpt.name}",
+            stacklevel=2,
+        )
     ev = ColumnEvaluator(config_of(run), n_envs, episode_length)
     return ev.evaluate(run_dir, column or observe or run["variant"], seed)
 

@@ -565,6 +565,39 @@ def unfinished_run(run_dir: Path) -> bool:
         return False
 
 
+def read_run(run_dir: str | Path) -> dict:
+    """A run folder's ``run.json`` (written by :func:`train`), checked: a JSON object with
+    a known ``variant`` and a ``config`` of :class:`PPOConfig` fields.
+
+    Raises:
+      FileNotFoundError: no ``run.json`` (:func:`jax_contact.train.cli_args.not_a_run_folder`).
+      ValueError: naming ``run.json`` and what is wrong with it.
+    """
+    run_dir = Path(run_dir)
+    path = run_dir / "run.json"
+    if not path.is_file():
+        from jax_contact.train.cli_args import not_a_run_folder
+
+        raise FileNotFoundError(not_a_run_folder(run_dir))
+    damaged = "the run folder is damaged; train it again with --overwrite"
+    try:
+        run = json.loads(path.read_text())
+    except (UnicodeDecodeError, json.JSONDecodeError) as err:
+        raise ValueError(f"{path} is not JSON ({err}): {damaged}") from None
+    if not isinstance(run, dict):
+        raise ValueError(f"{path} holds no JSON object: {damaged}")
+    if run.get("variant") not in VARIANTS:
+        raise ValueError(
+            f"{path}: variant {run.get('variant')!r} is not one of {VARIANTS}: {damaged}"
+        )
+    fields = {f.name for f in dataclasses.fields(PPOConfig)}
+    config = run.get("config")
+    if not isinstance(config, dict) or not set(config) <= fields:
+        unknown = sorted(set(config) - fields) if isinstance(config, dict) else config
+        raise ValueError(f"{path}: config is not a PPOConfig (unknown: {unknown!r}): {damaged}")
+    return run
+
+
 def config_of(run: Mapping) -> PPOConfig:
     """The :class:`PPOConfig` of a ``run.json``'s contents (JSON lists back to tuples)."""
     return PPOConfig(

@@ -33,7 +33,6 @@ deviation and the per-seed values over seeds.
 from __future__ import annotations
 
 import dataclasses
-import json
 import time
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -158,7 +157,7 @@ class _Evaluator:
 def _run_cfg(run_dir: Path):
     from jax_contact.train import ppo
 
-    run = json.loads((run_dir / "run.json").read_text())
+    run = ppo.read_run(run_dir)
     return run, ppo.config_of(run)
 
 
@@ -219,8 +218,6 @@ def evaluate_run(
         training configuration's), the PRNG seed.
     """
     run_dir = Path(run_dir)
-    if not (run_dir / "run.json").is_file():
-        raise FileNotFoundError(f"no run.json in {run_dir}: not a run folder of jax-contact train")
     run, cfg = _run_cfg(run_dir)
     column = column or observe or run["variant"]
     ev = _hop_evaluator(run, cfg, n_envs, episode_length)
@@ -306,10 +303,9 @@ _CELLS = {"hop": _HopCells, "hop_blind": _HopCells, "go1": _Go1Cells}
 
 def run_task(run_dir: str | Path) -> str:
     """The task of a run folder: ``run.json``'s ``task``, ``"go1"`` when it has none."""
-    path = Path(run_dir) / "run.json"
-    if not path.is_file():
-        raise FileNotFoundError(f"no run.json in {run_dir}: not a run folder of jax-contact train")
-    return json.loads(path.read_text()).get("task", "go1")
+    from jax_contact.train import ppo
+
+    return ppo.read_run(run_dir).get("task", "go1")
 
 
 def _load(run_dir: Path, makers: dict):
