@@ -197,5 +197,7 @@ def test_runs_under_finds_each_variants_seeds_in_order(tmp_path):
     runs = transfer.runs_under(tmp_path)
     assert list(runs) == ["none", "truth", "estimate"]
     assert [d.parent.name for d in runs["truth"]] == ["seed0", "seed2", "seed10"]
-    with pytest.raises(FileNotFoundError, match=r"seed\*/other"):
+    with pytest.raises(FileNotFoundError, match=r"seed\*/other .*--variants other --seed S"):
         transfer.runs_under(tmp_path, variants=("truth", "other"))
+    with pytest.raises(FileNotFoundError, match=r"folder '.*nosuch' does not exist"):
+        transfer.runs_under(tmp_path / "nosuch")

@@ -428,6 +428,8 @@ def runs_under(root: str | Path, variants: Sequence[str] | None = None) -> dict[
     from jax_contact.train import ppo
 
     root = Path(root)
+    if not root.is_dir():
+        raise FileNotFoundError(f"folder {str(root)!r} does not exist")
     found = {
         v: sorted(
             (d for d in root.glob(f"seed*/{v}") if (d / "run.json").is_file()),
@@ -437,7 +439,11 @@ def runs_under(root: str | Path, variants: Sequence[str] | None = None) -> dict[
     }
     empty = [v for v, dirs in found.items() if not dirs]
     if empty:
-        raise FileNotFoundError(f"no run folder {root}/seed*/{empty[0]} (with a run.json)")
+        raise FileNotFoundError(
+            f"no run folder {root}/seed*/{empty[0]} (with a run.json): the matrix has a row per"
+            f" variant {tuple(found)}; train the missing ones (jax-contact train --variants"
+            f" {' '.join(empty)} --seed S --out {root}/seedS)"
+        )
     return found
 
 
@@ -468,8 +474,8 @@ def main(argv: Sequence[str] | None = None) -> dict:
     try:
         runs = runs_under(args.root)
         tasks = {run_task(d) for dirs in runs.values() for d in dirs}
-    except FileNotFoundError as err:
-        parser.error(str(err))
+    except (FileNotFoundError, ValueError) as err:  # ValueError: a damaged run.json
+        parser.error(f"argument root: {err}")
     if len(tasks) > 1:
         parser.error(f"argument root: {args.root} holds runs of several tasks {sorted(tasks)}")
     enable_compilation_cache()
