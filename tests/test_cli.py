@@ -241,6 +241,24 @@ def test_ctrl_c_during_a_write_removes_the_temporary_file(tmp_path):
     assert list(tmp_path.iterdir()) == []
 
 
+def test_ctrl_c_names_what_the_command_keeps_on_purpose():
+    """``train`` keeps an interrupted run folder (its checkpoints); the stop says so, and
+    says nothing once the note is cleared (a finished run)."""
+    script = (
+        "import os, signal, sys, time\n"
+        "from jax_contact.train import cli, interrupt\n"
+        "interrupt.set_kept('kept a')\n"
+        "interrupt.set_kept(None)\n"
+        "interrupt.set_kept(sys.argv[1])\n"
+        "with cli.StopOnInterrupt('jax-contact test'):\n"
+        "    os.kill(os.getpid(), signal.SIGINT)\n"
+        "    time.sleep(20)\n"
+    )
+    res, _ = _run([sys.executable, "-c", script, "kept out/estimate"])
+    assert res.returncode == 130
+    assert res.stderr == "jax-contact test: interrupted\njax-contact test: kept out/estimate\n"
+
+
 def test_ctrl_c_while_the_io_module_is_still_importing(tmp_path):
     """A signal during start-up, while ``jax_contact.io`` is half imported (no
     ``abort_writes`` yet), still stops the command with 130: the watcher thread used to die

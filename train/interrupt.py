@@ -27,6 +27,14 @@ import threading
 EXIT_INTERRUPTED = 130  # 128 + SIGINT, what a shell reports for a command stopped by Ctrl-C
 EXIT_TERMINATED = 143  # 128 + SIGTERM (kill, timeout, a job scheduler)
 
+_kept: list[str] = []  # what a command keeps if it is stopped now (set_kept)
+
+
+def set_kept(note: str | None) -> None:
+    """What a stop at this point leaves behind on purpose (printed after the ``interrupted``
+    line), e.g. ``train``'s run folder with its checkpoints; None: nothing."""
+    _kept[:] = [note] if note else []
+
 
 class StopOnInterrupt:
     """Context manager: while active, SIGINT ends the process at once (module docstring),
@@ -86,6 +94,8 @@ class StopOnInterrupt:
             flusher.start()
             flusher.join(0.5)
             os.write(2, f"{self.prog}: {what}\n".encode())
+            for note in list(_kept):
+                os.write(2, f"{self.prog}: {note}\n".encode())
         finally:
             os._exit(code)  # whatever failed above, the command stops
 

@@ -47,6 +47,8 @@ import jax
 import numpy as np
 from mujoco_playground._src import wrapper as pg_wrapper
 
+from jax_contact.train.interrupt import set_kept
+
 VARIANTS = ("none", "truth", "estimate")
 REWARDS = ("playground", "unclipped")
 ENV_NAME = "Go1JoystickFlatTerrain"
@@ -449,6 +451,11 @@ def train(
         "finished": False,  # set when the training returns
     }
     write_json_atomic(run_dir / "run.json", run_info)
+    set_kept(
+        f"kept {run_dir} (run.json: finished false) with the checkpoints saved so far:"
+        f" `jax-contact policy-eval {run_dir}` evaluates the latest; train it again with"
+        " --overwrite"
+    )
 
     env = spec.make_env(variant, cfg)
     eval_env = spec.make_env(variant, cfg)
@@ -527,6 +534,7 @@ def train(
         training={variant: train_rows},
     )
     write_json_atomic(run_dir / "run.json", run_info | {"finished": True})
+    set_kept(None)
     log(f"[{variant}] done in {wall:.0f} s; {run_dir}")
     return RunResult(
         run_dir=run_dir,
