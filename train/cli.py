@@ -249,7 +249,7 @@ def _cmd_policy_eval(args: argparse.Namespace) -> int:
         " steps alive; failures: false contacts in the air"
     )
     if args.json:
-        write_json_atomic(args.json, res)
+        print(f"wrote {write_json_atomic(args.json, res)}")
     return 0
 
 
