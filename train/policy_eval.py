@@ -89,7 +89,11 @@ def load_policy(ckpt: str | Path, *, deterministic: bool = True, parts: bool = F
         **kwargs,
     )
     try:
-        params = ppo_checkpoint.load(ckpt)
+        with warnings.catch_warnings():
+            # Orbax's note on every restore without shardings (it reads them from the
+            # checkpoint): nothing a user can act on; the parameters land on the default device.
+            warnings.filterwarnings("ignore", message="Sharding info not provided")
+            params = ppo_checkpoint.load(ckpt)
     except Exception as err:  # orbax / tensorstore: a wall of JSON specs; one line instead
         first = " ".join(str(err).split())
         short = first if len(first) <= 240 else first[:240] + " ..."
