@@ -337,10 +337,6 @@ def offline_estimate(header: dict, readings: dict, *, dt: float):
     return p
 
 
-# The exported update's diagnostics that deploy-check keeps (the torque check reads them).
-CHECKED_DIAGNOSTICS = ("p_dynamics", "p_diff_kinematics", "valid")  # TORQUE_CHECK_INPUTS
-
-
 def realtime_replay(
     est, readings: dict, *, period_s: float, pace: bool = True, spin_s: float = 3e-4
 ) -> dict:
@@ -352,12 +348,15 @@ def realtime_replay(
     after the next release. Without ``pace`` the calls run back to back (no deadlines).
 
     Returns:
-      ``latency_s`` (T,), ``p_contact`` (T, L), ``deadline_misses``, and the
-      :data:`CHECKED_DIAGNOSTICS` of each call, (T, L).
+      ``latency_s`` (T,), ``p_contact`` (T, L), ``deadline_misses``, and each call's
+      diagnostics that the torque check reads
+      (:data:`jax_contact.train.recording_estimate.TORQUE_CHECK_INPUTS`), (T, L) each.
     """
     import time
 
     import numpy as np
+
+    from jax_contact.train.recording_estimate import TORQUE_CHECK_INPUTS
 
     names = est.reading_names
     n_t = len(readings[names[0]])
@@ -387,7 +386,7 @@ def realtime_replay(
         diags.append(diag)  # read after the loop
         if pace and end > t0 + (k + 1) * period_s:
             misses += 1
-    terms = {k: np.stack([np.asarray(d[k]) for d in diags]) for k in CHECKED_DIAGNOSTICS}
+    terms = {k: np.stack([np.asarray(d[k]) for d in diags]) for k in TORQUE_CHECK_INPUTS}
     return {"latency_s": latency, "p_contact": p, "deadline_misses": misses, **terms}
 
 
@@ -406,9 +405,8 @@ def deploy_check(
     """The ``deploy-check`` command as a function; returns its JSON payload.
 
     ``log`` is a ``jax-contact simulate`` log, or a recording of the robot
-    (:func:`is_recording`), read with ``names``,
-    ``units`` and ``resample`` as ``jax-contact estimate`` reads it, its convention checks
-    printed as there.
+    (:func:`is_recording`), read with ``names``, ``units`` and ``resample`` as ``jax-contact
+    estimate`` reads it, its convention checks printed as there.
     """
     import numpy as np
 
