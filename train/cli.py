@@ -665,10 +665,10 @@ def main(argv: list[str] | None = None) -> int:
     0, 2 for a bad argument or input (one line on stderr), 130 when interrupted."""
     parser = build_parser()
     args, unknown = parser.parse_known_args(argv)
+    # Not an argument: commands that record their arguments (tune's provenance) never see it.
+    command_parser = vars(args).pop("command_parser", None)
     if unknown:  # argparse's own message, with the command's usage rather than the top one
-        (getattr(args, "command_parser", None) or parser).error(
-            f"unrecognized arguments: {' '.join(unknown)}"
-        )
+        (command_parser or parser).error(f"unrecognized arguments: {' '.join(unknown)}")
     if not getattr(args, "func", None):
         parser.print_help()
         return EXIT_USAGE
