@@ -701,6 +701,9 @@ def test_tune_refuses_mixed_copied_and_unscoreable_logs(tmp_path):
     refused([a], [dead], r"validation log '.*dead.h5' has no step that counts")
     on = log("on.h5", 5, **{"truth/contact": np.ones((12, 1, 1), bool)})
     refused([on], [b], r"the tuning logs have no air step among their 12 counted steps")
+    blind = str(_planar_log(tmp_path / "blind.h5", truth=False, attrs={**attrs, "seed": 6}))
+    refused([a], [blind], r"argument --validate: log '.*blind.h5' has no ground truth .*"
+            r" neither be tuned on nor validate a fit")  # fmt: skip
 
 
 def test_sensor_limit_variants_each_remove_only_what_they_name():

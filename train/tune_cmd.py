@@ -421,7 +421,10 @@ def load_logs(args: argparse.Namespace) -> Inputs:
     vals, vinfos = [], []
     validate = [args.validate] if isinstance(args.validate, str) else list(args.validate)
     for path in validate:
-        val, _, vattrs, _, _ = load_tuning_log(path, terrain_model)
+        try:
+            val, _, vattrs, _, _ = load_tuning_log(path, terrain_model)
+        except ValueError as err:  # one of the logs' own checks (no truth, shapes, ...)
+            raise ValueError(f"argument --validate: {err}") from None
         _same_setup("--validate", path, vattrs, infos[0])
         info = _log_info(path, vattrs, val)
         if _run_key(info) in tuned_on:

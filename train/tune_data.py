@@ -94,7 +94,10 @@ def read_truth_log(path: str | Path):
 
     log = load_log(path)
     if log.truth is None:
-        raise ValueError(f"{log.name} has no ground truth ('truth/contact'): it cannot be tuned on")
+        raise ValueError(
+            f"{log.name} has no ground truth ('truth/contact'): it can neither be tuned on nor"
+            " validate a fit"
+        )
     return log.readings, log.truth, log.valid, log.attrs, log.robot
 
 
