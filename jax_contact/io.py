@@ -400,10 +400,16 @@ def params_to_dict(params, provenance: Mapping | None = None) -> dict:
     }
 
 
+def _is_number(x) -> bool:
+    """An int or float of JSON (not a bool, a string or null)."""
+    return isinstance(x, int | float) and not isinstance(x, bool)
+
+
 def check_params_header(payload, source: str) -> None:
     """The checks of :func:`params_from_dict` that need no JAX: the format, version,
-    top-level keys, sections and the provenance's type (the command line runs them before
-    JAX loads). Raises ValueError naming ``source`` and the field."""
+    top-level keys, sections, the numeric fields' types and the provenance's type (the
+    command line runs them before JAX loads). Raises ValueError naming ``source`` and the
+    field."""
     if not isinstance(payload, Mapping) or payload.get("format") != PARAMS_FORMAT:
         raise ValueError(
             f"{source}: not a jax-contact parameter file (no format {PARAMS_FORMAT!r})"
@@ -420,8 +426,20 @@ def check_params_header(payload, source: str) -> None:
             f" {list(PARAMS_KEYS)}; free-form notes go into 'provenance')"
         )
     for section in ("noise", "values", "options"):
-        if not isinstance(payload.get(section), Mapping):
+        value = payload.get(section)
+        if value is None:
             raise ValueError(f"{source}: missing section {section!r}")
+        if not isinstance(value, Mapping):
+            raise ValueError(
+                f"{source}: section {section!r} must be a JSON object of fields, got"
+                f" {type(value).__name__}"
+            )
+    for section in ("noise", "values"):  # numbers (noise: or lists of numbers) only
+        for name, value in payload[section].items():
+            numbers = value if section == "noise" and isinstance(value, list) else [value]
+            if not numbers or not all(_is_number(x) for x in numbers):
+                kind = "a number or a list of numbers" if section == "noise" else "a number"
+                raise ValueError(f"{source}: {section}.{name} must be {kind}, got {value!r}")
     provenance = payload.get("provenance")
     if provenance is not None and not isinstance(provenance, Mapping):
         raise ValueError(

@@ -163,6 +163,20 @@ def test_bad_params_file_names_the_field(go1, tmp_path):
         "version": (lambda d: d.update(version=99), "version 99"),
         "top-level": (lambda d: d.update(notes="x"), r"unknown top-level key\(s\) \['notes'\]"),
         "provenance": (lambda d: d.update(provenance=[1]), "'provenance' must be a mapping"),
+        # A value of the wrong type: named (it was "could not convert string to float").
+        "string": (
+            lambda d: d["values"].update(stance_time="fast"),
+            "values.stance_time must be a number, got 'fast'",
+        ),
+        "string in list": (
+            lambda d: d["noise"]["sigma_q"].__setitem__(2, "abc"),
+            r"noise.sigma_q must be a number or a list of numbers, got \[.*'abc'",
+        ),
+        "bool": (lambda d: d["values"].update(dt=True), "values.dt must be a number, got True"),
+        "section type": (
+            lambda d: d.update(values=[1.0]),
+            "section 'values' must be a JSON object of fields, got list",
+        ),
         "mass": (
             lambda d: d["provenance"].update(robot_mass_kg="heavy"),
             "'robot_mass_kg' must be a positive number of kg.*'heavy'",
