@@ -643,6 +643,7 @@ def test_a_log_without_ground_truth_gives_p_contact(tmp_path, capsys):
     assert "--plots: no ground truth, so no reliability diagram" in out and not plots.exists()
     got = json.loads(out_json.read_text())
     assert got["has_truth"] is False and got["scores"] == {}
+    assert got["params"] == {"source": "defaults"}
     (foot,) = got["foot_names"]
     p = np.array(got["p_contact"][foot], dtype=float)
     assert p.shape == (12, 1)
@@ -663,6 +664,21 @@ def test_evaluate_plots_writes_the_reliability_diagram_of_every_scored_row(tmp_p
     (tmp_path / "file").write_text("")
     assert cli.main(["evaluate", str(path), "--plots", str(tmp_path / "file")]) == 2
     assert "argument --plots" in capsys.readouterr().err
+    # With --params FILE the JSON records which file (path, hash), and says where it went.
+    import hashlib
+
+    import jax_contact as jc
+    from jax_contact.train.reproduce import planar_estimator_params
+
+    params = jc.save_params(tmp_path / "planar.json", planar_estimator_params(3, 0.0025))
+    out_json = tmp_path / "m.json"
+    assert cli.main(["evaluate", str(path), "--params", str(params), "--json", str(out_json)]) == 0
+    out = capsys.readouterr().out
+    assert f"probabilistic: the estimator with --params '{params}'" in out
+    assert f"wrote {out_json}" in out
+    got = json.loads(out_json.read_text())["params"]
+    assert got["source"] == "file" and got["path"] == str(params.resolve())
+    assert got["sha256"] == hashlib.sha256(params.read_bytes()).hexdigest()
 
 
 def test_tune_refuses_mixed_copied_and_unscoreable_logs(tmp_path):

@@ -19,7 +19,6 @@ Register the commands with :func:`add_parsers` (``jax_contact.train.cli.build_pa
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import sys
 from pathlib import Path
@@ -179,25 +178,6 @@ DEFAULTS_PROVENANCE = {
 }
 
 
-def _file_provenance(params_path: str) -> dict:
-    """Where a parameter file or preset came from, its SHA-256 and its own provenance."""
-    import hashlib
-
-    from jax_contact._presets import preset_file
-
-    if (ref := preset_file(params_path)) is not None:
-        raw = ref.read_bytes()
-        where = {"source": "preset", "name": params_path}
-    else:
-        raw = Path(params_path).read_bytes()
-        where = {"source": "file", "path": str(Path(params_path).resolve())}
-    return {
-        **where,
-        "sha256": hashlib.sha256(raw).hexdigest(),
-        "file_provenance": json.loads(raw).get("provenance", {}),
-    }
-
-
 def export_to_file(
     out: str | Path,
     *,
@@ -221,7 +201,7 @@ def export_to_file(
     from jax_contact import export
     from jax_contact.envs.robots import load_robot
     from jax_contact.robot import model_mass
-    from jax_contact.train.logs import _estimator_for
+    from jax_contact.train.logs import _estimator_for, params_file_provenance
 
     loaded = load_robot(robot, foot_names=feet)
     desc = loaded.description
@@ -243,7 +223,7 @@ def export_to_file(
     if params_path is None:
         provenance = {**DEFAULTS_PROVENANCE, "dt": dt}
     else:
-        provenance = _file_provenance(params_path)
+        provenance = params_file_provenance(params_path)
     source = robot if robot in _robot_names() else str(Path(robot).resolve())
     header, payload = export.export_robot(
         loaded.mj_model,

@@ -449,8 +449,16 @@ def evaluate_file(
 
         out["probabilistic+cal"] = calibrate_probability(out["probabilistic"], calibration)
     feet = list(desc.foot_names)
+    if params_path is not None:
+        print(
+            f"probabilistic: the estimator with --params {str(params_path)!r}; defaults: with the"
+            " robot's derived defaults, on the same readings"
+        )
     result = {
         "log": str(path),
+        "params": {"source": "defaults"}
+        if params_path is None
+        else params_file_provenance(params_path),
         "terrain_model": terrain_model,
         "attrs": log.attrs,
         "has_truth": truth is not None,
@@ -506,12 +514,35 @@ def evaluate_file(
             print(f"wrote {png}")
             result["plots"] = [str(png)]
     if json_path:
-        write_json_atomic(json_path, json.loads(json.dumps(result, default=_plain)))
+        written = write_json_atomic(json_path, json.loads(json.dumps(result, default=_plain)))
+        if truth is not None:  # without truth the line above says where P(contact) went
+            print(f"wrote {written}")
     result["outputs"] = out  # not in the JSON: (T, E, L) arrays of every detector
     return result
 
 
 BOUNCE_STEPS = 4  # an air phase this short is most often a bounce of a resting foot
+
+
+def params_file_provenance(params_path: str | Path) -> dict:
+    """Where a parameter file or shipped preset came from (its resolved path, or the
+    preset's name), its SHA-256 and its own ``provenance``: what ``evaluate --json`` and
+    ``export`` record of the ``--params`` they ran."""
+    import hashlib
+
+    from jax_contact._presets import preset_file
+
+    if (ref := preset_file(str(params_path))) is not None:
+        raw = ref.read_bytes()
+        where = {"source": "preset", "name": str(params_path)}
+    else:
+        raw = Path(params_path).read_bytes()
+        where = {"source": "file", "path": str(Path(params_path).resolve())}
+    return {
+        **where,
+        "sha256": hashlib.sha256(raw).hexdigest(),
+        "file_provenance": json.loads(raw).get("provenance", {}),
+    }
 
 
 def _vs_probabilistic(out, scores, truth, valid, dt: float, n_resamples: int) -> dict:
