@@ -31,8 +31,9 @@ _kept: list[str] = []  # what a command keeps if it is stopped now (set_kept)
 
 
 def set_kept(note: str | None) -> None:
-    """What a stop at this point leaves behind on purpose (printed after the ``interrupted``
-    line), e.g. ``train``'s run folder with its checkpoints; None: nothing."""
+    """What a stop at this point leaves behind, or does not (printed after the
+    ``interrupted`` line): ``train``'s run folder with its checkpoints, ``tune``'s unwritten
+    ``--out``; None: nothing to say."""
     _kept[:] = [note] if note else []
 
 

@@ -317,7 +317,8 @@ def _run_key(info: dict) -> tuple:
 
 def _log_info(path, attrs, data) -> dict:
     keys = ("robot", "gait", "scenario", "terrain", "noise", "seed", "n_envs", "dt", "roughness")
-    info = {"path": str(path), **{k: attrs[k] for k in keys if k in attrs}}
+    info = {"path": str(path), "resolved": str(Path(path).resolve())}
+    info.update({k: attrs[k] for k in keys if k in attrs})
     info["steps"] = int(data.n_steps)
     return info
 
@@ -469,7 +470,9 @@ def fit_and_write(args: argparse.Namespace, inputs: Inputs) -> int:
 
     import jax_contact as jc
     from jax_contact import tune as jt
+    from jax_contact.train.interrupt import set_kept
 
+    set_kept(f"nothing was written: {args.out} is written once the fit ends")
     t0 = time.perf_counter() - inputs.load_s
     train, vals, infos, vinfos = inputs.train, inputs.vals, inputs.infos, inputs.vinfos
     base, terrain, floor = inputs.base, inputs.terrain, inputs.floor
@@ -618,6 +621,7 @@ def fit_and_write(args: argparse.Namespace, inputs: Inputs) -> int:
             ece_before=result.history[result.best_epoch]["val_ece"],
         )  # fmt: skip
     jc.save_params(args.out, result.params, provenance)
+    set_kept(None)
     print(f"wrote {args.out}")
     return 0
 
