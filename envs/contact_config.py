@@ -28,6 +28,7 @@ PAIRINGS = ("delayed", "raw")
 TRUTH_SOURCES = ("auto", "force_sensors", "found_sensors", "touch_sensors", "contacts", "none")
 TERM_NAMES = ("p_dynamics", "p_diff_kinematics", "p_kinematics", "p_takeoff", "p_touchdown")
 DEFAULT_OBS_KEYS = ("state",)  # Playground's policy input; an array observation: appended
+TRUTH_GAP_MAX = 0.02  # m: truth_gap is a floor tolerance of millimetres, not a swing height
 
 
 @struct.dataclass
@@ -80,7 +81,8 @@ class ContactObsConfig:
         truth goes under ``info_key + "_truth"``, metrics under ``info_key + "/..."``.
       truth: ground-truth source, one of :data:`TRUTH_SOURCES`
       (:mod:`jax_contact.envs.contact_truth`). truth_threshold: normal force above which a foot is
-      in contact, N. truth_gap: a foot whose sole is less than this distance above the
+      in contact, N. truth_gap: (at most :data:`TRUTH_GAP_MAX`) a foot whose sole is less
+        than this distance above the
       floor, or inside it, also counts as in contact, m (default 1 mm: the micro-bounces
       of a foot at rest in Playground's soft contact, and a foot still inside the soft
       floor after an impact, :mod:`jax_contact.envs.contact_truth`; 0: the raw source).
@@ -167,6 +169,11 @@ def validate_config(cfg: ContactObsConfig) -> None:
         if not (is_number(v) and np.isfinite(v) and (v > 0 or (zero_ok and v == 0))):
             low = ">= 0" if zero_ok else "> 0"
             raise ValueError(f"config.{name} must be a number {low}{unit}, got {v!r}")
+    if cfg.truth_gap > TRUTH_GAP_MAX:
+        raise ValueError(
+            f"config.truth_gap must be at most {TRUTH_GAP_MAX} m (a sole this far above the"
+            f" floor is in the air), got {cfg.truth_gap!r}: it is a distance in metres"
+        )
     if cfg.terrain is not None and not isinstance(cfg.terrain, TERRAIN_MODELS):
         raise ValueError(
             "config.terrain must be None or a jax_contact.terrain model (jc.flat,"
@@ -193,6 +200,11 @@ def validate_config(cfg: ContactObsConfig) -> None:
         rows = tuple(cfg.force_rows)
         if not rows or len(set(rows)) != len(rows) or not set(rows) <= {0, 1, 2}:
             raise ValueError(f"config.force_rows must be distinct axes of 0, 1, 2, got {rows!r}")
+        if 2 not in rows:  # the automatic choice always keeps it
+            raise ValueError(
+                f"config.force_rows {rows!r} leaves out the normal (z, 2): the dynamics term"
+                " would not see a foot's load, and its sign test could not run; keep 2"
+            )
         if cfg.params is not None:
             raise ValueError(
                 "config.force_rows shapes the parameters the wrapper derives; config.params"

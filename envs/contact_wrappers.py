@@ -15,6 +15,7 @@ from collections.abc import Sequence
 import jax
 import jax.numpy as jnp
 from brax.envs import base as brax_base
+from brax.envs.wrappers import training as brax_training
 from mujoco_playground._src import mjx_env as pg_env
 from mujoco_playground._src import wrapper as pg_wrapper
 
@@ -208,6 +209,37 @@ def _outer_base(score: dict, state) -> dict:
     return {**score, "base": jnp.where(fresh, score["mean"], score["base"]), "tag": steps}
 
 
+# The wrappers that batch and auto-reset an env for training: wrap_contact goes inside them.
+_TRAINING_WRAPPERS = (
+    brax_training.VmapWrapper,
+    brax_training.EpisodeWrapper,
+    brax_training.AutoResetWrapper,
+    brax_training.EvalWrapper,
+    brax_training.DomainRandomizationVmapWrapper,
+    pg_wrapper.BraxAutoResetWrapper,
+    pg_wrapper.BraxDomainRandomizationVmapWrapper,
+)
+
+
+def _check_env(env, kind, name: str) -> None:
+    """Raises ValueError unless ``env`` is an unbatched env of ``kind`` (its ``unwrapped``)."""
+    layer = env
+    while layer is not None:
+        if isinstance(layer, _TRAINING_WRAPPERS):
+            raise ValueError(
+                f"env is already wrapped for training ({type(layer).__name__}): wrap the"
+                " unbatched env with wrap_contact first, then the training wrappers"
+                " (wrapper.wrap_for_brax_training, brax.envs.training.wrap) around it"
+            )
+        layer = getattr(layer, "env", None)
+    inner = getattr(env, "unwrapped", env)
+    if not isinstance(inner, kind):
+        raise ValueError(
+            f"{name} wraps a {kind.__module__}.{kind.__name__}, got {type(inner).__name__}:"
+            " wrap_contact picks the wrapper for the env"
+        )
+
+
 class BraxContactWrapper(_ContactMixin, brax_base.Wrapper):
     """Contact observation wrapper for Brax envs (``State.pipeline_state``). See the module."""
 
@@ -217,6 +249,7 @@ class BraxContactWrapper(_ContactMixin, brax_base.Wrapper):
     def __init__(
         self, env, config=None, *, foot_names=None, sensor=None, params=None, terrain=None
     ):
+        _check_env(env, brax_base.Env, "BraxContactWrapper")
         super().__init__(env)
         self._init_contact(config, foot_names, sensor, params, terrain)
 
@@ -233,6 +266,7 @@ class PlaygroundContactWrapper(_ContactMixin, pg_wrapper.Wrapper):
     def __init__(
         self, env, config=None, *, foot_names=None, sensor=None, params=None, terrain=None
     ):
+        _check_env(env, pg_env.MjxEnv, "PlaygroundContactWrapper")
         super().__init__(env)
         self._init_contact(config, foot_names, sensor, params, terrain)
 

@@ -28,6 +28,7 @@ CPU, and the contact wrapper needs MJX's JAX implementation).
 from __future__ import annotations
 
 import contextlib
+import difflib
 import functools
 import hashlib
 import importlib
@@ -161,22 +162,40 @@ def load(name: str, config_overrides: dict | None = None, *, check: bool = True)
       The env, an instance of Playground's own env class.
 
     Raises:
-      ValueError: an unknown name (the message lists the valid ones), or an env that
-        needs more of Menagerie than stand-in visual meshes (with the reason).
+      ValueError: an unknown name (the message lists the valid ones and the closest), an
+        override that names no field of the env's config, or an env that needs more of
+        Menagerie than stand-in visual meshes (with the reason).
     """
     if name not in locomotion.ALL_ENVS:
-        raise ValueError(f"unknown env {name!r}; valid names: {', '.join(ENV_NAMES)}")
+        close = difflib.get_close_matches(str(name), ENV_NAMES, n=3, cutoff=0.6)
+        hint = f"; did you mean {' or '.join(map(repr, close))}?" if close else ";"
+        raise ValueError(
+            f"unknown env {name!r}{hint} Playground's locomotion envs: {', '.join(ENV_NAMES)}"
+            " (offline_names() lists those that load offline)"
+        )
     overrides = {"impl": "jax", **(config_overrides or {})}
     # A fresh default config: Playground's default argument is one shared, mutable object.
     config = locomotion.get_default_config(name)
+    unknown = [k for k in (config_overrides or {}) if str(k).split(".")[0] not in config]
+    if unknown:
+        raise ValueError(
+            f"config_overrides: {unknown} name no field of {name}'s config (its fields:"
+            f" {sorted(config)})"
+        )
     with _menagerie_at(standin_menagerie()):
         try:
             # The folder exists, so the registry's ensure_menagerie_exists clones nothing.
             env = locomotion.load(name, config=config, config_overrides=overrides)
         except ValueError as e:  # mujoco's compile error: a file Menagerie would supply
+            why = " ".join(str(e).split())
+            if "mesh volume" in why or "inertia" in why:  # bodies massed by their meshes
+                why = (
+                    "bodies without an <inertial> take their mass from their meshes, which"
+                    f" stand-ins cannot supply; mujoco: {why}"
+                )
             raise ValueError(
                 f"{name} cannot be built offline: its scene needs more of Menagerie than"
-                f" visual meshes ({e})"
+                f" visual meshes ({why})"
             ) from e
     if check:
         check_visual_only(env)

@@ -44,6 +44,20 @@ def test_offline_names():
     for name in ("BarkourJoystick", "Op3Joystick"):
         with pytest.raises(ValueError, match="cannot be built offline|depends on the mesh"):
             playground_offline.load(name)
+    # OP3's reason in words, not only mujoco's "mesh volume is too small".
+    with pytest.raises(ValueError, match="bodies without an <inertial> take their mass"):
+        playground_offline.load("Op3Joystick")
+
+
+def test_load_names_what_is_wrong_before_building():
+    with pytest.raises(ValueError, match="unknown env 'Go1JoystickFlatTerrian'; did you mean"
+                       " 'Go1JoystickFlatTerrain'"):  # fmt: skip
+        playground_offline.load("Go1JoystickFlatTerrian")
+    with pytest.raises(ValueError, match="unknown env 'Foo'; Playground's locomotion envs: "):
+        playground_offline.load("Foo")
+    # A key of no config field: Playground raised a KeyError with the whole config in it.
+    with pytest.raises(ValueError, match=r"config_overrides: \['nope'\] name no field of Go1"):
+        playground_offline.load("Go1JoystickFlatTerrain", {"nope": 1})
 
 
 @pytest.mark.parametrize("name", NAMES)

@@ -19,6 +19,7 @@ from brax.envs.base import PipelineEnv
 from brax.envs.wrappers import training as brax_training
 from brax.io import mjcf as brax_mjcf
 from mujoco import mjx
+from mujoco_playground._src import wrapper as pg_wrapper
 from wrapper_helpers import PlaygroundLeg, Traced
 from wrapper_helpers import logit_of as _logit
 
@@ -316,6 +317,17 @@ def test_refusals(leg_robot, brax_leg, pg_leg):
         W.wrap_contact(NoFloor())
     with pytest.raises(ValueError, match="batch of keys"):
         W.wrap_contact(pg_leg, **IDEAL).reset(jax.random.split(jax.random.PRNGKey(0), 2))
+    # Outside the training wrappers: refused when wrapped (a single key gave a raw JAX
+    # PRNG error at reset); and each wrapper class refuses the other framework's env.
+    trained = pg_wrapper.wrap_for_brax_training(pg_leg, episode_length=10, action_repeat=1)
+    with pytest.raises(ValueError, match=r"already wrapped for training \(BraxAutoResetWrapper\)"):
+        W.wrap_contact(trained)
+    with pytest.raises(ValueError, match="already wrapped for training"):
+        W.wrap_contact(brax_training.wrap(brax_leg, episode_length=10))
+    with pytest.raises(ValueError, match="PlaygroundContactWrapper wraps a .*MjxEnv"):
+        W.PlaygroundContactWrapper(brax_leg)
+    with pytest.raises(ValueError, match="BraxContactWrapper wraps a .*Env, got PlaygroundLeg"):
+        W.BraxContactWrapper(pg_leg)
 
 
 @pytest.mark.parametrize(
@@ -336,6 +348,9 @@ def test_refusals(leg_robot, brax_leg, pg_leg):
         # force_rows was silently dropped beside a parameter file.
         (dict(force_rows=(2,), params="go1"), "config.force_rows .* give one of them"),
         (dict(obs_keys=()), "config.obs_keys is empty"),
+        # Accepted before (a user trial): no normal axis, and a 1 m "floor tolerance".
+        (dict(force_rows=(0, 1)), r"config.force_rows \(0, 1\) leaves out the normal"),
+        (dict(truth_gap=1.0), "config.truth_gap must be at most 0.02 m .* got 1.0"),
     ],
 )
 def test_config_fields_are_checked_and_named(brax_leg, fields, match):
