@@ -170,7 +170,8 @@ def load(name: str, config_overrides: dict | None = None, *, check: bool = True)
         close = difflib.get_close_matches(str(name), ENV_NAMES, n=3, cutoff=0.6)
         hint = f"; did you mean {' or '.join(map(repr, close))}?" if close else ";"
         raise ValueError(
-            f"unknown env {name!r}{hint} Playground's locomotion envs: {', '.join(ENV_NAMES)}"
+            f"unknown env {name!r}{hint} valid names (Playground's locomotion envs):"
+            f" {', '.join(ENV_NAMES)}"
             " (offline_names() lists those that load offline)"
         )
     overrides = {"impl": "jax", **(config_overrides or {})}
