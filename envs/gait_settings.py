@@ -187,7 +187,9 @@ def _keyframe(m: mujoco.MjModel, key: str | None) -> np.ndarray | None:
     names = [m.key(i).name for i in range(m.nkey)]
     if key is not None:
         if key not in names:
-            raise ValueError(f"home_key {key!r} is not a keyframe of the model; keyframes: {names}")
+            raise ValueError(
+                f"home_key (--home-key) {key!r} is not a keyframe of the model; keyframes: {names}"
+            )
         return np.array(m.key_qpos[names.index(key)])
     for name in ("home", "standing"):
         if name in names:
@@ -318,7 +320,9 @@ def settle(robot: Robot, settings: GaitSettings | None = None, seconds: float = 
         raise ValueError(
             f"robot {robot.name!r} has no standing pose (no keyframe) and did not settle"
             f" standing in {seconds} s from qpos0 (feet {np.round(gap, 3).tolist()} m above"
-            " the floor); pass GaitSettings(home_qpos=...) or home_key"
+            " the floor): give it a standing pose (--home-qpos Q ... or --home-key KEY;"
+            " GaitSettings(home_qpos=..., home_key=...) in Python), or check that its"
+            " actuators' force ranges can hold it up"
         )
     if floating:
         out[0:2] = 0.0

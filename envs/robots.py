@@ -331,7 +331,21 @@ ROBOT_NAMES = tuple(_BUILTIN) + MENAGERIE_NAMES
 
 
 def _looks_like_path(name: str) -> bool:
-    return name.endswith(".xml") or os.sep in name or "/" in name
+    return name.endswith((".xml", ".urdf")) or os.sep in name or "/" in name
+
+
+def _refuse_urdf(path: Path) -> None:
+    """Raises ValueError for a URDF (root element ``<robot>``), whatever its suffix: it has
+    no floor, actuators or free base for the checks that follow to find."""
+    with open(path, "rb") as f:
+        head = f.read(4096).decode("utf-8", "replace")
+    root = re.search(r"<\s*([A-Za-z_][\w.-]*)", re.sub(r"<[?!][^>]*>", "", head))
+    if path.suffix.lower() == ".urdf" or (root and root.group(1) == "robot"):
+        raise ValueError(
+            f"{str(path)!r} is a URDF (root element <robot>); jax-contact reads MJCF: compile it"
+            " with MuJoCo (mujoco.MjModel.from_xml_path, then mujoco.mj_saveLastXML) and add a"
+            " floor plane, a free joint on the base and the joints' actuators"
+        )
 
 
 def load_robot(
@@ -364,8 +378,11 @@ def load_robot(
         spec, source = _load_menagerie(name)
     elif _looks_like_path(name):
         path = Path(name).expanduser()
+        if path.is_dir():
+            raise ValueError(f"MJCF file {str(path)!r} is a folder; name the .xml file in it")
         if not path.is_file():
             raise ValueError(f"MJCF file {str(path)!r} does not exist")
+        _refuse_urdf(path)
         spec, source = _spec_from_file(path), path
         try:
             _strip_meshes(spec, path, keep_colliding=True)

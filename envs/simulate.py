@@ -253,7 +253,8 @@ def _check_gait_fits(gait: GaitParams, robot: Robot) -> None:
         raise ValueError(
             f"actuated joints {joints} are on no leg of the feet {feet}:"
             " the scripted gaits drive the named feet's legs only, and would leave these limp;"
-            " name every foot (--feet)"
+            " name every foot (--feet), and give a leg without one a foot geom at its end (a"
+            " sphere that can touch the floor)"
         )
     if not robot.description.base_dofs:
         raise ValueError(

@@ -333,6 +333,14 @@ def test_load_from_path(tmp_path):
     missing = tmp_path / "nope.xml"
     with pytest.raises(ValueError, match="nope.xml"):
         load_robot(str(missing))
+    with pytest.raises(ValueError, match="is a folder; name the .xml file in it"):
+        load_robot(str(tmp_path) + "/")
+    # A URDF, as .xml or .urdf: named as such (as .xml it was "mj_model has no floor").
+    urdf = '<?xml version="1.0"?>\n<!-- r -->\n<robot name="r"><link name="base"/></robot>\n'
+    for name in ("r.xml", "r.urdf"):
+        (tmp_path / name).write_text(urdf)
+        with pytest.raises(ValueError, match=f"'.*{name}' is a URDF \\(root element <robot>\\)"):
+            load_robot(str(tmp_path / name))
 
 
 def test_every_builtin_quadruped_stands_on_a_plane_at_zero(loaded):

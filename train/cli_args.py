@@ -109,8 +109,11 @@ def check_robot(arg: str, name: str | None) -> None:
     """Raises ValueError unless ``name`` is a known robot or an existing MJCF file."""
     if name is None or name in ROBOT_NAMES:
         return
-    if name.endswith(".xml") or os.sep in name or "/" in name:  # jax_contact.envs.robots' rule
-        if not Path(name).expanduser().is_file():
+    if name.endswith((".xml", ".urdf")) or os.sep in name or "/" in name:  # robots' rule
+        path = Path(name).expanduser()
+        if path.is_dir():
+            raise ValueError(f"argument {arg}: {name!r} is a folder; name the MJCF .xml file")
+        if not path.is_file():
             raise ValueError(f"argument {arg}: MJCF file {name!r} does not exist")
         return
     raise ValueError(
