@@ -65,6 +65,7 @@ def test_importing_the_cli_does_not_import_jax():
         (["simulate", "out.h5", "--robot", "no/such.xml"], ["argument --robot", "no/such.xml"]),
         (["simulate", "out.h5", "--robot", "docs/"], ["argument --robot", "'docs/' is a folder"]),
         (["evaluate", "no_such_log.h5"], ["argument log", "no_such_log.h5"]),
+        (["evaluate", "README.md", "--robot", "no/such.xml"], ["argument --robot", "such.xml"]),
         (["evaluate", "README.md", "--json", "/proc/m.json"], ["argument --json", "'/proc'"]),
         (["train", "--timesteps", "0"], ["argument --timesteps"]),
         (["train", "--eval-envs", "-1"], ["argument --eval-envs", "'-1'", ">= 0"]),

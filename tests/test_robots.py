@@ -275,6 +275,21 @@ def test_a_log_replayed_on_an_edited_model_warns(tmp_path):
         f.attrs["model_sha256"] = model_fingerprint(go1)
     with pytest.warns(UserWarning, match="differs from the one the log was simulated with"):
         load_log(log)
+    # The log names a model file that has moved (another machine): the error says how to
+    # name it; named, the log loads, its fingerprint checked as before.
+    moved = tmp_path / "models" / "leg.xml"
+    moved.parent.mkdir()
+    shutil.copy(PLANAR_LEG_XML, moved)
+    with h5py.File(log, "a") as f:
+        f.attrs["robot"] = str(tmp_path / "gone" / "leg.xml")
+        f.attrs["model_sha256"] = model_fingerprint(planar)
+    with pytest.raises(
+        ValueError, match="does not exist; if its model moved, name it with --robot"
+    ):
+        load_log(log)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert load_log(log, robot=str(moved)).robot.description.n_legs == 1
 
 
 def test_simulate_refuses_feet_that_leave_a_leg_limp():

@@ -178,6 +178,7 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
         gm_grid_log=args.gm_grid,
         params_path=args.params,
         foot_names=args.feet,
+        robot=args.robot,
         terrain_model=args.terrain_model,
         bootstrap=args.bootstrap,
         plots_dir=args.plots,
@@ -300,6 +301,7 @@ def _check_simulate(args: argparse.Namespace) -> None:
 
 def _check_evaluate(args: argparse.Namespace) -> None:
     check_input_file("log", args.log)
+    check_robot("--robot", args.robot)
     check_output_file("--json", args.json)
     if args.plots is not None:
         check_output_folder("--plots", args.plots)
@@ -462,6 +464,12 @@ def build_parser() -> argparse.ArgumentParser:
         " DIR/reliability_<log name>.png (needs ground truth)",
     )
     estimate_cmd.add_feet_flag(p)
+    p.add_argument(
+        "--robot",
+        default=None,
+        help="the log's robot, if its model moved since (a name or an MJCF .xml path);"
+        " default: the one the log names (its physics fingerprint is still checked)",
+    )
     p.add_argument(
         "--gm-grid",
         default=None,

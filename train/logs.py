@@ -155,12 +155,20 @@ class LoadedLog:
     attrs: dict
 
 
-def load_log(path: str | Path, *, foot_names: Sequence[str] | None = None) -> LoadedLog:
+def load_log(
+    path: str | Path,
+    *,
+    foot_names: Sequence[str] | None = None,
+    robot: str | None = None,
+) -> LoadedLog:
     """Reads a log of :func:`simulate_to_file` and loads its robot with its feet.
 
     Args:
       foot_names: the feet to use; None takes the log's ``foot_names`` attribute (the feet
         it was simulated with), else the model's own.
+      robot: the robot to load instead of the one the log names (a name or an MJCF path:
+        the model moved, or the log came from another machine); its physics fingerprint is
+        checked against the log's as for the named one.
 
     Raises:
       FileNotFoundError, ValueError: as :func:`evaluate_file`.
@@ -170,6 +178,7 @@ def load_log(path: str | Path, *, foot_names: Sequence[str] | None = None) -> Lo
     arrays, attrs = read_log(path)
     name = f"log {str(path)!r}"
     robot_name, dt = _log_attrs(name, attrs)
+    robot_name = robot or robot_name
     readings, truth, valid = _log_arrays(name, arrays)
     if reading_timing_of(name, attrs) == _OLD_TIMING:
         print(
@@ -180,10 +189,11 @@ def load_log(path: str | Path, *, foot_names: Sequence[str] | None = None) -> Lo
         readings, truth, valid = to_end_of_step(readings, truth, valid)
     feet = foot_names if foot_names is not None else attrs.get("foot_names") or None
     try:
-        robot = load_robot(robot_name, foot_names=feet)
+        loaded = load_robot(robot_name, foot_names=feet)
     except ValueError as err:
-        raise ValueError(f"{name}: robot {robot_name!r}: {err}") from None
-    desc = robot.description
+        moved = "" if robot else "; if its model moved, name it with --robot (evaluate)"
+        raise ValueError(f"{name}: robot {robot_name!r}: {err}{moved}") from None
+    robot, desc = loaded, loaded.description
     stored = attrs.get("model_sha256")
     if stored and stored != model_fingerprint(robot.mj_model):
         warnings.warn(
@@ -353,6 +363,7 @@ def evaluate_file(
     gm_grid_log: str | Path | None = None,
     params_path: str | Path | None = None,
     foot_names: Sequence[str] | None = None,
+    robot: str | None = None,
     terrain_model: str | None = None,
     bootstrap: int = 0,
     plots_dir: str | Path | None = None,
@@ -387,6 +398,7 @@ def evaluate_file(
       params_path: estimator parameters (:func:`jax_contact.load_params`) instead of the
         robot's defaults (:func:`default_estimator`).
       foot_names: the feet, overriding the log's.
+      robot: the robot, overriding the one the log names (:func:`load_log`).
       terrain_model: the estimator's terrain model, one of :data:`TERRAIN_MODELS`
         (:func:`default_estimator`); None: the one ``params_path`` was tuned with, else
         ``"flat"`` (:func:`resolve_terrain_model`).
@@ -413,7 +425,7 @@ def evaluate_file(
     from jax_contact.baselines import make_gm_params, make_kinematic_params
     from jax_contact.train.evaluate import replay, score
 
-    log = load_log(path, foot_names=foot_names)
+    log = load_log(path, foot_names=foot_names, robot=robot)
     name, truth, desc, dt = log.name, log.truth, log.robot.description, log.dt
     mass = model_mass(log.robot.mj_model)
     params, terrain_model, terrain, calibration = _estimator_for(
