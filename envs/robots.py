@@ -372,6 +372,7 @@ def load_robot(
     if not isinstance(name, str):
         raise ValueError(f"name must be a str, got {type(name).__name__}")
     source = None  # the file whose collisions MJX must support (Menagerie, paths)
+    kept_meshes = None  # why a file's visual meshes could not be dropped
     if name in _BUILTIN:
         spec = _BUILTIN[name]()
     elif name in MENAGERIE_NAMES:
@@ -386,14 +387,23 @@ def load_robot(
         spec, source = _spec_from_file(path), path
         try:
             _strip_meshes(spec, path, keep_colliding=True)
-        except ValueError:  # some inertia comes from a mesh: the model needs its files
+        except ValueError as err:  # some inertia comes from a mesh: the model needs its files
             spec = _spec_from_file(path)
+            kept_meshes = str(err).removeprefix(f"{path}: ")
     else:
         raise ValueError(
             f"unknown robot {name!r}; valid names: {', '.join(ROBOT_NAMES)}, or a path to an"
             " MJCF .xml file"
         )
-    mj_model = _compile(spec, source or name)
+    try:
+        mj_model = _compile(spec, source or name)
+    except ValueError as err:
+        if kept_meshes is None:
+            raise
+        raise ValueError(
+            f"{err} (a mesh file's path is relative to {str(source.parent)!r}, or to the"
+            f" compiler's meshdir; the visual meshes could not be dropped: {kept_meshes})"
+        ) from None
     if source is not None:
         check_mjx_collisions(mj_model, source)
     if gait is not None and type(gait).__name__ != "GaitSettings":

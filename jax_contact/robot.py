@@ -273,9 +273,12 @@ def derive_description(
         if not dofs:
             raise ValueError(f"foot {label!r} has no leg: no joint between it and the base")
         if not actuated.intersection(dofs):
+            joints = [m.joint(int(m.dof_jntid[d])).name or f"<dof {d}>" for d in dofs]
+            every = "" if actuated else " (the model has no joint actuator at all)"
             raise ValueError(
-                f"foot {label!r}: none of its leg's joints is actuated (no joint actuator"
-                f" drives dofs {dofs}); the estimator needs joint torques"
+                f"foot {label!r}: none of its leg's joints {joints} is driven by a joint"
+                f" actuator{every}; the estimator needs joint torques (add a motor or position"
+                " actuator per joint)"
             )
         legs.append(tuple(dofs))
         bases.append(base)

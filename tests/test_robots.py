@@ -358,6 +358,22 @@ def test_load_from_path(tmp_path):
             load_robot(str(tmp_path / name))
 
 
+def test_a_missing_mesh_file_says_why_it_was_needed(tmp_path):
+    """A visual mesh on a body that takes its mass from its geoms cannot be dropped, so its
+    file is read: the error names the folder it is read from and why (it was MuJoCo's
+    "Error opening file" alone)."""
+    xml = (
+        "<mujoco><asset><mesh name='shell' file='meshes/shell.stl'/></asset><worldbody>"
+        "<geom type='plane' size='1 1 .1'/><body name='base' pos='0 0 .3'><freejoint/>"
+        "<geom type='box' size='.1 .1 .02'/><geom type='mesh' mesh='shell' contype='0'"
+        " conaffinity='0'/></body></worldbody></mujoco>"
+    )
+    (tmp_path / "shell.xml").write_text(xml)
+    why = r"shell.stl.*relative to '.*', or to the compiler's meshdir; the visual meshes could"
+    with pytest.raises(ValueError, match=why + r" not be dropped: body 'base' takes"):
+        load_robot(str(tmp_path / "shell.xml"))
+
+
 def test_every_builtin_quadruped_stands_on_a_plane_at_zero(loaded):
     # The reproduction's flat scenarios need a flat floor. Barkour's scene (MJX's test data)
     # ships random blocks, a height field of 0-5 cm; load_robot swaps it for a plane.
@@ -409,7 +425,8 @@ def test_description_refusals(loaded):
         derive_description(_mjcf(foot, floor=""))
     with pytest.raises(ValueError, match="no floor contact: no sphere geom"):
         derive_description(_mjcf(foot.replace("/>", ' contype="0" conaffinity="0"/>')))
-    with pytest.raises(ValueError, match="none of its leg's joints is actuated"):
+    with pytest.raises(ValueError, match=r"none of its leg's joints \['.*'\] is driven by a joint"
+                       " actuator \\(the model has no joint actuator at all\\)"):  # fmt: skip
         derive_description(_mjcf(foot, actuator=""))
     assert derive_description(_mjcf(foot)).foot_names == ("toe",)
     with pytest.raises(ValueError, match=r"'heel'.*valid names: \['FL', 'FL_calf'"):
