@@ -754,3 +754,18 @@ def test_sensor_limit_variants_each_remove_only_what_they_name():
         assert float(v[name].outlier_prob) == 0.0
     with pytest.raises(SystemExit):
         sensor_limits.main(["--envs", "0"])
+
+
+def test_evaluate_notes_a_kinematic_detector_that_wins_and_prints_no_nan_delays():
+    """Hand cases: the estimator's F1 0.695 against the kinematic detector's 0.907 (the
+    hexapod's defaults, a user trial) gets the note; 0.90 against 0.91 (within the 0.02
+    margin) does not. A delay with no detected event prints as 'none found', not nan±nan."""
+    from jax_contact.train.logs import weaker_than_kinematic
+    from jax_contact.train.reproduce import _delay
+
+    note = weaker_than_kinematic({"probabilistic": {"f1": 0.695}, "kinematic": {"f1": 0.907}})
+    assert note.startswith("note: the kinematic detector's F1 (0.907) beats the estimator's")
+    assert weaker_than_kinematic({"probabilistic": {"f1": 0.90}, "kinematic": {"f1": 0.91}}) is None
+    assert weaker_than_kinematic({"probabilistic": {"f1": 0.9}}) is None  # no kinematic row
+    assert _delay((float("nan"), float("nan"))) == "none found"
+    assert _delay((4.25, 1.5)) == "  4.2±1.5  "

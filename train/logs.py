@@ -498,6 +498,8 @@ def evaluate_file(
     else:
         scores = score(out, truth, log.valid, dt=dt)
         print(format_scores(scores, title=Path(path).name))
+        if note := weaker_than_kinematic(scores):
+            print(note)
         valid_tel = np.broadcast_to(np.asarray(log.valid)[..., None], truth.shape)
         short, n_air = short_air_phases(truth, valid_tel, BOUNCE_STEPS)
         if n_air and short > 0.25 * n_air:
@@ -534,6 +536,21 @@ def evaluate_file(
 
 
 BOUNCE_STEPS = 4  # an air phase this short is most often a bounce of a resting foot
+KINEMATIC_MARGIN = 0.02  # F1 by which the kinematic detector must win for the note below
+
+
+def weaker_than_kinematic(scores: dict) -> str | None:
+    """A note when the kinematic detector (foot height alone) beats the estimator's F1 by
+    more than :data:`KINEMATIC_MARGIN` on a log: its parameters do not fit this robot or
+    its sensors (a light robot's loads sit near the torque noise), which tuning addresses."""
+    est, kin = scores.get("probabilistic"), scores.get("kinematic")
+    if not est or not kin or not kin["f1"] > est["f1"] + KINEMATIC_MARGIN:
+        return None
+    return (
+        f"note: the kinematic detector's F1 ({kin['f1']:.3f}) beats the estimator's"
+        f" ({est['f1']:.3f}): its parameters do not fit this robot or sensor model; tune them"
+        " on logs with ground truth (jax-contact tune; docs/own_robot.md, 'A light robot')"
+    )
 
 
 def params_file_provenance(params_path: str | Path) -> dict:

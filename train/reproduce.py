@@ -670,10 +670,18 @@ def table3_json(t3: dict) -> dict:
     }
 
 
+def _delay(mean_std) -> str:
+    """``mean±std`` of a delay, ms; ``none found`` where no event was detected (NaN)."""
+    mean, std = mean_std
+    if not np.isfinite(mean):
+        return "none found"
+    return f"{mean:5.1f}±{std:<5.1f}"
+
+
 # (header, width, cell -> text) of each column of the printed tables.
 _COLUMNS = (
-    ("TD ms", 12, lambda c: "{:5.1f}±{:<5.1f}".format(*c["touchdown_delay_ms"])),
-    ("LO ms", 12, lambda c: "{:5.1f}±{:<5.1f}".format(*c["liftoff_delay_ms"])),
+    ("TD ms", 12, lambda c: _delay(c["touchdown_delay_ms"])),
+    ("LO ms", 12, lambda c: _delay(c["liftoff_delay_ms"])),
     ("F1", 6, lambda c: f"{c['f1']:.3f}"),
     ("acc", 6, lambda c: f"{c['accuracy']:.3f}"),
     ("fail", 5, lambda c: f"{c['failures']}"),
@@ -684,7 +692,8 @@ _COLUMNS = (
 )
 LEGEND = (
     "TD / LO ms: touch-down / lift-off delay, mean±std, from the step of the true event to"
-    " the first step whose output detects it (the input lag included); fail: false"
+    " the first step whose output detects it (the input lag included; none found: no event"
+    " of the kind detected); fail: false"
     " contacts in the air (the paper's failures); air-ph: share of true air phases with a"
     " false contact; mTD / mLO: missed touch-downs / lift-offs;"
     " acc, F1: per step; ECE: expected calibration error"
