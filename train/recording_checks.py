@@ -14,6 +14,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 # A joint's reading may leave its range by sensor noise and compliance; beyond this many
 # rad (m) on more than this share of rows it is another unit or another joint.
@@ -81,12 +82,17 @@ def upside_down(quat: np.ndarray) -> str | None:
     )
 
 
-def _rotate(quat: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """(T, 3) ``v`` rotated by the unit quaternions (T, 4) w, x, y, z:
-    ``v + 2 w (u x v) + 2 u x (u x v)`` with ``u = (x, y, z)``."""
-    w, u = quat[:, :1], quat[:, 1:]
-    c = np.cross(u, v)
-    return v + 2.0 * w * c + 2.0 * np.cross(u, c)
+def _valid_quaternions(quat: np.ndarray) -> np.ndarray:
+    """(T,) the rows of ``quat`` (T, 4) that hold a rotation: finite and not zero."""
+    ok = np.all(np.isfinite(quat), axis=1)
+    ok[ok] = np.linalg.norm(quat[ok], axis=1) > 1e-12
+    return ok
+
+
+def _rotation(quat: np.ndarray) -> Rotation:
+    """SciPy rotations of unit-or-not quaternions (N, 4) in w, x, y, z order (SciPy's own
+    is x, y, z, w)."""
+    return Rotation.from_quat(quat[:, [1, 2, 3, 0]])
 
 
 # The checks of a reading against its derivative compare changes over this window, s: at
@@ -173,9 +179,8 @@ def velocity_in_base_frame(
     coincide only while the base heads along the world's x axis (then nothing is wrong),
     and a slow robot's displacement may be within the position noise: neither is named.
     """
-    ok = np.all(np.isfinite(quat), axis=1)
-    quat = np.where(ok[:, None], quat, [1.0, 0.0, 0.0, 0.0])
-    quat = quat / np.linalg.norm(quat, axis=1, keepdims=True)
+    ok = _valid_quaternions(quat)
+    rotation = _rotation(np.where(ok[:, None], quat, [1.0, 0.0, 0.0, 0.0]))  # identity if not
 
     def error(v):
         moved, integral = window_changes(pos, v, dt, ok)
@@ -183,7 +188,7 @@ def velocity_in_base_frame(
             return 0.0
         return float(np.median(np.linalg.norm(moved - integral, axis=1)))
 
-    as_given, rotated = error(vel), error(_rotate(quat, vel))
+    as_given, rotated = error(vel), error(rotation.apply(np.where(np.isfinite(vel), vel, 0.0)))
     if not (rotated < 0.5 * as_given and as_given > 0.02):
         return None
     return (
@@ -193,23 +198,6 @@ def velocity_in_base_frame(
         " twist); the schema wants the world frame: rotate it by the base's orientation"
         " or drop the base_linvel columns (then differenced from base_pos)"
     )
-
-
-def _quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """(N, 4) Hamilton products ``a b`` of w, x, y, z quaternions."""
-    aw, av, bw, bv = a[:, :1], a[:, 1:], b[:, :1], b[:, 1:]
-    return np.concatenate(
-        [aw * bw - np.sum(av * bv, axis=1, keepdims=True), aw * bv + bw * av + np.cross(av, bv)],
-        axis=1,
-    )
-
-
-def _rotation_vector(q: np.ndarray) -> np.ndarray:
-    """(N, 3) axis times angle of unit quaternions (N, 4), the angle in [0, pi]."""
-    q = np.where(q[:, :1] < 0, -q, q)
-    norm = np.linalg.norm(q[:, 1:], axis=1, keepdims=True)
-    angle = 2.0 * np.arctan2(norm, q[:, :1])
-    return q[:, 1:] * np.where(norm > 1e-12, angle / np.maximum(norm, 1e-12), 2.0)
 
 
 def angular_velocity_mismatch(quat: np.ndarray, angvel: np.ndarray, dt: float) -> str | None:
@@ -223,16 +211,15 @@ def angular_velocity_mismatch(quat: np.ndarray, angvel: np.ndarray, dt: float) -
     ``q_{k+n} q_k^-1``, world axes, fits with under half the error). Judged only where the
     integral's RMS exceeds 0.02 rad (0.2 rad/s).
     """
-    quat = quat / np.linalg.norm(quat, axis=1, keepdims=True)
-    inverse = np.array([1.0, -1.0, -1.0, -1.0])  # the conjugate of a unit quaternion
+    ok = _valid_quaternions(quat)
 
-    def body(q0, q1):
-        return _rotation_vector(_quat_mul(q0 * inverse, q1))
+    def body(q0, q1):  # q_k^-1 q_{k+n}: the turn about the base's own axes
+        return (_rotation(q0).inv() * _rotation(q1)).as_rotvec()
 
-    def world(q0, q1):
-        return _rotation_vector(_quat_mul(q1, q0 * inverse))
+    def world(q0, q1):  # q_{k+n} q_k^-1: the same turn about the world's axes
+        return (_rotation(q1) * _rotation(q0).inv()).as_rotvec()
 
-    turn, integral = window_changes(quat, angvel, dt, change=body)
+    turn, integral = window_changes(quat, angvel, dt, ok, change=body)
     if len(turn) < 10 or np.sqrt(np.mean(np.sum(integral**2, axis=1))) < 0.02:
         return None
     slope = float(np.sum(turn * integral) / np.sum(integral**2))
@@ -248,7 +235,7 @@ def angular_velocity_mismatch(quat: np.ndarray, angvel: np.ndarray, dt: float) -
             f"over {FRAME_WINDOW_S:g} s windows the base turns by {slope:.3g} times the"
             f" integral of base_angvel (1 when they agree){hint}"
         )
-    turn_world, _ = window_changes(quat, angvel, dt, change=world)
+    turn_world, _ = window_changes(quat, angvel, dt, ok, change=world)
     in_body = float(np.median(np.linalg.norm(turn - integral, axis=1)))
     in_world = float(np.median(np.linalg.norm(turn_world - integral, axis=1)))
     if in_world < 0.5 * in_body and in_body > 0.005:
