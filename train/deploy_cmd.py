@@ -397,10 +397,11 @@ def deploy_check(
     from jax_contact.train.recording_estimate import contact_summary, print_note, torque_note
 
     header, _ = read_artefact(artefact)
+    terms = params_and_terrain(header)[0].terms
     if is_recording(log):
         if env != 0:
             raise ValueError(f"argument --env: a recording holds one robot (env 0), got {env}")
-        name, conv, desc = _recording_readings(header, log, names, units, resample)
+        name, conv, desc = _recording_readings(header, log, terms, names, units, resample)
         dt, readings, robot_name = conv.dt, conv.readings, header["robot"]["source"]
     else:
         conv = None
@@ -458,23 +459,19 @@ def deploy_check(
             for i, foot in enumerate(header["robot"]["feet"])
         },
     }
-    summary = contact_summary(
-        rt["p_contact"],
+    summary, all_air = contact_summary(
+        np.array(list(result["contact_share"].values())),
         header["robot"]["feet"],
         floor_hint="export with a file tuned with --terrain-model memory",
     )
     notes = list(conv.notes) if conv is not None else []
-    torque = None
-    if conv is not None and {"dynamics", "diff_kinematics"} <= set(
-        params_and_terrain(header)[0].terms
-    ):
-        torque = torque_note(rt, desc, conv, notes)
+    torque = torque_note(rt, terms, desc, conv, notes) if conv is not None else None
     # Every warning of the run, in the order printed: the recording's, the torque check's
     # and the summary's (every foot reads air).
     result["warnings"] = [
         *(n.removeprefix("WARNING ") for n in notes if n.startswith("WARNING ")),
         *([torque.removeprefix("WARNING ")] if torque else []),
-        *(line.removeprefix("warning: ") for line in summary.split("\n")[1:]),
+        *([all_air] if all_air else []),
     ]
     lat = result["latency_us"]
     print(
@@ -486,6 +483,8 @@ def deploy_check(
         + f"\n  max |P(contact) - offline estimate|: {result['max_abs_diff']:.2e}\n  "
         + summary
     )
+    if all_air:
+        print(f"warning: {all_air}")
     if torque:
         print_note(torque)
     if json_path:
@@ -509,10 +508,10 @@ def is_recording(path: str | Path) -> bool:
         return False  # not HDF5: load_log names the file and the reason
 
 
-def _recording_readings(header: dict, log, names, units: str, resample: bool):
+def _recording_readings(header: dict, log, terms, names, units: str, resample: bool):
     """(name, :class:`~jax_contact.train.recording_convert.Converted`, robot description)
     of a recording of the artefact's robot, its notes and warnings printed as ``jax-contact
-    estimate`` prints them.
+    estimate`` prints them; ``terms``: the exported estimator's measurement terms.
 
     Raises:
       ValueError: as :func:`jax_contact.train.recording_convert.to_readings`, or the
@@ -526,7 +525,7 @@ def _recording_readings(header: dict, log, names, units: str, resample: bool):
     robot = load_robot(header["robot"]["source"], foot_names=header["robot"]["feet"])
     conv = to_readings(read_recording(log), robot, names=names, units=units, resample=resample)
     name = f"recording {str(log)!r}"
-    if not conv.has_torque and "dynamics" in params_and_terrain(header)[0].terms:
+    if not conv.has_torque and "dynamics" in terms:
         raise ValueError(
             f"{name} has no tau/ column for some actuated joint, but the exported estimator's"
             " dynamics term reads every joint torque (the readings would hold zeros): record"

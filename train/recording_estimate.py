@@ -114,11 +114,10 @@ def estimate_recording(
         diagnostics_of="probabilistic",
         progress=progress,
     )
-    if "dynamics" in terms and "diff_kinematics" in terms:
-        terms_of = {k: np.asarray(out[f"probabilistic/{k}"])[:, 0] for k in TORQUE_CHECK_INPUTS}
-        if warned := torque_note(terms_of, desc, conv, notes):
-            notes.append(warned)
-            print_note(warned)
+    terms_of = {k: np.asarray(out[f"probabilistic/{k}"])[:, 0] for k in TORQUE_CHECK_INPUTS}
+    if warned := torque_note(terms_of, terms, desc, conv, notes):
+        notes.append(warned)
+        print_note(warned)
     if calibration is not None:
         # What the file defines as its output: the belief through its calibration map
         # (jax_contact.calibration), as the wrapper and the exported estimator report it.
@@ -182,7 +181,10 @@ def estimate_recording(
                     )
                 )
         p = np.asarray(out["probabilistic"])[:, 0]
-        print(f"{len(p)} readings at {conv.dt * 1e3:.4g} ms; " + contact_summary(p, feet_names))
+        line, all_air = contact_summary(np.nanmean(p > 0.5, axis=0), feet_names)
+        print(f"{len(p)} readings at {conv.dt * 1e3:.4g} ms; {line}")
+        if all_air:
+            print(f"warning: {all_air}")
         scores = {}
         if has_truth:
             # Steps whose truth is missing are scored as neither contact nor air.
@@ -212,11 +214,19 @@ def estimate_recording(
 TORQUE_CHECK_INPUTS = ("p_dynamics", "p_diff_kinematics", "valid")
 
 
-def torque_note(terms_of: Mapping[str, np.ndarray], desc, conv, notes: Sequence[str]):
-    """The torque check's note (``"WARNING ..."``) for a recording's estimate, or None.
+def torque_note(
+    terms_of: Mapping[str, np.ndarray],
+    terms: Sequence[str],
+    desc,
+    conv,
+    notes: Sequence[str],
+):
+    """The torque check's note (``"WARNING ..."``) for a recording's estimate, or None
+    (also when the estimator ran without the dynamics or differential-kinematics term).
 
     Args:
       terms_of: :data:`TORQUE_CHECK_INPUTS` -> (T, L) of the estimate of the recording.
+      terms: the measurement terms the estimator ran with.
       desc: the robot description (feet and their legs' dofs).
       conv: the recording as :func:`~jax_contact.train.recording_convert.to_readings`
         converted it (its ``tau/`` columns, named in the warning).
@@ -224,6 +234,8 @@ def torque_note(terms_of: Mapping[str, np.ndarray], desc, conv, notes: Sequence[
         that one's consequence (a wrong quaternion or base acceleration also makes the
         dynamics term read air).
     """
+    if not {"dynamics", "diff_kinematics"} <= set(terms):
+        return None
     columns = [[conv.tau_columns[d] for d in leg if d in conv.tau_columns] for leg in desc.leg_dofs]
     disagrees = dynamics_disagrees(
         *(terms_of[k] for k in TORQUE_CHECK_INPUTS), desc.foot_names, columns
@@ -236,22 +248,23 @@ def torque_note(terms_of: Mapping[str, np.ndarray], desc, conv, notes: Sequence[
 
 
 def contact_summary(
-    p: np.ndarray, feet: Sequence[str], floor_hint: str = "--terrain-model memory"
-) -> str:
-    """One line of each foot's share of steps with ``p`` (T, L) above 0.5, and a warning
-    line (``warning: ...``) when every foot reads air on more than 99 % of them: a robot
-    that stood or walked does not, a recording read in the wrong unit, quaternion order or
-    floor height does (``floor_hint``: what to do about a floor that is not at z = 0)."""
-    summary = "  ".join(f"{f} {np.nanmean(p[:, i] > 0.5):.2f}" for i, f in enumerate(feet))
-    line = f"share of steps estimated in contact (P > 0.5): {summary}"
-    if np.all(np.nanmean(p > 0.5, axis=0) < 0.01):
-        line += (
-            "\nwarning: every foot reads air on more than 99 % of the steps; if the robot"
-            " stood or walked, check the angles' unit (--units), the base quaternion's"
-            " order (w, x, y, z) and that the floor is at z = 0 in base_pos's frame"
-            f" (else {floor_hint})"
-        )
-    return line
+    share: np.ndarray, feet: Sequence[str], floor_hint: str = "--terrain-model memory"
+) -> tuple[str, str | None]:
+    """``(line, warning or None)``: each foot's ``share`` (L,) of steps estimated in contact
+    (P > 0.5) as one line, and a warning when every foot reads air on more than 99 % of
+    them: a robot that stood or walked does not, a recording read in the wrong unit,
+    quaternion order or floor height does (``floor_hint``: what to do about a floor that is
+    not at z = 0)."""
+    line = "share of steps estimated in contact (P > 0.5): " + "  ".join(
+        f"{f} {s:.2f}" for f, s in zip(feet, share, strict=True)
+    )
+    if not np.all(share < 0.01):
+        return line, None
+    return line, (
+        "every foot reads air on more than 99 % of the steps; if the robot stood or walked,"
+        " check the angles' unit (--units), the base quaternion's order (w, x, y, z) and"
+        f" that the floor is at z = 0 in base_pos's frame (else {floor_hint})"
+    )
 
 
 def print_note(note: str) -> None:
