@@ -227,6 +227,11 @@ def _foot_force(J_l: jax.Array, residual: jax.Array, damping: jax.Array) -> jax.
     return -u @ ((s / (s * s + damping)) * (vt @ residual))
 
 
+def _zero_if_not(ok: jax.Array, state: GMState) -> GMState:
+    """``state``, or zeros where ``ok`` is False (a start from a non-finite reading)."""
+    return jax.tree.map(lambda x: jnp.where(ok, x, jnp.zeros_like(x)), state)
+
+
 def gm_step(
     params: GMParams, state: GMState, meas: LegMeasurement, dt, normal: jax.Array
 ) -> tuple[GMState, GMOutput]:
@@ -298,7 +303,9 @@ def gm_run(params: GMParams, meas_seq: LegMeasurement, dt, normal: jax.Array) ->
     """Runs the observer over a sequence of one foot's measurements.
 
     The first measurement initialises the observer (:func:`gm_init`), so the output at
-    step 0 has residual and force 0 and no contact; steps 1.. are :func:`gm_step`.
+    step 0 has residual and force 0 and no contact; steps 1.. are :func:`gm_step`. If the
+    first measurements hold a NaN or inf, the observer starts at the first finite one:
+    the steps before it are invalid (``valid`` False, zero output).
 
     Args:
       params: the observer's knobs.
@@ -321,22 +328,40 @@ def gm_run(params: GMParams, meas_seq: LegMeasurement, dt, normal: jax.Array) ->
 
 
 def _gm_scan(params, meas_seq, dt, normal):
+    """:func:`gm_run` without its checks. The observer starts at the first finite
+    measurement (step 0 if it is finite): until then every step is invalid, with zero
+    output, and a first reading holding a NaN cannot seed ``p_0`` with it."""
     first = jax.tree.map(lambda x: x[0], meas_seq)
-    state = gm_init(first)
+    started = measurement_is_finite(first)
+    state = _zero_if_not(started, gm_init(first))
     out0 = GMOutput(
         residual=state.residual,
         force=state.force,
         force_normal=state.force_normal,
         contact=jnp.zeros((), bool),
-        valid=measurement_is_finite(first),
+        valid=started,
     )
     rest = jax.tree.map(lambda x: x[1:], (meas_seq, normal))
 
-    def body(s, xs):
+    def body(carry, xs):
+        s, started = carry
         m, n = xs
-        return gm_step(params, s, m, dt, n)
+        stepped, out = gm_step(params, s, m, dt, n)
+        # Not started yet: this step (re)starts the observer if its reading is finite.
+        first_ok = measurement_is_finite(m)
+        fresh = _zero_if_not(first_ok, gm_init(m))
+        s = jax.tree.map(lambda a, b: jnp.where(started, a, b), stepped, fresh)
+        restart = GMOutput(
+            residual=fresh.residual,
+            force=fresh.force,
+            force_normal=fresh.force_normal,
+            contact=jnp.zeros((), bool),
+            valid=first_ok,
+        )
+        out = jax.tree.map(lambda a, b: jnp.where(started, a, b), out, restart)
+        return (s, started | first_ok), out
 
-    _, outs = jax.lax.scan(body, state, rest)
+    _, outs = jax.lax.scan(body, (state, started), rest)
     return jax.tree.map(lambda a, b: jnp.concatenate([a[None], b]), out0, outs)
 
 

@@ -126,6 +126,35 @@ def test_gm_matches_float64_oracle_with_varying_mass_and_a_nan_step(gm_params):
     assert 0 < ref_c.sum() < T  # and both flags
 
 
+def test_gm_starts_at_the_first_finite_reading_of_each_env(gm_params):
+    # A NaN in an env's first readings used to seed p_0 with NaN: that env's force was NaN
+    # for good while later steps were marked valid. The observer now starts at the first
+    # finite reading, so env 1 from step 2 on is the float64 oracle run on readings 2..,
+    # and env 0 (finite throughout) is untouched.
+    rng = np.random.default_rng(7)
+    T = 30
+    m = _meas((T,), rng, LEGS[0])
+    m["M"] = np.stack([_spd(rng, NV) for _ in range(T)])
+    m["tau"] = 20.0 * rng.normal(size=(T, NV))
+    bad = {k: v.copy() for k, v in m.items()}
+    bad["qd"][0, 4] = np.nan
+    bad["tau"][1, 3] = np.inf
+    batch = {k: np.stack([m[k], bad[k]], axis=1)[:, :, None] for k in m}  # (T, E=2, L=1)
+    normal = np.array([0.0, 0.0, 1.0])
+    K_I, th, damp = (float(gm_params.K_I), float(gm_params.threshold), float(gm_params.damping))
+    with jax.enable_x64(True):
+        out = GM_RUN_BATCH(gm_params, _to_jax(batch, jnp.float64), DT, jnp.asarray(normal))
+    ref_all = gm_oracle(K_I, th, damp, DT, m, normal)
+    ref_late = gm_oracle(K_I, th, damp, DT, {k: v[2:] for k, v in m.items()}, normal)
+    np.testing.assert_allclose(out.force_normal[:, 0, 0], ref_all[2], rtol=1e-9, atol=1e-9)
+    np.testing.assert_array_equal(out.valid[:, 1, 0], [False, False] + [True] * (T - 2))
+    np.testing.assert_array_equal(out.force_normal[:2, 1, 0], [0.0, 0.0])
+    np.testing.assert_allclose(out.residual[2:, 1, 0], ref_late[0], rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(out.force_normal[2:, 1, 0], ref_late[2], rtol=1e-9, atol=1e-9)
+    np.testing.assert_array_equal(out.contact[2:, 1, 0], ref_late[3])
+    assert np.abs(ref_late[2]).max() > 1.0
+
+
 def test_gm_moving_leg_with_constant_mass_follows_closed_form(gm_params):
     # Constant M, qd_k = qd_{k-1} + qdd_k dt (backward difference), tau_k = M qdd_k + h_k
     # + J^T F with a constant foot force F. Then in gm_step, p_k - p_{k-1} = M_l qdd_k dt
