@@ -137,6 +137,20 @@ def foot_bias_acceleration(
     return jnp.where(chain_mask, d.qvel, 0.0) @ col
 
 
+def _check_mjx_inputs(mjx_model, mjx_data) -> None:
+    """MJX's model and data (not MuJoCo's C ones)."""
+    if not isinstance(mjx_model, mjx.Model):
+        hint = (
+            " (mjx.put_model(mj_model, impl='jax'))"
+            if isinstance(mjx_model, mujoco.MjModel)
+            else ""
+        )
+        raise ValueError(f"mjx_model must be an mjx.Model{hint}, got {type(mjx_model).__name__}")
+    if not isinstance(mjx_data, mjx.Data):
+        hint = " (mjx.put_data(mj_model, mj_data))" if isinstance(mjx_data, mujoco.MjData) else ""
+        raise ValueError(f"mjx_data must be an mjx.Data{hint}, got {type(mjx_data).__name__}")
+
+
 def robot_measurement(
     mjx_model: mjx.Model,
     mjx_data: mjx.Data,
@@ -169,6 +183,7 @@ def robot_measurement(
         :func:`jax_contact.envs.feet.measurement` takes those).
     """
     m, d = mjx_model, mjx_data
+    _check_mjx_inputs(m, d)
     if (desc.nv, desc.nq) != (m.nv, m.nq):
         raise ValueError(
             f"desc has nv={desc.nv}, nq={desc.nq} but mjx_model has nv={m.nv}, nq={m.nq}:"
@@ -262,12 +277,20 @@ def measurement_at_points(
         return jacp.T, foot_bias_acceleration(m, d, body_id, point, mask)
 
     J, Jdot_qd = jax.vmap(per_foot)(body_ids, p_f, masks)
+    M = mjx.full_m(m, d)
+    # Unprepared data read as a massless robot (every step invalid, no hint): refused
+    # where the data are concrete (not under jit or vmap).
+    if not isinstance(M, jax.core.Tracer) and not np.any(np.asarray(M)):
+        raise ValueError(
+            "mjx_data has no mass matrix (it is all zeros): run prepare(mjx_model, mjx_data)"
+            " (or mjx.forward) at the measured qpos, qvel first"
+        )
     return RobotMeasurement(
         q=d.qpos,
         qd=d.qvel,
         qdd=qdd,
         tau=tau,
-        M=mjx.full_m(m, d),
+        M=M,
         h=h,
         J=J,
         Jdot_qd=Jdot_qd,

@@ -450,6 +450,18 @@ class KinematicOutput:
     contact: jax.Array
 
 
+def _check_terrain_query(terrain) -> None:
+    """The detector reads a terrain *answer* below each foot, not a terrain model."""
+    if not isinstance(terrain, TerrainQuery):
+        hint = (
+            ": a terrain model answers with .query(p_f, foothold, foothold_valid), or build"
+            " TerrainQuery(height=..., sigma=..., normal=...)"
+            if callable(getattr(terrain, "query", None))
+            else ""
+        )
+        raise ValueError(f"terrain must be a TerrainQuery, got {type(terrain).__name__}{hint}")
+
+
 def kinematic_detect(
     params: KinematicParams, meas: LegMeasurement, terrain: TerrainQuery
 ) -> KinematicOutput:
@@ -467,6 +479,7 @@ def kinematic_detect(
       terrain: unbatched terrain answer below the foot.
     """
     _check_meas(meas, ())
+    _check_terrain_query(terrain)
     e = terrain.normal
     gap = e[2] * (meas.p_f[2] - terrain.height) - meas.foot_radius
     if params.velocity_mode == "norm":
@@ -493,6 +506,7 @@ def kinematic_detect_batch(
     """
     lead = tuple(np.shape(meas.p_f))[:-1]
     _check_meas(meas, lead)
+    _check_terrain_query(terrain)
     for field, tail in (("height", ()), ("sigma", ()), ("normal", (3,))):
         shape = tuple(np.shape(getattr(terrain, field)))
         if shape not in (tail, lead + tail):

@@ -62,13 +62,20 @@ from __future__ import annotations
 import dataclasses
 import numbers
 
+import jax
+import jax.numpy as jnp
 import numpy as np
 
 from jax_contact.params import EstimatorParams, make_noise, make_params
 
 
 def is_number(v) -> bool:
-    """A real scalar, Python's or NumPy's (``np.float32(0.3)``), not a bool or a string."""
+    """A real scalar, Python's, NumPy's (``np.float32(0.3)``) or a concrete 0-d JAX array
+    (``jnp.float32(0.3)``), not a bool or a string."""
+    if isinstance(v, jax.Array) and not isinstance(v, jax.core.Tracer):
+        return v.shape == () and (
+            jnp.issubdtype(v.dtype, jnp.floating) or jnp.issubdtype(v.dtype, jnp.integer)
+        )
     return isinstance(v, numbers.Real) and not isinstance(v, bool | np.bool_)
 
 
@@ -250,6 +257,13 @@ def params_for(
         raise ValueError(f"gait must be a GaitPrior, got {type(gait).__name__}")
     if not (is_number(dt) and np.isfinite(dt) and dt > 0):
         raise ValueError(f"dt must be a finite float > 0 (s), got {dt!r}")
+    dt = float(dt)
+    missing = [f for f in ("nv", "n_leg_dofs", "n_legs") if not hasattr(desc, f)]
+    if missing:
+        raise ValueError(
+            f"desc must be a RobotDescription (load_robot(...).description or"
+            f" jax_contact.robot.derive_description), got {type(desc).__name__} without {missing}"
+        )
     for name, v in (("disturbance", disturbance), ("bias_horizon_s", bias_horizon_s)):
         if not (is_number(v) and np.isfinite(v) and v >= 0):
             raise ValueError(f"{name} must be a finite number >= 0, got {v!r}")

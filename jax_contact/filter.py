@@ -26,7 +26,7 @@ from jax_contact.measurement import (
     measurement_terms,
     robot_leg_blocks,
 )
-from jax_contact.params import TERMS, EstimatorParams, Switches, switches_of
+from jax_contact.params import TERMS, EstimatorParams, Switches, switches_of, validate_params
 from jax_contact.transition import log_prior_transition, log_transition_matrix
 from jax_contact.types import (
     Diagnostics,
@@ -106,7 +106,13 @@ def step(
     Returns:
       (new belief, this step's diagnostics). If ``meas`` holds a NaN or inf, the belief is
       the transition-only prediction, the next transition is the gait prior, the foothold
-      is kept, and ``diagnostics.valid`` is False.
+      is kept, and ``diagnostics.valid`` is False. A belief that is already NaN (set by
+      hand) stays NaN, and every step of it reports ``valid`` False.
+
+    Raises:
+      ValueError: naming the argument: ``params`` out of range (checked when they are
+        concrete, not traced), a measurement or belief of the wrong shape or type, a
+        ``key`` that is not a PRNG key.
     """
     if isinstance(meas, RobotMeasurement):
         raise ValueError(
@@ -114,22 +120,56 @@ def step(
             " LegMeasurement: use step_robot (one robot) or step_batch (a batch)"
         )
     _check_shapes("step", params, belief, meas, ())
+    _check_call("step", params, terrain, key)
     return _step(params, terrain, belief, meas, key)
 
 
-def _check_shapes(fn: str, params, belief, meas, batch: tuple[int, ...]) -> None:
+def _check_call(fn: str, params, terrain, key) -> None:
+    """Trace-time checks of the arguments besides the measurement: ``params`` in range
+    (:func:`jax_contact.params.validate_params`, when they are concrete: parameters
+    traced by ``jit``, ``vmap`` or ``grad`` are not read), a terrain model and a PRNG
+    key. Raises ValueError naming the argument."""
+    if not isinstance(params, EstimatorParams):
+        raise ValueError(
+            f"{fn}: params must be EstimatorParams (jax_contact.params_for, load_params), got"
+            f" {type(params).__name__}"
+        )
+    if not any(isinstance(x, jax.core.Tracer) for x in jax.tree.leaves(params)):
+        try:
+            validate_params(params)
+        except ValueError as err:
+            raise ValueError(f"{fn}: params: {err}") from None
+    if not callable(getattr(terrain, "query", None)):
+        raise ValueError(
+            f"{fn}: terrain must be a terrain model of jax_contact.terrain (e.g. flat()), got"
+            f" {type(terrain).__name__}"
+        )
+    dtype = getattr(key, "dtype", None)
+    if dtype is None or not (
+        jnp.issubdtype(dtype, jax.dtypes.prng_key) or (dtype == jnp.uint32 and np.ndim(key) >= 1)
+    ):
+        raise ValueError(
+            f"{fn}: key must be a PRNG key, e.g. jax.random.key(0) (every step takes one; the"
+            f" default quadrature touch-down draws nothing from it), got {type(key).__name__}"
+            + ("" if dtype is None else f" of dtype {dtype}")
+        )
+
+
+def _check_shapes(
+    fn: str, params, belief, meas, batch: tuple[int, ...], time: tuple[int, ...] = ()
+) -> None:
     """Trace-time check (static shapes only, no cost in the compiled program) that
     ``meas`` and ``belief`` fit ``params`` and each other: ``batch`` is the leading shape
-    ``meas``'s per-robot (or per-foot) fields must have. Raises ValueError naming the
-    argument, the field and both shapes."""
+    ``meas``'s per-robot (or per-foot) fields must have after the sequence's ``time``
+    axis, if any. Raises ValueError naming the argument, the field and both shapes."""
     robot = isinstance(meas, RobotMeasurement)
     if not robot and not isinstance(meas, LegMeasurement):
         raise ValueError(
             f"{fn}: meas must be a LegMeasurement or RobotMeasurement, got {type(meas).__name__}"
         )
-    want = batch + (params.nv,)
+    want = time + batch + (params.nv,)
     if tuple(np.shape(meas.qdd)) != want:
-        what = "the leading axes of the batch" if batch else "unbatched"
+        what = "the leading axes of the batch" if time + batch else "unbatched"
         raise ValueError(
             f"{fn}: meas.qdd has shape {tuple(np.shape(meas.qdd))}; expected {want} ({what}, then"
             f" params' nv = {params.nv}): parameters of another robot, or a measurement"
@@ -149,6 +189,31 @@ def _check_shapes(fn: str, params, belief, meas, batch: tuple[int, ...]) -> None
             validate_measurement(meas, params.nv)
     except ValueError as err:
         raise ValueError(f"{fn}: {err}") from None
+
+
+def _check_sequence(fn: str, params, belief, meas_seq, n_steps: int | None = None) -> None:
+    """:func:`_check_shapes` of a time series (leading axis T, ``n_steps`` if given) for a
+    batch of beliefs (n_envs, n_legs), before ``lax.scan`` reads it."""
+    if np.ndim(belief.logit) != 2:
+        raise ValueError(
+            f"{fn}: belief has shape {tuple(np.shape(belief.logit))} (its logit); expected"
+            " (n_envs, n_legs): init_belief_batch"
+        )
+    if not isinstance(meas_seq, LegMeasurement | RobotMeasurement):
+        raise ValueError(
+            f"{fn}: meas_seq must be a LegMeasurement or RobotMeasurement, got"
+            f" {type(meas_seq).__name__}"
+        )
+    shape = np.shape(meas_seq.qd)
+    if len(shape) < 2:
+        raise ValueError(
+            f"{fn}: meas_seq.qd has shape {shape}; expected (T, n_envs, ..., nv): a time axis"
+            " first, then the batch"
+        )
+    n_envs, n_legs = belief.logit.shape
+    batch = (n_envs,) if isinstance(meas_seq, RobotMeasurement) else (n_envs, n_legs)
+    time = (shape[0] if n_steps is None else n_steps,)
+    _check_shapes(fn, params, belief, meas_seq, batch, time)
 
 
 def _step(params, terrain, belief, meas, key, switches=None):
@@ -189,7 +254,8 @@ def _update(
     # A term that is not finite on finite inputs (a numerical failure, e.g. a singular
     # leg) is no evidence: the belief keeps its prior and the step is reported invalid,
     # instead of a NaN that every later step of this foot would inherit.
-    valid = valid & jnp.isfinite(llr)
+    # A NaN belief (set by hand) cannot be updated: reported, not hidden.
+    valid = valid & jnp.isfinite(llr) & ~jnp.isnan(belief.logit)
     logit = jnp.where(valid, prior_logit + llr, prior_logit)
 
     # Without the transition model (an ablation) the gait prior alone.
@@ -263,6 +329,7 @@ def step_robot(
             " foot's LegMeasurement goes to step)"
         )
     _check_shapes("step_robot", params, belief, meas, ())
+    _check_call("step_robot", params, terrain, key)
     return _step_legs(params, terrain, belief, meas, jax.random.split(key, meas.n_legs))
 
 
@@ -294,6 +361,7 @@ def step_batch(
     n_envs, n_legs = belief.logit.shape
     batch = (n_envs,) if isinstance(meas, RobotMeasurement) else (n_envs, n_legs)
     _check_shapes("step_batch", params, belief, meas, batch)
+    _check_call("step_batch", params, terrain, key)
     keys = jax.random.split(key, n_envs * n_legs)
     keys = keys.reshape((n_envs, n_legs) + keys.shape[1:])
 
@@ -333,7 +401,13 @@ def run(
 
     Returns:
       (final belief, diagnostics with leading axes (T, n_envs, n_legs)).
+
+    Raises:
+      ValueError: as :func:`step`, naming ``meas_seq``'s field whose leading axes are not
+        (T, n_envs[, n_legs]) with ``belief``'s (n_envs, n_legs).
     """
+    _check_sequence("run", params, belief, meas_seq)
+    _check_call("run", params, terrain, key)
 
     def body(carry, meas):
         b, k = carry
@@ -358,14 +432,33 @@ def sequence_bce(
     Differentiable with respect to ``params`` (the noise model included), for tuning.
 
     Args:
-      meas_seq: leaves with leading axes (T, n_envs, n_legs).
+      meas_seq: leaves with leading axes (T, n_envs, n_legs), or a
+        :class:`RobotMeasurement` with leading axes (T, n_envs).
       truth: (T, n_envs, n_legs) bool or {0, 1} ground-truth contact.
 
     Returns:
       () mean over time, envs and legs, in nats.
+
+    Raises:
+      ValueError: as :func:`run`; ``truth`` not of shape (T, n_envs, n_legs) with
+        ``meas_seq``'s T, or (when concrete) holding values other than 0 and 1.
     """
-    n_envs, n_legs = truth.shape[1:]
+    shape = tuple(np.shape(truth))
+    if len(shape) != 3 or min(shape, default=0) < 1:
+        raise ValueError(
+            f"sequence_bce: truth has shape {shape}; expected (T, n_envs, n_legs), T >= 1"
+        )
+    if not isinstance(truth, jax.core.Tracer):
+        values = np.asarray(truth)
+        if not np.all((values == 0) | (values == 1)):
+            bad = values[~((values == 0) | (values == 1))].ravel()[:3]
+            raise ValueError(
+                f"sequence_bce: truth must hold 0 and 1 (or bool) only, found {bad.tolist()}"
+            )
+    n_envs, n_legs = shape[1:]
     belief = init_belief_batch(params, n_envs, n_legs)
+    _check_sequence("sequence_bce", params, belief, meas_seq, n_steps=shape[0])
+    _check_call("sequence_bce", params, terrain, key)
 
     def body(carry, inputs):
         b, k = carry

@@ -196,7 +196,8 @@ def dynamics_llr(
         log_outlier,
     )
 
-    force = jnp.zeros(3, leg.J.dtype).at[rows].set(force_rows)
+    # The wider of the two types: float64 params on float32 readings keep float64.
+    force = jnp.zeros(3, jnp.result_type(leg.J, force_rows)).at[rows].set(force_rows)
     if params.unilateral:
         push = jnp.dot(e_rows, force_rows)
         push_var = jnp.dot(e_rows * e_rows, jnp.square(noise.sigma_f[rows]))

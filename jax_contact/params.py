@@ -301,8 +301,10 @@ def validate_noise(noise: NoiseParams) -> None:
                     f"noise.{name} has shape {arr.shape} but other per-dof fields have ({nv},)"
                 )
         if not np.all(np.isfinite(arr)) or np.any(arr <= 0):
+            worst = arr[~np.isfinite(arr)][0] if not np.all(np.isfinite(arr)) else arr.min()
+            what = "min" if np.all(np.isfinite(arr)) else "non-finite"
             raise ValueError(
-                f"noise.{name} must be finite and > 0 everywhere, got min {_shown(arr.min())}"
+                f"noise.{name} must be finite and > 0 everywhere, got {what} {_shown(worst)}"
             )
 
 
@@ -407,6 +409,12 @@ _UNITS = {"contact_damping": " (1/s)", "min_push": " (N)", "slip_speed": " (m/s)
 
 def validate_params(params: EstimatorParams) -> None:
     """Checks every field of ``params``; raises ``ValueError`` naming the first bad one."""
+    if not isinstance(params, EstimatorParams):
+        raise ValueError(
+            f"params must be EstimatorParams (params_for, make_params, load_params), got"
+            f" {type(params).__name__}"
+            + (": a params file's dict loads with load_params" if isinstance(params, dict) else "")
+        )
     validate_noise(params.noise)
     for name in ("dt", "stance_time", "swing_time", "takeoff_accel"):
         v = np.asarray(getattr(params, name))

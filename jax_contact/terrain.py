@@ -170,11 +170,21 @@ def _positive(name: str, value) -> jax.Array:
 
 
 def flat(height: float = 0.0, sigma: float = 0.2) -> FlatTerrain:
-    """A validated :class:`FlatTerrain` (``sigma`` in m; 0.2 m as in the paper's Section III)."""
-    h = np.asarray(height, dtype=np.float64)
-    if h.shape != () or not np.isfinite(h):
-        raise ValueError(f"height must be a finite scalar, got {height!r}")
-    return FlatTerrain(height=jnp.float32(h), sigma=_positive("sigma", sigma))
+    """A validated :class:`FlatTerrain` (``sigma`` in m; 0.2 m as in the paper's Section III).
+
+    A traced value (``height`` or ``sigma`` under ``jit``, ``vmap`` or ``grad``) is taken as
+    it is, unchecked, so the terrain can be batched or differentiated; a concrete one is
+    checked.
+    """
+    if isinstance(height, jax.core.Tracer):
+        h = jnp.asarray(height)
+    else:
+        v = np.asarray(height, dtype=np.float64)
+        if v.shape != () or not np.isfinite(v):
+            raise ValueError(f"height must be a finite scalar, got {height!r}")
+        h = jnp.float32(v)
+    s = jnp.asarray(sigma) if isinstance(sigma, jax.core.Tracer) else _positive("sigma", sigma)
+    return FlatTerrain(height=h, sigma=s)
 
 
 def height_field(heights, origin, spacing, sigma: float = 0.02) -> HeightFieldTerrain:

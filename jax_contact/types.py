@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from flax import struct
 
 
@@ -309,8 +310,6 @@ def validate_measurement(meas: LegMeasurement, nv: int | None = None) -> tuple[i
     Raises:
       ValueError: naming the field and the shapes when they disagree.
     """
-    import numpy as np
-
     if not isinstance(meas, LegMeasurement):
         raise ValueError(f"expected a LegMeasurement, got {type(meas).__name__}")
     batch, n = _batch_and_nv(meas, nv)
@@ -351,8 +350,6 @@ def validate_measurement(meas: LegMeasurement, nv: int | None = None) -> tuple[i
 
 def _batch_and_nv(meas, nv: int | None) -> tuple[tuple[int, ...], int]:
     """(leading batch shape, nv) read from ``qd``, checked against the expected ``nv``."""
-    import numpy as np
-
     qd = np.shape(meas.qd)
     if len(qd) < 1:
         raise ValueError(f"qd must have shape (..., nv), got {qd}")
@@ -364,14 +361,21 @@ def _batch_and_nv(meas, nv: int | None) -> tuple[tuple[int, ...], int]:
 
 def _check_shapes(meas, expected: dict, batch: tuple[int, ...], what: str) -> None:
     """Raises naming the first field whose shape is not ``batch + expected[field]``."""
-    import numpy as np
-
     for name, tail in expected.items():
         value = getattr(meas, name)
         if isinstance(value, list | tuple):  # vmap would map it as a pytree of scalars
             raise ValueError(
                 f"measurement field {name!r} must be an array (NumPy or JAX), got"
                 f" {type(value).__name__}"
+            )
+        dtype = value.dtype if hasattr(value, "dtype") else np.asarray(value).dtype
+        if not (
+            jnp.issubdtype(dtype, jnp.floating)
+            or jnp.issubdtype(dtype, jnp.integer)
+            or jnp.issubdtype(dtype, jnp.bool_)
+        ):
+            raise ValueError(
+                f"measurement field {name!r} has dtype {dtype}; expected real numbers (float)"
             )
         shape = np.shape(value)
         if shape != batch + tail:
@@ -397,6 +401,13 @@ def validate_robot_measurement(meas: RobotMeasurement, nv: int | None = None) ->
         raise ValueError(f"expected a RobotMeasurement, got {type(meas).__name__}")
     batch, n = _batch_and_nv(meas, nv)
     legs = meas.leg_dofs
+    if not isinstance(legs, tuple | list) or not all(isinstance(g, tuple | list) for g in legs):
+        raise ValueError(
+            "leg_dofs must be a tuple of per-leg tuples of int (static, e.g. ((6, 7, 8), (9, 10,"
+            f" 11))), got {type(legs).__name__}; from an array a: tuple(map(tuple, a.tolist()))"
+        )
+    if not all(isinstance(j, int | np.integer) for g in legs for j in g):
+        raise ValueError(f"leg_dofs must hold int indices, got {legs!r}")
     if not legs or len({len(leg) for leg in legs}) != 1 or not legs[0]:
         raise ValueError(f"leg_dofs must give every leg the same number (>= 1) of dofs: {legs}")
     for i, leg in enumerate(legs):

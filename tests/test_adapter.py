@@ -212,3 +212,12 @@ def test_refusals(robots, compiled):
         leg_measurements(mm_go1, d, robots["planar_leg"].description)
     with pytest.raises(ValueError, match=r"qdd must have shape \(18,\)"):
         leg_measurements(mm_go1, d, robots["go1"].description, qdd=jnp.zeros(3))
+    # Unprepared data read as a massless robot (M = 0, every step invalid, no hint).
+    with pytest.raises(ValueError, match=r"no mass matrix \(it is all zeros\): run prepare"):
+        leg_measurements(mm_go1, d, robots["go1"].description)
+    # MuJoCo's C structures where MJX's belong (an opt_einsum error before).
+    m_c = robots["go1"].mj_model
+    with pytest.raises(ValueError, match=r"mjx_data must be an mjx\.Data \(mjx\.put_data"):
+        leg_measurements(mm_go1, mujoco.MjData(m_c), robots["go1"].description)
+    with pytest.raises(ValueError, match=r"mjx_model must be an mjx\.Model \(mjx\.put_model"):
+        leg_measurements(m_c, d, robots["go1"].description)

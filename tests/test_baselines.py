@@ -362,3 +362,8 @@ def test_kinematic_hand_case_and_bad_input():
     with pytest.raises(ValueError, match=r"terrain\.normal"):
         batch = _to_jax(_meas((4,), rng, LEGS[0]), jnp.float32)
         kinematic_detect_batch(params, batch, terrain.replace(normal=jnp.ones((3, 3))))
+    # A terrain model where its answer belongs (an AttributeError on '.normal' before).
+    from jax_contact import flat
+
+    with pytest.raises(ValueError, match=r"terrain must be a TerrainQuery, got FlatTerrain.*query"):
+        kinematic_detect_batch(params, batch, flat())

@@ -414,3 +414,145 @@ def test_nan_in_run_recovers(jit_run):
     p_clean = np.asarray(clean_d.p_contact[:, 0, 1])
     assert abs(p_got[-1] - p_clean[-1]) < 1e-3, (p_got, p_clean)
     assert np.isfinite(np.asarray(got_b.logit)).all()
+
+
+# ------------------------------------------------- the API's other arguments (a user's trial)
+
+
+def test_key_terrain_and_params_are_named_before_anything_is_traced():
+    """A key that is not a PRNG key, a terrain that is not a model, and parameters edited
+    out of range after construction (``replace`` skips make_params' checks; ``dt = 0``
+    gave P = 1 exactly) are refused by name where the update is traced."""
+    from jax_contact import run, step_batch
+
+    params, key = PARAMS["quadrature"], jax.random.key(0)
+    one = _as_meas(_meas_fields())
+    b0 = jax.tree.map(lambda x: x[0, 0], init_belief_batch(params, 1, 1))
+    for bad in (None, 0):
+        with pytest.raises(ValueError, match=r"step: key must be a PRNG key.*jax\.random\.key"):
+            step(params, TERRAIN, b0, one, key=bad)
+    with pytest.raises(ValueError, match=r"step: terrain must be a terrain model.*NoneType"):
+        step(params, None, b0, one, key=key)
+    for field, value in (("cap_dynamics", 2.0), ("dt", 0.0)):
+        with pytest.raises(ValueError, match=rf"step: params: {field} "):
+            step(params.replace(**{field: jnp.float32(value)}), TERRAIN, b0, one, key=key)
+    noise = params.noise.replace(sigma_qdd=-params.noise.sigma_qdd)
+    with pytest.raises(ValueError, match=r"step_batch: params: noise\.sigma_qdd"):
+        step_batch(
+            params.replace(noise=noise),
+            TERRAIN,
+            init_belief_batch(params, 1, 1),
+            _as_meas(_meas_fields((1, 1))),
+            key=key,
+        )
+    with pytest.raises(ValueError, match=r"params must be EstimatorParams.*dict.*load_params"):
+        validate_params({"dt": 0.0025})
+    # A sequence whose fields are not arrays fails before lax.scan reads it.
+    seq = _meas_fields((3, 1, 1))
+    with pytest.raises(ValueError, match=r"run: measurement field 'qd' must be an array.*list"):
+        run(params, TERRAIN, init_belief_batch(params, 1, 1), _as_meas(seq).replace(
+            qd=seq["qd"].tolist()), key=key)  # fmt: skip
+    for dtype in ("U8", np.complex64):
+        bad = _as_meas(seq).replace(tau=np.zeros((3, 1, 1, 3), dtype))
+        with pytest.raises(ValueError, match=r"run: measurement field 'tau' has dtype"):
+            run(params, TERRAIN, init_belief_batch(params, 1, 1), bad, key=key)
+
+
+def test_sequence_bce_checks_its_truth():
+    from jax_contact import sequence_bce
+
+    params, key = PARAMS["quadrature"], jax.random.key(0)
+    seq = _as_meas(_meas_fields((4, 1, 2)))
+    with pytest.raises(ValueError, match=r"sequence_bce: truth has shape \(4, 1\); expected"):
+        sequence_bce(params, TERRAIN, seq, np.ones((4, 1)), key=key)
+    # One step short: the measurement's time axis is named against the truth's.
+    with pytest.raises(ValueError, match=r"sequence_bce: meas\.qdd has shape \(4, 1, 2, 3\);"
+                       r" expected \(3, 1, 2, 3\)"):  # fmt: skip
+        sequence_bce(params, TERRAIN, seq, np.ones((3, 1, 2)), key=key)
+    # {0, 2} gave a negative cross-entropy.
+    with pytest.raises(ValueError, match=r"truth must hold 0 and 1 \(or bool\) only, found \[2"):
+        sequence_bce(params, TERRAIN, seq, np.array([0, 2, 0, 0] * 2).reshape(4, 1, 2), key=key)
+
+
+def test_robot_measurement_leg_dofs_must_be_static_tuples():
+    from jax_contact import RobotMeasurement, validate_robot_measurement
+
+    f = _meas_fields()
+    legs = np.array([[1, 2]])  # e.g. after a round trip through np.savez
+    meas = RobotMeasurement(
+        **{k: f[k] for k in ("q", "qd", "qdd", "tau", "M", "h")},
+        **{k: np.asarray(f[k])[None] for k in ("J", "Jdot_qd", "p_f", "v_f", "foot_radius")},
+        leg_dofs=legs,
+    )
+    with pytest.raises(ValueError, match=r"leg_dofs must be a tuple of per-leg tuples of int"
+                       r".*ndarray.*tuple\(map\(tuple, a\.tolist\(\)\)\)"):  # fmt: skip
+        validate_robot_measurement(meas)
+    fixed = meas.replace(leg_dofs=tuple(map(tuple, legs.tolist())))
+    assert validate_robot_measurement(fixed) == ()
+
+
+def test_a_nan_belief_is_reported_invalid_and_stays_in_its_foot(jit_step_batch):
+    """A belief set to NaN by hand cannot be updated: its foot reports valid False at
+    every step (it read True), and no other foot changes."""
+    params = PARAMS["quadrature"]
+    fields = _batch(3)
+    belief = _belief(params, 4)
+    key = jax.random.key(9)
+    clean_b, clean_d = jit_step_batch(params, TERRAIN, belief, _as_meas(fields), key=key)
+    bad = belief.replace(logit=belief.logit.at[1, 0].set(jnp.nan))
+    got_b, got_d = jit_step_batch(params, TERRAIN, bad, _as_meas(fields), key=key)
+    assert np.asarray(clean_d.valid).all()
+    np.testing.assert_array_equal(np.asarray(got_d.valid), [[True, True], [False, True]])
+    others = [(0, 0), (0, 1), (1, 1)]
+    for x, y in zip(jax.tree.leaves((got_b, got_d)), jax.tree.leaves((clean_b, clean_d)),
+                    strict=True):  # fmt: skip
+        for e, g in others:
+            np.testing.assert_array_equal(np.asarray(x)[e, g], np.asarray(y)[e, g])
+
+
+def test_flat_terrain_can_be_traced_and_differentiated():
+    """``flat`` checked its arguments with NumPy, so ``grad`` or ``vmap`` over the plane's
+    height failed; a traced height is taken as it is. Reference: central differences of
+    the same step (float64, the kinematics term depends on the height smoothly)."""
+    with jax.enable_x64(True):
+        params = make_params(make_noise(3, **oracle.TABLE_II), force_rows=(0, 2))
+        fields = oracle.planar_measurement(*oracle.planar_stance())
+        meas = LegMeasurement(
+            **{
+                k: jnp.asarray(v, jnp.int32 if "dofs" in k else jnp.float64)
+                for k, v in fields.items()
+            }  # fmt: skip
+        )
+        b0 = jax.tree.map(lambda x: x[0, 0], init_belief_batch(params, 1, 1))
+        key = jax.random.key(0)
+
+        def p(h):
+            return step(params, flat(height=h, sigma=0.05), b0, meas, key=key)[1].p_kinematics
+
+        h0, eps = -0.01, 1e-5  # the sole 1 cm above the plane (below it: neutral)
+        fd = (float(p(h0 + eps)) - float(p(h0 - eps))) / (2 * eps)
+        g = float(jax.grad(p)(h0))
+        assert abs(fd) > 1.0  # the height matters here
+        np.testing.assert_allclose(g, fd, rtol=1e-5)
+        batched = jax.vmap(p)(jnp.array([h0, -h0]))
+        np.testing.assert_allclose(np.asarray(batched), [float(p(h0)), float(p(-h0))], rtol=1e-6)
+    with pytest.raises(ValueError, match="sigma must be a finite scalar > 0"):
+        flat(0.0, sigma=-1.0)
+
+
+def test_float64_params_on_float32_readings_warn_nothing(recwarn):
+    """Under x64, float64 parameters on float32 readings (a float32 log) scattered the
+    float64 force into a float32 array: JAX's FutureWarning, an error in later releases."""
+    import warnings
+
+    with jax.enable_x64(True):
+        params = jax.tree.map(
+            lambda x: x.astype(jnp.float64) if jnp.issubdtype(x.dtype, jnp.floating) else x,
+            PARAMS["quadrature"],
+        )
+        one = _as_meas(_meas_fields())  # float32
+        b0 = jax.tree.map(lambda x: x[0, 0], init_belief_batch(params, 1, 1))
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            _, d = step(params, TERRAIN, b0, one, key=jax.random.key(0))
+        assert d.force.dtype == jnp.float64 and bool(d.valid)

@@ -6,6 +6,8 @@ import json
 import math
 from pathlib import Path
 
+import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
@@ -108,6 +110,14 @@ def test_params_for_names_bad_input(go1):
     p = jc.params_for(go1, sp, np.float32(DT), contact_timeconst=np.float32(0.02),
                       gait=jc.GaitPrior(stance_time=np.float32(0.3)))  # fmt: skip
     assert float(p.stance_time) == pytest.approx(0.3) and float(p.dt) == pytest.approx(DT)
+    # So is a concrete 0-d JAX array (refused with 'must be a finite float > 0, got
+    # Array(0.0025)'), giving the same parameters as the float.
+    q = jc.params_for(go1, sp, jnp.float32(DT), contact_timeconst=np.float32(0.02),
+                      gait=jc.GaitPrior(stance_time=np.float32(0.3)))  # fmt: skip
+    for a, b in zip(jax.tree.leaves(p), jax.tree.leaves(q), strict=True):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    with pytest.raises(ValueError, match=r"desc must be a RobotDescription .*MjModel without"):
+        jc.params_for(load_robot("go1").mj_model, sp, DT)
     # Static flags and sequences are typed: bool("no") and tuple("dynamics") were accepted.
     noise = p.noise
     with pytest.raises(ValueError, match="unilateral must be True or False, got 'no'"):
@@ -159,6 +169,11 @@ def test_bad_params_file_names_the_field(go1, tmp_path):
         "extra": (lambda d: d["noise"].update(sigma_x=[1.0]), "unknown field.*sigma_x"),
         "bad value": (lambda d: d["values"].update(cap_transition=2.0), "cap_transition"),
         "bad shape": (lambda d: d["noise"].update(sigma_qd=[0.3] * 3), "sigma_qd"),
+        # The offending entry, not the smallest (an Infinity among 10s read 'got min 10').
+        "inf": (
+            lambda d: d["noise"].update(sigma_f=[float("inf"), 10.0, 10.0]),
+            "noise.sigma_f must be finite and > 0 everywhere, got non-finite inf",
+        ),
         "bad nv": (lambda d: d.update(nv=5), "nv is 5 but every per-dof noise vector has 18"),
         "version": (lambda d: d.update(version=99), "version 99"),
         "top-level": (lambda d: d.update(notes="x"), r"unknown top-level key\(s\) \['notes'\]"),
