@@ -78,6 +78,10 @@ def test_importing_the_cli_does_not_import_jax():
         (["bench", "--versus-envs", "0"], ["argument --versus-envs"]),
         (["demo", "--out", "/proc/demo"], ["argument --out", "'/proc'"]),
         (["reproduce", "--robot", "cat"], ["argument --robot", "'cat'"]),
+        # Refused after the simulation with a Python API hint (force_rows) before.
+        (["reproduce", "--robot", "planar_leg"], ["argument --robot", "quadruped"]),
+        (["simulate", "out.h5", "--robot", "spot", "--gait", "hop"], ["--gait", "'spot'"]),
+        (["simulate", "out.h5", "--robot", "planar_leg"], ["--gait", "'trot'", "'hop'"]),
         (["reproduce", "--params", "per_gait"], ["argument --params", "'per_gait'"]),
         (["rates", "--params", "dog"], ["argument --params", "'dog'", "go1"]),
         (
@@ -150,6 +154,12 @@ def test_static_lists_equal_the_librarys():
         assert cli.TASK_CONFIGS[name] == tuple(dict(tasks.get_task(name).configs)), name
     assert set(cli.PPO_CONFIGS) == {"tiny"}.union(*cli.TASK_CONFIGS.values())
     assert cli.SCENES == rates.SCENES
+    from jax_contact.benchmarks import estimator
+
+    assert cli.BENCH_ENVS == estimator.DEFAULT_ENVS
+    assert cli.ONE_LEGGED == tuple(
+        n for n in robots._BUILTIN if robots.load_robot(n).description.n_legs == 1
+    )
 
 
 def test_help_shows_defaults_robot_names_and_every_command(capsys):

@@ -48,10 +48,12 @@ from jax_contact.train import (  # stdlib-only at import
     tune_env,
 )
 from jax_contact.train.cli_args import (  # noqa: F401  (COLUMNS ... SCENES: re-exported)
+    BENCH_ENVS,
     COLUMNS,
     GAITS,
     LOG_SUFFIXES,
     NOISES,
+    ONE_LEGGED,
     ROBOT_NAMES,
     SCENES,
     TASKS,
@@ -59,6 +61,7 @@ from jax_contact.train.cli_args import (  # noqa: F401  (COLUMNS ... SCENES: re-
     VARIANTS,
     HelpFormatter,
     bootstrap_int,
+    check_gait_for_robot,
     check_input_file,
     check_output_file,
     check_output_folder,
@@ -273,6 +276,11 @@ def _check_demo(args: argparse.Namespace) -> None:
 
 def _check_reproduce(args: argparse.Namespace) -> None:
     check_robot("--robot", args.robot)
+    if args.robot in ONE_LEGGED:
+        raise ValueError(
+            f"argument --robot: Table III needs a quadruped; {args.robot!r} has one leg (its"
+            " hop is Section III, which every reproduce runs)"
+        )
     check_output_folder("--out", args.out)
     modes = ("auto", "per-gait", "none")
     if args.params not in modes:
@@ -296,6 +304,7 @@ def _check_simulate(args: argparse.Namespace) -> None:
     args.output = args.output or args.out_option
     check_output_file("output", args.output, LOG_SUFFIXES)
     check_robot("--robot", args.robot)
+    check_gait_for_robot(args.robot, args.gait)
     estimate_cmd.gait_overrides(args)  # ValueError naming the flag
 
 
@@ -399,7 +408,9 @@ def build_parser() -> argparse.ArgumentParser:
         "--robot",
         default=None,
         metavar="ROBOT",
-        help=f"quadruped of Table III (default: go1): {robots}",
+        help="quadruped of Table III (default: go1): one of"
+        f" {', '.join(r for r in ROBOT_NAMES if r not in ONE_LEGGED)}, or a path to an MJCF"
+        " .xml file",
     )
     p.add_argument("--seed", type=seed_int, default=None, help="evaluation seed (default: 0)")
     p.add_argument("--out", default="out/reproduce", help="output folder")
@@ -463,7 +474,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="write the reliability diagram of every detector (ECE in the legend) to"
         " DIR/reliability_<log name>.png (needs ground truth)",
     )
-    estimate_cmd.add_feet_flag(p)
+    estimate_cmd.add_feet_flag(p, default="the feet the log stores")
     p.add_argument(
         "--robot",
         default=None,
@@ -621,7 +632,7 @@ def build_parser() -> argparse.ArgumentParser:
         type=positive_int,
         nargs="+",
         default=None,
-        help="throughput batch sizes (default: jax_contact.benchmarks.estimator's)",
+        help=f"throughput batch sizes (default: {' '.join(map(str, BENCH_ENVS))})",
     )
     p.add_argument(
         "--versus-envs",

@@ -34,6 +34,10 @@ ROBOT_NAMES = (  # jax_contact.envs.robots.ROBOT_NAMES
     "unitree_go2",
 )
 GAITS = ("trot", "walk", "hop")  # jax_contact.envs.gaits.KINDS
+BENCH_ENVS = (1, 64, 256, 1024, 4096, 16384)  # jax_contact.benchmarks.estimator.DEFAULT_ENVS
+# The one shipped robot with one leg (the others have four): the hop is its only gait, and
+# Table III needs a quadruped.
+ONE_LEGGED = ("planar_leg",)
 NOISES = ("ideal", "anymal_like", "harsh")  # jax_contact.envs.sensors.PRESETS
 TERRAINS = ("flat", "rough")  # jax_contact.envs.simulate.TERRAINS
 VARIANTS = ("none", "truth", "estimate")  # jax_contact.train.ppo.VARIANTS
@@ -120,6 +124,22 @@ def check_robot(arg: str, name: str | None) -> None:
         f"argument {arg}: unknown robot {name!r}; valid names: {', '.join(ROBOT_NAMES)}, or a"
         " path to an MJCF .xml file"
     )
+
+
+def check_gait_for_robot(robot: str, gait: str) -> None:
+    """Raises ValueError when a shipped robot's leg count rules the gait out (an MJCF path
+    is checked once loaded, by ``jax_contact.envs.simulate``, with the same words)."""
+    if robot not in ROBOT_NAMES:
+        return
+    if gait == "hop" and robot not in ONE_LEGGED:
+        raise ValueError(
+            f"argument --gait: gait 'hop' runs a one-legged robot (the planar leg); {robot!r}"
+            " has 4 legs: use 'trot' or 'walk'"
+        )
+    if gait != "hop" and robot in ONE_LEGGED:
+        raise ValueError(
+            f"argument --gait: gait {gait!r} needs two or more legs; {robot!r} has one: use 'hop'"
+        )
 
 
 def not_a_run_folder(path: str | os.PathLike) -> str:

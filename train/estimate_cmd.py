@@ -105,17 +105,16 @@ def add_recording_flags(p: argparse.ArgumentParser) -> None:
     )
 
 
-def add_feet_flag(p: argparse.ArgumentParser) -> None:
+def add_feet_flag(p: argparse.ArgumentParser, default: str = "found in the model") -> None:
     """``--feet FOOT [FOOT ...]``: ``foot_names`` of ``jax_contact.envs.robots.load_robot`` /
     ``jax_contact.train.logs.simulate_to_file`` / ``jax_contact.train.logs.evaluate_file`` (None:
-    the model's or the log's own)."""
+    the model's or the log's own, which ``default`` says in the help)."""
     p.add_argument(
         "--feet",
         nargs="+",
         default=None,
         metavar="FOOT",
-        help="foot geom or body names, in leg order (default: found in the model; evaluate:"
-        " the feet the log stores)",
+        help=f"foot geom or body names, in leg order (default: {default})",
     )
 
 
