@@ -33,7 +33,10 @@ cell in twenty is called better or worse by chance when two detectors are the sa
 table of 24 cells x 6 statistics will show a few such calls for identical detectors: read
 a lone call with that in mind. With ``E = 16`` envs the interval is itself rough (the
 bootstrap of a 16-sample cluster mean); it says whether a difference is of the size that
-re-running the rollouts produces, not more.
+re-running the rollouts produces, not more. Below :data:`MIN_ENVS` envs no call is made
+(``too few envs``): 2 envs have 3 distinct resamples, 4 have 35, and the quantiles of so
+coarse a distribution are no 95 % interval (a 2-env log called differences "better" on
+intervals like [-0.20, -0.20]).
 
 Evaluation code, NumPy in float64, like :mod:`jax_contact.metrics`.
 """
@@ -70,6 +73,9 @@ class Statistic:
         return np.abs(value) if self.magnitude else value
 
 
+# The fewest envs whose resamples make an interval worth a verdict (module docstring).
+MIN_ENVS = 5
+
 STATISTICS: Mapping[str, Statistic] = {
     "f1": Statistic("f1", True, "F1 of the per-step flag"),
     "accuracy": Statistic("accuracy", True, "per-step accuracy"),
@@ -100,6 +106,7 @@ class Difference:
       high: upper end.
       higher_is_better: the statistic's direction.
       n_nan: resamples on which the difference was NaN (left out of the interval).
+      n_envs: the envs resampled (None: unknown); below :data:`MIN_ENVS` no verdict.
     """
 
     reference: float
@@ -108,6 +115,7 @@ class Difference:
     high: float
     higher_is_better: bool
     n_nan: int = 0
+    n_envs: int | None = None
 
     @property
     def delta(self) -> float:
@@ -116,9 +124,12 @@ class Difference:
 
     @property
     def verdict(self) -> str:
-        """``"better"``, ``"worse"``, ``"within noise"``, or ``"n/a"`` (NaN interval)."""
+        """``"better"``, ``"worse"``, ``"within noise"``, ``"n/a"`` (NaN interval) or
+        ``"too few envs"`` (fewer than :data:`MIN_ENVS`)."""
         if not (np.isfinite(self.low) and np.isfinite(self.high)):
             return "n/a"
+        if self.n_envs is not None and self.n_envs < MIN_ENVS:
+            return "too few envs"
         if self.low > 0.0 or self.high < 0.0:
             up = self.low > 0.0
             return "better" if up == self.higher_is_better else "worse"
@@ -218,6 +229,7 @@ def paired_bootstrap(
             high=float(high),
             higher_is_better=st.higher_is_better,
             n_nan=int(n_resamples) - int(d.size),
+            n_envs=n_envs,
         )
     return out
 

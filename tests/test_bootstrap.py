@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
-from jax_contact.bootstrap import STATISTICS, Difference, paired_bootstrap, verdicts
+from jax_contact.bootstrap import MIN_ENVS, STATISTICS, Difference, paired_bootstrap, verdicts
 
 T, DT = 60, 0.0025
 
@@ -64,7 +66,9 @@ def test_identical_detectors_differ_by_exactly_nothing():
     for name, d in out.items():
         if np.isfinite(d.reference):
             assert d.delta == 0.0 and d.low == 0.0 and d.high == 0.0, name
-            assert d.verdict == "within noise", name
+            # 4 envs are too few for a verdict; the interval itself reads within noise.
+            assert d.verdict == "too few envs", name
+            assert dataclasses.replace(d, n_envs=None).verdict == "within noise", name
 
 
 @pytest.mark.parametrize(
@@ -95,8 +99,15 @@ def test_accuracy_interval_matches_the_binomial_derivation(counts, low_c, high_c
     assert d.delta == pytest.approx(-m * sum(counts) / (3 * T))
     assert d.low == pytest.approx(-low_c * m / T)
     assert d.high == pytest.approx(-high_c * m / T)
+    # Three envs (10 distinct resamples) get no verdict from the table; the interval's own
+    # reading is the derivation's.
+    assert d.verdict == "too few envs" and verdicts(out) == {"better": [], "worse": []}
+    d = dataclasses.replace(d, n_envs=None)
     assert d.verdict == verdict
-    assert verdicts(out) == {"better": [], "worse": ["accuracy"] if verdict == "worse" else []}
+    assert verdicts({"accuracy": d}) == {
+        "better": [],
+        "worse": ["accuracy"] if verdict == "worse" else [],
+    }
 
 
 def test_swapping_the_detectors_mirrors_the_interval_and_the_verdict():
@@ -106,6 +117,8 @@ def test_swapping_the_detectors_mirrors_the_interval_and_the_verdict():
     ab = paired_bootstrap(a, b, truth, **kw)["accuracy"]
     ba = paired_bootstrap(b, a, truth, **kw)["accuracy"]
     assert (ba.low, ba.high) == pytest.approx((-ab.high, -ab.low))
+    assert (ab.verdict, ba.verdict) == ("too few envs", "too few envs")  # 3 envs
+    ab, ba = (dataclasses.replace(d, n_envs=None) for d in (ab, ba))
     assert (ab.verdict, ba.verdict) == ("worse", "better")
 
 
@@ -119,6 +132,20 @@ def test_lower_is_better_statistics_read_the_other_way():
         "within noise",
     )
     assert Difference(0.0, np.nan, np.nan, np.nan, True).verdict == "n/a"
+    # The same intervals from fewer than MIN_ENVS envs: no call either way.
+    for n, want in ((MIN_ENVS - 1, "too few envs"), (MIN_ENVS, "worse")):
+        assert dataclasses.replace(worse_ece, n_envs=n).verdict == want
+
+
+def test_few_envs_get_no_verdict_from_a_real_bootstrap():
+    """A 2-env log drew 'better' on an interval of [-0.20, -0.20] (a user trial): 2 envs
+    have 3 distinct resamples. The same detectors on 8 envs are called."""
+    truth8 = _always_on_truth(8)
+    a8, b8 = _wrong_steps((0,) * 8), _wrong_steps((5,) * 8)
+    kw = dict(dt=DT, statistics=("accuracy",), n_resamples=200, seed=3)
+    assert paired_bootstrap(a8, b8, truth8, **kw)["accuracy"].verdict == "worse"
+    two = paired_bootstrap(a8[:, :2], b8[:, :2], truth8[:, :2], **kw)["accuracy"]
+    assert two.high < 0.0 and two.verdict == "too few envs"
 
 
 def test_same_seed_same_interval_and_a_t_e_validity_broadcasts():

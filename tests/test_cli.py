@@ -773,9 +773,17 @@ def test_evaluate_notes_a_kinematic_detector_that_wins_and_prints_no_nan_delays(
     from jax_contact.train.logs import weaker_than_kinematic
     from jax_contact.train.reproduce import _delay
 
-    note = weaker_than_kinematic({"probabilistic": {"f1": 0.695}, "kinematic": {"f1": 0.907}})
+    est = {"f1": 0.695, "n_touchdowns": 20}
+    note = weaker_than_kinematic({"probabilistic": est, "kinematic": {"f1": 0.907}})
     assert note.startswith("note: the kinematic detector's F1 (0.907) beats the estimator's")
-    assert weaker_than_kinematic({"probabilistic": {"f1": 0.90}, "kinematic": {"f1": 0.91}}) is None
+    est = {"f1": 0.90, "n_touchdowns": 100}
+    assert weaker_than_kinematic({"probabilistic": est, "kinematic": {"f1": 0.91}}) is None
+    # A log too short to judge the parameters (a 2-step log drew it, F1 0.444 vs 0.857).
+    est = {"f1": 0.444, "n_touchdowns": 19}
+    assert weaker_than_kinematic({"probabilistic": est, "kinematic": {"f1": 0.857}}) is None
     assert weaker_than_kinematic({"probabilistic": {"f1": 0.9}}) is None  # no kinematic row
     assert _delay((float("nan"), float("nan"))) == "none found"
+    # ... and a truth with no event of the kind says so (a 0.5 s walk has no touch-down).
+    assert _delay((float("nan"), float("nan")), n_true=0) == "no true event"
+    assert _delay((float("nan"), float("nan")), n_true=3) == "none found"
     assert _delay((4.25, 1.5)) == "  4.2±1.5  "

@@ -191,8 +191,16 @@ def load_log(
     try:
         loaded = load_robot(robot_name, foot_names=feet)
     except ValueError as err:
-        moved = "" if robot else "; if its model moved, name it with --robot (evaluate)"
-        raise ValueError(f"{name}: robot {robot_name!r}: {err}{moved}") from None
+        hint = "; if its model moved, name it with --robot (evaluate)"
+        if robot and foot_names is None and feet:
+            hint = (
+                f"; the log's feet {list(feet)} are those of the robot it names,"
+                f" {attrs.get('robot')!r}: is the log another robot's? (--feet names"
+                f" the feet of {robot_name!r})"
+            )
+        elif robot:
+            hint = ""
+        raise ValueError(f"{name}: robot {robot_name!r}: {err}{hint}") from None
     robot, desc = loaded, loaded.description
     stored = attrs.get("model_sha256")
     if stored and stored != model_fingerprint(robot.mj_model):
@@ -202,18 +210,49 @@ def load_log(
             " replay reads these readings through another model",
             stacklevel=2,
         )
-    for key, size, what in (("qpos", desc.nq, "nq"), ("qvel", desc.nv, "nv")):
+    for key, size, what in (
+        ("qpos", desc.nq, "nq"),
+        ("qvel", desc.nv, "nv"),
+        ("qacc", desc.nv, "nv"),
+        ("tau", desc.nv, "nv"),
+    ):
         if readings[key].shape[-1] != size:
             raise ValueError(
                 f"{name}: array 'readings/{key}' has {readings[key].shape[-1]} columns but"
                 f" robot {robot_name!r} has {what} = {size}"
             )
     if truth is not None and truth.shape[-1] != desc.n_legs:
-        raise ValueError(
-            f"{name}: array {TRUTH_CONTACT!r} has {truth.shape[-1]} feet but robot"
-            f" {robot_name!r} has {desc.n_legs}"
+        whose = (
+            f"--feet names {desc.n_legs} ({', '.join(foot_names)}); the log's feet are"
+            f" {list(attrs.get('foot_names') or [])}"
+            if foot_names is not None
+            else f"robot {robot_name!r} has {desc.n_legs}"
         )
+        raise ValueError(f"{name}: array {TRUTH_CONTACT!r} has {truth.shape[-1]} feet but {whose}")
+    if note := non_finite_note(name, readings, valid):
+        print(note, file=sys.stderr)
     return LoadedLog(name, robot, readings, truth, valid, dt, attrs)
+
+
+def non_finite_note(name: str, readings: dict, valid: np.ndarray) -> str | None:
+    """A note naming the readings arrays that hold a NaN or inf on valid steps, with the
+    number of (step, env) rows each: the estimator skips those steps (its prediction
+    alone, ``valid`` False in its diagnostics) and the metrics still score them."""
+    counts = {
+        key: int((~np.isfinite(a).all(axis=-1) & valid).sum())
+        for key, a in readings.items()
+        if np.issubdtype(a.dtype, np.floating)
+    }
+    bad = {k: n for k, n in counts.items() if n}
+    if not bad:
+        return None
+    total = int(valid.sum())
+    listed = ", ".join(f"readings/{k} {n}" for k, n in bad.items())
+    return (
+        f"note: {name}: readings that are not finite on valid steps ({listed}, of {total}"
+        " step-env rows): the estimator skips them (its prediction alone); they are still"
+        " scored"
+    )
 
 
 # The estimator's terrain model for logs (``--terrain-model``): ``flat``, a plane at z = 0 of
@@ -537,14 +576,20 @@ def evaluate_file(
 
 BOUNCE_STEPS = 4  # an air phase this short is most often a bounce of a resting foot
 KINEMATIC_MARGIN = 0.02  # F1 by which the kinematic detector must win for the note below
+# True touch-downs a log needs before the note below is drawn (a 2-step or 0.5 s log's F1
+# says nothing about the parameters).
+KINEMATIC_MIN_EVENTS = 20
 
 
 def weaker_than_kinematic(scores: dict) -> str | None:
     """A note when the kinematic detector (foot height alone) beats the estimator's F1 by
-    more than :data:`KINEMATIC_MARGIN` on a log: its parameters do not fit this robot or
+    more than :data:`KINEMATIC_MARGIN` on a log of at least :data:`KINEMATIC_MIN_EVENTS`
+    true touch-downs: its parameters do not fit this robot or
     its sensors (a light robot's loads sit near the torque noise), which tuning addresses."""
     est, kin = scores.get("probabilistic"), scores.get("kinematic")
     if not est or not kin or not kin["f1"] > est["f1"] + KINEMATIC_MARGIN:
+        return None
+    if est.get("n_touchdowns", 0) < KINEMATIC_MIN_EVENTS:
         return None
     return (
         f"note: the kinematic detector's F1 ({kin['f1']:.3f}) beats the estimator's"

@@ -625,6 +625,7 @@ def _cell(s: dict) -> dict:
         "brier": float(s["brier"]),
         "ece": float(s["ece"]),
         "n_touchdowns": int(s["n_touchdowns"]),
+        "n_liftoffs": int(s["n_liftoffs"]),
         "n_air_phases": int(s["n_air_phases"]),
     }
 
@@ -670,18 +671,19 @@ def table3_json(t3: dict) -> dict:
     }
 
 
-def _delay(mean_std) -> str:
-    """``mean±std`` of a delay, ms; ``none found`` where no event was detected (NaN)."""
+def _delay(mean_std, n_true: int | None = None) -> str:
+    """``mean±std`` of a delay, ms; where there is none (NaN), ``no true event`` if the
+    truth has no event of the kind (``n_true`` 0), else ``none found`` (none detected)."""
     mean, std = mean_std
     if not np.isfinite(mean):
-        return "none found"
+        return "no true event" if n_true == 0 else "none found"
     return f"{mean:5.1f}±{std:<5.1f}"
 
 
 # (header, width, cell -> text) of each column of the printed tables.
 _COLUMNS = (
-    ("TD ms", 12, lambda c: _delay(c["touchdown_delay_ms"])),
-    ("LO ms", 12, lambda c: _delay(c["liftoff_delay_ms"])),
+    ("TD ms", 13, lambda c: _delay(c["touchdown_delay_ms"], c.get("n_touchdowns"))),
+    ("LO ms", 13, lambda c: _delay(c["liftoff_delay_ms"], c.get("n_liftoffs"))),
     ("F1", 6, lambda c: f"{c['f1']:.3f}"),
     ("acc", 6, lambda c: f"{c['accuracy']:.3f}"),
     ("fail", 5, lambda c: f"{c['failures']}"),
@@ -693,7 +695,7 @@ _COLUMNS = (
 LEGEND = (
     "TD / LO ms: touch-down / lift-off delay, mean±std, from the step of the true event to"
     " the first step whose output detects it (the input lag included; none found: no event"
-    " of the kind detected); fail: false"
+    " of the kind detected; no true event: the truth has none); fail: false"
     " contacts in the air (the paper's failures); air-ph: share of true air phases with a"
     " false contact; mTD / mLO: missed touch-downs / lift-offs;"
     " acc, F1: per step; ECE: expected calibration error"
