@@ -112,3 +112,47 @@ def test_per_gait_rows_are_each_scenarios_gait_preset():
     planar = load_robot("planar_leg").description
     cfg = R.ReproduceConfig(robot="planar_leg", tuned_params="per-gait")
     assert R.tuned_estimator(cfg, planar) is None
+
+
+def test_a_run_replaces_its_outputs_as_one_or_leaves_them(tmp_path, monkeypatch):
+    """An interrupted reproduce left five figures of the new seed beside the old seed's
+    table3.json (a user trial). The run writes into a staged folder: on failure --out is as
+    it was; on success every earlier output is replaced or removed, other files kept."""
+    out = tmp_path / "rep"
+    out.mkdir()
+    for name, text in (("table3.json", "seed 0"), ("reliability_rough.png", "seed 0"),
+                       ("notes.txt", "mine")):  # fmt: skip
+        (out / name).write_text(text)
+
+    def fails(cfg, stage):
+        (stage / "table3_trot_fig7.png").write_text("seed 5")
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(R, "_run_into", fails)
+    with pytest.raises(KeyboardInterrupt):
+        R.run(R.ReproduceConfig(), out)
+    assert {f.name: f.read_text() for f in out.iterdir()} == {
+        "table3.json": "seed 0",
+        "reliability_rough.png": "seed 0",
+        "notes.txt": "mine",
+    }
+    assert [f.name for f in tmp_path.iterdir()] == ["rep"]  # no staged folder left
+
+    def succeeds(cfg, stage):
+        (stage / "table3.json").write_text("seed 5")
+        (stage / "section3_fig5.png").write_text("seed 5")
+        return {"wall_s": 1.0}
+
+    monkeypatch.setattr(R, "_run_into", succeeds)
+    R.run(R.ReproduceConfig(), out)
+    # reliability_rough.png was the earlier run's and this one did not write it: removed.
+    assert {f.name: f.read_text() for f in out.iterdir()} == {
+        "table3.json": "seed 5",
+        "section3_fig5.png": "seed 5",
+        "notes.txt": "mine",
+    }
+    # A run into a folder that does not exist yet creates it only when it completes.
+    monkeypatch.setattr(R, "_run_into", fails)
+    with pytest.raises(KeyboardInterrupt):
+        R.run(R.ReproduceConfig(), tmp_path / "new")
+    assert not (tmp_path / "new").exists()

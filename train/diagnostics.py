@@ -118,12 +118,11 @@ def format_profiles(prof: dict) -> str:
     lines = []
     for kind in ("liftoff", "touchdown"):
         p = prof[kind]
-        lines.append(
-            f"  {kind} ({p['n_events']} events)  offset "
-            + " ".join(f"{short[c]:>6s}" for c in cols)
-        )
+        label = f"{kind} ({p['n_events']} events)"
+        lines.append(f"  {label}  offset " + " ".join(f"{short[c]:>6s}" for c in cols))
         for i, o in enumerate(p["offsets"]):
+            # The offset right-aligned under "offset", each value under its header.
             lines.append(
-                f"  {'':>{len(kind) + 22}s}{o:4d} " + " ".join(f"{p[c][i]:6.3f}" for c in cols)
+                f"  {'':{len(label)}s}  {o:6d} " + " ".join(f"{p[c][i]:6.3f}" for c in cols)
             )
     return "\n".join(lines)

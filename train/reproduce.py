@@ -675,7 +675,7 @@ def _delay(mean_std, n_true: int | None = None) -> str:
     """``mean±std`` of a delay, ms; where there is none (NaN), ``no true event`` if the
     truth has no event of the kind (``n_true`` 0), else ``none found`` (none detected)."""
     mean, std = mean_std
-    if not np.isfinite(mean):
+    if mean is None or not np.isfinite(mean):  # NaN, or null as table3.json stores it
         return "no true event" if n_true == 0 else "none found"
     return f"{mean:5.1f}±{std:<5.1f}"
 
@@ -705,12 +705,14 @@ LEGEND = (
 def format_table(payload: dict, rows=ROWS) -> str:
     """The table as text: one block per scenario, rows detectors, metric columns."""
     lines = []
+    # The row names' column: at least 20 wide, and one space after the longest name.
+    width = max([20] + [len(r) + 1 for r in rows])
     for name, scen in payload["scenarios"].items():
-        lines.append(f"{name:22s}" + " ".join(h.rjust(w) for h, w, _ in _COLUMNS))
+        lines.append(f"{name:{width + 2}s}" + " ".join(h.rjust(w) for h, w, _ in _COLUMNS))
         for row in rows:
             if row in scen:
                 cells = " ".join(f(scen[row]).rjust(w) for _, w, f in _COLUMNS)
-                lines.append(f"  {row:20s}" + cells)
+                lines.append(f"  {row:{width}s}" + cells)
     lines.append(LEGEND)
     if payload.get("input_lag_ms") is not None:
         lines.append(
@@ -751,12 +753,48 @@ def _seeds(tuned_params: dict, key: str) -> str:
     return "unknown" if not seeds else ", ".join(str(s) for s in sorted(set(seeds)))
 
 
+# What a run writes (figures by prefix): an earlier run's files of these names in --out are
+# superseded by the next run's, and removed if it does not rewrite them.
+OUTPUT_FILES = ("table3.json", "ablation.json", "diagnostics.json")
+FIGURE_PREFIXES = ("section3_", "table3_", "reliability_")
+
+
+def _earlier_outputs(folder: Path) -> list[str]:
+    """The names of an earlier run's outputs in ``folder`` (:data:`OUTPUT_FILES`, figures)."""
+    if not folder.is_dir():
+        return []
+    return [
+        f.name
+        for f in folder.iterdir()
+        if f.is_file()
+        and (f.name in OUTPUT_FILES or (f.suffix == ".png" and f.name.startswith(FIGURE_PREFIXES)))
+    ]
+
+
 def run(cfg: ReproduceConfig, out_dir: str | Path) -> dict:
-    """Runs everything, writes figures and JSON into ``out_dir``, prints the tables."""
-    from jax_contact.io import write_json_atomic
+    """Runs everything, writes figures and JSON into ``out_dir``, prints the tables.
+
+    The outputs are written into a staged folder and moved into ``out_dir`` together at
+    the end (:func:`jax_contact.io.staged_folder`): a run that fails or is interrupted
+    leaves ``out_dir`` as it was, and a completed one replaces every output of an earlier
+    run there (figures and JSON of one run, never a mix of two seeds).
+    """
+    from jax_contact.io import staged_folder
 
     out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
+    with staged_folder(out_dir, stale=_earlier_outputs) as stage:
+        payload = _run_into(cfg, stage)
+    print(
+        f"\nwrote {out_dir}/table3.json, ablation.json, diagnostics.json and figures;"
+        f" {payload['wall_s']:.0f} s"
+    )
+    return payload
+
+
+def _run_into(cfg: ReproduceConfig, out_dir: Path) -> dict:
+    """:func:`run`'s work, its files written into ``out_dir`` (the staged folder)."""
+    from jax_contact.io import write_json_atomic
+
     t0 = time.perf_counter()
     robot = _robot(cfg)
     # A bad file fails here; another robot's warns (its mass).
@@ -809,7 +847,4 @@ def run(cfg: ReproduceConfig, out_dir: str | Path) -> dict:
         print(
             f"  {n:18s} {fc['n_false_contact_steps']:5d} of {fc['n_air_steps']} air steps: {terms}"
         )
-    print(
-        f"\nwrote {out_dir}/table3.json, ablation.json, diagnostics.json and figures; {wall:.0f} s"
-    )
     return payload
