@@ -82,6 +82,8 @@ def test_importing_the_cli_does_not_import_jax():
         (["reproduce", "--robot", "planar_leg"], ["argument --robot", "quadruped"]),
         (["simulate", "out.h5", "--robot", "spot", "--gait", "hop"], ["--gait", "'spot'"]),
         (["simulate", "out.h5", "--robot", "planar_leg"], ["--gait", "'trot'", "'hop'"]),
+        # Killed by the kernel (exit 137) with no word before.
+        (["simulate", "out.h5", "--envs", "100000000", "--duration", "1000"], ["--envs", "GiB"]),
         (["reproduce", "--params", "per_gait"], ["argument --params", "'per_gait'"]),
         (["rates", "--params", "dog"], ["argument --params", "'dog'", "go1"]),
         (
@@ -157,6 +159,11 @@ def test_static_lists_equal_the_librarys():
     from jax_contact.benchmarks import estimator
 
     assert cli.BENCH_ENVS == estimator.DEFAULT_ENVS
+    import inspect
+
+    from jax_contact.train import cli_args
+
+    assert cli_args._SIMULATE_DT == inspect.signature(simulate.build_world).parameters["dt"].default
     assert cli.ONE_LEGGED == tuple(
         n for n in robots._BUILTIN if robots.load_robot(n).description.n_legs == 1
     )

@@ -63,6 +63,7 @@ from jax_contact.train.cli_args import (  # noqa: F401  (COLUMNS ... SCENES: re-
     bootstrap_int,
     check_gait_for_robot,
     check_input_file,
+    check_log_size,
     check_output_file,
     check_output_folder,
     check_params_source,
@@ -305,6 +306,7 @@ def _check_simulate(args: argparse.Namespace) -> None:
     check_output_file("output", args.output, LOG_SUFFIXES)
     check_robot("--robot", args.robot)
     check_gait_for_robot(args.robot, args.gait)
+    check_log_size(args.envs, args.duration)
     estimate_cmd.gait_overrides(args)  # ValueError naming the flag
 
 

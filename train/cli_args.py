@@ -142,6 +142,31 @@ def check_gait_for_robot(robot: str, gait: str) -> None:
         )
 
 
+# Bytes a simulated log holds per step and env at the least: the planar leg's readings
+# (qpos 4, qvel, qacc, tau 3 each) and truth in float32; a quadruped's are ~20x more.
+_MIN_LOG_BYTES_PER_STEP = 4 * 13
+_SIMULATE_DT = 0.0025  # s: the physics and readings of `simulate` run at 400 Hz
+
+
+def check_log_size(envs: int, duration: float) -> None:
+    """Raises ValueError when ``envs`` x ``duration`` of ``simulate`` cannot fit in this
+    machine's memory even at the smallest robot's log size (it was killed by the kernel,
+    exit 137, with no word)."""
+    steps = duration / _SIMULATE_DT
+    need = envs * steps * _MIN_LOG_BYTES_PER_STEP
+    try:
+        total = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (ValueError, OSError, AttributeError):  # not on this OS: no check
+        return
+    if need > total:
+        raise ValueError(
+            f"argument --envs: {envs} envs x {duration:g} s ({steps:.0f} steps of"
+            f" {_SIMULATE_DT * 1e3:g} ms) make a log of at least {need / 2**30:.0f} GiB; this"
+            f" machine has {total / 2**30:.0f} GiB of memory: simulate fewer envs or seconds"
+            " (and several files)"
+        )
+
+
 def not_a_run_folder(path: str | os.PathLike) -> str:
     """Why ``path`` is no run folder of ``jax-contact train`` (it has no ``run.json``), with
     the run folder to pass instead when it is one of its checkpoint folders."""
