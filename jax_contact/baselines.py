@@ -327,20 +327,26 @@ def gm_run(params: GMParams, meas_seq: LegMeasurement, dt, normal: jax.Array) ->
     return _gm_scan(params, meas_seq, dt, normal)
 
 
-def _gm_scan(params, meas_seq, dt, normal):
-    """:func:`gm_run` without its checks. The observer starts at the first finite
-    measurement (step 0 if it is finite): until then every step is invalid, with zero
-    output, and a first reading holding a NaN cannot seed ``p_0`` with it."""
-    first = jax.tree.map(lambda x: x[0], meas_seq)
-    started = measurement_is_finite(first)
-    state = _zero_if_not(started, gm_init(first))
-    out0 = GMOutput(
+def _gm_start(meas: LegMeasurement) -> tuple[GMState, GMOutput]:
+    """The observer started at ``meas`` (:func:`gm_init`) and its output there: zero
+    residual and force, no contact, valid iff ``meas`` is finite (else a zero state)."""
+    ok = measurement_is_finite(meas)
+    state = _zero_if_not(ok, gm_init(meas))
+    out = GMOutput(
         residual=state.residual,
         force=state.force,
         force_normal=state.force_normal,
         contact=jnp.zeros((), bool),
-        valid=started,
+        valid=ok,
     )
+    return state, out
+
+
+def _gm_scan(params, meas_seq, dt, normal):
+    """:func:`gm_run` without its checks. The observer starts at the first finite
+    measurement (step 0 if it is finite): until then every step is invalid, with zero
+    output, and a first reading holding a NaN cannot seed ``p_0`` with it."""
+    state, out0 = _gm_start(jax.tree.map(lambda x: x[0], meas_seq))
     rest = jax.tree.map(lambda x: x[1:], (meas_seq, normal))
 
     def body(carry, xs):
@@ -348,20 +354,13 @@ def _gm_scan(params, meas_seq, dt, normal):
         m, n = xs
         stepped, out = gm_step(params, s, m, dt, n)
         # Not started yet: this step (re)starts the observer if its reading is finite.
-        first_ok = measurement_is_finite(m)
-        fresh = _zero_if_not(first_ok, gm_init(m))
-        s = jax.tree.map(lambda a, b: jnp.where(started, a, b), stepped, fresh)
-        restart = GMOutput(
-            residual=fresh.residual,
-            force=fresh.force,
-            force_normal=fresh.force_normal,
-            contact=jnp.zeros((), bool),
-            valid=first_ok,
+        fresh, restart = _gm_start(m)
+        s, out = jax.tree.map(
+            lambda a, b: jnp.where(started, a, b), (stepped, out), (fresh, restart)
         )
-        out = jax.tree.map(lambda a, b: jnp.where(started, a, b), out, restart)
-        return (s, started | first_ok), out
+        return (s, started | restart.valid), out
 
-    _, outs = jax.lax.scan(body, (state, started), rest)
+    _, outs = jax.lax.scan(body, (state, out0.valid), rest)
     return jax.tree.map(lambda a, b: jnp.concatenate([a[None], b]), out0, outs)
 
 

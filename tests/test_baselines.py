@@ -102,13 +102,18 @@ def gm_params():
     return make_gm_params(K_I=40.0, threshold=5.0, damping=1e-6)
 
 
-def test_gm_matches_float64_oracle_with_varying_mass_and_a_nan_step(gm_params):
-    rng = np.random.default_rng(0)
-    T = 40
+def _moving_meas(rng, T: int) -> dict:
+    """T steps of one foot whose mass matrix changes every step (so the Mdot qd term
+    matters), with torques large enough for non-trivial forces."""
     m = _meas((T,), rng, LEGS[0])
-    # A mass matrix that changes every step, so the Mdot qd term matters.
     m["M"] = np.stack([_spd(rng, NV) for _ in range(T)])
     m["tau"] = 20.0 * rng.normal(size=(T, NV))
+    return m
+
+
+def test_gm_matches_float64_oracle_with_varying_mass_and_a_nan_step(gm_params):
+    T = 40
+    m = _moving_meas(np.random.default_rng(0), T)
     m["tau"][17, 2] = np.nan  # held step: state and output repeat step 16's
     normal = np.array([0.1, -0.2, 1.0]) / np.linalg.norm([0.1, -0.2, 1.0])
     K_I, th, damp = (float(gm_params.K_I), float(gm_params.threshold), float(gm_params.damping))
@@ -131,11 +136,8 @@ def test_gm_starts_at_the_first_finite_reading_of_each_env(gm_params):
     # for good while later steps were marked valid. The observer now starts at the first
     # finite reading, so env 1 from step 2 on is the float64 oracle run on readings 2..,
     # and env 0 (finite throughout) is untouched.
-    rng = np.random.default_rng(7)
     T = 30
-    m = _meas((T,), rng, LEGS[0])
-    m["M"] = np.stack([_spd(rng, NV) for _ in range(T)])
-    m["tau"] = 20.0 * rng.normal(size=(T, NV))
+    m = _moving_meas(np.random.default_rng(7), T)
     bad = {k: v.copy() for k, v in m.items()}
     bad["qd"][0, 4] = np.nan
     bad["tau"][1, 3] = np.inf
