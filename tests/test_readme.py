@@ -409,10 +409,13 @@ def test_compiles_are_reported_while_they_run():
     import jax.numpy as jnp
 
     stream = io.StringIO()
-    salt = time.time_ns() % 1000  # a program no cache holds
+    # A program no cache holds (the cache keeps every program: the constant must differ from
+    # every earlier run's, or the line reads 'loaded ... from the compilation cache').
+    salt = float(time.time_ns() % 10**9)
+    x = jnp.ones(3)  # made outside: its own (cached) programs are not the span's
     with progress.watch_compiles("jax-contact test", stream=stream, min_s=0.0):
         with progress.compiling("the test function"):
-            jax.jit(lambda x: jnp.sin(x) * salt + 1.0)(jnp.ones(3)).block_until_ready()
+            jax.jit(lambda x: jnp.sin(x) * salt + 1.0)(x).block_until_ready()
     lines = stream.getvalue().splitlines()
     assert "jax-contact test: compiling the test function (first call)..." in lines, lines
     assert any(
@@ -422,6 +425,26 @@ def test_compiles_are_reported_while_they_run():
     # The listeners are gone afterwards: another compilation writes nothing.
     jax.jit(lambda x: jnp.cos(x) * salt)(jnp.ones(3)).block_until_ready()
     assert stream.getvalue().splitlines() == lines
+
+
+def test_a_span_whose_programs_all_came_from_the_cache_says_loaded():
+    """A warm run said 'compiled in 6.2 s (1 of 1 from the compilation cache)' though
+    nothing was compiled (a newcomer's trial); a span with a miss still says compiled."""
+    for hits, misses, want in (
+        (2, 0, r"p: loaded the step from the compilation cache in 0\.\d s"),
+        (1, 1, r"p: compiled the step in 0\.\d s \(1 of 2 from the compilation cache\)"),
+    ):
+        stream = io.StringIO()
+        timer = progress._Timer("p: ", stream, 0.0)
+        timer.what = " the step"
+        timer.begin()
+        time.sleep(0.6)  # the watcher's thread shows the span once it is past min_s
+        timer.cache_hits, timer.cache_misses = hits, misses
+        timer.end()
+        timer.close()
+        lines = stream.getvalue().splitlines()
+        assert lines[0] == "p: compiling the step (first call)...", lines
+        assert re.fullmatch(want, lines[-1]), lines
 
 
 def test_a_block_outside_the_watcher_is_timed_by_compiling_itself():

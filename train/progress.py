@@ -73,7 +73,8 @@ def _is_tty(stream: TextIO) -> bool:
 
 class _Timer:
     """A line on ``stream`` that says ``{prefix}compiling{what} (first call)... N s`` while a
-    span lasts longer than ``min_s``, then ``{prefix}compiled{what} in N s``.
+    span lasts longer than ``min_s``, then ``{prefix}compiled{what} in N s`` (``loaded{what}
+    from the compilation cache in N s`` when every program came from the persistent cache).
 
     A span opens at :meth:`begin` and closes at an :meth:`end` with ``last=True`` that
     leaves no phase running (JAX traces, lowers and compiles one function as three phases,
@@ -90,8 +91,10 @@ class _Timer:
         min_s: float | None,
         doing: str = "compiling{what} (first call)",
         done: str = "compiled{what}",
+        cached: str | None = "loaded{what} from the compilation cache",
     ):
         self.prefix, self.stream, self.doing, self.done = prefix, stream, doing, done
+        self.cached = cached  # the final line when every program came from the cache
         self.tty = _is_tty(stream)
         self.min_s = (MIN_S if self.tty else MIN_S_LOG) if min_s is None else min_s
         self.what = ""
@@ -134,9 +137,13 @@ class _Timer:
         # Called with the lock held.
         if self._open and self._shown:
             elapsed = time.monotonic() - self._since
-            done = self.done.format(what=self.what)
             n = self.cache_hits + self.cache_misses
-            note = f" ({self.cache_hits} of {n} from the compilation cache)" if n else ""
+            if n and self.cache_hits == n and self.cached is not None:
+                # Nothing was compiled: every program was read from the persistent cache.
+                done, note = self.cached.format(what=self.what), ""
+            else:
+                done = self.done.format(what=self.what)
+                note = f" ({self.cache_hits} of {n} from the compilation cache)" if n else ""
             self._write(f"{self.prefix}{done} in {elapsed:.1f} s{note}", final=True)
         self._open = False
         self.cache_hits = self.cache_misses = 0
@@ -269,7 +276,7 @@ def status(
     if not is_enabled():
         yield
         return
-    timer = _Timer(f"{prog}: " if prog else "", stream or sys.stderr, min_s, doing, done)
+    timer = _Timer(f"{prog}: " if prog else "", stream or sys.stderr, min_s, doing, done, None)
     timer.begin()
     try:
         yield
