@@ -565,7 +565,7 @@ def load_params_for(
     *,
     nv: int,
     dt: float,
-    period: str = "the log's",
+    period: str = "the requested period",
     derive=None,
     mass_kg: float | None = None,
     with_provenance: bool = False,
@@ -591,7 +591,8 @@ def load_params_for(
       path: a parameter file or preset name.
       nv: the robot's velocity dimension.
       dt: the estimator's period, s.
-      period: what ``dt`` is, in the warning (e.g. ``"the env's"``).
+      period: what ``dt`` is, in the warning (e.g. ``"the env's"``; default ``"the requested
+        period"``).
       derive: optional ``dt -> EstimatorParams``, the caller's derived parameters.
       mass_kg: optional, the robot's total mass, kg.
       with_provenance: also return the file's ``provenance`` dict (one read of the file).

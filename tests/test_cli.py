@@ -368,6 +368,13 @@ def test_a_library_warning_prints_as_one_line_while_a_command_runs(capsys):
     before = warnings.showwarning
     with cli._warnings_as_lines("jax-contact x"):
         warnings.warn("a file tuned at 200 Hz", UserWarning, stacklevel=1)
+        # Brax's notice about its own maintenance, on every MJCF load, is not shown as ours.
+        warnings.warn(
+            "Brax System, piplines and environments are not actively being maintained. Please"
+            " see MJX",
+            UserWarning,
+            stacklevel=1,
+        )
     assert capsys.readouterr().err == "jax-contact x: warning: a file tuned at 200 Hz\n"
     assert warnings.showwarning is before
 

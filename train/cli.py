@@ -664,11 +664,22 @@ def _quiet_xla_logs() -> None:
         os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "3")
 
 
+# Other libraries' notices about themselves, not about the user's input, which the
+# one-line form would present as this command's warnings.
+_FOREIGN_NOTICES = (
+    # brax.io.mjcf on every model load (the legged PipelineEnv of rates' scenes).
+    "Brax System, piplines and environments are not actively being maintained",
+)
+
+
 @contextlib.contextmanager
 def _warnings_as_lines(prog: str):
     """While a command runs, a library warning (``UserWarning``) prints as one line,
-    ``<prog>: warning: <message>``, not with the file, line and source of its raise."""
+    ``<prog>: warning: <message>``, not with the file, line and source of its raise;
+    :data:`_FOREIGN_NOTICES` are not shown."""
     with warnings.catch_warnings():
+        for notice in _FOREIGN_NOTICES:
+            warnings.filterwarnings("ignore", message=notice)
         shown = warnings.showwarning
 
         def show(message, category, filename, lineno, file=None, line=None):
