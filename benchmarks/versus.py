@@ -321,7 +321,9 @@ def run(envs, numpy_robots: int = 8, *, into: dict | None = None) -> dict:
     sh = sharded(max(envs))
     result["sharding"] = sh
     print(
-        f"# sharded over {sh['devices']} CPU devices ({sh['envs']} envs): max |diff|"
+        f"# sharded over {sh['devices']} virtual CPU devices (XLA's forced host device count"
+        f" on {os.cpu_count()} cores: a check that sharding keeps the beliefs, not a"
+        f" speed-up; {sh['envs']} envs): max |diff|"
         f" {sh['max_abs_diff']:.2g}, {sh['sharded_leg_updates_per_s']:.3g} vs unsharded"
         f" {sh['unsharded_leg_updates_per_s']:.3g} leg-updates/s"
     )
