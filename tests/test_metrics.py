@@ -221,6 +221,29 @@ def test_air_phase_failure_rate_by_hand():
     assert np.isnan(m.air_phase_failure_rate) and np.isnan(m.air_false_contact_rate)
 
 
+def test_swing_phase_failure_rate_leaves_the_truths_bounces_out():
+    # Truth on [10, 30), [32, 50), [70, 80): air phases [0, 10) (10 steps), [30, 32) (2
+    # steps: a resting foot's load dropping, a bounce), [50, 70) (20 steps) -> 3. The
+    # estimate is on [12, 50) (through the bounce: a missed lift-off, no failure), a blip
+    # at [60, 61) (a failure in [50, 70)) and on [72, 80). Rule 9: 1 of 3 phases. Rule 9b
+    # (bounce_s 10 ms = 4 steps at 400 Hz): swing phases [0, 10) and [50, 70), 1 of 2.
+    g = _truth([(10, 30), (32, 50), (70, 80)])
+    p = _seq([(12, 50), (60, 61), (72, 80)])
+    m = evaluate(p, g, dt=DT)
+    assert (m.failures, m.n_air_phases, m.air_phases_with_failure) == (1, 3, 1)
+    assert (m.n_swing_phases, m.swing_phases_with_failure) == (2, 1)
+    assert m.air_phase_failure_rate == 1 / 3 and m.swing_phase_failure_rate == 1 / 2
+    # bounce_s = 0: every air phase is a swing phase, the two rates agree; 30 ms (12
+    # steps) leaves the 10-step phase out too.
+    m0 = evaluate(p, g, dt=DT, bounce_s=0.0)
+    assert (m0.n_swing_phases, m0.swing_phase_failure_rate) == (3, 1 / 3)
+    m30 = evaluate(p, g, dt=DT, bounce_s=0.03)
+    assert (m30.n_swing_phases, m30.swing_phase_failure_rate) == (1, 1.0)
+    for bad in (-0.01, float("nan"), "x"):
+        with pytest.raises(ValueError, match="bounce_s must be a number >= 0"):
+            evaluate(p, g, dt=DT, bounce_s=bad)
+
+
 def test_air_phase_cut_by_an_invalid_step_counts_twice():
     # Truth on [20, 30) and [60, 70); estimate on [22, 32), [45, 46), [50, 51), [62, 72).
     # All valid: air phases [0, 20), [30, 60), [70, 80) -> 3. The blips at 45 and 50 are
@@ -326,6 +349,7 @@ def test_summary_holds_the_new_and_the_kept_fields():
         "n_air_phases",
         "air_phases_with_failure",
         "air_phase_failure_rate",
+        "swing_phase_failure_rate",
         "air_false_contact_rate",
     ):
         assert key in d
