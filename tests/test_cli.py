@@ -268,7 +268,7 @@ def test_ctrl_c_names_what_the_command_keeps_on_purpose():
         "from jax_contact.train import cli, interrupt\n"
         "interrupt.set_kept('kept a')\n"
         "interrupt.set_kept(None)\n"
-        "interrupt.set_kept(sys.argv[1])\n"
+        "interrupt.set_kept(lambda: sys.argv[1])  # asked at the stop\n"
         "with cli.StopOnInterrupt('jax-contact test'):\n"
         "    os.kill(os.getpid(), signal.SIGINT)\n"
         "    time.sleep(20)\n"
@@ -801,3 +801,25 @@ def test_evaluate_notes_a_kinematic_detector_that_wins_and_prints_no_nan_delays(
     assert _delay((float("nan"), float("nan")), n_true=0) == "no true event"
     assert _delay((float("nan"), float("nan")), n_true=3) == "none found"
     assert _delay((4.25, 1.5)) == "  4.2±1.5  "
+
+
+def test_train_checks_its_run_folders_before_anything_runs(tmp_path, capsys):
+    """A file where a run folder goes gave '[Errno 20] Not a directory' after JAX loaded;
+    an existing run without --overwrite was refused only then too. Both are one line now,
+    naming --out; an interrupted run's note is asked when the stop comes, so it says
+    whether there is any checkpoint to evaluate."""
+    from jax_contact.train import ppo
+
+    (tmp_path / "none").write_text("x")
+    assert cli.main(["train", "--variants", "none", "--out", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert "argument --out: run folder" in err and "exists and is not a folder" in err
+    run = tmp_path / "runs" / "truth"
+    run.mkdir(parents=True)
+    (run / "run.json").write_text('{"finished": false}')
+    assert cli.main(["train", "--variants", "truth", "--out", str(tmp_path / "runs")]) == 2
+    assert "holds an unfinished run" in capsys.readouterr().err
+    assert "with no checkpoint yet (the earlier run" in ppo._kept_note(run, True)
+    (run / "checkpoints" / "000").mkdir(parents=True)
+    note = ppo._kept_note(run, False)
+    assert "with the checkpoints saved so far:" in note and "policy-eval" in note

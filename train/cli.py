@@ -68,6 +68,7 @@ from jax_contact.train.cli_args import (  # noqa: F401  (COLUMNS ... SCENES: re-
     check_output_folder,
     check_params_source,
     check_robot,
+    check_run_folder,
     nonnegative_int,
     not_a_run_folder,
     positive_float,
@@ -324,6 +325,11 @@ def _check_evaluate(args: argparse.Namespace) -> None:
 
 def _check_train(args: argparse.Namespace) -> None:
     check_output_folder("--out", args.out)
+    for variant in args.variants:  # each variant's run folder, before JAX loads
+        try:
+            check_run_folder(Path(args.out) / variant, args.overwrite)
+        except ValueError as err:
+            raise ValueError(f"argument --out: {err}") from None
     have = ("tiny", *TASK_CONFIGS[args.task])
     if args.config not in have:
         raise ValueError(

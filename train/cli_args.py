@@ -167,6 +167,38 @@ def check_log_size(envs: int, duration: float) -> None:
         )
 
 
+def check_run_folder(run_dir: Path, overwrite: bool) -> bool:
+    """Whether ``run_dir`` holds files that ``overwrite`` lets a new run of ``jax-contact
+    train`` replace (stdlib only: the CLI checks it before JAX loads).
+
+    Raises:
+      ValueError: it holds files and ``overwrite`` is False (naming the folder, and an
+        unfinished run as such), or it is not a folder.
+    """
+    run_dir = Path(run_dir)
+    if run_dir.exists() and not run_dir.is_dir():
+        raise ValueError(f"run folder {run_dir} exists and is not a folder: pass another --out")
+    if not (run_dir.exists() and any(run_dir.iterdir())):
+        return False
+    if not overwrite:
+        what = "exists and is not empty"
+        if unfinished_run(run_dir):
+            what = "holds an unfinished run (interrupted, or training in another process)"
+        raise ValueError(f"run folder {run_dir} {what}: pass --overwrite to replace it")
+    return True
+
+
+def unfinished_run(run_dir: Path) -> bool:
+    """True if ``run_dir/run.json`` says its training never returned (``finished`` false;
+    runs written before the key count as finished)."""
+    import json
+
+    try:
+        return json.loads((Path(run_dir) / "run.json").read_text()).get("finished") is False
+    except (OSError, ValueError, AttributeError):
+        return False
+
+
 def not_a_run_folder(path: str | os.PathLike) -> str:
     """Why ``path`` is no run folder of ``jax-contact train`` (it has no ``run.json``), with
     the run folder to pass instead when it is one of its checkpoint folders."""

@@ -27,13 +27,14 @@ import threading
 EXIT_INTERRUPTED = 130  # 128 + SIGINT, what a shell reports for a command stopped by Ctrl-C
 EXIT_TERMINATED = 143  # 128 + SIGTERM (kill, timeout, a job scheduler)
 
-_kept: list[str] = []  # what a command keeps if it is stopped now (set_kept)
+_kept: list = []  # what a command keeps if it is stopped now (set_kept)
 
 
-def set_kept(note: str | None) -> None:
+def set_kept(note) -> None:
     """What a stop at this point leaves behind, or does not (printed after the
     ``interrupted`` line): ``train``'s run folder with its checkpoints, ``tune``'s unwritten
-    ``--out``; None: nothing to say."""
+    ``--out``; a callable is asked at the stop (what is kept may change while the command
+    runs; it may return None); None: nothing to say."""
     _kept[:] = [note] if note else []
 
 
@@ -96,7 +97,13 @@ class StopOnInterrupt:
             flusher.join(0.5)
             os.write(2, f"{self.prog}: {what}\n".encode())
             for note in list(_kept):
-                os.write(2, f"{self.prog}: {note}\n".encode())
+                if callable(note):
+                    try:
+                        note = note()
+                    except Exception:  # noqa: BLE001  (a stop must not fail on its note)
+                        note = None
+                if note:
+                    os.write(2, f"{self.prog}: {note}\n".encode())
         finally:
             os._exit(code)  # whatever failed above, the command stops
 

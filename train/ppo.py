@@ -47,6 +47,7 @@ import jax
 import numpy as np
 from mujoco_playground._src import wrapper as pg_wrapper
 
+from jax_contact.train.cli_args import check_run_folder, unfinished_run  # noqa: F401  (re-exported)
 from jax_contact.train.interrupt import set_kept
 
 VARIANTS = ("none", "truth", "estimate")
@@ -439,7 +440,8 @@ def train(
     spec = tasks.get_task(task)
     cfg.validate()
     run_dir = Path(out_dir) / variant
-    if check_run_folder(run_dir, overwrite):
+    replaced = check_run_folder(run_dir, overwrite)
+    if replaced:
         shutil.rmtree(run_dir)
     run_dir.mkdir(parents=True, exist_ok=True)
     run_info = {
@@ -451,11 +453,7 @@ def train(
         "finished": False,  # set when the training returns
     }
     write_json_atomic(run_dir / "run.json", run_info)
-    set_kept(
-        f"kept {run_dir} (run.json: finished false) with the checkpoints saved so far:"
-        f" `jax-contact policy-eval {run_dir}` evaluates the latest; train it again with"
-        " --overwrite"
-    )
+    set_kept(functools.partial(_kept_note, run_dir, replaced))
 
     env = spec.make_env(variant, cfg)
     eval_env = spec.make_env(variant, cfg)
@@ -545,32 +543,21 @@ def train(
     )
 
 
-def check_run_folder(run_dir: Path, overwrite: bool) -> bool:
-    """Whether ``run_dir`` holds files that ``overwrite`` lets a new run replace.
-
-    Raises:
-      ValueError: it holds files and ``overwrite`` is False (naming the folder, and an
-        unfinished run as such).
-    """
-    if not (run_dir.exists() and any(run_dir.iterdir())):
-        return False
-    if not overwrite:
-        what = "exists and is not empty"
-        if unfinished_run(run_dir):
-            what = "holds an unfinished run (interrupted, or training in another process)"
-        raise ValueError(f"run folder {run_dir} {what}: pass --overwrite to replace it")
-    return True
-
-
-def unfinished_run(run_dir: Path) -> bool:
-    """True if ``run_dir/run.json`` says its training never returned (``finished`` false;
-    runs written before the key count as finished)."""
-    import json
-
-    try:
-        return json.loads((run_dir / "run.json").read_text()).get("finished") is False
-    except (OSError, ValueError, AttributeError):
-        return False
+def _kept_note(run_dir: Path, replaced: bool) -> str:
+    """What an interrupted :func:`train` leaves in ``run_dir``, as the stop finds it: the
+    checkpoints saved so far, or none yet (then ``policy-eval`` has nothing to load)."""
+    ckpt = run_dir / "checkpoints"
+    earlier = " (the earlier run there was replaced when this one started)" if replaced else ""
+    if ckpt.is_dir() and any(ckpt.iterdir()):
+        return (
+            f"kept {run_dir} (run.json: finished false) with the checkpoints saved so far"
+            f"{earlier}: `jax-contact policy-eval {run_dir}` evaluates the latest; train it"
+            " again with --overwrite"
+        )
+    return (
+        f"kept {run_dir} (run.json: finished false) with no checkpoint yet{earlier}: train"
+        " it again with --overwrite"
+    )
 
 
 def read_run(run_dir: str | Path) -> dict:
