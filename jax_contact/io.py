@@ -273,6 +273,14 @@ def staged_folder(folder: str | os.PathLike, stale: Callable[[Path], Iterable[st
         old = set(stale(folder)) if stale is not None else set()
         with _LOCK:
             names = sorted(os.listdir(tmp))
+            # Checked before anything moves: a folder in the way would stop the moves half
+            # done, this run's files beside the earlier run's.
+            blocked = [str(folder / n) for n in names if (folder / n).is_dir()]
+            if blocked:
+                raise ValueError(
+                    f"cannot write {blocked[0]!r}: it is a folder (the output folder"
+                    f" {str(folder)!r} is as it was)"
+                )
             for name in sorted(old - set(names)):
                 (folder / name).unlink(missing_ok=True)
             for name in names:

@@ -97,6 +97,16 @@ def test_importing_the_cli_does_not_import_jax():
         # An unknown option: the command's usage and prog (it used to be the top level's).
         (["train", "--contact", "estimate"], ["unrecognized arguments: --contact estimate"]),
         (["policy-eval", "README.md"], ["argument run", "'README.md' is a file"]),
+        # An output that is the command's input: the log was overwritten with JSON.
+        (
+            [
+                "evaluate",
+                "tests/fixtures/planar_leg_hop.h5",
+                "--json",
+                "tests/fixtures/planar_leg_hop.h5",
+            ],
+            ["argument --json", "this command's log"],
+        ),
     ],
 )
 def test_bad_arguments_are_reported_at_once(argv, names):
@@ -159,6 +169,11 @@ def test_static_lists_equal_the_librarys():
     from jax_contact.benchmarks import estimator
 
     assert cli.BENCH_ENVS == estimator.DEFAULT_ENVS
+    from jax_contact.train import reproduce
+
+    figures = ("section3_fig5.png", "table3_trot_fig7.png")
+    reliability = tuple(f"reliability_{n}.png" for n in reproduce.SCENARIOS)
+    assert cli.REPRODUCE_OUTPUTS == reproduce.OUTPUT_FILES + figures + reliability
     import inspect
 
     from jax_contact.train import cli_args
@@ -355,6 +370,15 @@ def test_a_staged_folder_replaces_the_earlier_run_and_keeps_other_files(tmp_path
         write_text_atomic(stage / "a.txt", "a")
     assert [p.name for p in (tmp_path / "new").iterdir()] == ["a.txt"]
     assert sorted(p.name for p in out.iterdir()) == ["estimate.csv", "notes.txt"]
+    # A folder where one output goes: refused before anything moves (the moves had
+    # stopped half done, this run's csv beside the folder, an errno naming the stage).
+    (out / "metrics.json").mkdir()
+    with pytest.raises(ValueError, match=r"cannot write '.*metrics\.json': it is a folder"):
+        with staged_folder(out, stale=stale) as stage:
+            write_text_atomic(stage / "estimate.csv", "newer")
+            write_text_atomic(stage / "metrics.json", "{}")
+    assert (out / "estimate.csv").read_text() == "new"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["est", "new"]
 
 
 def test_a_library_warning_prints_as_one_line_while_a_command_runs(capsys):
@@ -823,3 +847,25 @@ def test_train_checks_its_run_folders_before_anything_runs(tmp_path, capsys):
     (run / "checkpoints" / "000").mkdir(parents=True)
     note = ppo._kept_note(run, False)
     assert "with the checkpoints saved so far:" in note and "policy-eval" in note
+
+
+def test_a_folder_where_an_output_file_goes_is_refused_at_once(tmp_path, capsys):
+    """reproduce and estimate found a folder named like one of their files only at the
+    final move, after all the work (minutes at the demo's size), with an errno naming
+    their staging folder; evaluate --plots after the metrics."""
+    (tmp_path / "rep" / "table3.json").mkdir(parents=True)
+    assert cli.main(["reproduce", "--out", str(tmp_path / "rep")]) == 2
+    assert "argument --out: " in capsys.readouterr().err
+    (tmp_path / "est" / "estimate.csv").mkdir(parents=True)
+    argv = [
+        "estimate",
+        str(ROOT / "tests/fixtures/planar_leg_hop.csv"),
+        "--model",
+        str(ROOT / "envs/assets/planar_leg.xml"),
+    ]
+    assert cli.main([*argv, "--out", str(tmp_path / "est")]) == 2
+    assert "estimate.csv' is a folder where this command writes a file" in capsys.readouterr().err
+    (tmp_path / "plots" / "reliability_planar_leg_hop.png").mkdir(parents=True)
+    log = str(ROOT / "tests/fixtures/planar_leg_hop.h5")
+    assert cli.main(["evaluate", log, "--plots", str(tmp_path / "plots")]) == 2
+    assert "argument --plots: " in capsys.readouterr().err

@@ -54,6 +54,7 @@ from jax_contact.train.cli_args import (  # noqa: F401  (COLUMNS ... SCENES: re-
     LOG_SUFFIXES,
     NOISES,
     ONE_LEGGED,
+    REPRODUCE_OUTPUTS,
     ROBOT_NAMES,
     SCENES,
     TASKS,
@@ -64,8 +65,10 @@ from jax_contact.train.cli_args import (  # noqa: F401  (COLUMNS ... SCENES: re-
     check_gait_for_robot,
     check_input_file,
     check_log_size,
+    check_not_an_input,
     check_output_file,
     check_output_folder,
+    check_outputs_not_folders,
     check_params_source,
     check_robot,
     check_run_folder,
@@ -274,6 +277,7 @@ def _cmd_rates(args: argparse.Namespace) -> int:
 
 def _check_demo(args: argparse.Namespace) -> None:
     check_output_folder("--out", args.out)
+    check_outputs_not_folders("--out", args.out, REPRODUCE_OUTPUTS)
 
 
 def _check_reproduce(args: argparse.Namespace) -> None:
@@ -284,6 +288,7 @@ def _check_reproduce(args: argparse.Namespace) -> None:
             " hop is Section III, which every reproduce runs)"
         )
     check_output_folder("--out", args.out)
+    check_outputs_not_folders("--out", args.out, REPRODUCE_OUTPUTS)
     modes = ("auto", "per-gait", "none")
     if args.params not in modes:
         try:
@@ -315,8 +320,13 @@ def _check_evaluate(args: argparse.Namespace) -> None:
     check_input_file("log", args.log)
     check_robot("--robot", args.robot)
     check_output_file("--json", args.json)
+    check_not_an_input("--json", args.json, log=args.log, gm_grid_log=args.gm_grid)
     if args.plots is not None:
         check_output_folder("--plots", args.plots)
+        png = Path(args.plots) / f"reliability_{Path(args.log).stem}.png"
+        check_outputs_not_folders("--plots", args.plots, [png.name])
+        if args.json is not None and Path(args.json).resolve() == png.resolve():
+            raise ValueError(f"argument --json: {args.json!r} is the file --plots draws")
     if args.gm_grid:
         check_input_file("--gm-grid", args.gm_grid)
     if args.params:

@@ -167,6 +167,47 @@ def check_log_size(envs: int, duration: float) -> None:
         )
 
 
+# What `reproduce` / `demo` and `estimate` write into their --out, by name (copies of
+# jax_contact.train.reproduce's OUTPUT_FILES, figures and SCENARIOS, and of
+# recording_estimate's fixed outputs; tests/test_cli.py checks them).
+REPRODUCE_OUTPUTS = (
+    "table3.json",
+    "ablation.json",
+    "diagnostics.json",
+    "section3_fig5.png",
+    "table3_trot_fig7.png",
+    "reliability_trot.png",
+    "reliability_walk.png",
+    "reliability_walk_added_mass.png",
+    "reliability_rough.png",
+)
+ESTIMATE_OUTPUTS = ("estimate.h5", "estimate.csv", "metrics.json")
+
+
+def check_outputs_not_folders(arg: str, folder, names) -> None:
+    """Raises ValueError when a file a command writes into ``folder`` would replace a
+    folder of that name (found only after the work, at the final move, before)."""
+    for name in names:
+        path = Path(folder) / name
+        if path.is_dir():
+            raise ValueError(
+                f"argument {arg}: {str(path)!r} is a folder where this command writes a file"
+            )
+
+
+def check_not_an_input(arg: str, out, **inputs) -> None:
+    """Raises ValueError when the output ``out`` is one of the command's input files
+    (``name=path``): writing it would destroy the input (a log overwritten with JSON)."""
+    if out is None or not Path(out).exists():
+        return
+    for name, path in inputs.items():
+        if path is not None and Path(path).exists() and os.path.samefile(out, path):
+            raise ValueError(
+                f"argument {arg}: {str(out)!r} is this command's {name}; writing it would"
+                " replace it: pass another path"
+            )
+
+
 def check_run_folder(run_dir: Path, overwrite: bool) -> bool:
     """Whether ``run_dir`` holds files that ``overwrite`` lets a new run of ``jax-contact
     train`` replace (stdlib only: the CLI checks it before JAX loads).

@@ -147,7 +147,11 @@ def check_export(args: argparse.Namespace) -> None:
 
 def check_deploy_check(args: argparse.Namespace) -> None:
     """Raises ValueError naming the argument that is wrong (no JAX import)."""
-    from jax_contact.train.cli_args import check_input_file, check_output_file
+    from jax_contact.train.cli_args import (
+        check_input_file,
+        check_not_an_input,
+        check_output_file,
+    )
     from jax_contact.train.estimate_cmd import RECORDING_SUFFIXES, parse_names
 
     check_input_file("artefact", args.artefact)
@@ -164,6 +168,7 @@ def check_deploy_check(args: argparse.Namespace) -> None:
                 f"argument --cpu: {args.cpu} is not one of this process's CPUs {allowed}"
             )
     check_output_file("--json", args.json)
+    check_not_an_input("--json", args.json, artefact=args.artefact, log=args.log)
 
 
 # -------------------------------------------------------------------------------- export

@@ -224,8 +224,10 @@ def parse_names(text: str | None) -> dict[str, str]:
 def check(args: argparse.Namespace) -> None:
     """Raises ValueError naming the argument; imports no JAX."""
     from jax_contact.train.cli_args import (
+        ESTIMATE_OUTPUTS,
         check_input_file,
         check_output_folder,
+        check_outputs_not_folders,
         check_params_source,
         check_robot,
     )
@@ -242,6 +244,7 @@ def check(args: argparse.Namespace) -> None:
     if not math.isfinite(args.force_threshold):
         raise ValueError(f"argument --force-threshold: must be finite, got {args.force_threshold}")
     check_output_folder("--out", args.out)
+    check_outputs_not_folders("--out", args.out, ESTIMATE_OUTPUTS)
 
 
 def run(args: argparse.Namespace) -> int:
