@@ -52,7 +52,7 @@ def test_wheel_has_one_top_level_package(wheel):
 def test_wheel_entry_point_is_namespaced(wheel):
     _, texts = wheel
     entry = texts["jax_contact-0.1.0.dist-info/entry_points.txt"]
-    assert "jax-contact = jax_contact.train.cli:main" in entry
+    assert "jax-contact = jax_contact.train.cli:console_main" in entry
 
 
 def test_user_modules_named_like_the_folders_are_not_shadowed(tmp_path):

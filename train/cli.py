@@ -743,5 +743,17 @@ def main(argv: list[str] | None = None) -> int:
         return EXIT_USAGE
 
 
+def console_main() -> int:
+    """The ``jax-contact`` program: :func:`main`, then Ctrl-C ignored while the process
+    exits. The command's outputs are written by then; a SIGINT in JAX's and Python's
+    clean-up (its atexit handlers) printed a KeyboardInterrupt traceback."""
+    import signal
+
+    code = main()
+    with contextlib.suppress(ValueError):  # not the main thread: nothing to set
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+    return code
+
+
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(console_main())
