@@ -191,29 +191,30 @@ def _check_shapes(
         raise ValueError(f"{fn}: {err}") from None
 
 
-def _check_sequence(fn: str, params, belief, meas_seq, n_steps: int | None = None) -> None:
-    """:func:`_check_shapes` of a time series (leading axis T, ``n_steps`` if given) for a
-    batch of beliefs (n_envs, n_legs), before ``lax.scan`` reads it."""
+def _batch_of(fn: str, belief: LegBelief) -> tuple[int, int]:
+    """(n_envs, n_legs) of a batch of beliefs, or a ValueError naming ``fn``."""
     if np.ndim(belief.logit) != 2:
         raise ValueError(
             f"{fn}: belief has shape {tuple(np.shape(belief.logit))} (its logit); expected"
             " (n_envs, n_legs): init_belief_batch"
         )
-    if not isinstance(meas_seq, LegMeasurement | RobotMeasurement):
-        raise ValueError(
-            f"{fn}: meas_seq must be a LegMeasurement or RobotMeasurement, got"
-            f" {type(meas_seq).__name__}"
-        )
-    shape = np.shape(meas_seq.qd)
-    if len(shape) < 2:
+    return tuple(np.shape(belief.logit))
+
+
+def _check_sequence(fn: str, params, belief, meas_seq, n_steps: int | None = None) -> None:
+    """:func:`_check_shapes` of a time series (leading axis T, ``n_steps`` if given) for a
+    batch of beliefs (n_envs, n_legs), before ``lax.scan`` reads it."""
+    n_envs, n_legs = _batch_of(fn, belief)
+    robot = isinstance(meas_seq, RobotMeasurement)
+    shape = np.shape(getattr(meas_seq, "qd", ()))
+    if isinstance(meas_seq, LegMeasurement | RobotMeasurement) and len(shape) < 2:
         raise ValueError(
             f"{fn}: meas_seq.qd has shape {shape}; expected (T, n_envs, ..., nv): a time axis"
             " first, then the batch"
         )
-    n_envs, n_legs = belief.logit.shape
-    batch = (n_envs,) if isinstance(meas_seq, RobotMeasurement) else (n_envs, n_legs)
-    time = (shape[0] if n_steps is None else n_steps,)
-    _check_shapes(fn, params, belief, meas_seq, batch, time)
+    time = (shape[0] if n_steps is None else n_steps,) if shape else ()
+    # _check_shapes names a meas_seq of another type, and every field's shape.
+    _check_shapes(fn, params, belief, meas_seq, (n_envs,) if robot else (n_envs, n_legs), time)
 
 
 def _step(params, terrain, belief, meas, key, switches=None):
@@ -353,12 +354,7 @@ def step_batch(
     switches as data, so variants differing only in them ``vmap`` as one program; None
     reads them from ``params``.
     """
-    if belief.logit.ndim != 2:
-        raise ValueError(
-            f"step_batch: belief has shape {tuple(belief.logit.shape)} (its logit); expected"
-            " (n_envs, n_legs): init_belief_batch"
-        )
-    n_envs, n_legs = belief.logit.shape
+    n_envs, n_legs = _batch_of("step_batch", belief)
     batch = (n_envs,) if isinstance(meas, RobotMeasurement) else (n_envs, n_legs)
     _check_shapes("step_batch", params, belief, meas, batch)
     _check_call("step_batch", params, terrain, key)
