@@ -575,8 +575,9 @@ class ContactMetrics:
 BOUNCE_S = 0.01
 
 
-def _bounce_steps(bounce_s, dt: float) -> int:
-    """``bounce_s`` in steps of ``dt`` (rounded), or a ValueError naming it."""
+def bounce_steps(dt: float, bounce_s: float = BOUNCE_S) -> int:
+    """``bounce_s`` in steps of ``dt`` (rounded): rule 9b's longest bounce, the air phases
+    :func:`short_air_phases` counts as bounces; a ValueError naming ``bounce_s``."""
     try:
         b = float(bounce_s)
     except (TypeError, ValueError):
@@ -609,13 +610,13 @@ def evaluate(
     dt, early, min_on = _event_settings(dt, early_window_s, min_on)
     n_bins = _check_int("n_bins", n_bins, 1)
     persist_steps = _check_int("persist_steps", persist_steps, 1)
-    bounce_steps = _bounce_steps(bounce_s, dt)
+    n_bounce = bounce_steps(dt, bounce_s)
     prob, flag, tru, val = _inputs(estimate, truth, valid, threshold)
     kg, kf = _flat_codes(tru, val), _flat_codes(flag, val)
     ev, failure_starts = _match_codes(kg, kf, dt, early, min_on)
     # The persistent matching is a second pass of the same rules, skipped when it is the same.
     persist = ev if persist_steps == min_on else _match_codes(kg, kf, dt, early, persist_steps)[0]
-    n_air, air_failed, n_swing, swing_failed = _air_phase_failures(kg, failure_starts, bounce_steps)
+    n_air, air_failed, n_swing, swing_failed = _air_phase_failures(kg, failure_starts, n_bounce)
     air_steps = val & ~tru
     steps = _step_scores(flag, tru, val)
     td, lo = ev.touchdown, ev.liftoff

@@ -497,7 +497,7 @@ def table3(cfg: ReproduceConfig, out_dir: Path, tuned_row: dict | None = None) -
         sc = score(out, roll.contact, roll.valid, dt=world.dt, names=names)
         results[name] = {
             "scores": sc,
-            "short_air_phases": _short_air_phases(roll.contact, roll.valid),
+            "short_air_phases": _short_air_phases(roll.contact, roll.valid, world.dt),
             "upright": float(roll.valid[-1].mean()),
             "vs_gm": vs_gm(out, roll.contact, roll.valid, world.dt, cfg.bootstrap),
             "tuned_vs": (
@@ -656,30 +656,31 @@ ABLATION_ROWS = (
 )
 
 
-def _short_air_phases(truth, valid) -> list[int]:
+def _short_air_phases(truth, valid, dt: float) -> list[int]:
     """``[short, all]``: a scenario's true air phases of at most
-    :data:`jax_contact.train.logs.BOUNCE_STEPS` steps, and all of them
-    (:func:`jax_contact.metrics.short_air_phases`; valid (T, E) over the feet)."""
-    from jax_contact.metrics import short_air_phases
-    from jax_contact.train.logs import BOUNCE_STEPS
+    :func:`jax_contact.metrics.bounce_steps` steps (the bounces that ``sw-ph`` leaves out),
+    and all of them (:func:`jax_contact.metrics.short_air_phases`; valid (T, E) over the
+    feet)."""
+    from jax_contact.metrics import bounce_steps, short_air_phases
 
     truth = np.asarray(truth)
     valid = np.broadcast_to(np.asarray(valid)[..., None], truth.shape)
-    return list(short_air_phases(truth, valid, BOUNCE_STEPS))
+    return list(short_air_phases(truth, valid, bounce_steps(dt)))
 
 
 def format_short_air_phases(payload: dict) -> str | None:
     """The line after Table III that says what its mLO counts: the scenarios' true air
     phases of a few steps (a resting foot's load dropping for a step), which every
     detector misses as lift-offs. None when the payload has no counts."""
-    from jax_contact.train.logs import BOUNCE_STEPS
+    from jax_contact.metrics import bounce_steps
 
     counts, dt = payload.get("short_air_phases") or {}, payload.get("dt")
     if not counts or not dt:
         return None
+    steps = bounce_steps(dt)
     listed = ", ".join(f"{n} {s} of {a}" for n, (s, a) in counts.items())
     return textwrap.fill(
-        f"mLO: true air phases of at most {BOUNCE_STEPS} steps ({BOUNCE_STEPS * dt * 1e3:.3g}"
+        f"mLO: true air phases of at most {steps} steps ({steps * dt * 1e3:.3g}"
         f" ms), most often a resting foot's load dropping for a step, which every detector"
         f" misses as lift-offs: {listed} air phases",
         100,
