@@ -85,7 +85,7 @@ step rather than as a bare count:
     matched with ``min_on = 1`` but not with ``persist_steps = 3``).
 
 Per env (:func:`env_sums`): the step, phase, delay and ECE-bin sums behind F1, accuracy,
-the air-phase failure rate, the mean delays and ECE, one row per env, so that these
+the air- and swing-phase failure rates, the mean delays and ECE, one row per env, so that these
 metrics of any multiset of envs are weighted sums of rows (the env bootstrap of
 :mod:`jax_contact.bootstrap`).
 """
@@ -669,6 +669,7 @@ class EnvSums:
       n_steps, correct, tp, fp, fn: valid steps, correct flags, true / false positives,
         false negatives.
       n_air_phases, air_phases_with_failure: rules 8-9.
+      n_swing_phases, swing_phases_with_failure: rule 9b.
       touchdown_delay_sum_ms, n_touchdown_delays: sum and number of the matched, evaluated
         touch-down delays (rules 2-6); liftoff_*: the same for lift-offs.
       bin_truth, bin_prob: per ECE bin, the sums of truth and of P(contact).
@@ -681,6 +682,8 @@ class EnvSums:
     fn: np.ndarray
     n_air_phases: np.ndarray
     air_phases_with_failure: np.ndarray
+    n_swing_phases: np.ndarray
+    swing_phases_with_failure: np.ndarray
     touchdown_delay_sum_ms: np.ndarray
     n_touchdown_delays: np.ndarray
     liftoff_delay_sum_ms: np.ndarray
@@ -695,7 +698,8 @@ class EnvSums:
           weights: (..., E) counts (or any non-negative weights) per env.
 
         Returns:
-          ``f1``, ``accuracy``, ``air_phase_failure_rate``, ``touchdown_delay_ms`` and
+          ``f1``, ``accuracy``, ``air_phase_failure_rate``, ``swing_phase_failure_rate``,
+          ``touchdown_delay_ms`` and
           ``liftoff_delay_ms`` (the mean delays), ``ece``: each (...) float64, NaN where
           :func:`evaluate` gives NaN (a ratio 0 / 0).
         """
@@ -707,6 +711,7 @@ class EnvSums:
                 "f1": 2 * s["tp"] / (2 * s["tp"] + s["fp"] + s["fn"]),
                 "accuracy": s["correct"] / s["n_steps"],
                 "air_phase_failure_rate": s["air_phases_with_failure"] / s["n_air_phases"],
+                "swing_phase_failure_rate": s["swing_phases_with_failure"] / s["n_swing_phases"],
                 "touchdown_delay_ms": s["touchdown_delay_sum_ms"] / s["n_touchdown_delays"],
                 "liftoff_delay_ms": s["liftoff_delay_sum_ms"] / s["n_liftoff_delays"],
                 "ece": gap / s["n_steps"],
@@ -723,6 +728,7 @@ def env_sums(
     early_window_s: float = 0.05,
     min_on: int = 1,
     n_bins: int = 10,
+    bounce_s: float = BOUNCE_S,
 ) -> EnvSums:
     """:class:`EnvSums` of a (T, E, ...) batch: each env's sequences scored by the rules of
     :func:`evaluate` (same arguments), pooled over its trailing axes (legs).
@@ -732,6 +738,7 @@ def env_sums(
     """
     dt, early, min_on = _event_settings(dt, early_window_s, min_on)
     n_bins = _check_int("n_bins", n_bins, 1)
+    n_bounce = bounce_steps(dt, bounce_s)
     prob, flag, tru, val = _inputs(estimate, truth, valid, threshold)
     if prob.ndim < 2 or prob.shape[1] < 1:
         raise ValueError(f"estimate must have shape (T, E, ...) with E >= 1, got {prob.shape}")
@@ -740,11 +747,11 @@ def env_sums(
         p, f, g, v = (x[:, e] for x in (prob, flag, tru, val))
         kg, kf = _flat_codes(g, v), _flat_codes(f, v)
         ev, failure_starts = _match_codes(kg, kf, dt, early, min_on)
-        n_air, air_failed, _, _ = _air_phase_failures(kg, failure_starts)
+        phases = _air_phase_failures(kg, failure_starts, n_bounce)
         rows.append(
             (
                 *_step_counts(f, g, v),
-                n_air, air_failed,
+                *phases,
                 np.sum(ev.touchdown.delays_ms), ev.touchdown.delays_ms.size,
                 np.sum(ev.liftoff.delays_ms), ev.liftoff.delays_ms.size,
                 *ece_bins(p, g, v, n_bins)[1:],

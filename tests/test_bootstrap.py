@@ -46,16 +46,31 @@ def test_env_sums_pool_to_evaluate_on_the_resampled_envs():
     rng = np.random.default_rng(4)
     truth, p, valid = _gait_like(rng, 5)
     valid3 = np.broadcast_to(valid[..., None], truth.shape)
-    sums = env_sums(p, truth, valid3, dt=DT)
-    for idx in ([0, 1, 2, 3, 4], [1, 1, 3, 0, 0], [4, 4, 4, 2, 1], [2, 2, 2, 2, 2]):
-        want = evaluate(np.take(p, idx, 1), np.take(truth, idx, 1), np.take(valid3, idx, 1), dt=DT)
-        got = sums.pooled(np.bincount(idx, minlength=5))
-        assert want.n_air_phases > 0 and np.isfinite(want.touchdown_delay_ms[0])
-        for key in ("f1", "accuracy", "air_phase_failure_rate", "ece"):
-            assert got[key] == pytest.approx(getattr(want, key), rel=1e-12, abs=1e-15), key
-        for key in ("touchdown_delay_ms", "liftoff_delay_ms"):
-            assert got[key] == pytest.approx(getattr(want, key)[0], rel=1e-12), key
-    assert np.isnan(sums.pooled(np.zeros(5))["f1"])  # no step: 0 / 0, as evaluate's NaN
+    # bounce_s 30 ms = 12 steps: the air phases of 8-12 steps (periods 20-30) are left out
+    # of the swing phases, so the swing rate is a different ratio from the air rate.
+    for bounce_s in (0.01, 0.03):
+        sums = env_sums(p, truth, valid3, dt=DT, bounce_s=bounce_s)
+        for idx in ([0, 1, 2, 3, 4], [1, 1, 3, 0, 0], [4, 4, 4, 2, 1], [2, 2, 2, 2, 2]):
+            want = evaluate(
+                np.take(p, idx, 1), np.take(truth, idx, 1), np.take(valid3, idx, 1), dt=DT,
+                bounce_s=bounce_s,
+            )  # fmt: skip
+            got = sums.pooled(np.bincount(idx, minlength=5))
+            assert want.n_air_phases > 0 and np.isfinite(want.touchdown_delay_ms[0])
+            for key in (
+                "f1",
+                "accuracy",
+                "air_phase_failure_rate",
+                "swing_phase_failure_rate",
+                "ece",
+            ):
+                assert got[key] == pytest.approx(getattr(want, key), rel=1e-12, abs=1e-15), key
+            for key in ("touchdown_delay_ms", "liftoff_delay_ms"):
+                assert got[key] == pytest.approx(getattr(want, key)[0], rel=1e-12), key
+        assert np.isnan(sums.pooled(np.zeros(5))["f1"])  # no step: 0 / 0, as evaluate's NaN
+    every = evaluate(p, truth, valid3, dt=DT, bounce_s=0.03)
+    assert 0 < every.n_swing_phases < every.n_air_phases
+    assert every.swing_phase_failure_rate != every.air_phase_failure_rate
 
 
 def test_identical_detectors_differ_by_exactly_nothing():
@@ -243,7 +258,8 @@ def test_reproduce_compares_the_estimator_with_both_gm_tunings():
     assert set(tv["probabilistic"]) == set(STATISTICS)
     text = reproduce.format_vs_gm({"vs_gm": {"trot": vs}, "tuned_vs": {"trot": tv}})
     assert text.count("\n") == 6 and "tuned - other row" in text
-    assert "trot             vs defaults f1 " in text and "; ece " in text.splitlines()[-1]
+    assert "trot             vs defaults F1 " in text and "; ECE " in text.splitlines()[-1]
+    assert "; sw-ph " in text.splitlines()[1]  # the swing-phase rate beside air-ph, vs GM too
 
 
 def test_row_differences_is_paired_bootstrap_per_other_row():

@@ -544,12 +544,12 @@ def table3(cfg: ReproduceConfig, out_dir: Path, tuned_row: dict | None = None) -
     }
 
 
-VS_GM_STATISTICS = ("f1", "accuracy", "air_phase_failure_rate")
+VS_GM_STATISTICS = ("f1", "accuracy", "air_phase_failure_rate", "swing_phase_failure_rate")
 
 
 def vs_gm(out: dict, truth, valid, dt: float, n_resamples: int) -> dict | None:
     """Issue 13's "better than both GM tunings": ``probabilistic - gm_*`` of F1, accuracy and
-    air-phase failures with their 95 % paired env-bootstrap intervals
+    the air- and swing-phase failure rates with their 95 % paired env-bootstrap intervals
     (:func:`jax_contact.bootstrap.paired_bootstrap`, seed 0), or None for ``n_resamples`` 0.
 
     Returns:
