@@ -244,6 +244,29 @@ def test_swing_phase_failure_rate_leaves_the_truths_bounces_out():
             evaluate(p, g, dt=DT, bounce_s=bad)
 
 
+def test_evaluates_bounce_note_counts_rule_9bs_bounces_at_any_rate():
+    """``evaluate``'s note on a log full of bounces counts the air phases rule 9b leaves
+    out (10 ms), in steps of the log's own period: until the thirty-sixth session it
+    counted 4 steps at any rate (10 ms only at 400 Hz)."""
+    from jax_contact.train.logs import bounce_note
+
+    # One env, one leg: contact with three 6-step and three 30-step air phases between
+    # contact runs; the first and last runs are contact, so all six phases count.
+    seq = np.ones(300, bool)
+    for start, n in ((20, 6), (50, 6), (80, 6), (120, 30), (170, 30), (220, 30)):
+        seq[start : start + n] = False
+    truth, valid = seq[:, None, None], np.ones((300, 1), bool)
+    # 1 kHz: 10 ms is 10 steps, so the 6-step phases are bounces: 3 of 6.
+    note = bounce_note(truth, valid, 0.001)
+    assert note.startswith("note: 3 of 6 true air phases last at most 10 steps (10 ms)")
+    assert "sw-ph leaves them out" in note
+    # 400 Hz: 10 ms is 4 steps, so the same 6-step phases (15 ms) are swings: no note.
+    assert bounce_note(truth, valid, 0.0025) is None
+    # A quarter or fewer: no note (1 of 4 at 1 kHz once two bounces are filled in).
+    seq[50:56] = seq[80:86] = True
+    assert bounce_note(seq[:, None, None], valid, 0.001) is None
+
+
 def test_air_phase_cut_by_an_invalid_step_counts_twice():
     # Truth on [20, 30) and [60, 70); estimate on [22, 32), [45, 46), [50, 51), [62, 72).
     # All valid: air phases [0, 20), [30, 60), [70, 80) -> 3. The blips at 45 and 50 are

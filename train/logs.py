@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from jax_contact.io import read_log, write_json_atomic, write_log
-from jax_contact.metrics import short_air_phases
+from jax_contact.metrics import bounce_steps, short_air_phases
 from jax_contact.robot import model_fingerprint, model_mass
 
 
@@ -539,15 +539,8 @@ def evaluate_file(
         print(format_scores(scores, title=Path(path).name))
         if note := weaker_than_kinematic(scores):
             print(note)
-        valid_tel = np.broadcast_to(np.asarray(log.valid)[..., None], truth.shape)
-        short, n_air = short_air_phases(truth, valid_tel, BOUNCE_STEPS)
-        if n_air and short > 0.25 * n_air:
-            print(
-                f"note: {short} of {n_air} true air phases last at most {BOUNCE_STEPS} steps"
-                f" ({BOUNCE_STEPS * dt * 1e3:.3g} ms), most often a resting foot's load dropping"
-                " for a step (the floor's soft contact): every detector's missed lift-offs"
-                " (mLO) count them; truth/distance in the log holds the sole's height"
-            )
+        if note := bounce_note(truth, log.valid, dt):
+            print(note)
         result["scores"] = scores
         if bootstrap:
             result["vs_probabilistic"] = _vs_probabilistic(
@@ -574,7 +567,31 @@ def evaluate_file(
     return result
 
 
-BOUNCE_STEPS = 4  # an air phase this short is most often a bounce of a resting foot
+def bounce_note(truth, valid, dt: float) -> str | None:
+    """The note ``evaluate`` prints when more than a quarter of a log's true air phases are
+    bounces (at most :func:`jax_contact.metrics.bounce_steps` steps, the 10 ms of rule 9b),
+    else None.
+
+    Args:
+      truth: (T, E, L) bool ground truth.
+      valid: (T, E) bool.
+      dt: period, s.
+    """
+    truth = np.asarray(truth, bool)
+    valid_tel = np.broadcast_to(np.asarray(valid, bool)[..., None], truth.shape)
+    n_bounce = bounce_steps(dt)
+    short, n_air = short_air_phases(truth, valid_tel, n_bounce)
+    if not n_air or short <= 0.25 * n_air:
+        return None
+    return (
+        f"note: {short} of {n_air} true air phases last at most {n_bounce} steps"
+        f" ({n_bounce * dt * 1e3:.3g} ms), most often a resting foot's load dropping"
+        " for a step (the floor's soft contact): every detector's missed lift-offs"
+        " (mLO) count them, sw-ph leaves them out; truth/distance in the log holds"
+        " the sole's height"
+    )
+
+
 KINEMATIC_MARGIN = 0.02  # F1 by which the kinematic detector must win for the note below
 # True touch-downs a log needs before the note below is drawn (a 2-step or 0.5 s log's F1
 # says nothing about the parameters).
