@@ -832,7 +832,7 @@ def test_train_checks_its_run_folders_before_anything_runs(tmp_path, capsys):
     an existing run without --overwrite was refused only then too. Both are one line now,
     naming --out; an interrupted run's note is asked when the stop comes, so it says
     whether there is any checkpoint to evaluate."""
-    from jax_contact.train import ppo
+    from jax_contact.train.run_folder import EarlierRun
 
     (tmp_path / "none").write_text("x")
     assert cli.main(["train", "--variants", "none", "--out", str(tmp_path)]) == 2
@@ -843,9 +843,9 @@ def test_train_checks_its_run_folders_before_anything_runs(tmp_path, capsys):
     (run / "run.json").write_text('{"finished": false}')
     assert cli.main(["train", "--variants", "truth", "--out", str(tmp_path / "runs")]) == 2
     assert "holds an unfinished run" in capsys.readouterr().err
-    assert "with no checkpoint yet (the earlier run" in ppo._kept_note(run, True)
+    assert "with no checkpoint yet: train it again" in EarlierRun(run, False).note()
     (run / "checkpoints" / "000").mkdir(parents=True)
-    note = ppo._kept_note(run, False)
+    note = EarlierRun(run, False).note()
     assert "with the checkpoints saved so far:" in note and "policy-eval" in note
 
 

@@ -227,6 +227,53 @@ def test_train_refuses_an_existing_run_folder(tmp_path):
         ppo.train("estimate", TINY, tmp_path)
 
 
+def test_overwrite_keeps_the_earlier_run_until_the_new_ones_first_checkpoint(tmp_path, monkeypatch):
+    """`train --overwrite` deleted the earlier run when the new one started: stopped before
+    its first checkpoint, neither was left. The earlier run is now set aside beside it and
+    put back if the new run stops first (an error here; Ctrl-C asks the same note), deleted
+    once the new run has a checkpoint or finishes."""
+    from jax_contact.train.run_folder import EarlierRun, earlier_path
+
+    run = tmp_path / "estimate"
+    (run / "checkpoints" / "000000000160").mkdir(parents=True)
+    (run / "progress.csv").write_text("earlier\n")
+    aside = earlier_path(run)
+    assert aside == tmp_path / "estimate.earlier"
+
+    def fails(run_dir, *args, **kwargs):  # the new run starts, then stops: no checkpoint
+        run_dir.mkdir()
+        (run_dir / "run.json").write_text('{"finished": false}')
+        assert (aside / "progress.csv").read_text() == "earlier\n"  # set aside meanwhile
+        raise RuntimeError("stopped")
+
+    monkeypatch.setattr(ppo, "_train_into", fails)
+    with pytest.raises(RuntimeError, match="stopped"):
+        ppo.train("estimate", TINY, tmp_path, overwrite=True)
+    assert (run / "progress.csv").read_text() == "earlier\n" and not aside.exists()
+    assert not (run / "run.json").exists()  # the new run's files went with it
+    # The note a Ctrl-C prints does the same, and says so.
+    earlier = EarlierRun(run, True)
+    run.mkdir()
+    assert "the earlier run is back in" in earlier.note()
+    assert (run / "progress.csv").read_text() == "earlier\n" and not aside.exists()
+    # Once the new run has a checkpoint it stays and the earlier one goes.
+    earlier = EarlierRun(run, True)
+    (run / "checkpoints" / "000000000320").mkdir(parents=True)
+    earlier.settle()
+    assert not aside.exists() and not (run / "progress.csv").exists()
+    assert "checkpoints saved so far" in earlier.note()
+    # A finished run drops it too, checkpoint or not.
+    earlier = EarlierRun(run, True)
+    run.mkdir()
+    earlier.drop()
+    assert not aside.exists() and run.is_dir()
+    # A run set aside by a process killed outright (no note ran) blocks the folder, named.
+    aside.mkdir()
+    with pytest.raises(ValueError, match=r"estimate.earlier holds the run that an --overwrite"):
+        ppo.check_run_folder(run, True)
+    assert "with no checkpoint yet" in EarlierRun(run, False).note()
+
+
 def _fake_train(calls):
     """``ppo.train`` without training: the run folder's run.json and one progress row."""
 

@@ -578,7 +578,11 @@ def build_parser() -> argparse.ArgumentParser:
         " go1_playground (go1 task only; recorded in run.json); default: the wrapper's defaults",
     )
     p.add_argument("--out", default="out/train", help="output folder (a run folder per variant)")
-    p.add_argument("--overwrite", action="store_true", help="replace existing run folders")
+    p.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="replace existing run folders (each earlier run is kept at <run>.earlier until the new run's first checkpoint, and put back if it stops before)",
+    )
 
     p = command(
         "policy-eval",

@@ -214,11 +214,21 @@ def check_run_folder(run_dir: Path, overwrite: bool) -> bool:
 
     Raises:
       ValueError: it holds files and ``overwrite`` is False (naming the folder, and an
-        unfinished run as such), or it is not a folder.
+        unfinished run as such), it is not a folder, or the run an earlier ``--overwrite``
+        replaced is still set aside beside it (:mod:`jax_contact.train.run_folder`: that
+        process was killed before it could put it back or delete it).
     """
+    from jax_contact.train.run_folder import earlier_path
+
     run_dir = Path(run_dir)
     if run_dir.exists() and not run_dir.is_dir():
         raise ValueError(f"run folder {run_dir} exists and is not a folder: pass another --out")
+    if (aside := earlier_path(run_dir)).exists():
+        raise ValueError(
+            f"{aside} holds the run that an --overwrite run into {run_dir} replaced, set aside"
+            " until its first checkpoint (that run was killed before it could put it back or"
+            f" delete it): move it back to {run_dir} or delete it, then train again"
+        )
     if not (run_dir.exists() and any(run_dir.iterdir())):
         return False
     if not overwrite:

@@ -37,7 +37,6 @@ import dataclasses
 import functools
 import io
 import json
-import shutil
 import sys
 import time
 from collections.abc import Callable, Mapping, Sequence
@@ -49,6 +48,7 @@ from mujoco_playground._src import wrapper as pg_wrapper
 
 from jax_contact.train.cli_args import check_run_folder, unfinished_run  # noqa: F401  (re-exported)
 from jax_contact.train.interrupt import set_kept
+from jax_contact.train.run_folder import EarlierRun
 
 VARIANTS = ("none", "truth", "estimate")
 REWARDS = ("playground", "unclipped")
@@ -418,7 +418,9 @@ def train(
       cfg: the configuration.
       out_dir: parent folder; the run goes to ``out_dir/variant``.
       seed: PPO's seed (networks, env keys).
-      overwrite: replace an existing run folder; otherwise one is refused.
+      overwrite: replace an existing run folder (kept at ``<run>.earlier`` until this run's
+        first checkpoint and put back if it stops before: :mod:`jax_contact.train.run_folder`);
+        otherwise one is refused.
       log: where progress lines go.
       task: a name of :data:`jax_contact.train.tasks.TASK_NAMES` (the env and its training
       wrappers).
@@ -429,10 +431,7 @@ def train(
     Raises:
       ValueError: an unknown variant, a bad configuration, or an existing run folder.
     """
-    from brax.training.agents.ppo import train as ppo_train
-
-    from jax_contact.io import write_json_atomic, write_text_atomic
-    from jax_contact.train import _compat, figures, tasks
+    from jax_contact.train import _compat, tasks
 
     _compat.install()  # Brax's PPO on jax >= 0.10 (the GPU image's 0.11.2); no-op on the pin
     if variant not in VARIANTS:
@@ -440,9 +439,22 @@ def train(
     spec = tasks.get_task(task)
     cfg.validate()
     run_dir = Path(out_dir) / variant
-    replaced = check_run_folder(run_dir, overwrite)
-    if replaced:
-        shutil.rmtree(run_dir)
+    # The run replaced is kept aside until this one's first checkpoint (train/run_folder.py).
+    earlier = EarlierRun(run_dir, check_run_folder(run_dir, overwrite))
+    try:
+        return _train_into(run_dir, variant, cfg, spec, earlier, seed=seed, log=log)
+    except BaseException:
+        earlier.restore()
+        raise
+
+
+def _train_into(run_dir: Path, variant, cfg, spec, earlier, *, seed: int, log) -> RunResult:
+    """:func:`train`'s work, into ``run_dir`` (the earlier run, if any, set aside)."""
+    from brax.training.agents.ppo import train as ppo_train
+
+    from jax_contact.io import write_json_atomic, write_text_atomic
+    from jax_contact.train import figures
+
     run_dir.mkdir(parents=True, exist_ok=True)
     run_info = {
         "variant": variant,
@@ -453,7 +465,7 @@ def train(
         "finished": False,  # set when the training returns
     }
     write_json_atomic(run_dir / "run.json", run_info)
-    set_kept(functools.partial(_kept_note, run_dir, replaced))
+    set_kept(earlier.note)
 
     env = spec.make_env(variant, cfg)
     eval_env = spec.make_env(variant, cfg)
@@ -479,6 +491,7 @@ def train(
         length = row["eval_episode_length"]
         rows.append(row)
         write_text_atomic(run_dir / "progress.csv", _csv_text(rows, CSV_FIELDS))
+        earlier.settle()  # Brax saves a checkpoint before each evaluation's report
         log(
             f"[{variant}] step {row['step']:>10,d}/{brax_timesteps(cfg):,d}"
             f"  return {row['eval_reward']:8.2f} +- {row['eval_reward_std']:6.2f}"
@@ -532,6 +545,7 @@ def train(
         training={variant: train_rows},
     )
     write_json_atomic(run_dir / "run.json", run_info | {"finished": True})
+    earlier.drop()
     set_kept(None)
     log(f"[{variant}] done in {wall:.0f} s; {run_dir}")
     return RunResult(
@@ -540,23 +554,6 @@ def train(
         train_rows=train_rows,
         wall_s=wall,
         first_eval_s=rows[0]["wall_s"],
-    )
-
-
-def _kept_note(run_dir: Path, replaced: bool) -> str:
-    """What an interrupted :func:`train` leaves in ``run_dir``, as the stop finds it: the
-    checkpoints saved so far, or none yet (then ``policy-eval`` has nothing to load)."""
-    ckpt = run_dir / "checkpoints"
-    earlier = " (the earlier run there was replaced when this one started)" if replaced else ""
-    if ckpt.is_dir() and any(ckpt.iterdir()):
-        return (
-            f"kept {run_dir} (run.json: finished false) with the checkpoints saved so far"
-            f"{earlier}: `jax-contact policy-eval {run_dir}` evaluates the latest; train it"
-            " again with --overwrite"
-        )
-    return (
-        f"kept {run_dir} (run.json: finished false) with no checkpoint yet{earlier}: train"
-        " it again with --overwrite"
     )
 
 
