@@ -162,7 +162,7 @@ class GMState:
 
     Attributes:
       p0: (n_l,) leg momentum ``(M qd)[leg_dofs]`` at the first measurement, N m s.
-      integral: (n_l,) the running sum of eq. (GM) below, N m s.
+      integral: (n_l,) the running sum in :func:`gm_step`'s residual, N m s.
       residual: (n_l,) the last residual ``r``, the external joint torque estimate, N m.
       M_prev: (n_l, nv) leg rows of the previous mass matrix, for ``Mdot qd``.
       force: (3,) last force estimate (held across invalid steps), N.

@@ -17,7 +17,8 @@ outlier_size`` and the scalar ``outlier_prob``, e.g. ``jax_contact.envs.sensors.
   difference); floor 0.1.
 - ``sigma_d = sqrt(disturbance^2 + sigma_tau^2)``: Table II's 2 N m model error plus the
   torque sensors' noise, which enters the equation of motion the same way.
-- the swing prior of eq. 9 from the gait (:class:`GaitPrior`, ``swing_joint_speed``).
+- the swing prior of eq. 8 (the air hypothesis) from the gait (:class:`GaitPrior`,
+  ``swing_joint_speed``).
 - ``sigma_f``, the contact force uncertainty (every axis): 10 N, at most
   :data:`FORCE_SHARE` = 0.4 of one foot's share of the robot's weight (``mass_kg g /
   n_legs``, :func:`contact_force_std`). The unilateral weight of the dynamics term,
@@ -112,13 +113,13 @@ _SENSOR_VECTORS = (
 
 @dataclasses.dataclass(frozen=True)
 class GaitPrior:
-    """What the estimator assumes about the gait (eq. 9, 12, 15).
+    """What the estimator assumes about the gait (eq. 8, 12, 15).
 
     Attributes:
       stance_time: ``T_s``, mean stance duration of the gait prior (eq. 12), s.
       swing_time: mean swing duration, s (the prior out of the air on invalid steps).
       swing_joint_speed: std of a swinging leg's joint velocities, the air prior of the
-        differential-kinematics term (eq. 9), rad/s (m/s for prismatic joints).
+        differential-kinematics term (eq. 8), rad/s (m/s for prismatic joints).
       takeoff_accel: ``a_F``, the largest take-off acceleration of the foot along the
         terrain normal (eq. 15), m/s^2. 100 m/s^2 was chosen on the reproduction's
         tuning seed (Go1 trot and walk, seed 1000; 200 m/s^2, docs/model.md's example for the

@@ -150,7 +150,7 @@ def _check_call(fn: str, params, terrain, key) -> None:
     ):
         raise ValueError(
             f"{fn}: key must be a PRNG key, e.g. jax.random.key(0) (every step takes one; the"
-            f" default quadrature touch-down draws nothing from it), got {type(key).__name__}"
+            f" quadrature touch-down of params_for draws nothing from it), got {type(key).__name__}"
             + ("" if dtype is None else f" of dtype {dtype}")
         )
 

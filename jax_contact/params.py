@@ -37,9 +37,10 @@ class NoiseParams:
         entry is garbled in the paper; 10 N is this library's default choice, at most 0.4
         of a foot's share of the weight: :func:`jax_contact.defaults.contact_force_std`).
       sigma_J: (3,) foot velocity noise of the no-slip hypothesis ``Sigma_J``, m/s.
-      sigma_qd_prior: (nv,) prior spread of a swinging leg's joint velocities (eq. 9),
-        rad/s; by default the gait prior's ``swing_joint_speed`` (25 rad/s, Table I's
-        joint speed limit of the planar leg; ``jax_contact.defaults.GaitPrior``).
+      sigma_qd_prior: (nv,) prior spread of a swinging leg's joint velocities (the air
+        hypothesis of eq. 8, whose ``qd`` the text after eq. 9 takes from a prior), rad/s;
+        by default the gait prior's ``swing_joint_speed`` (25 rad/s, Table I's joint speed
+        limit of the planar leg; ``jax_contact.defaults.GaitPrior``).
     """
 
     sigma_q: jnp.ndarray

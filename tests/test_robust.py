@@ -142,7 +142,7 @@ def test_sliding_stance_foot_is_contact_evidence_a_rising_one_is_not():
     """The sliding contact (docs/model_choices.md, "A sliding contact"): the planar leg in
     its stance pose, base still, joints moving the foot at 1 m/s.
 
-    Along the floor (x): eq. 8's still foot (``slip_prob`` 0) calls it air at the cap,
+    Along the floor (x): eq. 9's still foot (``slip_prob`` 0) calls it air at the cap,
     -logit(0.9); the defaults' sliding component (weight 0.3, tangential std 1 m/s) keeps
     the normal velocity at its noise and lets the foot move along the floor, so the same
     reading is weak evidence for contact (measured +0.42, below the still-side cap

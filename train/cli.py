@@ -581,7 +581,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--overwrite",
         action="store_true",
-        help="replace existing run folders (each earlier run is kept at <run>.earlier until the new run's first checkpoint, and put back if it stops before)",
+        help=(
+            "replace existing run folders (each earlier run is kept at <run>.earlier until"
+            " the new run's first checkpoint, and put back if it stops before)"
+        ),
     )
 
     p = command(

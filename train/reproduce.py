@@ -34,7 +34,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import jax_contact as jc
-from jax_contact.baselines import make_gm_params, make_kinematic_params
+from jax_contact.baselines import GMParams, make_gm_params, make_kinematic_params
 from jax_contact.robot import model_mass
 from jax_contact.train.diagnostics import (
     TERM_FIELDS,
@@ -200,7 +200,7 @@ def ablation_variants(base: jc.EstimatorParams) -> dict[str, jc.EstimatorParams]
     }
 
 
-def gm_grid() -> dict[str, jc.EstimatorParams]:
+def gm_grid() -> dict[str, GMParams]:
     return {
         f"gm_K{k:g}_F{f:g}": make_gm_params(K_I=k, threshold=f)
         for k in GM_K_I
