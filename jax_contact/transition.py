@@ -147,6 +147,7 @@ def log_touchdown_monte_carlo(
     v = jnp.maximum(points[1], 1e-7)
     p_f = gap + sigma_pf * ndtri(x_f)
     p_i = sigma_pi * upper_truncated_normal_icdf(v, p_f / sigma_pi)
+    # Eq. 16: the gap phi(t + 1) = p_f + dt u' - p_i closes (< 0) iff u' < -(p_f - p_i) / dt.
     arg = (-(p_f - p_i) / dt - u) / sigma_u
     # Phi(arg) and Phi(-arg) from one erfc each draw, averaged in linear space (a sum of
     # positive terms keeps their relative precision); the floor keeps the log finite, far
