@@ -22,15 +22,22 @@ rad).
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import json
 import time
 
 import numpy as np
 
-from jax_contact.benchmarks.common import json_of_what_finished, machine, print_table
+from jax_contact.benchmarks.common import (
+    bench_parser,
+    check_json_arg,
+    json_of_what_finished,
+    machine,
+    print_table,
+    run_main,
+)
 from jax_contact.envs import biped_hop as bh
+from jax_contact.train.cli_args import nonnegative_int
 
 FIT_SEEDS = tuple(range(100, 110))
 HELD_OUT = tuple(range(110, 150))
@@ -92,11 +99,14 @@ def check(env, gains: bh.HopGains) -> list[dict]:
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--fit", type=int, default=0, help="CEM iterations (0: check only)")
+    parser = bench_parser(__doc__)
+    parser.add_argument(
+        "--fit", type=nonnegative_int, default=0, help="CEM iterations (0: check only)"
+    )
     parser.add_argument("--start", default=None, help="JSON of HopGains fields to start from")
-    parser.add_argument("--json", default=None)
+    parser.add_argument("--json", default=None, help="write the gains and rows here")
     args = parser.parse_args(argv)
+    check_json_arg(parser, args.json)
     from jax_contact.envs import playground_offline
 
     env = playground_offline.load("BerkeleyHumanoidJoystickFlatTerrain")
@@ -127,4 +137,4 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    raise SystemExit(run_main(main, "biped_hop_fit"))

@@ -1,11 +1,15 @@
-"""Shared pieces of the benchmark scripts: synthetic batches, timing, machine description."""
+"""Shared pieces of the benchmark scripts: synthetic batches, timing, machine description,
+and their command line (:func:`bench_parser`, the argument checks, :func:`run_main`)."""
 
 from __future__ import annotations
 
+import argparse
+import datetime
 import os
 import platform
 import re
 import statistics
+import subprocess
 import time
 from collections.abc import Callable
 from contextlib import contextmanager
@@ -138,22 +142,99 @@ def pin_to_cpu(cpu: int) -> None:
     os.sched_setaffinity(0, {cpu})
 
 
-def check_json_arg(parser, path: str | None) -> None:
-    """``parser.error`` (exit 2) unless ``--json`` ``path`` (None: none) can be written,
-    checked before minutes of measuring rather than after them
+def bench_parser(doc: str) -> argparse.ArgumentParser:
+    """A benchmark script's parser: its docstring's first line as the description, every
+    default in ``--help``."""
+    return argparse.ArgumentParser(
+        description=doc.splitlines()[0], formatter_class=argparse.ArgumentDefaultsHelpFormatter
+    )
+
+
+def check_json_arg(parser, path: str | None, arg: str = "--json") -> None:
+    """``parser.error`` (exit 2) unless the JSON file ``path`` (None: none) can be
+    written, checked before minutes of measuring rather than after them
     (:func:`jax_contact.train.cli_args.check_output_file`, the CLI's rule)."""
     from jax_contact.train.cli_args import check_output_file
 
     try:
-        check_output_file("--json", path, (".json",))
+        check_output_file(arg, None if path is None else str(path), (".json",))
     except ValueError as err:
-        parser.error(str(err).removeprefix("argument --json: "))
+        parser.error(str(err))
+
+
+def check_folder_arg(parser, arg: str, folder) -> None:
+    """``parser.error`` (exit 2) unless files can be created in ``folder`` (None: none)."""
+    from jax_contact.train.cli_args import check_output_folder
+
+    if folder is None:
+        return
+    try:
+        check_output_folder(arg, folder)
+    except ValueError as err:
+        parser.error(str(err))
+
+
+def check_robot_arg(parser, arg: str, name: str, *, legged: bool = True) -> None:
+    """``parser.error`` (exit 2) unless ``name`` is a robot the reproduction simulates (a
+    shipped or Menagerie name or an MJCF path; ``legged``: more than one leg), before JAX
+    builds anything."""
+    from jax_contact.train.cli_args import ONE_LEGGED, check_robot
+
+    try:
+        check_robot(arg, name)
+    except ValueError as err:
+        parser.error(str(err))
+    if legged and name in ONE_LEGGED:
+        parser.error(f"argument {arg}: {name!r} has one leg; this benchmark runs quadruped gaits")
+
+
+def run_main(main: Callable, prog: str) -> int:
+    """Runs a script's ``main()`` as ``jax-contact``'s commands run: Ctrl-C (or SIGTERM)
+    stops it at once with one line, ``<prog>: interrupted``, exit code 130 (143), and no
+    JSON file (:mod:`jax_contact.train.interrupt`); returns ``main``'s exit code (0 for a
+    non-int result)."""
+    from jax_contact.train.interrupt import StopOnInterrupt
+
+    with StopOnInterrupt(prog):
+        out = main()
+    return out if isinstance(out, int) else 0
+
+
+def _git(*args: str) -> str | None:
+    """``git <args>``'s output in the checkout this package runs from (None outside one)."""
+    try:
+        done = subprocess.run(
+            ["git", *args],
+            cwd=os.path.dirname(os.path.abspath(__file__)),
+            capture_output=True,
+            text=True,
+            timeout=10,
+        )
+    except (OSError, subprocess.SubprocessError):
+        return None
+    return done.stdout.strip() if done.returncode == 0 else None
 
 
 def machine() -> dict:
-    """What the numbers were measured on."""
+    """What the numbers were measured on, when, and with which code."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    def version_of(package: str) -> str | None:
+        try:
+            return version(package)
+        except PackageNotFoundError:
+            return None
+
     affinity = sorted(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else None
     return {
+        "time_utc": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
+        "jax_contact": version_of("jax-contact"),
+        "git_commit": _git("rev-parse", "HEAD") or None,
+        # Changes not committed (a benchmark of work in progress): None outside a checkout.
+        "git_dirty": None if (status := _git("status", "--porcelain")) is None else bool(status),
+        "jaxlib": version_of("jaxlib"),
+        "mujoco": version_of("mujoco"),
+        "mujoco_mjx": version_of("mujoco-mjx"),
         "platform": platform.platform(),
         "processor": platform.processor() or platform.machine(),
         "cpu_count": os.cpu_count(),
@@ -188,19 +269,27 @@ def print_table(rows: list[dict], columns: list[tuple[str, str, str]]) -> None:
 
 @contextmanager
 def json_of_what_finished(path: str | None, result: dict):
-    """Writes ``result`` as JSON to ``path`` (if given) when the block ends, however it ends.
+    """Writes ``result`` as JSON to ``path`` (if given) when the block ends, unless it is
+    interrupted.
 
     What finished is still worth its JSON: if the block raises, ``result["error"]`` says
-    why the rest is missing, the file is written, and the exception goes on.
+    why the rest is missing and ``result["complete"]`` is False (True otherwise), the file
+    is written, and the exception goes on. A ``KeyboardInterrupt`` (Ctrl-C where
+    :func:`run_main`'s handler is not installed) writes nothing, as Ctrl-C does everywhere
+    else.
     """
     from jax_contact.io import write_json_atomic
 
     try:
         yield result
+    except KeyboardInterrupt:
+        path = None
+        raise
     except BaseException as err:
         result["error"] = f"{type(err).__name__}: {err}"
         raise
     finally:
         if path:
+            result["complete"] = "error" not in result
             write_json_atomic(path, result)
-            print(f"\nwrote {path}{' (incomplete)' if 'error' in result else ''}")
+            print(f"\nwrote {path}{'' if result['complete'] else ' (incomplete)'}")

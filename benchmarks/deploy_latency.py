@@ -378,17 +378,32 @@ def _spawn(what: str, env_extra: dict, args) -> dict:
 
 
 def main(argv=None) -> dict:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    # Imported here: a child process reads its XLA_FLAGS before anything imports JAX.
+    from jax_contact.benchmarks.common import bench_parser, check_json_arg
+    from jax_contact.train.cli_args import positive_int
+
+    parser = bench_parser(__doc__)
     parser.add_argument("--artefact", required=True, help="a .contact file (jax-contact export)")
     parser.add_argument("--log", required=True, help="an .h5 log of the same robot and rate")
-    parser.add_argument("--steps", type=int, default=1600, help="readings per pass")
-    parser.add_argument("--repeats", type=int, default=5, help="passes per option")
-    parser.add_argument("--options", nargs="+", default=list(OPTIONS) + ["dots_as_reductions"])
+    parser.add_argument("--steps", type=positive_int, default=1600, help="readings per pass")
+    parser.add_argument("--repeats", type=positive_int, default=5, help="passes per option")
+    parser.add_argument(
+        "--options",
+        nargs="+",
+        default=list(OPTIONS) + ["dots_as_reductions"],
+        choices=list(OPTIONS) + ["dots_as_reductions"],
+        help="XLA options to time the exported program under",
+    )
     parser.add_argument("--no-floor", action="store_true", help="skip the floor and split")
-    parser.add_argument("--json", default=None)
+    parser.add_argument("--json", default=None, help="write the results here")
     parser.add_argument("--child", default=None, help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
 
+    if args.child is None:  # the parent checks once, before any child compiles
+        for arg, path in (("--artefact", args.artefact), ("--log", args.log)):
+            if not Path(path).is_file():
+                parser.error(f"argument {arg}: {path!r} is not a file")
+        check_json_arg(parser, args.json)
     if args.child == "floor":
         print(json.dumps(floor(args.repeats)))
         return {}
@@ -424,4 +439,6 @@ def main(argv=None) -> dict:
 
 
 if __name__ == "__main__":
-    main()
+    from jax_contact.benchmarks.common import run_main
+
+    raise SystemExit(run_main(main, "deploy_latency"))

@@ -13,7 +13,6 @@ copies). Compilation is timed apart from running.
 
 from __future__ import annotations
 
-import argparse
 import time
 
 import jax
@@ -22,6 +21,7 @@ import numpy as np
 
 import jax_contact as jc
 from jax_contact.benchmarks.common import (
+    bench_parser,
     check_json_arg,
     compile_and_time,
     format_table,
@@ -29,6 +29,7 @@ from jax_contact.benchmarks.common import (
     machine,
     pin_to_cpu,
     print_table,
+    run_main,
     synthetic,
 )
 from jax_contact.export import export_flat, load_exported
@@ -178,10 +179,23 @@ _THROUGHPUT_COLUMNS = [
 def main(argv=None, *, into: dict | None = None) -> dict:
     """Runs the benchmark of the module docstring; ``into`` (a dict) is filled as results
     come, so a caller keeps what finished if a later part fails or is interrupted."""
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--envs", type=positive_int, nargs="+", default=list(DEFAULT_ENVS))
-    parser.add_argument("--samples", type=positive_int, default=500, help="Monte-Carlo samples")
-    parser.add_argument("--latency-calls", type=positive_int, default=10_000)
+    parser = bench_parser(__doc__)
+    parser.add_argument(
+        "--envs",
+        type=positive_int,
+        nargs="+",
+        default=list(DEFAULT_ENVS),
+        help="batch sizes of the throughput table (the default sweep takes minutes on a CPU)",
+    )
+    parser.add_argument(
+        "--samples", type=positive_int, default=500, help="Monte-Carlo samples (throughput)"
+    )
+    parser.add_argument(
+        "--latency-calls",
+        type=positive_int,
+        default=10_000,
+        help="timed single-robot calls (the latency table always uses 500 Monte-Carlo samples)",
+    )
     parser.add_argument("--latency-only", action="store_true", help="skip the throughput")
     parser.add_argument(
         "--cpu",
@@ -200,7 +214,10 @@ def main(argv=None, *, into: dict | None = None) -> dict:
     args = parser.parse_args(argv)
     check_json_arg(parser, args.json)
     if args.cpu is not None:
-        pin_to_cpu(args.cpu)
+        try:
+            pin_to_cpu(args.cpu)
+        except ValueError as err:
+            parser.error(f"argument --cpu: {err}")
     jnp.zeros(())  # initialise the backend (after any pinning) before timing anything
 
     print(f"# estimator on {jax.default_backend()} ({jax.devices()[0]})")
@@ -211,7 +228,7 @@ def main(argv=None, *, into: dict | None = None) -> dict:
             " program compiled in an earlier run is loaded, and 'compile s' is that load"
         )
     result = {} if into is None else into
-    result.update(machine=machine(), layout=args.layout)
+    result.update(machine=machine(), args=vars(args), layout=args.layout)
     rows = result.setdefault("throughput", [])  # the rows as they are measured
     if not args.latency_only:
         throughput(args.envs, n_samples=args.samples, layout=args.layout, rows=rows)
@@ -248,4 +265,4 @@ def main(argv=None, *, into: dict | None = None) -> dict:
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(run_main(main, "estimator"))

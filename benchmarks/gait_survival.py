@@ -25,7 +25,6 @@ Run ``python benchmarks/gait_survival.py --help``.
 
 from __future__ import annotations
 
-import argparse
 import time
 from pathlib import Path
 
@@ -36,6 +35,7 @@ import numpy as np
 from flax import struct
 from mujoco import mjx
 
+from jax_contact.benchmarks.common import bench_parser, check_json_arg, check_robot_arg, run_main
 from jax_contact.envs.gaits import gait_control, make_gait, make_gait_robot
 from jax_contact.envs.ground_truth import foot_truth, make_truth_layout, with_contact_sensors
 from jax_contact.envs.robots import Robot, load_robot
@@ -43,7 +43,7 @@ from jax_contact.envs.sensors import perturb_qpos
 from jax_contact.envs.simulate import upright as is_upright
 from jax_contact.io import write_json_atomic
 from jax_contact.robot import derive_description
-from jax_contact.train.cli_args import positive_float, positive_int
+from jax_contact.train.cli_args import positive_float, positive_int, seed_int
 
 # Forward-speed command ranges (m/s), per gait.
 SPEEDS = {"trot": (0.0, 0.5), "walk": (0.0, 0.15)}
@@ -230,16 +230,23 @@ def run_one(
 
 
 def main(argv=None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--robots", nargs="+", default=["go1", "spot"])
-    parser.add_argument("--gaits", nargs="+", default=["trot", "walk"], choices=list(SPEEDS))
-    parser.add_argument("--n-envs", type=positive_int, default=256)
+    parser = bench_parser(__doc__)
+    parser.add_argument("--robots", nargs="+", default=["go1", "spot"], help="robots to walk")
+    parser.add_argument(
+        "--gaits", nargs="+", default=["trot", "walk"], choices=list(SPEEDS), help="gaits"
+    )
+    parser.add_argument("--n-envs", type=positive_int, default=256, help="envs per robot and gait")
     parser.add_argument("--duration", type=positive_float, default=20.0, help="simulated seconds")
     parser.add_argument("--chunk", type=positive_float, default=2.0, help="seconds per jitted scan")
     parser.add_argument("--min-air", type=float, default=0.02, help="s off the ground")
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--out", type=Path, default=Path("out/gait_survival.json"))
+    parser.add_argument("--seed", type=seed_int, default=0, help="simulation seed")
+    parser.add_argument(
+        "--out", type=Path, default=Path("out/gait_survival.json"), help="the JSON of the rows"
+    )
     args = parser.parse_args(argv)
+    for name in args.robots:
+        check_robot_arg(parser, "--robots", name)
+    check_json_arg(parser, args.out, "--out")
 
     results = []
     header = (
@@ -272,4 +279,4 @@ def main(argv=None) -> None:
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(run_main(main, "gait_survival"))

@@ -12,7 +12,6 @@ truth after the first 0.5 s (the reset drop). Prints the table and writes JSON.
 
 from __future__ import annotations
 
-import argparse
 import time
 
 import jax
@@ -20,10 +19,12 @@ import jax.numpy as jnp
 import numpy as np
 
 from jax_contact.benchmarks.common import (
+    bench_parser,
     check_json_arg,
     json_of_what_finished,
     machine,
     print_table,
+    run_main,
 )
 from jax_contact.train.cli_args import positive_int
 
@@ -79,7 +80,7 @@ def run_one(name: str, n_steps: int) -> dict:
 def main(argv=None) -> int:
     from jax_contact.envs import playground_offline
 
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = bench_parser(__doc__)
     parser.add_argument("--json", default=None, help="write the results here")
     parser.add_argument("--names", nargs="*", default=None, help="registry names (default all)")
     parser.add_argument("--steps", type=positive_int, default=50, help="env steps per env")
@@ -121,4 +122,4 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    raise SystemExit(run_main(main, "playground_envs"))

@@ -20,7 +20,6 @@ inside the fused update rather than piece by piece.
 
 from __future__ import annotations
 
-import argparse
 import collections
 import glob
 import gzip
@@ -36,7 +35,13 @@ import jax.numpy as jnp
 import jax_contact as jc
 from jax_contact import filter as filter_
 from jax_contact import measurement, transition
-from jax_contact.benchmarks.common import kernel_count, synthetic_robot_measurements
+from jax_contact.benchmarks.common import (
+    bench_parser,
+    check_folder_arg,
+    kernel_count,
+    run_main,
+    synthetic_robot_measurements,
+)
 from jax_contact.params import TOUCHDOWN_MODES
 from jax_contact.train.cli_args import positive_int
 from jax_contact.types import feet_are_finite
@@ -196,14 +201,19 @@ def trace_step(fn, args, out_dir: str, calls: int = 10) -> list[dict]:
 
 
 def main(argv=None) -> list[dict]:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--envs", type=positive_int, default=1024)
+    parser = bench_parser(__doc__)
+    parser.add_argument("--envs", type=positive_int, default=1024, help="batch size (envs)")
     parser.add_argument(
-        "--modes", nargs="+", default=["quadrature", "monte_carlo"], choices=TOUCHDOWN_MODES
+        "--modes",
+        nargs="+",
+        default=["quadrature", "monte_carlo"],
+        choices=TOUCHDOWN_MODES,
+        help="touch-down modes to profile",
     )
-    parser.add_argument("--repeats", type=positive_int, default=20)
+    parser.add_argument("--repeats", type=positive_int, default=20, help="timed calls per piece")
     parser.add_argument("--trace", metavar="DIR", help="also profile step_batch into DIR")
     args = parser.parse_args(argv)
+    check_folder_arg(parser, "--trace", args.trace)
     n, legs = args.envs, args.envs * N_LEGS
     meas = synthetic_robot_measurements(n, N_LEGS, NV)
     terrain = jc.flat()
@@ -267,4 +277,4 @@ def main(argv=None) -> list[dict]:
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(run_main(main, "profile_pieces"))

@@ -29,14 +29,22 @@ is tuned.
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import time
 
 import jax.numpy as jnp
 import numpy as np
 
-from jax_contact.benchmarks.common import json_of_what_finished, machine, print_table
+from jax_contact.benchmarks.common import (
+    bench_parser,
+    check_json_arg,
+    check_robot_arg,
+    json_of_what_finished,
+    machine,
+    print_table,
+    run_main,
+)
+from jax_contact.train.cli_args import positive_float, positive_int, seed_int
 
 SCENARIOS = ("trot", "walk", "walk_added_mass", "rough")
 ROBOTS = ("go1", "spot", "barkour")
@@ -126,16 +134,22 @@ COLUMNS = [
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = bench_parser(__doc__)
     parser.add_argument("--robot", default="go1", help="a robot `jax-contact reproduce` takes")
-    parser.add_argument("--scenarios", nargs="+", default=["trot", "walk"], choices=list(SCENARIOS))
-    parser.add_argument("--envs", type=int, default=8)
-    parser.add_argument("--duration", type=float, default=4.0, help="simulated seconds")
-    parser.add_argument("--seed", type=int, default=1000)
-    parser.add_argument("--json", default=None)
+    parser.add_argument(
+        "--scenarios",
+        nargs="+",
+        default=["trot", "walk"],
+        choices=list(SCENARIOS),
+        help="the reproduction's scenarios, each simulated once per sensor model",
+    )
+    parser.add_argument("--envs", type=positive_int, default=8, help="envs per scenario")
+    parser.add_argument("--duration", type=positive_float, default=4.0, help="simulated seconds")
+    parser.add_argument("--seed", type=seed_int, default=1000, help="simulation seed")
+    parser.add_argument("--json", default=None, help="write the rows and the machine here")
     args = parser.parse_args(argv)
-    if args.envs < 1 or not args.duration > 0:
-        parser.error(f"--envs must be >= 1 and --duration > 0, got {args.envs}, {args.duration}")
+    check_robot_arg(parser, "--robot", args.robot)
+    check_json_arg(parser, args.json)
     result = {"machine": machine(), "args": vars(args), "rows": []}
     with json_of_what_finished(args.json, result):
         for scenario in args.scenarios:
@@ -146,4 +160,4 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    raise SystemExit(run_main(main, "sensor_limits"))

@@ -19,7 +19,6 @@ Run::
 
 from __future__ import annotations
 
-import argparse
 import json
 import os
 import statistics
@@ -34,10 +33,12 @@ import numpy as np
 
 import jax_contact as jc
 from jax_contact.benchmarks.common import (
+    bench_parser,
     check_json_arg,
     json_of_what_finished,
     machine,
     print_table,
+    run_main,
     synthetic_measurements,
 )
 
@@ -331,10 +332,14 @@ def run(envs, numpy_robots: int = 8, *, into: dict | None = None) -> dict:
 
 
 def main(argv=None) -> dict:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--envs", type=int, nargs="+", default=[1024, 4096])
-    parser.add_argument("--numpy-robots", type=int, default=8)
-    parser.add_argument("--json", default=None)
+    parser = bench_parser(__doc__)
+    parser.add_argument(
+        "--envs", type=int, nargs="+", default=[1024, 4096], help="batch sizes (envs)"
+    )
+    parser.add_argument(
+        "--numpy-robots", type=int, default=8, help="robots the float64 NumPy oracle runs"
+    )
+    parser.add_argument("--json", default=None, help="write the results here")
     args = parser.parse_args(argv)
     check_json_arg(parser, args.json)
     try:
@@ -349,4 +354,4 @@ def main(argv=None) -> dict:
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(run_main(main, "versus"))

@@ -31,14 +31,21 @@ The policies' settings were chosen on seed 0 (docs/training.md); report other se
 
 from __future__ import annotations
 
-import argparse
 import time
 
 import jax
 import numpy as np
 
-from jax_contact.benchmarks.common import json_of_what_finished, machine, print_table
+from jax_contact.benchmarks.common import (
+    bench_parser,
+    check_json_arg,
+    json_of_what_finished,
+    machine,
+    print_table,
+    run_main,
+)
 from jax_contact.envs import biped_hop, scripted
+from jax_contact.train.cli_args import nonnegative_float, positive_int, seed_int
 
 ENVS = (
     "Go1JoystickFlatTerrain",
@@ -210,18 +217,20 @@ def run_one(
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--json", default=None)
+    parser = bench_parser(__doc__)
+    parser.add_argument("--json", default=None, help="write the rows and the machine here")
     parser.add_argument(
         "--envs",
         nargs="*",
         default=list(ENVS),
         help="registry names, each optionally NAME:POLICY (policies: " + ", ".join(POLICIES) + ")",
     )
-    parser.add_argument("--steps", type=int, default=150, help="env steps per rollout")
-    parser.add_argument("--rollouts", type=int, default=8)
-    parser.add_argument("--skip", type=float, default=0.5, help="seconds left out at the start")
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--steps", type=positive_int, default=150, help="env steps per rollout")
+    parser.add_argument("--rollouts", type=positive_int, default=8, help="rollouts per env")
+    parser.add_argument(
+        "--skip", type=nonnegative_float, default=0.5, help="seconds left out at the start"
+    )
+    parser.add_argument("--seed", type=seed_int, default=0, help="rollout seed")
     parser.add_argument(
         "--sole", default="rolling", help="ContactObsConfig.sole: rolling or centre (flat feet)"
     )
@@ -232,6 +241,17 @@ def main(argv=None) -> int:
         " go1_playground), its calibration map applied; default: the defaults",
     )
     args = parser.parse_args(argv)
+    from jax_contact.envs.playground_offline import ENV_NAMES
+
+    for entry in args.envs:  # refused before anything loads
+        name, _, policy = entry.partition(":")
+        if name not in ENV_NAMES:
+            parser.error(f"argument --envs: unknown env {name!r}; valid: {', '.join(ENV_NAMES)}")
+        if policy and policy not in POLICIES:
+            parser.error(f"argument --envs: {entry!r}: policy must be one of {', '.join(POLICIES)}")
+    if args.sole not in ("rolling", "centre"):
+        parser.error(f"argument --sole: must be rolling or centre, got {args.sole!r}")
+    check_json_arg(parser, args.json)
     result = {"machine": machine(), "args": vars(args), "rows": []}
     with json_of_what_finished(args.json, result):
         for entry in args.envs:
@@ -267,4 +287,4 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    raise SystemExit(run_main(main, "wrapper_accuracy"))

@@ -14,14 +14,20 @@ each size, so that a load from other processes on the machine falls on all three
 
 from __future__ import annotations
 
-import argparse
 import statistics
 import time
 
 import jax
 import jax.numpy as jnp
 
-from jax_contact.benchmarks.common import json_of_what_finished, machine, print_table
+from jax_contact.benchmarks.common import (
+    bench_parser,
+    check_json_arg,
+    json_of_what_finished,
+    machine,
+    print_table,
+    run_main,
+)
 from jax_contact.train.cli_args import positive_int
 
 
@@ -69,14 +75,23 @@ def measure(name: str, sizes, calls: int, rows: list) -> list[dict]:
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--json", default=None)
-    parser.add_argument("--env", default="Go1JoystickFlatTerrain")
-    parser.add_argument("--sizes", type=positive_int, nargs="+", default=[1, 256, 1024])
+    parser = bench_parser(__doc__)
+    parser.add_argument("--json", default=None, help="write the rows and the machine here")
+    parser.add_argument(
+        "--env", default="Go1JoystickFlatTerrain", help="a Playground locomotion registry name"
+    )
+    parser.add_argument(
+        "--sizes", type=positive_int, nargs="+", default=[1, 256, 1024], help="batch sizes (envs)"
+    )
     parser.add_argument(
         "--calls", type=positive_int, default=5, help="timed calls per variant and size"
     )
     args = parser.parse_args(argv)
+    from jax_contact.envs.playground_offline import ENV_NAMES
+
+    if args.env not in ENV_NAMES:
+        parser.error(f"argument --env: unknown env {args.env!r}; valid: {', '.join(ENV_NAMES)}")
+    check_json_arg(parser, args.json)
     result = {"machine": machine(), "args": vars(args), "rows": []}
     with json_of_what_finished(args.json, result):
         measure(args.env, args.sizes, args.calls, result["rows"])
@@ -93,4 +108,4 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    raise SystemExit(run_main(main, "wrapper_throughput"))

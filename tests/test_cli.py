@@ -492,35 +492,78 @@ def test_a_failed_sharding_subprocess_shows_its_stderr():
         versus.sharded(4, 8, script=script)
 
 
+INT_ERR = "must be an int >= 1"
+
+
 @pytest.mark.parametrize(
-    "module, argv",
+    "module, argv, expect",
     [
-        ("estimator", ["--envs", "0"]),
-        ("estimator", ["--latency-calls", "0"]),
-        ("estimator", ["--samples", "-1"]),
-        ("estimator", ["--json", "/proc/x.json"]),
-        ("suite", ["--json", "/proc/x.json"]),
-        ("versus", ["--json", "/proc/x.json"]),
-        ("playground_envs", ["--names", "Bogus"]),  # was an error row and exit 0
-        ("playground_envs", ["--steps", "0"]),
-        ("profile_pieces", ["--repeats", "0"]),  # StatisticsError after compiling
-        ("gait_survival", ["--n-envs", "0"]),  # a table of NaN and exit 0
-        ("wrapper_throughput", ["--calls", "0"]),
+        ("estimator", ["--envs", "0"], INT_ERR),
+        ("estimator", ["--latency-calls", "0"], INT_ERR),
+        ("estimator", ["--samples", "-1"], INT_ERR),
+        ("estimator", ["--json", "/proc/x.json"], "'/proc'"),
+        ("estimator", ["--json", "/proc"], "argument --json: '/proc' is a folder"),
+        ("estimator", ["--cpu", "100000"], "argument --cpu: cpu=100000 is not one of"),
+        ("suite", ["--json", "/proc/x.json"], "'/proc'"),
+        ("versus", ["--json", "/proc/x.json"], "'/proc'"),
+        ("playground_envs", ["--names", "Bogus"], "unknown env(s) ['Bogus']"),  # was exit 0
+        ("playground_envs", ["--steps", "0"], INT_ERR),
+        ("profile_pieces", ["--repeats", "0"], INT_ERR),  # StatisticsError after compiling
+        ("profile_pieces", ["--trace", "/proc/version"], "argument --trace: '/proc/version'"),
+        ("gait_survival", ["--n-envs", "0"], INT_ERR),  # a table of NaN and exit 0
+        ("gait_survival", ["--robots", "go2"], "argument --robots: unknown robot 'go2'"),
+        ("gait_survival", ["--out", "/proc"], "argument --out: '/proc' is a folder"),
+        ("wrapper_throughput", ["--calls", "0"], INT_ERR),
+        ("wrapper_throughput", ["--env", "Go1Bogus"], "argument --env: unknown env 'Go1Bogus'"),
+        ("wrapper_throughput", ["--json", "/proc"], "argument --json: '/proc' is a folder"),
+        ("wrapper_accuracy", ["--envs", "Bogus"], "argument --envs: unknown env 'Bogus'"),
+        ("wrapper_accuracy", ["--envs", "Go1Getup:skate"], "policy must be one of walk"),
+        ("wrapper_accuracy", ["--rollouts", "0"], INT_ERR),
+        ("sensor_limits", ["--robot", "go2"], "argument --robot: unknown robot 'go2'"),
+        ("sensor_limits", ["--robot", "planar_leg"], "'planar_leg' has one leg"),
+        ("sensor_limits", ["--envs", "0"], INT_ERR),
+        ("biped_hop_fit", ["--fit", "-1"], "must be an int >= 0"),  # ran and exited 0
+        ("deploy_latency", ["--artefact", "/no/a.contact", "--log", "/no/l.h5"], "is not a file"),
     ],
 )
-def test_benchmark_scripts_check_their_arguments_before_measuring(module, argv, capsys):
-    """Run directly, the scripts refused a bad size or an unwritable --json only after
-    minutes of compiling and measuring (IndexError, StatisticsError, a lost result)."""
+def test_benchmark_scripts_check_their_arguments_before_measuring(module, argv, expect, capsys):
+    """Run directly, the scripts refused a bad size, name or output path only after
+    minutes of compiling and measuring (IndexError, StatisticsError, a lost result), or
+    with a traceback; each is argparse's one line and exit 2 now, before any JAX work."""
     import importlib
 
     main = importlib.import_module(f"jax_contact.benchmarks.{module}").main
     with pytest.raises(SystemExit) as stop:
         main(argv)
     assert stop.value.code == 2
-    err = capsys.readouterr().err
-    assert any(w in err for w in ("must be an int >= 1", "'/proc'", "unknown env(s) ['Bogus']")), (
-        err
-    )
+    assert expect in capsys.readouterr().err
+
+
+def test_benchmark_json_says_when_where_and_whether_complete(tmp_path):
+    """A benchmark's JSON names the time, the code and the versions it ran with, and
+    whether it is complete; Ctrl-C (a KeyboardInterrupt where the CLI's handler is not
+    installed) writes none, as everywhere else."""
+    from jax_contact.benchmarks.common import json_of_what_finished, machine
+
+    m = machine()
+    assert m["time_utc"].endswith("+00:00") and m["jaxlib"] and m["mujoco"]
+    assert m["git_commit"] is None or len(m["git_commit"]) == 40
+    assert m["git_dirty"] in (None, True, False)
+    done = tmp_path / "done.json"
+    with json_of_what_finished(str(done), {"rows": [1]}):
+        pass
+    assert json.loads(done.read_text()) == {"rows": [1], "complete": True}
+    failed = tmp_path / "failed.json"
+    with pytest.raises(RuntimeError):
+        with json_of_what_finished(str(failed), {"rows": [1]}):
+            raise RuntimeError("broke")
+    got = json.loads(failed.read_text())
+    assert got["complete"] is False and got["error"] == "RuntimeError: broke"
+    stopped = tmp_path / "stopped.json"
+    with pytest.raises(KeyboardInterrupt):
+        with json_of_what_finished(str(stopped), {"rows": [1]}):
+            raise KeyboardInterrupt
+    assert not stopped.exists()
 
 
 def test_bench_keeps_the_estimator_rows_measured_before_a_failure(tmp_path, monkeypatch):

@@ -364,8 +364,8 @@ def _check_policy_eval(args: argparse.Namespace) -> None:
     check_output_file("--json", args.json)
 
 
-def _check_json(args: argparse.Namespace) -> None:
-    check_output_file("--json", args.json)
+def _check_bench(args: argparse.Namespace) -> None:
+    check_output_file("--json", args.json, (".json",))  # the suite's own rule, before JAX loads
 
 
 def _check_rates(args: argparse.Namespace) -> None:
@@ -649,7 +649,7 @@ def build_parser() -> argparse.ArgumentParser:
         "bench",
         "estimator throughput, latency and memory; ratio to mjx.step, NumPy, sharding",
         _cmd_bench,
-        _check_json,
+        _check_bench,
     )
     p.add_argument("--json", default=None, help="write every result as one JSON here")
     p.add_argument(

@@ -327,10 +327,10 @@ def check_output_file(arg: str, path: str | None, suffixes: tuple[str, ...] = ()
     if path is None:
         return
     p = Path(path)
-    if suffixes and p.suffix not in suffixes:
-        raise ValueError(f"argument {arg}: {path!r} must end in {' or '.join(suffixes)}")
     if p.is_dir():
         raise ValueError(f"argument {arg}: {path!r} is a folder; expected a file name")
+    if suffixes and p.suffix not in suffixes:
+        raise ValueError(f"argument {arg}: {path!r} must end in {' or '.join(suffixes)}")
     check_output_folder(arg, p.parent)
 
 
