@@ -618,6 +618,61 @@ def test_an_accelerometer_reading_as_base_acceleration_warns(go1_log):
     assert "an accelerometer's reading" in warned[0]
 
 
+def test_text_in_a_column_the_schema_does_not_read_is_ignored(tmp_path):
+    """The docs say columns the schema does not name are ignored; a logger's text column
+    ('mode': WALK) aborted the run. Text in a column the schema reads is still refused,
+    naming line and column, in a CSV and in an HDF5 file alike."""
+    csv_path = tmp_path / "r.csv"
+    csv_path.write_text("time,q/FR_hip_joint,mode\n0.0,0.1,WALK\n0.0025,0.2,STAND\n")
+    cols = read_recording(csv_path).columns
+    np.testing.assert_array_equal(cols["q/FR_hip_joint"], [0.1, 0.2])
+    assert np.isnan(cols["mode"]).all()  # to_readings lists it among the ignored columns
+    csv_path.write_text("time,q/FR_hip_joint,mode\n0.0,0.1,WALK\n0.0025,oops,STAND\n")
+    with pytest.raises(ValueError, match=r"line 3, column 'q/FR_hip_joint': 'oops' is not a"):
+        read_recording(csv_path)
+    h5_path = tmp_path / "r.h5"
+    with h5py.File(h5_path, "w") as f:
+        f["time"] = [0.0, 0.0025, 0.005]
+        f["q/FR_hip_joint"] = [0.1, 0.2, 0.3]
+        f["mode"] = np.array([b"WALK", b"WALK", b"STAND"])
+    assert np.isnan(read_recording(h5_path).columns["mode"]).all()
+    with h5py.File(h5_path, "a") as f:
+        f["tau/FR_hip_joint"] = np.array([b"a", b"b", b"c"])
+    with pytest.raises(ValueError, match=r"column 'tau/FR_hip_joint' is not numeric"):
+        read_recording(h5_path)
+
+
+def test_a_floor_not_at_z_0_or_another_robots_model_warns(go1_log):
+    """A helper's trial: a base_pos whose frame starts at the base (z - 0.28 m), or has
+    its floor 30 cm lower, and a Go1 recording read with Spot's model gave plausible,
+    wrong numbers without a word (the kinematics term neutral or 'air' on every row)."""
+    import mujoco
+
+    from jax_contact.train.recording_checks import FLOOR_OFFSET_M, floor_offset
+
+    robot = go1_log.robot
+    m, desc = robot.mj_model, robot.description
+    home = np.tile(robot.home_qpos, (20, 1))
+    # The reference: MuJoCo's own foot geom positions at the home pose, minus the radius.
+    d = mujoco.MjData(m)
+    d.qpos[:] = robot.home_qpos
+    mujoco.mj_kinematics(m, d)
+    sole = d.geom_xpos[list(desc.foot_geom_ids), 2] - m.geom_size[list(desc.foot_geom_ids), 0]
+    assert np.all(np.abs(sole) < FLOOR_OFFSET_M)  # standing on the floor: no warning
+    assert floor_offset(m, desc, home) is None
+    for shift, where in ((-0.28, "below"), (0.30, "above")):
+        moved = home.copy()
+        moved[:, 2] += shift
+        got = floor_offset(m, desc, moved)
+        cm = round(abs(float(np.median(sole)) + shift) * 100)
+        assert got.startswith(f"WARNING the feet's soles sit {cm} cm {where} z = 0"), got
+        assert "--terrain-model memory" in got and desc.foot_names[0] in got
+    # NaN rows are left out, not read as a floor.
+    with_nan = home.copy()
+    with_nan[::2] = np.nan
+    assert floor_offset(m, desc, with_nan) is None
+
+
 def test_a_joint_the_model_lacks_is_dropped_by_mapping_it_to_nothing(go1_log):
     """A recording with a column for a joint the model does not have (a gripper) is refused
     naming it; mapped to "" its columns are dropped with a note and the readings equal the

@@ -87,6 +87,12 @@ RATE_TOLERANCE = 0.01
 DIAGNOSTICS = ("p_dynamics", "p_diff_kinematics", "p_kinematics", "p_takeoff", "p_touchdown")
 
 
+def in_schema(name: str) -> bool:
+    """Whether the schema reads a column of this name (the rest are ignored, with a note)."""
+    base = set(BASE_QUAT).union(*BASE.values())
+    return name == TIME or name in base or name.startswith(JOINT_PREFIXES + TRUTH_PREFIXES)
+
+
 @dataclasses.dataclass(frozen=True)
 class Recording:
     """Named (N,) float64 columns of one recording.
@@ -156,7 +162,9 @@ def read_recording(path: str | Path) -> Recording:
         try:
             out[name] = col.astype(np.float64)
         except (TypeError, ValueError):
-            raise ValueError(f"{src}: column {name!r} is not numeric ({col.dtype})") from None
+            if in_schema(name):
+                raise ValueError(f"{src}: column {name!r} is not numeric ({col.dtype})") from None
+            out[name] = np.full(col.shape, np.nan)  # text the schema does not read: ignored
     if TIME not in out:
         raise ValueError(f"{src}: missing column {TIME!r} (sample time, s)")
     lengths = {len(c) for c in out.values()}
@@ -178,6 +186,7 @@ def _read_csv(path: Path, src: str) -> dict[str, np.ndarray]:
         dup = sorted({h for h in header if header.count(h) > 1})
         raise ValueError(f"{src}: column name(s) {dup} appear more than once")
     data = np.full((len(rows) - 1, len(header)), np.nan)
+    text = set()  # columns the schema does not read that hold text: ignored (left NaN)
     for i, row in enumerate(rows[1:]):
         if len(row) != len(header):
             raise ValueError(
@@ -185,11 +194,15 @@ def _read_csv(path: Path, src: str) -> dict[str, np.ndarray]:
             )
         for j, cell in enumerate(row):
             cell = cell.strip()
-            if cell == "" or cell.lower() == "nan":
+            if cell == "" or cell.lower() == "nan" or j in text:
                 continue
             try:
                 data[i, j] = float(cell)
             except ValueError:
+                if not in_schema(header[j]):
+                    text.add(j)
+                    data[:, j] = np.nan
+                    continue
                 raise ValueError(
                     f"{src}: line {i + 2}, column {header[j]!r}: {cell!r} is not a number"
                 ) from None

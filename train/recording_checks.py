@@ -344,3 +344,53 @@ def force_truth(forces: dict[str, np.ndarray], threshold: float) -> tuple[str, b
     )
     warn = all(s >= ALWAYS_LOADED for s, _ in read.values())
     return (text + "; if it stood throughout, ignore this" if warn else text), warn
+
+
+# A standing foot's sole is at the floor, so the lowest tenth of a foot's sole heights over
+# a recording (its stance) is near z = 0 when the plane the estimator assumes is the floor:
+# a base estimate's drift over a minute is a few cm. Beyond this, m, it is not.
+FLOOR_OFFSET_M = 0.05
+FLOOR_ROWS = 500  # rows sampled (evenly) for the soles' heights
+
+
+def floor_offset(mj_model, desc, qpos: np.ndarray) -> str | None:
+    """The warning when the feet's soles, at their lowest (the lowest tenth of the rows,
+    median over the feet), sit more than :data:`FLOOR_OFFSET_M` above or below z = 0: the
+    floor of ``base_pos``'s frame is elsewhere, or the model is not the recorded robot.
+    Either way the kinematics term, which assumes a plane at z = 0, reads nonsense without
+    a word (a sole far below the plane is neutral, far above is air).
+
+    Args:
+      mj_model: the robot's ``mujoco.MjModel``.
+      desc: its :class:`jax_contact.robot.RobotDescription` (the feet).
+      qpos: (T, nq) the readings' positions.
+    """
+    import mujoco
+
+    q = np.asarray(qpos, np.float64)
+    rows = np.flatnonzero(np.all(np.isfinite(q), axis=1))
+    if rows.size == 0:
+        return None
+    rows = rows[np.linspace(0, rows.size - 1, min(rows.size, FLOOR_ROWS)).astype(int)]
+    data = mujoco.MjData(mj_model)
+    soles = np.empty((rows.size, desc.n_legs))
+    for k, r in enumerate(rows):
+        data.qpos[:] = q[r]
+        mujoco.mj_kinematics(mj_model, data)
+        for i, b in enumerate(desc.foot_body_ids):  # each foot sphere's lowest point
+            rot_z = data.xmat[b].reshape(3, 3)[2]
+            soles[k, i] = data.xpos[b, 2] + rot_z @ desc.foot_offsets[i] - desc.foot_radii[i]
+    lowest = np.quantile(soles, 0.1, axis=0)
+    offset = float(np.median(lowest))
+    if abs(offset) <= FLOOR_OFFSET_M:
+        return None
+    where = "below" if offset < 0 else "above"
+    per_foot = ", ".join(
+        f"{f} {z * 100:+.0f}" for f, z in zip(desc.foot_names, lowest, strict=True)
+    )
+    return (
+        f"WARNING the feet's soles sit {abs(offset) * 100:.0f} cm {where} z = 0 at their lowest"
+        f" (the lowest tenth of the rows, cm: {per_foot}), where a standing foot's sole is on"
+        " the floor: the floor of base_pos's frame is not at z = 0 (--terrain-model memory"
+        " reads the ground under each foot), or --model is not the robot that was recorded"
+    )

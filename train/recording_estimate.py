@@ -21,7 +21,7 @@ from jax_contact.train.recording import (
     read_recording,
     write_recording_csv,
 )
-from jax_contact.train.recording_checks import dynamics_disagrees
+from jax_contact.train.recording_checks import dynamics_disagrees, floor_offset
 from jax_contact.train.recording_convert import noise_for_differences, to_readings
 
 
@@ -100,6 +100,10 @@ def estimate_recording(
             " sqrt(6) sigma_q / dt^2)"
         )
     notes.insert(0, f"estimator terms: {', '.join(terms)}; rate {1.0 / conv.dt:.6g} Hz")
+    if "kinematics" in terms and terrain_model == "flat":
+        qpos = conv.readings["qpos"][:, 0]
+        if floor := floor_offset(robot.mj_model, desc, qpos):
+            notes.append(floor)
     for line in notes:
         print_note(line)
     has_truth = conv.truth is not None
