@@ -642,6 +642,41 @@ def test_text_in_a_column_the_schema_does_not_read_is_ignored(tmp_path):
         read_recording(h5_path)
 
 
+def test_a_torque_no_actuator_can_apply_is_named(go1_log):
+    """A helper's trial: a 1e6 N m torque on one row (a glitch) passed without a word. It
+    is a note naming the column and row; on many rows (another unit) a warning. Go1's calf
+    actuators are limited to 35.55 N m (forcerange in its MJCF, gear 1), Spot's joints by
+    their actuatorfrcrange."""
+    from jax_contact.train.recording_checks import joint_torque_limit
+
+    m = go1_log.robot.mj_model
+    calf = mujoco_joint(m, "RL_calf_joint")
+    assert joint_torque_limit(m, calf) == pytest.approx(35.55)
+    spot = load_robot("spot").mj_model
+    j = 1 + next(i for i in range(spot.njnt - 1) if spot.jnt_actfrclimited[i + 1])
+    assert joint_torque_limit(spot, j) == pytest.approx(np.abs(spot.jnt_actfrcrange[j]).max())
+    cols = log_to_columns(go1_log)
+    assert not [n for n in to_readings(Recording(cols, "r"), go1_log.robot).notes if "x the" in n]
+    glitch = dict(cols)
+    glitch["tau/RL_calf_joint"] = cols["tau/RL_calf_joint"].copy()
+    glitch["tau/RL_calf_joint"][7] = 1e6
+    notes = [n for n in to_readings(Recording(glitch, "r"), go1_log.robot).notes if "x the" in n]
+    assert notes == [
+        "column 'tau/RL_calf_joint': beyond 2 x the model's actuator limit of its joint (35.55)"
+        " on 1 row(s) (first at row 7, largest 1e+06): a glitch (the estimator bounds its effect)"
+    ]
+    unit = dict(cols, **{"tau/RL_calf_joint": cols["tau/RL_calf_joint"] * 1000 + 100})
+    notes = [n for n in to_readings(Recording(unit, "r"), go1_log.robot).notes if "x the" in n]
+    assert len(notes) == 1 and notes[0].startswith("WARNING column 'tau/RL_calf_joint'")
+    assert notes[0].endswith("another unit or sensor?")
+
+
+def mujoco_joint(m, name: str) -> int:
+    import mujoco
+
+    return mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, name)
+
+
 def test_a_floor_not_at_z_0_or_another_robots_model_warns(go1_log):
     """A helper's trial: a base_pos whose frame starts at the base (z - 0.28 m), or has
     its floor 30 cm lower, and a Go1 recording read with Spot's model gave plausible,

@@ -394,3 +394,59 @@ def floor_offset(mj_model, desc, qpos: np.ndarray) -> str | None:
         " the floor: the floor of base_pos's frame is not at z = 0 (--terrain-model memory"
         " reads the ground under each foot), or --model is not the robot that was recorded"
     )
+
+
+# A joint torque beyond this multiple of what the model's actuators can apply is no motor's:
+# a glitch on a few rows, another unit or sensor on many (RANGE_SHARE of the rows).
+TORQUE_SLACK = 2.0
+
+
+def joint_torque_limit(m, j: int) -> float | None:
+    """The largest generalised force the model's actuators put on joint ``j`` (N m, or N
+    for a slide): the joint's ``actuatorfrcrange`` if limited, else the sum over the
+    actuators on it of ``gear`` times their ``forcerange`` (force-limited) or, for a motor
+    (fixed gain, no bias), ``ctrlrange`` times its gain; None when an actuator on it has no
+    such bound (a servo whose force follows the state) or none acts on it."""
+    import mujoco
+
+    if m.jnt_actfrclimited[j]:
+        return float(np.max(np.abs(m.jnt_actfrcrange[j])))
+    total, found = 0.0, False
+    for a in range(m.nu):
+        if m.actuator_trntype[a] != mujoco.mjtTrn.mjTRN_JOINT or m.actuator_trnid[a, 0] != j:
+            continue
+        gear = abs(float(m.actuator_gear[a, 0]))
+        if m.actuator_forcelimited[a]:
+            total += gear * float(np.max(np.abs(m.actuator_forcerange[a])))
+        elif (
+            m.actuator_ctrllimited[a]
+            and m.actuator_gaintype[a] == mujoco.mjtGain.mjGAIN_FIXED
+            and m.actuator_biastype[a] == mujoco.mjtBias.mjBIAS_NONE
+        ):
+            gain = abs(float(m.actuator_gainprm[a, 0]))
+            total += gear * gain * float(np.max(np.abs(m.actuator_ctrlrange[a])))
+        else:
+            return None
+        found = True
+    return total if found and total > 0 else None
+
+
+def torque_beyond_limit(m, j: int, tau: np.ndarray) -> str | None:
+    """The note (a WARNING on more than :data:`RANGE_SHARE` of the rows) when the joint
+    torque ``tau`` (T,) of joint ``j`` exceeds :data:`TORQUE_SLACK` times
+    :func:`joint_torque_limit` on any finite row, else None."""
+    limit = joint_torque_limit(m, j)
+    finite = np.isfinite(tau)
+    if limit is None or not finite.any():
+        return None
+    beyond = finite & (np.abs(np.where(finite, tau, 0.0)) > TORQUE_SLACK * limit)
+    n = int(beyond.sum())
+    if n == 0:
+        return None
+    many = n / int(finite.sum()) > RANGE_SHARE
+    cause = "another unit or sensor?" if many else "a glitch (the estimator bounds its effect)"
+    return (
+        f"{'WARNING ' if many else ''}beyond {TORQUE_SLACK:g} x the model's actuator limit of"
+        f" its joint ({limit:.4g}) on {n} row(s) (first at row {int(np.argmax(beyond))}, largest"
+        f" {float(np.max(np.abs(tau[beyond]))):.4g}): {cause}"
+    )

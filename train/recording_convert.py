@@ -49,6 +49,7 @@ from jax_contact.train.recording_checks import (
     force_truth,
     holds_gravity,
     outside_range,
+    torque_beyond_limit,
     upside_down,
     velocity_in_base_frame,
 )
@@ -324,6 +325,9 @@ def to_readings(
             tau[:, va] = cols[tcol]
             tau_columns[va] = tcol
             used.add(tcol)
+            if beyond := torque_beyond_limit(m, j, tau[:, va]):
+                text = beyond.removeprefix("WARNING ")
+                notes.append(f"{'WARNING ' if text != beyond else ''}column {tcol!r}: {text}")
     if missing_qd:
         notes.append(f"joint velocities differentiated from positions: {missing_qd}")
     actuated = sorted(
