@@ -618,6 +618,30 @@ def test_an_accelerometer_reading_as_base_acceleration_warns(go1_log):
     assert "an accelerometer's reading" in warned[0]
 
 
+def test_a_cut_last_line_is_dropped_with_a_note(go1_log, tmp_path):
+    """A logger killed mid-write leaves a last line with fewer fields: it was refused
+    (the whole recording lost); now dropped, said in the notes. A short line elsewhere is
+    still refused."""
+    cols = log_to_columns(go1_log)
+    path = write_recording_csv(tmp_path / "r.csv", cols)
+    whole = path.read_text()
+    lines = whole.splitlines()
+    cut = tmp_path / "cut.csv"
+    cut.write_text(whole + ",".join(lines[-1].split(",")[:5]))  # 5 fields, no line end
+    rec = read_recording(cut)
+    assert len(rec) == len(lines) - 1 == len(cols["time"])
+    note = f"the last line ({len(lines) + 1}) has 5 of the header's {len(cols)} fields: dropped"
+    assert rec.notes[0].startswith(note)
+    assert to_readings(rec, go1_log.robot).notes[0].startswith(note)
+    middle = tmp_path / "middle.csv"
+    middle.write_text("\n".join(lines[:3] + [lines[3][:5]] + lines[4:]) + "\n")
+    with pytest.raises(ValueError, match=r"line 4 has \d+ fields; the header has"):
+        read_recording(middle)
+    # --robot is the same flag as --model (simulate and evaluate call it --robot).
+    args = _parser().parse_args(["estimate", str(cut), "--robot", "go1"])
+    assert args.model == "go1"
+
+
 def test_text_in_a_column_the_schema_does_not_read_is_ignored(tmp_path):
     """The docs say columns the schema does not name are ignored; a logger's text column
     ('mode': WALK) aborted the run. Text in a column the schema reads is still refused,

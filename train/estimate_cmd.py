@@ -45,6 +45,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("recording", help="the recording: .csv (header row), .npz or .h5")
     p.add_argument(
         "--model",
+        "--robot",
+        dest="model",
         required=True,
         help="the robot: a robot name (e.g. go1, planar_leg) or an MJCF .xml file with a floor",
     )

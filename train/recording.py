@@ -100,10 +100,12 @@ class Recording:
     Attributes:
       columns: name -> (N,) values, in file order.
       source: the file, for messages.
+      notes: what reading the file left out (a CSV's incomplete last line), one line each.
     """
 
     columns: Mapping[str, np.ndarray]
     source: str
+    notes: tuple[str, ...] = ()
 
     def __len__(self) -> int:
         return len(self.columns[TIME]) if TIME in self.columns else 0
@@ -125,8 +127,9 @@ def read_recording(path: str | Path) -> Recording:
     suffix = path.suffix.lower()
     if suffix not in SUFFIXES:
         raise ValueError(f"{src}: unknown format {path.suffix!r}; expected one of {SUFFIXES}")
+    notes: list[str] = []
     if suffix == ".csv":
-        columns = _read_csv(path, src)
+        columns = _read_csv(path, src, notes)
     elif suffix == ".npz":
         try:
             with np.load(path, allow_pickle=False) as z:
@@ -173,15 +176,24 @@ def read_recording(path: str | Path) -> Recording:
             f"{src}: columns have different lengths: "
             + ", ".join(f"{k} {len(v)}" for k, v in out.items() if len(v) != len(out[TIME]))
         )
-    return Recording(out, str(path))
+    return Recording(out, str(path), tuple(notes))
 
 
-def _read_csv(path: Path, src: str) -> dict[str, np.ndarray]:
+def _read_csv(path: Path, src: str, notes: list[str]) -> dict[str, np.ndarray]:
+    """The CSV's columns; an incomplete last line (fewer fields than the header: a logger
+    stopped mid-write) is dropped with a line in ``notes``; any other line of the wrong
+    length is refused."""
     with open(path, newline="") as f:
         rows = list(csv.reader(f))
     if not rows:
         raise ValueError(f"{src} is empty; expected a header row of column names")
     header = [h.strip() for h in rows[0]]
+    if len(rows) > 2 and len(rows[-1]) < len(header):
+        notes.append(
+            f"the last line ({len(rows)}) has {len(rows[-1])} of the header's {len(header)}"
+            " fields: dropped (a logger stopped mid-write leaves such a line)"
+        )
+        rows = rows[:-1]
     if len(set(header)) != len(header):
         dup = sorted({h for h in header if header.count(h) > 1})
         raise ValueError(f"{src}: column name(s) {dup} appear more than once")

@@ -238,7 +238,9 @@ def to_readings(
                 f"names map: {log_name!r} -> {model_name!r}, but the model has no joint or foot"
                 f" {model_name!r}; joints: {[n for n, _ in joints]}, feet: {list(desc.foot_names)}"
             )
+    read_notes = list(rec.notes)
     rec, dt, notes = _check_time(rec, resample)
+    notes = read_notes + notes
     cols = rec.columns
     t_len = len(cols[TIME])
     used: set[str] = {TIME}
