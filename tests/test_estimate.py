@@ -687,7 +687,8 @@ def test_a_torque_no_actuator_can_apply_is_named(go1_log):
     notes = [n for n in to_readings(Recording(glitch, "r"), go1_log.robot).notes if "x the" in n]
     assert notes == [
         "column 'tau/RL_calf_joint': beyond 2 x the model's actuator limit of its joint (35.55)"
-        " on 1 row(s) (first at row 7, largest 1e+06): a glitch (the estimator bounds its effect)"
+        " on 1 row(s) (first at row 7, 0-based; largest 1e+06): a glitch (the estimator bounds its"
+        " effect)"
     ]
     unit = dict(cols, **{"tau/RL_calf_joint": cols["tau/RL_calf_joint"] * 1000 + 100})
     notes = [n for n in to_readings(Recording(unit, "r"), go1_log.robot).notes if "x the" in n]

@@ -447,6 +447,6 @@ def torque_beyond_limit(m, j: int, tau: np.ndarray) -> str | None:
     cause = "another unit or sensor?" if many else "a glitch (the estimator bounds its effect)"
     return (
         f"{'WARNING ' if many else ''}beyond {TORQUE_SLACK:g} x the model's actuator limit of"
-        f" its joint ({limit:.4g}) on {n} row(s) (first at row {int(np.argmax(beyond))}, largest"
-        f" {float(np.max(np.abs(tau[beyond]))):.4g}): {cause}"
+        f" its joint ({limit:.4g}) on {n} row(s) (first at row {int(np.argmax(beyond))},"
+        f" 0-based; largest {float(np.max(np.abs(tau[beyond]))):.4g}): {cause}"
     )
