@@ -174,6 +174,17 @@ def check_folder_arg(parser, arg: str, folder) -> None:
         parser.error(str(err))
 
 
+def check_env_arg(parser, arg: str, name: str) -> None:
+    """``parser.error`` (exit 2) unless ``name`` is a Playground locomotion env
+    (:func:`jax_contact.envs.playground_offline.check_name`), before anything loads."""
+    from jax_contact.envs.playground_offline import check_name
+
+    try:
+        check_name(name)
+    except ValueError as err:
+        parser.error(f"argument {arg}: {err}")
+
+
 def check_robot_arg(parser, arg: str, name: str, *, legged: bool = True) -> None:
     """``parser.error`` (exit 2) unless ``name`` is a robot the reproduction simulates (a
     shipped or Menagerie name or an MJCF path; ``legged``: more than one leg), before JAX

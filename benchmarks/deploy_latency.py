@@ -380,7 +380,7 @@ def _spawn(what: str, env_extra: dict, args) -> dict:
 def main(argv=None) -> dict:
     # Imported here: a child process reads its XLA_FLAGS before anything imports JAX.
     from jax_contact.benchmarks.common import bench_parser, check_json_arg
-    from jax_contact.train.cli_args import positive_int
+    from jax_contact.train.cli_args import check_input_file, positive_int
 
     parser = bench_parser(__doc__)
     parser.add_argument("--artefact", required=True, help="a .contact file (jax-contact export)")
@@ -401,8 +401,10 @@ def main(argv=None) -> dict:
 
     if args.child is None:  # the parent checks once, before any child compiles
         for arg, path in (("--artefact", args.artefact), ("--log", args.log)):
-            if not Path(path).is_file():
-                parser.error(f"argument {arg}: {path!r} is not a file")
+            try:
+                check_input_file(arg, path)
+            except ValueError as err:
+                parser.error(str(err))
         check_json_arg(parser, args.json)
     if args.child == "floor":
         print(json.dumps(floor(args.repeats)))

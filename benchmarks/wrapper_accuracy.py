@@ -38,6 +38,7 @@ import numpy as np
 
 from jax_contact.benchmarks.common import (
     bench_parser,
+    check_env_arg,
     check_json_arg,
     json_of_what_finished,
     machine,
@@ -241,12 +242,9 @@ def main(argv=None) -> int:
         " go1_playground), its calibration map applied; default: the defaults",
     )
     args = parser.parse_args(argv)
-    from jax_contact.envs.playground_offline import ENV_NAMES
-
     for entry in args.envs:  # refused before anything loads
         name, _, policy = entry.partition(":")
-        if name not in ENV_NAMES:
-            parser.error(f"argument --envs: unknown env {name!r}; valid: {', '.join(ENV_NAMES)}")
+        check_env_arg(parser, "--envs", name)
         if policy and policy not in POLICIES:
             parser.error(f"argument --envs: {entry!r}: policy must be one of {', '.join(POLICIES)}")
     if args.sole not in ("rolling", "centre"):

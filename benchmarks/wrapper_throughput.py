@@ -22,6 +22,7 @@ import jax.numpy as jnp
 
 from jax_contact.benchmarks.common import (
     bench_parser,
+    check_env_arg,
     check_json_arg,
     json_of_what_finished,
     machine,
@@ -87,10 +88,7 @@ def main(argv=None) -> int:
         "--calls", type=positive_int, default=5, help="timed calls per variant and size"
     )
     args = parser.parse_args(argv)
-    from jax_contact.envs.playground_offline import ENV_NAMES
-
-    if args.env not in ENV_NAMES:
-        parser.error(f"argument --env: unknown env {args.env!r}; valid: {', '.join(ENV_NAMES)}")
+    check_env_arg(parser, "--env", args.env)
     check_json_arg(parser, args.json)
     result = {"machine": machine(), "args": vars(args), "rows": []}
     with json_of_what_finished(args.json, result):

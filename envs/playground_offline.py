@@ -149,6 +149,19 @@ def check_visual_only(env) -> None:
             )
 
 
+def check_name(name: str) -> None:
+    """Raises ValueError unless ``name`` is in :data:`ENV_NAMES` (the message lists the
+    valid names and the closest); cheap, no model is built."""
+    if name not in locomotion.ALL_ENVS:
+        close = difflib.get_close_matches(str(name), ENV_NAMES, n=3, cutoff=0.6)
+        hint = f"; did you mean {' or '.join(map(repr, close))}?" if close else ";"
+        raise ValueError(
+            f"unknown env {name!r}{hint} valid names (Playground's locomotion envs):"
+            f" {', '.join(ENV_NAMES)}"
+            " (offline_names() lists those that load offline)"
+        )
+
+
 def load(name: str, config_overrides: dict | None = None, *, check: bool = True):
     """Builds a Playground locomotion env offline (module docstring for the route).
 
@@ -166,14 +179,7 @@ def load(name: str, config_overrides: dict | None = None, *, check: bool = True)
         override that names no field of the env's config, or an env that needs more of
         Menagerie than stand-in visual meshes (with the reason).
     """
-    if name not in locomotion.ALL_ENVS:
-        close = difflib.get_close_matches(str(name), ENV_NAMES, n=3, cutoff=0.6)
-        hint = f"; did you mean {' or '.join(map(repr, close))}?" if close else ";"
-        raise ValueError(
-            f"unknown env {name!r}{hint} valid names (Playground's locomotion envs):"
-            f" {', '.join(ENV_NAMES)}"
-            " (offline_names() lists those that load offline)"
-        )
+    check_name(name)
     overrides = {"impl": "jax", **(config_overrides or {})}
     # A fresh default config: Playground's default argument is one shared, mutable object.
     config = locomotion.get_default_config(name)

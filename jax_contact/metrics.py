@@ -219,6 +219,15 @@ def short_air_phases(truth, valid, max_steps: int) -> tuple[int, int]:
     return int(np.sum(between & (end - start <= max_steps))), int(np.sum(between))
 
 
+def bounce_counts(truth, valid, dt: float) -> tuple[int, int]:
+    """(bounces, all air phases) of :func:`short_air_phases` at rule 9b's bounce length
+    (:func:`bounce_steps` of ``dt``): ``truth`` (T, E, L) with ``valid`` (T, E), as the
+    reproduction and ``evaluate`` hold them."""
+    truth = np.asarray(truth, bool)
+    valid = np.broadcast_to(np.asarray(valid, bool)[..., None], truth.shape)
+    return short_air_phases(truth, valid, bounce_steps(dt))
+
+
 # ----------------------------------------------------------------------------- events
 
 

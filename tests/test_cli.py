@@ -523,7 +523,11 @@ INT_ERR = "must be an int >= 1"
         ("sensor_limits", ["--robot", "planar_leg"], "'planar_leg' has one leg"),
         ("sensor_limits", ["--envs", "0"], INT_ERR),
         ("biped_hop_fit", ["--fit", "-1"], "must be an int >= 0"),  # ran and exited 0
-        ("deploy_latency", ["--artefact", "/no/a.contact", "--log", "/no/l.h5"], "is not a file"),
+        (
+            "deploy_latency",
+            ["--artefact", "/no/a.contact", "--log", "/no/l.h5"],
+            "argument --artefact: file '/no/a.contact' does not exist",
+        ),
     ],
 )
 def test_benchmark_scripts_check_their_arguments_before_measuring(module, argv, expect, capsys):

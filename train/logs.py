@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from jax_contact.io import read_log, write_json_atomic, write_log
-from jax_contact.metrics import bounce_steps, short_air_phases
+from jax_contact.metrics import bounce_counts, bounce_steps
 from jax_contact.robot import model_fingerprint, model_mass
 
 
@@ -577,10 +577,8 @@ def bounce_note(truth, valid, dt: float) -> str | None:
       valid: (T, E) bool.
       dt: period, s.
     """
-    truth = np.asarray(truth, bool)
-    valid_tel = np.broadcast_to(np.asarray(valid, bool)[..., None], truth.shape)
+    short, n_air = bounce_counts(truth, valid, dt)
     n_bounce = bounce_steps(dt)
-    short, n_air = short_air_phases(truth, valid_tel, n_bounce)
     if not n_air or short <= 0.25 * n_air:
         return None
     return (

@@ -661,11 +661,9 @@ def _short_air_phases(truth, valid, dt: float) -> list[int]:
     :func:`jax_contact.metrics.bounce_steps` steps (the bounces that ``sw-ph`` leaves out),
     and all of them (:func:`jax_contact.metrics.short_air_phases`; valid (T, E) over the
     feet)."""
-    from jax_contact.metrics import bounce_steps, short_air_phases
+    from jax_contact.metrics import bounce_counts
 
-    truth = np.asarray(truth)
-    valid = np.broadcast_to(np.asarray(valid)[..., None], truth.shape)
-    return list(short_air_phases(truth, valid, bounce_steps(dt)))
+    return list(bounce_counts(truth, valid, dt))
 
 
 def format_short_air_phases(payload: dict) -> str | None:
