@@ -44,7 +44,7 @@ from jax_contact.benchmarks.common import (
 )
 from jax_contact.params import TOUCHDOWN_MODES
 from jax_contact.train.cli_args import positive_int
-from jax_contact.types import feet_are_finite
+from jax_contact.types import blocks_are_finite
 
 N_LEGS, NV = 4, 18
 
@@ -120,8 +120,7 @@ def launch_cost(repeats: int) -> dict:
 SCOPES = (
     "robot_leg_blocks",
     "leg_blocks",
-    "feet_are_finite",
-    "measurement_is_finite",
+    "blocks_are_finite",
     "_sanitize",
     "dynamics_llr",
     "diff_kinematics_llr",
@@ -219,10 +218,11 @@ def main(argv=None) -> list[dict]:
     terrain = jc.flat()
     params = jc.make_params(jc.make_noise(NV), touchdown="quadrature")
     blocks = jax.jit(jax.vmap(lambda m: jc.robot_leg_blocks(params, m)))(meas)
-    valid = jax.jit(jax.vmap(feet_are_finite))(meas)
 
     def per_leg(f):
         return jax.vmap(jax.vmap(f))
+
+    valid = jax.jit(per_leg(blocks_are_finite))(blocks)
 
     def query(m):
         return terrain.query(m.p_f, jnp.zeros(3), jnp.array(False))
@@ -257,7 +257,9 @@ def main(argv=None) -> list[dict]:
             args.repeats,
         )
     )
-    rows.append(_time("finiteness check", jax.vmap(feet_are_finite), (meas,), legs, args.repeats))
+    rows.append(
+        _time("finiteness check", per_leg(blocks_are_finite), (blocks,), legs, args.repeats)
+    )
     rows.append(_time("sanitize", per_leg(filter_._sanitize), (blocks, valid), legs, args.repeats))
     pieces = {
         "dynamics": lambda m: measurement.dynamics_llr(params, m, query(m).normal),

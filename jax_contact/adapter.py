@@ -50,6 +50,14 @@ def prepare(mjx_model: mjx.Model, mjx_data: mjx.Data) -> mjx.Data:
     sensors, so ``qacc``, ``qfrc_actuator`` and ``sensordata`` keep the values they had
     (those of the simulation step that produced the data).
 
+    A NaN or inf in ``qpos`` (a dropped encoder reading) is computed at the model's
+    ``qpos0`` instead, and the returned data keep the ``qpos`` given: MuJoCo expresses its
+    spatial quantities about the root's subtree centre of mass, which one NaN joint would
+    make NaN for every body, where only the bodies below that joint depend on it.
+    :func:`robot_measurement` then marks the feet below a non-finite ``qpos`` entry
+    invalid (their ``p_f`` NaN); the other feet's quantities are those of their own
+    branches, unchanged.
+
     Args:
       mjx_model: the MJX model (JAX implementation).
       mjx_data: data whose ``qpos`` and ``qvel`` hold the measured state.
@@ -57,12 +65,14 @@ def prepare(mjx_model: mjx.Model, mjx_data: mjx.Data) -> mjx.Data:
     Returns:
       The data with the position- and velocity-dependent fields recomputed.
     """
-    d = mjx.kinematics(mjx_model, mjx_data)
+    qpos = mjx_data.qpos
+    d = mjx_data.replace(qpos=jnp.where(jnp.isfinite(qpos), qpos, mjx_model.qpos0))
+    d = mjx.kinematics(mjx_model, d)
     d = mjx.com_pos(mjx_model, d)
     d = mjx.crb(mjx_model, d)
     d = mjx.com_vel(mjx_model, d)
     d = mjx.passive(mjx_model, d)
-    return mjx.rne(mjx_model, d)
+    return mjx.rne(mjx_model, d).replace(qpos=qpos)
 
 
 def _motion_cross(u: jax.Array, x: jax.Array) -> jax.Array:
@@ -71,14 +81,31 @@ def _motion_cross(u: jax.Array, x: jax.Array) -> jax.Array:
     return jnp.concatenate([jnp.cross(w, x[:3]), jnp.cross(w, x[3:]) + jnp.cross(v, x[:3])])
 
 
-def _chain_dof_mask(mjx_model: mjx.Model, body_id: int) -> np.ndarray:
-    """(nv,) bool: dofs of the joints between ``body_id`` and the world."""
-    chain = set()
+def _chain_bodies(mjx_model: mjx.Model, body_id: int) -> list[int]:
+    """The bodies from ``body_id`` up to (not including) the world."""
+    chain = []
     b = int(body_id)
     while b != 0:
-        chain.add(b)
+        chain.append(b)
         b = int(mjx_model.body_parentid[b])
-    return np.isin(np.asarray(mjx_model.dof_bodyid), sorted(chain))
+    return sorted(chain)
+
+
+def _chain_dof_mask(mjx_model: mjx.Model, body_id: int) -> np.ndarray:
+    """(nv,) bool: dofs of the joints between ``body_id`` and the world."""
+    return np.isin(np.asarray(mjx_model.dof_bodyid), _chain_bodies(mjx_model, body_id))
+
+
+def _chain_qpos_mask(mjx_model: mjx.Model, body_id: int) -> np.ndarray:
+    """(nq,) bool: ``qpos`` entries of the joints between ``body_id`` and the world."""
+    sizes = {0: 7, 1: 4, 2: 1, 3: 1}  # mjtJoint: free, ball, slide, hinge
+    mask = np.zeros(mjx_model.nq, bool)
+    chain = set(_chain_bodies(mjx_model, body_id))
+    for j, (body, kind) in enumerate(zip(mjx_model.jnt_bodyid, mjx_model.jnt_type, strict=True)):
+        if int(body) in chain:
+            start = int(mjx_model.jnt_qposadr[j])
+            mask[start : start + sizes[int(kind)]] = True
+    return mask
 
 
 def _quat_dofs(mjx_model: mjx.Model) -> np.ndarray:
@@ -134,7 +161,8 @@ def foot_bias_acceleration(
     cdof_dot_quat = jax.vmap(_motion_cross)(d.cvel[jnp.asarray(mjx_model.dof_bodyid)], d.cdof)
     cdof_dot = jnp.where(_quat_dofs(mjx_model)[:, None], cdof_dot_quat, d.cdof_dot)
     col = cdof_dot[:, 3:] + jnp.cross(cdof_dot[:, :3], offset) + jnp.cross(d.cdof[:, :3], v_point)
-    return jnp.where(chain_mask, d.qvel, 0.0) @ col
+    # Summed over the chain only: another branch's NaN velocity (its cdof_dot) stays out.
+    return jnp.sum(jnp.where(chain_mask[:, None], d.qvel[:, None] * col, 0.0), axis=0)
 
 
 def _check_mjx_inputs(mjx_model, mjx_data) -> None:
@@ -277,6 +305,11 @@ def measurement_at_points(
         return jacp.T, foot_bias_acceleration(m, d, body_id, point, mask)
 
     J, Jdot_qd = jax.vmap(per_foot)(body_ids, p_f, masks)
+    # A foot below a non-finite qpos entry (computed at qpos0 by prepare) is marked
+    # invalid by a NaN position; the other feet are left as they are.
+    qpos_masks = np.stack([_chain_qpos_mask(m, b) for b in desc.foot_body_ids])
+    lost = jnp.any(qpos_masks & ~jnp.isfinite(d.qpos), axis=1)
+    p_f = jnp.where(lost[:, None], jnp.nan, p_f)
     M = mjx.full_m(m, d)
     # Unprepared data read as a massless robot (every step invalid, no hint): refused
     # where the data are concrete (not under jit or vmap).
@@ -295,7 +328,9 @@ def measurement_at_points(
         J=J,
         Jdot_qd=Jdot_qd,
         p_f=p_f,
-        v_f=J @ d.qvel,
+        # J qd over the columns the foot's Jacobian has: another leg's NaN velocity
+        # (times an exact zero) stays in that leg.
+        v_f=jnp.sum(jnp.where(J != 0, J * d.qvel, 0.0), axis=-1),
         foot_radius=jnp.asarray(foot_radius),
         leg_dofs=tuple(tuple(int(i) for i in leg) for leg in desc.leg_dofs),
     )

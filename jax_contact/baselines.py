@@ -18,7 +18,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from jax_contact.types import LegMeasurement, TerrainQuery, measurement_is_finite
+from jax_contact.types import LegMeasurement, TerrainQuery
 
 VELOCITY_MODES = ("norm", "normal")
 
@@ -196,18 +196,39 @@ class GMOutput:
     valid: jax.Array
 
 
+def _leg_readings(meas: LegMeasurement):
+    """What the observer reads for one foot: the leg's rows of ``M``, the velocities they
+    involve, the leg's Jacobian columns, and whether all of it (with the leg's ``tau``
+    and ``h``) is finite.
+
+    A coordinate that the leg's rows of ``M`` do not involve (another leg's joint: an exact
+    zero in a kinematic tree) is read as 0, so another leg's NaN stays in that leg, as in
+    the estimator's split (:func:`jax_contact.measurement.leg_blocks`).
+
+    Returns:
+      (rows (n_l, nv), qd (nv,), J_l (3, n_l), finite () bool).
+    """
+    l = meas.leg_dofs
+    rows = meas.M[l]
+    qd = jnp.where(jnp.any(rows != 0, axis=0), meas.qd, 0.0)
+    J_l = meas.J[:, l]
+    read = (rows, qd, J_l, meas.tau[l], meas.h[l])
+    return rows, qd, J_l, jnp.all(jnp.stack([jnp.all(jnp.isfinite(x)) for x in read]))
+
+
 def gm_init(meas: LegMeasurement) -> GMState:
     """Starts the observer at the first measurement (residual 0, ``p_0 = (M qd)[leg]``).
 
     Args:
-      meas: unbatched measurement of one foot; it must be finite.
+      meas: unbatched measurement of one foot; what it reads (:func:`_leg_readings`)
+        must be finite.
     """
     _check_meas(meas, ())
-    rows = meas.M[meas.leg_dofs]
+    rows, qd, _, _ = _leg_readings(meas)
     n_l = rows.shape[0]
     zero = jnp.zeros((n_l,), rows.dtype)
     return GMState(
-        p0=rows @ meas.qd,
+        p0=rows @ qd,
         integral=zero,
         residual=zero,
         M_prev=rows,
@@ -254,7 +275,10 @@ def gm_step(
     ``_foot_force``); the ground's reaction on the foot is ``-F`` (docs/model.md, "Sign"), so the
     contact flag is ``-e . F > threshold``.
 
-    A measurement with a NaN or inf leaves the state unchanged and repeats the last force.
+    A measurement with a NaN or inf in what this foot's observer reads (the leg's rows of
+    ``M``, ``tau`` and ``h``, the velocities those rows involve, the leg's Jacobian
+    columns; not another leg's joints) leaves the state unchanged and repeats the last
+    force.
 
     Args:
       params: the observer's knobs.
@@ -270,16 +294,16 @@ def gm_step(
     if np.shape(normal) != (3,):
         raise ValueError(f"normal must have shape (3,), got {np.shape(normal)}")
     l = meas.leg_dofs
-    rows = meas.M[l]
-    p = rows @ meas.qd
+    rows, qd, J_l, finite = _leg_readings(meas)
+    p = rows @ qd
     # (M_k - M_{k-1}) qd_k ~ Mdot qd dt: the C^T qd - g = Mdot qd - h identity.
-    mdot_qd_dt = (rows - state.M_prev) @ meas.qd
+    mdot_qd_dt = (rows - state.M_prev) @ qd
     integral = state.integral + (meas.tau[l] - meas.h[l] + state.residual) * dt + mdot_qd_dt
     residual = params.K_I * (p - state.p0 - integral)
-    force = _foot_force(meas.J[:, l], residual, params.damping)
+    force = _foot_force(J_l, residual, params.damping)
     force_normal = -jnp.dot(normal, force)
 
-    valid = measurement_is_finite(meas) & jnp.all(jnp.isfinite(normal))
+    valid = finite & jnp.all(jnp.isfinite(normal))
     new = GMState(
         p0=state.p0,
         integral=integral,
@@ -329,8 +353,8 @@ def gm_run(params: GMParams, meas_seq: LegMeasurement, dt, normal: jax.Array) ->
 
 def _gm_start(meas: LegMeasurement) -> tuple[GMState, GMOutput]:
     """The observer started at ``meas`` (:func:`gm_init`) and its output there: zero
-    residual and force, no contact, valid iff ``meas`` is finite (else a zero state)."""
-    ok = measurement_is_finite(meas)
+    residual and force, no contact, valid iff what it reads is finite (else a zero state)."""
+    ok = _leg_readings(meas)[3]
     state = _zero_if_not(ok, gm_init(meas))
     out = GMOutput(
         residual=state.residual,

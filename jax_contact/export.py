@@ -252,14 +252,15 @@ def robot_update_fn(
         s = _unpack(s_layout, state)
         has_prev = s["has_prev"] > 0.5
         # Pairing (module docstring): this reading's acceleration and torque with the
-        # previous reading's state; the first reading with its own.
-        qpos_s = jnp.where(has_prev, s["prev_qpos"], qpos)
-        qvel_s = jnp.where(has_prev, s["prev_qvel"], qvel)
-        # A reading with a non-finite position or velocity is this call's invalid step
-        # (its acceleration is treated as missing), and it is not kept for the pairing:
-        # the next call pairs with its own state, as the first reading does.
-        state_ok = jnp.all(jnp.isfinite(qpos)) & jnp.all(jnp.isfinite(qvel))
-        qacc = jnp.where(state_ok, qacc, jnp.nan)
+        # previous reading's state; the first reading with its own. Entry by entry: a
+        # non-finite entry of the previous reading (a lost encoder sample, kept as it came)
+        # is replaced by this reading's own, as on the first call, so a lost joint reading
+        # is one call's invalid step for the feet below that joint only.
+        prev_qpos, prev_qvel = s["prev_qpos"], s["prev_qvel"]
+        qpos_s = jnp.where(has_prev & jnp.isfinite(prev_qpos), prev_qpos, qpos)
+        qvel_s = jnp.where(has_prev & jnp.isfinite(prev_qvel), prev_qvel, qvel)
+        # A coordinate whose velocity is not finite has no acceleration over this step.
+        qacc = jnp.where(jnp.isfinite(qvel), qacc, jnp.nan)
         with jax.named_scope("adapter"):  # names the kernels in a profile
             d = prepare(m, template.replace(qpos=qpos_s, qvel=qvel_s))
             meas = robot_measurement(m, d, desc, qdd=qacc, tau=tau, include_passive=include_passive)
@@ -280,9 +281,9 @@ def robot_update_fn(
                 "log_transition": belief.log_transition,
                 "foothold": belief.foothold,
                 "foothold_valid": belief.foothold_valid,
-                "prev_qpos": jnp.where(state_ok, qpos, 0.0),
-                "prev_qvel": jnp.where(state_ok, qvel, 0.0),
-                "has_prev": state_ok.astype(jnp.float32),
+                "prev_qpos": qpos,
+                "prev_qvel": qvel,
+                "has_prev": jnp.ones((), jnp.float32),
             },
         )
         p = diag.p_contact if calibration is None else probability(belief.logit, calibration)

@@ -34,8 +34,7 @@ from jax_contact.types import (
     LegBlocks,
     LegMeasurement,
     RobotMeasurement,
-    feet_are_finite,
-    measurement_is_finite,
+    blocks_are_finite,
     validate_measurement,
     validate_robot_measurement,
 )
@@ -104,10 +103,12 @@ def step(
       key: PRNG key for the Monte-Carlo touch-down transition (unused by quadrature).
 
     Returns:
-      (new belief, this step's diagnostics). If ``meas`` holds a NaN or inf, the belief is
-      the transition-only prediction, the next transition is the gait prior, the foothold
-      is kept, and ``diagnostics.valid`` is False. A belief that is already NaN (set by
-      hand) stays NaN, and every step of it reports ``valid`` False.
+      (new belief, this step's diagnostics). If a reading this foot's terms read holds a
+      NaN or inf (:func:`jax_contact.types.blocks_are_finite`: not ``q``, nor another
+      leg's joints), the belief is the transition-only prediction, the next transition
+      is the gait prior, the foothold is kept, and ``diagnostics.valid`` is False. A
+      belief that is already NaN (set by hand) stays NaN, and every step of it reports
+      ``valid`` False.
 
     Raises:
       ValueError: naming the argument: ``params`` out of range (checked when they are
@@ -219,8 +220,8 @@ def _check_sequence(fn: str, params, belief, meas_seq, n_steps: int | None = Non
 
 def _step(params, terrain, belief, meas, key, switches=None):
     """:func:`step`, with the switches of :func:`_update`."""
-    valid = measurement_is_finite(meas)
-    return _update(params, terrain, belief, leg_blocks(params, meas), valid, key, switches)
+    leg = leg_blocks(params, meas)
+    return _update(params, terrain, belief, leg, blocks_are_finite(leg), key, switches)
 
 
 def _update(
@@ -301,7 +302,7 @@ def _step_legs(params, terrain, belief, meas: RobotMeasurement, keys, switches=N
         return _update(params, terrain, b, leg, valid, k, switches)
 
     legs = robot_leg_blocks(params, meas)
-    return jax.vmap(one)(belief, legs, feet_are_finite(meas), keys)
+    return jax.vmap(one)(belief, legs, jax.vmap(blocks_are_finite)(legs), keys)
 
 
 def step_robot(

@@ -66,17 +66,25 @@ def _split(params: EstimatorParams, robot, J, foot, take_l, take_b) -> LegBlocks
     """The eq. 4 split of one foot's quantities: ``robot`` holds q, qd, qdd, tau, M, h."""
     noise = params.noise
     M_rows = take_l(robot.M, 0)
+    M_lb, J_b = take_b(M_rows, 1), take_b(J, 1)
+    # The other coordinates that this leg's rows involve. A column of both M_lb and J_b
+    # that is exactly zero (another leg's joint: a separate branch of the kinematic tree)
+    # multiplies its velocity and acceleration by zero in every term, so they are read as
+    # 0: another leg's NaN or inf then stays in that leg instead of reaching this one as
+    # 0 x NaN. A NaN column of M_lb or J_b counts as involved (docs/model.md, "Inputs per
+    # step").
+    involved = jnp.any(M_lb != 0, axis=0) | jnp.any(J_b != 0, axis=0)
     return LegBlocks(
         M_l=take_l(M_rows, 1),
-        M_lb=take_b(M_rows, 1),
+        M_lb=M_lb,
         tau_l=take_l(robot.tau, 0),
         h_l=take_l(robot.h, 0),
         qdd_l=take_l(robot.qdd, 0),
-        qd_b=take_b(robot.qd, 0),
-        qdd_b=take_b(robot.qdd, 0),
+        qd_b=jnp.where(involved, take_b(robot.qd, 0), 0.0),
+        qdd_b=jnp.where(involved, take_b(robot.qdd, 0), 0.0),
         J=J,
         J_l=take_l(J, 1),
-        J_b=take_b(J, 1),
+        J_b=J_b,
         sigma_d_l=take_l(noise.sigma_d, 0),
         sigma_qdd_l=take_l(noise.sigma_qdd, 0),
         sigma_qd_prior_l=take_l(noise.sigma_qd_prior, 0),

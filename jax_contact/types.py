@@ -285,14 +285,17 @@ def measurement_is_finite(meas: LegMeasurement) -> jax.Array:
 
 
 @jax.named_call
-def feet_are_finite(meas: RobotMeasurement) -> jax.Array:
-    """(n_legs,) bool: per foot, :func:`measurement_is_finite` of ``meas.leg(i)``.
+def blocks_are_finite(leg: LegBlocks) -> jax.Array:
+    """() bool: every measured field of one foot's :class:`LegBlocks` is finite.
 
-    The robot's shared fields are checked once, each foot's own fields per foot.
+    These are all the readings the foot's terms and transitions read: its rows of ``M``,
+    ``tau``, ``h``, its accelerations, the other coordinates it involves (the split leaves
+    another leg's joints out, :func:`jax_contact.measurement.leg_blocks`) and its own
+    foot quantities. A NaN or inf elsewhere (another leg's joint, ``q``, which the terms do
+    not read) leaves this foot valid. The noise model's fields are not readings.
     """
-    shared = [meas.q, meas.qd, meas.qdd, meas.tau, meas.M, meas.h]
-    feet = [meas.J, meas.Jdot_qd, meas.p_f, meas.v_f, meas.foot_radius]
-    return measurement_is_finite(shared) & jax.vmap(measurement_is_finite)(feet)
+    measured = [x for name, x in vars(leg).items() if name not in LegBlocks.NOISE_FIELDS]
+    return jnp.all(jnp.stack([jnp.all(jnp.isfinite(x)) for x in measured]))
 
 
 def validate_measurement(meas: LegMeasurement, nv: int | None = None) -> tuple[int, ...]:

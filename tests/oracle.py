@@ -33,8 +33,13 @@ follows the modelling choices the library documents:
   transition's leaving log-odds clipped from above to ``logit(cap_transition)``;
 * the recursion (eq. 1-2) in probability space with explicit normalisation, the belief
   reported as a logit, the transition built from step ``t``'s measurement used at ``t+1``;
-* an invalid (non-finite) measurement: transition-only prediction, next transition the
-  gait prior, foothold kept, ``valid = False``;
+* a coordinate outside the leg that neither the leg's rows of ``M`` nor ``J`` involve
+  (every such entry exactly zero: another leg's joint) has its velocity and acceleration
+  read as 0;
+* an invalid measurement (a NaN or inf in what the foot's terms read: the leg's rows of
+  ``M``, its ``tau`` and ``h``, the accelerations, the other coordinates' velocities,
+  ``J``, ``Jdot_qd``, ``p_f``, ``v_f``, the radius; not ``q``): transition-only
+  prediction, next transition the gait prior, foothold kept, ``valid = False``;
 * the foothold (sole point) remembered when the posterior exceeds
   ``foothold_confidence`` and (with ``foothold_still``) the differential-kinematics term
   says the foot is still.
@@ -583,12 +588,24 @@ def init_belief(p: Params) -> Belief:
     return Belief(_logit(p.initial_contact), prior_transition(p), np.zeros(3), False)
 
 
+def own_branch(m: Meas) -> Meas:
+    """``m`` with the velocity and acceleration of every coordinate outside the leg that
+    the leg's rows of ``M`` and the Jacobian do not involve (all exactly 0) set to 0."""
+    legs = [int(i) for i in m.leg_dofs]
+    qd, qdd = np.array(m.qd, F64), np.array(m.qdd, F64)
+    for k in (int(i) for i in m.other_dofs):
+        if all(m.M[i, k] == 0 for i in legs) and all(m.J[r, k] == 0 for r in range(3)):
+            qd[k], qdd[k] = 0.0, 0.0
+    return dataclasses.replace(m, qd=qd, qdd=qdd)
+
+
 def _finite(m: Meas) -> bool:
-    for f in dataclasses.fields(m):
-        v = np.asarray(getattr(m, f.name))
-        if np.issubdtype(v.dtype, np.floating) and not np.all(np.isfinite(v)):
-            return False
-    return True
+    """Whether everything the foot's terms read is finite (``m`` after :func:`own_branch`)."""
+    legs = [int(i) for i in m.leg_dofs]
+    base = [int(i) for i in m.other_dofs]
+    read = [m.M[legs, :], m.tau[legs], m.h[legs], m.qdd, m.qd[base], m.J, m.Jdot_qd, m.p_f]
+    read += [m.v_f, m.foot_radius]
+    return all(np.all(np.isfinite(np.asarray(x, F64))) for x in read)
 
 
 def step(p: Params, terrain, b: Belief, m: Meas, td_fn=touchdown):
@@ -601,6 +618,7 @@ def step(p: Params, terrain, b: Belief, m: Meas, td_fn=touchdown):
     prior_a = T[0, 1] * b_c + T[1, 1] * b_a
     prior_logit = math.log(prior_c) - math.log(prior_a)
     nan = float("nan")
+    m = own_branch(m)
     if not _finite(m):
         new = Belief(prior_logit, prior_transition(p), b.foothold.copy(), b.foothold_valid)
         diag = dict(

@@ -11,6 +11,8 @@ Run with ``-s`` to see the maximum errors.
 
 from __future__ import annotations
 
+import functools
+
 import jax
 import jax.numpy as jnp
 import mujoco
@@ -221,3 +223,64 @@ def test_refusals(robots, compiled):
         leg_measurements(mm_go1, mujoco.MjData(m_c), robots["go1"].description)
     with pytest.raises(ValueError, match=r"mjx_model must be an mjx\.Model \(mjx\.put_model"):
         leg_measurements(m_c, d, robots["go1"].description)
+
+
+# One reading of each kind lost on Go1's front-left leg (leg 1: dofs 9-11, qpos 10-12),
+# as a dropped encoder or torque packet gives it.
+LOST = {"qpos": 11, "qvel": 10, "qdd": 10, "tau": 11}
+
+
+@pytest.mark.parametrize("field", sorted(LOST))
+def test_a_lost_reading_stays_in_its_leg(robots, compiled, field, jit_step_batch):
+    """A NaN in one leg's joint reading marks that foot invalid and leaves the other feet's
+    step as it is without the NaN: their terms read no coordinate of another leg
+    (measurement._split), their v_f and Jdot_qd sum their own chain, and prepare computes a
+    NaN joint position at qpos0 (MuJoCo's subtree-COM frame would spread it to every body)."""
+    import jax_contact as jc
+    from jax_contact.envs.sensors import sensor_preset
+
+    robot = robots["go1"]
+    m, desc = robot.mj_model, robot.description
+    assert desc.leg_dofs[1] == (9, 10, 11)
+    mm, fn = compiled["go1"]
+    state = _random_states(robot, 1, seed=8)[0]
+    qdd, tau = np.random.default_rng(1).normal(0.0, 5.0, (2, m.nv))
+    clean = fn(mjx.put_data(m, state), jnp.asarray(qdd), jnp.asarray(tau))[1]
+    bad_state = mujoco.MjData(m)
+    bad_state.qpos[:], bad_state.qvel[:] = state.qpos, state.qvel
+    bad_qdd, bad_tau = qdd.copy(), tau.copy()
+    target = {"qpos": bad_state.qpos, "qvel": bad_state.qvel, "qdd": bad_qdd, "tau": bad_tau}
+    target[field][LOST[field]] = np.nan
+    d = mjx.put_data(m, state).replace(
+        qpos=jnp.asarray(bad_state.qpos, jnp.float32), qvel=jnp.asarray(bad_state.qvel, jnp.float32)
+    )
+    bad = fn(d, jnp.asarray(bad_qdd), jnp.asarray(bad_tau))[1]
+    if field == "qpos":  # prepare keeps the qpos it was given; only that foot is lost
+        assert np.isnan(np.asarray(bad.q[0, 11]))
+        np.testing.assert_array_equal(np.isnan(np.asarray(bad.p_f)).any(-1), [0, 1, 0, 0])
+
+    params = jc.params_for(desc, sensor_preset("anymal_like", m.nv, dt=0.0025), 0.0025)
+    belief = jc.init_belief_batch(params, 1, desc.n_legs)
+    belief = belief.replace(logit=jnp.asarray([[4.0, 4.0, -4.0, 4.0]]))
+    add_env = functools.partial(jax.tree.map, lambda x: x[None])
+    key = jax.random.key(3)
+    want_b, want_d = jit_step_batch(params, jc.flat(), belief, add_env(clean), key=key)
+    got_b, got_d = jit_step_batch(params, jc.flat(), belief, add_env(bad), key=key)
+    np.testing.assert_array_equal(np.asarray(got_d.valid[0]), [True, False, True, True])
+    assert bool(np.all(want_d.valid))
+    # The other feet: the clean step (bitwise where no position was lost; a position computed
+    # at qpos0 moves the subtree COM, the frame of MuJoCo's sums, by float32 round-off).
+    for leg in (0, 2, 3):
+        for x, y in zip(
+            jax.tree.leaves((got_b, got_d)), jax.tree.leaves((want_b, want_d)), strict=True
+        ):
+            x, y = np.asarray(x[0, leg], np.float64), np.asarray(y[0, leg], np.float64)
+            if field == "qpos":
+                np.testing.assert_allclose(x, y, rtol=1e-4, atol=1e-5)
+            else:
+                np.testing.assert_array_equal(x, y)
+    # The lost foot: the transition-only prediction from its prior (eq. 1 without L).
+    T = np.exp(np.asarray(belief.log_transition[0, 1], np.float64))
+    b = 1.0 / (1.0 + np.exp(-4.0))
+    prior = np.array([b, 1.0 - b]) @ T
+    np.testing.assert_allclose(float(got_b.logit[0, 1]), np.log(prior[0] / prior[1]), rtol=1e-5)

@@ -82,11 +82,15 @@ def gm_oracle(K_I, threshold, damping, dt, m, normal):
     m_prev = rows
     out_r, out_f, out_n = [np.zeros(n_l)], [np.zeros(3)], [0.0]
     for k in range(1, T):
-        finite = all(np.all(np.isfinite(m[f][k])) for f in m)
-        if finite:
-            rows = M[k][leg, :]
-            s = s + (tau[k][leg] - h[k][leg] + r) * dt + (rows - m_prev) @ qd[k]
-            r = K_I * (rows @ qd[k] - p0 - s)
+        # What the observer reads: the leg's rows of M, the velocities they involve
+        # (another leg's, times exact zeros, are not), the leg's tau, h and J columns.
+        rows_k = M[k][leg, :]
+        qd_k = np.where(np.any(rows_k != 0, axis=0), qd[k], 0.0)
+        read = (rows_k, qd_k, tau[k][leg], h[k][leg], J[k][:, leg])
+        if all(np.all(np.isfinite(x)) for x in read):
+            rows = rows_k
+            s = s + (tau[k][leg] - h[k][leg] + r) * dt + (rows - m_prev) @ qd_k
+            r = K_I * (rows @ qd_k - p0 - s)
             jl = J[k][:, leg]
             force = -np.linalg.solve(jl @ jl.T + damping * np.eye(3), jl @ r)
             m_prev = rows
@@ -114,7 +118,9 @@ def _moving_meas(rng, T: int) -> dict:
 def test_gm_matches_float64_oracle_with_varying_mass_and_a_nan_step(gm_params):
     T = 40
     m = _moving_meas(np.random.default_rng(0), T)
-    m["tau"][17, 2] = np.nan  # held step: state and output repeat step 16's
+    m["tau"][17, 4] = np.nan  # held step: state and output repeat step 16's
+    m["tau"][23, 2] = np.nan  # a base torque, which the leg's rows do not read: not held
+    m["qdd"][29, 3] = np.inf  # nor an acceleration
     normal = np.array([0.1, -0.2, 1.0]) / np.linalg.norm([0.1, -0.2, 1.0])
     K_I, th, damp = (float(gm_params.K_I), float(gm_params.threshold), float(gm_params.damping))
     ref_r, ref_f, ref_n, ref_c = gm_oracle(K_I, th, damp, DT, m, normal)
@@ -129,6 +135,30 @@ def test_gm_matches_float64_oracle_with_varying_mass_and_a_nan_step(gm_params):
         np.testing.assert_array_equal(out.valid, expected_valid)
     assert np.abs(ref_n).max() > 1.0  # the comparison saw non-trivial forces
     assert 0 < ref_c.sum() < T  # and both flags
+
+
+def test_gm_leaves_another_legs_nan_in_that_leg(gm_params):
+    # A tree's mass matrix couples two legs through the base only: M[leg 0, leg 1] is
+    # exactly 0, and so is J's leg-1 block for foot 0. NaN readings of leg 1's joints
+    # (velocity, torque, bias force) then enter none of foot 0's sums: its observer is
+    # the float64 oracle on the clean readings, every step valid.
+    T = 30
+    m = _moving_meas(np.random.default_rng(11), T)
+    m["M"][:, LEGS[0][:, None], LEGS[1]] = 0.0
+    m["M"][:, LEGS[1][:, None], LEGS[0]] = 0.0
+    m["J"][:, :, LEGS[1]] = 0.0
+    bad = {k: v.copy() for k, v in m.items()}
+    bad["qd"][5:9, LEGS[1][0]] = np.nan
+    bad["tau"][12, LEGS[1][1]] = np.inf
+    bad["h"][20, LEGS[1][2]] = np.nan
+    normal = np.array([0.0, 0.0, 1.0])
+    K_I, th, damp = (float(gm_params.K_I), float(gm_params.threshold), float(gm_params.damping))
+    ref = gm_oracle(K_I, th, damp, DT, m, normal)
+    with jax.enable_x64(True):
+        out = GM_RUN(gm_params, _to_jax(bad, jnp.float64), DT, jnp.asarray(normal))
+    np.testing.assert_array_equal(out.valid, np.ones(T, bool))
+    np.testing.assert_allclose(out.force_normal, ref[2], rtol=1e-9, atol=1e-9)
+    assert np.abs(ref[2]).max() > 1.0
 
 
 def test_gm_starts_at_the_first_finite_reading_of_each_env(gm_params):

@@ -299,22 +299,32 @@ def _transition_only(belief, e, g):
     return np.log(prior[0]) - np.log(prior[1])
 
 
-BAD = [("qdd", np.nan), ("M", np.nan), ("J", np.inf), ("p_f", -np.inf), ("q", np.nan),
-       ("tau", np.inf), ("v_f", np.nan), ("foot_radius", np.nan)]  # fmt: skip
+# (field, value, flat index) of readings the foot's terms read; the planar leg's
+# coordinates are (base height, hip, knee), its leg (1, 2): M's flat 3 is M[1, 0], the
+# hip's row in the base's column (M_lb).
+BAD = [("qdd", np.nan, 1), ("M", np.nan, 3), ("J", np.inf, 1), ("p_f", -np.inf, 1),
+       ("tau", np.inf, 1), ("v_f", np.nan, 1), ("foot_radius", np.nan, 0), ("qd", np.nan, 0),
+       ("h", np.inf, 2)]  # fmt: skip
 
 
-def _check_isolated(fn, params, field, value, where):
+def _poisoned(fields, field, value, where, index):
+    """A copy of ``fields`` with ``value`` at flat ``index`` of ``field``'s cell ``where``."""
+    bad = {k: v.copy() for k, v in fields.items()}
+    target = bad[field][where]
+    if target.ndim:
+        target.flat[index] = value
+    else:
+        bad[field][where] = value
+    return bad
+
+
+def _check_isolated(fn, params, field, value, where, index):
     fields = _batch(3)
     belief = _belief(params, 4)
     key = jax.random.key(9)
     clean_b, clean_d = fn(params, TERRAIN, belief, _as_meas(fields), key=key)
     e, g = where
-    bad = {k: v.copy() for k, v in fields.items()}
-    target = bad[field][e, g]
-    if target.ndim:
-        target.flat[min(1, target.size - 1)] = value
-    else:
-        bad[field][e, g] = value
+    bad = _poisoned(fields, field, value, where, index)
     got_b, got_d = fn(params, TERRAIN, belief, _as_meas(bad), key=key)
     for i in range(N_ENVS):
         for j in range(N_LEGS):
@@ -364,10 +374,33 @@ def test_nan_foot_eager():
 
 
 @pytest.mark.parametrize("mode", MODES)
-@pytest.mark.parametrize("i", range(len(BAD)), ids=[f"{f}-{v}" for f, v in BAD])
+@pytest.mark.parametrize("i", range(len(BAD)), ids=[f"{f}-{v}" for f, v, _ in BAD])
 def test_nan_stays_in_its_foot_jit(mode, i, jit_step_batch):
-    field, value = BAD[i]
-    _check_isolated(jit_step_batch, PARAMS[mode], field, value, (i % N_ENVS, (i // 2) % N_LEGS))
+    field, value, index = BAD[i]
+    where = (i % N_ENVS, (i // 2) % N_LEGS)
+    _check_isolated(jit_step_batch, PARAMS[mode], field, value, where, index)
+
+
+# Readings no term reads: q (the model quantities were evaluated at it), the base's row of
+# M (flat 1: M[0, 1]), the leg's own velocities (v_f stands for them), the base's torque.
+UNREAD = [("q", np.nan, 1), ("M", np.nan, 1), ("qd", np.inf, 2), ("tau", np.nan, 0)]
+
+
+@pytest.mark.parametrize("i", range(len(UNREAD)), ids=[f"{f}-{j}" for f, _, j in UNREAD])
+def test_a_nan_the_terms_do_not_read_changes_nothing(i, jit_step_batch):
+    """The validity check covers what the foot's terms read, not every field: a NaN
+    elsewhere leaves the foot valid and its step bitwise the clean one."""
+    params = PARAMS["quadrature"]
+    fields = _batch(3)
+    belief = _belief(params, 4)
+    key = jax.random.key(9)
+    clean = jit_step_batch(params, TERRAIN, belief, _as_meas(fields), key=key)
+    field, value, index = UNREAD[i]
+    bad = _poisoned(fields, field, value, (1, 1), index)
+    got = jit_step_batch(params, TERRAIN, belief, _as_meas(bad), key=key)
+    for x, y in zip(jax.tree.leaves(got), jax.tree.leaves(clean), strict=True):
+        np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
+    assert bool(np.all(got[1].valid))
 
 
 T_RUN = 6  # as test_core_properties, to share run's compilation

@@ -101,6 +101,12 @@ b2, p_nan, d_nan = est.update(belief, bad)
 b2, p_next, d_next = est.update(b2, {n: log[n][6, 0] for n in est.reading_names})
 nan_calls = [np.asarray(d_nan["valid"]).tolist(), np.asarray(d_next["valid"]).tolist(),
              bool(np.isfinite(p_nan).all() and np.isfinite(p_next).all())]
+# A lost joint velocity (front-left knee, qvel 11) is that foot's invalid step only.
+bad = {n: log[n][5, 0].copy() for n in est.reading_names}
+bad["qvel"][11] = np.nan
+b3, _, d_leg = est.update(belief, bad)
+b3, _, d_leg_next = est.update(b3, {n: log[n][6, 0] for n in est.reading_names})
+nan_calls += [np.asarray(d_leg["valid"]).tolist(), np.asarray(d_leg_next["valid"]).tolist()]
 loaded = sorted(m for m, v in sys.modules.items() if v is not None and m.split(".")[0] == "mujoco")
 np.savez(sys.argv[3], p=np.stack(ps), valid=np.stack(valid))
 print(json.dumps({"errors": errors, "mujoco_modules": loaded, "nan_calls": nan_calls}))
@@ -143,8 +149,10 @@ def test_artefact_without_mujoco_matches_replay(child, live):
 
 
 def test_a_non_finite_state_is_the_invalid_step_of_its_own_call(child):
-    invalid, after, finite = child["nan_calls"]
+    invalid, after, finite, leg, leg_after = child["nan_calls"]
     assert invalid == [False] * 4 and after == [True] * 4 and finite
+    # A base velocity reaches every foot; a knee's only its own (Go1's feet FR, FL, RR, RL).
+    assert leg == [True, False, True, True] and leg_after == [True] * 4
 
 
 def test_wrong_reading_names_the_field(child):

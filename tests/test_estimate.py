@@ -1065,8 +1065,15 @@ def test_evaluate_adds_the_calibrated_row_of_a_file_with_a_calibration_map(tmp_p
     assert "probabilistic+cal" in got["scores"] and "probabilistic+cal" not in plain["scores"]
     assert "probabilistic+cal" in capsys.readouterr().out  # printed in the table
     assert got["scores"]["probabilistic"] == plain["scores"]["probabilistic"]
-    # The file holds the defaults, so the defaults row that a file adds scores the same.
-    assert got["scores"]["defaults"] == got["scores"]["probabilistic"]
+    # The file holds the defaults, so the defaults row that a file adds scores the same. The
+    # two run as lanes of one vmap (train/evaluate.py, _groups), which XLA may round apart
+    # in the last bit (P within 1e-12 absolute; 3 of 800 steps differed by 5e-14 once).
+    out = got["outputs"]
+    np.testing.assert_allclose(out["defaults"], out["probabilistic"], rtol=0, atol=1e-12)
+    want = got["scores"]["probabilistic"]
+    assert set(got["scores"]["defaults"]) == set(want)
+    for key, value in got["scores"]["defaults"].items():
+        assert value == (want[key] if value is None else pytest.approx(want[key], abs=1e-9)), key
     with pytest.raises(ValueError, match="needs at least 2"):  # the fixture has one env
         logs.evaluate_file(LOG, bootstrap=10)
 

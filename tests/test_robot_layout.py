@@ -137,23 +137,28 @@ def test_step_batch_same_from_either_layout(mode, np_rng, jit_step_batch):
 
 
 def test_nan_stays_where_it_was(np_rng, jit_step_batch):
-    """A NaN in one foot's Jacobian invalidates that foot; one in a robot's mass matrix,
-    every foot of that robot (as per-foot copies of it would); the rest is untouched."""
+    """A NaN invalidates the feet whose terms read it: one in a foot's Jacobian that foot;
+    one in leg 0's own block of the mass matrix leg 0 (leg 1's rows do not hold it); one in
+    a base coordinate's acceleration, which every leg's rows involve, every foot of that
+    robot (as per-foot copies of it would). The rest is untouched."""
     params = PARAMS["quadrature"]
     robot = _robot(np_rng)
     belief = jc.init_belief_batch(params, N_ENVS, N_LEGS)
     key = jax.random.key(0)
     clean = jit_step_batch(params, TERRAIN, belief, robot, key=key)
-    bad = robot.replace(J=robot.J.at[0, 1, 2, 4].set(jnp.nan), M=robot.M.at[2, 3, 3].set(jnp.nan))
+    assert LEGS[0] == (3, 4, 5)  # so M[3, 3] is leg 0's, and coordinate 0 the base's
+    bad = robot.replace(
+        J=robot.J.at[0, 1, 2, 4].set(jnp.nan),
+        M=robot.M.at[2, 3, 3].set(jnp.nan),
+        qdd=robot.qdd.at[1, 0].set(jnp.nan),
+    )
     b, d = jit_step_batch(params, TERRAIN, belief, bad, key=key)
     valid = np.asarray(d.valid)
-    np.testing.assert_array_equal(valid, [[True, False], [True, True], [False, False]])
+    np.testing.assert_array_equal(valid, [[True, False], [False, False], [False, True]])
     assert np.isfinite(np.asarray(b.logit)).all()
     assert np.isfinite(np.asarray(b.log_transition)).all()
-    np.testing.assert_array_equal(
-        np.asarray(d.p_contact)[valid], np.asarray(clean[1].p_contact)[valid]
-    )
-    np.testing.assert_array_equal(np.asarray(b.logit)[1], np.asarray(clean[0].logit)[1])
+    for got, want in ((d.p_contact, clean[1].p_contact), (b.logit, clean[0].logit)):
+        np.testing.assert_array_equal(np.asarray(got)[valid], np.asarray(want)[valid])
 
 
 def test_run_scans_either_layout(np_rng, jit_run):
