@@ -148,6 +148,33 @@ def test_artefact_without_mujoco_matches_replay(child, live):
     assert ((child["p"].max(axis=0) > 0.9) & (child["p"].min(axis=0) < 0.1)).any()
 
 
+def test_replay_keeps_a_lost_knee_velocity_in_its_leg(deployed, live):
+    """Offline, a stretch of NaN in the front-left knee's velocity (a dropped encoder
+    packet, readings 30-35) changes that foot's P only: the other feet's are the clean
+    replay's to the bit (the same compiled program as ``live``)."""
+    from jax_contact.envs.robots import load_robot
+    from jax_contact.train.evaluate import replay
+    from jax_contact.train.logs import default_estimator
+
+    robot = load_robot("go1")
+    assert robot.description.leg_dofs[1] == (9, 10, 11)
+    params, terrain = default_estimator(robot.description, 1.0 / 400.0)
+    readings = {k: v.copy() for k, v in deployed["readings"].items()}
+    readings["qvel"][30:36, 0, 11] = np.nan
+    out = replay(
+        robot,
+        readings,
+        estimators={"export": params},
+        terrain=terrain,
+        dt=1.0 / 400.0,
+        seed=0,
+        progress=False,
+    )
+    p = out["export"][:, 0]
+    np.testing.assert_array_equal(p[:, [0, 2, 3]], live[:, [0, 2, 3]])
+    assert np.isfinite(p).all() and np.abs(p[:, 1] - live[:, 1]).max() > 1e-3
+
+
 def test_a_non_finite_state_is_the_invalid_step_of_its_own_call(child):
     invalid, after, finite, leg, leg_after = child["nan_calls"]
     assert invalid == [False] * 4 and after == [True] * 4 and finite

@@ -466,7 +466,8 @@ def to_readings(
         notes.append(
             "readings with NaN, or a NaN in the row before (their differences reach it):"
             f" {_stretches(~valid, cols[TIME])}; the steps that use them are predicted only"
-            " (valid = False in the output)"
+            " (valid = False in the output) for the feet that read them (a joint's reading:"
+            " the foot of its leg; a base reading: every foot), and left out of the metrics"
         )
     if dropped:
         notes.append(f"columns dropped by the names map: {dropped}")

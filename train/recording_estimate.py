@@ -191,8 +191,10 @@ def estimate_recording(
             print(f"warning: {all_air}")
         scores = {}
         if has_truth:
-            # Steps whose truth is missing are scored as neither contact nor air.
-            scored = conv.valid[..., None] & conv.truth_known
+            # Steps whose truth is missing are scored as neither contact nor air, and so are
+            # a foot's steps that read a lost reading (the estimator's valid: a joint's NaN
+            # is its own foot's, a base reading's every foot's); every detector alike.
+            scored = np.asarray(out["probabilistic/valid"], bool) & conv.truth_known
             scores = score(out, conv.truth, scored, dt=conv.dt)
             print(format_scores(scores, title=Path(path).name))
             files.append(write_json_atomic(stage / "metrics.json", scores))
