@@ -215,6 +215,40 @@ def test_torques_of_the_wrong_sign_warn_naming_the_foot(round_trip, tmp_path, ca
     assert warned[1].endswith("or a consequence of the warnings above (fix those first)")
 
 
+def test_truth_columns_in_another_foot_order_are_named():
+    """A trot's pattern over 400 steps: feet a and d in phase, b and c in the other phase
+    (contact on 60 % of each 40-step cycle, so opposite feet share 20 % of the steps in
+    contact). The estimate is the truth with every 25th step flipped (96 % agreement).
+
+    - Own order: quiet.
+    - Columns a and b exchanged: a's estimate against column "b" agrees on 96 %. Against
+      its own column (b's truth): a and b are both in contact on 20 % of the steps and
+      never both in the air, so the truth agrees on 20 %, and with 4 % of the estimate
+      flipped 0.2 x 0.96 + 0.8 x 0.04 = 0.224; the mean over feet is (2 x 0.224 + 2 x
+      0.96) / 4 = 0.592 in the given order against 0.96: named (a gain above the 0.1
+      margin), with both feet and nothing about c or d.
+    - Columns a and d exchanged (in phase): the same agreement either way: quiet.
+    - 150 steps only (under 200 per pair): quiet.
+    """
+    from jax_contact.train.recording_checks import truth_order
+
+    t = np.arange(400)
+    phase = (t % 40) < 24
+    truth = np.stack([phase, np.roll(phase, 20), np.roll(phase, 20), phase], axis=1)
+    flip = (t % 25 == 0)[:, None]
+    p = np.where(truth ^ flip, 0.9, 0.1)
+    scored = np.ones_like(truth)
+    feet = ["a", "b", "c", "d"]
+    assert truth_order(p, truth, scored, feet) is None
+    text = truth_order(p, truth[:, [1, 0, 2, 3]], scored, feet)
+    assert text.startswith("WARNING the truth columns fit the estimates better")
+    assert "(96% of steps agree against 59%)" in text
+    assert "a's estimate agrees with the column given as b's on 96% of steps, with its own" in text
+    assert "c's" not in text and "d's" not in text
+    assert truth_order(p, truth[:, [3, 1, 2, 0]], scored, feet) is None
+    assert truth_order(p[:150], truth[:150, [1, 0, 2, 3]], scored[:150], feet) is None
+
+
 def test_the_torque_check_counts_only_valid_still_steps():
     """Hand counts: foot a is still on 50 valid steps, the dynamics term says air on 41 of
     them (82 % > 80 %): named. Foot b: the same with 40 of 50 (80 %, not above): quiet.

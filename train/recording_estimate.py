@@ -21,7 +21,7 @@ from jax_contact.train.recording import (
     read_recording,
     write_recording_csv,
 )
-from jax_contact.train.recording_checks import dynamics_disagrees, floor_offset
+from jax_contact.train.recording_checks import dynamics_disagrees, floor_offset, truth_order
 from jax_contact.train.recording_convert import noise_for_differences, to_readings
 
 
@@ -196,6 +196,9 @@ def estimate_recording(
             # is its own foot's, a base reading's every foot's); every detector alike.
             scored = np.asarray(out["probabilistic/valid"], bool) & conv.truth_known
             scores = score(out, conv.truth, scored, dt=conv.dt)
+            if swapped := truth_order(p, conv.truth[:, 0], scored[:, 0], feet_names):
+                notes.append(swapped)
+                print_note(swapped)
             print(format_scores(scores, title=Path(path).name))
             files.append(write_json_atomic(stage / "metrics.json", scores))
         else:
