@@ -107,8 +107,15 @@ bad["qvel"][11] = np.nan
 b3, _, d_leg = est.update(belief, bad)
 b3, _, d_leg_next = est.update(b3, {n: log[n][6, 0] for n in est.reading_names})
 nan_calls += [np.asarray(d_leg["valid"]).tolist(), np.asarray(d_leg_next["valid"]).tolist()]
+# The whole log again with the front-left knee's velocity lost on readings 30-35.
+lost = {n: log[n][:, 0].copy() for n in est.reading_names}
+lost["qvel"][30:36, 11] = np.nan
+belief, ps_lost = est.init(), []
+for k in range(lost["qpos"].shape[0]):
+    belief, p, _ = est.update(belief, {n: lost[n][k] for n in est.reading_names})
+    ps_lost.append(p)
 loaded = sorted(m for m, v in sys.modules.items() if v is not None and m.split(".")[0] == "mujoco")
-np.savez(sys.argv[3], p=np.stack(ps), valid=np.stack(valid))
+np.savez(sys.argv[3], p=np.stack(ps), valid=np.stack(valid), p_lost=np.stack(ps_lost))
 print(json.dumps({"errors": errors, "mujoco_modules": loaded, "nan_calls": nan_calls}))
 """
 
@@ -136,7 +143,7 @@ def child(deployed):
     assert proc.returncode == 0, proc.stderr[-3000:]
     report = json.loads(proc.stdout.strip().splitlines()[-1])
     out = np.load(tmp / "child.npz")
-    return {"p": out["p"], "valid": out["valid"], **report}
+    return {"p": out["p"], "valid": out["valid"], "p_lost": out["p_lost"], **report}
 
 
 def test_artefact_without_mujoco_matches_replay(child, live):
@@ -148,10 +155,9 @@ def test_artefact_without_mujoco_matches_replay(child, live):
     assert ((child["p"].max(axis=0) > 0.9) & (child["p"].min(axis=0) < 0.1)).any()
 
 
-def test_replay_keeps_a_lost_knee_velocity_in_its_leg(deployed, live):
-    """Offline, a stretch of NaN in the front-left knee's velocity (a dropped encoder
-    packet, readings 30-35) changes that foot's P only: the other feet's are the clean
-    replay's to the bit (the same compiled program as ``live``)."""
+@pytest.fixture(scope="module")
+def lost_replay(deployed):
+    """The offline P (T, L) with the front-left knee's velocity lost on readings 30-35."""
     from jax_contact.envs.robots import load_robot
     from jax_contact.train.evaluate import replay
     from jax_contact.train.logs import default_estimator
@@ -170,9 +176,24 @@ def test_replay_keeps_a_lost_knee_velocity_in_its_leg(deployed, live):
         seed=0,
         progress=False,
     )
-    p = out["export"][:, 0]
+    return out["export"][:, 0]
+
+
+def test_replay_keeps_a_lost_knee_velocity_in_its_leg(lost_replay, live):
+    """Offline, a stretch of NaN in the front-left knee's velocity (a dropped encoder
+    packet) changes that foot's P only: the other feet's are the clean replay's to the bit
+    (the same compiled program as ``live``)."""
+    p = lost_replay
     np.testing.assert_array_equal(p[:, [0, 2, 3]], live[:, [0, 2, 3]])
     assert np.isfinite(p).all() and np.abs(p[:, 1] - live[:, 1]).max() > 1e-3
+
+
+def test_the_exported_update_takes_lost_readings_as_replay_does(child, lost_replay):
+    """One convention for lost readings (train/evaluate.py's docstring): the exported file,
+    fed the same readings one call at a time, gives the offline replay's P on every foot,
+    the lost knee's included (its steps 30-35 invalid in both, and step 36 valid in both:
+    the lost entry of the previous state replaced by the reading's own)."""
+    np.testing.assert_allclose(child["p_lost"], lost_replay, rtol=0, atol=P_TOL)
 
 
 def test_a_non_finite_state_is_the_invalid_step_of_its_own_call(child):

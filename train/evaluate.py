@@ -23,6 +23,12 @@ leg: 79 % vs 99.9 % accuracy of the term alone). The baselines (GM observer, kin
 detector) read no differenced acceleration and get reading ``k`` whole: the GM observer's
 momentum change to ``qd_{k+1}`` is driven by ``tau_k``, the same interval.
 
+Lost readings (NaN or inf), with the delayed pairing, entry by entry as the exported update
+(:mod:`jax_contact.export`) takes them: a coordinate whose velocity in reading ``k`` is
+lost has no acceleration over step ``k``, and a lost entry of reading ``k - 1``'s state is
+replaced by reading ``k``'s own (as the first reading uses its own state). Each foot's step
+is then invalid only where it reads a lost entry (docs/model.md, "Inputs per step").
+
 :func:`replay` recomputes the estimator's inputs from the readings and the robot's nominal
 model with the MJX adapter, one estimator step per reading, and runs, on the same inputs
 in the same scan, any number of estimator variants (e.g. the ablations), generalized-
@@ -121,8 +127,10 @@ def replay(
                         f"previous[{k!r}] has shape {first[k].shape[1:]}, expected"
                         f" {readings[k].shape[1:]} (one reading of every env)"
                     )
-        qpos = delay_one_step(qpos, None if first is None else first["qpos"])
-        qvel = delay_one_step(qvel, None if first is None else first["qvel"])
+        # The module docstring's lost readings: one rule with the exported update.
+        qacc = np.where(np.isfinite(qvel), qacc, np.nan)
+        qpos = _own_where_lost(delay_one_step(qpos, None if first is None else first["qpos"]), qpos)
+        qvel = _own_where_lost(delay_one_step(qvel, None if first is None else first["qvel"]), qvel)
     n_t, n_envs = qpos.shape[:2]
     m = mjx.put_model(robot.mj_model)
     desc = robot.description
@@ -289,6 +297,12 @@ def delay_one_step(a: np.ndarray, first: np.ndarray | None = None) -> np.ndarray
     """``a`` shifted one step later along time; ``first`` (1, ...) or else ``a[:1]`` leads."""
     lead = a[:1] if first is None else np.asarray(first, a.dtype)
     return np.concatenate([lead, a[:-1]], axis=0)
+
+
+def _own_where_lost(delayed: np.ndarray, own: np.ndarray) -> np.ndarray:
+    """``delayed`` (the previous reading's state) with each non-finite entry replaced by the
+    reading's ``own`` (module docstring, lost readings)."""
+    return np.where(np.isfinite(delayed), delayed, own)
 
 
 def _pad(a: np.ndarray, n: int) -> np.ndarray:
