@@ -559,12 +559,26 @@ def test_force_truth_says_what_the_threshold_made_of_each_foot(tmp_path, capsys)
     """The planar sample's force/foot column with a 20 N offset (a foot sensor's raw
     reading) is contact on every row at the 1 N default, which the note says (100 %, its
     minimum 20 N); --force-threshold 21 gives back the sample's own truth (its contact/foot
-    is its force/foot above 1 N)."""
+    is its force/foot above 1 N). With both columns the note names contact/ as the truth
+    (it is what the metrics score), and warns when the two disagree."""
     rec = read_recording(CSV)
     robot = load_robot("planar_leg")
     plain = to_readings(rec, robot)
+    assert "ground truth from contact/ for ['foot']" in plain.notes
+    assert not [n for n in plain.notes if "force/ above" in n or "disagree" in n]
     share = np.mean(rec.columns["force/foot"] > 1.0)
-    assert f"contact on foot {share:.0%} (min 0 N)" in "\n".join(plain.notes)
+    no_flag = {k: v for k, v in rec.columns.items() if k != "contact/foot"}
+    forced = to_readings(Recording(no_flag, "r"), robot)
+    assert f"contact on foot {share:.0%} (min 0 N)" in "\n".join(forced.notes)
+    np.testing.assert_array_equal(forced.truth, plain.truth)
+    # A contact/ flag that reads air on every row: the metrics would score it; named.
+    zeroed = dict(rec.columns, **{"contact/foot": np.zeros_like(rec.columns["contact/foot"])})
+    warned = [n for n in to_readings(Recording(zeroed, "r"), robot).notes if "disagree" in n]
+    assert warned == [
+        f"WARNING contact/ and force/ (above 1 N) disagree: foot on {share:.0%} of the rows;"
+        " the metrics score contact/ (a foot's flag is preferred to its force): check which"
+        " column is right, or drop contact/ to score force/"
+    ]
     cols = dict(rec.columns)
     del cols["contact/foot"]
     cols["force/foot"] = cols["force/foot"] + 20.0

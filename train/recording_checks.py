@@ -5,7 +5,8 @@ not integrate to the column it derives from (sign, degrees), a base orientation 
 (x, y, z, w order), a gyroscope rate about the wrong axes or in degrees, a base velocity in
 the base frame, a base acceleration that holds gravity, force truth in contact on every
 row (an offset sensor), and, on the estimator's output, torques that cannot hold the feet
-up and truth columns that fit the estimates better in another foot order. Each returns the
+up and truth columns that fit the estimates better in another foot order, or contact/ and
+force/ truth that disagree. Each returns the
 warning's text or None (:func:`force_truth` always says what it read); the measurements
 behind each bound are in docs/own_robot.md.
 """
@@ -405,6 +406,45 @@ def force_truth(forces: dict[str, np.ndarray], threshold: float) -> tuple[str, b
     )
     warn = all(s >= ALWAYS_LOADED for s, _ in read.values())
     return (text + "; if it stood throughout, ignore this" if warn else text), warn
+
+
+# A foot's contact/ and force/ columns (above --force-threshold) that disagree on more than
+# this share of the rows where both are finite are named: on a simulated Go1 trot written
+# as a recording (force/ the normal force, contact/ the simulator's flag) they agree on
+# every row; a contact/ column of another foot, or of another convention, disagrees on a
+# third to two thirds of them.
+TRUTH_DISAGREE_SHARE = 0.05
+
+
+def truth_columns_disagree(
+    contact: dict[str, np.ndarray], forces: dict[str, np.ndarray], threshold: float
+) -> str | None:
+    """A warning naming the feet whose ``contact/`` and ``force/`` truth columns disagree.
+
+    A foot with both is scored on ``contact/`` (the recording's own flag); a ``force/``
+    column that says otherwise on more than :data:`TRUTH_DISAGREE_SHARE` of the rows means
+    one of them is not what it says, and the metrics follow the flag.
+
+    Args:
+      contact, forces: foot -> (T,) column, for the feet that have both.
+      threshold: N, what ``force/`` must exceed to read contact.
+    """
+    bad = []
+    for foot, flag in contact.items():
+        force = forces[foot]
+        both = np.isfinite(flag) & np.isfinite(force)
+        if not both.any():
+            continue
+        share = float(np.mean((flag[both] > 0.5) != (force[both] > threshold)))
+        if share > TRUTH_DISAGREE_SHARE:
+            bad.append(f"{foot} on {share:.0%} of the rows")
+    if not bad:
+        return None
+    return (
+        f"contact/ and force/ (above {threshold:g} N) disagree: {', '.join(bad)}; the metrics"
+        " score contact/ (a foot's flag is preferred to its force): check which column is"
+        " right, or drop contact/ to score force/"
+    )
 
 
 # A standing foot's sole is at the floor, so the lowest tenth of a foot's sole heights over

@@ -50,6 +50,7 @@ from jax_contact.train.recording_checks import (
     holds_gravity,
     outside_range,
     torque_beyond_limit,
+    truth_columns_disagree,
     upside_down,
     velocity_in_base_frame,
 )
@@ -425,6 +426,7 @@ def to_readings(
             )
         if len(by_model["force/"]) == len(feet):
             force = np.stack([cols[by_model["force/"][f]] for f in feet], axis=1)[:, None]
+        flags = {f: cols[c] for f, c in by_model["contact/"].items()}
         source = [
             (cols[by_model["contact/"][f]], 0.5)
             if f in by_model["contact/"]
@@ -443,12 +445,18 @@ def to_readings(
                 "rows where a foot's ground truth is missing (left out of the metrics): "
                 + _stretches(~truth_known.all(axis=(1, 2)), cols[TIME])
             )
-        if by_model["force/"]:
+        # A foot with a contact/ column is scored on it; force/ is its truth otherwise.
+        from_force = {f: cols[c] for f, c in by_model["force/"].items() if f not in flags}
+        if from_force:
             # A sensor with an offset (a foot force sensor's raw reading) reads "contact" on
             # every row: what the threshold made of each column is said.
-            forces = {f: cols[c] for f, c in by_model["force/"].items()}
-            line, warn = force_truth(forces, force_threshold)
+            line, warn = force_truth(from_force, force_threshold)
             notes.append(f"WARNING {line}" if warn else line)
+        if flags:
+            notes.append(f"ground truth from contact/ for {list(flags)}")
+        both = {f: cols[c] for f, c in by_model["force/"].items() if f in flags}
+        if disagree := truth_columns_disagree({f: flags[f] for f in both}, both, force_threshold):
+            notes.append(f"WARNING {disagree}")
     finite = np.all(np.isfinite(np.stack([cols[c] for c in sorted(used)], axis=1)), axis=1)
     valid = finite & np.concatenate([[True], finite[:-1]])  # differences use the row before
     if not valid.any():
