@@ -384,7 +384,8 @@ def test_go1_columns_convert_back_to_the_readings(go1_log, tmp_path, fmt):
         )
     np.testing.assert_array_equal(conv.truth, go1_log.truth)
     assert conv.dt == pytest.approx(0.0025) and conv.valid.all()
-    assert conv.terms == ("dynamics", "diff_kinematics", "kinematics") and conv.notes == ()
+    assert conv.terms == ("dynamics", "diff_kinematics", "kinematics")
+    assert conv.notes == ("ground truth from contact/ for ['FR', 'FL', 'RR', 'RL']",)
 
 
 def _diff(x, dt):
@@ -454,7 +455,44 @@ def test_a_nan_stretch_marks_those_rows_invalid(go1_log):
     # Rows 10-12 and row 13, whose velocity difference reaches back to row 12.
     assert np.flatnonzero(~conv.valid[:, 0]).tolist() == [10, 11, 12, 13]
     assert np.isnan(conv.readings["qpos"][10:13, 0, 7 + 4]).all()
-    assert any("rows 10-13" in n for n in conv.notes)
+    # The note names the rows that hold the NaN and the column (which steps of which foot
+    # the estimator then predicts only is said after it runs: predicted_only).
+    lost = [n for n in conv.notes if n.startswith("readings with NaN")]
+    assert len(lost) == 1 and "rows 10-12" in lost[0] and "['q/FL_thigh_joint']" in lost[0]
+
+
+def test_a_leg_column_never_finite_loses_that_foot_only(go1_log):
+    """A joint column with no finite row (a dead encoder) used to refuse the recording; each
+    foot reads its own leg's joints, so the others are estimated and a warning names the
+    foot. A base column never finite still refuses (every foot reads it)."""
+    cols = log_to_columns(go1_log)
+    cols["q/FL_calf_joint"] = np.full_like(cols["q/FL_calf_joint"], np.nan)
+    conv = to_readings(Recording(cols, "r"), go1_log.robot)
+    warned = [n for n in conv.notes if "never finite" in n]
+    assert warned == [
+        "WARNING columns ['q/FL_calf_joint'] are never finite: foot FL has no estimate (valid"
+        " False on every step, left out of the metrics); the other feet are estimated"
+    ]
+    assert conv.valid.all() and not [n for n in conv.notes if "ignored" in n]
+    cols["base_pos/z"] = np.full_like(cols["base_pos/z"], np.nan)
+    with pytest.raises(ValueError, match=r"never finite: \['base_pos/z', 'q/FL_calf_joint'\]"):
+        to_readings(Recording(cols, "r"), go1_log.robot)
+
+
+def test_the_predicted_only_note_names_each_foots_steps():
+    from jax_contact.train.recording_estimate import predicted_only
+
+    conv = SimpleNamespace(time=np.arange(1, 21) * 0.01)
+    desc = SimpleNamespace(foot_names=("FR", "FL"))
+    valid = np.ones((20, 2), bool)
+    assert predicted_only(valid, conv, desc) is None
+    valid[5:8, 1] = False
+    assert predicted_only(valid, conv, desc) == (
+        "steps predicted only (valid = False in the output, left out of the metrics): FL rows"
+        " 5-7 (0.06-0.08 s)"
+    )
+    valid[5:8, 0] = False
+    assert predicted_only(valid, conv, desc).endswith(": every foot rows 5-7 (0.06-0.08 s)")
 
 
 def test_angles_outside_the_joint_range_are_flagged_with_the_unit_hint(go1_log):

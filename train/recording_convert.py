@@ -283,6 +283,7 @@ def to_readings(
     tau = np.zeros((t_len, m.nv))
     missing_tau, missing_qd = [], []
     tau_columns = {}
+    dof_of = {}  # joint column -> the dof it reads (a lost one reaches that dof's feet only)
     vel_from_pos, acc_from_pos = [], []
     for name, j in joints:
         col = by_model["q/"].get(name)
@@ -294,6 +295,9 @@ def to_readings(
         qa, va = int(m.jnt_qposadr[j]), int(m.jnt_dofadr[j])
         qpos[:, qa] = cols[col] * s
         used.add(col)
+        for prefix in ("q/", "qd/", "qdd/", "tau/"):
+            if prefix in by_model and name in by_model[prefix]:
+                dof_of[by_model[prefix][name]] = va
         if outside := outside_range(m, j, qpos[:, qa], name=name, hinge=hinge, units=units):
             notes.append(f"WARNING column {col!r}: {outside}")
         vcol, vcol_named = by_model["qd/"].get(name), False
@@ -443,7 +447,7 @@ def to_readings(
         if not truth_known.all():
             notes.append(
                 "rows where a foot's ground truth is missing (left out of the metrics): "
-                + _stretches(~truth_known.all(axis=(1, 2)), cols[TIME])
+                + stretches(~truth_known.all(axis=(1, 2)), cols[TIME])
             )
         # A foot with a contact/ column is scored on it; force/ is its truth otherwise.
         from_force = {f: cols[c] for f, c in by_model["force/"].items() if f not in flags}
@@ -453,14 +457,28 @@ def to_readings(
             line, warn = force_truth(from_force, force_threshold)
             notes.append(f"WARNING {line}" if warn else line)
         if flags:
-            notes.append(f"ground truth from contact/ for {list(flags)}")
+            notes.append(f"ground truth from contact/ for {[f for f in feet if f in flags]}")
         both = {f: cols[c] for f, c in by_model["force/"].items() if f in flags}
         if disagree := truth_columns_disagree({f: flags[f] for f in both}, both, force_threshold):
             notes.append(f"WARNING {disagree}")
-    finite = np.all(np.isfinite(np.stack([cols[c] for c in sorted(used)], axis=1)), axis=1)
+    # A leg joint's column that is never finite loses that leg's foot for good (each foot
+    # reads its own leg's joints, docs/model.md "Inputs per step"); the others are estimated.
+    never = [c for c in sorted(used) if not np.isfinite(cols[c]).any()]
+    legs = [next((i for i, leg in enumerate(desc.leg_dofs) if dof_of.get(c) in leg), None)
+            for c in never]  # fmt: skip
+    some_feet = bool(never) and None not in legs and len(set(legs)) < len(desc.leg_dofs)
+    if some_feet:
+        lost = [desc.foot_names[i] for i in sorted(set(legs))]
+        notes.append(
+            f"WARNING columns {never} are never finite: foot {', '.join(lost)} has no estimate"
+            " (valid False on every step, left out of the metrics); the other feet are estimated"
+        )
+    checked = sorted(set(used) - set(never) if some_feet else used)
+    finite_cells = np.isfinite(np.stack([cols[c] for c in checked], axis=1))
+    finite = np.all(finite_cells, axis=1)
     valid = finite & np.concatenate([[True], finite[:-1]])  # differences use the row before
     if not valid.any():
-        never = [c for c in sorted(used) if not np.isfinite(cols[c]).any()]
+        never = [c for c in checked if not np.isfinite(cols[c]).any()]
         which = (
             f"never finite: {never[:5]}{' ...' if len(never) > 5 else ''}"
             if never
@@ -470,12 +488,11 @@ def to_readings(
             f"recording {rec.source!r}: no row has every column the estimator reads finite,"
             f" and the row before it ({len(valid)} rows; {which})"
         )
-    if not valid.all():
+    if not finite.all():
+        lost = [c for c, ok in zip(checked, finite_cells.all(axis=0), strict=True) if not ok]
         notes.append(
-            "readings with NaN, or a NaN in the row before (their differences reach it):"
-            f" {_stretches(~valid, cols[TIME])}; the steps that use them are predicted only"
-            " (valid = False in the output) for the feet that read them (a joint's reading:"
-            " the foot of its leg; a base reading: every foot), and left out of the metrics"
+            f"readings with NaN or inf: {stretches(~finite, cols[TIME])}, in"
+            f" {lost[:5]}{' ...' if len(lost) > 5 else ''}"
         )
     if dropped:
         notes.append(f"columns dropped by the names map: {dropped}")
@@ -527,7 +544,7 @@ def noise_for_differences(params, conv: Converted):
     return params.replace(noise=noise)
 
 
-def _stretches(mask: np.ndarray, t: np.ndarray) -> str:
+def stretches(mask: np.ndarray, t: np.ndarray) -> str:
     """'rows a-b (t0-t1 s), ...' of the runs of True in ``mask``."""
     edges = np.flatnonzero(np.diff(np.concatenate([[0], mask.astype(int), [0]])))
     runs = [(int(a), int(b) - 1) for a, b in zip(edges[::2], edges[1::2], strict=True)]

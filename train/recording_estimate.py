@@ -22,7 +22,7 @@ from jax_contact.train.recording import (
     write_recording_csv,
 )
 from jax_contact.train.recording_checks import dynamics_disagrees, floor_offset, truth_order
-from jax_contact.train.recording_convert import noise_for_differences, to_readings
+from jax_contact.train.recording_convert import noise_for_differences, stretches, to_readings
 
 
 def estimate_recording(
@@ -118,6 +118,9 @@ def estimate_recording(
         diagnostics_of="probabilistic",
         progress=progress,
     )
+    if line := predicted_only(np.asarray(out["probabilistic/valid"], bool)[:, 0], conv, desc):
+        notes.append(line)
+        print_note(line)
     terms_of = {k: np.asarray(out[f"probabilistic/{k}"])[:, 0] for k in TORQUE_CHECK_INPUTS}
     if warned := torque_note(terms_of, terms, desc, conv, notes):
         notes.append(warned)
@@ -273,6 +276,26 @@ def contact_summary(
         "every foot reads air on more than 99 % of the steps; if the robot stood or walked,"
         " check the angles' unit (--units), the base quaternion's order (w, x, y, z) and"
         f" that the floor is at z = 0 in base_pos's frame (else {floor_hint})"
+    )
+
+
+def predicted_only(valid: np.ndarray, conv, desc) -> str | None:
+    """The note naming, per foot, the steps the estimator predicted only (``valid`` (T, L)
+    False: a reading that foot reads was lost, on that step or in the state it pairs
+    with), or None when every step was valid."""
+    if valid.all():
+        return None
+    if (valid == valid[:, :1]).all():  # a base reading: every foot alike
+        lost = [f"every foot {stretches(~valid[:, 0], conv.time)}"]
+    else:
+        lost = [
+            f"{foot} {stretches(~valid[:, i], conv.time)}"
+            for i, foot in enumerate(desc.foot_names)
+            if not valid[:, i].all()
+        ]
+    return (
+        "steps predicted only (valid = False in the output, left out of the metrics): "
+        + "; ".join(lost)
     )
 
 
