@@ -56,7 +56,8 @@ def prepare(mjx_model: mjx.Model, mjx_data: mjx.Data) -> mjx.Data:
     make NaN for every body, where only the bodies below that joint depend on it.
     :func:`robot_measurement` then marks the feet below a non-finite ``qpos`` entry
     invalid (their ``p_f`` NaN); the other feet's quantities are those of their own
-    branches, unchanged.
+    branches, the same up to round-off (the subtree centre of mass they are summed about
+    moves: ~5e-7 in P on Go1 in float32).
 
     Args:
       mjx_model: the MJX model (JAX implementation).

@@ -104,6 +104,11 @@ class Estimator:
         Raises:
           ValueError: a missing or unknown reading, or one of the wrong length (named).
         """
+        if not isinstance(getattr(belief, "state", None), np.ndarray | jax.Array):
+            raise ValueError(
+                "belief must be the Belief that init() or the previous update() returned, got"
+                f" {type(belief).__name__}"
+            )
         if not isinstance(readings, Mapping):
             raise ValueError(
                 f"readings must be a mapping of {self.reading_names} to arrays, got"
@@ -117,7 +122,10 @@ class Estimator:
                 raise ValueError(
                     f"readings has no {name!r}: expected {self.reading_names}"
                 ) from None
-            x = np.asarray(x, np.float32)
+            try:
+                x = np.asarray(x, np.float32)
+            except (TypeError, ValueError) as err:
+                raise ValueError(f"readings[{name!r}] must hold numbers: {err}") from None
             if x.shape != (n,):
                 raise ValueError(
                     f"readings[{name!r}] has shape {x.shape}, expected ({n},): "

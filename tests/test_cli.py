@@ -916,3 +916,14 @@ def test_a_folder_where_an_output_file_goes_is_refused_at_once(tmp_path, capsys)
     log = str(ROOT / "tests/fixtures/planar_leg_hop.h5")
     assert cli.main(["evaluate", log, "--plots", str(tmp_path / "plots")]) == 2
     assert "argument --plots: " in capsys.readouterr().err
+
+
+def test_a_negative_force_threshold_is_refused_before_anything_runs(tmp_path, capsys):
+    """--force-threshold -1 read every zero-force row as contact, with only the note's
+    "100 % contact" to show it; refused like any bad argument."""
+    argv = ["estimate", str(ROOT / "tests/fixtures/planar_leg_hop.csv"), "--model", "planar_leg"]
+    assert cli.main([*argv, "--out", str(tmp_path / "o"), "--force-threshold", "-1"]) == 2
+    assert "argument --force-threshold: must be a finite force >= 0 N, got -1.0" in (
+        capsys.readouterr().err
+    )
+    assert not (tmp_path / "o").exists()

@@ -93,6 +93,14 @@ try:
     est.update(belief, {n: log[n][0, 0] for n in ("qpos", "qvel", "qacc")})
 except ValueError as err:
     errors["missing_tau"] = str(err)
+try:
+    est.update(None, {n: log[n][0, 0] for n in est.reading_names})
+except ValueError as err:
+    errors["no_belief"] = str(err)
+try:
+    est.update(belief, {**{n: log[n][0, 0] for n in est.reading_names}, "qpos": "abc"})
+except ValueError as err:
+    errors["text_qpos"] = str(err)
 # A NaN velocity is the invalid step of the call that reads it, and the next, clean call
 # is valid (it pairs with its own state): once flagged on the call after.
 bad = {n: log[n][5, 0].copy() for n in est.reading_names}
@@ -207,6 +215,8 @@ def test_wrong_reading_names_the_field(child):
     msg = child["errors"]["short_qvel"]
     assert "'qvel'" in msg and "(17,)" in msg and "(18,)" in msg
     assert "'tau'" in child["errors"]["missing_tau"]
+    assert child["errors"]["no_belief"].startswith("belief must be the Belief that init()")
+    assert child["errors"]["text_qpos"].startswith("readings['qpos'] must hold numbers")
 
 
 def test_header_describes_inputs_and_parameters(deployed):

@@ -243,8 +243,12 @@ def check(args: argparse.Namespace) -> None:
     if args.params is not None:
         check_params_source("--params", args.params)
     parse_names(args.names)
-    if not math.isfinite(args.force_threshold):
-        raise ValueError(f"argument --force-threshold: must be finite, got {args.force_threshold}")
+    if not (math.isfinite(args.force_threshold) and args.force_threshold >= 0):
+        raise ValueError(
+            f"argument --force-threshold: must be a finite force >= 0 N, got"
+            f" {args.force_threshold} (a force/ column above it is contact; a sensor that"
+            " reads the load as negative: negate its column)"
+        )
     check_output_folder("--out", args.out)
     check_outputs_not_folders("--out", args.out, ESTIMATE_OUTPUTS)
 
