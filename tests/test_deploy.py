@@ -48,9 +48,8 @@ def deployed(tmp_path_factory):
     return {"tmp": tmp, "log": log, "artefact": artefact, "header": header, "readings": readings}
 
 
-@pytest.fixture(scope="module")
-def live(deployed):
-    """P(contact) (T, L) of the offline estimator with the robot's default parameters."""
+def _replay_go1(readings) -> np.ndarray:
+    """P(contact) (T, L) of the offline estimator with Go1's default parameters."""
     from jax_contact.envs.robots import load_robot
     from jax_contact.train.evaluate import replay
     from jax_contact.train.logs import default_estimator
@@ -59,7 +58,7 @@ def live(deployed):
     params, terrain = default_estimator(robot.description, 1.0 / 400.0)
     out = replay(
         robot,
-        {k: v for k, v in deployed["readings"].items()},
+        readings,
         estimators={"export": params},
         terrain=terrain,
         dt=1.0 / 400.0,
@@ -67,6 +66,12 @@ def live(deployed):
         progress=False,
     )
     return out["export"][:, 0]
+
+
+@pytest.fixture(scope="module")
+def live(deployed):
+    """P(contact) (T, L) of the offline estimator on the log's readings."""
+    return _replay_go1(dict(deployed["readings"]))
 
 
 _CHILD = """
@@ -165,26 +170,11 @@ def test_artefact_without_mujoco_matches_replay(child, live):
 
 @pytest.fixture(scope="module")
 def lost_replay(deployed):
-    """The offline P (T, L) with the front-left knee's velocity lost on readings 30-35."""
-    from jax_contact.envs.robots import load_robot
-    from jax_contact.train.evaluate import replay
-    from jax_contact.train.logs import default_estimator
-
-    robot = load_robot("go1")
-    assert robot.description.leg_dofs[1] == (9, 10, 11)
-    params, terrain = default_estimator(robot.description, 1.0 / 400.0)
+    """The offline P (T, L) with the front-left knee's velocity (Go1's dof 11, its leg
+    (9, 10, 11)) lost on readings 30-35."""
     readings = {k: v.copy() for k, v in deployed["readings"].items()}
     readings["qvel"][30:36, 0, 11] = np.nan
-    out = replay(
-        robot,
-        readings,
-        estimators={"export": params},
-        terrain=terrain,
-        dt=1.0 / 400.0,
-        seed=0,
-        progress=False,
-    )
-    return out["export"][:, 0]
+    return _replay_go1(readings)
 
 
 def test_replay_keeps_a_lost_knee_velocity_in_its_leg(lost_replay, live):
