@@ -54,6 +54,8 @@ FORMAT_VERSION = 1
 # register" and "rename and unregister" each indivisible with respect to the abort.
 _PENDING: set[str] = set()
 _LOCK = threading.Lock()
+# The files written completely so far (completed_writes).
+_DONE: list[str] = []
 
 
 def write_log(path: str | os.PathLike, arrays: Mapping[str, np.ndarray], attrs: Mapping) -> Path:
@@ -206,12 +208,22 @@ def write_atomic(path: str | os.PathLike, write) -> Path:
         with _LOCK:
             os.replace(tmp, path)
             _PENDING.discard(tmp)
+            # Inside a staged folder still being written, it is not there yet.
+            if not any(path.is_relative_to(p) for p in _PENDING):
+                _DONE.append(str(path))
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         with _LOCK:
             _PENDING.discard(tmp)
         raise
     return path
+
+
+def completed_writes() -> list[str]:
+    """The files this process has written completely through :func:`write_atomic` and
+    :func:`staged_folder`, in order (the CLI's Ctrl-C handler names them: they are whole).
+    Read without the lock, which :func:`abort_writes` holds by then."""
+    return list(_DONE)
 
 
 def abort_writes() -> list[str]:
@@ -287,6 +299,7 @@ def staged_folder(folder: str | os.PathLike, stale: Callable[[Path], Iterable[st
                 os.replace(os.path.join(tmp, name), folder / name)
             os.rmdir(tmp)
             _PENDING.discard(tmp)
+            _DONE.extend(str(folder / name) for name in names)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         with _LOCK:

@@ -275,6 +275,30 @@ def test_ctrl_c_during_a_write_removes_the_temporary_file(tmp_path):
     assert list(tmp_path.iterdir()) == []
 
 
+def test_ctrl_c_after_a_write_names_the_file_as_complete(tmp_path):
+    """A stop just after a command's "wrote ..." (export, a trial) printed only
+    "interrupted", as if the file might be partial; the files written completely are named
+    (the last five, the rest counted)."""
+    script = (
+        "import os, signal, sys, time\n"
+        "from jax_contact.train import cli\n"
+        "from jax_contact.io import write_text_atomic\n"
+        "stop = cli.StopOnInterrupt('jax-contact test').__enter__()\n"
+        "for i in range(7):\n"
+        "    write_text_atomic(os.path.join(sys.argv[1], f'{i}.txt'), 'x')\n"
+        "os.kill(os.getpid(), signal.SIGINT)\n"
+        "time.sleep(20)\n"
+    )
+    res, _ = _run([sys.executable, "-c", script, str(tmp_path)])
+    assert res.returncode == 130
+    names = ", ".join(str(tmp_path / f"{i}.txt") for i in range(2, 7))
+    assert res.stderr == (
+        "jax-contact test: interrupted\n"
+        f"jax-contact test: written completely before the stop: {names} and 2 more\n"
+    )
+    assert sorted(p.name for p in tmp_path.iterdir()) == [f"{i}.txt" for i in range(7)]
+
+
 def test_ctrl_c_names_what_the_command_keeps_on_purpose():
     """``train`` keeps an interrupted run folder (its checkpoints); the stop says so, and
     says nothing once the note is cleared (a finished run)."""

@@ -16,8 +16,9 @@ What here is about the command line itself, not the library:
   and which drops C++ INFO, WARNING and ERROR lines) unless the variable is already set:
   run with ``TF_CPP_MIN_LOG_LEVEL=0`` to see everything.
 - **Ctrl-C stops a command at once** (:mod:`jax_contact.train.interrupt`): it exits with
-  code 130, prints one line, ``jax-contact <command>: interrupted``, and leaves no partial
-  output file, even in the middle of an XLA compilation.
+  code 130, prints ``jax-contact <command>: interrupted`` (and, if the command had written
+  files, a line naming them as complete), and leaves no partial output file, even in the
+  middle of an XLA compilation.
 - **Compiled programs are kept between runs** (:mod:`jax_contact.train.compile_cache`):
   JAX's persistent compilation cache, in ``~/.cache/jax-contact/xla/<host>``
   (``$JAX_CONTACT_CACHE_DIR`` moves it, empty turns it off).

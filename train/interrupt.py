@@ -1,7 +1,8 @@
 """Ctrl-C that stops a ``jax-contact`` command at once, leaving no partial output file.
 
-:class:`StopOnInterrupt` makes the process exit with code 130 and print one line,
-``jax-contact <command>: interrupted``. Python's own ``KeyboardInterrupt`` does not do this
+:class:`StopOnInterrupt` makes the process exit with code 130 and print
+``jax-contact <command>: interrupted``, then the files the command had written completely
+(:func:`jax_contact.io.completed_writes`), if any. Python's own ``KeyboardInterrupt`` does not do this
 in a JAX program: the exception is raised only when the main thread next runs Python code,
 which during an XLA compilation can be minutes later, and when that code is the garbage
 collector's callback into XLA the exception is printed as ``Exception ignored in:
@@ -96,6 +97,16 @@ class StopOnInterrupt:
             flusher.start()
             flusher.join(0.5)
             os.write(2, f"{self.prog}: {what}\n".encode())
+            # What this command had written completely (a stop just after "wrote ..."):
+            # whole files, said so, since "interrupted" alone reads as if they might not be.
+            done = getattr(sys.modules.get("jax_contact.io"), "completed_writes", None)
+            if written := (done() if done is not None else []):
+                more = f" and {len(written) - 5} more" if len(written) > 5 else ""
+                os.write(
+                    2,
+                    f"{self.prog}: written completely before the stop: "
+                    f"{', '.join(written[-5:])}{more}\n".encode(),
+                )
             for note in list(_kept):
                 if callable(note):
                     try:
