@@ -3,9 +3,9 @@
 :class:`StopOnInterrupt` makes the process exit with code 130 and print
 ``jax-contact <command>: interrupted``, then the files the command had written completely
 (:func:`jax_contact.io.completed_writes`), if any. Python's own ``KeyboardInterrupt``
-does not do this in a JAX program: the exception is raised only when the main thread next runs Python code,
-which during an XLA compilation can be minutes later, and when that code is the garbage
-collector's callback into XLA the exception is printed as ``Exception ignored in:
+does not do this in a JAX program: the exception is raised only when the main thread next
+runs Python code, which during an XLA compilation can be minutes later, and when that code
+is the garbage collector's callback into XLA the exception is printed as ``Exception ignored in:
 <function _xla_gc_callback ...>`` and lost, so the run carries on. Instead, the signal's
 arrival is read from :func:`signal.set_wakeup_fd` by a watcher thread, which Python's
 C-level handler wakes immediately whatever the main thread is doing; the watcher removes
