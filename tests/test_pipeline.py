@@ -110,6 +110,28 @@ def test_delayed_pairing_shifts_state_not_acceleration():
     np.testing.assert_array_equal(delay_one_step(a)[:, 0], [0, 0, 1, 2, 3])
 
 
+def test_delayed_pairing_takes_lost_readings_entry_by_entry():
+    """Two coordinates over 4 readings (hand values). Coordinate 0's velocity is lost at
+    reading 1: its acceleration there is NaN, and reading 2's state takes reading 2's own
+    velocity (30) for it instead of the lost one. Coordinate 1's position is lost at reading
+    2: reading 3's state takes reading 3's own position (13). Everything else is the plain
+    one-step delay, the first reading with its own state."""
+    from jax_contact.train.evaluate import pair_delayed
+
+    nan = np.nan
+    qpos = np.array([[0.0, 10.0], [1.0, 11.0], [2.0, nan], [3.0, 13.0]])
+    qvel = np.array([[0.0, 20.0], [nan, 21.0], [30.0, 22.0], [40.0, 23.0]])
+    qacc = np.array([[5.0, 6.0], [7.0, 8.0], [9.0, 1.0], [2.0, 3.0]])
+    q, v, a = pair_delayed(qpos, qvel, qacc)
+    np.testing.assert_array_equal(q, [[0, 10], [0, 10], [1, 11], [2, 13]])
+    np.testing.assert_array_equal(v, [[0, 20], [0, 20], [30, 21], [30, 22]])
+    np.testing.assert_array_equal(a, [[5, 6], [nan, 8], [9, 1], [2, 3]])
+    first = {"qpos": qpos[:1] - 1.0, "qvel": qvel[:1] - 1.0}
+    q, v, _ = pair_delayed(qpos, qvel, qacc, first)
+    np.testing.assert_array_equal(q[0], [-1, 9])
+    np.testing.assert_array_equal(v[0], [-1, 19])
+
+
 def test_replay_refuses_unknown_pairing(planar):
     world, roll = planar
     with pytest.raises(ValueError, match="pairing"):

@@ -127,10 +127,7 @@ def replay(
                         f"previous[{k!r}] has shape {first[k].shape[1:]}, expected"
                         f" {readings[k].shape[1:]} (one reading of every env)"
                     )
-        # The module docstring's lost readings: one rule with the exported update.
-        qacc = np.where(np.isfinite(qvel), qacc, np.nan)
-        qpos = _own_where_lost(delay_one_step(qpos, None if first is None else first["qpos"]), qpos)
-        qvel = _own_where_lost(delay_one_step(qvel, None if first is None else first["qvel"]), qvel)
+        qpos, qvel, qacc = pair_delayed(qpos, qvel, qacc, first)
     n_t, n_envs = qpos.shape[:2]
     m = mjx.put_model(robot.mj_model)
     desc = robot.description
@@ -299,10 +296,26 @@ def delay_one_step(a: np.ndarray, first: np.ndarray | None = None) -> np.ndarray
     return np.concatenate([lead, a[:-1]], axis=0)
 
 
-def _own_where_lost(delayed: np.ndarray, own: np.ndarray) -> np.ndarray:
-    """``delayed`` (the previous reading's state) with each non-finite entry replaced by the
-    reading's ``own`` (module docstring, lost readings)."""
-    return np.where(np.isfinite(delayed), delayed, own)
+def pair_delayed(qpos, qvel, qacc, first: Mapping[str, np.ndarray] | None = None):
+    """The delayed pairing (module docstring): each reading's acceleration with the state of
+    the reading before, lost readings taken entry by entry as the exported update takes them.
+
+    Args:
+      qpos: (T, ..., nq), qvel, qacc: (T, ..., nv) readings.
+      first: ``qpos`` and ``qvel`` (1, ..., n) of the reading before ``qpos[0]``; None: the
+        first reading's own state.
+
+    Returns:
+      (qpos, qvel, qacc) for the estimator: the state one reading late (a lost entry replaced
+      by the reading's own), the acceleration NaN where the reading's velocity is lost.
+    """
+    first = first or {}
+    delayed = {k: delay_one_step(x, first.get(k)) for k, x in (("qpos", qpos), ("qvel", qvel))}
+    return (
+        np.where(np.isfinite(delayed["qpos"]), delayed["qpos"], qpos),
+        np.where(np.isfinite(delayed["qvel"]), delayed["qvel"], qvel),
+        np.where(np.isfinite(qvel), qacc, np.nan),
+    )
 
 
 def _pad(a: np.ndarray, n: int) -> np.ndarray:

@@ -36,13 +36,13 @@ def measure_readings(robot, readings: dict, *, pairing: str = "delayed", chunk: 
     from mujoco import mjx
 
     from jax_contact.adapter import prepare, robot_measurement
-    from jax_contact.train.evaluate import delay_one_step
+    from jax_contact.train.evaluate import pair_delayed
 
     if pairing not in ("delayed", "raw"):
         raise ValueError(f"pairing must be 'delayed' or 'raw', got {pairing!r}")
     qpos, qvel, qacc, tau = (np.asarray(readings[k]) for k in ("qpos", "qvel", "qacc", "tau"))
-    if pairing == "delayed":  # only the state is delayed (jax_contact.train.evaluate's convention)
-        qpos, qvel = delay_one_step(qpos), delay_one_step(qvel)
+    if pairing == "delayed":  # jax_contact.train.evaluate's convention, lost readings included
+        qpos, qvel, qacc = pair_delayed(qpos, qvel, qacc)
     m = mjx.put_model(robot.mj_model)
     template = mjx.make_data(m)
     desc = robot.description
