@@ -99,13 +99,14 @@ def _chain_dof_mask(mjx_model: mjx.Model, body_id: int) -> np.ndarray:
 
 def _chain_qpos_mask(mjx_model: mjx.Model, body_id: int) -> np.ndarray:
     """(nq,) bool: ``qpos`` entries of the joints between ``body_id`` and the world."""
-    sizes = {0: 7, 1: 4, 2: 1, 3: 1}  # mjtJoint: free, ball, slide, hinge
+    kinds = mujoco.mjtJoint
+    sizes = {int(kinds.mjJNT_FREE): 7, int(kinds.mjJNT_BALL): 4}  # slide, hinge: 1
     mask = np.zeros(mjx_model.nq, bool)
     chain = set(_chain_bodies(mjx_model, body_id))
     for j, (body, kind) in enumerate(zip(mjx_model.jnt_bodyid, mjx_model.jnt_type, strict=True)):
         if int(body) in chain:
             start = int(mjx_model.jnt_qposadr[j])
-            mask[start : start + sizes[int(kind)]] = True
+            mask[start : start + sizes.get(int(kind), 1)] = True
     return mask
 
 

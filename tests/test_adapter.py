@@ -258,6 +258,10 @@ def test_a_lost_reading_stays_in_its_leg(robots, compiled, field, jit_step_batch
     if field == "qpos":  # prepare keeps the qpos it was given; only that foot is lost
         assert np.isnan(np.asarray(bad.q[0, 11]))
         np.testing.assert_array_equal(np.isnan(np.asarray(bad.p_f)).any(-1), [0, 1, 0, 0])
+        # A base quaternion entry (the free joint, in every foot's chain): every foot.
+        base = d.replace(qpos=d.qpos.at[4].set(jnp.nan).at[11].set(state.qpos[11]))
+        lost_base = fn(base, jnp.asarray(qdd), jnp.asarray(tau))[1]
+        assert np.isnan(np.asarray(lost_base.p_f)).any(-1).all()
 
     params = jc.params_for(desc, sensor_preset("anymal_like", m.nv, dt=0.0025), 0.0025)
     belief = jc.init_belief_batch(params, 1, desc.n_legs)
