@@ -18,7 +18,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from jax_contact.types import LegMeasurement, TerrainQuery
+from jax_contact.types import LegMeasurement, TerrainQuery, all_finite
 
 VELOCITY_MODES = ("norm", "normal")
 
@@ -212,8 +212,7 @@ def _leg_readings(meas: LegMeasurement):
     rows = meas.M[l]
     qd = jnp.where(jnp.any(rows != 0, axis=0), meas.qd, 0.0)
     J_l = meas.J[:, l]
-    read = (rows, qd, J_l, meas.tau[l], meas.h[l])
-    return rows, qd, J_l, jnp.all(jnp.stack([jnp.all(jnp.isfinite(x)) for x in read]))
+    return rows, qd, J_l, all_finite((rows, qd, J_l, meas.tau[l], meas.h[l]))
 
 
 def gm_init(meas: LegMeasurement) -> GMState:

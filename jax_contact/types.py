@@ -275,11 +275,10 @@ class Diagnostics:
     valid: jax.Array
 
 
-@jax.named_call
-def measurement_is_finite(meas: LegMeasurement) -> jax.Array:
-    """() bool: every floating-point leaf of ``meas`` is finite."""
+def all_finite(tree) -> jax.Array:
+    """() bool: every floating-point leaf of ``tree`` (arrays, a list, a pytree) is finite."""
     leaves = [
-        x for x in jax.tree.leaves(meas) if jnp.issubdtype(jnp.asarray(x).dtype, jnp.floating)
+        x for x in jax.tree.leaves(tree) if jnp.issubdtype(jnp.asarray(x).dtype, jnp.floating)
     ]
     return jnp.all(jnp.stack([jnp.all(jnp.isfinite(x)) for x in leaves]))
 
@@ -294,8 +293,7 @@ def blocks_are_finite(leg: LegBlocks) -> jax.Array:
     foot quantities. A NaN or inf elsewhere (another leg's joint, ``q``, which the terms do
     not read) leaves this foot valid. The noise model's fields are not readings.
     """
-    measured = [x for name, x in vars(leg).items() if name not in LegBlocks.NOISE_FIELDS]
-    return jnp.all(jnp.stack([jnp.all(jnp.isfinite(x)) for x in measured]))
+    return all_finite([x for name, x in vars(leg).items() if name not in LegBlocks.NOISE_FIELDS])
 
 
 def validate_measurement(meas: LegMeasurement, nv: int | None = None) -> tuple[int, ...]:

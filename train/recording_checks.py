@@ -6,9 +6,8 @@ not integrate to the column it derives from (sign, degrees), a base orientation 
 the base frame, a base acceleration that holds gravity, force truth in contact on every
 row (an offset sensor), and, on the estimator's output, torques that cannot hold the feet
 up and truth columns that fit the estimates better in another foot order, or contact/ and
-force/ truth that disagree. Each returns the
-warning's text or None (:func:`force_truth` always says what it read); the measurements
-behind each bound are in docs/own_robot.md.
+force/ truth that disagree. Each returns the warning's text or None (:func:`force_truth`
+always says what it read); the measurements behind each bound are in docs/own_robot.md.
 """
 
 from __future__ import annotations
