@@ -11,6 +11,10 @@ Inputs, throughout:
   valid: optional (T, ...) bool; False steps are ignored (NaN estimates are allowed there).
     Each maximal run of valid steps of one sequence is evaluated on its own, as if it were
     a sequence of its own.
+  truth_known: optional (T, ...) bool, the steps whose ``truth`` is known (default:
+    ``valid``); it must hold every valid step. A step that is not valid but whose truth is
+    known (a detector that read a lost reading there, a recording's row of NaN readings
+    with its truth column intact) still tells where the true phases run: rules 7b and 8.
   dt: time step between samples, s.
 
 Event-matching rules (:func:`match_events`), written for touch-downs; lift-offs are the same
@@ -49,6 +53,12 @@ rules applied to the complements (``not truth``, ``not flag``):
    failure. A run that begins at the first step of a valid stretch has no edge (the step
    before is not valid; the flag may have risen before the data), so it is neither, and
    it is never a match either.
+7b. *Across a gap*: a solid run that begins at the first step after invalid steps is a
+   failure all the same if the truth is known and off from the last valid step before the
+   gap through the run's first step and the flag was off at that last valid step: the flag
+   rose in the gap, inside one true air phase (its time is not known, so it is never a
+   match). Likewise, for lift-offs, a false lift-off. With ``truth_known`` left at
+   ``valid`` no step is both, and rule 7 stands alone.
 
 Delays are reported in ms as mean and population standard deviation (ddof 0) over the
 matched, evaluated events pooled over all sequences; NaN when there are none.
@@ -56,21 +66,27 @@ matched, evaluated events pooled over all sequences; NaN when there are none.
 Phase and step rates (:func:`evaluate`), the false contacts seen per air phase and per
 step rather than as a bare count:
 
-8. An *air phase* is a maximal run of valid steps with ``truth`` off in one sequence, i.e.
-   a maximal off-run inside one valid stretch. Every such run counts, including the ones
-   cut by the start or end of a valid stretch: an invalid step inside a true air phase
-   splits it into two air phases, one in each stretch, and a stretch that is all air is
-   one air phase. ``n_air_phases`` counts them over all sequences.
+8. An *air phase* is a maximal run of steps whose truth is known (``truth_known``) and
+   off, in one sequence, that holds at least one valid step. Invalid steps whose truth is
+   known do not split it (a gap of a few lost readings inside a swing is one air phase,
+   counted once); a step whose truth is not known does, and with ``truth_known`` left at
+   ``valid`` every invalid step does (an air phase is then a maximal off-run inside one
+   valid stretch). Runs cut by the start or end of the data count too. ``n_air_phases``
+   counts them over all sequences. (Before the thirty-eighth session an invalid step
+   always split the phase, so a gap in a recording added an air phase without a failure:
+   on a recording the rate of a detector with false contacts fell with every gap.)
 9. Each failure (rule 7) is attributed to the air phase that holds its first step (truth
    is off there by rule 7, so there is exactly one). ``air_phases_with_failure`` counts the
    air phases to which at least one failure is attributed, and ``air_phase_failure_rate =
    air_phases_with_failure / n_air_phases`` (NaN for no air phase). A failure that stays
    on through the next stance into the following air phase counts for the phase it began
    in only, and a flag that is already on at the first step of a valid stretch is no
-   failure (it has no edge, rule 7); both still show in the step rate below.
+   failure (it has no edge, rule 7; unless rule 7b makes it one); both still show in the
+   step rate below.
 9b. *Swing phases* are the air phases of more than ``bounce_s`` (default 10 ms, rounded
-   to steps): a force truth calls a resting foot's load dropping below its threshold for a
-   step or a few an air phase, which no detector reads as one and which rule 9's rate
+   to steps; a phase's length counts its steps of known truth, valid or not): a force
+   truth calls a resting foot's load dropping below its threshold for a step or a few an
+   air phase, which no detector reads as one and which rule 9's rate
    counts as an air phase without a failure. ``swing_phase_failure_rate =
    swing_phases_with_failure / n_swing_phases`` is rule 9's rate without them (on Go1's
    demo walk on rough ground 0.046 where rule 9 gives 0.020).
@@ -146,6 +162,28 @@ def _inputs(estimate, truth, valid, threshold: float):
             )
         flag = prob > th
     return prob, flag, tru, val
+
+
+def _known(truth_known, truth, val: np.ndarray) -> np.ndarray:
+    """The (T, ...) bool steps of known truth (rule 8), ``val`` when ``truth_known`` is None.
+
+    Raises:
+      ValueError: naming ``truth_known`` for a wrong shape or dtype, or a valid step whose
+        truth is not known; naming ``truth`` for a value other than 0 / 1 where it is known.
+    """
+    if truth_known is None:
+        return val
+    known = np.asarray(truth_known)
+    if known.shape != val.shape:
+        raise ValueError(f"truth_known has shape {known.shape}, but estimate has shape {val.shape}")
+    known = _as_bool("truth_known", known, None)
+    if np.any(val & ~known):
+        raise ValueError(
+            "truth_known is False at valid steps: a step can be scored only where its truth is"
+            " known (pass valid=valid & truth_known)"
+        )
+    _as_bool("truth", truth, known)
+    return known
 
 
 def _check_positive(name: str, value, *, allow_zero: bool = False) -> float:
@@ -269,10 +307,39 @@ class EventMatch:
     liftoff: EdgeEvents
 
 
+def _rose_in_gap(kf: np.ndarray, kt: np.ndarray, fs, fv, fse) -> np.ndarray:
+    """Rule 7b: (n_runs,) bool, the flag runs of ``kf`` (starts ``fs``, values ``fv``, start
+    edges ``fse``) that begin right after invalid steps inside one known-off run of ``kt``
+    (the truth over its known steps) that also holds the last valid step before them, where
+    the flag was off."""
+    out = np.zeros(fs.shape, bool)
+    idx = np.flatnonzero((fv == 1) & ~fse & (fs > 0))
+    if idx.size == 0:
+        return out
+    last_valid = np.maximum.accumulate(np.where(kf != -1, np.arange(kf.size), -1))
+    before = last_valid[fs[idx] - 1]
+    ts = _runs(kt)[0]
+    # The known-truth run that holds each start (its truth is known there: valid steps are).
+    holder = np.searchsorted(ts, fs[idx], side="right") - 1
+    out[idx] = (
+        (before >= 0)
+        & (kt[fs[idx]] == 0)
+        & (ts[holder] <= before)
+        & (kf[np.maximum(before, 0)] == 0)
+    )
+    return out
+
+
 def _edge_events(
-    kg: np.ndarray, kf: np.ndarray, early: int, min_on: int, dt: float
+    kg: np.ndarray,
+    kf: np.ndarray,
+    early: int,
+    min_on: int,
+    dt: float,
+    kt: np.ndarray | None = None,
 ) -> tuple[EdgeEvents, np.ndarray]:
-    """Rules 2-7 of the module docstring for rising edges of ``kg`` (truth) vs ``kf``.
+    """Rules 2-7b of the module docstring for rising edges of ``kg`` (truth) vs ``kf``;
+    ``kt`` the truth's codes over its known steps (None: ``kg``'s, no rule 7b).
 
     Returns:
       The :class:`EdgeEvents`, and the flat indices (into ``kg``) of the first steps of the
@@ -316,8 +383,10 @@ def _edge_events(
     matched_runs[cand[j[matched]]] = True
 
     wrong_phase = kg[fs] == 0
-    false_edges = solid & fse & wrong_phase & ~matched_runs
-    chatter = (fv == 1) & (length < min_on) & fse & fee & wrong_phase
+    # A run with a start edge, or one that rose in a gap of a known air phase (rule 7b).
+    edge = fse if kt is None else fse | _rose_in_gap(kf, kt, fs, fv, fse)
+    false_edges = solid & edge & wrong_phase & ~matched_runs
+    chatter = (fv == 1) & (length < min_on) & edge & fee & wrong_phase
     events_out = EdgeEvents(
         delays_ms=delays.astype(np.float64),
         n_events=int(np.sum(evaluable & (matched | already | missed))),
@@ -338,6 +407,7 @@ def match_events(
     threshold: float = 0.5,
     early_window_s: float = 0.05,
     min_on: int = 1,
+    truth_known=None,
 ) -> EventMatch:
     """Matches estimated touch-downs and lift-offs to the true ones (module docstring rules).
 
@@ -349,51 +419,65 @@ def match_events(
       threshold: the flag is ``estimate > threshold``.
       early_window_s: how far a detection may lead the true edge, s (default 50 ms).
       min_on: debounce, steps a run must last to count as an edge (default 1: raw flag).
+      truth_known: optional (T, ...) bool, the steps whose truth is known (default
+        ``valid``; it must hold every valid step): rule 7b.
 
     Returns:
       :class:`EventMatch`, pooled over every sequence (every index after the time axis).
 
     Raises:
       ValueError: naming the argument, for mismatched shapes, probabilities outside [0, 1]
-        or NaN at valid steps, or a bad ``dt``, ``threshold``, ``early_window_s`` or
-        ``min_on``.
+        or NaN at valid steps, or a bad ``dt``, ``threshold``, ``early_window_s``,
+        ``min_on`` or ``truth_known``.
     """
     dt, early, min_on = _event_settings(dt, early_window_s, min_on)
     _, flag, tru, val = _inputs(estimate, truth, valid, threshold)
-    return _match(flag, tru, val, dt, early, min_on)
-
-
-def _match(flag, tru, val, dt: float, early: int, min_on: int) -> EventMatch:
-    return _match_codes(_flat_codes(tru, val), _flat_codes(flag, val), dt, early, min_on)[0]
+    known = _known(truth_known, truth, val)
+    kt = None if known is val else _flat_codes(tru, known)
+    return _match_codes(_flat_codes(tru, val), _flat_codes(flag, val), dt, early, min_on, kt)[0]
 
 
 def _match_codes(
-    kg: np.ndarray, kf: np.ndarray, dt: float, early: int, min_on: int
+    kg: np.ndarray,
+    kf: np.ndarray,
+    dt: float,
+    early: int,
+    min_on: int,
+    kt: np.ndarray | None = None,
 ) -> tuple[EventMatch, np.ndarray]:
-    """:func:`_match` on flat codes; also returns the failures' first steps (flat)."""
-    touchdown, failure_starts = _edge_events(kg, kf, early, min_on, dt)
-    liftoff, _ = _edge_events(_flip(kg), _flip(kf), early, min_on, dt)
+    """Rules 2-7b on flat codes (``kt``: the truth over its known steps, None: ``kg``);
+    also returns the failures' first steps (flat)."""
+    touchdown, failure_starts = _edge_events(kg, kf, early, min_on, dt, kt)
+    flipped = None if kt is None else _flip(kt)
+    liftoff, _ = _edge_events(_flip(kg), _flip(kf), early, min_on, dt, flipped)
     return EventMatch(touchdown=touchdown, liftoff=liftoff), failure_starts
 
 
 def _air_phase_failures(
-    kg: np.ndarray, failure_starts: np.ndarray, bounce_steps: int = 0
+    kg: np.ndarray,
+    failure_starts: np.ndarray,
+    bounce_steps: int = 0,
+    kt: np.ndarray | None = None,
 ) -> tuple[int, int, int, int]:
     """(n_air_phases, air_phases_with_failure, n_swing_phases, swing_phases_with_failure)
-    of rules 8-9 and 9b, from flat truth codes; swing phases are the air phases of more
-    than ``bounce_steps`` steps.
+    of rules 8-9 and 9b, from flat truth codes (``kg`` over the valid steps, ``kt`` over the
+    steps of known truth, None: ``kg``); swing phases are the air phases of more than
+    ``bounce_steps`` steps.
 
-    The truth runs of ``_runs`` are exactly the maximal runs within one valid stretch, so
-    its off-runs are the air phases of rule 8 and a phase cut by an invalid step is two.
+    The off-runs of ``kt`` that hold a valid step are the air phases of rule 8: an invalid
+    step of known truth does not cut one, a step of unknown truth does.
     """
-    gs, ge, gv, _, _ = _runs(kg)
+    kt = kg if kt is None else kt
+    ts, te, tv, _, _ = _runs(kt)
     # Runs are disjoint and ordered by start, so the run that holds a failure's first step
-    # is the last one starting at or before it; rule 7 puts that step at truth off.
-    holder = np.searchsorted(gs, failure_starts, side="right") - 1
-    hit = np.zeros(gs.shape, bool)
+    # is the last one starting at or before it; rule 7 puts that step at truth off (and
+    # known: it is valid).
+    holder = np.searchsorted(ts, failure_starts, side="right") - 1
+    hit = np.zeros(ts.shape, bool)
     hit[holder] = True
-    air = gv == 0
-    swing = air & (ge - gs > bounce_steps)
+    valid_before = np.concatenate([[0], np.cumsum(kg != -1)])
+    air = (tv == 0) & (valid_before[te] > valid_before[ts])
+    swing = air & (te - ts > bounce_steps)
     return int(np.sum(air)), int(np.sum(hit & air)), int(np.sum(swing)), int(np.sum(hit & swing))
 
 
@@ -524,10 +608,12 @@ class ContactMetrics:
       missed: missed touch-downs.
       touchdown_already_on: evaluated touch-downs the estimate was on for since before the
         early window (rule 3): no edge to time, neither matched nor missed.
-      failures: false contacts in the air (solid runs, unmatched), the paper's "fail".
+      failures: false contacts in the air (solid runs, unmatched), the paper's "fail"
+        (rules 7, 7b).
       chatter: blips in the air shorter than ``min_on`` steps.
-      n_air_phases: maximal truth-off runs within valid stretches, over all sequences
-        (rule 8; one cut by an invalid step counts once on each side).
+      n_air_phases: maximal truth-off runs over the steps of known truth that hold a
+        valid step, over all sequences (rule 8; invalid steps of known truth do not cut
+        one).
       air_phases_with_failure: air phases in which at least one failure starts (rule 9).
       air_phase_failure_rate: ``air_phases_with_failure / n_air_phases``; NaN for none.
       n_swing_phases, swing_phases_with_failure, swing_phase_failure_rate: the same over
@@ -608,10 +694,12 @@ def evaluate(
     n_bins: int = 10,
     persist_steps: int = 3,
     bounce_s: float = BOUNCE_S,
+    truth_known=None,
 ) -> ContactMetrics:
     """Every metric of this module for a batch (T, E, L), events pooled over envs and legs.
 
-    Args and raises: as :func:`match_events`; ``n_bins`` as
+    Args and raises: as :func:`match_events` (``truth_known``, rules 7b and 8, included);
+    ``n_bins`` as
     :func:`expected_calibration_error`; ``persist_steps`` (an int >= 1, independent of
     ``min_on``) is the debounce of the persistent delays (rule 11); ``bounce_s`` (>= 0, s)
     the longest air phase rule 9b leaves out of the swing phases.
@@ -621,11 +709,15 @@ def evaluate(
     persist_steps = _check_int("persist_steps", persist_steps, 1)
     n_bounce = bounce_steps(dt, bounce_s)
     prob, flag, tru, val = _inputs(estimate, truth, valid, threshold)
+    known = _known(truth_known, truth, val)
     kg, kf = _flat_codes(tru, val), _flat_codes(flag, val)
-    ev, failure_starts = _match_codes(kg, kf, dt, early, min_on)
+    kt = None if known is val else _flat_codes(tru, known)
+    ev, failure_starts = _match_codes(kg, kf, dt, early, min_on, kt)
     # The persistent matching is a second pass of the same rules, skipped when it is the same.
-    persist = ev if persist_steps == min_on else _match_codes(kg, kf, dt, early, persist_steps)[0]
-    n_air, air_failed, n_swing, swing_failed = _air_phase_failures(kg, failure_starts, n_bounce)
+    persist = (
+        ev if persist_steps == min_on else _match_codes(kg, kf, dt, early, persist_steps, kt)[0]
+    )
+    n_air, air_failed, n_swing, swing_failed = _air_phase_failures(kg, failure_starts, n_bounce, kt)
     air_steps = val & ~tru
     steps = _step_scores(flag, tru, val)
     td, lo = ev.touchdown, ev.liftoff
@@ -738,6 +830,7 @@ def env_sums(
     min_on: int = 1,
     n_bins: int = 10,
     bounce_s: float = BOUNCE_S,
+    truth_known=None,
 ) -> EnvSums:
     """:class:`EnvSums` of a (T, E, ...) batch: each env's sequences scored by the rules of
     :func:`evaluate` (same arguments), pooled over its trailing axes (legs).
@@ -749,14 +842,16 @@ def env_sums(
     n_bins = _check_int("n_bins", n_bins, 1)
     n_bounce = bounce_steps(dt, bounce_s)
     prob, flag, tru, val = _inputs(estimate, truth, valid, threshold)
+    known = _known(truth_known, truth, val)
     if prob.ndim < 2 or prob.shape[1] < 1:
         raise ValueError(f"estimate must have shape (T, E, ...) with E >= 1, got {prob.shape}")
     rows = []
     for e in range(prob.shape[1]):
-        p, f, g, v = (x[:, e] for x in (prob, flag, tru, val))
+        p, f, g, v, k = (x[:, e] for x in (prob, flag, tru, val, known))
         kg, kf = _flat_codes(g, v), _flat_codes(f, v)
-        ev, failure_starts = _match_codes(kg, kf, dt, early, min_on)
-        phases = _air_phase_failures(kg, failure_starts, n_bounce)
+        kt = None if known is val else _flat_codes(g, k)
+        ev, failure_starts = _match_codes(kg, kf, dt, early, min_on, kt)
+        phases = _air_phase_failures(kg, failure_starts, n_bounce, kt)
         rows.append(
             (
                 *_step_counts(f, g, v),

@@ -173,6 +173,39 @@ def test_missing_ground_truth_is_left_out_of_the_metrics(round_trip, tmp_path, c
         assert scores[key] == pytest.approx(want[key]), key
 
 
+def test_lost_readings_inside_an_air_phase_do_not_cut_it(round_trip, tmp_path):
+    """Three rows of the knee velocity lost in the middle of a true air phase: the foot's
+    estimate is invalid there and left out of the metrics, but its truth is known, so the
+    air phase stays one (metrics rule 8); until the thirty-eighth session the gap split it
+    in two and added an air phase without a false contact, for every detector."""
+    from jax_contact.metrics import evaluate
+
+    truth = read_log(LOG)[0]["truth/contact"].astype(bool)  # (T, 1, 1)
+    air = ~truth[:, 0, 0]
+    edges = np.flatnonzero(np.diff(air.astype(int))) + 1  # first steps of new runs
+    phases = [(a, b) for a, b in zip(edges[:-1], edges[1:], strict=True) if air[a]]
+    a, b = max(phases, key=lambda ab: ab[1] - ab[0])
+    mid = (a + b) // 2
+    cols = dict(read_recording(round_trip.tmp / "robot.csv").columns)
+    cols["qd/KNEE_J"] = cols["qd/KNEE_J"].copy()
+    cols["qd/KNEE_J"][mid : mid + 3] = np.nan
+    write_recording_csv(tmp_path / "lost.csv", cols)
+    got = _estimate(tmp_path / "lost.csv", tmp_path / "out", plots=False, **AS_RECORDED)
+    valid = np.asarray(got["outputs"]["probabilistic/valid"], bool).reshape(truth.shape)
+    lost = np.flatnonzero(~valid[:, 0, 0])
+    assert lost.size >= 3 and a < lost.min() and lost.max() < b  # inside the air phase
+    clean = round_trip.estimated["scores"]
+    for name, scores in got["scores"].items():
+        out = np.asarray(got["outputs"][name]).reshape(truth.shape)
+        assert scores["n_air_phases"] == clean[name]["n_air_phases"], name
+        want = evaluate(out, truth, valid, dt=0.0025, truth_known=np.ones_like(valid))
+        for key, value in want.as_dict().items():
+            assert scores[key] == pytest.approx(value, rel=1e-9, nan_ok=True), (name, key)
+        # The rule before: the gap cut the phase, one air phase more.
+        split = evaluate(out, truth, valid, dt=0.0025).n_air_phases
+        assert split == clean[name]["n_air_phases"] + 1, name
+
+
 def test_a_degree_recording_read_as_radians_warns(round_trip, tmp_path, capsys):
     """The round trip's recording holds degrees; read as radians (no units='deg') the hip
     leaves its +-1.6 rad range and the leg reads air throughout: both are printed as

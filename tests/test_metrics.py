@@ -298,6 +298,63 @@ def test_air_phase_cut_by_an_invalid_step_counts_twice():
     assert m.air_false_contact_rate == 7 / 59
 
 
+def test_gap_of_known_truth_does_not_cut_an_air_phase():
+    """Rules 7b and 8 with ``truth_known``: invalid steps whose truth is known (a lost
+    reading in a recording whose truth column is intact) leave the air phase whole, and a
+    false contact that rose during them is still a failure."""
+    # The case of the test above, step 45 invalid with its truth known (air): the phase
+    # [30, 60) stays one phase -> 3 phases, as with every step valid. The blip at 45 is not
+    # seen; the blip at 50 (edge at 49) is a failure -> 1 of 3 (the default split: 1 of 4).
+    g = _truth([(20, 30), (60, 70)])
+    p = _seq([(22, 32), (45, 46), (50, 51), (62, 72)])
+    valid = np.ones(T, bool)
+    valid[45] = False
+    p[45] = np.nan
+    known = np.ones(T, bool)
+    m = evaluate(p, g, valid, dt=DT, truth_known=known)
+    assert (m.failures, m.n_air_phases, m.air_phases_with_failure) == (1, 3, 1)
+    assert m.air_phase_failure_rate == 1 / 3 and m.air_false_contact_rate == 5 / 59
+    # Rule 7b: the flag also on at [46, 48), off at 44 (the last valid step), truth air
+    # and known from 44 through 46: it rose in the gap -> a failure starting at 46 (the
+    # default, rule 7 alone: no edge, no failure). Failures 46 and 50, both in phase 2.
+    p[46:48] = 0.9
+    m = evaluate(p, g, valid, dt=DT, truth_known=known)
+    assert (m.failures, m.n_air_phases, m.air_phases_with_failure) == (2, 3, 1)
+    assert evaluate(p, g, valid, dt=DT).failures == 1
+    # With min_on = 3 the 2-step run after the gap is a blip (chatter), as the one at 50.
+    deb = evaluate(p, g, valid, dt=DT, truth_known=known, min_on=3)
+    assert (deb.failures, deb.chatter) == (0, 2)
+    # On at 44 as well ([43, 45), an edge at 43: a failure of its own): the run after the
+    # gap continues it, no second failure -> 43 and 50.
+    p[43:45] = 0.9
+    m = evaluate(p, g, valid, dt=DT, truth_known=known)
+    assert (m.failures, m.air_phases_with_failure) == (2, 1)
+    # The truth at 45 unknown: it cuts the phase, and nothing rose in a known air phase
+    # -> the default's counts (4 phases; failures 43 and 50).
+    known[45] = False
+    m = evaluate(p, g, valid, dt=DT, truth_known=known)
+    assert (m.failures, m.n_air_phases) == (2, 4)
+    d = evaluate(p, g, valid, dt=DT).as_dict()
+    assert m.as_dict().keys() == d.keys()
+    for k, v in m.as_dict().items():
+        np.testing.assert_equal(v, d[k], err_msg=k)
+    # Lift-offs (rule 7b on the complements): truth on [10, 70); the flag on [12, 40) and
+    # [42, 72), step 40 invalid with known truth (contact): the flag was on at 39 and is
+    # off at 41, so it fell in the gap -> a false lift-off at 41; the default has none.
+    g = _truth([(10, 70)])
+    p = _seq([(12, 40), (42, 72)])
+    valid = np.ones(T, bool)
+    valid[40] = False
+    p[40] = np.nan
+    m = evaluate(p, g, valid, dt=DT, truth_known=np.ones(T, bool))
+    assert (m.false_liftoffs, evaluate(p, g, valid, dt=DT).false_liftoffs) == (1, 0)
+    # A valid step whose truth is not known cannot be scored; shapes must agree.
+    with pytest.raises(ValueError, match="truth_known is False at valid steps"):
+        evaluate(np.nan_to_num(p, nan=0.1), g, dt=DT, truth_known=valid)
+    with pytest.raises(ValueError, match=r"truth_known has shape \(79,\)"):
+        evaluate(p, g, valid, dt=DT, truth_known=np.ones(T - 1, bool))
+
+
 def test_air_phase_rates_pool_over_envs_and_legs():
     # (T, E=2, L=2), one sequence per (env, leg), counts pooled:
     #   [0, 0]: case (a) of the hand test: 3 phases, 2 with a failure, 8 of 60 air steps.
@@ -590,6 +647,92 @@ def test_air_rates_match_loop_oracle(shape, min_on):
         # restatement of the failure count.
         assert phases > 30 and 0 < hit < phases
         assert failures > hit or min_on > 1
+
+
+def _gap_oracle(flag, truth, valid, known, early, min_on):
+    """Loop version of rules 7, 7b, 8 and 9 with ``truth_known``: (phases, phases with a
+    failure, failures, chatter, failures by rule 7b) for touch-downs, walking each sequence
+    step by step."""
+    f2, g2, v2, k2 = (x.reshape(x.shape[0], -1) for x in (flag, truth, valid, known))
+    n_t = f2.shape[0]
+    phases = with_failure = failures = chatter = rose_in_gap = 0
+    for j in range(f2.shape[1]):
+        f, g, v, k = (list(x[:, j]) for x in (f2, g2, v2, k2))
+        starts = []
+        t = 0
+        while t < n_t:
+            if not v[t]:
+                t += 1
+                continue
+            end = t
+            while end < n_t and v[end]:
+                end += 1
+            seg = _oracle_segment([int(x) for x in g[t:end]], [int(x) for x in f[t:end]],
+                                  early, min_on)  # fmt: skip
+            starts += [t + s for s in seg["false_starts"]]
+            failures += seg["false"]
+            chatter += seg["chatter"]
+            # Rule 7b at the stretch's first step t: the last valid step before it, b.
+            b = max((u for u in range(t) if v[u]), default=None)
+            if b is not None and f[t] and not g[t] and not f[b]:
+                if all(k[u] and not g[u] for u in range(b, t + 1)):
+                    e = t
+                    while e < end and f[e]:
+                        e += 1
+                    if e - t >= min_on:
+                        failures += 1
+                        rose_in_gap += 1
+                        starts.append(t)
+                    elif e < end:
+                        chatter += 1
+            t = end
+        t = 0
+        while t < n_t:
+            if not (k[t] and not g[t]):
+                t += 1
+                continue
+            end = t
+            while end < n_t and k[end] and not g[end]:
+                end += 1
+            if any(v[t:end]):
+                phases += 1
+                with_failure += any(t <= s < end for s in starts)
+            t = end
+    return phases, with_failure, failures, chatter, rose_in_gap
+
+
+@pytest.mark.parametrize("min_on", [1, 3])
+@pytest.mark.parametrize("shape", [(800,), (200, 5), (150, 3, 2)])
+def test_gap_rules_match_loop_oracle(shape, min_on):
+    """``truth_known`` wider than ``valid`` (rules 7b, 8): touch-downs and lift-offs
+    against ``_gap_oracle``; with ``truth_known = valid`` every metric is the default's."""
+    rng = np.random.default_rng([7, min_on, *shape])
+    bridged = 0
+    for _ in range(3):
+        prob, truth, valid = _random_air_case(rng, shape)
+        # Gaps of 1-3 invalid steps, most with their truth known.
+        drop = np.zeros(shape, bool)
+        for k in range(3):
+            drop[k:] |= (rng.random(shape) < 0.04)[: shape[0] - k]
+        valid &= ~drop
+        prob[~valid] = np.nan
+        known = valid | (rng.random(shape) < 0.8)
+        kw = {"dt": DT, "early_window_s": 0.02, "min_on": min_on}
+        m = evaluate(prob, truth, valid, truth_known=known, **kw)
+        ev = match_events(prob, truth, valid, truth_known=known, **kw)
+        flag = prob > 0.5
+        ref = _gap_oracle(flag, truth, valid, known, early=8, min_on=min_on)
+        got = (m.n_air_phases, m.air_phases_with_failure, m.failures, m.chatter)
+        assert got == ref[:4]
+        assert (ev.touchdown.false_edges, ev.touchdown.chatter) == ref[2:4]
+        ref_lo = _gap_oracle(~flag, ~truth, valid, known, early=8, min_on=min_on)
+        assert (m.false_liftoffs, m.liftoff_chatter) == ref_lo[2:4]
+        bridged += ref[4] + ref_lo[4]
+        same = evaluate(prob, truth, valid, truth_known=valid.copy(), **kw).as_dict()
+        for k, v in evaluate(prob, truth, valid, **kw).as_dict().items():
+            np.testing.assert_equal(same[k], v, err_msg=k)
+    # Rule 7b did happen (false edges that rose in a gap), so the oracle's branch was tested.
+    assert bridged > 0
 
 
 def test_brier_ece_and_scores_match_loop_oracle():

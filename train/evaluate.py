@@ -332,6 +332,7 @@ def score(
     *,
     dt: float,
     names: list[str] | None = None,
+    truth_known: np.ndarray | None = None,
 ) -> dict[str, dict]:
     """Metrics of each detector's output against ground truth, as plain dicts.
 
@@ -341,9 +342,19 @@ def score(
       valid: (T, E) bool env validity, broadcast over legs; or (T, E, L) per foot.
       dt: period, s.
       names: which outputs to score (default: every P(contact) and flag output).
+      truth_known: None (= ``valid``) or the steps whose truth is known, shaped as
+        ``valid``; it holds every valid step. Invalid steps of known truth (a foot's lost
+        readings in a recording) do not cut the true air phases
+        (:mod:`jax_contact.metrics`, rules 7b and 8).
     """
-    valid = np.asarray(valid)
-    if valid.shape != truth.shape:
-        valid = np.broadcast_to(valid[..., None], truth.shape)
+
+    def per_foot(mask):
+        mask = np.asarray(mask)
+        return mask if mask.shape == truth.shape else np.broadcast_to(mask[..., None], truth.shape)
+
+    valid = per_foot(valid)
+    known = None if truth_known is None else per_foot(truth_known)
     names = names or [k for k in outputs if "/" not in k]
-    return {n: evaluate(outputs[n], truth, valid, dt=dt).as_dict() for n in names}
+    return {
+        n: evaluate(outputs[n], truth, valid, dt=dt, truth_known=known).as_dict() for n in names
+    }

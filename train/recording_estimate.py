@@ -196,9 +196,10 @@ def estimate_recording(
         if has_truth:
             # Steps whose truth is missing are scored as neither contact nor air, and so are
             # a foot's steps that read a lost reading (the estimator's valid: a joint's NaN
-            # is its own foot's, a base reading's every foot's); every detector alike.
+            # is its own foot's, a base reading's every foot's); every detector alike. The
+            # latter keep their truth, so they do not cut a true air phase in two.
             scored = np.asarray(out["probabilistic/valid"], bool) & conv.truth_known
-            scores = score(out, conv.truth, scored, dt=conv.dt)
+            scores = score(out, conv.truth, scored, dt=conv.dt, truth_known=conv.truth_known)
             if swapped := truth_order(p, conv.truth[:, 0], scored[:, 0], feet_names):
                 notes.append(swapped)
                 print_note(swapped)

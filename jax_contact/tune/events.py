@@ -21,7 +21,8 @@ class AirPhases:
 
     Attributes:
       start: (T, E, L) bool, the first step of each true air phase (a valid air step whose
-        previous step is not a valid air step: ``jax_contact.metrics`` rule 8).
+        previous step is not a valid air step: ``jax_contact.metrics`` rule 8 with the
+        truth known where the mask is valid).
       td_step: (T, E, L) bool, each true touch-down (a valid contact step after a valid
         air step; rule 2's ``t0``).
       td_window: (T, E, L) bool, the air steps at most ``early`` steps before the
