@@ -11,6 +11,7 @@ line naming what is wrong. Only the round trip runs the estimator (one planar re
 from __future__ import annotations
 
 import argparse
+import hashlib
 import json
 import re
 import subprocess
@@ -204,6 +205,168 @@ def test_lost_readings_inside_an_air_phase_do_not_cut_it(round_trip, tmp_path):
         # The rule before: the gap cut the phase, one air phase more.
         split = evaluate(out, truth, valid, dt=0.0025).n_air_phases
         assert split == clean[name]["n_air_phases"] + 1, name
+
+
+# The round trip's recording names, as --names reads them inline.
+NAMES_INLINE = ",".join(f"{v}={k}" for k, v in RENAME.items())
+
+
+def _halves(round_trip, tmp_path, change=None):
+    """The round trip's recording (renamed, degrees) cut into two runs of 1 s, as files."""
+    cols = dict(read_recording(round_trip.tmp / "robot.csv").columns)
+    if change:
+        change(cols)
+    half = len(cols["time"]) // 2
+    paths = []
+    for name, part in (("first", slice(None, half)), ("second", slice(half, None))):
+        paths.append(tmp_path / f"{name}.csv")
+        write_recording_csv(paths[-1], {k: v[part] for k, v in cols.items()})
+    return [str(x) for x in paths]
+
+
+def test_tune_on_recordings_starts_where_estimate_does(round_trip, tmp_path, capsys):
+    """``jax-contact tune --model`` tunes on recordings of your robot, read as ``estimate``
+    reads them (--names, --units): epoch 0 of the fit is the untuned defaults of
+    ``estimate``, so its validation BCE and F1 are those of ``estimate``'s output on the
+    validation recording (BCE recomputed here in float64 from that output); the file
+    records the recordings and the terms they support, and ``estimate --params`` takes it."""
+    import jax_contact as jc
+    from jax_contact.train import tune_cmd
+
+    first, second = _halves(round_trip, tmp_path)
+    out = tmp_path / "tuned.json"
+    argv = [first, "--validate", second, "--model", "planar_leg", "--names", NAMES_INLINE]
+    argv += ["--units", "deg", "--epochs", "2", "--out", str(out)]
+    assert tune_cmd.main(argv) == 0
+    _, prov = jc.load_params(out, with_provenance=True)
+    (log,), (val,) = prov["logs"], prov["validation"]
+    assert (log["kind"], log["robot"], log["steps"], val["steps"]) == (
+        "recording",
+        "planar_leg",
+        400,
+        400,
+    )
+    assert log["terms"] == ["dynamics", "diff_kinematics", "kinematics"]
+    assert log["sha256"] == hashlib.sha256(Path(first).read_bytes()).hexdigest()
+    ref = _estimate(second, tmp_path / "ref", plots=False, **AS_RECORDED)
+    p = np.asarray(ref["outputs"]["probabilistic"], np.float64).reshape(-1)
+    with h5py.File(tmp_path / "ref" / "estimate.h5", "r") as f:
+        truth = f["truth/contact"][:].reshape(-1)
+    p = np.clip(p, 1e-7, 1 - 1e-7)
+    bce = -np.mean(truth * np.log(p) + (1 - truth) * np.log(1 - p))
+    epoch0 = prov["history"][0]
+    assert epoch0["val_bce"] == pytest.approx(bce, rel=1e-4)
+    assert epoch0["val_f1"] == pytest.approx(ref["scores"]["probabilistic"]["f1"], abs=1e-6)
+    got = _estimate(second, tmp_path / "tuned", plots=False, params_path=out, **AS_RECORDED)
+    assert got["scores"]["probabilistic"]["n_steps"] == 400
+
+
+def test_tuning_leaves_out_the_steps_estimate_predicts_only(round_trip, tmp_path):
+    """The knee velocity lost on rows 300-304 of a recording: the tuning loss leaves out
+    exactly the steps at which ``estimate``'s filter predicted only (its ``valid``), and
+    the steps whose truth is missing (rows 100-109)."""
+    from jax_contact.envs.robots import load_robot as load
+    from jax_contact.train.tune_data import load_tuning_recording
+
+    def change(cols):
+        cols["qd/KNEE_J"] = cols["qd/KNEE_J"].copy()
+        cols["qd/KNEE_J"][300:305] = np.nan
+        for name in ("contact/toe", "force/toe"):
+            cols[name] = cols[name].copy()
+            cols[name][100:110] = np.nan
+
+    first, _ = _halves(round_trip, tmp_path, change)
+    data, attrs, _, _ = load_tuning_recording(
+        first, load("planar_leg"), "planar_leg", names=AS_RECORDED["names"], units="deg"
+    )
+    ref = _estimate(first, tmp_path / "ref", plots=False, **AS_RECORDED)
+    valid = np.asarray(ref["outputs"]["probabilistic/valid"], bool).reshape(-1)
+    assert not valid[300:305].all() and valid[:300].all()
+    known = np.ones(400, bool)
+    known[100:110] = False
+    np.testing.assert_array_equal(np.asarray(data.mask).reshape(-1), valid & known)
+
+
+@pytest.mark.parametrize(
+    "case, match",
+    [
+        ("copy", r"argument --validate: recording '.*copy.csv' has the same content as tuning"),
+        ("no_truth", r"argument LOG: recording '.*first.csv' has no ground truth columns"),
+        ("no_qd", r"argument LOG: recording '.*first.csv' has no qd/ column for 1 joint"),
+        ("other_terms", r"--validate: recording '.*second.csv' has measurement terms \['diff"),
+        (
+            "simulate_log",
+            r"argument --validate: '.*planar_leg_hop.h5' is a log of `jax-contact"
+            r" simulate`: tune on simulated logs without --model",
+        ),
+    ],
+)
+def test_tune_refuses_recordings_it_cannot_tune_on(round_trip, tmp_path, case, match):
+    """Before any fit: a validation recording that is a copy of a tuning one, a recording
+    without ground truth, one whose joint velocities would be differences of positions
+    (``estimate`` adds their noise to any parameters, so a tuned file would count it
+    twice), recordings whose columns support different terms, and a simulated log given
+    with --model."""
+    from jax_contact.train import tune_cmd
+
+    def change(cols):
+        if case == "no_truth":
+            del cols["contact/toe"], cols["force/toe"]
+        if case == "no_qd":
+            del cols["qd/KNEE_J"]
+
+    first, second = _halves(round_trip, tmp_path, change)
+    if case == "copy":
+        second = str(tmp_path / "copy.csv")
+        Path(second).write_bytes(Path(first).read_bytes())
+    if case == "simulate_log":
+        second = str(LOG)
+    if case == "other_terms":  # no torques in the second: no dynamics term there
+        cols = dict(read_recording(second).columns)
+        write_recording_csv(second, {k: v for k, v in cols.items() if not k.startswith("tau/")})
+    args = argparse.Namespace(
+        logs=[first], validate=[second], terrain_model="flat", noise_floor="none",
+        model="planar_leg", feet=None, names=NAMES_INLINE, units="deg", resample=False,
+        force_threshold=1.0,
+    )  # fmt: skip
+    with pytest.raises(ValueError, match=match):
+        tune_cmd.load_logs(args)
+
+
+def test_tune_checks_recording_flags_without_jax(tmp_path):
+    """The recording flags need --model, a recording needs --model, and --select spread
+    (a bootstrap over envs) has nothing to resample in a recording: refused by ``check``,
+    before JAX loads."""
+    rec, log = tmp_path / "run.csv", tmp_path / "run.h5"
+    rec2, log2 = tmp_path / "other.csv", tmp_path / "other.h5"
+    for f in (rec, rec2):
+        f.write_text("time\n")
+    for f in (log, log2):
+        f.write_bytes(b"")
+    code = (
+        "import sys, argparse, jax_contact.train.tune_cmd as t\n"
+        "p = argparse.ArgumentParser(); t.add_parser(p.add_subparsers())\n"
+        "for argv in sys.argv[1:]:\n"
+        "    a = p.parse_args(['tune', *argv.split()])\n"
+        "    try:\n        a.check(a)\n    except ValueError as e:\n        print(e)\n"
+        "assert 'jax' not in sys.modules\n"
+    )
+    cases = [
+        f"{rec} --validate {log} --out x.json",
+        f"{log} --validate {log2} --names a=b --out x.json",
+        f"{rec} --validate {rec2} --model planar_leg --select spread --out x.json",
+        f"{rec} --validate {rec2} --model planar_leg --force-threshold -1 --out x.json",
+    ]
+    out = subprocess.run([sys.executable, "-c", code, *cases], capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    lines = out.stdout.splitlines()
+    assert lines[0] == (
+        f"argument LOG: {str(rec)!r} is a recording: tune on recordings of your robot with"
+        " --model ROBOT (read as `jax-contact estimate` reads them)"
+    )
+    assert lines[1].startswith("argument --names: says how a recording is read; it needs --model")
+    assert lines[2].startswith("argument --select: spread resamples the validation logs' envs")
+    assert lines[3].startswith("argument --force-threshold: must be a finite force >= 0 N")
 
 
 def test_a_degree_recording_read_as_radians_warns(round_trip, tmp_path, capsys):

@@ -68,14 +68,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     )
     add_terrain_model_flag(p)
     add_recording_flags(p)
-    p.add_argument(
-        "--force-threshold",
-        type=float,
-        default=FORCE_THRESHOLD,
-        metavar="N",
-        help="a force/<foot> column above this is contact (N; default 1, the simulator's);"
-        " raise it for a foot sensor with an offset",
-    )
+    add_force_threshold_flag(p)
     p.add_argument("--out", default="out/estimate", help="output folder")
     p.add_argument("--no-plots", action="store_true", help="skip the PNG per foot")
     p.set_defaults(func=run, check=check)
@@ -105,6 +98,29 @@ def add_recording_flags(p: argparse.ArgumentParser) -> None:
         action="store_true",
         help="resample irregular time steps onto a uniform grid (linear) instead of refusing",
     )
+
+
+def add_force_threshold_flag(p: argparse.ArgumentParser) -> None:
+    """``--force-threshold N``: how a recording's ``force/<foot>`` truth column is read
+    (``estimate``, ``tune`` on recordings); :func:`check_force_threshold` checks it."""
+    p.add_argument(
+        "--force-threshold",
+        type=float,
+        default=FORCE_THRESHOLD,
+        metavar="N",
+        help="a force/<foot> column above this is contact (N; default 1, the simulator's);"
+        " raise it for a foot sensor with an offset",
+    )
+
+
+def check_force_threshold(value: float) -> None:
+    """Raises ValueError naming ``--force-threshold`` unless it is a finite force >= 0 N."""
+    if not (math.isfinite(value) and value >= 0):
+        raise ValueError(
+            f"argument --force-threshold: must be a finite force >= 0 N, got"
+            f" {value} (a force/ column above it is contact; a sensor that"
+            " reads the load as negative: negate its column)"
+        )
 
 
 def add_feet_flag(p: argparse.ArgumentParser, default: str = "found in the model") -> None:
@@ -243,12 +259,7 @@ def check(args: argparse.Namespace) -> None:
     if args.params is not None:
         check_params_source("--params", args.params)
     parse_names(args.names)
-    if not (math.isfinite(args.force_threshold) and args.force_threshold >= 0):
-        raise ValueError(
-            f"argument --force-threshold: must be a finite force >= 0 N, got"
-            f" {args.force_threshold} (a force/ column above it is contact; a sensor that"
-            " reads the load as negative: negate its column)"
-        )
+    check_force_threshold(args.force_threshold)
     check_output_folder("--out", args.out)
     check_outputs_not_folders("--out", args.out, ESTIMATE_OUTPUTS)
 

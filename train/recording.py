@@ -87,6 +87,11 @@ RATE_TOLERANCE = 0.01
 DIAGNOSTICS = ("p_dynamics", "p_diff_kinematics", "p_kinematics", "p_takeoff", "p_touchdown")
 
 
+class SimulateLogGiven(ValueError):
+    """A log of ``jax-contact simulate`` given where a recording is read: the commands that
+    read recordings say which of theirs reads the log."""
+
+
 def in_schema(name: str) -> bool:
     """Whether the schema reads a column of this name (the rest are ignored, with a note)."""
     base = set(BASE_QUAT).union(*BASE.values())
@@ -154,7 +159,7 @@ def read_recording(path: str | Path) -> Recording:
                 f"{src} cannot be read as HDF5 ({' '.join(str(err).split())})"
             ) from None
     if "readings/qpos" in columns and "time" in columns:  # a jax_contact.io log
-        raise ValueError(
+        raise SimulateLogGiven(
             f"{src} is a log of `jax-contact simulate` (readings/qpos, ... per env): run"
             " `jax-contact evaluate` on it; `estimate` reads a recording of named columns"
         )

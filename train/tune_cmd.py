@@ -17,6 +17,12 @@ CLI with ``tune_cmd.add_parser(sub)``; ``python -m jax_contact.train.tune_cmd ..
 The default parameters that tuning starts from (and that the prior is centred on) are
 the ones ``jax-contact evaluate`` uses for the log's robot: ``params_for`` with the log's
 sensor preset (``anymal_like`` unless the log says otherwise) and the default gait prior.
+
+With ``--model ROBOT`` the inputs are recordings of your own robot with ground truth
+(``contact/<foot>`` or ``force/<foot>`` columns; the schema of ``jax-contact estimate``,
+read with its ``--feet``, ``--names``, ``--units``, ``--resample`` and
+``--force-threshold``), and the fit starts from the parameters ``estimate`` uses for that
+robot (:func:`jax_contact.train.tune_data.load_tuning_recording`).
 """
 
 from __future__ import annotations
@@ -51,6 +57,10 @@ from jax_contact.train.tune_presets import (  # noqa: F401
 )
 
 LOG_SUFFIXES = (".h5", ".hdf5")
+# Copy of jax_contact.train.recording.SUFFIXES (estimate_cmd.RECORDING_SUFFIXES).
+RECORDING_SUFFIXES = (".csv", ".npz", ".h5", ".hdf5")
+# The flags that say how a recording is read; only with --model.
+RECORDING_FLAGS = {"feet": None, "names": None, "units": "rad", "resample": False}
 # Copies of jax_contact.tune.DEFAULT_FIELDS and OPTIONAL_FIELDS (importing it imports JAX);
 # tests/test_tune.py checks that they agree.
 DEFAULT_FIELDS = (
@@ -94,14 +104,39 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         " reads.",
         formatter_class=HelpFormatter,
     )
-    p.add_argument("logs", nargs="+", metavar="LOG", help="tuning logs (.h5 with truth/contact)")
+    p.add_argument(
+        "logs",
+        nargs="+",
+        metavar="LOG",
+        help="tuning logs (.h5 of jax-contact simulate, with truth/contact); with --model,"
+        " recordings of your robot with ground truth (.csv, .npz, .h5)",
+    )
     p.add_argument(
         "--validate",
         required=True,
         nargs="+",
         metavar="LOG",
-        help="validation log(s) of other seeds (.h5): early stopping on their pooled BCE",
+        help="validation log(s) of other seeds, or recordings of other runs (with --model):"
+        " early stopping on their pooled BCE",
     )
+    p.add_argument(
+        "--model",
+        "--robot",
+        dest="model",
+        default=None,
+        help="tune on recordings of this robot (a robot name or an MJCF .xml file with a"
+        " floor), read as `jax-contact estimate` reads them (docs/own_robot.md); the fit"
+        " starts from estimate's defaults for it",
+    )
+    from jax_contact.train.estimate_cmd import (
+        add_feet_flag,
+        add_force_threshold_flag,
+        add_recording_flags,
+    )
+
+    add_feet_flag(p, default="found in the model; with --model")
+    add_recording_flags(p)
+    add_force_threshold_flag(p)
     p.add_argument(
         "--terrain-model",
         choices=("flat", "memory"),  # jax_contact.train.logs.TERRAIN_MODELS
@@ -246,12 +281,42 @@ def check(args: argparse.Namespace) -> None:
     """Raises ValueError naming the argument unless the inputs exist and --out can be
     written (no JAX imported)."""
     validate = [args.validate] if isinstance(args.validate, str) else list(args.validate)
+    model = getattr(args, "model", None)
     for arg, path in [("LOG", p) for p in args.logs] + [("--validate", v) for v in validate]:
         p = Path(path)
         if not p.is_file():
             raise ValueError(f"argument {arg}: file {path!r} does not exist")
-        if p.suffix not in LOG_SUFFIXES:
-            raise ValueError(f"argument {arg}: {path!r} must end in {' or '.join(LOG_SUFFIXES)}")
+        if (
+            model is None
+            and p.suffix.lower() in RECORDING_SUFFIXES
+            and p.suffix.lower() not in LOG_SUFFIXES
+        ):
+            raise ValueError(
+                f"argument {arg}: {path!r} is a recording: tune on recordings of your robot"
+                " with --model ROBOT (read as `jax-contact estimate` reads them)"
+            )
+        suffixes = LOG_SUFFIXES if model is None else RECORDING_SUFFIXES
+        if p.suffix.lower() not in suffixes:
+            raise ValueError(f"argument {arg}: {path!r} must end in {' or '.join(suffixes)}")
+    if model is None:
+        for flag, default in {**RECORDING_FLAGS, "force_threshold": 1.0}.items():
+            if getattr(args, flag, default) != default:
+                raise ValueError(
+                    f"argument --{flag.replace('_', '-')}: says how a recording is read; it"
+                    " needs --model ROBOT (a simulated log stores its own feet and units)"
+                )
+    else:
+        from jax_contact.train.cli_args import check_robot
+        from jax_contact.train.estimate_cmd import check_force_threshold, parse_names
+
+        check_robot("--model", model)
+        parse_names(args.names)
+        check_force_threshold(args.force_threshold)
+        if getattr(args, "select", "loss") == "spread":
+            raise ValueError(
+                "argument --select: spread resamples the validation logs' envs, and a"
+                " recording is one run (one env); use loss, bce or cells"
+            )
     tuning = {str(Path(p).resolve()) for p in args.logs}
     if any(str(Path(v).resolve()) in tuning for v in validate):
         raise ValueError("argument --validate: a validation log is also a tuning log")
@@ -286,8 +351,20 @@ def _noise_of(attrs) -> str:
 
 
 def _setup(d) -> dict:
-    """What the fit starts from, of a log's attributes or its :func:`_log_info`."""
-    return {"robot": str(d["robot"]), "period dt": float(d["dt"]), "sensor noise": _noise_of(d)}
+    """What the fit starts from, of a log's attributes or its :func:`_log_info` (a
+    recording's also the measurement terms its columns support)."""
+    out = {"robot": str(d["robot"]), "period dt": float(d["dt"]), "sensor noise": _noise_of(d)}
+    if "terms" in d:
+        out["measurement terms"] = list(d["terms"])
+    return out
+
+
+def _differ(a, b) -> bool:
+    """Two setup values differ (a period by more than 1e-6 of itself: the median step of
+    two recordings at one rate differs in its last digits)."""
+    if isinstance(a, float) and isinstance(b, float):
+        return abs(a - b) > 1e-6 * max(abs(a), abs(b))
+    return a != b
 
 
 def _same_setup(arg: str, path, attrs, first: dict) -> None:
@@ -296,19 +373,24 @@ def _same_setup(arg: str, path, attrs, first: dict) -> None:
     sensor model and floors its noise there, so a mixed set would be tuned from whichever
     log came first."""
     got, want = _setup(attrs), _setup(first)
+    what = "recording" if attrs.get("kind") == "recording" else "log"
     for shown in got:
-        if got[shown] != want[shown]:
+        if _differ(got[shown], want.get(shown)):
             raise ValueError(
-                f"argument {arg}: log {str(path)!r} has {shown} {got[shown]!r}; the first"
-                f" tuning log {first['path']!r} has {want[shown]!r}: tune on logs of one"
-                " robot, period and sensor model"
+                f"argument {arg}: {what} {str(path)!r} has {shown} {got[shown]!r}; the first"
+                f" tuning {what} {first['path']!r} has {want[shown]!r}: tune on {what}s of one"
+                f" robot, period and sensor model"
+                + (", with the same columns" if what == "recording" else "")
             )
 
 
 def _run_key(info: dict) -> tuple:
     """What makes two logs the same run: robot, gait, scenario, terrain, roughness, seed,
     envs, steps (a copy of a tuning log given as a validation log is caught by it; logs without a
-    seed are never the same run)."""
+    seed are never the same run); a recording's, its bytes (``sha256``: a copy under another
+    name is the same run)."""
+    if info.get("sha256"):
+        return ("sha256", info["sha256"])
     if info.get("seed") is None:
         return ("path", info["path"])
     keys = ("robot", "gait", "scenario", "terrain", "roughness", "seed", "n_envs", "steps")
@@ -317,6 +399,7 @@ def _run_key(info: dict) -> tuple:
 
 def _log_info(path, attrs, data) -> dict:
     keys = ("robot", "gait", "scenario", "terrain", "noise", "seed", "n_envs", "dt", "roughness")
+    keys += ("kind", "terms", "sha256")  # a recording's (load_tuning_recording)
     info = {"path": str(path), "resolved": str(Path(path).resolve())}
     info.update({k: attrs[k] for k in keys if k in attrs})
     info["steps"] = int(data.n_steps)
@@ -394,8 +477,8 @@ def run(args: argparse.Namespace) -> int:
 
 
 def load_logs(args: argparse.Namespace) -> Inputs:
-    """The :class:`Inputs` of ``jax-contact tune``'s logs (one robot for all)."""
-    from jax_contact.envs.robots import load_robot
+    """The :class:`Inputs` of ``jax-contact tune``'s logs (one robot for all), or of its
+    recordings with ``args.model``."""
     from jax_contact.robot import model_mass
     from jax_contact.tune import check_scored_steps
 
@@ -403,9 +486,18 @@ def load_logs(args: argparse.Namespace) -> Inputs:
     train, infos = [], []
     base = terrain = floor = None
     terrain_model = getattr(args, "terrain_model", "flat")
+    if getattr(args, "model", None):
+        load_one = _recording_loader(args, terrain_model)
+    else:
+
+        def load_one(arg: str, path):
+            return load_tuning_log(path, terrain_model)
+
+    first_robot = None
     for path in args.logs:
-        data, robot, attrs, params, terr = load_tuning_log(path, terrain_model)
+        data, robot, attrs, params, terr = load_one("LOG", path)
         if not infos:
+            first_robot = robot
             # The starting parameters, terrain and noise floor are the first log's; the
             # others must share its robot, period and sensors (_same_setup).
             base, terrain = params, terr
@@ -423,11 +515,18 @@ def load_logs(args: argparse.Namespace) -> Inputs:
     validate = [args.validate] if isinstance(args.validate, str) else list(args.validate)
     for path in validate:
         try:
-            val, _, vattrs, _, _ = load_tuning_log(path, terrain_model)
+            val, _, vattrs, _, _ = load_one("--validate", path)
         except ValueError as err:  # one of the logs' own checks (no truth, shapes, ...)
+            if str(err).startswith("argument --validate"):
+                raise
             raise ValueError(f"argument --validate: {err}") from None
         _same_setup("--validate", path, vattrs, infos[0])
         info = _log_info(path, vattrs, val)
+        if _run_key(info) in tuned_on and info.get("sha256"):
+            raise ValueError(
+                f"argument --validate: recording {str(path)!r} has the same content as tuning"
+                f" recording {tuned_on[_run_key(info)]!r}: validation needs another run"
+            )
         if _run_key(info) in tuned_on:
             raise ValueError(
                 f"argument --validate: log {str(path)!r} is the same run (robot, gait, terrain,"
@@ -439,11 +538,47 @@ def load_logs(args: argparse.Namespace) -> Inputs:
     check_scored_steps(vals, "validation log", names=[repr(str(p)) for p in validate])
     t_load = time.perf_counter() - t0
     print(f"measurements precomputed in {t_load:.1f} s", file=sys.stderr)
-    robot = load_robot(robot_name)
+    if getattr(args, "model", None) is None:
+        from jax_contact.envs.robots import load_robot
+
+        first_robot = load_robot(robot_name)
     return Inputs(
         train, vals, infos, vinfos, base, terrain, floor,
-        robot.description, robot_name, terrain_model, t_load, model_mass(robot.mj_model),
+        first_robot.description, robot_name, terrain_model, t_load,
+        model_mass(first_robot.mj_model),
     )  # fmt: skip
+
+
+def _recording_loader(args: argparse.Namespace, terrain_model: str):
+    """``load_one(arg, path)`` of :func:`load_logs` for recordings of ``args.model``: the
+    robot loaded once, each recording converted as ``jax-contact estimate`` converts it
+    (its notes printed), errors naming the argument."""
+    from jax_contact.envs.robots import load_robot
+    from jax_contact.train.estimate_cmd import parse_names
+    from jax_contact.train.recording import SimulateLogGiven
+    from jax_contact.train.tune_data import load_tuning_recording
+
+    robot = load_robot(args.model, foot_names=args.feet)
+    options = dict(
+        names=parse_names(args.names), units=args.units, resample=args.resample,
+        force_threshold=args.force_threshold, terrain_model=terrain_model,
+    )  # fmt: skip
+
+    def load_one(arg: str, path):
+        try:
+            data, attrs, params, terrain = load_tuning_recording(path, robot, args.model, **options)
+        except SimulateLogGiven:
+            raise ValueError(
+                f"argument {arg}: {str(path)!r} is a log of `jax-contact simulate`: tune on"
+                " simulated logs without --model (--model reads recordings of named columns)"
+            ) from None
+        except ValueError as err:
+            raise ValueError(f"argument {arg}: {err}") from None
+        for line in attrs.pop("notes"):
+            print(f"note: {path}: {line}", file=sys.stderr)
+        return data, robot, attrs, params, terrain
+
+    return load_one
 
 
 FAR_FACTOR = 4.0  # a tuned value this far from its derived one is reported

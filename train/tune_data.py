@@ -3,15 +3,18 @@
 A log is read once (:func:`read_truth_log`: the end-of-step timing convention, the robot
 with the log's feet, every shape checked), the MJX adapter runs over its readings once
 (:func:`measure_readings`), and the tuning loop then only runs the estimator
-(:mod:`jax_contact.tune`). :func:`default_params` are the parameters ``jax-contact
-evaluate`` uses for the log's robot, which tuning starts from and its prior is centred on;
-:func:`sensor_floor` the least std each noise may be tuned to.
+(:mod:`jax_contact.tune`). A recording of your own robot with ground truth (the schema of
+``jax-contact estimate``) is read as ``estimate`` reads it (:func:`load_tuning_recording`).
+:func:`default_params` are the parameters ``jax-contact evaluate`` uses for the log's robot,
+which tuning starts from and its prior is centred on; :func:`sensor_floor` the least std
+each noise may be tuned to.
 
 Standard library only at import, like the command line (``jax_contact.train.cli``).
 """
 
 from __future__ import annotations
 
+import hashlib
 from pathlib import Path
 
 
@@ -120,8 +123,118 @@ def load_tuning_log(path: str | Path, terrain_model: str = "flat"):
     params, plane = default_params(robot, dt, str(attrs.get("noise", "anymal_like")))
     terrain = terrain_for(plane, terrain_model)
     meas = measure_readings(robot, readings)
-    mask = np.broadcast_to(valid[..., None], truth.shape)
+    mask = np.broadcast_to(valid[..., None], truth.shape) & feet_read(params, readings, meas)
     return TuningData(meas=meas, truth=truth, mask=np.array(mask)), robot, attrs, params, terrain
+
+
+def feet_read(params, readings: dict, meas):
+    """(T, E, L) bool, or True when every reading is finite: the steps at which each foot's
+    estimator reads finite inputs (:func:`jax_contact.types.blocks_are_finite`, the filter's
+    own rule). Elsewhere the filter predicts only (a lost reading), so the loss leaves those
+    steps out, as ``estimate``'s metrics do."""
+    import jax
+    import numpy as np
+
+    from jax_contact.measurement import robot_leg_blocks
+    from jax_contact.types import blocks_are_finite
+
+    if all(np.isfinite(np.asarray(x)).all() for x in readings.values()):
+        return True
+    per_foot = jax.jit(
+        jax.vmap(jax.vmap(lambda m: jax.vmap(blocks_are_finite)(robot_leg_blocks(params, m))))
+    )
+    return in_time_chunks(per_foot, meas, 400)
+
+
+# What a recording's tuning starts from: the sensor model ``estimate``'s defaults assume
+# (a recording does not say which sensors it was made with).
+RECORDING_NOISE = "anymal_like"
+
+
+def load_tuning_recording(
+    path: str | Path,
+    robot,
+    model: str,
+    *,
+    names=None,
+    units: str = "rad",
+    resample: bool = False,
+    force_threshold: float = 1.0,
+    terrain_model: str = "flat",
+):
+    """A recording of one robot with ground truth -> (TuningData, attrs, params, terrain).
+
+    The recording (``jax-contact estimate``'s schema, :mod:`jax_contact.train.recording`)
+    is converted as ``estimate`` converts it (``names``, ``units``, ``resample`` and
+    ``force_threshold`` as there), and the fit starts from the parameters ``estimate``
+    uses for the robot by default (:func:`jax_contact.train.logs.default_estimator`, which
+    assume ``anymal_like`` sensors: :data:`RECORDING_NOISE`), restricted to the terms the
+    recording's columns support (a recording without torques tunes no dynamics term).
+    Scored steps: those ``estimate`` scores, a foot's steps whose truth is known and whose
+    estimator inputs are finite (:func:`feet_read`).
+
+    Args:
+      path: the recording (.csv, .npz, .h5).
+      robot: the :class:`jax_contact.envs.robots.Robot` it was recorded on (its feet).
+      model: the robot's name or MJCF path, for the provenance.
+
+    Returns:
+      The :class:`jax_contact.tune.TuningData` (one env), the attributes the provenance
+      and the setup checks read (``robot``, ``sha256`` of the file, ``dt``, ``noise``,
+      ``kind``, ``terms``, ``n_envs``, ``notes``), the starting parameters and the terrain.
+
+    Raises:
+      ValueError: naming the file, for a recording without ground truth or whose joint
+        velocities are derived from its positions, or any error of the conversion.
+    """
+    import numpy as np
+
+    from jax_contact.train.logs import default_estimator
+    from jax_contact.train.recording import read_recording
+    from jax_contact.train.recording_convert import to_readings
+    from jax_contact.tune import TuningData
+
+    conv = to_readings(
+        read_recording(path), robot, names=names, units=units, resample=resample,
+        force_threshold=force_threshold,
+    )  # fmt: skip
+    name = repr(str(path))
+    if conv.truth is None:
+        raise ValueError(
+            f"recording {name} has no ground truth columns (contact/<foot> or force/<foot>):"
+            " it can neither be tuned on nor validate a fit"
+        )
+    if conv.velocity_from_position:
+        raise ValueError(
+            f"recording {name} has no qd/ column for {len(conv.velocity_from_position)} joint(s):"
+            " their velocities would be differences of positions, whose extra noise"
+            " `jax-contact estimate` adds to any parameters at run time, so a file tuned on"
+            " them would count it twice; tune on recordings with the joints' own velocities"
+        )
+    params, terrain = default_estimator(
+        robot.description, conv.dt, terrain_model, mj_model=robot.mj_model
+    )
+    terms = tuple(t for t in params.terms if t in conv.terms)
+    if not terms:
+        raise ValueError(f"recording {name}: no measurement term can run on its columns")
+    params = params.replace(terms=terms)
+    meas = measure_readings(robot, conv.readings)
+    known = np.asarray(conv.truth_known, bool)
+    # The filter's own rule, foot by foot, as estimate scores (not the converter's per-row
+    # flag, which also drops the row after a lost reading).
+    mask = known & feet_read(params, conv.readings, meas)
+    attrs = {
+        "robot": model,
+        "sha256": hashlib.sha256(Path(path).read_bytes()).hexdigest(),
+        "dt": conv.dt,
+        "noise": RECORDING_NOISE,
+        "kind": "recording",
+        "terms": list(terms),
+        "n_envs": 1,
+        "notes": list(conv.notes),
+    }
+    truth = np.where(known, conv.truth, False)
+    return TuningData(meas=meas, truth=truth, mask=np.array(mask)), attrs, params, terrain
 
 
 def default_params(robot, dt: float, noise: str = "anymal_like"):
