@@ -413,6 +413,19 @@ def test_cli_arguments_are_checked_without_jax(tmp_path):
         args.check(args)  # it failed later on "swing_time must exceed dt"
     with pytest.raises(SystemExit):  # --robot and --model together
         parser.parse_args(["export", "--robot", "go1", "--model", "a.xml", "--out", "a.contact"])
+    # --model takes a robot name as estimate's and tune's do (it used to say "file 'go1'
+    # does not exist"), else an existing MJCF .xml file.
+    args = parser.parse_args(["export", "--model", "go1", "--out", str(tmp_path / "a.contact")])
+    args.check(args)
+    (tmp_path / "r.urdf").write_text("x")
+    for model, match in [
+        ("go7", r"argument --model: unknown robot 'go7'; valid names: go1"),
+        (str(tmp_path / "no.xml"), r"argument --model: MJCF file '.*no.xml' does not exist"),
+        (str(tmp_path / "r.urdf"), r"argument --model: '.*r.urdf' must be an MJCF .xml file"),
+    ]:
+        args = parser.parse_args(["export", "--model", model, "--out", "a.contact"])
+        with pytest.raises(ValueError, match=match):
+            args.check(args)
     (tmp_path / "a.contact").write_bytes(b"x")
     args = parser.parse_args(["deploy-check", str(tmp_path / "a.contact"), str(tmp_path / "l.h5")])
     with pytest.raises(ValueError, match="argument log"):

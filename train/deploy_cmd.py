@@ -57,7 +57,12 @@ def add_parsers(subparsers) -> None:
     which.add_argument(
         "--robot", default=None, metavar="NAME", help=f"a robot name: {', '.join(ROBOT_NAMES)}"
     )
-    which.add_argument("--model", default=None, metavar="XML", help="an MJCF file (with its floor)")
+    which.add_argument(
+        "--model",
+        default=None,
+        metavar="XML",
+        help="an MJCF file (with its floor); a robot name is taken too, as by estimate and tune",
+    )
     p.add_argument(
         "--feet",
         nargs="+",
@@ -123,7 +128,7 @@ def check_export(args: argparse.Namespace) -> None:
     """Raises ValueError naming the argument that is wrong (no JAX import)."""
     from jax_contact.train.cli_args import (
         MIN_RATE_HZ,
-        check_input_file,
+        ROBOT_NAMES,
         check_output_file,
         check_params_source,
         check_robot,
@@ -131,9 +136,9 @@ def check_export(args: argparse.Namespace) -> None:
 
     if args.robot is not None:
         check_robot("--robot", args.robot)
-    else:
-        check_input_file("--model", args.model)
-        if not args.model.endswith(".xml"):
+    else:  # an MJCF file, or a robot name (as `estimate --model` and `tune --model` take)
+        check_robot("--model", args.model)
+        if args.model not in ROBOT_NAMES and not args.model.endswith(".xml"):
             raise ValueError(f"argument --model: {args.model!r} must be an MJCF .xml file")
     if args.rate < MIN_RATE_HZ:
         raise ValueError(
