@@ -805,8 +805,9 @@ def test_evaluate_plots_writes_the_reliability_diagram_of_every_scored_row(tmp_p
 def test_tune_refuses_mixed_copied_and_unscoreable_logs(tmp_path):
     """``jax-contact tune``'s logs (tune_cmd.load_logs) are refused before any fit when they
     mix sensor models or periods (the fit would start from whichever came first), when a
-    validation log is a tuning log's run under another name, when a log has no step that
-    counts, and when the tuning logs hold one class only."""
+    validation log is a tuning log's run under another name, when a tuning log is given
+    twice, when a log has no step that counts, and when the tuning logs hold one class
+    only."""
     from jax_contact.train import tune_cmd
 
     rng = np.random.default_rng(2)
@@ -830,7 +831,9 @@ def test_tune_refuses_mixed_copied_and_unscoreable_logs(tmp_path):
     refused([a, harsh], [b], r"argument LOG: log '.*harsh.h5' has sensor noise 'harsh'; the"
             r" first tuning log '.*a.h5' has 'anymal_like'")  # fmt: skip
     slow = log("slow.h5", 3, attrs={"dt": 0.005})
-    refused([a], [slow], r"argument --validate: log '.*slow.h5' has period dt 0.005")
+    refused([a], [slow], r"argument --validate: log '.*slow.h5' has period dt 5 ms \(200 Hz\);"
+            r" the first tuning log '.*a.h5' has 2.5 ms \(400 Hz\)")  # fmt: skip
+    refused([a, str(Path(a))], [b], r"argument LOG: '.*a.h5' is the same run as tuning log")
     copy = tmp_path / "copy.h5"
     copy.write_bytes(Path(a).read_bytes())
     refused([a], [str(copy)], r"'.*copy.h5' is the same run .* seed 0\) as tuning log")

@@ -292,7 +292,7 @@ def test_tuning_leaves_out_the_steps_estimate_predicts_only(round_trip, tmp_path
     [
         ("copy", r"argument --validate: recording '.*copy.csv' has the same content as tuning"),
         ("no_truth", r"argument LOG: recording '.*first.csv' has no ground truth columns"),
-        ("no_qd", r"argument LOG: recording '.*first.csv' has no qd/ column for 1 joint"),
+        ("no_qd", r"argument LOG: recording '.*first.csv' has no column qd/KNEE_J: those"),
         ("other_terms", r"--validate: recording '.*second.csv' has measurement terms \['diff"),
         (
             "simulate_log",
@@ -331,6 +331,59 @@ def test_tune_refuses_recordings_it_cannot_tune_on(round_trip, tmp_path, case, m
     )  # fmt: skip
     with pytest.raises(ValueError, match=match):
         tune_cmd.load_logs(args)
+
+
+def test_tune_warns_on_recordings_the_model_does_not_fit(round_trip, tmp_path, capsys):
+    """Readings the model does not fit: ``tune`` used to tune on them without a word and
+    write the file. The rail reading 30 cm too high (a floor not at z = 0): ``estimate``'s
+    floor warning for each recording and a summary naming them (reading alone). Angles in
+    degrees read as radians: after the fit, the untuned estimator's validation F1 (near 0)
+    with what to check."""
+    from jax_contact.train import tune_cmd
+
+    def raised(cols):
+        cols["q/slider_z"] = cols["q/slider_z"] + 0.3
+
+    first, second = _halves(round_trip, tmp_path, raised)
+    args = argparse.Namespace(
+        logs=[first], validate=[second], terrain_model="flat", noise_floor="none",
+        model="planar_leg", feet=None, names=NAMES_INLINE, units="deg", resample=False,
+        force_threshold=1.0,
+    )  # fmt: skip
+    tune_cmd.load_logs(args)
+    err = capsys.readouterr().err
+    for path in (first, second):
+        assert re.search(
+            rf"warning: {re.escape(path)}: the feet's soles sit 2\d cm above z = 0", err
+        )
+    assert f"warning: 2 of 2 recordings read with warnings ({first}, {second})" in err
+    first, second = _halves(round_trip, tmp_path)
+    argv = [first, "--validate", second, "--model", "planar_leg", "--names", NAMES_INLINE]
+    argv += ["--epochs", "1", "--out", str(tmp_path / "t.json")]  # no --units deg
+    assert tune_cmd.main(argv) == 0
+    err = capsys.readouterr().err
+    f1 = re.search(r"warning: the untuned estimator's validation F1 is (\d\.\d+): the", err)
+    assert f1 and float(f1.group(1)) < 0.5, err[-2000:]
+
+
+def test_estimate_says_when_a_file_runs_fewer_terms_than_the_recording_supports(
+    round_trip, tmp_path
+):
+    """A parameter file without the dynamics term (tuned on recordings without torques)
+    on a recording with torques: a note says so (it ran silently without it)."""
+    import jax_contact as jc
+    from jax_contact.train.reproduce import planar_estimator_params
+
+    params = planar_estimator_params(3, 0.0025)
+    path = jc.save_params(tmp_path / "no_dyn.json", params.replace(terms=params.terms[1:]))
+    got = _estimate(
+        round_trip.tmp / "robot.csv", tmp_path / "out", plots=False, params_path=path,
+        **AS_RECORDED,
+    )  # fmt: skip
+    assert params.terms[0] == "dynamics"
+    assert f"the parameters {str(path)!r} run no dynamics term, which this recording's" in (
+        "\n".join(got["notes"])
+    )
 
 
 def test_tune_checks_recording_flags_without_jax(tmp_path):

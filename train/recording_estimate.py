@@ -93,6 +93,12 @@ def estimate_recording(
         )
     params = noise_for_differences(params.replace(terms=terms), conv)
     notes = list(conv.notes)
+    if params_path is not None and (unused := [t for t in conv.terms if t not in terms]):
+        notes.append(
+            f"the parameters {str(params_path)!r} run no {' or '.join(unused)} term, which"
+            " this recording's columns support (a file tuned on recordings without them);"
+            " the defaults run every term"
+        )
     if conv.velocity_from_position:
         notes.append(
             "the estimator's velocity and acceleration noise of the differentiated"

@@ -359,12 +359,24 @@ def _setup(d) -> dict:
     return out
 
 
+# Two periods within this fraction of each other are one rate: the median steps of two
+# recordings at one rate differ in their last digits, and by up to a few tenths of a per
+# cent after --resample (each onto its own median); a recording's own steps may vary by 1 %.
+PERIOD_TOLERANCE = 0.01
+
+
 def _differ(a, b) -> bool:
-    """Two setup values differ (a period by more than 1e-6 of itself: the median step of
-    two recordings at one rate differs in its last digits)."""
+    """Two setup values differ (periods by more than :data:`PERIOD_TOLERANCE`)."""
     if isinstance(a, float) and isinstance(b, float):
-        return abs(a - b) > 1e-6 * max(abs(a), abs(b))
+        return abs(a - b) > PERIOD_TOLERANCE * max(abs(a), abs(b))
     return a != b
+
+
+def _shown(value) -> str:
+    """A setup value as the refusal prints it (a period in ms and Hz)."""
+    if isinstance(value, float):
+        return f"{value * 1e3:.6g} ms ({1.0 / value:.6g} Hz)"
+    return repr(value)
 
 
 def _same_setup(arg: str, path, attrs, first: dict) -> None:
@@ -377,9 +389,9 @@ def _same_setup(arg: str, path, attrs, first: dict) -> None:
     for shown in got:
         if _differ(got[shown], want.get(shown)):
             raise ValueError(
-                f"argument {arg}: {what} {str(path)!r} has {shown} {got[shown]!r}; the first"
-                f" tuning {what} {first['path']!r} has {want[shown]!r}: tune on {what}s of one"
-                f" robot, period and sensor model"
+                f"argument {arg}: {what} {str(path)!r} has {shown} {_shown(got[shown])}; the"
+                f" first tuning {what} {first['path']!r} has {_shown(want[shown])}: tune on"
+                f" {what}s of one robot, period and sensor model"
                 + (", with the same columns" if what == "recording" else "")
             )
 
@@ -487,7 +499,7 @@ def load_logs(args: argparse.Namespace) -> Inputs:
     base = terrain = floor = None
     terrain_model = getattr(args, "terrain_model", "flat")
     if getattr(args, "model", None):
-        load_one = _recording_loader(args, terrain_model)
+        load_one = _RecordingLoader(args, terrain_model)
     else:
 
         def load_one(arg: str, path):
@@ -505,8 +517,15 @@ def load_logs(args: argparse.Namespace) -> Inputs:
                 floor = sensor_floor(robot, float(attrs["dt"]), _noise_of(attrs))
         else:
             _same_setup("LOG", path, attrs, infos[0])
+        info = _log_info(path, attrs, data)
+        twice = [i["path"] for i in infos if _run_key(i) == _run_key(info)]
+        if twice:
+            raise ValueError(
+                f"argument LOG: {str(path)!r} is the same run as tuning log {twice[0]!r}"
+                " (given twice, it would count twice)"
+            )
         train.append(data)
-        infos.append(_log_info(path, attrs, data))
+        infos.append(info)
         print(f"loaded {path}: {data.truth.shape} (T, envs, feet)", file=sys.stderr)
     check_scored_steps(train, "tuning log", names=[repr(str(p)) for p in args.logs])
     robot_name = infos[0]["robot"]
@@ -535,7 +554,16 @@ def load_logs(args: argparse.Namespace) -> Inputs:
             )
         vals.append(val)
         vinfos.append(info)
+        print(f"loaded {path} (validation): {val.truth.shape} (T, envs, feet)", file=sys.stderr)
     check_scored_steps(vals, "validation log", names=[repr(str(p)) for p in validate])
+    if warned := getattr(load_one, "warned", None):
+        print(
+            f"warning: {len(warned)} of {len(args.logs) + len(validate)} recordings read with"
+            f" warnings ({', '.join(warned)}): a file tuned on readings the model does not fit"
+            " (another unit, frame or floor) learns their errors; check them with `jax-contact"
+            " estimate` first",
+            file=sys.stderr,
+        )
     t_load = time.perf_counter() - t0
     print(f"measurements precomputed in {t_load:.1f} s", file=sys.stderr)
     if getattr(args, "model", None) is None:
@@ -549,24 +577,32 @@ def load_logs(args: argparse.Namespace) -> Inputs:
     )  # fmt: skip
 
 
-def _recording_loader(args: argparse.Namespace, terrain_model: str):
+class _RecordingLoader:
     """``load_one(arg, path)`` of :func:`load_logs` for recordings of ``args.model``: the
     robot loaded once, each recording converted as ``jax-contact estimate`` converts it
-    (its notes printed), errors naming the argument."""
-    from jax_contact.envs.robots import load_robot
-    from jax_contact.train.estimate_cmd import parse_names
-    from jax_contact.train.recording import SimulateLogGiven
-    from jax_contact.train.tune_data import load_tuning_recording
+    (its notes printed as estimate prints them), errors naming the argument; ``warned``
+    lists the recordings read with a warning."""
 
-    robot = load_robot(args.model, foot_names=args.feet)
-    options = dict(
-        names=parse_names(args.names), units=args.units, resample=args.resample,
-        force_threshold=args.force_threshold, terrain_model=terrain_model,
-    )  # fmt: skip
+    def __init__(self, args: argparse.Namespace, terrain_model: str):
+        from jax_contact.envs.robots import load_robot
+        from jax_contact.train.estimate_cmd import parse_names
 
-    def load_one(arg: str, path):
+        self.model = args.model
+        self.robot = load_robot(args.model, foot_names=args.feet)
+        self.options = dict(
+            names=parse_names(args.names), units=args.units, resample=args.resample,
+            force_threshold=args.force_threshold, terrain_model=terrain_model,
+        )  # fmt: skip
+        self.warned: list[str] = []
+
+    def __call__(self, arg: str, path):
+        from jax_contact.train.recording import SimulateLogGiven
+        from jax_contact.train.tune_data import load_tuning_recording
+
         try:
-            data, attrs, params, terrain = load_tuning_recording(path, robot, args.model, **options)
+            data, attrs, params, terrain = load_tuning_recording(
+                path, self.robot, self.model, **self.options
+            )
         except SimulateLogGiven:
             raise ValueError(
                 f"argument {arg}: {str(path)!r} is a log of `jax-contact simulate`: tune on"
@@ -574,14 +610,20 @@ def _recording_loader(args: argparse.Namespace, terrain_model: str):
             ) from None
         except ValueError as err:
             raise ValueError(f"argument {arg}: {err}") from None
-        for line in attrs.pop("notes"):
-            print(f"note: {path}: {line}", file=sys.stderr)
-        return data, robot, attrs, params, terrain
-
-    return load_one
+        notes = attrs.pop("notes")
+        for line in notes:  # as estimate prints them (recording_estimate.print_note)
+            warned = line.removeprefix("WARNING ")
+            print(f"{'warning' if warned != line else 'note'}: {path}: {warned}", file=sys.stderr)
+        if any(line.startswith("WARNING ") for line in notes):
+            self.warned.append(str(path))
+        return data, self.robot, attrs, params, terrain
 
 
 FAR_FACTOR = 4.0  # a tuned value this far from its derived one is reported
+# Below this validation F1 of the untuned estimator, tune warns that the inputs look wrong
+# (the reproduction's robots and gaits score above 0.9 untuned, the light hexapod of
+# docs/own_robot.md 0.70; a recording in degrees read as radians scored 0.000).
+UNTUNED_F1_FLOOR = 0.5
 
 
 def far_from_derived(table, factor: float = FAR_FACTOR) -> list[str]:
@@ -671,6 +713,14 @@ def fit_and_write(args: argparse.Namespace, inputs: Inputs) -> int:
         print(
             f"{why}: the file holds the untuned defaults"
             + (" (and the calibration map)" if args.calibrate else ""),
+            file=sys.stderr,
+        )
+    first_f1 = result.history[0].get("val_f1", float("nan"))
+    if not first_f1 >= UNTUNED_F1_FLOOR:
+        print(
+            f"warning: the untuned estimator's validation F1 is {first_f1:.3f}: the readings"
+            " likely do not fit the model (unit, quaternion order, floor height, feet); check"
+            " them with `jax-contact estimate` (or `evaluate`) before trusting this file",
             file=sys.stderr,
         )
     table = jt.describe(space, base, result.params)

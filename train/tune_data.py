@@ -183,16 +183,25 @@ def load_tuning_recording(
       and the setup checks read (``robot``, ``sha256`` of the file, ``dt``, ``noise``,
       ``kind``, ``terms``, ``n_envs``, ``notes``), the starting parameters and the terrain.
 
+    The notes of the conversion and of ``estimate``'s floor check (``WARNING ...`` for a
+    reading the model does not fit: another unit, frame or floor) come back in
+    ``attrs["notes"]``.
+
     Raises:
       ValueError: naming the file, for a recording without ground truth or whose joint
-        velocities are derived from its positions, or any error of the conversion.
+        velocities are derived from its positions (naming their columns), or any error of
+        the conversion.
     """
+    import mujoco
     import numpy as np
 
     from jax_contact.train.logs import default_estimator
     from jax_contact.train.recording import read_recording
+    from jax_contact.train.recording_checks import floor_offset
     from jax_contact.train.recording_convert import to_readings
     from jax_contact.tune import TuningData
+
+    JOINT = mujoco.mjtObj.mjOBJ_JOINT
 
     conv = to_readings(
         read_recording(path), robot, names=names, units=units, resample=resample,
@@ -205,11 +214,17 @@ def load_tuning_recording(
             " it can neither be tuned on nor validate a fit"
         )
     if conv.velocity_from_position:
+        m = robot.mj_model
+        as_recorded = {v: k for k, v in (names or {}).items() if v}
+        missing = [
+            "qd/" + as_recorded.get(n := mujoco.mj_id2name(m, JOINT, int(m.dof_jntid[d])), n)
+            for d in conv.velocity_from_position
+        ]
         raise ValueError(
-            f"recording {name} has no qd/ column for {len(conv.velocity_from_position)} joint(s):"
-            " their velocities would be differences of positions, whose extra noise"
-            " `jax-contact estimate` adds to any parameters at run time, so a file tuned on"
-            " them would count it twice; tune on recordings with the joints' own velocities"
+            f"recording {name} has no column {', '.join(missing)}: those velocities would be"
+            " differences of positions, whose extra noise `jax-contact estimate` adds to any"
+            " parameters at run time, so a file tuned on them would count it twice; tune on"
+            " recordings with the joints' own velocities"
         )
     params, terrain = default_estimator(
         robot.description, conv.dt, terrain_model, mj_model=robot.mj_model
@@ -218,6 +233,10 @@ def load_tuning_recording(
     if not terms:
         raise ValueError(f"recording {name}: no measurement term can run on its columns")
     params = params.replace(terms=terms)
+    notes = list(conv.notes)
+    if "kinematics" in terms and terrain_model == "flat":  # estimate's floor check
+        if floor := floor_offset(robot.mj_model, robot.description, conv.readings["qpos"][:, 0]):
+            notes.append(floor)
     meas = measure_readings(robot, conv.readings)
     known = np.asarray(conv.truth_known, bool)
     # The filter's own rule, foot by foot, as estimate scores (not the converter's per-row
@@ -231,7 +250,7 @@ def load_tuning_recording(
         "kind": "recording",
         "terms": list(terms),
         "n_envs": 1,
-        "notes": list(conv.notes),
+        "notes": notes,
     }
     truth = np.where(known, conv.truth, False)
     return TuningData(meas=meas, truth=truth, mask=np.array(mask)), attrs, params, terrain
