@@ -171,7 +171,9 @@ def load_tuning_recording(
     assume ``anymal_like`` sensors: :data:`RECORDING_NOISE`), restricted to the terms the
     recording's columns support (a recording without torques tunes no dynamics term).
     Scored steps: those ``estimate`` scores, a foot's steps whose truth is known and whose
-    estimator inputs are finite (:func:`feet_read`).
+    estimator inputs are finite (:func:`feet_read`). The notes of the conversion and of
+    ``estimate``'s floor check (``WARNING ...`` for a reading the model does not fit:
+    another unit, frame or floor) come back in ``attrs["notes"]``.
 
     Args:
       path: the recording (.csv, .npz, .h5).
@@ -182,10 +184,6 @@ def load_tuning_recording(
       The :class:`jax_contact.tune.TuningData` (one env), the attributes the provenance
       and the setup checks read (``robot``, ``sha256`` of the file, ``dt``, ``noise``,
       ``kind``, ``terms``, ``n_envs``, ``notes``), the starting parameters and the terrain.
-
-    The notes of the conversion and of ``estimate``'s floor check (``WARNING ...`` for a
-    reading the model does not fit: another unit, frame or floor) come back in
-    ``attrs["notes"]``.
 
     Raises:
       ValueError: naming the file, for a recording without ground truth or whose joint
