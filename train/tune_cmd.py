@@ -98,8 +98,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         help="tune the estimator's parameters by gradient on logs with ground truth",
         description="Fits the estimator's noise standard deviations (log space, with a prior"
         " at their physically derived values), confidence caps (logit space), T_s and a_F to"
-        " the binary cross-entropy of P(contact) against the logs' ground truth, with Adam,"
-        " gradient clipping and early stopping on --validate (a log of another seed). Writes"
+        " the binary cross-entropy of P(contact) against the ground truth of simulated logs"
+        " (or, with --model, of your robot's recordings), with Adam, gradient clipping and"
+        " early stopping on --validate (logs of other seeds, recordings of other runs). Writes"
         " a versioned parameter JSON with its provenance, which `jax_contact.load_params`"
         " reads.",
         formatter_class=HelpFormatter,
