@@ -238,6 +238,9 @@ def test_tune_on_recordings_starts_where_estimate_does(round_trip, tmp_path, cap
     argv = [first, "--validate", second, "--model", "planar_leg", "--names", NAMES_INLINE]
     argv += ["--units", "deg", "--epochs", "2", "--out", str(out)]
     assert tune_cmd.main(argv) == 0
+    assert "which assume `anymal_like` sensors, and no noise is tuned below" in (
+        capsys.readouterr().err
+    )
     _, prov = jc.load_params(out, with_provenance=True)
     (log,), (val,) = prov["logs"], prov["validation"]
     assert (log["kind"], log["robot"], log["steps"], val["steps"]) == (

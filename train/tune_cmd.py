@@ -529,6 +529,13 @@ def load_logs(args: argparse.Namespace) -> Inputs:
         infos.append(info)
         print(f"loaded {path}: {data.truth.shape} (T, envs, feet)", file=sys.stderr)
     check_scored_steps(train, "tuning log", names=[repr(str(p)) for p in args.logs])
+    if getattr(args, "model", None) and getattr(args, "noise_floor", "sensor") == "sensor":
+        print(
+            "note: the fit starts from `estimate`'s defaults, which assume `anymal_like`"
+            " sensors, and no noise is tuned below what those sensors alone put on it"
+            " (--noise-floor sensor); for a robot with better sensors, pass --noise-floor none",
+            file=sys.stderr,
+        )
     robot_name = infos[0]["robot"]
     tuned_on = {_run_key(i): i["path"] for i in infos}
     vals, vinfos = [], []
