@@ -10,7 +10,8 @@ Inputs, throughout:
   truth: (T, ...) bool ground-truth contact (or 0/1 numbers).
   valid: optional (T, ...) bool; False steps are ignored (NaN estimates are allowed there).
     Each maximal run of valid steps of one sequence is evaluated on its own, as if it were
-    a sequence of its own.
+    a sequence of its own, except where ``truth_known`` (below) links two runs across a
+    gap (rules 7b and 8).
   truth_known: optional (T, ...) bool, the steps whose ``truth`` is known (default:
     ``valid``); it must hold every valid step. A step that is not valid but whose truth is
     known (a detector that read a lost reading there, a recording's row of NaN readings
@@ -57,8 +58,10 @@ rules applied to the complements (``not truth``, ``not flag``):
    failure all the same if the truth is known and off from the last valid step before the
    gap through the run's first step and the flag was off at that last valid step: the flag
    rose in the gap, inside one true air phase (its time is not known, so it is never a
-   match). Likewise, for lift-offs, a false lift-off. With ``truth_known`` left at
-   ``valid`` no step is both, and rule 7 stands alone.
+   match: a flag that rose in a gap within the early window of a touch-down is a failure,
+   not that touch-down's detection). Such a run shorter than ``min_on`` is chatter.
+   Likewise, for lift-offs, a false lift-off. With ``truth_known`` left at ``valid`` no
+   step is both, and rule 7 stands alone.
 
 Delays are reported in ms as mean and population standard deviation (ddof 0) over the
 matched, evaluated events pooled over all sequences; NaN when there are none.

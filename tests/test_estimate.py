@@ -297,6 +297,7 @@ def test_tuning_leaves_out_the_steps_estimate_predicts_only(round_trip, tmp_path
         ("no_truth", r"argument LOG: recording '.*first.csv' has no ground truth columns"),
         ("no_qd", r"argument LOG: recording '.*first.csv' has no column qd/KNEE_J: those"),
         ("other_terms", r"--validate: recording '.*second.csv' has measurement terms \['diff"),
+        ("val_twice", r"argument --validate: '.*second.csv' is the same run as validation log"),
         (
             "simulate_log",
             r"argument --validate: '.*planar_leg_hop.h5' is a log of `jax-contact"
@@ -308,8 +309,8 @@ def test_tune_refuses_recordings_it_cannot_tune_on(round_trip, tmp_path, case, m
     """Before any fit: a validation recording that is a copy of a tuning one, a recording
     without ground truth, one whose joint velocities would be differences of positions
     (``estimate`` adds their noise to any parameters, so a tuned file would count it
-    twice), recordings whose columns support different terms, and a simulated log given
-    with --model."""
+    twice), recordings whose columns support different terms, a validation recording
+    given twice, and a simulated log given with --model."""
     from jax_contact.train import tune_cmd
 
     def change(cols):
@@ -327,8 +328,9 @@ def test_tune_refuses_recordings_it_cannot_tune_on(round_trip, tmp_path, case, m
     if case == "other_terms":  # no torques in the second: no dynamics term there
         cols = dict(read_recording(second).columns)
         write_recording_csv(second, {k: v for k, v in cols.items() if not k.startswith("tau/")})
+    validate = [second, second] if case == "val_twice" else [second]
     args = argparse.Namespace(
-        logs=[first], validate=[second], terrain_model="flat", noise_floor="none",
+        logs=[first], validate=validate, terrain_model="flat", noise_floor="none",
         model="planar_leg", feet=None, names=NAMES_INLINE, units="deg", resample=False,
         force_threshold=1.0,
     )  # fmt: skip

@@ -108,8 +108,8 @@ def add_force_threshold_flag(p: argparse.ArgumentParser) -> None:
         type=float,
         default=FORCE_THRESHOLD,
         metavar="N",
-        help="a force/<foot> column above this is contact (N; default 1, the simulator's);"
-        " raise it for a foot sensor with an offset",
+        help="a force/<foot> column above this is contact, N (1 N is the simulator's); raise"
+        " it for a foot sensor with an offset",
     )
 
 

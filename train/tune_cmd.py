@@ -98,7 +98,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         help="tune the estimator's parameters by gradient on logs with ground truth",
         description="Fits the estimator's noise standard deviations (log space, with a prior"
         " at their physically derived values), confidence caps (logit space), T_s and a_F to"
-        " the binary cross-entropy of P(contact) against the ground truth of simulated logs"
+        " the binary cross-entropy of P(contact) (plus a per-air-phase event term and a"
+        " prior; jax_contact.tune) against the ground truth of simulated logs"
         " (or, with --model, of your robot's recordings), with Adam, gradient clipping and"
         " early stopping on --validate (logs of other seeds, recordings of other runs). Writes"
         " a versioned parameter JSON with its provenance, which `jax_contact.load_params`"
@@ -118,7 +119,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         nargs="+",
         metavar="LOG",
         help="validation log(s) of other seeds, or recordings of other runs (with --model):"
-        " early stopping on their pooled BCE",
+        " early stopping on their pooled loss (or what --select names)",
     )
     p.add_argument(
         "--model",
@@ -549,6 +550,11 @@ def load_logs(args: argparse.Namespace) -> Inputs:
             raise ValueError(f"argument --validate: {err}") from None
         _same_setup("--validate", path, vattrs, infos[0])
         info = _log_info(path, vattrs, val)
+        if twice := [i["path"] for i in vinfos if _run_key(i) == _run_key(info)]:
+            raise ValueError(
+                f"argument --validate: {str(path)!r} is the same run as validation log"
+                f" {twice[0]!r} (given twice, it would count twice)"
+            )
         if _run_key(info) in tuned_on and info.get("sha256"):
             raise ValueError(
                 f"argument --validate: recording {str(path)!r} has the same content as tuning"
