@@ -862,6 +862,9 @@ def test_force_truth_says_what_the_threshold_made_of_each_foot(tmp_path, capsys)
     no_flag = {k: v for k, v in rec.columns.items() if k != "contact/foot"}
     forced = to_readings(Recording(no_flag, "r"), robot)
     assert f"contact on foot {share:.0%} (min 0 N)" in "\n".join(forced.notes)
+    # A foot that reads air on some rows gets no sensor-offset advice (a user trial found
+    # it repeated on every recording with force truth).
+    assert "sensor offset" not in "\n".join(forced.notes)
     np.testing.assert_array_equal(forced.truth, plain.truth)
     # A contact/ flag that reads air on every row: the metrics would score it; named.
     zeroed = dict(rec.columns, **{"contact/foot": np.zeros_like(rec.columns["contact/foot"])})
@@ -879,6 +882,7 @@ def test_force_truth_says_what_the_threshold_made_of_each_foot(tmp_path, capsys)
     assert biased.truth.all()
     warned = [n for n in biased.notes if n.startswith("WARNING ground truth from force/")]
     assert len(warned) == 1 and "contact on foot 100% (min 20 N)" in warned[0]
+    assert "has a sensor offset (--force-threshold)" in warned[0]
     write_recording_csv(tmp_path / "biased.csv", cols)
     args = _parser().parse_args(
         ["estimate", str(tmp_path / "biased.csv"), "--model", "planar_leg", "--out",

@@ -388,21 +388,22 @@ ALWAYS_LOADED = 0.995
 
 def force_truth(forces: dict[str, np.ndarray], threshold: float) -> tuple[str, bool]:
     """What ``threshold`` (N) makes of each foot's ``force/`` truth column (foot -> (T,)):
-    ``(text, warn)``, the share of rows in contact and the minimum force per foot, and
-    whether every foot is in contact on at least :data:`ALWAYS_LOADED` of its rows (a
-    robot that stood throughout, or sensors whose air reading is above the threshold: the
-    metrics then mean nothing)."""
+    ``(text, warn)``, the share of rows in contact and the minimum force per foot (with the
+    sensor-offset advice when a foot is in contact on at least :data:`ALWAYS_LOADED` of
+    its rows), and whether every foot is (a robot that stood throughout, or sensors whose
+    air reading is above the threshold: the metrics then mean nothing)."""
     read = {
         f: (np.mean(col[np.isfinite(col)] > threshold), np.nanmin(col))
         for f, col in forces.items()
         if np.isfinite(col).any()
     }
     shares = ", ".join(f"{f} {s:.0%} (min {low:.3g} N)" for f, (s, low) in read.items())
-    text = (
-        f"ground truth from force/ above {threshold:g} N: contact on {shares}; a foot that"
-        " left the ground but reads contact on every row has a sensor offset"
-        " (--force-threshold)"
-    )
+    text = f"ground truth from force/ above {threshold:g} N: contact on {shares}"
+    if any(s >= ALWAYS_LOADED for s, _ in read.values()):  # the advice where it may apply
+        text += (
+            "; a foot that left the ground but reads contact on every row has a sensor"
+            " offset (--force-threshold)"
+        )
     warn = all(s >= ALWAYS_LOADED for s, _ in read.values())
     return (text + "; if it stood throughout, ignore this" if warn else text), warn
 
