@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import dataclasses
 import os
+import warnings
 from collections.abc import Mapping
 
 import jax
@@ -33,6 +34,7 @@ from jax_contact.envs.contact_config import (
 )
 from jax_contact.envs.robots import Robot
 from jax_contact.io import load_params_for
+from jax_contact.params import TERMS
 from jax_contact.robot import RobotDescription, model_mass
 
 
@@ -324,6 +326,14 @@ def make_core(env, cfg: ContactObsConfig) -> Core:
             with_provenance=True,
         )
         calibration_in_file = file_calibration(provenance, cfg.params)
+        if unused := [t for t in TERMS if t not in params.terms]:
+            # The wrapped env reads every joint torque, so every term can run here.
+            warnings.warn(
+                f"the parameters {str(cfg.params)!r} run no {' or '.join(unused)} term (a file"
+                " tuned on recordings without their columns); the wrapped env's readings"
+                " support every term, and the defaults run them all",
+                stacklevel=2,
+            )
     elif not isinstance(params, jc.EstimatorParams):
         raise ValueError(
             "params must be jax_contact.EstimatorParams, a parameter file or a preset name, got"

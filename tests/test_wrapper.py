@@ -415,6 +415,10 @@ def test_a_parameter_file_brings_its_calibration_map(brax_leg, tmp_path):
     with pytest.warns(UserWarning, match="dt = 0.01 s; the estimator's"):
         slow = W.wrap_contact(brax_leg, params=tmp_path / "slow.json")
     assert float(slow.contact_core.params.dt) == pytest.approx(float(params.dt))
+    # A file tuned on recordings without torques runs no dynamics term: said, not silent.
+    jc.save_params(tmp_path / "no_dyn.json", params.replace(terms=params.terms[1:]))
+    with pytest.warns(UserWarning, match="run no dynamics term .* support every term"):
+        W.wrap_contact(brax_leg, params=tmp_path / "no_dyn.json")
 
 
 # --------------------------------------------------------------- parameter helpers
