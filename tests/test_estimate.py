@@ -288,6 +288,8 @@ def test_tuning_leaves_out_the_steps_estimate_predicts_only(round_trip, tmp_path
     known = np.ones(400, bool)
     known[100:110] = False
     np.testing.assert_array_equal(np.asarray(data.mask).reshape(-1), valid & known)
+    # The lost rows keep their truth for the validation cells' air phases (metrics rule 8).
+    np.testing.assert_array_equal(np.asarray(data.known).reshape(-1), known)
 
 
 @pytest.mark.parametrize(

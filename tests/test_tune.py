@@ -361,6 +361,32 @@ def test_select_spread_keeps_the_lowest_loss_epoch_without_a_cell_worse_beyond_t
     assert not any(d.verdict == "worse" for d in diffs.values())
 
 
+def test_validation_cells_read_the_known_truth(np_rng):
+    """``TuningData.known`` (a recording's known truth, wider than the mask where a reading
+    was lost): the validation cells are ``metrics.evaluate`` with ``truth_known``, so a
+    gap inside a swing does not add an air phase; without it, the mask's rule 8."""
+    from jax_contact.metrics import evaluate
+    from jax_contact.tune.fit import score_logs
+
+    shape = (300, 2, 2)
+    truth = np.zeros(shape, bool)
+    for t in range(1, shape[0]):  # a Markov truth, switching every ~15 steps
+        flip = np_rng.random(shape[1:]) < 1 / 15
+        truth[t] = np.where(flip, ~truth[t - 1], truth[t - 1])
+    logits = np.where(truth, 2.0, -2.0) + np_rng.normal(0, 2.0, shape)
+    known = np.ones(shape, bool)
+    mask = known & (np_rng.random(shape) > 0.05)
+    data = jt.TuningData(meas=None, truth=truth, mask=mask, known=known)
+    cell = score_logs([logits], [data], dt=0.0025, config=jt.TuneConfig())["cells"][0]
+    p = 1 / (1 + np.exp(-logits))
+    bridged = evaluate(p, truth, mask, dt=0.0025, truth_known=known)
+    split = evaluate(p, truth, mask, dt=0.0025)
+    assert cell["fail"] == bridged.air_phase_failure_rate
+    assert bridged.n_air_phases < split.n_air_phases  # the gaps did cut phases before
+    plain = score_logs([logits], [data.replace(known=None)], dt=0.0025, config=jt.TuneConfig())
+    assert plain["cells"][0]["fail"] == split.air_phase_failure_rate
+
+
 def test_worse_beyond_spread_names_the_cells_a_bootstrap_calls_worse():
     """A candidate that flips the flag on every env's first 40 steps is worse in accuracy
     and F1 beyond the spread (every env pays alike); the reference against itself has no

@@ -251,7 +251,8 @@ def load_tuning_recording(
         "notes": notes,
     }
     truth = np.where(known, conv.truth, False)
-    return TuningData(meas=meas, truth=truth, mask=np.array(mask)), attrs, params, terrain
+    data = TuningData(meas=meas, truth=truth, mask=np.array(mask), known=known)
+    return data, attrs, params, terrain
 
 
 def default_params(robot, dt: float, noise: str = "anymal_like"):

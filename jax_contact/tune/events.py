@@ -55,12 +55,17 @@ class TuningData:
       mask: (T, E, L) bool, the steps that count (env valid).
       events: the log's :class:`AirPhases` (:func:`with_air_phases`), needed by the event
         term; None until annotated.
+      known: (T, E, L) bool, the steps whose truth is known (None: ``mask``), a superset
+        of ``mask``: the validation cells' air phases follow ``jax_contact.metrics`` rules
+        7b and 8 with it (a recording's lost reading inside a swing does not split its
+        phase, as in ``jax-contact estimate``); the loss's event term reads ``mask`` alone.
     """
 
     meas: RobotMeasurement | LegMeasurement
     truth: jax.Array
     mask: jax.Array
     events: AirPhases | None = None
+    known: jax.Array | None = None
 
     @property
     def n_steps(self) -> int:

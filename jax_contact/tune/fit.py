@@ -179,7 +179,11 @@ def score_logs(
         if d.events is not None:
             e, n = _event_sum(jnp.asarray(x), d.replace(meas=None), config.event_temperature)
             ev_sum, n_ph = ev_sum + float(e), n_ph + float(n)
-        m = evaluate(sigmoid_np(x), np.asarray(d.truth, bool), np.asarray(d.mask, bool), dt=dt)
+        known = None if d.known is None else np.asarray(d.known, bool)
+        m = evaluate(
+            sigmoid_np(x), np.asarray(d.truth, bool), np.asarray(d.mask, bool), dt=dt,
+            truth_known=known,
+        )  # fmt: skip
         failed, n_air = failed + m.air_phases_with_failure, n_air + m.n_air_phases
         cells.append(
             dict(
