@@ -454,6 +454,16 @@ FLOOR_OFFSET_M = 0.05
 FLOOR_ROWS = 500  # rows sampled (evenly) for the soles' heights
 
 
+def plane_floor_note(robot, qpos: np.ndarray, terms, terrain_model: str) -> str | None:
+    """:func:`floor_offset`'s warning where it applies: the kinematics term runs
+    (``terms``) on the plane at z = 0 (``terrain_model`` ``"flat"``); ``robot`` the
+    :class:`jax_contact.envs.robots.Robot`, ``qpos`` (T, nq). What ``estimate`` and
+    ``tune`` on recordings check."""
+    if "kinematics" not in terms or terrain_model != "flat":
+        return None
+    return floor_offset(robot.mj_model, robot.description, qpos)
+
+
 def floor_offset(mj_model, desc, qpos: np.ndarray) -> str | None:
     """The warning when the feet's soles, at their lowest (the lowest tenth of the rows,
     median over the feet), sit more than :data:`FLOOR_OFFSET_M` above or below z = 0: the

@@ -21,7 +21,7 @@ from jax_contact.train.recording import (
     read_recording,
     write_recording_csv,
 )
-from jax_contact.train.recording_checks import dynamics_disagrees, floor_offset, truth_order
+from jax_contact.train.recording_checks import dynamics_disagrees, plane_floor_note, truth_order
 from jax_contact.train.recording_convert import noise_for_differences, stretches, to_readings
 
 
@@ -106,10 +106,8 @@ def estimate_recording(
             " sqrt(6) sigma_q / dt^2)"
         )
     notes.insert(0, f"estimator terms: {', '.join(terms)}; rate {1.0 / conv.dt:.6g} Hz")
-    if "kinematics" in terms and terrain_model == "flat":
-        qpos = conv.readings["qpos"][:, 0]
-        if floor := floor_offset(robot.mj_model, desc, qpos):
-            notes.append(floor)
+    if floor := plane_floor_note(robot, conv.readings["qpos"][:, 0], terms, terrain_model):
+        notes.append(floor)
     for line in notes:
         print_note(line)
     has_truth = conv.truth is not None
@@ -306,11 +304,14 @@ def predicted_only(valid: np.ndarray, conv, desc) -> str | None:
     )
 
 
-def print_note(note: str) -> None:
+def print_note(note: str, source: str | None = None, file=None) -> None:
     """Prints one of the run's notes: those that flag a reading as another unit or frame
-    (prefixed ``WARNING ``, as :func:`to_readings` writes them) as ``warning:``."""
+    (prefixed ``WARNING ``, as :func:`to_readings` writes them) as ``warning:``, the others
+    as ``note:``; ``source`` (e.g. the recording's path) after the prefix, ``file`` as
+    :func:`print`'s."""
     warned = note.removeprefix("WARNING ")
-    print(f"warning: {warned}" if warned != note else f"note: {note}")
+    where = "" if source is None else f"{source}: "
+    print(f"{'warning' if warned != note else 'note'}: {where}{warned}", file=file)
 
 
 def _earlier_outputs(folder: Path) -> list[str]:

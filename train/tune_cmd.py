@@ -411,6 +411,12 @@ def _run_key(info: dict) -> tuple:
     return tuple(str(info.get(k)) for k in keys)
 
 
+def _same_run(info: dict, earlier: list[dict]) -> str | None:
+    """The path of the first of ``earlier`` (:func:`_log_info` dicts) that is the same run
+    as ``info`` (:func:`_run_key`), or None."""
+    return next((i["path"] for i in earlier if _run_key(i) == _run_key(info)), None)
+
+
 def _log_info(path, attrs, data) -> dict:
     keys = ("robot", "gait", "scenario", "terrain", "noise", "seed", "n_envs", "dt", "roughness")
     keys += ("kind", "terms", "sha256")  # a recording's (load_tuning_recording)
@@ -501,13 +507,18 @@ def load_logs(args: argparse.Namespace) -> Inputs:
     base = terrain = floor = None
     terrain_model = getattr(args, "terrain_model", "flat")
     if getattr(args, "model", None):
-        load_one = _RecordingLoader(args, terrain_model)
+        read = _RecordingLoader(args, terrain_model)
     else:
 
-        def load_one(arg: str, path):
+        def read(path):
             return load_tuning_log(path, terrain_model)
 
-    first_robot = None
+    def load_one(arg: str, path):
+        try:  # the logs' and recordings' own checks (no truth, shapes, ...), named
+            return read(path)
+        except ValueError as err:
+            raise ValueError(f"argument {arg}: {err}") from None
+
     for path in args.logs:
         data, robot, attrs, params, terr = load_one("LOG", path)
         if not infos:
@@ -520,10 +531,9 @@ def load_logs(args: argparse.Namespace) -> Inputs:
         else:
             _same_setup("LOG", path, attrs, infos[0])
         info = _log_info(path, attrs, data)
-        twice = [i["path"] for i in infos if _run_key(i) == _run_key(info)]
-        if twice:
+        if twice := _same_run(info, infos):
             raise ValueError(
-                f"argument LOG: {str(path)!r} is the same run as tuning log {twice[0]!r}"
+                f"argument LOG: {str(path)!r} is the same run as tuning log {twice!r}"
                 " (given twice, it would count twice)"
             )
         train.append(data)
@@ -538,39 +548,33 @@ def load_logs(args: argparse.Namespace) -> Inputs:
             file=sys.stderr,
         )
     robot_name = infos[0]["robot"]
-    tuned_on = {_run_key(i): i["path"] for i in infos}
     vals, vinfos = [], []
     validate = [args.validate] if isinstance(args.validate, str) else list(args.validate)
     for path in validate:
-        try:
-            val, _, vattrs, _, _ = load_one("--validate", path)
-        except ValueError as err:  # one of the logs' own checks (no truth, shapes, ...)
-            if str(err).startswith("argument --validate"):
-                raise
-            raise ValueError(f"argument --validate: {err}") from None
+        val, _, vattrs, _, _ = load_one("--validate", path)
         _same_setup("--validate", path, vattrs, infos[0])
         info = _log_info(path, vattrs, val)
-        if twice := [i["path"] for i in vinfos if _run_key(i) == _run_key(info)]:
+        if twice := _same_run(info, vinfos):
             raise ValueError(
                 f"argument --validate: {str(path)!r} is the same run as validation log"
-                f" {twice[0]!r} (given twice, it would count twice)"
+                f" {twice!r} (given twice, it would count twice)"
             )
-        if _run_key(info) in tuned_on and info.get("sha256"):
+        if (tuned := _same_run(info, infos)) and info.get("sha256"):
             raise ValueError(
                 f"argument --validate: recording {str(path)!r} has the same content as tuning"
-                f" recording {tuned_on[_run_key(info)]!r}: validation needs another run"
+                f" recording {tuned!r}: validation needs another run"
             )
-        if _run_key(info) in tuned_on:
+        if tuned:
             raise ValueError(
                 f"argument --validate: log {str(path)!r} is the same run (robot, gait, terrain,"
-                f" seed {info.get('seed')}) as tuning log {tuned_on[_run_key(info)]!r}:"
-                " validation needs other seeds"
+                f" seed {info.get('seed')}) as tuning log {tuned!r}: validation needs other"
+                " seeds"
             )
         vals.append(val)
         vinfos.append(info)
         print(f"loaded {path} (validation): {val.truth.shape} (T, envs, feet)", file=sys.stderr)
     check_scored_steps(vals, "validation log", names=[repr(str(p)) for p in validate])
-    if warned := getattr(load_one, "warned", None):
+    if warned := getattr(read, "warned", None):
         print(
             f"warning: {len(warned)} of {len(args.logs) + len(validate)} recordings read with"
             f" warnings ({', '.join(warned)}): a file tuned on readings the model does not fit"
@@ -580,10 +584,6 @@ def load_logs(args: argparse.Namespace) -> Inputs:
         )
     t_load = time.perf_counter() - t0
     print(f"measurements precomputed in {t_load:.1f} s", file=sys.stderr)
-    if getattr(args, "model", None) is None:
-        from jax_contact.envs.robots import load_robot
-
-        first_robot = load_robot(robot_name)
     return Inputs(
         train, vals, infos, vinfos, base, terrain, floor,
         first_robot.description, robot_name, terrain_model, t_load,
@@ -592,10 +592,10 @@ def load_logs(args: argparse.Namespace) -> Inputs:
 
 
 class _RecordingLoader:
-    """``load_one(arg, path)`` of :func:`load_logs` for recordings of ``args.model``: the
-    robot loaded once, each recording converted as ``jax-contact estimate`` converts it
-    (its notes printed as estimate prints them), errors naming the argument; ``warned``
-    lists the recordings read with a warning."""
+    """``read(path)`` of :func:`load_logs` for recordings of ``args.model``: the robot
+    loaded once, each recording converted as ``jax-contact estimate`` converts it (its
+    notes printed as estimate prints them); ``warned`` lists the recordings read with a
+    warning."""
 
     def __init__(self, args: argparse.Namespace, terrain_model: str):
         from jax_contact.envs.robots import load_robot
@@ -609,8 +609,9 @@ class _RecordingLoader:
         )  # fmt: skip
         self.warned: list[str] = []
 
-    def __call__(self, arg: str, path):
+    def __call__(self, path):
         from jax_contact.train.recording import SimulateLogGiven
+        from jax_contact.train.recording_estimate import print_note
         from jax_contact.train.tune_data import load_tuning_recording
 
         try:
@@ -619,15 +620,12 @@ class _RecordingLoader:
             )
         except SimulateLogGiven:
             raise ValueError(
-                f"argument {arg}: {str(path)!r} is a log of `jax-contact simulate`: tune on"
-                " simulated logs without --model (--model reads recordings of named columns)"
+                f"{str(path)!r} is a log of `jax-contact simulate`: tune on simulated logs"
+                " without --model (--model reads recordings of named columns)"
             ) from None
-        except ValueError as err:
-            raise ValueError(f"argument {arg}: {err}") from None
         notes = attrs.pop("notes")
-        for line in notes:  # as estimate prints them (recording_estimate.print_note)
-            warned = line.removeprefix("WARNING ")
-            print(f"{'warning' if warned != line else 'note'}: {path}: {warned}", file=sys.stderr)
+        for line in notes:
+            print_note(line, source=str(path), file=sys.stderr)
         if any(line.startswith("WARNING ") for line in notes):
             self.warned.append(str(path))
         return data, self.robot, attrs, params, terrain

@@ -195,7 +195,7 @@ def load_tuning_recording(
 
     from jax_contact.train.logs import default_estimator
     from jax_contact.train.recording import read_recording
-    from jax_contact.train.recording_checks import floor_offset
+    from jax_contact.train.recording_checks import plane_floor_note
     from jax_contact.train.recording_convert import to_readings
     from jax_contact.tune import TuningData
 
@@ -232,9 +232,8 @@ def load_tuning_recording(
         raise ValueError(f"recording {name}: no measurement term can run on its columns")
     params = params.replace(terms=terms)
     notes = list(conv.notes)
-    if "kinematics" in terms and terrain_model == "flat":  # estimate's floor check
-        if floor := floor_offset(robot.mj_model, robot.description, conv.readings["qpos"][:, 0]):
-            notes.append(floor)
+    if floor := plane_floor_note(robot, conv.readings["qpos"][:, 0], terms, terrain_model):
+        notes.append(floor)
     meas = measure_readings(robot, conv.readings)
     known = np.asarray(conv.truth_known, bool)
     # The filter's own rule, foot by foot, as estimate scores (not the converter's per-row
