@@ -253,10 +253,12 @@ def row_differences(
     *,
     dt: float,
     n_resamples: int = 1000,
+    truth_known=None,
 ) -> dict[str, dict[str, list]]:
     """``row - other`` for each of ``others``, as the JSON outputs store it: the paired
     bootstrap (:func:`paired_bootstrap`, 95 %, seed 0) of ``outputs[row]`` against
-    ``outputs[other]`` on the statistics ``others[other]``.
+    ``outputs[other]`` on the statistics ``others[other]``; ``truth_known`` as
+    :func:`jax_contact.metrics.evaluate`'s (None: ``valid``).
 
     Returns:
       other -> statistic -> ``[delta, low, high, verdict]`` (:meth:`Difference.as_list`).
@@ -266,7 +268,7 @@ def row_differences(
             k: d.as_list()
             for k, d in paired_bootstrap(
                 outputs[other], outputs[row], truth, valid, dt=dt, statistics=tuple(stats),
-                n_resamples=n_resamples,
+                n_resamples=n_resamples, truth_known=truth_known,
             ).items()
         }
         for other, stats in others.items()

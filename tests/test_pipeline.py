@@ -232,6 +232,37 @@ def test_load_log_names_what_does_not_fit(planar, tmp_path, capsys):
         load_log(feet, robot="go1")
 
 
+def test_evaluate_leaves_lost_readings_out_of_every_row(planar, tmp_path, capsys):
+    """A log with a lost torque inside a true air phase: the estimator predicts that foot
+    from the transition alone there, so ``evaluate`` (like ``estimate`` on a recording)
+    scores those foot-steps for no detector; their truth stays known, so the air phase
+    is not split (metrics rules 7b, 8). Before, the predicted-only steps were scored."""
+    from jax_contact.train.logs import evaluate_file
+
+    world, roll = planar
+    attrs = {"robot": "planar_leg", "dt": world.dt, "gait": "hop", "noise": "anymal_like"}
+    arrays = roll.to_arrays()
+    truth = np.asarray(arrays["truth/contact"], bool)[:, 1, 0]
+    # A true air phase of env 1 at least 12 steps long, past the first 20 steps.
+    starts = [t for t in range(20, len(truth) - 12) if truth[t - 1] and not truth[t : t + 12].any()]
+    t0 = starts[0] + 4
+    tau = np.array(arrays["readings/tau"])
+    tau[t0 : t0 + 3, 1, 2] = np.nan  # the knee's torque, three readings
+    clean = write_log(tmp_path / "clean.h5", arrays, attrs)
+    lost = write_log(tmp_path / "lost.h5", {**arrays, "readings/tau": tau}, attrs)
+    a = evaluate_file(clean, bootstrap=20)
+    b = evaluate_file(lost, bootstrap=20)
+    capsys.readouterr()
+    read = np.asarray(b["outputs"]["probabilistic/valid"], bool)
+    # A torque is not differenced: exactly the three readings lose the leg's update.
+    assert int((~read).sum()) == 3 and read[:, 0].all()
+    for row in ("probabilistic", "gm", "kinematic"):
+        sa, sb = a["scores"][row], b["scores"][row]
+        assert sb["n_steps"] == sa["n_steps"] - 3, row
+        assert sb["n_air_phases"] == sa["n_air_phases"], row
+    assert set(b["vs_probabilistic"]) == {"gm", "kinematic"}
+
+
 def test_cli_errors_name_the_problem(tmp_path, capsys):
     assert cli.main(["evaluate", str(tmp_path / "nope.h5")]) == 2
     assert "nope.h5" in capsys.readouterr().err

@@ -236,8 +236,9 @@ def load_log(
 
 def non_finite_note(name: str, readings: dict, valid: np.ndarray) -> str | None:
     """A note naming the readings arrays that hold a NaN or inf on valid steps, with the
-    number of (step, env) rows each: the estimator skips those steps (its prediction
-    alone, ``valid`` False in its diagnostics) and the metrics still score them."""
+    number of (step, env) rows each: the estimator skips those steps on the feet whose
+    terms read the lost entry (its prediction alone, ``valid`` False in its diagnostics),
+    and the metrics leave those foot-steps out (:func:`scored_steps`)."""
     counts = {
         key: int((~np.isfinite(a).all(axis=-1) & valid).sum())
         for key, a in readings.items()
@@ -250,9 +251,30 @@ def non_finite_note(name: str, readings: dict, valid: np.ndarray) -> str | None:
     listed = ", ".join(f"readings/{k} {n}" for k, n in bad.items())
     return (
         f"note: {name}: readings that are not finite on valid steps ({listed}, of {total}"
-        " step-env rows): the estimator skips them (its prediction alone); they are still"
-        " scored"
+        " step-env rows): the feet whose terms read them get the estimator's prediction"
+        " alone there, and those foot-steps are left out of the metrics"
     )
+
+
+def scored_steps(out: dict, truth: np.ndarray, valid: np.ndarray):
+    """(scored, truth known), both (T, E, L) bool: the foot-steps a log's metrics score.
+
+    A log's truth is known on its valid steps. Where the estimator skipped a foot's
+    update because a reading it reads is not finite (``out["probabilistic/valid"]``,
+    present when :func:`jax_contact.train.evaluate.replay` ran with ``diagnostics_of=
+    "probabilistic"``), that foot-step is not scored for any detector, as ``jax-contact
+    estimate`` does on a recording; its truth stays known, so it does not cut a true air
+    phase in two (``jax_contact.metrics`` rules 7b and 8).
+
+    Args:
+      out: the replay's outputs.
+      truth: (T, E, L) bool.
+      valid: (T, E) bool.
+    """
+    known = np.broadcast_to(np.asarray(valid, bool)[..., None], np.shape(truth))
+    read = out.get("probabilistic/valid")
+    scored = known if read is None else known & np.asarray(read, bool)
+    return scored, known
 
 
 # The estimator's terrain model for logs (``--terrain-model``): ``flat``, a plane at z = 0 of
@@ -466,6 +488,7 @@ def evaluate_file(
 
     log = load_log(path, foot_names=foot_names, robot=robot)
     name, truth, desc, dt = log.name, log.truth, log.robot.description, log.dt
+    lost = non_finite_note(name, log.readings, log.valid) is not None
     mass = model_mass(log.robot.mj_model)
     params, terrain_model, terrain, calibration = _estimator_for(
         desc, dt, params_path, terrain_model, mass, mj_model=log.robot.mj_model
@@ -492,6 +515,9 @@ def evaluate_file(
         gms={gm_name: gm} if truth is not None else None,
         kinematic=make_kinematic_params() if truth is not None else None,
         dt=dt,
+        # A reading that is not finite leaves its feet to the prediction alone: the
+        # estimator's per-foot validity says which, and those steps are not scored.
+        diagnostics_of="probabilistic" if truth is not None and lost else None,
     )
     if calibration is not None and truth is not None:
         # The map fitted on the tuning logs, applied after the recursion: a second row,
@@ -535,7 +561,8 @@ def evaluate_file(
         result["scores"] = {}
         result["p_contact"] = {f: p[..., i] for i, f in enumerate(feet)}
     else:
-        scores = score(out, truth, log.valid, dt=dt)
+        scored, known = scored_steps(out, truth, log.valid)
+        scores = score(out, truth, scored, dt=dt, truth_known=known)
         print(format_scores(scores, title=Path(path).name))
         if note := weaker_than_kinematic(scores):
             print(note)
@@ -544,7 +571,7 @@ def evaluate_file(
         result["scores"] = scores
         if bootstrap:
             result["vs_probabilistic"] = _vs_probabilistic(
-                out, scores, truth, log.valid, dt, bootstrap
+                out, scores, truth, scored, dt, bootstrap, truth_known=known
             )
         if plots_dir is not None:
             from jax_contact.train.calibration import reliability_diagram
@@ -552,7 +579,7 @@ def evaluate_file(
             png = reliability_diagram(
                 out,
                 truth,
-                log.valid,
+                scored,
                 Path(plots_dir) / f"reliability_{Path(path).stem}.png",
                 names=list(scores),
                 title=f"{Path(path).name}: reliability of P(contact)",
@@ -634,16 +661,21 @@ def params_file_provenance(params_path: str | Path) -> dict:
     }
 
 
-def _vs_probabilistic(out, scores, truth, valid, dt: float, n_resamples: int) -> dict:
+def _vs_probabilistic(
+    out, scores, truth, valid, dt: float, n_resamples: int, *, truth_known=None
+) -> dict:
     """``probabilistic - row`` for every other scored row, with its env-bootstrap interval;
-    printed, one line per row."""
+    printed, one line per row (``valid`` and ``truth_known`` as :func:`scored_steps`')."""
     from jax_contact.bootstrap import STATISTICS, format_intervals, row_differences
 
     print(
         f"probabilistic - row, 95 % interval of a paired bootstrap of {n_resamples} env resamples:"
     )
     others = {row: tuple(STATISTICS) for row in scores if row != "probabilistic"}
-    vs = row_differences(out, "probabilistic", others, truth, valid, dt=dt, n_resamples=n_resamples)
+    vs = row_differences(
+        out, "probabilistic", others, truth, valid, dt=dt, n_resamples=n_resamples,
+        truth_known=truth_known,
+    )  # fmt: skip
     for row, stats in vs.items():
         print(f"  vs {row:18s} {format_intervals(stats)}")
     return vs

@@ -151,7 +151,8 @@ def worse_beyond_spread(
 
     Args:
       logits, reference_logits: per validation log, (T, E, L) fused logits.
-      datas: the logs' :class:`TuningData` (``truth`` and ``mask``); each needs 2 envs.
+      datas: the logs' :class:`TuningData` (``truth``, ``mask`` and ``known``, as in
+        :func:`jax_contact.tune.fit.score_logs`' cells); each needs 2 envs.
       dt: period, s.
 
     Returns:
@@ -166,6 +167,7 @@ def worse_beyond_spread(
         diffs = paired_bootstrap(
             sigmoid_np(x0), sigmoid_np(x), np.asarray(d.truth, bool), np.asarray(d.mask, bool),
             dt=dt, statistics=tuple(names), n_resamples=n_resamples, level=level,
+            truth_known=None if d.known is None else np.asarray(d.known, bool),
         )  # fmt: skip
         worse += [f"log{i}:{names[k]}" for k, diff in diffs.items() if diff.verdict == "worse"]
     return worse
