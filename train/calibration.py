@@ -76,8 +76,7 @@ def reliability_diagram(
 
     Args:
       outputs: detector -> (T, E, L) P(contact) (e.g. ``jax_contact.train.evaluate.replay``'s
-      outputs;
-        keys containing ``/`` are diagnostics and are skipped unless named).
+        outputs; keys containing ``/`` are diagnostics and are skipped unless named).
       truth: (T, E, L) bool ground truth.
       valid: (T, E) or (T, E, L) bool validity (broadcast over legs).
       path: the PNG to write (atomically; its folder is created).
