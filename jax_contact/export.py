@@ -131,6 +131,7 @@ def write_artefact(path: str | os.PathLike, header: Mapping, payload: bytes) -> 
     header = dict(header)
     header["payload_sha256"] = hashlib.sha256(payload).hexdigest()
     header["payload_bytes"] = len(payload)
+    header["header_sha256"] = _header_digest(header)
     head = json.dumps(header, indent=1).encode()
 
     def write(tmp: str) -> None:
@@ -140,13 +141,21 @@ def write_artefact(path: str | os.PathLike, header: Mapping, payload: bytes) -> 
     return write_atomic(path, write)
 
 
+def _header_digest(header: Mapping) -> str:
+    """SHA-256 of a header's canonical JSON, its own ``header_sha256`` left out: an edited
+    rate, noise value or layout (the program does not read them back) is caught."""
+    rest = {k: v for k, v in header.items() if k != "header_sha256"}
+    return hashlib.sha256(json.dumps(rest, sort_keys=True).encode()).hexdigest()
+
+
 def read_artefact(path: str | os.PathLike) -> tuple[dict, bytes]:
     """``(header, payload)`` of a ``.contact`` file.
 
     Raises:
       FileNotFoundError: no such file.
       ValueError: naming the file: not an exported estimator, a newer format, truncated,
-        or a payload whose checksum differs from the header's.
+        a header or payload whose checksum differs from the one written with it (files
+        written before the header had one are read without that check).
     """
     path = Path(path)
     if not path.is_file():
@@ -157,6 +166,11 @@ def read_artefact(path: str | os.PathLike) -> tuple[dict, bytes]:
         raise ValueError(f"{name} is not a jax-contact export (written by `jax-contact export`)")
     (n,) = struct.unpack("<Q", data[len(MAGIC) : len(MAGIC) + 8])
     start = len(MAGIC) + 8
+    if n > len(data) - start:
+        raise ValueError(
+            f"{name}: its header length ({n} bytes) exceeds the file ({len(data)} bytes): the"
+            " file is truncated or corrupt"
+        )
     try:
         header = json.loads(data[start : start + n].decode())
     except (UnicodeDecodeError, json.JSONDecodeError) as err:
@@ -168,6 +182,10 @@ def read_artefact(path: str | os.PathLike) -> tuple[dict, bytes]:
             f"{name} has format_version {header['format_version']}; this library reads up to"
             f" {FORMAT_VERSION}"
         )
+    if not isinstance(header, dict):
+        raise ValueError(f"{name}: the header is not a JSON object; the file is corrupt")
+    if "header_sha256" in header and _header_digest(header) != header["header_sha256"]:
+        raise ValueError(f"{name}: the header does not match its checksum (edited or corrupt)")
     payload = data[start + n :]
     if len(payload) != header.get("payload_bytes") or (
         hashlib.sha256(payload).hexdigest() != header.get("payload_sha256")
@@ -496,6 +514,8 @@ def readings_header(mj_model) -> list[dict]:
 
 
 def _robot_header(mj_model, desc, source: str) -> dict:
+    from jax_contact.robot import model_fingerprint  # mujoco: at export time only
+
     return {
         "source": str(source),
         "nq": int(desc.nq),
@@ -506,6 +526,8 @@ def _robot_header(mj_model, desc, source: str) -> dict:
         "foot_radii": list(desc.foot_radii),
         "total_mass_kg": float(np.sum(mj_model.body_mass)),
         "timestep_s": float(mj_model.opt.timestep),
+        # The physics' fingerprint, as simulated logs store it: deploy-check compares them.
+        "model_sha256": model_fingerprint(mj_model),
     }
 
 

@@ -579,6 +579,10 @@ def load_params(path: str | os.PathLike, *, with_provenance: bool = False):
 # A file tuned on a robot heavier or lighter than this factor warns (load_params_for): a
 # payload or another build of the same robot stays inside it (Go1 12.7 kg, Spot 50.3 kg).
 MASS_RATIO_WARN = 1.5
+# Periods closer than this fraction are one rate (load_params_for moves a file's values to
+# the caller's dt without a warning): a recording's median step, from float32 or epoch
+# timestamps, lies a few 1e-5 from its loop's nominal period (399.992 Hz for 400 Hz).
+SAME_RATE = 1e-3
 
 
 def load_params_for(
@@ -600,9 +604,10 @@ def load_params_for(
     warns when the two differ by more than a factor :data:`MASS_RATIO_WARN`: the file is
     likely another robot's (a file carries over to another robot only in part).
 
-    A file made at another period runs at ``dt``, with a ``UserWarning``. With ``derive``
-    (``dt -> params_for(robot, sensors, dt)`` of the caller's robot and sensors) its values
-    are moved to ``dt`` as the rules move their own
+    A file made at another period runs at ``dt``, with a ``UserWarning`` when the two
+    differ by more than :data:`SAME_RATE` (a clock's rounding is not another rate). With
+    ``derive`` (``dt -> params_for(robot, sensors, dt)`` of the caller's robot and sensors)
+    its values are moved to ``dt`` as the rules move their own
     (:func:`jax_contact.defaults.change_period`: what tuning changed is kept relative to
     the derived values, ``sigma_qdd`` scales as ``1 / dt``, the still-side cap's log-odds
     as ``dt``); without it only ``dt`` changes and the rest is the file's, so a file made
@@ -646,7 +651,7 @@ def load_params_for(
                 stacklevel=2,
             )
     file_dt = float(params.dt)
-    if abs(file_dt - dt) > 1e-6 * dt:
+    if abs(file_dt - dt) > 1e-6 * dt:  # moved silently within SAME_RATE, else with a warning
         if derive is None:
             how = "noise the file derived from its dt is kept"
             params = params.replace(dt=jnp.float32(dt))
@@ -655,6 +660,7 @@ def load_params_for(
 
             how = "its values moved as params_for moves them, jax_contact.defaults.change_period"
             params = change_period(params, derive(file_dt), derive(dt))
+    if abs(file_dt - dt) > SAME_RATE * dt:
         warnings.warn(
             f"parameter file {str(path)!r} has dt = {file_dt:.6g} s; {period} is {dt:.6g} s:"
             f" using {period} ({how}; a file tuned at one rate is best tuned again at another:"

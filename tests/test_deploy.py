@@ -306,6 +306,11 @@ def test_export_checks_a_params_file_as_evaluate_does(tmp_path):
     assert "has dt = 0.0025 s" in said and "0.004 s" in said
     assert float(params_from_dict(h["params"]).dt) == pytest.approx(0.004)
     assert h["params"]["provenance"]["name"] == "spot"
+    # 0.01 % off the file's rate is the same rate (a clock's rounding): no period warning.
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        export_to_file(tmp_path / "z.contact", robot="go1", params_path="go1", rate_hz=400.04)
+    assert not [w for w in caught if "has dt =" in str(w.message)]
     with pytest.raises(ValueError, match=r"argument --params: .*nv = 3; the robot has nv = 18"):
         export_to_file(tmp_path / "y.contact", robot="go1", params_path=_planar_file(tmp_path))
     assert not (tmp_path / "y.contact").exists()
@@ -333,6 +338,42 @@ def test_corrupt_or_foreign_file_is_refused(deployed, tmp_path):
     other.write_text("hello")
     with pytest.raises(ValueError, match="not a jax-contact export"):
         read_artefact(other)
+    # The header is checked too: its rate edited to 200 Hz (valid JSON, same length; the
+    # program would still difference at 2.5 ms) was loaded as a 200 Hz estimator.
+    data = Path(deployed["artefact"]).read_bytes()
+    assert data.count(b'"rate_hz": 400.0') == 1
+    edited = tmp_path / "edited.contact"
+    edited.write_bytes(data.replace(b'"rate_hz": 400.0', b'"rate_hz": 200.0'))
+    with pytest.raises(ValueError, match=r"edited\.contact': the header does not match its"):
+        read_artefact(edited)
+    # A header length beyond the file's end is named as such, not as bad JSON.
+    magic = data[: data.index(b"{") - 8]
+    huge = tmp_path / "huge.contact"
+    huge.write_bytes(magic + (10**9).to_bytes(8, "little") + data[len(magic) + 8 :])
+    with pytest.raises(ValueError, match=r"header length \(1000000000 bytes\) exceeds the file"):
+        read_artefact(huge)
+
+
+def test_deploy_check_compares_the_physics_not_the_name(deployed):
+    """A log is of the export's robot when their physics' fingerprints agree: an export of
+    ``--model PATH`` (its source a path) of Go1 was warned about on Go1's own log."""
+    from jax_contact.envs.robots import load_robot
+    from jax_contact.robot import model_fingerprint
+    from jax_contact.train.deploy_cmd import _other_robot
+
+    robot = deployed["header"]["robot"]
+    _, attrs = read_log(deployed["log"])
+    go1 = model_fingerprint(load_robot("go1").mj_model)
+    assert robot["model_sha256"] == attrs["model_sha256"] == go1
+    as_path = {**robot, "source": "/robots/go1/scene.xml"}
+    assert _other_robot("log", "x.contact", as_path, attrs) is None
+    spot = {"robot": "spot", "model_sha256": "0" * 64}
+    assert "is of robot 'spot', 'x.contact' of 'go1'" in _other_robot("log", "x.contact", robot, spot)
+    edited = {"robot": "go1", "model_sha256": "0" * 64}
+    assert "of other physics" in _other_robot("log", "x.contact", robot, edited)
+    old = {k: v for k, v in robot.items() if k != "model_sha256"}  # an export before them
+    assert _other_robot("log", "x.contact", old, attrs) is None
+    assert "robot 'spot'" in _other_robot("log", "x.contact", old, spot)
 
 
 def test_deploy_check_reports_latency_and_agreement(deployed, live, tmp_path):
@@ -391,6 +432,18 @@ def test_deploy_check_reads_a_recording_and_warns_as_estimate(deployed, live, tm
         deploy_check(deployed["artefact"], tmp_path / "no_tau.csv", pace=False)
     with pytest.raises(ValueError, match="argument --env: a recording holds one robot"):
         deploy_check(deployed["artefact"], tmp_path / "rec.csv", env=1)
+    # Epoch timestamps: float64 rounds 1.7e9 + k 2.5 ms to 2.4e-7 s, so the median step
+    # is a few 1e-5 off 400 Hz (a user trial's recording was refused at 399.991 Hz). It runs
+    # at the export's rate, with a note, and agrees as well; 2 % off is refused.
+    epoch = {**cols, "time": 1.7e9 + cols["time"]}
+    write_recording_csv(tmp_path / "epoch.csv", epoch)
+    capsys.readouterr()
+    res = deploy_check(deployed["artefact"], tmp_path / "epoch.csv", pace=False)
+    assert res["max_abs_diff"] <= P_TOL and res["rate_hz"] == 400.0
+    assert "Hz (its median step)" in capsys.readouterr().out
+    write_recording_csv(tmp_path / "slow.csv", {**cols, "time": cols["time"] * 1.02})
+    with pytest.raises(ValueError, match=r"at 392\.157 Hz but .* 400 Hz \(more than 1 % apart"):
+        deploy_check(deployed["artefact"], tmp_path / "slow.csv", pace=False)
 
 
 def test_cli_arguments_are_checked_without_jax(tmp_path):

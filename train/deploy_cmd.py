@@ -413,17 +413,15 @@ def deploy_check(
             raise ValueError(f"argument --env: a recording holds one robot (env 0), got {env}")
         name, conv, desc = _recording_readings(header, log, terms, names, units, resample)
         dt, readings, robot_name = conv.dt, conv.readings, header["robot"]["source"]
+        other_robot = None  # a recording is read with the export's own robot model
     else:
         conv = None
         # Checked, and re-aligned to end-of-step readings if older (what the export pairs).
         loaded = load_log(log)
         name, dt, readings = loaded.name, loaded.dt, loaded.readings
         robot_name = loaded.attrs.get("robot")
-    if abs(dt * header["rate_hz"] - 1.0) > 1e-6:
-        raise ValueError(
-            f"{name} is at {1.0 / dt:g} Hz but {str(artefact)!r} was exported for"
-            f" {header['rate_hz']:g} Hz: export at the log's rate"
-        )
+        other_robot = _other_robot(name, artefact, header["robot"], loaded.attrs)
+    dt = _replay_period(name, dt, artefact, header["rate_hz"])
     n_envs = readings["qpos"].shape[1]
     if env >= n_envs:
         raise ValueError(f"argument --env: {name} has {n_envs} envs, got --env {env}")
@@ -434,14 +432,8 @@ def deploy_check(
                 f" {str(artefact)!r} expects {r['shape'][0]} (robot {header['robot']['source']!r},"
                 f" log robot {robot_name!r})"
             )
-    if robot_name != header["robot"]["source"]:
-        print(
-            f"warning: {name} is of robot {robot_name!r}, {str(artefact)!r} of"
-            f" {header['robot']['source']!r}: their readings have the same sizes, so the"
-            " check runs, but its P(contact) is not an estimate of this log's robot (the"
-            " latency and the agreement with the library's own estimate still hold)",
-            file=sys.stderr,
-        )
+    if other_robot:
+        print(f"warning: {other_robot}", file=sys.stderr)
     one = {k: np.ascontiguousarray(v[:steps, env], np.float32) for k, v in readings.items()}
 
     est = deploy.load(artefact)
@@ -479,6 +471,7 @@ def deploy_check(
     # Every warning of the run, in the order printed: the recording's, the torque check's
     # and the summary's (every foot reads air).
     result["warnings"] = [
+        *([other_robot] if other_robot else []),
         *(n.removeprefix("WARNING ") for n in notes if n.startswith("WARNING ")),
         *([torque.removeprefix("WARNING ")] if torque else []),
         *([all_air] if all_air else []),
@@ -500,6 +493,57 @@ def deploy_check(
     if json_path:
         write_json_atomic(json_path, result)
     return result
+
+
+def _other_robot(name: str, artefact, robot: dict, attrs: dict) -> str | None:
+    """The warning when a simulate log is not of the export's robot, else None: their
+    physics' fingerprints (``model_sha256``) differ, or, where the export or the log
+    predates them, their robot names do (an export of ``--model PATH`` names a path)."""
+    ours, theirs = robot.get("model_sha256"), attrs.get("model_sha256")
+    if ours and theirs and ours == theirs:
+        return None
+    if attrs.get("robot") != robot["source"]:
+        what = f"robot {attrs.get('robot')!r}"
+    elif ours and theirs:
+        what = f"a {attrs.get('robot')!r} of other physics (model_sha256 differs)"
+    else:
+        return None
+    return (
+        f"{name} is of {what}, {str(artefact)!r} of {robot['source']!r}: their readings have"
+        " the same sizes, so the check runs, but its P(contact) is not an estimate of this"
+        " log's robot (the latency and the agreement with the library's own estimate still"
+        " hold)"
+    )
+
+
+def _replay_period(name: str, dt: float, artefact, rate_hz: float) -> float:
+    """The period a log is replayed at through an export of ``rate_hz``: the export's own.
+
+    A log's period is the median step of its clock, which float32 or epoch timestamps
+    leave a few 1e-5 away from the nominal rate (399.992 Hz for a 400 Hz loop); within
+    :data:`~jax_contact.train.recording.RATE_TOLERANCE` (the recordings' own tolerance
+    for their steps) the log is taken to be at the export's rate, as the control loop
+    calls it, with a note.
+
+    Raises:
+      ValueError: the rates differ by more than that.
+    """
+    from jax_contact.train.recording import RATE_TOLERANCE
+
+    off = abs(dt * rate_hz - 1.0)
+    if off > RATE_TOLERANCE:
+        raise ValueError(
+            f"{name} is at {1.0 / dt:.6g} Hz but {str(artefact)!r} was exported for"
+            f" {rate_hz:g} Hz (more than {100 * RATE_TOLERANCE:g} % apart): export at the"
+            " log's rate"
+        )
+    if off > 1e-6:
+        print(
+            f"note: {name} is at {1.0 / dt:.6g} Hz (its median step), {str(artefact)!r} was"
+            f" exported for {rate_hz:g} Hz: within {100 * RATE_TOLERANCE:g} %, so it is"
+            f" replayed at {rate_hz:g} Hz, as the control loop calls the estimator"
+        )
+    return 1.0 / rate_hz
 
 
 def is_recording(path: str | Path) -> bool:

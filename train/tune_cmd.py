@@ -33,6 +33,8 @@ import sys
 import time
 from pathlib import Path
 
+from jax_contact.train.recording import RATE_TOLERANCE
+
 # What used to live here, re-exported: the shipped presets' provenance names
 # ``jax_contact.train.tune_cmd.regenerate_preset`` as their command.
 from jax_contact.train.tune_data import (  # noqa: F401
@@ -364,7 +366,7 @@ def _setup(d) -> dict:
 # Two periods within this fraction of each other are one rate: the median steps of two
 # recordings at one rate differ in their last digits, and by up to a few tenths of a per
 # cent after --resample (each onto its own median); a recording's own steps may vary by 1 %.
-PERIOD_TOLERANCE = 0.01
+PERIOD_TOLERANCE = RATE_TOLERANCE
 
 
 def _differ(a, b) -> bool:
