@@ -102,13 +102,10 @@ class Estimator:
           the prediction's).
 
         Raises:
-          ValueError: a missing or unknown reading, or one of the wrong length (named).
+          ValueError: a missing or unknown reading, one of the wrong length or not of
+            real numbers (named); a belief not of this file's layout.
         """
-        if not isinstance(getattr(belief, "state", None), np.ndarray | jax.Array):
-            raise ValueError(
-                "belief must be the Belief that init() or the previous update() returned, got"
-                f" {type(belief).__name__}"
-            )
+        state, key = self._belief_arrays(belief)
         if not isinstance(readings, Mapping):
             raise ValueError(
                 f"readings must be a mapping of {self.reading_names} to arrays, got"
@@ -122,10 +119,12 @@ class Estimator:
                 raise ValueError(
                     f"readings has no {name!r}: expected {self.reading_names}"
                 ) from None
-            try:
-                x = np.asarray(x, np.float32)
-            except (TypeError, ValueError) as err:
-                raise ValueError(f"readings[{name!r}] must hold numbers: {err}") from None
+            x = np.asarray(x)
+            if x.dtype.kind not in "fiu":  # bool, complex, str, None (object): no reading
+                raise ValueError(
+                    f"readings[{name!r}] must hold real numbers (float or int), got dtype {x.dtype}"
+                )
+            x = x.astype(np.float32, copy=False)
             if x.shape != (n,):
                 raise ValueError(
                     f"readings[{name!r}] has shape {x.shape}, expected ({n},): "
@@ -135,12 +134,37 @@ class Estimator:
         if len(readings) != len(self._readings):
             extra = sorted(set(readings) - set(self.reading_names))
             raise ValueError(f"unknown reading(s) {extra}: expected {self.reading_names}")
-        state, key, out = self._call(belief.state, belief.key, *args)
+        state, key, out = self._call(state, key, *args)
         out = np.asarray(out)
         diag = {name: out[a:b].reshape(shape) for name, a, b, shape in self._outputs}
         diag["valid"] = diag["valid"] > 0.5
         p_contact = diag.pop("p_contact")
         return Belief(np.asarray(state), np.asarray(key)), p_contact, diag
+
+    def _belief_arrays(self, belief: Belief) -> tuple[np.ndarray, np.ndarray]:
+        """(state float32, key uint32) of a belief, checked against this file's layout."""
+        state, key = getattr(belief, "state", None), getattr(belief, "key", None)
+        if state is None or key is None:
+            raise ValueError(
+                "belief must be the Belief that init() or the previous update() returned, got"
+                f" {type(belief).__name__}"
+            )
+        want = {
+            "state": ((self.header["state"]["size"],), np.float32, "f"),
+            "key": (tuple(self.header["key"]["shape"]), np.uint32, "iu"),
+        }
+        out = []
+        for field, x in (("state", state), ("key", key)):
+            shape, dtype, kinds = want[field]
+            x = np.asarray(x)
+            if x.shape != shape or x.dtype.kind not in kinds:
+                raise ValueError(
+                    f"belief.{field} has shape {x.shape} and dtype {x.dtype}; this file's is"
+                    f" {shape} {np.dtype(dtype)} (a belief of another exported estimator, or"
+                    " one rebuilt by hand? keep the Belief that update() returned)"
+                )
+            out.append(x.astype(dtype, copy=False))
+        return out[0], out[1]
 
 
 def _size_note(header: dict, name: str) -> str:

@@ -106,6 +106,21 @@ try:
     est.update(belief, {**{n: log[n][0, 0] for n in est.reading_names}, "qpos": "abc"})
 except ValueError as err:
     errors["text_qpos"] = str(err)
+one = {n: log[n][0, 0] for n in est.reading_names}
+for case, value in (("bool_tau", one["tau"] > 0), ("none_tau", [None] * one["tau"].size)):
+    try:
+        est.update(belief, {**one, "tau": np.asarray(value)})
+    except ValueError as err:
+        errors[case] = str(err)
+try:  # another file's belief (a state of another size)
+    est.update(deploy.Belief(belief.state[:-1], belief.key), one)
+except ValueError as err:
+    errors["short_state"] = str(err)
+# A belief rebuilt by hand from lists (a float64 state, an int64 key) is the same belief.
+_, p_kept, _ = est.update(belief, one)
+rebuilt = deploy.Belief(belief.state.tolist(), np.array(belief.key.tolist()))
+_, p_rebuilt, _ = est.update(rebuilt, one)
+errors["rebuilt_equal"] = bool(np.array_equal(p_kept, p_rebuilt))
 # A NaN velocity is the invalid step of the call that reads it, and the next, clean call
 # is valid (it pairs with its own state): once flagged on the call after.
 bad = {n: log[n][5, 0].copy() for n in est.reading_names}
@@ -206,7 +221,15 @@ def test_wrong_reading_names_the_field(child):
     assert "'qvel'" in msg and "(17,)" in msg and "(18,)" in msg
     assert "'tau'" in child["errors"]["missing_tau"]
     assert child["errors"]["no_belief"].startswith("belief must be the Belief that init()")
-    assert child["errors"]["text_qpos"].startswith("readings['qpos'] must hold numbers")
+    assert child["errors"]["text_qpos"].startswith("readings['qpos'] must hold real numbers")
+    assert (
+        "readings['tau'] must hold real numbers (float or int), got dtype bool"
+        == (child["errors"]["bool_tau"])
+    )
+    assert child["errors"]["none_tau"].endswith("got dtype object")
+    short = child["errors"]["short_state"]
+    assert short.startswith("belief.state has shape (") and "float32 (a belief of another" in short
+    assert child["errors"]["rebuilt_equal"] is True
 
 
 def test_header_describes_inputs_and_parameters(deployed):
@@ -368,7 +391,8 @@ def test_deploy_check_compares_the_physics_not_the_name(deployed):
     as_path = {**robot, "source": "/robots/go1/scene.xml"}
     assert _other_robot("log", "x.contact", as_path, attrs) is None
     spot = {"robot": "spot", "model_sha256": "0" * 64}
-    assert "is of robot 'spot', 'x.contact' of 'go1'" in _other_robot("log", "x.contact", robot, spot)
+    said = _other_robot("log", "x.contact", robot, spot)
+    assert "is of robot 'spot', 'x.contact' of 'go1'" in said
     edited = {"robot": "go1", "model_sha256": "0" * 64}
     assert "of other physics" in _other_robot("log", "x.contact", robot, edited)
     old = {k: v for k, v in robot.items() if k != "model_sha256"}  # an export before them
