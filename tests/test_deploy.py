@@ -488,6 +488,9 @@ def test_cli_arguments_are_checked_without_jax(tmp_path):
     args = parser.parse_args(["export", "--robot", "go1", "--rate", "4", "--out", "a.contact"])
     with pytest.raises(ValueError, match=r"argument --rate: 4 Hz; .* at least 10 readings"):
         args.check(args)  # it failed later on "swing_time must exceed dt"
+    args = parser.parse_args(["export", "--robot", "go1", "--rate", "1e9", "--out", "a.contact"])
+    with pytest.raises(ValueError, match=r"argument --rate: 1e\+09 Hz; at most 100000"):
+        args.check(args)  # it wrote a file whose period is 1 ns
     with pytest.raises(SystemExit):  # --robot and --model together
         parser.parse_args(["export", "--robot", "go1", "--model", "a.xml", "--out", "a.contact"])
     # --model takes a robot name as estimate's and tune's do (it used to say "file 'go1'

@@ -444,6 +444,18 @@ def test_a_degree_recording_read_as_radians_warns(round_trip, tmp_path, capsys):
     assert "warning: every foot reads air on more than 99 % of the steps" in text
 
 
+def test_every_foot_in_the_air_is_no_warning_on_a_few_readings():
+    """``deploy-check --steps 1`` warned that every foot reads air on 99 % of one step:
+    the belief starts at its prior, so under a second of readings draws no warning."""
+    from jax_contact.train.recording_estimate import ALL_AIR_MIN_S, contact_summary
+
+    air = np.zeros(2)
+    line, warning = contact_summary(air, ["L", "R"], seconds=0.0025)
+    assert line.endswith("L 0.00  R 0.00") and warning is None
+    assert contact_summary(air, ["L", "R"], seconds=ALL_AIR_MIN_S)[1].startswith("every foot")
+    assert contact_summary(np.array([0.0, 0.02]), ["L", "R"], seconds=9.0)[1] is None
+
+
 def test_torques_of_the_wrong_sign_warn_naming_the_foot(round_trip, tmp_path, capsys):
     """The planar sample's torques, negated (a joint axis opposite the model's): the
     dynamics term reads air on 94 % of the steps where the foot stands still (15 % with

@@ -55,6 +55,9 @@ LOG_SUFFIXES = (".h5", ".hdf5")
 # recording's (slower is no contact estimate, and in a recording most often a time column
 # in milliseconds or nanoseconds).
 MIN_RATE_HZ = 10.0
+# The most an export's rate may be: no joint-control loop runs faster (a --rate in
+# millihertz or a typo, e.g. 1e9, would give a file whose period is 1 ns).
+MAX_RATE_HZ = 1e5
 
 
 # ------------------------------------------------------------------------ argument types

@@ -127,6 +127,7 @@ def add_parsers(subparsers) -> None:
 def check_export(args: argparse.Namespace) -> None:
     """Raises ValueError naming the argument that is wrong (no JAX import)."""
     from jax_contact.train.cli_args import (
+        MAX_RATE_HZ,
         MIN_RATE_HZ,
         ROBOT_NAMES,
         check_output_file,
@@ -144,6 +145,11 @@ def check_export(args: argparse.Namespace) -> None:
         raise ValueError(
             f"argument --rate: {args.rate:g} Hz; the estimator needs at least {MIN_RATE_HZ:g}"
             " readings per second (a swing is over in a few tenths of a second)"
+        )
+    if args.rate > MAX_RATE_HZ:
+        raise ValueError(
+            f"argument --rate: {args.rate:g} Hz; at most {MAX_RATE_HZ:g} (the control loop's"
+            " rate in Hz: 400 for a 2.5 ms loop)"
         )
     if args.params is not None:
         check_params_source("--params", args.params)
@@ -465,6 +471,7 @@ def deploy_check(
         np.array(list(result["contact_share"].values())),
         header["robot"]["feet"],
         floor_hint="export with a file tuned with --terrain-model memory",
+        seconds=result["steps"] * dt,
     )
     notes = list(conv.notes) if conv is not None else []
     torque = torque_note(rt, terms, desc, conv, notes) if conv is not None else None
@@ -476,6 +483,8 @@ def deploy_check(
         *([torque.removeprefix("WARNING ")] if torque else []),
         *([all_air] if all_air else []),
     ]
+    if json_path:  # before the printing, which a closed pipe (| head) can interrupt
+        write_json_atomic(json_path, result)
     lat = result["latency_us"]
     print(
         f"{result['steps']} readings of env {env} at {result['rate_hz']:g} Hz through"
@@ -490,8 +499,6 @@ def deploy_check(
         print(f"warning: {all_air}")
     if torque:
         print_note(torque)
-    if json_path:
-        write_json_atomic(json_path, result)
     return result
 
 

@@ -192,7 +192,9 @@ def estimate_recording(
                     )
                 )
         p = np.asarray(out["probabilistic"])[:, 0]
-        line, all_air = contact_summary(np.nanmean(p > 0.5, axis=0), feet_names)
+        line, all_air = contact_summary(
+            np.nanmean(p > 0.5, axis=0), feet_names, seconds=len(p) * conv.dt
+        )
         print(f"{len(p)} readings at {conv.dt * 1e3:.4g} ms; {line}")
         if all_air:
             print(f"warning: {all_air}")
@@ -264,18 +266,28 @@ def torque_note(
     return f"WARNING {disagrees}"
 
 
+# The shortest replay (s) whose "every foot reads air" is a warning: the belief starts at
+# its prior, so a few readings (deploy-check --steps 1) say nothing about the recording.
+ALL_AIR_MIN_S = 1.0
+
+
 def contact_summary(
-    share: np.ndarray, feet: Sequence[str], floor_hint: str = "--terrain-model memory"
+    share: np.ndarray,
+    feet: Sequence[str],
+    floor_hint: str = "--terrain-model memory",
+    *,
+    seconds: float | None = None,
 ) -> tuple[str, str | None]:
     """``(line, warning or None)``: each foot's ``share`` (L,) of steps estimated in contact
     (P > 0.5) as one line, and a warning when every foot reads air on more than 99 % of
     them: a robot that stood or walked does not, a recording read in the wrong unit,
     quaternion order or floor height does (``floor_hint``: what to do about a floor that is
-    not at z = 0)."""
+    not at z = 0). No warning for a replay of fewer than :data:`ALL_AIR_MIN_S`
+    ``seconds``."""
     line = "share of steps estimated in contact (P > 0.5): " + "  ".join(
         f"{f} {s:.2f}" for f, s in zip(feet, share, strict=True)
     )
-    if not np.all(share < 0.01):
+    if not np.all(share < 0.01) or (seconds is not None and seconds < ALL_AIR_MIN_S):
         return line, None
     return line, (
         "every foot reads air on more than 99 % of the steps; if the robot stood or walked,"
