@@ -36,6 +36,7 @@ import contextlib
 import errno
 import json
 import os
+import re
 import shutil
 import tempfile
 import threading
@@ -594,9 +595,14 @@ def load_params_for(
     derive=None,
     mass_kg: float | None = None,
     with_provenance: bool = False,
+    robot: str | None = None,
 ):
     """:func:`load_params` of a file or preset, checked against the robot and the period
     it will run at.
+
+    With ``robot`` (the name the caller's robot was loaded by), a file whose provenance
+    names another robot (``provenance["robot"]``; both plain names, not paths) warns,
+    whatever the masses.
 
     With ``mass_kg`` (the robot's total mass, :func:`jax_contact.robot.model_mass`), a file
     whose provenance records the mass of the robot it was tuned on
@@ -638,18 +644,28 @@ def load_params_for(
         raise ValueError(
             f"parameter file {str(path)!r} is for nv = {params.nv}; the robot has nv = {nv}"
         )
-    file_mass = provenance.get("robot_mass_kg")
+    file_mass, file_robot = provenance.get("robot_mass_kg"), provenance.get("robot")
+    heavier = None
     if mass_kg is not None and isinstance(file_mass, int | float) and file_mass > 0:
-        ratio = max(file_mass, mass_kg) / min(file_mass, mass_kg)
-        if ratio > MASS_RATIO_WARN:
-            warnings.warn(
-                f"parameter file {str(path)!r} was tuned on a robot of {file_mass:.3g} kg"
-                f" ({provenance.get('robot', 'unnamed')!r}); this one weighs {mass_kg:.3g} kg:"
-                " it is likely another robot's, whose noise, caps and gait constants carry"
-                " over only in part (tune on this robot: jax-contact tune on its logs,"
-                " jax-contact tune-env on a wrapped env)",
-                stacklevel=2,
-            )
+        heavier = max(file_mass, mass_kg) / min(file_mass, mass_kg) > MASS_RATIO_WARN
+    if heavier:
+        warnings.warn(
+            f"parameter file {str(path)!r} was tuned on a robot of {file_mass:.3g} kg"
+            f" ({provenance.get('robot', 'unnamed')!r}); this one weighs {mass_kg:.3g} kg:"
+            " it is likely another robot's, whose noise, caps and gait constants carry"
+            " over only in part (tune on this robot: jax-contact tune on its logs,"
+            " jax-contact tune-env on a wrapped env)",
+            stacklevel=2,
+        )
+    elif _robot_name(robot) and _robot_name(file_robot) and robot != file_robot:
+        # Another robot of about the same mass (Go1's file on Barkour): named, not weighed.
+        warnings.warn(
+            f"parameter file {str(path)!r} was tuned on robot {file_robot!r}; this one is"
+            f" {robot!r}: its noise, caps and gait constants carry over only in part (a"
+            f" preset of {robot!r} if one ships, else tune on this robot: jax-contact tune"
+            " on its logs, jax-contact tune-env on a wrapped env)",
+            stacklevel=2,
+        )
     file_dt = float(params.dt)
     if abs(file_dt - dt) > 1e-6 * dt:  # moved silently within SAME_RATE, else with a warning
         if derive is None:
@@ -668,6 +684,12 @@ def load_params_for(
             stacklevel=2,
         )
     return (params, provenance) if with_provenance else params
+
+
+def _robot_name(x) -> bool:
+    """Whether ``x`` names a robot (``"go1"``), not a path or a description: what two
+    files or a file and a caller can be compared by."""
+    return isinstance(x, str) and re.fullmatch(r"[A-Za-z0-9_\-]+", x) is not None
 
 
 def _params_text(path) -> tuple[str, str]:

@@ -1514,6 +1514,18 @@ def test_another_robots_file_warns_by_its_mass():
         load_params_for("go1", nv=18, dt=0.0025, mass_kg=model_mass(go1))
         load_params_for("go1", nv=18, dt=0.0025, mass_kg=model_mass(go1) * 0.98 * MASS_RATIO_WARN)
         load_params_for("spot", nv=18, dt=0.0025)
+        # Named robots: the file's own, or a path (an MJCF of unknown name): silent.
+        load_params_for("go1", nv=18, dt=0.0025, robot="go1", mass_kg=model_mass(go1))
+        load_params_for("go1", nv=18, dt=0.0025, robot="/robots/go1.xml")
+    # Go1's file on Barkour (11.5 kg: inside the factor) was silent; it is named.
+    barkour = model_mass(load_robot("barkour").mj_model)
+    with pytest.warns(UserWarning, match=r"'go1' was tuned on robot 'go1'; this one is 'barkour'"):
+        load_params_for("go1", nv=18, dt=0.0025, robot="barkour", mass_kg=barkour)
+    # Where the masses differ too, one warning: the mass's.
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        load_params_for("spot", nv=18, dt=0.0025, robot="go1", mass_kg=model_mass(go1))
+    assert len(caught) == 1 and "tuned on a robot of 50.3 kg" in str(caught[0].message)
 
 
 def test_differentiated_coordinates_get_the_differences_noise(go1_log):

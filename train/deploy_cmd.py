@@ -231,6 +231,7 @@ def export_to_file(
             model_mass(loaded.mj_model),
             mj_model=loaded.mj_model,
             period="the export's",
+            robot=loaded.name,
         )
     except ValueError as err:
         if params_path is None:

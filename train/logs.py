@@ -491,8 +491,9 @@ def evaluate_file(
     lost = non_finite_note(name, log.readings, log.valid) is not None
     mass = model_mass(log.robot.mj_model)
     params, terrain_model, terrain, calibration = _estimator_for(
-        desc, dt, params_path, terrain_model, mass, mj_model=log.robot.mj_model
-    )
+        desc, dt, params_path, terrain_model, mass, mj_model=log.robot.mj_model,
+        robot=log.robot.name,
+    )  # fmt: skip
     if bootstrap and truth is not None and truth.shape[1] < 2:
         raise ValueError(
             f"{name} has {truth.shape[1]} env: the bootstrap resamples envs and needs at least 2"
@@ -690,10 +691,12 @@ def _estimator_for(
     *,
     mj_model=None,
     period: str = "the log's",
+    robot: str | None = None,
 ):
     """(params, terrain model, terrain, calibration map or None) of ``evaluate`` and
     ``estimate``: the defaults (:func:`default_estimator`) or ``params_path`` checked
-    against the robot and period, with the file's calibration map, on the terrain model
+    against the robot (``robot``: the name it was loaded by) and period, with the file's
+    calibration map, on the terrain model
     given, else the file's own (:func:`resolve_terrain_model`), which is then printed.
     The file is read once; ``period`` names ``dt`` in the warning of a file of another
     period (e.g. ``"the export's"``)."""
@@ -702,8 +705,9 @@ def _estimator_for(
     provenance, calibration = None, None
     if params_path is not None:
         file_params, provenance = load_params_for(
-            params_path, desc, dt, mass_kg, with_provenance=True, mj_model=mj_model, period=period
-        )
+            params_path, desc, dt, mass_kg, with_provenance=True, mj_model=mj_model,
+            period=period, robot=robot,
+        )  # fmt: skip
         calibration = file_calibration(provenance, params_path)
     model = resolve_terrain_model(terrain_model, params_path, provenance)
     if terrain_model is None and model != "flat":
@@ -715,11 +719,20 @@ def _estimator_for(
 
 
 def load_params_for(
-    path, desc, dt, mass_kg=None, *, with_provenance=False, mj_model=None, period="the log's"
+    path,
+    desc,
+    dt,
+    mass_kg=None,
+    *,
+    with_provenance=False,
+    mj_model=None,
+    period="the log's",
+    robot=None,
 ):
-    """A params file, checked against the robot (its ``nv`` and, given, its mass) and the
-    log's period (:func:`jax_contact.io.load_params_for`; ``with_provenance`` as there;
-    ``mj_model`` as :func:`default_estimator`'s, whose values move the file's period)."""
+    """A params file, checked against the robot (its ``nv`` and, given, its mass and the
+    name it was loaded by, ``robot``) and the log's period
+    (:func:`jax_contact.io.load_params_for`; ``with_provenance`` as there; ``mj_model`` as
+    :func:`default_estimator`'s, whose values move the file's period)."""
     from jax_contact.io import load_params_for as load
 
     derive = lambda d: default_estimator(desc, d, mj_model=mj_model)[0]  # noqa: E731
@@ -731,6 +744,7 @@ def load_params_for(
         mass_kg=mass_kg,
         with_provenance=with_provenance,
         period=period,
+        robot=robot,
     )
 
 

@@ -84,7 +84,7 @@ def estimate_recording(
     desc = robot.description
     params, terrain_model, terrain, calibration = _estimator_for(
         desc, conv.dt, params_path, terrain_model, model_mass(robot.mj_model),
-        mj_model=robot.mj_model,
+        mj_model=robot.mj_model, robot=robot.name,
     )  # fmt: skip
     terms = tuple(t for t in params.terms if t in conv.terms)
     if not terms:

@@ -408,7 +408,7 @@ def _tuned_row(source: str, cfg: ReproduceConfig, desc, dt: float, mass_kg) -> d
     from jax_contact.train.logs import load_params_for
     from jax_contact.tune import calibration_of
 
-    params, prov = load_params_for(source, desc, dt, mass_kg, with_provenance=True)
+    params, prov = load_params_for(source, desc, dt, mass_kg, with_provenance=True, robot=cfg.robot)
     cal = calibration_of(prov)
     if cal is not None and not cal.keeps_decisions:
         _log(f"  {source}: its calibration map moves the 0.5 threshold ({cal.kind}); not applied")
