@@ -158,6 +158,8 @@ def read_artefact(path: str | os.PathLike) -> tuple[dict, bytes]:
         written before the header had one are read without that check).
     """
     path = Path(path)
+    if path.is_dir():
+        raise ValueError(f"exported estimator {str(path)!r} is a folder; expected a .contact file")
     if not path.is_file():
         raise FileNotFoundError(f"exported estimator {str(path)!r} does not exist")
     data = path.read_bytes()

@@ -337,6 +337,9 @@ def test_export_checks_a_params_file_as_evaluate_does(tmp_path):
     with pytest.raises(ValueError, match=r"argument --params: .*nv = 3; the robot has nv = 18"):
         export_to_file(tmp_path / "y.contact", robot="go1", params_path=_planar_file(tmp_path))
     assert not (tmp_path / "y.contact").exists()
+    # The command's argument is named (it said "foot_names name the same foot twice").
+    with pytest.raises(ValueError, match=r"^argument --feet: name the same foot twice"):
+        export_to_file(tmp_path / "f.contact", robot="go1", feet=["FR", "FR", "FL", "RL"])
 
 
 def _planar_file(tmp_path) -> str:
@@ -361,6 +364,8 @@ def test_corrupt_or_foreign_file_is_refused(deployed, tmp_path):
     other.write_text("hello")
     with pytest.raises(ValueError, match="not a jax-contact export"):
         read_artefact(other)
+    with pytest.raises(ValueError, match=r"is a folder; expected a \.contact file"):
+        read_artefact(tmp_path)  # it said "does not exist"
     # The header is checked too: its rate edited to 200 Hz (valid JSON, same length; the
     # program would still difference at 2.5 ms) was loaded as a 200 Hz estimator.
     data = Path(deployed["artefact"]).read_bytes()
@@ -491,6 +496,9 @@ def test_cli_arguments_are_checked_without_jax(tmp_path):
     args = parser.parse_args(["export", "--robot", "go1", "--rate", "1e9", "--out", "a.contact"])
     with pytest.raises(ValueError, match=r"argument --rate: 1e\+09 Hz; at most 100000"):
         args.check(args)  # it wrote a file whose period is 1 ns
+    args = parser.parse_args(["export", "--robot", "go1", "--out", ""])
+    with pytest.raises(ValueError, match=r"argument --out: an empty name"):
+        args.check(args)  # it said "'' is a folder"
     with pytest.raises(SystemExit):  # --robot and --model together
         parser.parse_args(["export", "--robot", "go1", "--model", "a.xml", "--out", "a.contact"])
     # --model takes a robot name as estimate's and tune's do (it used to say "file 'go1'

@@ -329,6 +329,8 @@ def check_output_file(arg: str, path: str | None, suffixes: tuple[str, ...] = ()
     folder, a writable folder."""
     if path is None:
         return
+    if not str(path).strip():
+        raise ValueError(f"argument {arg}: an empty name; expected a file name")
     p = Path(path)
     if p.is_dir():
         raise ValueError(f"argument {arg}: {path!r} is a folder; expected a file name")

@@ -219,7 +219,13 @@ def export_to_file(
     from jax_contact.robot import model_mass
     from jax_contact.train.logs import _estimator_for, params_file_provenance
 
-    loaded = load_robot(robot, foot_names=feet)
+    try:
+        loaded = load_robot(robot, foot_names=feet)
+    except ValueError as err:  # the library's argument is foot_names, the command's --feet
+        if feet is None or "foot_names" not in str(err):
+            raise
+        said = str(err).replace("foot_names: ", "", 1).replace("foot_names ", "", 1)
+        raise ValueError(f"argument --feet: {said}") from None
     desc = loaded.description
     dt = 1.0 / float(rate_hz)
     try:
