@@ -640,17 +640,16 @@ def load_params_for(
     import jax.numpy as jnp
 
     params, provenance = load_params(path, with_provenance=True)
+    what = f"preset {path!r}" if preset_file(path) is not None else f"parameter file {str(path)!r}"
     if params.nv != nv:
-        raise ValueError(
-            f"parameter file {str(path)!r} is for nv = {params.nv}; the robot has nv = {nv}"
-        )
+        raise ValueError(f"{what} is for nv = {params.nv}; the robot has nv = {nv}")
     file_mass, file_robot = provenance.get("robot_mass_kg"), provenance.get("robot")
     heavier = None
     if mass_kg is not None and isinstance(file_mass, int | float) and file_mass > 0:
         heavier = max(file_mass, mass_kg) / min(file_mass, mass_kg) > MASS_RATIO_WARN
     if heavier:
         warnings.warn(
-            f"parameter file {str(path)!r} was tuned on a robot of {file_mass:.3g} kg"
+            f"{what} was tuned on a robot of {file_mass:.3g} kg"
             f" ({provenance.get('robot', 'unnamed')!r}); this one weighs {mass_kg:.3g} kg:"
             " it is likely another robot's, whose noise, caps and gait constants carry"
             " over only in part (tune on this robot: jax-contact tune on its logs,"
@@ -660,7 +659,7 @@ def load_params_for(
     elif _robot_name(robot) and _robot_name(file_robot) and robot != file_robot:
         # Another robot of about the same mass (Go1's file on Barkour): named, not weighed.
         warnings.warn(
-            f"parameter file {str(path)!r} was tuned on robot {file_robot!r}; this one is"
+            f"{what} was tuned on robot {file_robot!r}; this one is"
             f" {robot!r}: its noise, caps and gait constants carry over only in part (a"
             f" preset of {robot!r} if one ships, else tune on this robot: jax-contact tune"
             " on its logs, jax-contact tune-env on a wrapped env)",
@@ -678,7 +677,7 @@ def load_params_for(
             params = change_period(params, derive(file_dt), derive(dt))
     if abs(file_dt - dt) > SAME_RATE * dt:
         warnings.warn(
-            f"parameter file {str(path)!r} has dt = {file_dt:.6g} s; {period} is {dt:.6g} s:"
+            f"{what} has dt = {file_dt:.6g} s; {period} is {dt:.6g} s:"
             f" using {period} ({how}; a file tuned at one rate is best tuned again at another:"
             " jax-contact tune on logs, jax-contact tune-env on a wrapped env)",
             stacklevel=2,
