@@ -55,6 +55,10 @@ LOG_SUFFIXES = (".h5", ".hdf5")
 # recording's (slower is no contact estimate, and in a recording most often a time column
 # in milliseconds or nanoseconds).
 MIN_RATE_HZ = 10.0
+# A recording's steps may differ from their median by this fraction (more needs
+# --resample), and two periods within it are one rate (tune's logs, deploy-check's log
+# against the export): the recordings' tolerance, here where the CLI reads it without numpy.
+RATE_TOLERANCE = 0.01
 # The most an export's rate may be: no joint-control loop runs faster (a --rate in
 # millihertz or a typo, e.g. 1e9, would give a file whose period is 1 ns).
 MAX_RATE_HZ = 1e5

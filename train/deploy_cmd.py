@@ -535,14 +535,14 @@ def _replay_period(name: str, dt: float, artefact, rate_hz: float) -> float:
 
     A log's period is the median step of its clock, which float32 or epoch timestamps
     leave a few 1e-5 away from the nominal rate (399.992 Hz for a 400 Hz loop); within
-    :data:`~jax_contact.train.recording.RATE_TOLERANCE` (the recordings' own tolerance
+    :data:`~jax_contact.train.cli_args.RATE_TOLERANCE` (the recordings' own tolerance
     for their steps) the log is taken to be at the export's rate, as the control loop
     calls it, with a note.
 
     Raises:
       ValueError: the rates differ by more than that.
     """
-    from jax_contact.train.recording import RATE_TOLERANCE
+    from jax_contact.train.cli_args import RATE_TOLERANCE
 
     off = abs(dt * rate_hz - 1.0)
     if off > RATE_TOLERANCE:

@@ -83,7 +83,6 @@ TRUTH_PREFIXES = ("contact/", "force/")
 SUFFIXES = (".csv", ".npz", ".h5", ".hdf5")
 UNITS = ("rad", "deg")
 FORCE_THRESHOLD = 1.0  # N, jax_contact.envs.ground_truth's default
-RATE_TOLERANCE = 0.01
 DIAGNOSTICS = ("p_dynamics", "p_diff_kinematics", "p_kinematics", "p_takeoff", "p_touchdown")
 
 

@@ -31,13 +31,12 @@ from collections.abc import Mapping
 import mujoco
 import numpy as np
 
-from jax_contact.train.cli_args import MIN_RATE_HZ
+from jax_contact.train.cli_args import MIN_RATE_HZ, RATE_TOLERANCE
 from jax_contact.train.recording import (
     BASE,
     BASE_QUAT,
     FORCE_THRESHOLD,
     JOINT_PREFIXES,
-    RATE_TOLERANCE,
     TIME,
     TRUTH_PREFIXES,
     UNITS,

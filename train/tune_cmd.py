@@ -33,7 +33,7 @@ import sys
 import time
 from pathlib import Path
 
-from jax_contact.train.recording import RATE_TOLERANCE
+from jax_contact.train.cli_args import RATE_TOLERANCE
 
 # What used to live here, re-exported: the shipped presets' provenance names
 # ``jax_contact.train.tune_cmd.regenerate_preset`` as their command.
