@@ -61,7 +61,32 @@ DEFAULT_POLICY = {"Go1": "walk", "Spot": "walk", "BerkeleyHumanoid": "hop"}
 
 
 def _robot(name: str) -> str:
+    """The key of :data:`SCALE` for env ``name`` (:func:`check_policy` has passed)."""
     return next(k for k in SCALE if name.startswith(k))
+
+
+def check_policy(name: str, policy: str | None) -> None:
+    """Raises ValueError naming ``policy`` unless it can drive env ``name`` (None: the
+    env's default, :func:`default_policy`): ``random`` drives any env, the scripted
+    gaits only the robots they were written for (:data:`SCALE`'s, with the legs of
+    :data:`jax_contact.envs.scripted.PHASES`; ``hop`` and ``step`` Berkeley Humanoid's).
+    No JAX is needed."""
+    policy = default_policy(name) if policy is None else policy
+    if policy not in POLICIES:
+        raise ValueError(f"policy must be one of {', '.join(POLICIES)}, got {policy!r}")
+    if policy == "random":
+        return
+    robot = next((k for k in SCALE if name.startswith(k)), None)
+    if policy in scripted.POLICIES:
+        robots = tuple(scripted.PHASES[policy])
+    else:  # hop, step
+        robots = ("BerkeleyHumanoid",)
+    if robot not in robots:
+        raise ValueError(
+            f"policy {policy!r} is scripted for {', '.join(robots)}, not {name}: drive"
+            f" {name} with {name}:random, or with your own actions or trained policy"
+            " (jax_contact.train.tune_env.tune_on_env)"
+        )
 
 
 def default_policy(name: str) -> str:
@@ -107,8 +132,7 @@ def actions_for(
     - ``random``: uniform actions in [-1, 1] (the issue's case for getup and handstand).
     """
     policy = default_policy(name) if policy is None else policy
-    if policy not in POLICIES:
-        raise ValueError(f"policy must be one of {POLICIES}, got {policy!r}")
+    check_policy(name, policy)
     nu = env.action_size
     rng = np.random.default_rng(seed)
     if policy == "random":
@@ -245,8 +269,10 @@ def main(argv=None) -> int:
     for entry in args.envs:  # refused before anything loads
         name, _, policy = entry.partition(":")
         check_env_arg(parser, "--envs", name)
-        if policy and policy not in POLICIES:
-            parser.error(f"argument --envs: {entry!r}: policy must be one of {', '.join(POLICIES)}")
+        try:
+            check_policy(name, policy or None)
+        except ValueError as err:
+            parser.error(f"argument --envs: {entry!r}: {err}")
     if args.sole not in ("rolling", "centre"):
         parser.error(f"argument --sole: must be rolling or centre, got {args.sole!r}")
     check_json_arg(parser, args.json)

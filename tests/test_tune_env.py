@@ -217,10 +217,23 @@ def test_tune_env_refuses_bad_arguments_before_jax():
 def test_an_unknown_scene_or_policy_is_named():
     with pytest.raises(ValueError, match="unknown scene 'Go2Joystick'.*go1_trot.*SpotGetup"):
         tune_env.check_scene("Go2Joystick")
-    with pytest.raises(ValueError, match="unknown policy 'gallop'; valid: walk, trot"):
+    with pytest.raises(ValueError, match="policy must be one of walk, trot.*got 'gallop'"):
         tune_env.check_scene("Go1JoystickFlatTerrain:gallop")
     tune_env.check_scene("go1_trot")
     tune_env.check_scene("SpotFlatTerrainJoystick:trot")
+    # A scripted gait on a robot it was not written for (a user trial's T1 walk ended in
+    # a StopIteration traceback after loading the env); random drives any env.
+    for scene, robots in (
+        ("T1JoystickFlatTerrain:walk", "Go1, Spot"),
+        ("T1JoystickFlatTerrain:hop", "BerkeleyHumanoid"),
+        ("Go1JoystickFlatTerrain:step", "BerkeleyHumanoid"),
+        ("BerkeleyHumanoidJoystickFlatTerrain:trot", "Go1, Spot"),
+    ):
+        with pytest.raises(ValueError, match=rf"^argument SCENE: '{scene}': policy '.*' is"
+                           rf" scripted for {robots}, not .*:random"):  # fmt: skip
+            tune_env.check_scene(scene)
+    tune_env.check_scene("T1JoystickFlatTerrain:random")
+    tune_env.check_scene("T1JoystickFlatTerrain")  # its default policy: random
 
 
 def test_scenes_of_different_estimators_are_refused(recorded):

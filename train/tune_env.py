@@ -129,7 +129,7 @@ def check_scene(scene: str) -> None:
 
     if ":" not in scene and scene in SCENES:
         return
-    from jax_contact.benchmarks.wrapper_accuracy import POLICIES
+    from jax_contact.benchmarks.wrapper_accuracy import check_policy
     from jax_contact.envs.playground_offline import ENV_NAMES
 
     name, _, policy = scene.partition(":")
@@ -138,8 +138,10 @@ def check_scene(scene: str) -> None:
             f"argument SCENE: unknown scene {name!r}; valid: a `jax-contact rates` scene"
             f" ({', '.join(SCENES)}) or a Playground locomotion env ({', '.join(ENV_NAMES)})"
         )
-    if policy and policy not in POLICIES:
-        raise ValueError(f"argument SCENE: unknown policy {policy!r}; valid: {', '.join(POLICIES)}")
+    try:
+        check_policy(name, policy or None)
+    except ValueError as err:
+        raise ValueError(f"argument SCENE: {scene!r}: {err}") from None
 
 
 def _same_estimator(first, other, scene: str) -> None:
