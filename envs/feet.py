@@ -18,7 +18,10 @@ compares ``p_f,z - r`` with the terrain) fixed to a body. A foot can be named as
 With no names, the feet are the floor-touching sphere geoms on legs, grouped by body; if
 there is no such sphere, every floor-touching geom on a leg, grouped by body (Berkeley
 Humanoid's boxes ``l_foot1``, ``r_foot1``; G1; Apollo). The geoms of a foot are what the
-ground truth reads (:mod:`jax_contact.envs.contact_truth`).
+ground truth reads (:mod:`jax_contact.envs.contact_truth`): a named geom that cannot touch
+the floor (T1's foot boxes ``left_foot``, ``right_foot`` collide only with each other)
+gives the foot its point and its body's floor-touching geoms the truth, as a site does; a
+body with none is refused.
 
 What a point contact means for a flat foot: eq. (6) and the dynamics term model the foot
 as a point that transmits a force and no moment. A sole in full contact also transmits a
@@ -194,7 +197,20 @@ def _resolve(m, d, spec, floor_ids, colliders) -> Foot:
         raise ValueError(f"foot {name!r} is a geom of the world body (the floor?), not a foot")
     if g >= 0:
         kind, p, r, sole = _geom_point(m, d, g)
-        return Foot(name, kind, int(m.geom_bodyid[g]), tuple(p), r, (g,), sole)
+        b = int(m.geom_bodyid[g])
+        geoms = (g,)
+        if g not in colliders:
+            # A geom that cannot touch the floor (T1's foot boxes collide only with each
+            # other): its point is the foot's, the truth its body's floor contacts, as a
+            # site's; a body with none has no ground truth at all.
+            geoms = tuple(c for c in colliders if m.geom_bodyid[c] == b)
+            if not geoms:
+                raise ValueError(
+                    f"foot {name!r}: geom {name!r} cannot touch the floor (contype/conaffinity,"
+                    f" no <pair>), nor can any geom of its body {_name_of(m, B, b)!r}: no"
+                    " ground truth of its contact; name a geom that touches the floor"
+                )
+        return Foot(name, kind, b, tuple(p), r, geoms, sole)
     s = mujoco.mj_name2id(m, S, name)
     if s >= 0:
         b = int(m.site_bodyid[s])

@@ -103,6 +103,28 @@ def test_corner_spheres_are_one_foot_and_pairs_count_as_contact():
         feet.describe(_model(paired))
 
 
+def test_a_named_geom_that_cannot_touch_the_floor_reads_its_bodys_truth():
+    """A user trial named T1's foot boxes, which collide only with each other (contype
+    4): the truth read that box, so air on every step of a robot standing still. The
+    box now gives the point and its body's floor-touching geoms the truth; a body with
+    none is refused."""
+    # A box of contype/conaffinity 4 (the plane's are 1) beside a sphere that touches it.
+    plate = (
+        '<geom name="plate" type="box" pos="0.01 0 -0.25" size=".08 .03 .01" contype="4"'
+        ' conaffinity="4"/>'
+    )
+    ball = '<geom name="ball" type="sphere" pos="0 0 -0.25" size=".015"/>'
+    m = _model(plate + ball)
+    f = _one(m, ["plate"])
+    truth = (mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, "ball"),)
+    assert (f.kind, f.geom_ids) == ("box", truth)
+    np.testing.assert_allclose(f.point, (0.01, 0.0, -0.26), atol=1e-12)  # the plate's sole
+    # The only floor-touching geom in a welded child body: the shank has none.
+    m = _model(plate + f'<body name="tip">{ball}</body>')
+    with pytest.raises(ValueError, match=r"geom 'plate' cannot touch the floor .* body 'shank'"):
+        feet.describe(m, ["plate"])
+
+
 ANT = """
 <mujoco>
   <worldbody>
