@@ -36,6 +36,7 @@ from jax_contact.envs.robots import Robot
 from jax_contact.io import load_params_for
 from jax_contact.params import TERMS
 from jax_contact.robot import RobotDescription, model_mass
+from jax_contact.tune.space import robot_space
 
 
 @struct.dataclass
@@ -324,6 +325,7 @@ def make_core(env, cfg: ContactObsConfig) -> Core:
             derive=derive,
             mass_kg=model_mass(mj_model),
             with_provenance=True,
+            groups=robot_space(desc).named_groups(),
         )
         calibration_in_file = file_calibration(provenance, cfg.params)
         if unused := [t for t in TERMS if t not in params.terms]:

@@ -596,13 +596,17 @@ def load_params_for(
     mass_kg: float | None = None,
     with_provenance: bool = False,
     robot: str | None = None,
+    groups: dict | None = None,
 ):
     """:func:`load_params` of a file or preset, checked against the robot and the period
     it will run at.
 
     With ``robot`` (the name the caller's robot was loaded by), a file whose provenance
     names another robot (``provenance["robot"]``; both plain names, not paths) warns,
-    whatever the masses.
+    whatever the masses. With ``groups`` (the caller's coordinate groups,
+    ``jax_contact.tune.space.robot_space(desc).named_groups()``), a tuned file whose
+    ``provenance["groups"]`` differ warns too: its per-joint noise would land on other
+    joints (Go1's file on a biped of the same ``nv``).
 
     With ``mass_kg`` (the robot's total mass, :func:`jax_contact.robot.model_mass`), a file
     whose provenance records the mass of the robot it was tuned on
@@ -665,6 +669,18 @@ def load_params_for(
             " on its logs, jax-contact tune-env on a wrapped env)",
             stacklevel=2,
         )
+    file_groups = provenance.get("groups")
+    if groups is not None and isinstance(file_groups, dict):
+        ours = {str(k): [int(i) for i in v] for k, v in groups.items()}
+        theirs = {str(k): [int(i) for i in v] for k, v in file_groups.items()}
+        if ours != theirs:
+            warnings.warn(
+                f"{what} was tuned on a robot whose coordinates group as {_groups_text(theirs)};"
+                f" this one's are {_groups_text(ours)}: its per-joint noise values land on"
+                " other joints (another robot's file; tune on this robot: jax-contact tune on"
+                " its logs, jax-contact tune-env on a wrapped env)",
+                stacklevel=2,
+            )
     file_dt = float(params.dt)
     if abs(file_dt - dt) > 1e-6 * dt:  # moved silently within SAME_RATE, else with a warning
         if derive is None:
@@ -683,6 +699,10 @@ def load_params_for(
             stacklevel=2,
         )
     return (params, provenance) if with_provenance else params
+
+
+def _groups_text(groups: dict) -> str:
+    return ", ".join(f"{k} {v}" for k, v in groups.items())
 
 
 def _robot_name(x) -> bool:

@@ -1526,6 +1526,20 @@ def test_another_robots_file_warns_by_its_mass():
         warnings.simplefilter("always")
         load_params_for("spot", nv=18, dt=0.0025, robot="go1", mass_kg=model_mass(go1))
     assert len(caught) == 1 and "tuned on a robot of 50.3 kg" in str(caught[0].message)
+    # Go1's file on a biped of the same nv (two legs of six joints, Berkeley Humanoid's
+    # layout) of about the same mass was silent: its per-joint noise landed on other joints.
+    from jax_contact.tune.space import robot_space
+
+    base = {"base_linear": [0, 1, 2], "base_rotational": [3, 4, 5]}
+    quadruped = {**base, **{f"joint{j}": [6 + j, 9 + j, 12 + j, 15 + j] for j in range(3)}}
+    biped = {**base, **{f"joint{j}": [6 + j, 12 + j] for j in range(6)}}
+    assert robot_space(load_robot("go1").description).named_groups() == quadruped
+    with pytest.warns(UserWarning, match=r"coordinates group as .*joint0 \[6, 9, 12, 15\].*"
+                      r" this one's are .*joint0 \[6, 12\]"):  # fmt: skip
+        load_params_for("go1", nv=18, dt=0.0025, groups=biped, mass_kg=16.1)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        load_params_for("go1", nv=18, dt=0.0025, groups=quadruped, mass_kg=model_mass(go1))
 
 
 def test_differentiated_coordinates_get_the_differences_noise(go1_log):

@@ -734,6 +734,7 @@ def load_params_for(
     (:func:`jax_contact.io.load_params_for`; ``with_provenance`` as there; ``mj_model`` as
     :func:`default_estimator`'s, whose values move the file's period)."""
     from jax_contact.io import load_params_for as load
+    from jax_contact.tune.space import robot_space
 
     derive = lambda d: default_estimator(desc, d, mj_model=mj_model)[0]  # noqa: E731
     return load(
@@ -745,6 +746,7 @@ def load_params_for(
         with_provenance=with_provenance,
         period=period,
         robot=robot,
+        groups=robot_space(desc).named_groups(),
     )
 
 

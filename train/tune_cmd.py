@@ -775,16 +775,7 @@ def fit_and_write(args: argparse.Namespace, inputs: Inputs) -> int:
         },
         "config": {k: getattr(config, k) for k in jt.TuneConfig.__dataclass_fields__},
         "fields": list(space.fields),
-        "groups": dict(
-            zip(
-                space.group_names,
-                [
-                    [i for i, g in enumerate(space.dof_groups) if g == k]
-                    for k in range(len(space.group_names))
-                ],
-                strict=True,
-            )
-        ),
+        "groups": space.named_groups(),
         "loss": "mean BCE of P(contact) vs truth over valid foot-steps"
         + (
             f" + {config.event_weight:g} x mean over true air phases of softplus(log-sum-exp"

@@ -80,6 +80,14 @@ class ParamSpace:
     def nv(self) -> int:
         return len(self.dof_groups)
 
+    def named_groups(self) -> dict[str, list[int]]:
+        """Group name -> its coordinates, as a tuned file's provenance (``"groups"``)
+        records them and ``jax_contact.io.load_params_for`` compares them."""
+        return {
+            name: [i for i, g in enumerate(self.dof_groups) if g == k]
+            for k, name in enumerate(self.group_names)
+        }
+
     def groups_of(self, field: str) -> tuple[tuple[int, ...], tuple[str, ...]]:
         """(index of each entry's group, group names) of a noise field."""
         if field in AXIS_GROUPS:
