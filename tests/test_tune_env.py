@@ -236,6 +236,18 @@ def test_an_unknown_scene_or_policy_is_named():
     tune_env.check_scene("T1JoystickFlatTerrain")  # its default policy: random
 
 
+def test_too_few_steps_are_refused_before_compiling():
+    """A user trial's ``--steps 20`` on a 20 ms env was refused only after a 57 s compile
+    ("no step counts"). 20 x 20 ms = 0.4 s ends inside the 0.5 s left out; 25 steps end
+    exactly at it (none counts); 26 leave one 20 ms step."""
+    with pytest.raises(ValueError, match=r"^argument --steps: 20 env steps of T1 \(20 ms each\)"
+                       r" end within the first 0.5 s .* at least 26$"):  # fmt: skip
+        tune_env.check_steps_count("T1", 20, 0.02, 0.5)
+    with pytest.raises(ValueError, match="at least 26"):
+        tune_env.check_steps_count("T1", 25, 0.02, 0.5)
+    tune_env.check_steps_count("T1", 26, 0.02, 0.5)
+
+
 def test_scenes_of_different_estimators_are_refused(recorded):
     rec = recorded[0]
     other_core = dataclasses.replace(rec.core, desc=dataclasses.replace(rec.core.desc, nv=9))

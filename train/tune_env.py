@@ -42,6 +42,7 @@ pass other seeds here).
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 import time
 
@@ -122,6 +123,19 @@ def check(args: argparse.Namespace) -> None:
     tune_cmd.check_tuning_options(args)
 
 
+def check_steps_count(scene: str, n_steps: int, dt: float, skip_s: float) -> None:
+    """ValueError naming ``--steps`` when rollouts of ``n_steps`` env steps of ``dt`` s end
+    before ``skip_s`` (the start left out): no step would count, which the recordings
+    otherwise report only after compiling."""
+    if n_steps * dt <= skip_s + 1e-9:
+        need = math.floor(skip_s / dt + 1e-9) + 1
+        raise ValueError(
+            f"argument --steps: {n_steps} env steps of {scene} ({dt * 1e3:g} ms each) end"
+            f" within the first {skip_s:g} s of each rollout, which is left out: no step would"
+            f" count; at least {need}"
+        )
+
+
 def check_scene(scene: str) -> None:
     """ValueError naming ``scene`` unless it is a rates scene or a Playground locomotion env
     with a known policy (imports Playground's registry, hence JAX)."""
@@ -170,6 +184,8 @@ def run(args: argparse.Namespace) -> int:
     # Every scene is loaded and wrapped (nothing compiled) before the first rollout, so a
     # scene of another robot is refused at once, not after the first scene's recordings.
     scenes = [load_scene(scene, args.steps, args.rollouts) for scene in args.scenes]
+    for scene, sc in zip(args.scenes, scenes, strict=True):
+        check_steps_count(scene, args.steps, float(sc.env.dt), sc.skip_s)
     recorders = [
         recorder(sc.env, feedback=sc.feedback, stop=sc.stop, skip_s=sc.skip_s) for sc in scenes
     ]
