@@ -582,6 +582,15 @@ def test_fit_calibration_per_side_recovers_both_temperatures_and_keeps_every_sig
     # A side that is never wrong has no finite maximum: its temperature stops at 0.05.
     sep = jt.fit_calibration(np.array([1.0, 2.0, -1.0, -2.0]), np.array([1, 1, 0, 1]), np.ones(4))
     assert sep.temperature == pytest.approx(0.05)
+    # ... which `tune --calibrate` warns of (a user trial's 50-step fit ended on both
+    # bounds without a word); the fit above on 2e5 steps is on neither.
+    from jax_contact.tune.calibration import sides_on_bounds
+
+    # The air side's steps (-1 right, -2 wrong) have their BCE falling as a = 1/T -> 0
+    # (its slope at a = 0 is mean((0.5 - y) x) = +0.25), so T stops at 20: both sides.
+    assert sep.temperature_air == pytest.approx(20.0)
+    assert sides_on_bounds(sep) == ["P > 0.5", "P < 0.5"] and sides_on_bounds(cal) == []
+    assert sides_on_bounds(jt.Calibration(temperature=2.0, bias=0.5)) == []  # affine: unbounded
 
 
 def test_load_calibration_reads_a_files_map_and_probability_applies_it(tmp_path):

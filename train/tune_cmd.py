@@ -835,6 +835,7 @@ def calibration_entry(
     import numpy as np
 
     from jax_contact import tune as jt
+    from jax_contact.tune.calibration import sides_on_bounds as calibration_sides_on_bounds
 
     key = jax.random.key(seed)
     logits = [jt.predict_logits(params, terrain, d, key=key) for d in train]
@@ -851,6 +852,15 @@ def calibration_entry(
         f"calibration ({cal.kind}): {cal.describe()}; validation ECE {before}{after['ece']:.4f}",
         file=sys.stderr,
     )
+    if bound := calibration_sides_on_bounds(cal):
+        n = int(sum(np.asarray(d.mask).sum() for d in train))
+        print(
+            f"warning: calibration: the temperature for {' and '.join(bound)} ended on its"
+            f" bound (fit on {n} counted foot-steps): that side's steps were nearly never"
+            " wrong, or too few to fit, so its temperature says little; tune on longer"
+            " logs, or leave --calibrate out",
+            file=sys.stderr,
+        )
     return {**cal.as_dict(), "fitted_on": list(paths), "validation_after": after}
 
 

@@ -76,6 +76,20 @@ def fit_calibration(
     return Calibration(temperature=float(1.0 / a), bias=float(c))
 
 
+def sides_on_bounds(cal: Calibration) -> list[str]:
+    """The sides (``"P > 0.5"``, ``"P < 0.5"``) of a ``"sign"`` map whose temperature
+    ended on a bound of :func:`fit_calibration`'s [0.05, 20]: a side whose steps were
+    (nearly) never wrong, or too few to fit, so its temperature says little. Empty for
+    an affine map (not bounded)."""
+    if cal.kind != "sign":
+        return []
+    return [
+        side
+        for side, t in (("P > 0.5", cal.temperature), ("P < 0.5", cal.temperature_air))
+        if any(abs(t - b) <= 1e-6 * b for b in _TEMPERATURE_BOUNDS)
+    ]
+
+
 def _newton(x, y, iterations: int, *, bias: bool) -> tuple[float, float]:
     """Minimises the mean BCE of ``sigmoid(a x + c)`` (``c`` fixed at 0 without ``bias``)
     from ``(1, 0)``: damped Newton steps with a backtracking line search, float64. Without
