@@ -417,6 +417,7 @@ def test_deploy_check_reports_latency_and_agreement(deployed, live, tmp_path):
     assert isinstance(saved["deadline_misses"], int)
     assert saved["max_abs_diff"] <= P_TOL
     assert res["steps"] == N_STEPS
+    assert saved["cpus"] == sorted(os.sched_getaffinity(0))  # what --cpu pins is recorded
 
 
 def test_deploy_check_reads_a_recording_and_warns_as_estimate(deployed, live, tmp_path, capsys):

@@ -461,6 +461,8 @@ def deploy_check(
         "steps": int(len(lat_us)),
         "rate_hz": float(header["rate_hz"]),
         "paced": bool(pace),
+        # The CPUs the replay ran on (--cpu pins one): latency depends on them.
+        "cpus": sorted(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else None,
         "latency_us": {
             "median": float(np.median(lat_us)),
             "p99": float(np.percentile(lat_us, 99)),
