@@ -84,8 +84,13 @@ def test_tune_env_writes_a_file_the_wrapper_loads(recorded, tmp_path, capsys):
     assert prov["robot_mass_kg"] == pytest.approx(5.449 + 2.48 + 0.31)
     # Seed 3 here is the fixture's recording: the same rollouts, to the bit.
     assert prov["logs"][0]["valid_steps"] == int(rec.valid.sum())
-    # The file goes back into the wrapper at the scene's physics rate, its map with it.
     from jax_contact.envs.contact_config import ContactObsConfig
+
+    # The feet and sole point it was fitted with (the planar leg's one foot, the default).
+    feet = prov["logs"][0]["feet"]
+    assert feet == list(rec.core.desc.foot_names) and len(feet) == 1
+    assert prov["logs"][0]["sole"] == ContactObsConfig().sole
+    # The file goes back into the wrapper at the scene's physics rate, its map with it.
     from jax_contact.envs.contact_wrappers import wrap_contact
 
     env = env_rollouts.load_scene("planar_leg", 1, 1).env

@@ -333,6 +333,9 @@ def _fit(args: argparse.Namespace, recordings, robot: str) -> int:
             "n_envs": int(rec.truth.shape[1]),
             "dt": rec.dt,
             "noise": rec.core.cfg.sensor,
+            # The feet the wrapper estimated, and its sole point: what the file fits.
+            "feet": list(rec.core.desc.foot_names),
+            "sole": rec.core.cfg.sole,
             "steps": int(data.n_steps),
             "valid_steps": n_valid,
         }
