@@ -177,6 +177,8 @@ def read_artefact(path: str | os.PathLike) -> tuple[dict, bytes]:
         header = json.loads(data[start : start + n].decode())
     except (UnicodeDecodeError, json.JSONDecodeError) as err:
         raise ValueError(f"{name}: the header is not JSON ({err}); the file is corrupt") from None
+    if not isinstance(header, dict):
+        raise ValueError(f"{name}: the header is not a JSON object; the file is corrupt")
     if header.get("format") != FORMAT:
         raise ValueError(f"{name}: header format is {header.get('format')!r}, not {FORMAT!r}")
     if int(header.get("format_version", 0)) > FORMAT_VERSION:
@@ -184,8 +186,6 @@ def read_artefact(path: str | os.PathLike) -> tuple[dict, bytes]:
             f"{name} has format_version {header['format_version']}; this library reads up to"
             f" {FORMAT_VERSION}"
         )
-    if not isinstance(header, dict):
-        raise ValueError(f"{name}: the header is not a JSON object; the file is corrupt")
     if "header_sha256" in header and _header_digest(header) != header["header_sha256"]:
         raise ValueError(f"{name}: the header does not match its checksum (edited or corrupt)")
     payload = data[start + n :]

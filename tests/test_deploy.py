@@ -380,6 +380,10 @@ def test_corrupt_or_foreign_file_is_refused(deployed, tmp_path):
     huge.write_bytes(magic + (10**9).to_bytes(8, "little") + data[len(magic) + 8 :])
     with pytest.raises(ValueError, match=r"header length \(1000000000 bytes\) exceeds the file"):
         read_artefact(huge)
+    listed = tmp_path / "list.contact"  # valid JSON, not an object: was an AttributeError
+    listed.write_bytes(magic + (6).to_bytes(8, "little") + b"[1, 2]" + b"payload")
+    with pytest.raises(ValueError, match=r"the header is not a JSON object"):
+        read_artefact(listed)
 
 
 def test_deploy_check_compares_the_physics_not_the_name(deployed):
