@@ -144,6 +144,8 @@ class LoadedLog:
       valid: (T, E) bool.
       dt: the readings' period, s.
       attrs: the log's attributes.
+      lost: a reading is not finite on a valid step (:func:`non_finite_note`, printed
+        when the log is loaded).
     """
 
     name: str
@@ -153,6 +155,7 @@ class LoadedLog:
     valid: np.ndarray
     dt: float
     attrs: dict
+    lost: bool = False
 
 
 def load_log(
@@ -231,7 +234,7 @@ def load_log(
         raise ValueError(f"{name}: array {TRUTH_CONTACT!r} has {truth.shape[-1]} feet but {whose}")
     if note := non_finite_note(name, readings, valid):
         print(note, file=sys.stderr)
-    return LoadedLog(name, robot, readings, truth, valid, dt, attrs)
+    return LoadedLog(name, robot, readings, truth, valid, dt, attrs, lost=note is not None)
 
 
 def non_finite_note(name: str, readings: dict, valid: np.ndarray) -> str | None:
@@ -488,7 +491,6 @@ def evaluate_file(
 
     log = load_log(path, foot_names=foot_names, robot=robot)
     name, truth, desc, dt = log.name, log.truth, log.robot.description, log.dt
-    lost = non_finite_note(name, log.readings, log.valid) is not None
     mass = model_mass(log.robot.mj_model)
     params, terrain_model, terrain, calibration = _estimator_for(
         desc, dt, params_path, terrain_model, mass, mj_model=log.robot.mj_model,
@@ -518,7 +520,7 @@ def evaluate_file(
         dt=dt,
         # A reading that is not finite leaves its feet to the prediction alone: the
         # estimator's per-foot validity says which, and those steps are not scored.
-        diagnostics_of="probabilistic" if truth is not None and lost else None,
+        diagnostics_of="probabilistic" if truth is not None and log.lost else None,
     )
     if calibration is not None and truth is not None:
         # The map fitted on the tuning logs, applied after the recursion: a second row,
