@@ -45,7 +45,7 @@ class ContactObsConfig:
       params: :class:`jax_contact.EstimatorParams` at the estimator's period; a parameter
         file or shipped preset name (``"go1"``, :func:`jax_contact.load_params`; one made
         at another period runs at the estimator's with a warning,
-        :func:`jax_contact.io.load_params_for`); None:
+        :func:`jax_contact.params_file.load_params_for`); None:
         :func:`jax_contact.envs.contact_params.default_estimator_params`.
       calibration: the map applied to the belief's logit before it is observed and scored
         (:mod:`jax_contact.calibration`; the recursion runs on the raw logit):

@@ -33,8 +33,8 @@ from jax_contact.envs.contact_config import (
     validate_config,
 )
 from jax_contact.envs.robots import Robot
-from jax_contact.io import load_params_for
 from jax_contact.params import TERMS
+from jax_contact.params_file import load_params_for
 from jax_contact.robot import RobotDescription, model_mass
 from jax_contact.tune.space import robot_space
 

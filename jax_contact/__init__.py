@@ -27,9 +27,9 @@ _LAZY = {
     "step": "filter",
     "step_batch": "filter",
     "step_robot": "filter",
-    "load_params": "io",
-    "preset_names": "io",
-    "save_params": "io",
+    "load_params": "params_file",
+    "preset_names": "params_file",
+    "save_params": "params_file",
     "MeasurementTerms": "measurement",
     "diff_kinematics_llr": "measurement",
     "dynamics_llr": "measurement",
@@ -76,7 +76,6 @@ if TYPE_CHECKING:  # the same names, eagerly, for type checkers and IDEs
         step_batch,
         step_robot,
     )
-    from jax_contact.io import load_params, preset_names, save_params
     from jax_contact.measurement import (
         MeasurementTerms,
         diff_kinematics_llr,
@@ -93,6 +92,7 @@ if TYPE_CHECKING:  # the same names, eagerly, for type checkers and IDEs
         make_params,
         validate_params,
     )
+    from jax_contact.params_file import load_params, preset_names, save_params
     from jax_contact.terrain import (
         FlatTerrain,
         FootholdMemory,

@@ -157,7 +157,7 @@ def load_calibration(path: str | os.PathLike) -> Calibration | None:
     Raises:
       ValueError: as :func:`jax_contact.load_params`, or a malformed map (named).
     """
-    from jax_contact.io import load_params
+    from jax_contact.params_file import load_params
 
     _, provenance = load_params(path, with_provenance=True)
     return file_calibration(provenance, path)

@@ -371,7 +371,7 @@ def export_robot(
       ValueError: ``params.dt`` and ``rate_hz`` disagree, or the model is not the
         description's.
     """
-    from jax_contact.io import params_to_dict
+    from jax_contact.params_file import params_to_dict
 
     if not (np.isfinite(rate_hz) and rate_hz > 0):
         raise ValueError(f"rate_hz must be a finite number > 0 (Hz), got {rate_hz!r}")

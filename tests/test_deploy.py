@@ -251,7 +251,7 @@ def test_header_describes_inputs_and_parameters(deployed):
     assert h["library_version"] and h["exported_with"]["jax"]
     assert h["pairing"]["delayed"] == ["qpos", "qvel"]
     # The stored parameters are the ones the offline estimator gets.
-    from jax_contact.io import params_from_dict, params_to_dict
+    from jax_contact.params_file import params_from_dict, params_to_dict
     from jax_contact.train.logs import default_estimator
 
     params, _ = default_estimator(load_robot("go1").description, 0.0025)
@@ -271,7 +271,7 @@ def test_a_shipped_preset_exports_by_name(deployed, tmp_path):
     import jax_contact as jc
     from jax_contact import deploy
     from jax_contact.envs.robots import load_robot
-    from jax_contact.io import params_from_dict, params_to_dict
+    from jax_contact.params_file import params_from_dict, params_to_dict
     from jax_contact.train.deploy_cmd import export_to_file, offline_estimate, params_and_terrain
     from jax_contact.train.evaluate import replay
 
@@ -318,7 +318,7 @@ def test_export_checks_a_params_file_as_evaluate_does(tmp_path):
     export's rate with a warning (it was written unchecked, or refused)."""
     import warnings
 
-    from jax_contact.io import params_from_dict
+    from jax_contact.params_file import params_from_dict
     from jax_contact.train.deploy_cmd import export_to_file
 
     with warnings.catch_warnings(record=True) as caught:

@@ -1355,7 +1355,7 @@ def test_a_params_file_runs_on_the_terrain_model_it_was_tuned_with(tmp_path, mon
     assert seen == ["FootholdMemory", "FlatTerrain", "FlatTerrain"]
 
     # Parameters, terrain model and calibration map come from one read of the file.
-    import jax_contact.io as jc_io
+    import jax_contact.params_file as jc_io
 
     reads = []
     text = jc_io._params_text
@@ -1494,7 +1494,7 @@ def test_another_robots_file_warns_by_its_mass():
     import warnings
 
     import jax_contact as jc
-    from jax_contact.io import MASS_RATIO_WARN, load_params_for
+    from jax_contact.params_file import MASS_RATIO_WARN, load_params_for
     from jax_contact.robot import model_mass
 
     go1, spot = load_robot("go1").mj_model, load_robot("spot").mj_model

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 import jax_contact as jc
-import jax_contact.io  # noqa: F401  (jc.io: the package imports its submodules lazily)
+import jax_contact.params_file  # noqa: F401  (the package imports its submodules lazily)
 from jax_contact.envs.robots import load_robot
 from jax_contact.envs.sensors import sensor_preset
 
@@ -79,12 +79,12 @@ def test_wrapper_and_reproduction_use_the_same_parameters(go1):
     a = default_estimator_params(go1, DT, sp)
     b = quadruped_estimator_params(go1, DT)
     for x, y in zip(
-        jc.io.params_to_dict(a)["noise"].values(),
-        jc.io.params_to_dict(b)["noise"].values(),
+        jc.params_file.params_to_dict(a)["noise"].values(),
+        jc.params_file.params_to_dict(b)["noise"].values(),
         strict=True,
     ):
         np.testing.assert_array_equal(x, y)
-    assert jc.io.params_to_dict(a)["values"] == jc.io.params_to_dict(b)["values"]
+    assert jc.params_file.params_to_dict(a)["values"] == jc.params_file.params_to_dict(b)["values"]
 
 
 def test_params_for_names_bad_input(go1):
@@ -133,7 +133,7 @@ def test_params_file_round_trip(go1, tmp_path):
     )
     path = jc.save_params(tmp_path / "go1.json", p, provenance={"by": "test"})
     q = jc.load_params(path)
-    da, db = jc.io.params_to_dict(p), jc.io.params_to_dict(q)
+    da, db = jc.params_file.params_to_dict(p), jc.params_file.params_to_dict(q)
     assert da["noise"] == db["noise"] and da["values"] == db["values"]
     assert da["options"] == db["options"] and q.n_samples == 64
     assert float(q.min_push) == 12.5 and float(q.slip_prob) == np.float32(0.1)
@@ -163,7 +163,7 @@ def test_save_params_refuses_invalid_params_and_names_an_unwritable_path(go1, tm
 
 def test_bad_params_file_names_the_field(go1, tmp_path):
     sp = sensor_preset("anymal_like", go1.nv, dt=DT)
-    payload = jc.io.params_to_dict(jc.params_for(go1, sp, DT))
+    payload = jc.params_file.params_to_dict(jc.params_for(go1, sp, DT))
     cases = {
         "missing": (lambda d: d["values"].pop("cap_transition"), "missing field.*cap_transition"),
         "extra": (lambda d: d["noise"].update(sigma_x=[1.0]), "unknown field.*sigma_x"),
@@ -267,13 +267,13 @@ def test_a_file_written_before_a_later_field_loads_with_the_old_model(go1, tmp_p
     (before the kinematic terms read the newest reading) with 0, every term at the
     interval's start. Every other field is unchanged."""
     sp = sensor_preset("anymal_like", go1.nv, dt=DT)
-    payload = jc.io.params_to_dict(jc.params_for(go1, sp, DT))
+    payload = jc.params_file.params_to_dict(jc.params_for(go1, sp, DT))
     assert payload["values"][later] > 0.0  # the default is not the old model
     old = json.loads(json.dumps(payload))
     del old["values"][later]
     path = tmp_path / "old.json"
     path.write_text(json.dumps(old))
-    q = jc.io.params_to_dict(jc.load_params(path))
+    q = jc.params_file.params_to_dict(jc.load_params(path))
     assert q["values"].pop(later) == 0.0
     payload["values"].pop(later)
     assert q["values"] == payload["values"] and q["noise"] == payload["noise"]
@@ -323,7 +323,7 @@ def test_save_params_into_a_folder_names_it_and_writes_nothing(go1, tmp_path):
 def test_a_calibration_map_without_its_temperature_is_named(tmp_path):
     from jax_contact.calibration import load_calibration
 
-    payload = json.loads(jc.io._params_text("go1")[0])
+    payload = json.loads(jc.params_file._params_text("go1")[0])
     payload["provenance"]["calibration"] = {"kind": "sign", "temperature_air": 2.0}
     path = tmp_path / "cal.json"
     path.write_text(json.dumps(payload))

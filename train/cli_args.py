@@ -281,10 +281,10 @@ def check_input_file(arg: str, path: str) -> None:
 def check_params_source(arg: str, source: str) -> None:
     """Raises ValueError unless ``source`` is the name of a shipped preset
     (``jax_contact.preset_names()``) or an existing parameter file whose JSON header reads
-    (:func:`jax_contact.io.read_params_file`), the two things :func:`jax_contact.load_params`
-    takes. No JAX is imported."""
+    (:func:`jax_contact.params_file.read_params_file`), the two things
+    :func:`jax_contact.load_params` takes. No JAX is imported."""
     from jax_contact._presets import preset_file, preset_names
-    from jax_contact.io import read_params_file
+    from jax_contact.params_file import read_params_file
 
     if preset_file(source) is not None:
         return

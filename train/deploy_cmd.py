@@ -298,7 +298,7 @@ def run_export(args: argparse.Namespace) -> int:
 def params_and_terrain(header: dict):
     """The estimator parameters and terrain model stored in an export's header."""
     import jax_contact as jc
-    from jax_contact.io import params_from_dict
+    from jax_contact.params_file import params_from_dict
 
     params = params_from_dict(header["params"], source="export header")
     t = header["terrain"]

@@ -351,7 +351,7 @@ def file_terrain_model(path) -> str | None:
     """The terrain model a parameter file (or preset name) was tuned with
     (``provenance["terrain_model"]`` of ``jax-contact tune``), or None when it does not say
     (files written before the option: tuned on the plane)."""
-    from jax_contact.io import load_params
+    from jax_contact.params_file import load_params
 
     _, prov = load_params(path, with_provenance=True)
     return _terrain_model_in(prov, path)
@@ -733,9 +733,9 @@ def load_params_for(
 ):
     """A params file, checked against the robot (its ``nv`` and, given, its mass and the
     name it was loaded by, ``robot``) and the log's period
-    (:func:`jax_contact.io.load_params_for`; ``with_provenance`` as there; ``mj_model`` as
+    (:func:`jax_contact.params_file.load_params_for`; ``with_provenance`` as there; ``mj_model`` as
     :func:`default_estimator`'s, whose values move the file's period)."""
-    from jax_contact.io import load_params_for as load
+    from jax_contact.params_file import load_params_for as load
     from jax_contact.tune.space import robot_space
 
     derive = lambda d: default_estimator(desc, d, mj_model=mj_model)[0]  # noqa: E731

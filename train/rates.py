@@ -86,7 +86,7 @@ def check_params(scenes, params) -> None:
     if params is None:
         return
     from jax_contact.envs.robots import load_robot
-    from jax_contact.io import load_params
+    from jax_contact.params_file import load_params
 
     nv = load_params(params).nv
     for name in scenes:

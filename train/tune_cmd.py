@@ -476,7 +476,7 @@ class Inputs:
       terrain_model: the provenance's ``terrain_model``.
       load_s: seconds spent getting the data.
       mass_kg: the robot model's total mass (``provenance["robot_mass_kg"]``: loading the
-        file for a robot of another mass warns, :func:`jax_contact.io.load_params_for`).
+        file for a robot of another mass warns, :func:`jax_contact.params_file.load_params_for`).
     """
 
     train: list

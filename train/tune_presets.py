@@ -209,7 +209,8 @@ def recalibrate_preset(
     """
     import json
 
-    from jax_contact.io import params_from_dict, write_json_atomic
+    from jax_contact.io import write_json_atomic
+    from jax_contact.params_file import params_from_dict
     from jax_contact.train.tune_cmd import calibration_entry, code_version
     from jax_contact.train.tune_data import load_tuning_log
 

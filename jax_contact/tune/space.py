@@ -82,7 +82,7 @@ class ParamSpace:
 
     def named_groups(self) -> dict[str, list[int]]:
         """Group name -> its coordinates, as a tuned file's provenance (``"groups"``)
-        records them and ``jax_contact.io.load_params_for`` compares them."""
+        records them and ``jax_contact.params_file.load_params_for`` compares them."""
         return {
             name: [i for i, g in enumerate(self.dof_groups) if g == k]
             for k, name in enumerate(self.group_names)
