@@ -1600,3 +1600,62 @@ def test_a_simulated_barkour_log_stores_feet_its_robot_resolves(tmp_path, monkey
     assert not any(f.startswith("gt_foot") for f in feet), feet
     assert load_robot("barkour", foot_names=feet).description.foot_names == tuple(feet)
     assert len(feet) == 4
+
+
+def _split(round_trip, tmp_path, rows: int, drop: str | None = None):
+    """The round trip's recording cut after ``rows`` rows into two files of unequal
+    length, ``drop`` (a column) left out of the second."""
+    cols = dict(read_recording(round_trip.tmp / "robot.csv").columns)
+    first, second = tmp_path / "first.csv", tmp_path / "second.csv"
+    write_recording_csv(first, {k: v[:rows] for k, v in cols.items()})
+    write_recording_csv(second, {k: v[rows:] for k, v in cols.items() if k != drop})
+    return str(first), str(second)
+
+
+def test_several_recordings_are_estimated_each_and_their_metrics_pooled(round_trip, tmp_path):
+    """``estimate A B``: each recording's folder holds what ``estimate A`` alone writes, and
+    the pooled metrics treat each recording as one sequence. Reference, by hand: no event
+    crosses from one recording into the other, so every count of the pooled row is the sum
+    of the recordings' counts, the accuracy their step-weighted mean and the touch-down
+    delay's mean the mean of theirs weighted by their matched touch-downs."""
+    first, second = _split(round_trip, tmp_path, 480)  # 1.2 s and 0.8 s
+    out = tmp_path / "out"
+    argv = [first, second, "--model", "planar_leg", "--names", NAMES_INLINE, "--units", "deg"]
+    assert estimate_cmd.main([*argv, "--out", str(out), "--no-plots"]) == 0
+    alone = _estimate(first, tmp_path / "alone", plots=False, **AS_RECORDED)
+    got = read_recording(out / "first" / "estimate.csv").columns["p_contact/foot"]
+    np.testing.assert_allclose(got, alone["outputs"]["probabilistic"][:, 0, 0], atol=1e-6)
+    each = [json.loads((out / s / "metrics.json").read_text()) for s in ("first", "second")]
+    pooled = json.loads((out / "pooled_metrics.json").read_text())
+    assert pooled["per_recording"] == {"first": each[0], "second": each[1]}
+    assert set(pooled["pooled"]) == {"probabilistic", "gm", "kinematic"}
+    for row, m in pooled["pooled"].items():
+        a, b = each[0][row], each[1][row]
+        assert a["n_steps"] == 480 and b["n_steps"] == 320
+        for key in ("n_steps", "failures", "n_air_phases", "air_phases_with_failure",
+                    "n_touchdowns", "missed", "touchdown_already_on", "n_liftoffs",
+                    "missed_liftoffs"):  # fmt: skip
+            assert m[key] == a[key] + b[key], (row, key)
+        assert m["accuracy"] == pytest.approx((480 * a["accuracy"] + 320 * b["accuracy"]) / 800)
+        matched = [x["n_touchdowns"] - x["missed"] - x["touchdown_already_on"] for x in (a, b)]
+        assert min(matched) > 0, row
+        mean = matched[0] * a["touchdown_delay_ms"][0] + matched[1] * b["touchdown_delay_ms"][0]
+        assert m["touchdown_delay_ms"][0] == pytest.approx(mean / sum(matched), rel=1e-9)
+
+
+def test_several_recordings_are_all_read_before_any_is_estimated(round_trip, tmp_path, capsys):
+    """A column missing from the second recording is refused, naming it, before the first
+    one's folder is written; two recordings of one name are refused before any work."""
+    first, second = _split(round_trip, tmp_path, 480, drop="q/KNEE_J")
+    out = tmp_path / "out"
+    argv = [first, second, "--model", "planar_leg", "--names", NAMES_INLINE, "--units", "deg"]
+    assert estimate_cmd.main([*argv, "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "second.csv" in err and "missing column 'q/KNEE_J'" in err, err
+    assert not out.exists()
+    (tmp_path / "again").mkdir()
+    twin = str(tmp_path / "again" / "first.csv")
+    Path(twin).write_bytes(Path(first).read_bytes())
+    assert estimate_cmd.main([first, twin, "--model", "planar_leg", "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert f"{first!r} and {twin!r} would both write to the folder 'first'" in err, err

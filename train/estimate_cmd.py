@@ -39,10 +39,16 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         " docs/own_robot.md) and writes"
         " P(contact) per foot, each term's probability and the transitions to"
         " OUT/estimate.h5 and OUT/estimate.csv, a figure per foot, and the metrics when the"
-        " recording has ground truth. The estimator runs at the recording's rate.",
+        " recording has ground truth. The estimator runs at the recording's rate. Several"
+        " recordings of one robot: each into OUT/<its name>/, and the metrics of those with"
+        " ground truth pooled into OUT/pooled_metrics.json.",
         formatter_class=HelpFormatter,
     )
-    p.add_argument("recording", help="the recording: .csv (header row), .npz or .h5")
+    p.add_argument(
+        "recording",
+        nargs="+",
+        help="the recording: .csv (header row), .npz or .h5; or several, of one robot",
+    )
     p.add_argument(
         "--model",
         "--robot",
@@ -249,27 +255,40 @@ def check(args: argparse.Namespace) -> None:
         check_params_source,
         check_robot,
     )
+    from jax_contact.train.recording_batch import POOLED_FILE, recording_folders
 
-    check_input_file("recording", args.recording)
-    if Path(args.recording).suffix.lower() not in RECORDING_SUFFIXES:
-        raise ValueError(
-            f"argument recording: {args.recording!r} must end in {', '.join(RECORDING_SUFFIXES)}"
-        )
+    for recording in args.recording:
+        check_input_file("recording", recording)
+        if Path(recording).suffix.lower() not in RECORDING_SUFFIXES:
+            raise ValueError(
+                f"argument recording: {recording!r} must end in {', '.join(RECORDING_SUFFIXES)}"
+            )
     check_robot("--model", args.model)
     if args.params is not None:
         check_params_source("--params", args.params)
     parse_names(args.names)
     check_force_threshold(args.force_threshold)
     check_output_folder("--out", args.out)
-    check_outputs_not_folders("--out", args.out, ESTIMATE_OUTPUTS)
+    if len(args.recording) == 1:
+        check_outputs_not_folders("--out", args.out, ESTIMATE_OUTPUTS)
+        return
+    check_outputs_not_folders("--out", args.out, (POOLED_FILE,))
+    for folder in recording_folders(args.recording):
+        check_output_folder("--out", Path(args.out) / folder)
+        check_outputs_not_folders("--out", Path(args.out) / folder, ESTIMATE_OUTPUTS)
 
 
 def run(args: argparse.Namespace) -> int:
     """Runs the estimate (imports the library); returns the exit code."""
+    from jax_contact.train.recording_batch import estimate_recordings
     from jax_contact.train.recording_estimate import estimate_recording
 
-    estimate_recording(
-        args.recording,
+    if len(args.recording) == 1:
+        estimate, what = estimate_recording, args.recording[0]
+    else:
+        estimate, what = estimate_recordings, args.recording
+    estimate(
+        what,
         model=args.model,
         out_dir=args.out,
         feet=args.feet,

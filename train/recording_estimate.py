@@ -59,7 +59,9 @@ def estimate_recording(
 
     Returns:
       ``notes``, ``terms``, ``foot_names``, ``dt``, ``files`` (written), ``outputs`` (the
-      replay's (T, 1, L) arrays), ``scores`` (empty without ground truth).
+      replay's (T, 1, L) arrays), ``scores`` (empty without ground truth); with ground
+      truth also ``truth``, ``scored`` and ``truth_known``, the (T, 1, L) arrays the
+      scores were computed on.
 
     Raises:
       ValueError: ``out_dir`` is a file or cannot take files (before any work), or the
@@ -218,7 +220,7 @@ def estimate_recording(
     removed = sorted(set(earlier) - {f.name for f in files})
     if removed:
         print(f"removed the earlier run's {removed} from {str(out_dir)!r} (not written this time)")
-    return {
+    result = {
         "notes": notes,
         "terms": terms,
         "foot_names": feet_names,
@@ -227,6 +229,9 @@ def estimate_recording(
         "outputs": out,
         "scores": scores,
     }
+    if has_truth:  # what the scores were computed on, for pooling several recordings
+        result |= {"truth": conv.truth, "scored": scored, "truth_known": conv.truth_known}
+    return result
 
 
 # The per-step diagnostics (each (T, L)) that :func:`torque_note` reads.
