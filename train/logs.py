@@ -752,15 +752,15 @@ def load_params_for(
     )
 
 
-def format_scores(scores: dict[str, dict], *, title: str = "log") -> str:
-    """Every detector's full metric set as one table with a header and the legend
-    (``jax_contact.train.reproduce.format_table``'s columns: TD / LO delays, F1, accuracy, failures,
-    per-air-phase failure rate, missed touch-downs and lift-offs, ECE)."""
+def format_scores(scores: dict[str, dict], *, title: str = "log", legend: bool = True) -> str:
+    """Every detector's full metric set as one table with a header and (``legend``) the
+    legend (``jax_contact.train.reproduce.format_table``'s columns: TD / LO delays, F1,
+    accuracy, failures, per-air-phase failure rate, missed touch-downs and lift-offs, ECE)."""
     from jax_contact.train.reproduce import _cell, format_table
 
     rows = sorted(scores, key=lambda d: (not d.startswith("probabilistic"), d == "kinematic", d))
     payload = {"scenarios": {title: {det: _cell(scores[det]) for det in rows}}}
-    return format_table(payload, rows=rows)
+    return format_table(payload, rows=rows, legend=legend)
 
 
 def to_end_of_step(readings: dict, truth: np.ndarray | None, valid: np.ndarray):

@@ -111,7 +111,8 @@ def estimate_recordings(
         from jax_contact.train.logs import format_scores
 
         n = sum(1 for r in results.values() if r["scores"])
-        print(format_scores(pooled, title=f"{n} recordings pooled"))
+        # The columns' legend was printed under each recording's table.
+        print(format_scores(pooled, title=f"{n} recordings pooled", legend=False))
         payload = {
             "recordings": {s: str(p) for s, p in zip(stems, paths, strict=True)},
             "pooled": pooled,
