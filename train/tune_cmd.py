@@ -208,7 +208,7 @@ def add_tuning_options(p: argparse.ArgumentParser) -> None:
         default="loss",
         help="validation number that picks the epoch kept (loss: BCE + event term; cells:"
         " the lowest loss among the epochs no worse than the defaults in any validation"
-        " log's F1, accuracy, ECE, air-phase failures and mean delays; spread: the same,"
+        " log's F1, accuracy, ECE, swing-phase failures and mean delays; spread: the same,"
         " a cell counting as worse only beyond a 95 %% paired env-bootstrap interval)",
     )
     p.add_argument(
@@ -217,7 +217,7 @@ def add_tuning_options(p: argparse.ArgumentParser) -> None:
         default=0.0,
         help="with --select cells, how much worse than the defaults a validation cell may"
         " be, in units of jax_contact.tune.CELL_TOLERANCE (F1/accuracy/ECE 0.0005, 0.25"
-        " point of air-phase failures, 0.25 ms of delay)",
+        " point of swing-phase failures, 0.25 ms of delay)",
     )
     p.add_argument(
         "--constrain",
@@ -698,7 +698,7 @@ def fit_and_write(args: argparse.Namespace, inputs: Inputs) -> int:
         print(
             f"tune {_bar(e, config.max_epochs)} epoch {e:2d}/{config.max_epochs}{loss}"
             f"  val loss {row['val_loss']:.4f} BCE {row['val_bce']:.4f}  F1 {row['val_f1']:.4f}"
-            f"  ECE {row['val_ece']:.4f}  fail {100 * row['val_fail']:.1f} %"
+            f"  ECE {row['val_ece']:.4f}  sw-ph {100 * row['val_fail']:.1f} %"
             + (f"  worse beyond spread: {len(row['val_worse'])}" if "val_worse" in row else "")
             + f"  {row['wall_s']:6.1f} s"
             + ("  rejected" if row.get("rejected") else ""),

@@ -137,10 +137,13 @@ their whole length: their loss without the prior (mean BCE + ``w_e`` x the mean 
 term, :func:`score_logs`) decides early stopping (``patience`` epochs without improving
 by ``min_delta``), and the parameters returned are those of the best validation epoch
 (epoch 0, the untuned parameters, included, so tuning never returns a worse validation
-loss than the defaults'). The validation air-phase failure rate is reported too. With
+loss than the defaults'). The validation swing-phase failure rate is reported too
+(``jax_contact.metrics`` rule 9b: the air phases longer than a bounce with a false
+contact, Table III's ``sw-ph``; before the fortieth session the air-phase rate, which the
+truth's bounces dilute on the walks). With
 ``select="cells"`` an epoch is returned only if it is *no worse than epoch 0 in any
 validation cell* (:func:`no_worse`: on each validation log separately, F1, accuracy, ECE,
-the air-phase failure rate and the magnitude of both mean event delays; ties allowed),
+the swing-phase failure rate and the magnitude of both mean event delays; ties allowed),
 the lowest validation loss among those; when none is, the untuned parameters (epoch 0);
 ``cell_tolerance`` lets each cell be worse by that many :data:`CELL_TOLERANCE`.
 It trades the single loss's optimum for issue 15's "every cell at least as good as the
