@@ -1628,6 +1628,8 @@ def test_several_recordings_are_estimated_each_and_their_metrics_pooled(round_tr
     each = [json.loads((out / s / "metrics.json").read_text()) for s in ("first", "second")]
     pooled = json.loads((out / "pooled_metrics.json").read_text())
     assert pooled["per_recording"] == {"first": each[0], "second": each[1]}
+    assert pooled["recordings"]["second"] == {"path": second, "pooled": True}
+    assert (pooled["model"], pooled["rate_hz"]) == ("planar_leg", pytest.approx(400.0))
     assert set(pooled["pooled"]) == {"probabilistic", "gm", "kinematic"}
     for row, m in pooled["pooled"].items():
         a, b = each[0][row], each[1][row]
@@ -1659,3 +1661,36 @@ def test_several_recordings_are_all_read_before_any_is_estimated(round_trip, tmp
     assert estimate_cmd.main([first, twin, "--model", "planar_leg", "--out", str(out)]) == 2
     err = capsys.readouterr().err
     assert f"{first!r} and {twin!r} would both write to the folder 'first'" in err, err
+    assert estimate_cmd.main([first, first, "--model", "planar_leg", "--out", str(out)]) == 2
+    assert f"argument recording: {first!r} is given twice" in capsys.readouterr().err
+
+
+def test_recordings_at_another_rate_are_estimated_and_left_out_of_the_pool(
+    round_trip, tmp_path, capsys
+):
+    """A recording at another rate (every other row: 200 Hz) is estimated, named before
+    the work, and left out of the pool, which holds the two 400 Hz ones; a run that pools
+    nothing leaves no earlier run's pooled file behind (it would describe folders this
+    run rewrote)."""
+    first, second = _split(round_trip, tmp_path, 480)
+    cols = dict(read_recording(round_trip.tmp / "robot.csv").columns)
+    slow = str(tmp_path / "slow.csv")
+    write_recording_csv(slow, {k: v[::2] for k, v in cols.items()})
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "pooled_metrics.json").write_text('{"recordings": "an earlier run"}')
+    flags = ["--model", "planar_leg", "--names", NAMES_INLINE, "--units", "deg", "--no-plots"]
+    assert estimate_cmd.main([first, slow, second, *flags, "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "note: 'slow' is estimated but not pooled: at 200 Hz, the pooled ones at 400 Hz" in text
+    pooled = json.loads((out / "pooled_metrics.json").read_text())
+    assert set(pooled["per_recording"]) == {"first", "second"}
+    assert pooled["recordings"]["slow"]["pooled"] is False
+    assert pooled["pooled"]["probabilistic"]["n_steps"] == 800
+    assert (
+        json.loads((out / "slow" / "metrics.json").read_text())["probabilistic"]["n_steps"] == 400
+    )
+    assert estimate_cmd.main([first, slow, *flags, "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "removed the earlier run's" in text and "no pooled metrics" in text
+    assert not (out / "pooled_metrics.json").exists()

@@ -40,8 +40,10 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         " P(contact) per foot, each term's probability and the transitions to"
         " OUT/estimate.h5 and OUT/estimate.csv, a figure per foot, and the metrics when the"
         " recording has ground truth. The estimator runs at the recording's rate. Several"
-        " recordings of one robot: each into OUT/<its name>/, and the metrics of those with"
-        " ground truth pooled into OUT/pooled_metrics.json.",
+        " recordings of one robot (the same options for all): each into OUT/<its file name"
+        " without the suffix>/ (two files of one name are refused), and the metrics of those"
+        " with ground truth at one rate (the largest such set, at least two) pooled into"
+        " OUT/pooled_metrics.json, which replaces an earlier run's.",
         formatter_class=HelpFormatter,
     )
     p.add_argument(
@@ -75,7 +77,11 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     add_terrain_model_flag(p)
     add_recording_flags(p)
     add_force_threshold_flag(p)
-    p.add_argument("--out", default="out/estimate", help="output folder")
+    p.add_argument(
+        "--out",
+        default="out/estimate",
+        help="output folder (several recordings: one subfolder each)",
+    )
     p.add_argument("--no-plots", action="store_true", help="skip the PNG per foot")
     p.set_defaults(func=run, check=check)
     return p

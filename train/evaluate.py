@@ -133,11 +133,11 @@ def replay(
     desc = robot.description
     template = mjx.make_data(m)
     models = (m, template, dict(estimators), terrain, gms, kinematic)
-    static = dict(desc=desc, dt=float(dt), diagnostics_of=diagnostics_of)
+    kw = dict(desc=desc, dt=jnp.float32(dt), diagnostics_of=diagnostics_of)
     separate = pairing != "raw" and bool(gms or kinematic is not None)
-    static["separate_baselines"] = separate
+    kw["separate_baselines"] = separate
     first = tuple(jnp.asarray(np.nan_to_num(a[0])) for a in (qpos, qvel, qacc, tau))
-    beliefs, gm_states = _replay_init(*models, first, **static)
+    beliefs, gm_states = _replay_init(*models, first, **kw)
     # Committed like the chunk's outputs, or jit would compile the chunk a second time.
     carry = jax.device_put((beliefs, gm_states, jax.random.key(seed)), jax.devices()[0])
     from jax_contact.train import progress as pg
@@ -148,7 +148,7 @@ def replay(
         stop = min(start + chunk, n_t)
         arrays = (qpos, qvel, qacc, tau) + (raw if separate else ())
         xs = tuple(jnp.asarray(_pad(a[start:stop], chunk)) for a in arrays)
-        carry, out = _replay_chunk(*models, carry, xs, **static)
+        carry, out = _replay_chunk(*models, carry, xs, **kw)
         pieces.append({k: np.asarray(v)[: stop - start] for k, v in out.items()})
     return {k: np.concatenate([p[k] for p in pieces], axis=0) for k in pieces[0]}
 
@@ -163,7 +163,9 @@ def _measure_batch(m, template, desc, qpos, qvel, qacc, tau):
     return jax.vmap(one)(qpos, qvel, qacc, tau)
 
 
-_STATIC = ("desc", "dt", "diagnostics_of", "separate_baselines")
+# ``dt`` is traced, not static: one compiled program serves every rate (recordings whose
+# clocks differ by float noise, or 200 and 400 Hz logs of one robot).
+_STATIC = ("desc", "diagnostics_of", "separate_baselines")
 
 
 def _groups(tree: Mapping) -> list[list[str]]:

@@ -12,9 +12,12 @@ no event crosses from one recording into the next, so counts such as ``n_steps``
 scores their step-weighted means), beside each recording's.
 
 Every recording is read and converted before any is estimated, so a wrong column in the
-last one is refused before the first one's folder is written. Each folder is written as
-one (a staged folder); a run stopped or failed part-way keeps the folders it completed,
-each complete, and writes no pooled file.
+last one is refused before the first one's folder is written, and the recordings that
+will not be pooled (no ground truth, another rate) are named before the work. Each folder
+is written as one (a staged folder). An earlier run's ``pooled_metrics.json`` in the
+folder is removed when the estimating starts (it pooled folders this run rewrites), so a
+run stopped or failed part-way keeps the recordings' folders it completed, each
+complete, and no pooled file that disagrees with them.
 """
 
 from __future__ import annotations
@@ -39,12 +42,44 @@ def recording_folders(paths: Sequence[str | Path]) -> list[str]:
     for p in paths:
         stem = Path(p).stem
         if stem in seen:
+            if Path(seen[stem]).resolve() == Path(p).resolve():
+                raise ValueError(f"argument recording: {str(p)!r} is given twice")
             raise ValueError(
                 f"argument recording: {seen[stem]!r} and {str(p)!r} would both write to the"
                 f" folder {stem!r}; rename one"
             )
         seen[stem] = str(p)
     return list(seen)
+
+
+def pool_groups(dts: dict[str, float | None]) -> tuple[list[str], dict[str, str]]:
+    """Which recordings are pooled: ``(pooled stems, stem -> why not)``.
+
+    ``dts``: stem -> the recording's period, s, or None without ground truth. The pooled
+    ones are the largest set of recordings with ground truth whose periods lie within
+    :data:`POOL_RATE_TOLERANCE` of each other's first (ties: the set of the earliest
+    recording); fewer than two pool nothing.
+    """
+    why: dict[str, str] = {s: "no ground truth" for s, d in dts.items() if d is None}
+    groups: list[list[str]] = []
+    for stem, dt in dts.items():
+        if dt is None:
+            continue
+        for g in groups:
+            if abs(dt - dts[g[0]]) <= POOL_RATE_TOLERANCE * dts[g[0]]:
+                g.append(stem)
+                break
+        else:
+            groups.append([stem])
+    best = max(groups, key=len, default=[])  # max keeps the first of equal lengths
+    if len(best) < 2:
+        for g in groups:
+            why[g[0]] = "no other recording with ground truth at its rate"
+        return [], why
+    for g in groups:
+        for stem in g if g is not best else ():
+            why[stem] = f"at {1 / dts[stem]:.6g} Hz, the pooled ones at {1 / dts[best[0]]:.6g} Hz"
+    return best, why
 
 
 def estimate_recordings(
@@ -69,8 +104,8 @@ def estimate_recordings(
 
     Returns:
       ``recordings`` (stem -> that recording's result), ``pooled`` (detector -> metrics
-      over every recording with ground truth; None with fewer than two, or periods more
-      than :data:`POOL_RATE_TOLERANCE` apart) and ``files`` (the pooled file, if written).
+      over the recordings :func:`pool_groups` pools; None when it pools none) and
+      ``files`` (the pooled file, if written).
 
     Raises:
       ValueError: as ``estimate_recording`` for any recording (named), before any output
@@ -88,58 +123,68 @@ def estimate_recordings(
     out_dir = Path(out_dir)
     check_output_folder("out_dir", out_dir)
     robot = load_robot(model, foot_names=feet)
+    dts = {}
     with warnings.catch_warnings():  # said again when each recording is estimated
         warnings.simplefilter("ignore")
-        for p in paths:
-            to_readings(
+        for p, stem in zip(paths, stems, strict=True):
+            conv = to_readings(
                 read_recording(p), robot, names=names, units=units, resample=resample,
                 force_threshold=force_threshold,
             )  # fmt: skip
+            dts[stem] = None if conv.truth is None else float(conv.dt)
+    pooled_stems, left_out = pool_groups(dts)
+    for stem, why in left_out.items():
+        print(f"note: {stem!r} is estimated but not pooled: {why}")
+    stale = out_dir / POOLED_FILE
+    if stale.is_file():
+        stale.unlink()
+        print(f"removed the earlier run's {str(stale)!r} (it pooled folders this run rewrites)")
     results = {}
     for i, (p, stem) in enumerate(zip(paths, stems, strict=True)):
         print(f"== recording {i + 1} of {len(paths)}: {str(p)!r} -> {str(out_dir / stem)!r}")
         results[stem] = estimate_recording(
             p, model=model, out_dir=out_dir / stem, feet=feet, names=names, units=units,
-            resample=resample, force_threshold=force_threshold, **kwargs,
+            resample=resample, force_threshold=force_threshold, legend=i == 0, **kwargs,
         )  # fmt: skip
-    pooled, why = pool(results)
+    # The pre-check's truth and rates are the estimate's own (one conversion rule).
+    pooled = pool({s: results[s] for s in pooled_stems}) if pooled_stems else None
     files = []
     if pooled is None:
-        print(f"no pooled metrics: {why}")
+        print("no pooled metrics: fewer than two recordings with ground truth at one rate")
     else:
         from jax_contact.io import write_json_atomic
         from jax_contact.train.logs import format_scores
 
-        n = sum(1 for r in results.values() if r["scores"])
-        # The columns' legend was printed under each recording's table.
-        print(format_scores(pooled, title=f"{n} recordings pooled", legend=False))
+        # The columns' legend was printed under the first recording's table.
+        title = f"{len(pooled_stems)} recordings pooled"
+        print(format_scores(pooled, title=title, legend=False))
         payload = {
-            "recordings": {s: str(p) for s, p in zip(stems, paths, strict=True)},
+            "model": str(model),
+            "params": None if kwargs.get("params_path") is None else str(kwargs["params_path"]),
+            "rate_hz": 1.0 / dts[pooled_stems[0]],
+            "recordings": {
+                s: {"path": str(p), "pooled": s in pooled_stems}
+                | ({} if s in pooled_stems else {"why_not": left_out[s]})
+                for s, p in zip(stems, paths, strict=True)
+            },
             "pooled": pooled,
-            "per_recording": {s: r["scores"] for s, r in results.items() if r["scores"]},
+            "per_recording": {s: results[s]["scores"] for s in pooled_stems},
         }
         files.append(write_json_atomic(out_dir / POOLED_FILE, payload))
         print(f"wrote {files[-1]}")
     return {"recordings": results, "pooled": pooled, "files": files}
 
 
-def pool(results: dict) -> tuple[dict | None, str]:
-    """``(scores, "")`` of every detector that scored all the recordings with ground truth,
-    over their foot-steps pooled (each recording one env, padded with unscored steps to
-    the longest); ``(None, why)`` when fewer than two have ground truth or their periods
-    differ by more than :data:`POOL_RATE_TOLERANCE`."""
+def pool(scored: dict) -> dict:
+    """Every detector that scored all of ``scored`` (stem -> an ``estimate_recording``
+    result with ground truth; periods within :data:`POOL_RATE_TOLERANCE`,
+    :func:`pool_groups`) scored over their foot-steps pooled: each recording one env,
+    padded with unscored steps to the longest, at the first one's period."""
     import numpy as np
 
     from jax_contact.train.evaluate import score
 
-    scored = {s: r for s, r in results.items() if r["scores"]}
-    if len(scored) < 2:
-        return None, f"{len(scored)} of {len(results)} recordings have ground truth"
-    dts = {s: float(r["dt"]) for s, r in scored.items()}
-    dt = next(iter(dts.values()))
-    if any(abs(d - dt) > POOL_RATE_TOLERANCE * dt for d in dts.values()):
-        rates = ", ".join(f"{s} {1 / d:.6g} Hz" for s, d in dts.items())
-        return None, f"the recordings run at different rates ({rates}): their steps differ"
+    dt = float(next(iter(scored.values()))["dt"])
     rows = [
         n
         for n in next(iter(scored.values()))["scores"]
@@ -162,4 +207,4 @@ def pool(results: dict) -> tuple[dict | None, str]:
     truth = stacked("truth", False)
     valid = stacked("scored", False)
     known = stacked("truth_known", False)
-    return score(outputs, truth, valid, dt=dt, names=rows, truth_known=known), ""
+    return score(outputs, truth, valid, dt=dt, names=rows, truth_known=known)

@@ -40,6 +40,7 @@ def estimate_recording(
     progress: bool = True,
     terrain_model: str | None = None,
     force_threshold: float = FORCE_THRESHOLD,
+    legend: bool = True,
 ) -> dict:
     """``jax-contact estimate``: P(contact) per foot for a recording (module docstring).
 
@@ -48,7 +49,8 @@ def estimate_recording(
     recording's world frame, ``"memory"`` the feet's own footholds, for a ``base_pos`` that
     drifts (a state estimator's, over a long recording); None: the one ``params_path`` was
     tuned with, else ``"flat"``. ``force_threshold``: a ``force/<foot>`` column above it
-    is contact, N (raise it for a foot sensor with an offset).
+    is contact, N (raise it for a foot sensor with an offset). ``legend``: print the
+    metrics table's column legend (several recordings print it once).
 
     Writes into ``out_dir``: ``estimate.h5`` (``time`` (T,), ``p_contact``, each of
     :data:`DIAGNOSTICS` and ``valid`` as (T, L) arrays, ``truth/contact`` when known;
@@ -211,7 +213,7 @@ def estimate_recording(
             if swapped := truth_order(p, conv.truth[:, 0], scored[:, 0], feet_names):
                 notes.append(swapped)
                 print_note(swapped)
-            print(format_scores(scores, title=Path(path).name))
+            print(format_scores(scores, title=Path(path).name, legend=legend))
             files.append(write_json_atomic(stage / "metrics.json", scores))
         else:
             print("no ground truth columns (contact/<foot> or force/<foot>): no metrics")
