@@ -1091,6 +1091,28 @@ def test_a_floor_not_at_z_0_or_another_robots_model_warns(go1_log):
     assert floor_offset(m, desc, with_nan) is None
 
 
+def test_a_floor_that_drifts_over_the_recording_is_a_note(go1_log):
+    """base_pos drifting upward linearly by 6 cm over the recording (a state estimator's
+    drift) moves every sole by the same amount. By hand: the first fifth of the rows holds
+    0 .. 0.2 of the ramp and the last 0.8 .. 1, and the lowest tenth of each is its first
+    tenth, so the two heights differ by 0.8 x 6 = 4.8 cm. 2 cm of drift is no note."""
+    from jax_contact.train.recording_checks import FLOOR_DRIFT_M, floor_offset
+
+    robot = go1_log.robot
+    m, desc = robot.mj_model, robot.description
+    home = np.tile(robot.home_qpos, (500, 1))
+    for drift in (0.06, 0.02):
+        moved = home.copy()
+        moved[:, 2] += np.linspace(0.0, drift, len(moved))
+        got = floor_offset(m, desc, moved)
+        if drift <= FLOOR_DRIFT_M:
+            assert got is None, got
+            continue
+        cm = float(re.search(r"move by \+([0-9.]+) cm", got).group(1))
+        assert cm == pytest.approx(100 * drift * 0.8, abs=0.3), got
+        assert "--terrain-model memory" in got and not got.startswith("WARNING")
+
+
 def test_a_joint_the_model_lacks_is_dropped_by_mapping_it_to_nothing(go1_log):
     """A recording with a column for a joint the model does not have (a gripper) is refused
     naming it; mapped to "" its columns are dropped with a note and the readings equal the

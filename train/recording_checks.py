@@ -452,6 +452,11 @@ def truth_columns_disagree(
 # a base estimate's drift over a minute is a few cm. Beyond this, m, it is not.
 FLOOR_OFFSET_M = 0.05
 FLOOR_ROWS = 500  # rows sampled (evenly) for the soles' heights
+# The soles' lowest heights moving by more than this from the first to the last fifth of a
+# recording is a note (floor_offset): a base_pos that drifts (a Go1 trot simulated for 30 s
+# with anymal_like's drift moves them 4.6 cm; its plane left 11 touch-downs missed that
+# --terrain-model memory found) or ground that is not flat.
+FLOOR_DRIFT_M = 0.03
 
 
 def plane_floor_note(robot, qpos: np.ndarray, terms, terrain_model: str) -> str | None:
@@ -469,7 +474,9 @@ def floor_offset(mj_model, desc, qpos: np.ndarray) -> str | None:
     median over the feet), sit more than :data:`FLOOR_OFFSET_M` above or below z = 0: the
     floor of ``base_pos``'s frame is elsewhere, or the model is not the recorded robot.
     Either way the kinematics term, which assumes a plane at z = 0, reads nonsense without
-    a word (a sole far below the plane is neutral, far above is air).
+    a word (a sole far below the plane is neutral, far above is air). Else a note when
+    that height, taken over the first and over the last fifth of the rows, moves by more
+    than :data:`FLOOR_DRIFT_M`: the plane fits part of the recording only.
 
     Args:
       mj_model: the robot's ``mujoco.MjModel``.
@@ -494,7 +501,7 @@ def floor_offset(mj_model, desc, qpos: np.ndarray) -> str | None:
     lowest = np.quantile(soles, 0.1, axis=0)
     offset = float(np.median(lowest))
     if abs(offset) <= FLOOR_OFFSET_M:
-        return None
+        return floor_drift(soles)
     where = "below" if offset < 0 else "above"
     per_foot = ", ".join(
         f"{f} {z * 100:+.0f}" for f, z in zip(desc.foot_names, lowest, strict=True)
@@ -504,6 +511,25 @@ def floor_offset(mj_model, desc, qpos: np.ndarray) -> str | None:
         f" (the lowest tenth of the rows, cm: {per_foot}), where a standing foot's sole is on"
         " the floor: the floor of base_pos's frame is not at z = 0 (--terrain-model memory"
         " reads the ground under each foot), or --model is not the robot that was recorded"
+    )
+
+
+def floor_drift(soles: np.ndarray) -> str | None:
+    """:func:`floor_offset`'s note on ``soles`` (rows, feet) sole heights, m, in time order:
+    the lowest tenth's median over the feet in the first and the last fifth of the rows,
+    when they differ by more than :data:`FLOOR_DRIFT_M` (None for fewer than 50 rows)."""
+    n = len(soles) // 5
+    if n < 10:
+        return None
+    first, last = (float(np.median(np.quantile(x, 0.1, axis=0))) for x in (soles[:n], soles[-n:]))
+    if abs(last - first) <= FLOOR_DRIFT_M:
+        return None
+    return (
+        f"the feet's soles, at their lowest, move by {(last - first) * 100:+.1f} cm from the"
+        f" first to the last fifth of the recording ({first * 100:+.1f} -> {last * 100:+.1f}"
+        " cm from z = 0): base_pos drifts, or the ground is not flat; the estimator's plane"
+        " at z = 0 fits part of it only (--terrain-model memory reads the ground under each"
+        " foot where it last stood)"
     )
 
 
