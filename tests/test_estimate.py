@@ -1716,3 +1716,18 @@ def test_recordings_at_another_rate_are_estimated_and_left_out_of_the_pool(
     text = capsys.readouterr().out
     assert "removed the earlier run's" in text and "no pooled metrics" in text
     assert not (out / "pooled_metrics.json").exists()
+
+
+def test_pooling_takes_the_largest_set_of_recordings_at_one_rate():
+    """By hand: two recordings at 400 Hz (one off by 1e-5, inside the 0.1 % tolerance) and
+    two at 200 Hz tie; the set of the earliest recording is pooled and the rest named; one
+    recording per rate pools nothing."""
+    from jax_contact.train.recording_batch import pool_groups
+
+    dts = {"a": 0.0025, "b": 0.005, "c": 0.0025 * (1 + 1e-5), "d": None, "e": 0.005}
+    pooled, why = pool_groups(dts)
+    assert pooled == ["a", "c"]
+    at_200 = "at 200 Hz, the pooled ones at 400 Hz"
+    assert why == {"d": "no ground truth", "b": at_200, "e": at_200}
+    pooled, why = pool_groups({"a": 0.0025, "b": 0.005, "d": None})
+    assert pooled == [] and set(why) == {"a", "b", "d"}
