@@ -868,6 +868,30 @@ def test_event_term_on_a_hand_example(x64):
     assert (m.failures, m.air_phases_with_failure, m.n_air_phases) == (1, 1, 1)
 
 
+def test_event_term_reads_a_lost_step_of_known_truth_as_part_of_its_phase(x64):
+    """The hand example above with the reading at t = 4 lost (mask false, truth known: a
+    recording's NaN). By hand, as metrics rules 7b and 8 read it: still one air phase, the
+    fall's t = 4 unscored anyway, the blip at t = 5 a false contact: scored t = 5, 6 and
+    the same cost. Read through the mask alone, the lost step splits the phase in two and
+    the blip, now the first step of the second, counts as the stance's flag carried in:
+    the failure went unpenalised (the tuner's loss before the fortieth session)."""
+    truth = np.array([1, 1, 0, 0, 0, 0, 0, 0, 0, 1, 1], bool)[:, None, None]
+    logit = np.array([3, 3, 2, -1, -2, 1.5, -2, -1.5, 0.5, 3, 3], np.float64)[:, None, None]
+    mask = np.ones_like(truth)
+    mask[4] = False
+    d = jt.TuningData(meas=None, truth=truth, mask=mask, known=np.ones_like(truth))
+    data = jt.with_air_phases(d, 2)
+    scored = np.asarray(jt.scored_air_steps(jnp.asarray(logit), data))[:, 0, 0]
+    np.testing.assert_array_equal(np.flatnonzero(scored), [5, 6])
+    total, n = jt.air_event_terms(jnp.asarray(logit), data, 0.5)
+    e = 1.5 + 0.5 * np.log1p(np.exp(-7.0))
+    assert float(total) == pytest.approx(np.logaddexp(0.0, e), abs=1e-12)
+    assert int(n) == 1
+    split = _event_data(truth, mask, 2)
+    assert int(jt.air_event_terms(jnp.asarray(logit), split, 0.5)[1]) == 2
+    assert 5 not in np.flatnonzero(np.asarray(jt.scored_air_steps(jnp.asarray(logit), split)))
+
+
 EVENT_TOL = 1e-10  # float64 against the loop oracle: sums of a few exponentials
 
 

@@ -17,18 +17,19 @@ from jax_contact.types import LegMeasurement, RobotMeasurement
 
 @struct.dataclass
 class AirPhases:
-    """Where the true air phases and touch-downs of a log are (from truth and mask alone).
+    """Where the true air phases and touch-downs of a log are (from its truth, mask and
+    known truth alone, :func:`air_phases`; "known air": a step of known truth in the air).
 
     Attributes:
-      start: (T, E, L) bool, the first step of each true air phase (a valid air step whose
-        previous step is not a valid air step: ``jax_contact.metrics`` rule 8 with the
-        truth known where the mask is valid).
-      td_step: (T, E, L) bool, each true touch-down (a valid contact step after a valid
-        air step; rule 2's ``t0``).
-      td_window: (T, E, L) bool, the air steps at most ``early`` steps before the
+      start: (T, E, L) bool, the first valid step of each true air phase, a run of known
+        air (``jax_contact.metrics`` rule 8; without known truth, a valid air step whose
+        previous step is not one).
+      td_step: (T, E, L) bool, each true touch-down (a valid contact step after a step of
+        known air; rule 2's ``t0``).
+      td_window: (T, E, L) bool, the known-air steps at most ``early`` steps before the
         touch-down that ends their phase (rule 2's early window).
-      lo_step: (T, E, L) bool, each true lift-off (a valid air step after a valid contact
-        step).
+      lo_step: (T, E, L) bool, each true lift-off (a valid air step after a step of known
+        contact).
       after_td: (T, E, L) bool, the first ``early`` valid contact steps of each stance
         that begins with a touch-down (:func:`cell_surrogates`' touch-down lateness).
       after_lo: (T, E, L) bool, the first ``early`` valid air steps of each air phase that
@@ -56,9 +57,10 @@ class TuningData:
       events: the log's :class:`AirPhases` (:func:`with_air_phases`), needed by the event
         term; None until annotated.
       known: (T, E, L) bool, the steps whose truth is known (None: ``mask``), a superset
-        of ``mask``: the validation cells' air phases follow ``jax_contact.metrics`` rules
-        7b and 8 with it (a recording's lost reading inside a swing does not split its
-        phase, as in ``jax-contact estimate``); the loss's event term reads ``mask`` alone.
+        of ``mask``: the validation cells' air phases and the loss's event term
+        (:func:`air_phases`) follow ``jax_contact.metrics`` rules 7b and 8 with it (a
+        recording's lost reading inside a swing does not split its phase, as in
+        ``jax-contact estimate``).
     """
 
     meas: RobotMeasurement | LegMeasurement
@@ -107,29 +109,49 @@ def check_scored_steps(logs: Sequence[TuningData], what: str, names=None) -> Non
         )
 
 
-def air_phases(truth, mask, early: int) -> AirPhases:
+def _shifted(x: np.ndarray) -> np.ndarray:
+    """``x`` one step later along time (False first)."""
+    return np.concatenate([np.zeros_like(x[:1]), x[:-1]], axis=0)
+
+
+def air_phases(truth, mask, early: int, known=None) -> AirPhases:
     """The :class:`AirPhases` of a (T, ...) truth and mask (NumPy, whole log at once).
+
+    With ``known`` (the steps whose truth is known, a superset of ``mask``: a recording's
+    lost readings), the phases are the runs of known air (``jax_contact.metrics`` rules 7b
+    and 8, as the validation cells count them): a lost step inside a swing does not split
+    its phase, a phase starts at its first valid step, and a touch-down or lift-off is
+    found across a lost step before it. Without it (None: ``mask``) every invalid step
+    ends a phase.
 
     Args:
       truth, mask: (T, ...) bool.
       early: the early window in steps (``round(early_window_s / dt)``).
+      known: None, or (T, ...) bool.
     """
     truth = np.asarray(truth, bool)
-    air = np.asarray(mask, bool) & ~truth
-    prev_air = np.concatenate([np.zeros_like(air[:1]), air[:-1]], axis=0)
-    start = air & ~prev_air
-    td_step = np.asarray(mask, bool) & truth & prev_air
+    mask = np.asarray(mask, bool)
+    known = mask if known is None else np.asarray(known, bool) | mask
+    air, kair = mask & ~truth, known & ~truth
+    contact, kcontact = mask & truth, known & truth
+    # Each run of known air starts its phase at its first valid step.
+    run_start = kair & ~_shifted(kair)
+    start = np.zeros_like(air)
+    seen = np.zeros(air.shape[1:], bool)
+    for t in range(air.shape[0]):
+        seen = np.where(run_start[t] | ~kair[t], False, seen)
+        start[t] = air[t] & ~seen
+        seen = seen | air[t]
+    td_step = contact & _shifted(kair)
     # Steps from each air step to the touch-down that ends its phase (a large number where
-    # the phase ends otherwise: an invalid step or the end of the log).
+    # the phase ends otherwise: a step of unknown truth or the end of the log).
     far = np.iinfo(np.int32).max // 2
     dist = np.full(air.shape, far, np.int64)
     cur = np.full(air.shape[1:], far, np.int64)
     for t in range(air.shape[0] - 1, -1, -1):
-        cur = np.where(td_step[t], 0, np.where(air[t], cur + 1, far))
+        cur = np.where(td_step[t], 0, np.where(kair[t], cur + 1, far))
         dist[t] = cur
-    contact = np.asarray(mask, bool) & truth
-    prev_contact = np.concatenate([np.zeros_like(contact[:1]), contact[:-1]], axis=0)
-    lo_step = air & prev_contact
+    lo_step = air & _shifted(kcontact)
 
     def first_steps(inside, begins):
         # Steps since the event that began each run of ``inside`` (far where none did).
@@ -143,16 +165,19 @@ def air_phases(truth, mask, early: int) -> AirPhases:
     return AirPhases(
         start=start,
         td_step=td_step,
-        td_window=air & (dist <= early),
+        # Lost steps of the approach included, so the run into a touch-down continues
+        # across them (scored_air_steps scores valid steps only).
+        td_window=kair & (dist <= early),
         lo_step=lo_step,
-        after_td=first_steps(contact, td_step),
-        after_lo=first_steps(air, lo_step),
+        after_td=first_steps(kcontact, td_step) & mask,
+        after_lo=first_steps(kair, lo_step) & mask,
     )
 
 
 def with_air_phases(data: TuningData, early: int) -> TuningData:
-    """``data`` with its :class:`AirPhases` (``early`` steps of early window)."""
-    return data.replace(events=air_phases(data.truth, data.mask, early))
+    """``data`` with its :class:`AirPhases` (``early`` steps of early window; the phases of
+    its known truth, :func:`air_phases`)."""
+    return data.replace(events=air_phases(data.truth, data.mask, early, data.known))
 
 
 def scored_air_steps(logits: jax.Array, window: TuningData) -> jax.Array:
@@ -174,7 +199,10 @@ def scored_air_steps(logits: jax.Array, window: TuningData) -> jax.Array:
     """
     lg = jax.lax.stop_gradient(logits)
     on = lg > 0
-    air = jnp.asarray(window.mask) & ~jnp.asarray(window.truth).astype(bool)
+    truth = jnp.asarray(window.truth).astype(bool)
+    air = jnp.asarray(window.mask) & ~truth
+    # The phase's state carries across its lost steps (steps of known truth not scored).
+    kair = air if window.known is None else (jnp.asarray(window.known) | air) & ~truth
     ev = jax.tree.map(jnp.asarray, window.events)
     prev = jnp.concatenate([lg[:1], lg[:-1]], axis=0)
     nxt = jnp.concatenate([lg[1:], lg[-1:]], axis=0)
@@ -188,7 +216,7 @@ def scored_air_steps(logits: jax.Array, window: TuningData) -> jax.Array:
         return (dropped, settled), settled
 
     zeros = jnp.zeros(on.shape[1:], bool)
-    _, settled = jax.lax.scan(fwd, (zeros, zeros), (air, ev.start, on, lg >= prev))
+    _, settled = jax.lax.scan(fwd, (zeros, zeros), (kair, ev.start, on, lg >= prev))
 
     def bwd(run, x):
         td, win, into = x
