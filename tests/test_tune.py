@@ -852,20 +852,27 @@ def test_event_term_on_a_hand_example(x64):
     # window, below t = 8) rises into it: not scored either. Scored: t = 5 (the blip, the
     # one failure) and t = 6. With tau = 0.5
     #   E = 0.5 log(e^3 + e^-4) = 1.5 + 0.5 log(1 + e^-7),  cost = softplus(E).
-    truth = np.array([1, 1, 0, 0, 0, 0, 0, 0, 0, 1, 1], bool)[:, None, None]
-    logit = np.array([3, 3, 2, -1, -2, 1.5, -2, -1.5, 0.5, 3, 3], np.float64)[:, None, None]
-    data = _event_data(truth, np.ones_like(truth), 2)
-    scored = np.asarray(jt.scored_air_steps(jnp.asarray(logit), data))[:, 0, 0]
-    np.testing.assert_array_equal(np.flatnonzero(scored), [5, 6])
-    total, n = jt.air_event_terms(jnp.asarray(logit), data, 0.5)
-    e = 1.5 + 0.5 * np.log1p(np.exp(-7.0))
-    assert float(total) == pytest.approx(np.logaddexp(0.0, e), abs=1e-12)
-    assert int(n) == 1
+    _assert_hand_example(_event_data(HAND_TRUTH, np.ones_like(HAND_TRUTH), 2))
     # The library's metrics see exactly this one failure in the phase.
     from jax_contact.metrics import evaluate
 
-    m = evaluate(jt.sigmoid_np(logit), truth, None, dt=0.0025, early_window_s=0.005)
+    m = evaluate(jt.sigmoid_np(HAND_LOGIT), HAND_TRUTH, None, dt=0.0025, early_window_s=0.005)
     assert (m.failures, m.air_phases_with_failure, m.n_air_phases) == (1, 1, 1)
+
+
+HAND_TRUTH = np.array([1, 1, 0, 0, 0, 0, 0, 0, 0, 1, 1], bool)[:, None, None]
+HAND_LOGIT = np.array([3, 3, 2, -1, -2, 1.5, -2, -1.5, 0.5, 3, 3], np.float64)[:, None, None]
+
+
+def _assert_hand_example(data):
+    """The hand example's scored steps (t = 5, 6), cost and one air phase."""
+    logit = jnp.asarray(HAND_LOGIT)
+    scored = np.asarray(jt.scored_air_steps(logit, data))[:, 0, 0]
+    np.testing.assert_array_equal(np.flatnonzero(scored), [5, 6])
+    total, n = jt.air_event_terms(logit, data, 0.5)
+    e = 1.5 + 0.5 * np.log1p(np.exp(-7.0))
+    assert float(total) == pytest.approx(np.logaddexp(0.0, e), abs=1e-12)
+    assert int(n) == 1
 
 
 def test_event_term_reads_a_lost_step_of_known_truth_as_part_of_its_phase(x64):
@@ -875,21 +882,14 @@ def test_event_term_reads_a_lost_step_of_known_truth_as_part_of_its_phase(x64):
     the same cost. Read through the mask alone, the lost step splits the phase in two and
     the blip, now the first step of the second, counts as the stance's flag carried in:
     the failure went unpenalised (the tuner's loss before the fortieth session)."""
-    truth = np.array([1, 1, 0, 0, 0, 0, 0, 0, 0, 1, 1], bool)[:, None, None]
-    logit = np.array([3, 3, 2, -1, -2, 1.5, -2, -1.5, 0.5, 3, 3], np.float64)[:, None, None]
-    mask = np.ones_like(truth)
+    mask = np.ones_like(HAND_TRUTH)
     mask[4] = False
-    d = jt.TuningData(meas=None, truth=truth, mask=mask, known=np.ones_like(truth))
-    data = jt.with_air_phases(d, 2)
-    scored = np.asarray(jt.scored_air_steps(jnp.asarray(logit), data))[:, 0, 0]
-    np.testing.assert_array_equal(np.flatnonzero(scored), [5, 6])
-    total, n = jt.air_event_terms(jnp.asarray(logit), data, 0.5)
-    e = 1.5 + 0.5 * np.log1p(np.exp(-7.0))
-    assert float(total) == pytest.approx(np.logaddexp(0.0, e), abs=1e-12)
-    assert int(n) == 1
-    split = _event_data(truth, mask, 2)
-    assert int(jt.air_event_terms(jnp.asarray(logit), split, 0.5)[1]) == 2
-    assert 5 not in np.flatnonzero(np.asarray(jt.scored_air_steps(jnp.asarray(logit), split)))
+    known = np.ones_like(HAND_TRUTH)
+    d = jt.TuningData(meas=None, truth=HAND_TRUTH, mask=mask, known=known)
+    _assert_hand_example(jt.with_air_phases(d, 2))
+    split, logit = _event_data(HAND_TRUTH, mask, 2), jnp.asarray(HAND_LOGIT)
+    assert int(jt.air_event_terms(logit, split, 0.5)[1]) == 2
+    assert 5 not in np.flatnonzero(np.asarray(jt.scored_air_steps(logit, split)))
 
 
 EVENT_TOL = 1e-10  # float64 against the loop oracle: sums of a few exponentials
