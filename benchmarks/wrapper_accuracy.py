@@ -60,9 +60,10 @@ POLICIES = ("walk", "trot", "step", "hop", "random")
 DEFAULT_POLICY = {"Go1": "walk", "Spot": "walk", "BerkeleyHumanoid": "hop"}
 
 
-def _robot(name: str) -> str:
-    """The key of :data:`SCALE` for env ``name`` (:func:`check_policy` has passed)."""
-    return next(k for k in SCALE if name.startswith(k))
+def _robot(name: str) -> str | None:
+    """The key of :data:`SCALE` for env ``name``, None for a robot it has none for
+    (:func:`check_policy` has passed for a scripted policy)."""
+    return next((k for k in SCALE if name.startswith(k)), None)
 
 
 def check_policy(name: str, policy: str | None) -> None:
@@ -76,7 +77,7 @@ def check_policy(name: str, policy: str | None) -> None:
         raise ValueError(f"policy must be one of {', '.join(POLICIES)}, got {policy!r}")
     if policy == "random":
         return
-    robot = next((k for k in SCALE if name.startswith(k)), None)
+    robot = _robot(name)
     if policy in scripted.POLICIES:
         robots = tuple(scripted.PHASES[policy])
     else:  # hop, step

@@ -144,7 +144,8 @@ def estimate_recordings(
         print(f"== recording {i + 1} of {len(paths)}: {str(p)!r} -> {str(out_dir / stem)!r}")
         results[stem] = estimate_recording(
             p, model=model, out_dir=out_dir / stem, feet=feet, names=names, units=units,
-            resample=resample, force_threshold=force_threshold, legend=i == 0, **kwargs,
+            resample=resample, force_threshold=force_threshold, legend=i == 0, robot=robot,
+            **kwargs,
         )  # fmt: skip
     # The pre-check's truth and rates are the estimate's own (one conversion rule).
     pooled = pool({s: results[s] for s in pooled_stems}) if pooled_stems else None

@@ -41,6 +41,7 @@ def estimate_recording(
     terrain_model: str | None = None,
     force_threshold: float = FORCE_THRESHOLD,
     legend: bool = True,
+    robot=None,
 ) -> dict:
     """``jax-contact estimate``: P(contact) per foot for a recording (module docstring).
 
@@ -50,7 +51,9 @@ def estimate_recording(
     drifts (a state estimator's, over a long recording); None: the one ``params_path`` was
     tuned with, else ``"flat"``. ``force_threshold``: a ``force/<foot>`` column above it
     is contact, N (raise it for a foot sensor with an offset). ``legend``: print the
-    metrics table's column legend (several recordings print it once).
+    metrics table's column legend (several recordings print it once). ``robot``: ``model``
+    already loaded with ``feet`` (:func:`jax_contact.envs.robots.load_robot`; several
+    recordings load it once), or None to load it here.
 
     Writes into ``out_dir``: ``estimate.h5`` (``time`` (T,), ``p_contact``, each of
     :data:`DIAGNOSTICS` and ``valid`` as (T, L) arrays, ``truth/contact`` when known;
@@ -81,7 +84,8 @@ def estimate_recording(
     # Before any work: the folder must take files (the command checks it the same way).
     check_output_folder("out_dir", out_dir)
     rec = read_recording(path)
-    robot = load_robot(model, foot_names=feet)
+    if robot is None:
+        robot = load_robot(model, foot_names=feet)
     conv = to_readings(
         rec, robot, names=names, units=units, resample=resample, force_threshold=force_threshold
     )
