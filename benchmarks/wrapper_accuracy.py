@@ -15,7 +15,8 @@ Open-loop scripted policies through the env's action interface (:func:`actions_f
   the robot falls (base below 0.3 m or tilted over 0.8 rad); ``step``, open-loop
   stepping in place (it tips the robot over: no open-loop policy keeps it up,
   docs/training.md);
-- ``Go1Getup``, ``Go1Handstand``: ``random``, uniform actions in [-1, 1] (the issue's case).
+- ``Go1Getup``, ``Go1Handstand``: ``random``, uniform actions in [-1, 1] (the issue's case);
+- any env: ``random``, or ``stand`` (zero actions: the env's default pose held).
 
 Both rates run on the same rollouts (:func:`jax_contact.train.rates.compare_rates`: control-rate
 wrapper inside, physics-rate outside). Reported: accuracy, F1, precision, recall at every
@@ -56,7 +57,7 @@ ENVS = (
     "Go1Handstand",
 )
 SCALE = {"Go1": 0.5, "Spot": 0.3, "BerkeleyHumanoid": 0.5}  # their configs' action_scale
-POLICIES = ("walk", "trot", "step", "hop", "random")
+POLICIES = ("walk", "trot", "step", "hop", "random", "stand")
 DEFAULT_POLICY = {"Go1": "walk", "Spot": "walk", "BerkeleyHumanoid": "hop"}
 
 
@@ -68,14 +69,14 @@ def _robot(name: str) -> str | None:
 
 def check_policy(name: str, policy: str | None) -> None:
     """Raises ValueError naming ``policy`` unless it can drive env ``name`` (None: the
-    env's default, :func:`default_policy`): ``random`` drives any env, the scripted
+    env's default, :func:`default_policy`): ``random`` and ``stand`` drive any env, the scripted
     gaits only the robots they were written for (:data:`SCALE`'s, with the legs of
     :data:`jax_contact.envs.scripted.PHASES`; ``hop`` and ``step`` Berkeley Humanoid's).
     No JAX is needed."""
     policy = default_policy(name) if policy is None else policy
     if policy not in POLICIES:
         raise ValueError(f"policy must be one of {', '.join(POLICIES)}, got {policy!r}")
-    if policy == "random":
+    if policy in ("random", "stand"):
         return
     robot = _robot(name)
     if policy in scripted.POLICIES:
@@ -131,6 +132,7 @@ def actions_for(
     - ``hop`` (Berkeley Humanoid): the feedforward of :func:`jax_contact.envs.biped_hop.feedforward`
       (its closed-loop part is :func:`closed_loop_for`'s).
     - ``random``: uniform actions in [-1, 1] (the issue's case for getup and handstand).
+    - ``stand``: zero actions, the env's default pose held (any env; a standing check).
     """
     policy = default_policy(name) if policy is None else policy
     check_policy(name, policy)
@@ -138,6 +140,8 @@ def actions_for(
     rng = np.random.default_rng(seed)
     if policy == "random":
         return rng.uniform(-1, 1, (n_steps, n_envs, nu)).astype(np.float32), "random U(-1,1)"
+    if policy == "stand":
+        return np.zeros((n_steps, n_envs, nu), np.float32), "stand (zero actions)"
     robot = _robot(name)
     scale = SCALE[robot]
     t = np.arange(1, n_steps + 1)[:, None] * float(env.dt)

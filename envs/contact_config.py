@@ -93,11 +93,12 @@ class ContactObsConfig:
         the initial reading), in ``info[info_key + "_substeps"]``.
       include_passive: the estimator's ``h`` includes the joint springs and dampers.
       logit_clip: bound of the observed logit.
-      sole: contact point of a flat foot (box, cylinder, mesh): ``"rolling"`` (default)
-        the lowest part of its sole at each step, its centre when it lies flat, the edge
-        or corner it stands on when it rolls; ``"centre"`` the sole's centre at the home
-        pose, fixed to the foot (:func:`jax_contact.envs.feet.foot_points`). Round feet
-        are the same under both.
+      sole: contact point of a flat foot (box, cylinder, mesh), a capsule, or a foot of
+        several spheres or capsules of one radius: ``"rolling"`` (default) the lowest part
+        of its sole at each step, its centre when it lies flat, the edge, corner or
+        sphere it stands on when it rolls; ``"centre"`` the sole's centre at the home
+        pose, fixed to the foot (:func:`jax_contact.envs.feet.foot_points`). A foot of
+        one sphere is the same under both.
     """
 
     feet: tuple | None = struct.field(pytree_node=False, default=None)

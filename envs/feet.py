@@ -6,12 +6,14 @@ compares ``p_f,z - r`` with the terrain) fixed to a body. A foot can be named as
 - a **sphere geom**: its centre, its radius (Go1, Spot, ANYmal);
 - a **box, cylinder or mesh geom**: the centre of its lowest face at the home pose (the
   sole), radius 0, and that face's four corners (the rolling point below); a mesh is
-  taken as its bounding box (``geom_aabb``); a **capsule**: its centre and radius (H1's
-  foot capsules lie flat);
+  taken as its bounding box (``geom_aabb``); a **capsule**: its centre and radius, and
+  its segment's two ends (the rolling point below: the lower end when it tilts);
 - a **site**: its position, radius 0;
 - a **body** with an offset in the body frame (:class:`FootSpec`), radius 0 by default;
 - a **body** whose several geoms touch the floor: one foot, the mean of their contact
-  points and radii (T1's four corner spheres, H1's three capsules). G1's feet touch the
+  points and radii (T1's four corner spheres, H1's three capsules); spheres and capsules
+  of one radius, or flat geoms, also give the rolling point below (the spheres' centres
+  and the capsules' ends, or every sole's corners). G1's feet touch the
   floor only through explicit ``<pair>`` elements (``contype = 0``): pairs count as
   floor contact here.
 
@@ -33,7 +35,8 @@ Which point: a flat sole that lands on its toe or heel, or rolls over an edge, t
 floor at that edge, not at its centre, which is then centimetres above the floor and
 moving (the kinematics and differential-kinematics terms say air). So by default
 (``ContactObsConfig.sole = "rolling"``) a flat foot's point is recomputed at each step
-from its sole's four corners (:func:`foot_points`): their mean weighted by
+from its sole's four corners (:func:`foot_points`; for round geoms of one radius, the
+spheres' centres and the capsules' segment ends, the radius kept): their mean weighted by
 ``exp(-(z_i - z_min) / SOLE_SOFTNESS)``, ``SOLE_SOFTNESS`` = 2 mm (set, not fitted): the
 centre when the sole lies flat, the middle of the lowest edge when it is tilted by more
 than a degree or two, the lowest corner on a corner. The Jacobian, the foot's velocity and
@@ -61,6 +64,7 @@ from jax_contact.types import RobotMeasurement
 _T = mujoco.mjtGeom
 _FLOOR_TYPES = (int(_T.mjGEOM_PLANE), int(_T.mjGEOM_HFIELD))
 SOLES = ("rolling", "centre")
+_ROUND = ("sphere", "capsule")  # geoms with a radius; the others' soles are flat (radius 0)
 # Softness of the rolling sole's lowest point, m: corners this much higher weigh 1/e.
 SOLE_SOFTNESS = 0.002
 
@@ -129,14 +133,20 @@ def _home_data(m) -> mujoco.MjData:
 
 
 def _geom_point(m, d, g: int) -> tuple[str, np.ndarray, float, tuple]:
-    """(kind, contact point in the body frame, radius, sole corners in the body frame) of
-    one geom (module docstring); no corners for a sphere or capsule."""
+    """(kind, contact point in the body frame, radius, rolling points in the body frame)
+    of one geom (module docstring): a flat sole's four corners, a capsule's two segment
+    ends, none for a sphere."""
     t = int(m.geom_type[g])
     size = np.asarray(m.geom_size[g], np.float64)
     if t == int(_T.mjGEOM_SPHERE):
         return "sphere", np.asarray(m.geom_pos[g], np.float64), float(size[0]), ()
     if t == int(_T.mjGEOM_CAPSULE):
-        return "capsule", np.asarray(m.geom_pos[g], np.float64), float(size[0]), ()
+        pos = np.asarray(m.geom_pos[g], np.float64)
+        rot = np.zeros(9)
+        mujoco.mju_quat2Mat(rot, np.asarray(m.geom_quat[g], np.float64))
+        half = rot.reshape(3, 3)[:, 2] * size[1]  # the segment along the geom's z axis
+        ends = tuple(tuple(float(x) for x in pos + s * half) for s in (1.0, -1.0))
+        return "capsule", pos, float(size[0]), ends
     if t == int(_T.mjGEOM_BOX):
         centre, half, kind = np.zeros(3), size, "box"
     elif t == int(_T.mjGEOM_CYLINDER):
@@ -240,9 +250,17 @@ def _body_foot(m, d, name, b, geoms) -> Foot:
     pts = [_geom_point(m, d, g) for g in geoms]
     kinds = sorted({k for k, _, _, _ in pts})
     p = np.mean([q for _, q, _, _ in pts], axis=0)
-    r = float(np.mean([r for _, _, r, _ in pts]))
-    # Several flat geoms: every corner of every sole; any round one: a fixed point.
-    sole = () if any(not c for *_, c in pts) else tuple(c for *_, cs in pts for c in cs)
+    radii = [r for _, _, r, _ in pts]
+    r = float(np.mean(radii))
+    if set(kinds) <= set(_ROUND) and max(radii) - min(radii) <= 1e-9:
+        # Spheres and capsules of one radius (T1's four corner spheres, H1's three
+        # capsules): the spheres' centres and the capsules' segment ends are the points
+        # that roll (the lowest of them is the lowest geom's), the radius is theirs.
+        sole = tuple(c for k, q, _, cs in pts for c in (cs if k == "capsule" else (tuple(q),)))
+    elif not set(kinds) & set(_ROUND):
+        sole = tuple(c for *_, cs in pts for c in cs)  # flat geoms: every sole's corners
+    else:
+        sole = ()  # round and flat, or round of several radii: a fixed point
     label = f"{len(geoms)} {'/'.join(kinds)} geoms"
     return Foot(name, label, b, tuple(p), r, tuple(geoms), sole)
 
@@ -340,7 +358,9 @@ def foot_points(desc: RobotDescription, d, sole: str = "centre") -> jax.Array:
       desc: the description (:func:`describe`).
       d: data after kinematics.
       sole: ``"centre"``: each foot's fixed point (``foot_offsets``); ``"rolling"``: for
-        a foot with a flat sole (``foot_soles``), the mean of its sole's corners weighted
+        a foot with a flat sole or round geoms of one radius (``foot_soles``: the
+        sole's corners, or the spheres' centres and capsules' ends), the mean of those
+        points weighted
         by ``exp(-(z - z_min) / SOLE_SOFTNESS)`` (module docstring), so the sole's centre
         when it lies flat and its lowest edge or corner when it rolls; feet without a
         flat sole keep their fixed point.

@@ -209,7 +209,7 @@ def robot_measurement(
 
     Raises:
       ValueError: ``desc`` does not match the model, ``qdd``/``tau`` have the wrong
-        shape, or a foot is a flat sole (``foot_soles``:
+        shape, or a foot has a rolling point (``foot_soles``:
         :func:`jax_contact.envs.feet.measurement` takes those).
     """
     m, d = mjx_model, mjx_data
@@ -223,9 +223,10 @@ def robot_measurement(
     if any(soles):
         flat = [n for n, c in zip(desc.foot_names, soles, strict=True) if c]
         raise ValueError(
-            f"feet {flat} are flat soles: robot_measurement reads each foot's fixed point and"
-            " radius; use jax_contact.envs.feet.measurement for these feet (its sole='rolling'"
-            " follows the sole's lowest edge)"
+            f"feet {flat} have a rolling contact point (a flat sole, capsules, several spheres):"
+            " robot_measurement reads each foot's fixed point and radius; use"
+            " jax_contact.envs.feet.measurement for these feet (its sole='rolling' follows the"
+            " sole's lowest edge or sphere)"
         )
     for name, value in (("qdd", qdd), ("tau", tau)):
         if value is not None and jnp.shape(value) != (m.nv,):

@@ -47,9 +47,11 @@ class RobotDescription:
       foot_geom_ids: the foot sphere geoms.
       foot_offsets: each foot sphere's centre in its body frame, (x, y, z), m.
       foot_radii: each foot sphere's radius, m.
-      foot_soles: per foot, the corners of a flat sole in its body frame, ((x, y, z),
-        ...), m, for the rolling contact point of
-        :func:`jax_contact.envs.feet.foot_points`; empty for a round foot (default: none).
+      foot_soles: per foot, the points its contact rolls between, in its body frame,
+        ((x, y, z), ...), m: a flat sole's corners, or the centres of a foot's spheres and
+        the ends of its capsules (one radius), for the rolling contact point of
+        :func:`jax_contact.envs.feet.foot_points`; empty for a sphere foot (default:
+        none).
       leg_dofs: per leg, the indices into ``nv`` of its joints' dofs, base side first.
       other_dofs: per leg, the complement of ``leg_dofs`` in ``range(nv)``, ascending.
       base_dofs: dofs of the base's own joints (6 for a free joint, 1 for the planar

@@ -325,6 +325,42 @@ def test_round_feet_roll_nowhere():
     np.testing.assert_array_equal(rolling, centre)
 
 
+def test_corner_spheres_roll_to_the_lowest():
+    """A foot of spheres of one radius (T1's corner spheres) rolls between their centres, a
+    capsule between its segment's ends; spheres of two radii keep the fixed mean point."""
+    two = (
+        '<geom name="c1" type="sphere" pos="0.05 0 -0.25" size=".015"/>'
+        '<geom name="c2" type="sphere" pos="-0.05 0 -0.25" size=".015"/>'
+    )
+    m = _model(two)
+    b = m.body("shank").id
+    centre, rolling, desc, _ = _sole_points(m, 0.0)
+    assert sorted(desc.foot_soles[0]) == [(-0.05, 0.0, -0.25), (0.05, 0.0, -0.25)]
+    assert desc.foot_radii == (0.015,)
+    # Level: both centres equally low, the point is their mean (the fixed point).
+    np.testing.assert_allclose(rolling, centre, atol=1e-6)
+    # Pitched 0.2 rad (knee > 0 turns +x towards -z): c1 is 0.1 sin(0.2) = 19.9 mm
+    # below c2, which weighs e^-9.9: the point is c1's centre, the radius kept.
+    _, rolling, _, d = _sole_points(m, 0.2)
+    c1 = d.xpos[b] + d.xmat[b].reshape(3, 3) @ np.array([0.05, 0.0, -0.25])
+    np.testing.assert_allclose(rolling, c1, atol=1e-5)
+    # Two radii: the lowest centre is not the lowest sphere, so no rolling point.
+    mixed = two.replace('size=".015"/><geom name="c2"', 'size=".02"/><geom name="c2"')
+    centre, rolling, desc, _ = _sole_points(_model(mixed), 0.2)
+    assert desc.foot_soles == ((),) and desc.foot_radii == (0.0175,)
+    np.testing.assert_array_equal(rolling, centre)
+    # A capsule along x (fromto -0.05 .. 0.05): its segment's ends roll as the two
+    # spheres' centres did, so the same points, level and pitched.
+    cap = '<geom name="cap" type="capsule" fromto="-0.05 0 -0.25 0.05 0 -0.25" size=".015"/>'
+    centre, rolling, desc, d = _sole_points(_model(cap), 0.2)
+    assert sorted(desc.foot_soles[0]) == [(-0.05, 0.0, -0.25), (0.05, 0.0, -0.25)]
+    assert desc.foot_radii == (0.015,)
+    c1 = d.xpos[b] + d.xmat[b].reshape(3, 3) @ np.array([0.05, 0.0, -0.25])
+    np.testing.assert_allclose(rolling, c1, atol=1e-5)
+    centre, rolling, _, _ = _sole_points(_model(cap), 0.0)
+    np.testing.assert_allclose(rolling, centre, atol=1e-6)  # level: the capsule's centre
+
+
 def test_robot_measurement_places_site_feet_and_refuses_flat_soles():
     """adapter.robot_measurement reads each foot's fixed point (its body's pose applied to
     foot_offsets) and radius. A site foot on a body that carries a geom is at the site, not
@@ -352,7 +388,9 @@ def test_robot_measurement_places_site_feet_and_refuses_flat_soles():
     assert np.linalg.norm(d.geom_xpos[m.geom("sole").id] - d.site_xpos[site]) > 0.07
 
     desc, _ = feet.describe(m)
-    with pytest.raises(ValueError, match=r"feet \['sole'\] are flat soles.*feet.measurement"):
+    with pytest.raises(
+        ValueError, match=r"feet \['sole'\] have a rolling contact point.*feet.measurement"
+    ):
         adapter.robot_measurement(mjx.put_model(m), mjx.put_data(m, mujoco.MjData(m)), desc)
 
 

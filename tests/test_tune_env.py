@@ -237,6 +237,12 @@ def test_an_unknown_scene_or_policy_is_named():
         with pytest.raises(ValueError, match=rf"^argument SCENE: '{scene}': policy '.*' is"
                            rf" scripted for {robots}, not .*:random"):  # fmt: skip
             tune_env.check_scene(scene)
+    with pytest.raises(
+        ValueError,
+        match=r"^argument SCENE: 'T1JoystickFlatTerrain:stand': policy"
+        r" 'stand' holds every foot on the floor: nothing to tune on",
+    ):
+        tune_env.check_scene("T1JoystickFlatTerrain:stand")
     tune_env.check_scene("T1JoystickFlatTerrain:random")
     tune_env.check_scene("T1JoystickFlatTerrain")  # its default policy: random
 

@@ -493,6 +493,31 @@ def test_rate_comparison_closed_loop_and_stop(brax_leg):
     assert res.substep_all.f1 > 0.9
 
 
+def test_scored_steps_end_at_done_and_nonfinite_and_refuse_nothing():
+    """compare_rates' scored steps, by hand: 3 rollouts of 6 env steps of 0.02 s, skip
+    0.04 s (2 steps). Rollout 0 never ends: steps 2-5. Rollout 1's done at step 4: steps
+    2-3. Rollout 2's estimate is non-finite at step 3 (before its done at 5): step 2."""
+    from jax_contact.train.rates import scored_steps
+
+    done = np.zeros((6, 3), bool)
+    done[4, 1] = done[5, 2] = True
+    finite = np.ones((6, 3), bool)
+    finite[3, 2] = False
+    valid, n_ended, n_broke = scored_steps(done, finite, 0.04, 0.02)
+    want = np.zeros((6, 3), bool)
+    want[2:6, 0] = want[2:4, 1] = want[2, 2] = True
+    np.testing.assert_array_equal(valid, want)
+    assert (n_ended, n_broke) == (2, 1)
+    # Every rollout ended by step 4 and 0.1 s (5 steps) skipped: a clear error, not NaN.
+    done[4, 0] = True
+    with pytest.raises(
+        ValueError,
+        match=r"^skip_s: nothing left to score: 0.1 s \(5 env steps"
+        r"\).*the longest ran 4 env steps \(0.08 s\).*--skip",
+    ):
+        scored_steps(done, finite, 0.1, 0.02)
+
+
 def test_rates_refuses_a_file_for_another_robot_before_any_scene_runs():
     """``jax-contact rates --params``: the file's nv is checked against every scene's robot
     before the first scene's minute of compiling (Go1: nv 18, planar leg: nv 3)."""

@@ -232,6 +232,44 @@ def policy_step(wrapped, state, action, feedback=None, stop=None):
     return state, ended
 
 
+def scored_steps(done, finite, skip_s: float, dt_ctrl: float) -> tuple[np.ndarray, int, int]:
+    """Which env steps of :func:`compare_rates`' rollouts are scored.
+
+    A rollout is scored from ``skip_s`` on, up to (not including) its first ``done``
+    (whose state may be NaN: Playground ends an episode on NaN physics, and random actions
+    get there) and its first step with a non-finite estimate (counted, never hidden).
+
+    Args:
+      done: (T, E) the env's ``done`` (or ``stop``) after each env step.
+      finite: (T, E) whether both estimators' outputs of that step are finite.
+      skip_s: time left out at the start of every rollout, s.
+      dt_ctrl: the env step, s.
+
+    Returns:
+      ``(valid, n_ended, n_nonfinite)``: the (T, E) mask of scored steps, the rollouts
+      that reached a ``done``, those whose estimate went non-finite before it.
+
+    Raises:
+      ValueError: naming ``skip_s``, when no step is left to score.
+    """
+    done, finite = np.asarray(done, bool), np.asarray(finite, bool)
+    alive = np.cumsum(done, axis=0) == 0
+    n_ended = int((~alive).any(axis=0).sum())
+    n_broke = int((alive & ~finite).any(axis=0).sum())
+    alive &= np.cumsum(~finite, axis=0) == 0
+    skip = int(round(skip_s / dt_ctrl))
+    valid = alive & (np.arange(done.shape[0]) >= skip)[:, None]
+    if not valid.any():  # else every score is NaN, with numpy's warnings
+        last = int(alive.sum(axis=0).max())
+        raise ValueError(
+            f"skip_s: nothing left to score: {skip_s:g} s ({skip} env steps) are left out of"
+            f" every rollout, and the longest ran {last} env steps ({last * dt_ctrl:.2f} s)"
+            " before it ended (a done, the stop condition, or a non-finite estimate); use a"
+            " smaller skip_s (--skip)"
+        )
+    return valid, n_ended, n_broke
+
+
 def compare_rates(
     env,
     actions: jax.Array,
@@ -288,6 +326,10 @@ def compare_rates(
     Returns:
       The metrics of :func:`jax_contact.metrics.evaluate` for both, over the steps before
       each rollout's first ``done`` or ``stop`` (that step excluded).
+
+    Raises:
+      ValueError: ``actions`` not (T, E, nu); after the rollouts, naming ``skip_s``, when
+        every rollout ended before ``skip_s`` (nothing to score).
     """
     acts = jnp.asarray(actions)
     if acts.ndim != 3:
@@ -363,17 +405,8 @@ def compare_rates(
     has_raw = outer.contact_core.truth_raw is not None
     if not np.array_equal(t_s[:, :, -1], t_c):
         raise RuntimeError("the two estimators saw different truths: rollouts diverged")
-    t_len = acts.shape[0]
-    # Steps before the first done: the terminal step is left out, its state may be NaN
-    # (Playground ends an episode on NaN physics; random actions get there).
-    alive = np.cumsum(done, axis=0) == 0
-    n_ended = int((~alive).any(axis=0).sum())
-    # A non-finite estimate ends a rollout's score too, and is counted (never hidden).
     finite = np.isfinite(p_s).all(axis=(2, 3)) & np.isfinite(p_c).all(axis=-1)
-    broke = alive & ~finite
-    alive &= np.cumsum(~finite, axis=0) == 0
-    skip = int(round(skip_s / dt_ctrl))
-    valid = alive & (np.arange(t_len) >= skip)[:, None]
+    valid, n_ended, n_broke = scored_steps(done, finite, skip_s, dt_ctrl)
     valid_c = np.broadcast_to(valid[..., None], p_c.shape)
     valid_s = np.broadcast_to(valid[:, :, None, None], p_s.shape)
 
@@ -389,6 +422,6 @@ def compare_rates(
             metrics.evaluate(flat(p_s), flat(t_raw), flat(valid_s), dt=dt_sub) if has_raw else None
         ),
         contact_fraction_raw=float(np.mean(flat(t_raw)[flat(valid_s)])),
-        nonfinite_rollouts=int(broke.any(axis=0).sum()),
+        nonfinite_rollouts=n_broke,
         ended_rollouts=n_ended,
     )

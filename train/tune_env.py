@@ -154,6 +154,11 @@ def check_scene(scene: str) -> None:
         )
     try:
         check_policy(name, policy or None)
+        if policy == "stand":  # the benchmark's standing check: no air phase to learn from
+            raise ValueError(
+                "policy 'stand' holds every foot on the floor: nothing to tune on; use a"
+                " gait or random"
+            )
     except ValueError as err:
         raise ValueError(f"argument SCENE: {scene!r}: {err}") from None
 
