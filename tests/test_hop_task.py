@@ -201,3 +201,6 @@ def test_runs_under_finds_each_variants_seeds_in_order(tmp_path):
         transfer.runs_under(tmp_path, variants=("truth", "other"))
     with pytest.raises(FileNotFoundError, match=r"folder '.*nosuch' does not exist"):
         transfer.runs_under(tmp_path / "nosuch")
+    (tmp_path / "afile").write_text("")  # a user trial was told it "does not exist"
+    with pytest.raises(FileNotFoundError, match=r"'.*afile' is a file; pass the folder"):
+        transfer.runs_under(tmp_path / "afile")

@@ -164,6 +164,52 @@ def test_evaluate_refuses_an_observation_the_network_cannot_take(saved, tmp_path
     (tmp_path / "run.json").write_text(run.joinpath("run.json").read_text())
     with pytest.raises(FileNotFoundError, match="no checkpoint"):
         policy_eval.evaluate_policy(tmp_path)
+    # A finished run whose checkpoints are gone, and a run folder beside the run an
+    # --overwrite set aside (killed before its first checkpoint): said so, not "train first".
+    (tmp_path / "checkpoints").mkdir()
+    with pytest.raises(FileNotFoundError, match="says its training finished, but its checkpoints"):
+        policy_eval.latest_checkpoint(tmp_path)
+    (tmp_path.parent / f"{tmp_path.name}.earlier").mkdir()
+    with pytest.raises(
+        FileNotFoundError, match=rf"the run it replaced is in .*{tmp_path.name}.earlier"
+    ):
+        policy_eval.latest_checkpoint(tmp_path)
+
+
+def test_policy_eval_checks_the_run_record_before_jax(saved, tmp_path):
+    """`policy-eval`'s argument check (standard library) reads run.json: a parameter file
+    stored as a relative path (what `train --params` used to store), a sensor it does not
+    know, and an observation the policy was not trained on are refused naming run.json,
+    where a user trial waited ~10 s for JAX to load before each."""
+    from jax_contact.train.cli_args import check_run_record
+
+    run, _, _ = saved  # trained with "truth"
+    check_run_record("run", run, None)
+    check_run_record("run", run, "estimate_harsh")
+    with pytest.raises(
+        ValueError,
+        match=r"trained with 'truth' .*run.json'\): its policy sees a"
+        r" contact observation, so it can observe one of truth, .*, not 'none'",
+    ):
+        check_run_record("run", run, "none")
+    record = json.loads((run / "run.json").read_text())
+    for change, match in (
+        ({"estimator_params": "rel.json"}, r"names the parameter file 'rel.json' .*absolute path"),
+        ({"estimator_params": "go1"}, None),  # a shipped preset
+        ({"sensor": "foo"}, r"config.sensor 'foo' is not one of \('ideal'"),
+    ):
+        (tmp_path / "run.json").write_text(
+            json.dumps(record | {"config": record["config"] | change})
+        )
+        if match is None:
+            check_run_record("run", tmp_path, None)
+        else:
+            with pytest.raises(ValueError, match=rf"^argument run: '{tmp_path}/run.json'.*{match}"):
+                check_run_record("run", tmp_path, None)
+    (tmp_path / "run.json").write_text(json.dumps(record | {"variant": "none"}))
+    with pytest.raises(ValueError, match=r"policy sees no contact, so it can observe only none"):
+        check_run_record("run", tmp_path, "estimate_lat1")
+    check_run_record("run", tmp_path, "none")
 
 
 def test_a_damaged_run_folder_is_named_in_one_line(saved, tmp_path):
@@ -232,8 +278,10 @@ def test_overwrite_keeps_the_earlier_run_until_the_new_ones_first_checkpoint(tmp
     its first checkpoint, neither was left. The earlier run is now set aside beside it and
     put back if the new run stops first (an error here; Ctrl-C asks the same note), deleted
     once the new run has a checkpoint or finishes."""
+    from jax_contact.train import interrupt
     from jax_contact.train.run_folder import EarlierRun, earlier_path
 
+    monkeypatch.setattr(interrupt, "_discarded", [])
     run = tmp_path / "estimate"
     (run / "checkpoints" / "000000000160").mkdir(parents=True)
     (run / "progress.csv").write_text("earlier\n")
@@ -251,10 +299,13 @@ def test_overwrite_keeps_the_earlier_run_until_the_new_ones_first_checkpoint(tmp
         ppo.train("estimate", TINY, tmp_path, overwrite=True)
     assert (run / "progress.csv").read_text() == "earlier\n" and not aside.exists()
     assert not (run / "run.json").exists()  # the new run's files went with it
-    # The note a Ctrl-C prints does the same, and says so.
+    # The note a Ctrl-C prints does the same, and says so; the files the new run had
+    # written there are no longer listed as written (a user trial found them listed).
     earlier = EarlierRun(run, True)
     run.mkdir()
     assert "the earlier run is back in" in earlier.note()
+    other = tmp_path / "estimate2" / "run.json"
+    assert interrupt.still_written([str(run / "run.json"), str(other)]) == [str(other)]
     assert (run / "progress.csv").read_text() == "earlier\n" and not aside.exists()
     # Once the new run has a checkpoint it stays and the earlier one goes.
     earlier = EarlierRun(run, True)
@@ -329,6 +380,32 @@ def test_a_second_train_into_the_same_folder_keeps_the_first(tmp_path, monkeypat
     (other / "summary.json").write_text("{")
     with pytest.raises(ValueError, match="summary.json is not a summary of jax-contact train"):
         ppo.train_variants(TINY, other, variants=["truth"], eval_envs=0)
+
+
+def test_a_stop_in_the_final_evaluation_keeps_the_finished_runs(tmp_path, monkeypatch):
+    """A user trial stopped `train --variants estimate` (Ctrl-C) during its final
+    evaluation: the run had finished, but no summary.json was written, so the next `train
+    --variants none` into the folder summarised `none` alone. The summary is now written
+    after each run (final_evaluation "pending") and again after the evaluation."""
+    from jax_contact.train import policy_eval
+
+    calls = []
+    monkeypatch.setattr(ppo, "train", _fake_train(calls))
+
+    def stopped(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(policy_eval, "evaluate_policy", stopped)
+    with pytest.raises(KeyboardInterrupt):
+        ppo.train_variants(TINY, tmp_path, variants=["estimate", "truth"], log=print)
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert list(summary["runs"]) == ["estimate", "truth"]
+    assert summary["final_evaluation"] == "pending" and summary["evaluation"] == []
+    summary = ppo.train_variants(TINY, tmp_path, variants=["none"], eval_envs=0, log=print)
+    assert list(summary["runs"]) == ["estimate", "truth", "none"]
+    assert summary["final_evaluation"] == "skipped"
+    csv_rows = (tmp_path / "reward_curves.csv").read_text().splitlines()[1:]
+    assert [r.split(",")[0] for r in csv_rows] == ["estimate", "truth", "none"]
 
 
 def test_progress_csv_and_curve_files(tmp_path):

@@ -73,6 +73,7 @@ from jax_contact.train.cli_args import (  # noqa: F401  (COLUMNS ... SCENES: re-
     check_params_source,
     check_robot,
     check_run_folder,
+    check_run_record,
     nonnegative_int,
     not_a_run_folder,
     positive_float,
@@ -220,7 +221,11 @@ def _cmd_train(args: argparse.Namespace) -> int:
     else:
         cfg = task.config(args.config)
     if args.params is not None:
-        cfg = dataclasses.replace(cfg, estimator_params=args.params)
+        from jax_contact._presets import preset_file
+
+        # A file by its absolute path: run.json is read later from anywhere (policy-eval).
+        params = args.params if preset_file(args.params) else str(Path(args.params).resolve())
+        cfg = dataclasses.replace(cfg, estimator_params=params)
     if args.timesteps:
         # Brax PPO rounds num_timesteps up to whole epochs (6x the request at 40,960 steps);
         # fit_timesteps makes it train exactly what was asked, or says what it trains.
@@ -362,6 +367,7 @@ def _check_policy_eval(args: argparse.Namespace) -> None:
         raise ValueError(f"argument run: folder {args.run!r} does not exist")
     if not (run / "run.json").is_file():
         raise ValueError(f"argument run: {not_a_run_folder(run)}")
+    check_run_record("run", run, args.column or args.observe)
     check_output_file("--json", args.json)
 
 
@@ -607,7 +613,9 @@ def build_parser() -> argparse.ArgumentParser:
         choices=COLUMNS,
         default=None,
         help="a column of the transfer matrix instead: estimate_harsh (harsh sensors),"
-        " estimate_lat1/2 (the training sensors 1/2 env steps late), truth, estimate",
+        " estimate_lat1/2 (the training sensors 1/2 env steps late), truth, estimate; a run"
+        " trained with contact observed takes any column or --observe truth/estimate, one"
+        " trained with none only --observe none (its policy's input has no contact slots)",
     )
     p.add_argument("--envs", type=positive_int, default=64, help="episodes, run in parallel")
     p.add_argument("--seed", type=seed_int, default=12345, help="seeds the episodes")

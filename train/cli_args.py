@@ -269,6 +269,51 @@ def not_a_run_folder(path: str | os.PathLike) -> str:
     return f"{str(path)!r} is not a run folder of jax-contact train (no run.json){hint}"
 
 
+def check_run_record(arg: str, run_dir: str | os.PathLike, observe: str | None) -> None:
+    """Raises ValueError, naming ``run.json``, when what ``policy-eval`` would build from a
+    run folder's record cannot be built (a parameter file or sensor preset that is not
+    there), or when ``observe`` (a variant or a transfer column; None: the run's own) gives
+    a Go1 policy an observation other than the one it was trained on (a run trained
+    without contact takes only ``none``, the others only a contact column). Anything else
+    wrong with the record is left to the full check after JAX loads. Standard library only.
+    """
+    import json
+
+    from jax_contact._presets import preset_file
+
+    path = Path(run_dir) / "run.json"
+    try:
+        run = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, ValueError):
+        return
+    cfg = run.get("config") if isinstance(run, dict) else None
+    if not isinstance(cfg, dict):
+        return
+    params = cfg.get("estimator_params")
+    if isinstance(params, str) and preset_file(params) is None and not Path(params).is_file():
+        raise ValueError(
+            f"argument {arg}: {str(path)!r} names the parameter file {params!r}"
+            " (config.estimator_params), which is neither a file nor a shipped preset (a"
+            " relative path is read from the current folder: run from the folder the run was"
+            " trained in, or write the file's absolute path into run.json)"
+        )
+    sensor = cfg.get("sensor", "anymal_like")
+    if sensor not in NOISES:
+        raise ValueError(
+            f"argument {arg}: {str(path)!r}: config.sensor {sensor!r} is not one of {NOISES}"
+        )
+    variant = run.get("variant")
+    if observe is None or run.get("task", "go1") != "go1" or variant not in VARIANTS:
+        return
+    if (variant == "none") != (observe == "none"):
+        sees = "no contact" if variant == "none" else "a contact observation"
+        takes = "only none" if variant == "none" else f"one of {', '.join(COLUMNS)}"
+        raise ValueError(
+            f"argument {arg}: the run was trained with {variant!r} ({str(path)!r}): its policy"
+            f" sees {sees}, so it can observe {takes}, not {observe!r}"
+        )
+
+
 def check_input_file(arg: str, path: str) -> None:
     """Raises ValueError unless ``path`` is an existing file."""
     p = Path(path)
@@ -322,9 +367,14 @@ def check_output_folder(arg: str, folder: str | os.PathLike) -> None:
         os.close(fd)
         os.unlink(probe)
     except OSError as err:
+        why = err.strerror or err
+        if existing != p:  # name what was asked for (/proc/x: /proc exists, x cannot be made)
+            raise ValueError(
+                f"argument {arg}: cannot create folder {str(p)!r}: {str(existing)!r} takes"
+                f" no new files or folders ({why})"
+            ) from None
         raise ValueError(
-            f"argument {arg}: cannot create files in folder {str(existing)!r}"
-            f" ({err.strerror or err})"
+            f"argument {arg}: cannot create files in folder {str(p)!r} ({why})"
         ) from None
 
 

@@ -29,6 +29,7 @@ EXIT_INTERRUPTED = 130  # 128 + SIGINT, what a shell reports for a command stopp
 EXIT_TERMINATED = 143  # 128 + SIGTERM (kill, timeout, a job scheduler)
 
 _kept: list = []  # what a command keeps if it is stopped now (set_kept)
+_discarded: list = []  # folders whose files this command wrote were removed (discarded)
 
 
 def set_kept(note) -> None:
@@ -37,6 +38,19 @@ def set_kept(note) -> None:
     ``--out``; a callable is asked at the stop (what is kept may change while the command
     runs; it may return None); None: nothing to say."""
     _kept[:] = [note] if note else []
+
+
+def discarded(folder) -> None:
+    """Marks ``folder``: the files this command wrote in it are gone (``train``'s note put
+    an earlier run back there), so a stop does not list them as written."""
+    _discarded.append(os.path.abspath(folder))
+
+
+def still_written(paths, folders=None) -> list:
+    """``paths`` less those inside a :func:`discarded` folder (``folders``: these
+    instead)."""
+    gone = [os.path.join(f, "") for f in (_discarded if folders is None else folders)]
+    return [p for p in paths if not os.path.abspath(p).startswith(tuple(gone))]
 
 
 class StopOnInterrupt:
@@ -97,16 +111,8 @@ class StopOnInterrupt:
             flusher.start()
             flusher.join(0.5)
             os.write(2, f"{self.prog}: {what}\n".encode())
-            # What this command had written completely (a stop just after "wrote ..."):
-            # whole files, said so, since "interrupted" alone reads as if they might not be.
-            done = getattr(sys.modules.get("jax_contact.io"), "completed_writes", None)
-            if written := (done() if done is not None else []):
-                more = f" and {len(written) - 5} more" if len(written) > 5 else ""
-                os.write(
-                    2,
-                    f"{self.prog}: written completely before the stop: "
-                    f"{', '.join(written[-5:])}{more}\n".encode(),
-                )
+            # The notes first: one may put an earlier run back over files just written.
+            notes = []
             for note in list(_kept):
                 if callable(note):
                     try:
@@ -114,7 +120,19 @@ class StopOnInterrupt:
                     except Exception:  # noqa: BLE001  (a stop must not fail on its note)
                         note = None
                 if note:
-                    os.write(2, f"{self.prog}: {note}\n".encode())
+                    notes.append(note)
+            # What this command had written completely (a stop just after "wrote ..."):
+            # whole files, said so, since "interrupted" alone reads as if they might not be.
+            done = getattr(sys.modules.get("jax_contact.io"), "completed_writes", None)
+            if written := still_written(done() if done is not None else []):
+                more = f" and {len(written) - 5} more" if len(written) > 5 else ""
+                os.write(
+                    2,
+                    f"{self.prog}: written completely before the stop: "
+                    f"{', '.join(written[-5:])}{more}\n".encode(),
+                )
+            for note in notes:
+                os.write(2, f"{self.prog}: {note}\n".encode())
         finally:
             os._exit(code)  # whatever failed above, the command stops
 

@@ -110,12 +110,27 @@ def latest_checkpoint(run_dir: str | Path) -> Path:
     folder = Path(run_dir) / "checkpoints"
     steps = sorted(p for p in folder.glob("*") if p.is_dir() and p.name.isdigit())
     if not steps:
-        why = (
-            "its training stopped before the first checkpoint (run.json: finished false);"
-            " train again with --overwrite"
-            if unfinished_run(Path(run_dir))
-            else "train first (jax-contact train)"
-        )
+        from jax_contact.train.run_folder import earlier_path
+
+        earlier = earlier_path(Path(run_dir))
+        if earlier.exists():  # an --overwrite run killed before its first checkpoint
+            why = (
+                f"the run it replaced is in {earlier} (an --overwrite run was stopped before"
+                f" its first checkpoint): move it back to {Path(run_dir)} to evaluate it, or"
+                " delete it and train again"
+            )
+        elif unfinished_run(Path(run_dir)):
+            why = (
+                "its training stopped before the first checkpoint (run.json: finished false);"
+                " train again with --overwrite"
+            )
+        elif (Path(run_dir) / "run.json").is_file():
+            why = (
+                "run.json says its training finished, but its checkpoints are gone; train"
+                " again with --overwrite"
+            )
+        else:
+            why = "train first (jax-contact train)"
         raise FileNotFoundError(f"no checkpoint in {folder}: {why}")
     return steps[-1]
 
@@ -245,8 +260,8 @@ class ColumnEvaluator:
         ret, p, truth, alive, fell = jax.device_get(rollout(params, jax.random.PRNGKey(seed)))
         wall = time.perf_counter() - t0
         return {
-            "run": str(run_dir),
-            "checkpoint": str(ckpt),
+            "run": str(run_dir.absolute()),
+            "checkpoint": str(ckpt.absolute()),
             "trained_with": run["variant"],
             "run_finished": run.get("finished", True),
             "observed": column,

@@ -3,7 +3,7 @@
 The task is MuJoCo Playground's Go1 joystick on flat terrain (track a random base velocity
 command; Playground's own rewards, terminations and observation noise), built offline by
 :mod:`jax_contact.envs.playground_offline` with MJX's JAX implementation. The contact wrapper
-(:mod:`jax_contact.envs.wrapper`, control rate: Playground hides the physics substeps) appends one
+(:mod:`jax_contact.envs.wrapper`, at the physics rate, its default) appends one
 number per foot to the policy's ``"state"`` observation:
 
 - ``"none"``: nothing (the policy Playground trains);
@@ -77,8 +77,8 @@ class PPOConfig:
       batch_size, num_minibatches, unroll_length, num_updates_per_batch: Brax PPO's batch
         layout: one training step collects ``batch_size * num_minibatches * unroll_length``
         env steps.
-      num_evals: evaluations (the first before any training), each a row of the CSV and a
-        checkpoint.
+      num_evals: evaluations (the first before any training), each a row of the CSV; each
+        after training has begun also writes a checkpoint.
       num_eval_envs: environments per evaluation (one episode each).
       episode_length: env steps per episode (Go1: 20 ms each).
       learning_rate, entropy_cost, discounting, reward_scaling, max_grad_norm,
@@ -630,8 +630,12 @@ def train_variants(
 
     Writes ``out_dir/summary.json`` (wall times, curves, evaluations),
     ``out_dir/reward_curves.csv`` and ``training_curves.csv`` (all runs, a ``variant``
-    column) and ``out_dir/reward_curves.png``. ``task``: as :func:`train`. ``eval_envs``:
-    episodes of each final evaluation; 0 skips them (``summary["evaluation"]`` is empty).
+    column) and ``out_dir/reward_curves.png``, after each run and again after the final
+    evaluation (``summary["final_evaluation"]``: ``"pending"`` until it is done, then
+    ``"done"``, or ``"skipped"``): a stop leaves the summary of the runs that finished,
+    which a later call into ``out_dir`` keeps. ``task``: as :func:`train`. ``eval_envs``:
+    episodes of each final evaluation; 0 skips them (``summary["evaluation"]`` then holds
+    only the kept runs' evaluations).
     """
     from jax_contact.io import write_json_atomic, write_text_atomic
     from jax_contact.train import figures
@@ -643,37 +647,52 @@ def train_variants(
     for v in variants:
         check_run_folder(out_dir / v, overwrite)
     kept_runs, kept_evals = earlier_runs(out_dir, env_name, cfg, seed, variants, overwrite)
-    results = {
-        v: train(v, cfg, out_dir, seed=seed, overwrite=overwrite, log=log, task=task)
-        for v in variants
-    }
-    runs = dict(kept_runs)
-    runs.update(
-        {
-            v: {
-                "wall_s": round(r.wall_s, 1),
-                "first_eval_s": r.first_eval_s,
-                "curve": r.rows,
-                "training_curve": r.train_rows,
-            }
-            for v, r in results.items()
-        }
-    )
     if kept_runs:
         log(f"kept the earlier runs in {out_dir} in its summary: {', '.join(kept_runs)}")
-    curves = {v: r["curve"] for v, r in runs.items()}
-    training = {v: r["training_curve"] for v, r in runs.items()}
-    for name, data, fields in (
-        ("reward_curves.csv", curves, CSV_FIELDS),
-        ("training_curves.csv", training, TRAIN_FIELDS),
-    ):
-        lines = ["variant," + ",".join(fields)]
-        for v, rows in data.items():
-            lines += [v + "," + ",".join(str(r[k]) for k in fields) for r in rows]
-        write_text_atomic(out_dir / name, "\n".join(lines) + "\n")
-    figures.plot_reward_curves(
-        curves, out_dir / "reward_curves.png", title="Go1 joystick, PPO", training=training
-    )
+    runs = dict(kept_runs)
+    results = {}
+
+    def write_outputs(evaluation: list, final: str) -> dict:
+        # After every run and after the final evaluation, so that a stop later (Ctrl-C
+        # in the next run or the evaluation) leaves a summary of the runs that finished,
+        # which the next call into this folder keeps (earlier_runs).
+        curves = {v: r["curve"] for v, r in runs.items()}
+        training = {v: r["training_curve"] for v, r in runs.items()}
+        for name, data, fields in (
+            ("reward_curves.csv", curves, CSV_FIELDS),
+            ("training_curves.csv", training, TRAIN_FIELDS),
+        ):
+            lines = ["variant," + ",".join(fields)]
+            for v, rows in data.items():
+                lines += [v + "," + ",".join(str(r[k]) for k in fields) for r in rows]
+            write_text_atomic(out_dir / name, "\n".join(lines) + "\n")
+        figures.plot_reward_curves(
+            curves, out_dir / "reward_curves.png", title="Go1 joystick, PPO", training=training
+        )
+        summary = {
+            "env": env_name,
+            "config": dataclasses.asdict(cfg),
+            "seed": seed,
+            "machine": {
+                "backend": jax.default_backend(),
+                "devices": [str(d) for d in jax.devices()],
+            },
+            "runs": runs,
+            "evaluation": kept_evals + evaluation,
+            "final_evaluation": final,
+        }
+        write_json_atomic(out_dir / "summary.json", summary)
+        return summary
+
+    for v in variants:
+        r = results[v] = train(v, cfg, out_dir, seed=seed, overwrite=overwrite, log=log, task=task)
+        runs[v] = {
+            "wall_s": round(r.wall_s, 1),
+            "first_eval_s": r.first_eval_s,
+            "curve": r.rows,
+            "training_curve": r.train_rows,
+        }
+        write_outputs([], "pending")
 
     evals = []
     if eval_envs:
@@ -687,15 +706,7 @@ def train_variants(
         log(format_evaluation(evals))
     else:
         log("final evaluation skipped (eval_envs=0); `jax-contact policy-eval RUN` runs it")
-    summary = {
-        "env": env_name,
-        "config": dataclasses.asdict(cfg),
-        "seed": seed,
-        "machine": {"backend": jax.default_backend(), "devices": [str(d) for d in jax.devices()]},
-        "runs": runs,
-        "evaluation": kept_evals + evals,
-    }
-    write_json_atomic(out_dir / "summary.json", summary)
+    summary = write_outputs(evals, "done" if eval_envs else "skipped")
     written = ["summary.json", "reward_curves.csv", "training_curves.csv", "reward_curves.png"]
     log(f"wrote {', '.join(written)} and the run folders {', '.join(results)} in {out_dir}")
     return summary

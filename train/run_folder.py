@@ -23,6 +23,8 @@ from __future__ import annotations
 import shutil
 from pathlib import Path
 
+from jax_contact.train import interrupt
+
 
 def earlier_path(run_dir: Path) -> Path:
     """Where an ``--overwrite`` run keeps the run it replaces until its first checkpoint."""
@@ -78,6 +80,7 @@ class EarlierRun:
             return False
         self.path.rename(self.run_dir)
         self.kept = False
+        interrupt.discarded(self.run_dir)  # the new run's files: not "written" any more
         return True
 
     def note(self) -> str | None:

@@ -428,6 +428,8 @@ def runs_under(root: str | Path, variants: Sequence[str] | None = None) -> dict[
     from jax_contact.train import ppo
 
     root = Path(root)
+    if root.is_file():
+        raise FileNotFoundError(f"{str(root)!r} is a file; pass the folder of seed*/ run folders")
     if not root.is_dir():
         raise FileNotFoundError(f"folder {str(root)!r} does not exist")
     found = {
@@ -454,7 +456,7 @@ def main(argv: Sequence[str] | None = None) -> dict:
     import argparse
 
     from jax_contact.io import write_json_atomic
-    from jax_contact.train.cli_args import positive_int, seed_int
+    from jax_contact.train.cli_args import check_output_file, positive_int, seed_int
     from jax_contact.train.compile_cache import enable_compilation_cache
 
     parser = argparse.ArgumentParser(
@@ -478,6 +480,10 @@ def main(argv: Sequence[str] | None = None) -> dict:
         parser.error(f"argument root: {err}")
     if len(tasks) > 1:
         parser.error(f"argument root: {args.root} holds runs of several tasks {sorted(tasks)}")
+    try:
+        check_output_file("--json", args.json)  # before the matrix's minutes, not after
+    except ValueError as err:
+        parser.error(str(err))
     enable_compilation_cache()
     res = transfer_matrix(
         runs, n_envs=args.envs, episode_length=args.episode_length, seed=args.seed
