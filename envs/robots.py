@@ -200,8 +200,10 @@ def check_mjx_collisions(mj_model: mujoco.MjModel, source: str | Path) -> None:
     """Raises ValueError naming two geoms and ``source`` if MJX cannot collide them.
 
     ``mjx.put_model`` refuses a model with a pair of geoms that can touch (contype /
-    conaffinity, explicit ``<pair>``) whose types have no MJX collision function, with a
-    message that names only the two types; this names the first such pair.
+    conaffinity, explicit ``<pair>``) whose types have no MJX collision function, or whose
+    margin or gap MJX does not implement for those types (a sphere foot with Menagerie's
+    ``margin="0.001"`` on a height field), with a message that names only the two types;
+    this names the first such pair.
     """
     from mujoco import mjx
 
@@ -209,7 +211,9 @@ def check_mjx_collisions(mj_model: mujoco.MjModel, source: str | Path) -> None:
         mjx.put_model(mj_model)
     except NotImplementedError as err:
         message = str(err)
-        found = re.search(r"(mjGEOM_\w+), (?:mjtGeom\.)?(mjGEOM_\w+)\) collisions not", message)
+        found = re.search(
+            r"(mjGEOM_\w+), (?:mjtGeom\.)?(mjGEOM_\w+)\) (collisions|margin/gap) not", message
+        )
         pair = None
         if found:
             want = {
@@ -219,9 +223,13 @@ def check_mjx_collisions(mj_model: mujoco.MjModel, source: str | Path) -> None:
             try:  # MJX's own enumeration of candidate pairs (private; only on this error path)
                 from mujoco.mjx._src.collision_driver import geom_pairs
 
+                margin = found.group(3) == "margin/gap"
                 for g1, g2, _ in geom_pairs(mj_model):
                     types = {mujoco.mjtGeom(int(mj_model.geom_type[g])) for g in (g1, g2)}
-                    if types == want:
+                    gaps = [
+                        float(mj_model.geom_margin[g] or mj_model.geom_gap[g]) for g in (g1, g2)
+                    ]
+                    if types == want and (not margin or any(gaps)):
                         pair = (g1, g2)
                         break
             except ImportError:
@@ -235,6 +243,18 @@ def check_mjx_collisions(mj_model: mujoco.MjModel, source: str | Path) -> None:
             return f"{mj_model.geom(g).name or '<unnamed>'} ({kind.lower()}, body {body})"
 
         names = [label(g) for g in pair]
+        if found.group(3) == "margin/gap":
+            with_margin = [
+                f"{names[i]}: margin {mj_model.geom_margin[g]:g}, gap {mj_model.geom_gap[g]:g}"
+                for i, g in enumerate(pair)
+                if mj_model.geom_margin[g] or mj_model.geom_gap[g]
+            ]
+            raise ValueError(
+                f"{source}: geoms {names[0]} and {names[1]} can collide with a margin or gap"
+                f" ({'; '.join(with_margin)}), which MJX does not implement for that pair of"
+                f' types ({message.rstrip(".")}); set margin="0" gap="0" on those geoms in a'
+                " copy of the model and pass its path"
+            ) from None
         raise ValueError(
             f"{source}: geoms {names[0]} and {names[1]} can collide, but MJX has no collision"
             f" function for that pair of types ({message.rstrip('.')}); use the model's MJX"

@@ -37,7 +37,7 @@ from mujoco import mjx
 
 from jax_contact.envs.gaits import GaitParams, gait_control, make_gait, make_gait_robot
 from jax_contact.envs.ground_truth import foot_truth, make_truth_layout, with_contact_sensors
-from jax_contact.envs.robots import Robot, load_robot, with_terrain
+from jax_contact.envs.robots import Robot, check_mjx_collisions, load_robot, with_terrain
 from jax_contact.envs.sensors import SensorParams, add_mass, sensor_init, sensor_preset, sensor_step
 from jax_contact.robot import actuated_dofs
 
@@ -110,8 +110,9 @@ def build_world(
       terrain_seed: seed of the rough floor.
 
     Raises:
-      ValueError: unknown terrain, non-positive dt, or an unknown body name (the message
-        lists the bodies).
+      ValueError: unknown terrain, non-positive dt, an unknown body name (the message
+        lists the bodies), or a rough floor MJX cannot collide a foot with (naming the
+        geoms: e.g. a margin on a sphere against the height field).
     """
     if terrain not in TERRAINS:
         raise ValueError(f"terrain must be one of {TERRAINS}, got {terrain!r}")
@@ -136,6 +137,8 @@ def build_world(
         sim = add_mass(sim, body, float(kg))
     sim.opt.timestep = dt
     sim.opt.iterations = robot.mj_model.opt.iterations
+    if terrain == "rough":  # a new floor type: pairs MJX cannot collide fail here, named
+        check_mjx_collisions(sim, f"{robot.name} on the rough floor")
     return World(
         robot=robot,
         sim_model=sim,
@@ -236,7 +239,7 @@ def default_sensor_params(world: World, noise: str | SensorParams) -> SensorPara
     )
 
 
-def _check_gait_fits(gait: GaitParams, robot: Robot) -> None:
+def check_gait_fits(gait: GaitParams, robot: Robot) -> None:
     """Refuses a gait the robot's legs cannot run (it would simulate, meaninglessly).
 
     The hop (:func:`jax_contact.envs.gaits.make_gait`) drives one leg's base up and down
@@ -312,7 +315,7 @@ def simulate(
     if not (np.isfinite(duration) and duration > 0):
         raise ValueError(f"duration must be > 0 (s), got {duration!r}")
     gait = make_gait(gait) if isinstance(gait, str) else gait
-    _check_gait_fits(gait, world.robot)
+    check_gait_fits(gait, world.robot)
     sensors = default_sensor_params(world, noise)
     grobot = make_gait_robot(world.robot)
     layout = make_truth_layout(world.robot)

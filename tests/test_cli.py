@@ -57,6 +57,10 @@ def test_importing_the_cli_does_not_import_jax():
         (["simulate", "out.h5", "--envs", "0"], ["argument --envs", "'0'"]),
         (["simulate", "out.h5", "--duration", "-1"], ["argument --duration"]),
         (["simulate", "out.h5", "--duration", "nan"], ["argument --duration"]),
+        (
+            ["simulate", "out.h5", "--duration", "0.001"],
+            ["argument --duration: 0.001 s is under 2"],
+        ),
         (["simulate", "out.txt"], ["argument output", "must end in .h5"]),
         (["simulate"], ["argument output", "missing", "--out"]),
         (["simulate", "out.h5", "--out", "b.h5"], ["argument output", "twice", "'b.h5'"]),

@@ -275,6 +275,14 @@ def test_a_log_replayed_on_an_edited_model_warns(tmp_path):
         f.attrs["model_sha256"] = model_fingerprint(go1)
     with pytest.warns(UserWarning, match="differs from the one the log was simulated with"):
         load_log(log)
+    # Read through another shipped robot (a user trial: Go1's log with --robot unitree_go2
+    # printed F1 0.26 after a warning about a changed model): refused, both named.
+    with h5py.File(log, "a") as f:
+        f.attrs["model_sha256"] = model_fingerprint(planar)
+        del f.attrs["foot_names"]  # the other robot's own feet, so the loading gets there
+    with pytest.raises(ValueError, match=r"simulated with robot 'planar_leg'; robot 'go1' is"
+                       r" another model .*--robot planar_leg or without --robot"):  # fmt: skip
+        load_log(log, robot="go1")
     # The log names a model file that has moved (another machine): the error says how to
     # name it; named, the log loads, its fingerprint checked as before.
     moved = tmp_path / "models" / "leg.xml"
@@ -294,12 +302,65 @@ def test_a_log_replayed_on_an_edited_model_warns(tmp_path):
 
 def test_simulate_refuses_feet_that_leave_a_leg_limp():
     from jax_contact.envs.gaits import make_gait
-    from jax_contact.envs.simulate import _check_gait_fits
+    from jax_contact.envs.simulate import check_gait_fits
 
     robot = load_robot("go1", foot_names=["FR", "FL", "RR"])
     with pytest.raises(ValueError, match=r"actuated joints \['RL_calf_joint'.*name every foot"):
-        _check_gait_fits(make_gait("trot"), robot)
-    _check_gait_fits(make_gait("trot"), load_robot("go1"))  # all four: accepted
+        check_gait_fits(make_gait("trot"), robot)
+    check_gait_fits(make_gait("trot"), load_robot("go1"))  # all four: accepted
+
+
+def test_a_rough_floor_mjx_cannot_collide_is_refused_naming_the_geoms(tmp_path):
+    """A user trial's Menagerie Go2 (foot spheres with margin="0.001") crashed with MJX's
+    traceback ("(mjGEOM_HFIELD, mjGEOM_SPHERE) margin/gap not implemented") on the rough
+    scenario, minutes into `reproduce`. build_world now refuses it naming the geoms, and
+    reproduce checks every scenario before Section III (check_scenarios)."""
+    from jax_contact.envs.simulate import build_world
+    from jax_contact.train.reproduce import ReproduceConfig, check_scenarios
+
+    xml = PLANAR_LEG_XML.read_text().replace(
+        '<geom name="foot" type="sphere"', '<geom name="foot" margin="0.001" type="sphere"'
+    )
+    path = tmp_path / "leg.xml"
+    path.write_text(xml)
+    build_world(str(path))  # a plane takes the margin
+    with pytest.raises(ValueError, match=r"rough floor: geoms .*foot \(sphere, body shank\).* margin"
+                       r" or gap \(foot \(sphere, body shank\): margin 0.001, gap 0\).*margin=\"0\""):  # fmt: skip
+        build_world(str(path), terrain="rough")
+    with pytest.raises(
+        ValueError, match=r"^Table III scenario 'trot': gait 'trot' needs two or more legs"
+    ):
+        check_scenarios(ReproduceConfig(robot=str(path)))  # one leg: no trot, said first
+
+
+def test_simulate_names_the_feet_it_found_and_a_foot_above_the_others():
+    """simulate without --feet prints the feet the rule found; a sole well above the
+    others at the home pose is named (a user trial's Go2 without one foot geom walked on
+    that leg's shin sphere, silently)."""
+    import mujoco
+
+    from jax_contact.train.logs import note_found_feet
+
+    robot = load_robot("go1")
+    assert note_found_feet(robot) == (
+        "note: feet found in the model: ['FR', 'FL', 'RR', 'RL'] (name them with --feet)"
+    )
+    # RL's knee bent 0.5 rad further in the home keyframe lifts its foot: by the C
+    # library's kinematics (the reference), its sole is then h above the lowest.
+    m = robot.mj_model
+    key = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_KEY, "home")
+    adr = m.jnt_qposadr[m.joint("RL_calf_joint").id]
+    m.key_qpos[key, adr] -= 0.5
+    d = mujoco.MjData(m)
+    d.qpos[:] = m.key_qpos[key]
+    mujoco.mj_kinematics(m, d)
+    z = [d.geom_xpos[m.geom(n).id][2] for n in ("FR", "FL", "RR", "RL")]
+    h = z[3] - min(z[:3])
+    assert h > 0.03
+    line = note_found_feet(robot)
+    assert line.splitlines()[1].startswith(
+        f"warning: at the home pose some soles are above the lowest (RL {1e3 * h:.0f} mm)"
+    )
 
 
 def test_short_air_phases_by_hand():

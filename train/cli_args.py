@@ -158,7 +158,13 @@ _SIMULATE_DT = 0.0025  # s: the physics and readings of `simulate` run at 400 Hz
 def check_log_size(envs: int, duration: float) -> None:
     """Raises ValueError when ``envs`` x ``duration`` of ``simulate`` cannot fit in this
     machine's memory even at the smallest robot's log size (it was killed by the kernel,
-    exit 137, with no word)."""
+    exit 137, with no word), or when ``duration`` is under the two readings every log
+    needs (before JAX loads; the simulation's own check says the same after)."""
+    if round(duration / _SIMULATE_DT) < 2:
+        raise ValueError(
+            f"argument --duration: {duration:g} s is under 2 steps of {_SIMULATE_DT * 1e3:g} ms;"
+            f" a log needs at least 2 (--duration >= {2 * _SIMULATE_DT:g})"
+        )
     steps = duration / _SIMULATE_DT
     need = envs * steps * _MIN_LOG_BYTES_PER_STEP
     try:

@@ -62,7 +62,12 @@ def plot_estimate(
     ax[2].set_ylabel("P(take-off)")
     ax[3].plot(t, outputs[f"{name}/p_touchdown"][sl, env, leg])
     ax[3].set_ylabel("P(touch-down)")
-    ax[4].plot(t, np.asarray(rollout.force)[sl, env, leg])
+    force = np.asarray(rollout.force)[sl, env, leg]
+    ax[4].plot(t, force)
+    if not np.isfinite(force).any():  # a recording without force/ columns
+        ax[4].text(0.5, 0.5, "no force recorded", ha="center", va="center",
+                   transform=ax[4].transAxes)  # fmt: skip
+        ax[4].set_yticks([])
     ax[4].set_ylabel("normal force, N")
     ax[4].set_xlabel("time, s")
     for a in ax[:3]:

@@ -82,6 +82,8 @@ def simulate_to_file(
         # The nominal model's physics (load_log warns when the robot loads differently).
         "model_sha256": model_fingerprint(loaded.mj_model),
     }
+    if foot_names is None:
+        print(note_found_feet(loaded))
     if abs(loaded.mj_model.opt.timestep - world.dt) > 1e-12:
         print(
             f"note: the model's timestep {loaded.mj_model.opt.timestep:g} s is replaced by"
@@ -100,6 +102,42 @@ def simulate_to_file(
             " --home-key) and that --feet names every foot"
         )
     return path
+
+
+# Feet whose soles differ in height by more than this at the home pose, m: one of them is
+# likely not a foot (a shin sphere the rule found where the foot geom is missing).
+FOOT_HEIGHT_SPREAD_M = 0.03
+
+
+def note_found_feet(robot) -> str:
+    """The ``note:`` line naming the feet the model's rule found (``simulate`` without
+    ``--feet``), with a warning when their soles' heights at the home pose (the model's
+    ``home`` keyframe, else its first, else ``qpos0``) spread over more than
+    :data:`FOOT_HEIGHT_SPREAD_M`: a user trial's Go2 with one foot geom deleted walked on
+    that leg's shin sphere, and only a lower score said so."""
+    import mujoco
+
+    from jax_contact.envs.feet import foot_points_np
+
+    m, desc = robot.mj_model, robot.description
+    d = mujoco.MjData(m)
+    key = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_KEY, "home")
+    if key >= 0 or m.nkey > 0:
+        d.qpos[:] = m.key_qpos[max(key, 0)]
+    mujoco.mj_kinematics(m, d)
+    z = foot_points_np(m, d, desc)[:, 2] - np.asarray(desc.foot_radii)
+    soles = dict(zip(desc.foot_names, z.tolist(), strict=True))
+    line = f"note: feet found in the model: {list(soles)} (name them with --feet)"
+    low = min(soles.values())
+    high = {n: z - low for n, z in soles.items() if z - low > FOOT_HEIGHT_SPREAD_M}
+    if high:
+        above = ", ".join(f"{n} {1e3 * dz:.0f} mm" for n, dz in high.items())
+        line += (
+            f"\nwarning: at the home pose some soles are above the lowest ({above}): is each"
+            " a foot? (a leg without its foot geom walks on the lowest sphere left, e.g. a"
+            " shin's); name the feet with --feet"
+        )
+    return line
 
 
 READINGS = ("readings/qpos", "readings/qvel", "readings/qacc", "readings/tau")
@@ -176,7 +214,7 @@ def load_log(
     Raises:
       FileNotFoundError, ValueError: as :func:`evaluate_file`.
     """
-    from jax_contact.envs.robots import load_robot
+    from jax_contact.envs.robots import ROBOT_NAMES, load_robot
 
     arrays, attrs = read_log(path)
     name = f"log {str(path)!r}"
@@ -207,10 +245,19 @@ def load_log(
     robot, desc = loaded, loaded.description
     stored = attrs.get("model_sha256")
     if stored and stored != model_fingerprint(robot.mj_model):
+        logged = attrs.get("robot")
+        if robot_name in ROBOT_NAMES and logged in ROBOT_NAMES and logged != robot_name:
+            # Two shipped robots: not a moved model but another robot (a user trial read
+            # Go1's log through Go2 and was shown F1 0.26 with a warning).
+            raise ValueError(
+                f"{name} was simulated with robot {logged!r}; robot {robot_name!r} is another"
+                f" model (its physics' fingerprint differs): evaluate it with --robot {logged}"
+                " or without --robot"
+            )
         warnings.warn(
             f"{name}: robot {robot_name!r} loads today as a model that differs from the one"
-            " the log was simulated with (its physics' fingerprint, model_sha256): the"
-            " replay reads these readings through another model",
+            f" the log was simulated with ({logged!r}; its physics' fingerprint,"
+            " model_sha256): the replay reads these readings through another model",
             stacklevel=2,
         )
     for key, size, what in (

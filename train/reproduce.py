@@ -227,6 +227,24 @@ def _scenario_world(name: str, cfg: ReproduceConfig):
     return build_world(robot)
 
 
+def check_scenarios(cfg: ReproduceConfig) -> None:
+    """Builds every Table III scenario's world and checks its gait on the robot, so that
+    what only one scenario cannot run (a rough floor MJX cannot collide the feet with,
+    feet too few for the gait) is refused before Section III runs, not minutes later.
+
+    Raises:
+      ValueError: naming the scenario and why.
+    """
+    from jax_contact.envs.simulate import check_gait_fits
+
+    for name in SCENARIOS:
+        try:
+            world = _scenario_world(name, cfg)
+            check_gait_fits(_gait(name), world.robot)
+        except ValueError as err:
+            raise ValueError(f"Table III scenario {name!r}: {err}") from None
+
+
 def added_mass_for(robot_name: str, robot=None) -> tuple[tuple[str, float], ...]:
     """(body, kg) pairs of the added-mass scenario: :data:`ADDED_MASS`, or else the same
     shares of the robot's total mass (:data:`ADDED_MASS_SHARES`) on its base body and on
@@ -847,6 +865,7 @@ def _run_into(cfg: ReproduceConfig, out_dir: Path) -> dict:
 
     t0 = time.perf_counter()
     robot = _robot(cfg)
+    check_scenarios(cfg)  # before minutes of work: each scenario's world and gait can run
     # A bad file fails here; another robot's warns (its mass).
     tuned_row = tuned_estimator(cfg, robot.description, mass_kg=model_mass(robot.mj_model))
     s3 = section3(cfg, out_dir)
