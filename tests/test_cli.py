@@ -57,6 +57,8 @@ def test_importing_the_cli_does_not_import_jax():
         (["simulate", "out.h5", "--envs", "0"], ["argument --envs", "'0'"]),
         (["simulate", "out.h5", "--duration", "-1"], ["argument --duration"]),
         (["simulate", "out.h5", "--duration", "nan"], ["argument --duration"]),
+        (["transfer", "README.md"], ["argument root: 'README.md' is a file"]),
+        (["transfer", "docs", "--json", "/proc/t.json"], ["argument --json", "'/proc'"]),
         (
             ["simulate", "out.h5", "--duration", "0.001"],
             ["argument --duration: 0.001 s is under 2"],

@@ -207,6 +207,7 @@ DOCUMENTED_IN = {
     "tune-env": "docs/tuning.md",
     "export": "docs/deploy.md",
     "deploy-check": "docs/deploy.md",
+    "transfer": "docs/training.md",  # needs trained runs of every variant and seed
 }
 
 

@@ -62,6 +62,7 @@ from jax_contact.train.cli_args import (  # noqa: F401  (COLUMNS ... SCENES: re-
     TERRAINS,
     VARIANTS,
     HelpFormatter,
+    add_transfer_arguments,
     bootstrap_int,
     check_gait_for_robot,
     check_input_file,
@@ -74,6 +75,7 @@ from jax_contact.train.cli_args import (  # noqa: F401  (COLUMNS ... SCENES: re-
     check_robot,
     check_run_folder,
     check_run_record,
+    check_transfer,
     nonnegative_int,
     not_a_run_folder,
     positive_float,
@@ -265,6 +267,16 @@ def _cmd_policy_eval(args: argparse.Namespace) -> int:
     )
     if args.json:
         print(f"wrote {write_json_atomic(args.json, res)}")
+    return 0
+
+
+def _cmd_transfer(args: argparse.Namespace) -> int:
+    from jax_contact.train import transfer
+
+    def error(message):
+        raise ValueError(message)
+
+    transfer.run_transfer(args, error)
     return 0
 
 
@@ -620,6 +632,20 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--envs", type=positive_int, default=64, help="episodes, run in parallel")
     p.add_argument("--seed", type=seed_int, default=12345, help="seeds the episodes")
     p.add_argument("--json", default=None, help="write the evaluation here")
+
+    p = command(
+        "transfer",
+        "the transfer matrix of trained policies: each run's policy observing each contact"
+        " signal (truth, estimate, harsher or later sensors)",
+        _cmd_transfer,
+        check_transfer,
+        description="Evaluates every ROOT/seed*/{none,truth,estimate} run folder of `jax-contact"
+        " train --seed S --out ROOT/seedS` (Go1 joystick or the hop, by each run.json) in every"
+        " column of the transfer matrix (jax_contact.train.transfer: truth, estimate,"
+        " estimate_harsh, estimate_lat1, estimate_lat2) and prints the mean, std and per-seed"
+        " values of each metric; --json writes them.",
+    )
+    add_transfer_arguments(p)
 
     p = command(
         "rates",

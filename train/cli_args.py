@@ -320,6 +320,32 @@ def check_run_record(arg: str, run_dir: str | os.PathLike, observe: str | None) 
         )
 
 
+def add_transfer_arguments(p) -> None:
+    """The transfer matrix's arguments (``jax-contact transfer`` and ``python -m
+    jax_contact.train.transfer``)."""
+    p.add_argument("root", help="folder of seed*/{none,truth,estimate} run folders")
+    p.add_argument("--envs", type=positive_int, default=32, help="episodes per cell")
+    p.add_argument(
+        "--episode-length",
+        type=positive_int,
+        default=None,
+        help="env steps per episode (default: the runs' configuration's)",
+    )
+    p.add_argument("--seed", type=seed_int, default=12345, help="seeds the episodes")
+    p.add_argument("--json", default=None, help="write the matrix here")
+
+
+def check_transfer(args) -> None:
+    """Raises ValueError naming the argument: ``root`` is no folder, or ``--json`` cannot
+    be written (the run folders under ``root`` are checked once JAX has loaded)."""
+    root = Path(args.root)
+    if root.is_file():
+        raise ValueError(f"argument root: {args.root!r} is a file; pass the folder of seed*/ runs")
+    if not root.is_dir():
+        raise ValueError(f"argument root: folder {args.root!r} does not exist")
+    check_output_file("--json", args.json)
+
+
 def check_input_file(arg: str, path: str) -> None:
     """Raises ValueError unless ``path`` is an existing file."""
     p = Path(path)

@@ -455,35 +455,33 @@ def main(argv: Sequence[str] | None = None) -> dict:
     run.json), printed per metric, written atomically as JSON."""
     import argparse
 
-    from jax_contact.io import write_json_atomic
-    from jax_contact.train.cli_args import check_output_file, positive_int, seed_int
-    from jax_contact.train.compile_cache import enable_compilation_cache
+    from jax_contact.train.cli_args import add_transfer_arguments, check_transfer
 
     parser = argparse.ArgumentParser(
         prog="python -m jax_contact.train.transfer", description=__doc__.splitlines()[0]
     )
-    parser.add_argument("root", help="folder of seed*/{none,truth,estimate} run folders")
-    parser.add_argument("--envs", type=positive_int, default=32, help="episodes per cell")
-    parser.add_argument(
-        "--episode-length",
-        type=positive_int,
-        default=None,
-        help="env steps per episode (default: the runs' configuration's)",
-    )
-    parser.add_argument("--seed", type=seed_int, default=12345, help="seeds the episodes")
-    parser.add_argument("--json", default=None, help="write the matrix here")
+    add_transfer_arguments(parser)
     args = parser.parse_args(argv)
+    try:
+        check_transfer(args)  # before the matrix's minutes, not after
+    except ValueError as err:
+        parser.error(str(err))
+    return run_transfer(args, parser.error)
+
+
+def run_transfer(args, error) -> dict:
+    """The matrix of ``args`` (:func:`jax_contact.train.cli_args.add_transfer_arguments`'s),
+    printed per metric and written as JSON; ``error(message)`` reports a bad ``root``."""
+    from jax_contact.io import write_json_atomic
+    from jax_contact.train.compile_cache import enable_compilation_cache
+
     try:
         runs = runs_under(args.root)
         tasks = {run_task(d) for dirs in runs.values() for d in dirs}
     except (FileNotFoundError, ValueError) as err:  # ValueError: a damaged run.json
-        parser.error(f"argument root: {err}")
+        error(f"argument root: {err}")
     if len(tasks) > 1:
-        parser.error(f"argument root: {args.root} holds runs of several tasks {sorted(tasks)}")
-    try:
-        check_output_file("--json", args.json)  # before the matrix's minutes, not after
-    except ValueError as err:
-        parser.error(str(err))
+        error(f"argument root: {args.root} holds runs of several tasks {sorted(tasks)}")
     enable_compilation_cache()
     res = transfer_matrix(
         runs, n_envs=args.envs, episode_length=args.episode_length, seed=args.seed
