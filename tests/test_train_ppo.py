@@ -249,6 +249,22 @@ def test_a_damaged_run_folder_is_named_in_one_line(saved, tmp_path):
         policy_eval.load_policy(ckpt)
 
 
+def test_a_damaged_checkpoint_is_one_line_without_orbaxs_log(saved, tmp_path, caplog):
+    """A garbage _METADATA: our one-line error, and none of orbax's absl WARNING lines
+    ("Failed to get item metadata ..."), which a user trial saw printed above it."""
+    import logging
+
+    run, _, _ = saved
+    copy = tmp_path / "truth"
+    shutil.copytree(run, copy)
+    ckpt = policy_eval.latest_checkpoint(copy)
+    (ckpt / "_METADATA").write_text("garbage")
+    with caplog.at_level(logging.WARNING, logger="absl"):
+        with pytest.raises(ValueError, match=f"the parameters in {ckpt} cannot be read"):
+            policy_eval.load_policy(ckpt)
+    assert not [r for r in caplog.records if r.name == "absl"], caplog.text
+
+
 def test_an_unfinished_run_is_evaluated_with_a_warning(saved, tmp_path):
     run, _, _ = saved
     copy = tmp_path / "truth"

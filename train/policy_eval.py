@@ -10,6 +10,7 @@ estimator's metrics over the steps alive. ``jax-contact policy-eval`` is its com
 
 from __future__ import annotations
 
+import contextlib
 import json
 import time
 import warnings
@@ -30,6 +31,22 @@ from jax_contact.train.ppo import (
     read_run,
     unfinished_run,
 )
+
+
+@contextlib.contextmanager
+def _absl_quiet():
+    """Orbax's absl WARNING lines (``Failed to get item metadata ...`` on a damaged
+    checkpoint) kept off stderr while it loads: the error that follows names the file in
+    one line. Errors still print."""
+    import logging
+
+    logger = logging.getLogger("absl")
+    level = logger.level
+    logger.setLevel(logging.ERROR)
+    try:
+        yield
+    finally:
+        logger.setLevel(level)
 
 
 def load_policy(ckpt: str | Path, *, deterministic: bool = True, parts: bool = False):
@@ -89,7 +106,7 @@ def load_policy(ckpt: str | Path, *, deterministic: bool = True, parts: bool = F
         **kwargs,
     )
     try:
-        with warnings.catch_warnings():
+        with warnings.catch_warnings(), _absl_quiet():
             # Orbax's note on every restore without shardings (it reads them from the
             # checkpoint): nothing a user can act on; the parameters land on the default device.
             warnings.filterwarnings("ignore", message="Sharding info not provided")
