@@ -215,6 +215,11 @@ def check_mjx_collisions(mj_model: mujoco.MjModel, source: str | Path) -> None:
             r"(mjGEOM_\w+), (?:mjtGeom\.)?(mjGEOM_\w+)\) (collisions|margin/gap) not", message
         )
         pair = None
+        margin = bool(found) and found.group(3) == "margin/gap"
+
+        def has_gap(g: int) -> bool:
+            return bool(mj_model.geom_margin[g] or mj_model.geom_gap[g])
+
         if found:
             want = {
                 getattr(mujoco.mjtGeom, found.group(1)),
@@ -223,13 +228,9 @@ def check_mjx_collisions(mj_model: mujoco.MjModel, source: str | Path) -> None:
             try:  # MJX's own enumeration of candidate pairs (private; only on this error path)
                 from mujoco.mjx._src.collision_driver import geom_pairs
 
-                margin = found.group(3) == "margin/gap"
                 for g1, g2, _ in geom_pairs(mj_model):
                     types = {mujoco.mjtGeom(int(mj_model.geom_type[g])) for g in (g1, g2)}
-                    gaps = [
-                        float(mj_model.geom_margin[g] or mj_model.geom_gap[g]) for g in (g1, g2)
-                    ]
-                    if types == want and (not margin or any(gaps)):
+                    if types == want and (not margin or has_gap(g1) or has_gap(g2)):
                         pair = (g1, g2)
                         break
             except ImportError:
@@ -243,11 +244,11 @@ def check_mjx_collisions(mj_model: mujoco.MjModel, source: str | Path) -> None:
             return f"{mj_model.geom(g).name or '<unnamed>'} ({kind.lower()}, body {body})"
 
         names = [label(g) for g in pair]
-        if found.group(3) == "margin/gap":
+        if margin:
             with_margin = [
                 f"{names[i]}: margin {mj_model.geom_margin[g]:g}, gap {mj_model.geom_gap[g]:g}"
                 for i, g in enumerate(pair)
-                if mj_model.geom_margin[g] or mj_model.geom_gap[g]
+                if has_gap(g)
             ]
             raise ValueError(
                 f"{source}: geoms {names[0]} and {names[1]} can collide with a margin or gap"

@@ -338,12 +338,19 @@ def add_transfer_arguments(p) -> None:
 def check_transfer(args) -> None:
     """Raises ValueError naming the argument: ``root`` is no folder, or ``--json`` cannot
     be written (the run folders under ``root`` are checked once JAX has loaded)."""
-    root = Path(args.root)
-    if root.is_file():
-        raise ValueError(f"argument root: {args.root!r} is a file; pass the folder of seed*/ runs")
-    if not root.is_dir():
-        raise ValueError(f"argument root: folder {args.root!r} does not exist")
+    if problem := transfer_root_problem(args.root):
+        raise ValueError(f"argument root: {problem}")
     check_output_file("--json", args.json)
+
+
+def transfer_root_problem(root: str | os.PathLike) -> str | None:
+    """Why ``root`` cannot hold the transfer matrix's ``seed*/`` run folders (a file, or
+    nothing there); None if it is a folder."""
+    if Path(root).is_file():
+        return f"{str(root)!r} is a file; pass the folder of seed*/ run folders"
+    if not Path(root).is_dir():
+        return f"folder {str(root)!r} does not exist"
+    return None
 
 
 def check_input_file(arg: str, path: str) -> None:

@@ -46,10 +46,9 @@ def discarded(folder) -> None:
     _discarded.append(os.path.abspath(folder))
 
 
-def still_written(paths, folders=None) -> list:
-    """``paths`` less those inside a :func:`discarded` folder (``folders``: these
-    instead)."""
-    gone = [os.path.join(f, "") for f in (_discarded if folders is None else folders)]
+def still_written(paths) -> list:
+    """``paths`` less those inside a :func:`discarded` folder."""
+    gone = [os.path.join(f, "") for f in _discarded]
     return [p for p in paths if not os.path.abspath(p).startswith(tuple(gone))]
 
 

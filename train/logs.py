@@ -115,17 +115,10 @@ def note_found_feet(robot) -> str:
     ``home`` keyframe, else its first, else ``qpos0``) spread over more than
     :data:`FOOT_HEIGHT_SPREAD_M`: a user trial's Go2 with one foot geom deleted walked on
     that leg's shin sphere, and only a lower score said so."""
-    import mujoco
-
-    from jax_contact.envs.feet import foot_points_np
+    from jax_contact.envs.feet import _home_data, foot_points_np
 
     m, desc = robot.mj_model, robot.description
-    d = mujoco.MjData(m)
-    key = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_KEY, "home")
-    if key >= 0 or m.nkey > 0:
-        d.qpos[:] = m.key_qpos[max(key, 0)]
-    mujoco.mj_kinematics(m, d)
-    z = foot_points_np(m, d, desc)[:, 2] - np.asarray(desc.foot_radii)
+    z = foot_points_np(m, _home_data(m), desc)[:, 2] - np.asarray(desc.foot_radii)
     soles = dict(zip(desc.foot_names, z.tolist(), strict=True))
     line = f"note: feet found in the model: {list(soles)} (name them with --feet)"
     low = min(soles.values())

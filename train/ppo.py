@@ -652,10 +652,10 @@ def train_variants(
     runs = dict(kept_runs)
     results = {}
 
-    def write_outputs(evaluation: list, final: str) -> dict:
-        # After every run and after the final evaluation, so that a stop later (Ctrl-C
-        # in the next run or the evaluation) leaves a summary of the runs that finished,
-        # which the next call into this folder keeps (earlier_runs).
+    # Curves after every run, the summary after every run and after the final evaluation:
+    # a stop later (Ctrl-C in the next run or the evaluation) leaves a summary of the runs
+    # that finished, which the next call into this folder keeps (earlier_runs).
+    def write_curves() -> None:
         curves = {v: r["curve"] for v, r in runs.items()}
         training = {v: r["training_curve"] for v, r in runs.items()}
         for name, data, fields in (
@@ -669,6 +669,8 @@ def train_variants(
         figures.plot_reward_curves(
             curves, out_dir / "reward_curves.png", title="Go1 joystick, PPO", training=training
         )
+
+    def write_summary(evaluation: list, final: str) -> dict:
         summary = {
             "env": env_name,
             "config": dataclasses.asdict(cfg),
@@ -692,7 +694,8 @@ def train_variants(
             "curve": r.rows,
             "training_curve": r.train_rows,
         }
-        write_outputs([], "pending")
+        write_curves()
+        write_summary([], "pending")
 
     evals = []
     if eval_envs:
@@ -706,7 +709,7 @@ def train_variants(
         log(format_evaluation(evals))
     else:
         log("final evaluation skipped (eval_envs=0); `jax-contact policy-eval RUN` runs it")
-    summary = write_outputs(evals, "done" if eval_envs else "skipped")
+    summary = write_summary(evals, "done" if eval_envs else "skipped")
     written = ["summary.json", "reward_curves.csv", "training_curves.csv", "reward_curves.png"]
     log(f"wrote {', '.join(written)} and the run folders {', '.join(results)} in {out_dir}")
     return summary

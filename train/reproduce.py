@@ -216,10 +216,10 @@ def _robot(cfg: ReproduceConfig):
     return load_robot(cfg.robot, foot_names=feet)
 
 
-def _scenario_world(name: str, cfg: ReproduceConfig):
+def _scenario_world(name: str, cfg: ReproduceConfig, robot=None):
     from jax_contact.envs.simulate import build_world
 
-    robot = _robot(cfg)
+    robot = _robot(cfg) if robot is None else robot
     if name == "walk_added_mass":
         return build_world(robot, added_mass=added_mass_for(cfg.robot, robot))
     if name == "rough":
@@ -227,10 +227,11 @@ def _scenario_world(name: str, cfg: ReproduceConfig):
     return build_world(robot)
 
 
-def check_scenarios(cfg: ReproduceConfig) -> None:
+def check_scenarios(cfg: ReproduceConfig, robot=None) -> None:
     """Builds every Table III scenario's world and checks its gait on the robot, so that
     what only one scenario cannot run (a rough floor MJX cannot collide the feet with,
     feet too few for the gait) is refused before Section III runs, not minutes later.
+    ``robot``: the run's nominal robot (:func:`_robot`), if loaded already.
 
     Raises:
       ValueError: naming the scenario and why.
@@ -239,7 +240,7 @@ def check_scenarios(cfg: ReproduceConfig) -> None:
 
     for name in SCENARIOS:
         try:
-            world = _scenario_world(name, cfg)
+            world = _scenario_world(name, cfg, robot)
             check_gait_fits(_gait(name), world.robot)
         except ValueError as err:
             raise ValueError(f"Table III scenario {name!r}: {err}") from None
@@ -865,7 +866,7 @@ def _run_into(cfg: ReproduceConfig, out_dir: Path) -> dict:
 
     t0 = time.perf_counter()
     robot = _robot(cfg)
-    check_scenarios(cfg)  # before minutes of work: each scenario's world and gait can run
+    check_scenarios(cfg, robot)  # before minutes of work: each scenario's world and gait can run
     # A bad file fails here; another robot's warns (its mass).
     tuned_row = tuned_estimator(cfg, robot.description, mass_kg=model_mass(robot.mj_model))
     s3 = section3(cfg, out_dir)

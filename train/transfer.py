@@ -426,12 +426,11 @@ def runs_under(root: str | Path, variants: Sequence[str] | None = None) -> dict[
       FileNotFoundError: a variant has no run folder under ``root``.
     """
     from jax_contact.train import ppo
+    from jax_contact.train.cli_args import transfer_root_problem
 
     root = Path(root)
-    if root.is_file():
-        raise FileNotFoundError(f"{str(root)!r} is a file; pass the folder of seed*/ run folders")
-    if not root.is_dir():
-        raise FileNotFoundError(f"folder {str(root)!r} does not exist")
+    if problem := transfer_root_problem(root):
+        raise FileNotFoundError(problem)
     found = {
         v: sorted(
             (d for d in root.glob(f"seed*/{v}") if (d / "run.json").is_file()),
