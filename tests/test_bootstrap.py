@@ -228,27 +228,27 @@ def _detectors(rng, rows: dict) -> tuple[np.ndarray, dict]:
 
 def test_reproduce_compares_the_estimator_with_both_gm_tunings():
     from jax_contact.metrics import evaluate
-    from jax_contact.train import reproduce
+    from jax_contact.train import report
 
     rng = np.random.default_rng(5)
     truth, out = _detectors(rng, {"probabilistic": 0.3, "gm_walk": 0.2, "gm_trot": 0.05})
     valid = np.ones((T, 4), bool)
-    assert reproduce.vs_gm(out, truth, valid, DT, 0) is None
-    vs = reproduce.vs_gm(out, truth, valid, DT, 30)
+    assert report.vs_gm(out, truth, valid, DT, 0) is None
+    vs = report.vs_gm(out, truth, valid, DT, 30)
     est = evaluate(out["probabilistic"], truth, dt=DT)
     for gm in ("gm_walk", "gm_trot"):
         ref = evaluate(out[gm], truth, dt=DT)
         delta, low, high, _ = vs[gm]["f1"]
         assert delta == pytest.approx(est.f1 - ref.f1) and low <= high
-        assert set(vs[gm]) == set(reproduce.VS_GM_STATISTICS)
-    text = reproduce.format_vs_gm({"vs_gm": {"trot": vs}})
+        assert set(vs[gm]) == set(report.VS_GM_STATISTICS)
+    text = report.format_vs_gm({"vs_gm": {"trot": vs}})
     assert text.count("\n") == 2 and "trot             vs gm_trot" in text
-    assert reproduce.format_vs_gm({}) == ""
+    assert report.format_vs_gm({}) == ""
     # The row "tuned" (a preset beside the defaults): against both GM tunings and against
     # the defaults in every statistic, each difference tuned - other.
     out["tuned"] = np.clip(truth + rng.normal(0.0, 0.2, truth.shape), 0.0, 1.0)
-    assert reproduce.tuned_vs(out, truth, valid, DT, 0) is None
-    tv = reproduce.tuned_vs(out, truth, valid, DT, 30)
+    assert report.tuned_vs(out, truth, valid, DT, 0) is None
+    tv = report.tuned_vs(out, truth, valid, DT, 30)
     tuned = evaluate(out["tuned"], truth, dt=DT)
     assert set(tv) == {"gm_walk", "gm_trot", "probabilistic"}
     assert tv["gm_trot"]["f1"][0] == pytest.approx(
@@ -256,7 +256,7 @@ def test_reproduce_compares_the_estimator_with_both_gm_tunings():
     )
     assert tv["probabilistic"]["ece"][0] == pytest.approx(tuned.ece - est.ece)
     assert set(tv["probabilistic"]) == set(STATISTICS)
-    text = reproduce.format_vs_gm({"vs_gm": {"trot": vs}, "tuned_vs": {"trot": tv}})
+    text = report.format_vs_gm({"vs_gm": {"trot": vs}, "tuned_vs": {"trot": tv}})
     assert text.count("\n") == 6 and "tuned - other row" in text
     assert "trot             vs defaults F1 " in text and "; ECE " in text.splitlines()[-1]
     assert "; sw-ph " in text.splitlines()[1]  # the swing-phase rate beside air-ph, vs GM too

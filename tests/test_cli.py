@@ -892,7 +892,7 @@ def test_evaluate_notes_a_kinematic_detector_that_wins_and_prints_no_nan_delays(
     hexapod's defaults, a user trial) gets the note; 0.90 against 0.91 (within the 0.02
     margin) does not. A delay with no detected event prints as 'none found', not nan±nan."""
     from jax_contact.train.logs import weaker_than_kinematic
-    from jax_contact.train.reproduce import _delay
+    from jax_contact.train.report import format_delay
 
     est = {"f1": 0.695, "n_touchdowns": 20}
     note = weaker_than_kinematic({"probabilistic": est, "kinematic": {"f1": 0.907}})
@@ -903,11 +903,11 @@ def test_evaluate_notes_a_kinematic_detector_that_wins_and_prints_no_nan_delays(
     est = {"f1": 0.444, "n_touchdowns": 19}
     assert weaker_than_kinematic({"probabilistic": est, "kinematic": {"f1": 0.857}}) is None
     assert weaker_than_kinematic({"probabilistic": {"f1": 0.9}}) is None  # no kinematic row
-    assert _delay((float("nan"), float("nan"))) == "none found"
+    assert format_delay((float("nan"), float("nan"))) == "none found"
     # ... and a truth with no event of the kind says so (a 0.5 s walk has no touch-down).
-    assert _delay((float("nan"), float("nan")), n_true=0) == "no true event"
-    assert _delay((float("nan"), float("nan")), n_true=3) == "none found"
-    assert _delay((4.25, 1.5)) == "  4.2±1.5  "
+    assert format_delay((float("nan"), float("nan")), n_true=0) == "no true event"
+    assert format_delay((float("nan"), float("nan")), n_true=3) == "none found"
+    assert format_delay((4.25, 1.5)) == "  4.2±1.5  "
 
 
 def test_train_checks_its_run_folders_before_anything_runs(tmp_path, capsys):

@@ -18,14 +18,8 @@ from jax_contact.envs.simulate import Rollout, build_world, simulate
 from jax_contact.io import read_log, write_json_atomic, write_log
 from jax_contact.train import cli
 from jax_contact.train.evaluate import delay_one_step, replay, score
-from jax_contact.train.reproduce import (
-    ABLATION_ROWS,
-    PRINTED_ROWS,
-    ROWS,
-    format_table,
-    planar_estimator_params,
-    table3_json,
-)
+from jax_contact.train.report import ABLATION_ROWS, PRINTED_ROWS, ROWS, format_table, table3_json
+from jax_contact.train.reproduce import planar_estimator_params
 
 N_ENVS, DURATION = 2, 1.0
 
@@ -344,10 +338,10 @@ def test_table3_says_what_its_missed_liftoffs_count():
     """mLO of 222 beside F1 0.99 read as a defect to a newcomer: Table III is followed by
     the scenarios' one-step air phases, counted by hand here. Truth 1 1 0 1 1 0 0 0 0 0 0 1:
     two air phases between contacts, of 1 and 6 steps; at most 4 steps (10 ms at 400 Hz): 1."""
-    from jax_contact.train.reproduce import _short_air_phases, format_short_air_phases
+    from jax_contact.train.report import format_short_air_phases, short_air_phase_counts
 
     truth = np.array([1, 1, 0, 1, 1, 0, 0, 0, 0, 0, 0, 1], bool)[:, None, None]
-    assert _short_air_phases(truth, np.ones((12, 1), bool), 0.0025) == [1, 2]
+    assert short_air_phase_counts(truth, np.ones((12, 1), bool), 0.0025) == [1, 2]
     line = format_short_air_phases({"short_air_phases": {"walk": [1, 2]}, "dt": 0.0025})
     assert line.startswith("mLO: true air phases of at most 4 steps (10 ms)")
     assert line.endswith("walk 1 of 2 air phases")

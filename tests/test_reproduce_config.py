@@ -8,6 +8,7 @@ import pytest
 
 from jax_contact.envs.robots import load_robot
 from jax_contact.train import reproduce as R
+from jax_contact.train.report import format_tuned_source
 
 
 def test_named_feet_reach_every_scenario_world():
@@ -102,7 +103,7 @@ def test_per_gait_rows_are_each_scenarios_gait_preset():
         np.asarray(rows["trot"]["params"].noise.sigma_qd),
         np.asarray(rows["walk"]["params"].noise.sigma_qd),
     )
-    lines = R.format_tuned_source(tuned["info"]).splitlines()
+    lines = format_tuned_source(tuned["info"]).splitlines()
     assert lines[0] == "tuned (per gait):"
     assert lines[1].startswith("  trot: barkour_trot (tuned on seeds")
     assert lines[2].startswith("  walk, walk_added_mass, rough: barkour_walk (tuned on seeds")

@@ -476,7 +476,7 @@ def evaluate_file(
 
     The log is replayed with the robot and feet it was made with (its ``foot_names``
     attribute) unless ``foot_names`` is given. Every detector's full metric set is printed
-    as one table with a header and a legend (``jax_contact.train.reproduce.format_table``):
+    as one table with a header and a legend (``jax_contact.train.report.format_table``):
     touch-down and lift-off delays, F1, accuracy, failures, per-air-phase failure rate, missed
     touch-downs and lift-offs, ECE. A parameter file that holds a calibration map
     (``jax-contact tune --calibrate``, the shipped presets) adds the row
@@ -794,12 +794,12 @@ def load_params_for(
 
 def format_scores(scores: dict[str, dict], *, title: str = "log", legend: bool = True) -> str:
     """Every detector's full metric set as one table with a header and (``legend``) the
-    legend (``jax_contact.train.reproduce.format_table``'s columns: TD / LO delays, F1,
+    legend (``jax_contact.train.report.format_table``'s columns: TD / LO delays, F1,
     accuracy, failures, per-air-phase failure rate, missed touch-downs and lift-offs, ECE)."""
-    from jax_contact.train.reproduce import _cell, format_table
+    from jax_contact.train.report import cell, format_table
 
     rows = sorted(scores, key=lambda d: (not d.startswith("probabilistic"), d == "kinematic", d))
-    payload = {"scenarios": {title: {det: _cell(scores[det]) for det in rows}}}
+    payload = {"scenarios": {title: {det: cell(scores[det]) for det in rows}}}
     return format_table(payload, rows=rows, legend=legend)
 
 
