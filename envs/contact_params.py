@@ -13,7 +13,7 @@ import numpy as np
 
 import jax_contact as jc
 from jax_contact.envs import sensors
-from jax_contact.envs.feet import _home_data, foot_points_np
+from jax_contact.envs.feet import foot_points_np, home_data
 from jax_contact.envs.robots import Robot
 from jax_contact.robot import RobotDescription
 
@@ -57,7 +57,7 @@ def choose_force_rows(mj_model: mujoco.MjModel, desc: RobotDescription) -> tuple
     n_l = desc.n_leg_dofs
     if n_l >= 3:
         return (0, 1, 2)
-    d = _home_data(mj_model)
+    d = home_data(mj_model)
     mujoco.mj_comPos(mj_model, d)
     norms = np.zeros(3)
     points = foot_points_np(mj_model, d, desc)

@@ -121,7 +121,9 @@ def touches(m: mujoco.MjModel, g: int, floor_ids) -> bool:
     return False
 
 
-def _home_data(m) -> mujoco.MjData:
+def home_data(m) -> mujoco.MjData:
+    """A new ``MjData`` of ``m`` at its home pose (the keyframe ``home``, else the first
+    keyframe, else ``qpos0``), kinematics computed: where the feet's soles are compared."""
     d = mujoco.MjData(m)
     key = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_KEY, "home")
     if key >= 0:
@@ -276,7 +278,7 @@ def find_feet(m: mujoco.MjModel, feet=None) -> tuple[tuple[Foot, ...], list[int]
             "mj_model has no floor contact: no geom outside the world body can collide with"
             " the floor (check contype/conaffinity and <pair>)"
         )
-    d = _home_data(m)
+    d = home_data(m)
     if feet is not None:
         out = tuple(_resolve(m, d, f, floor_ids, colliders) for f in feet)
         if len({(f.body_id, f.point) for f in out}) != len(out):

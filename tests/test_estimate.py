@@ -1382,9 +1382,7 @@ def test_a_params_file_runs_on_the_terrain_model_it_was_tuned_with(tmp_path, mon
     reads = []
     text = jc_io._params_text
     monkeypatch.setattr(jc_io, "_params_text", lambda p: reads.append(p) or text(p))
-    got, model, terrain, calibration = logs._estimator_for(
-        desc, 0.0025, tmp_path / "mem.json", None
-    )
+    got, model, terrain, calibration = logs.estimator_for(desc, 0.0025, tmp_path / "mem.json", None)
     assert (model, type(terrain).__name__, calibration) == ("memory", "FootholdMemory", None)
     assert len(reads) == 1
     assert float(got.stance_time) == float(params.stance_time)

@@ -217,7 +217,7 @@ def export_to_file(
     from jax_contact import export
     from jax_contact.envs.robots import load_robot
     from jax_contact.robot import model_mass
-    from jax_contact.train.logs import _estimator_for, params_file_provenance
+    from jax_contact.train.logs import estimator_for, params_file_provenance
 
     try:
         loaded = load_robot(robot, foot_names=feet)
@@ -229,7 +229,7 @@ def export_to_file(
     desc = loaded.description
     dt = 1.0 / float(rate_hz)
     try:
-        params, _, terrain, calibration = _estimator_for(
+        params, _, terrain, calibration = estimator_for(
             desc,
             dt,
             params_path,

@@ -115,10 +115,10 @@ def note_found_feet(robot) -> str:
     ``home`` keyframe, else its first, else ``qpos0``) spread over more than
     :data:`FOOT_HEIGHT_SPREAD_M`: a user trial's Go2 with one foot geom deleted walked on
     that leg's shin sphere, and only a lower score said so."""
-    from jax_contact.envs.feet import _home_data, foot_points_np
+    from jax_contact.envs.feet import foot_points_np, home_data
 
     m, desc = robot.mj_model, robot.description
-    z = foot_points_np(m, _home_data(m), desc)[:, 2] - np.asarray(desc.foot_radii)
+    z = foot_points_np(m, home_data(m), desc)[:, 2] - np.asarray(desc.foot_radii)
     soles = dict(zip(desc.foot_names, z.tolist(), strict=True))
     line = f"note: feet found in the model: {list(soles)} (name them with --feet)"
     low = min(soles.values())
@@ -430,7 +430,7 @@ def tune_gm(path: str | Path) -> tuple[str, object, dict]:
 
     Runs every grid point (:func:`jax_contact.train.reproduce.gm_grid`) on the log and picks one
     with
-    :func:`jax_contact.train.reproduce._tune_gm` (best per-step F1, ties: fewer failures), the rule
+    :func:`jax_contact.train.reproduce.best_gm` (best per-step F1, ties: fewer failures), the rule
     the reproduction tunes by.
 
     Returns:
@@ -441,7 +441,7 @@ def tune_gm(path: str | Path) -> tuple[str, object, dict]:
     """
     import jax_contact as jc
     from jax_contact.train.evaluate import replay, score
-    from jax_contact.train.reproduce import TERRAIN_SIGMA, _tune_gm, gm_grid
+    from jax_contact.train.reproduce import TERRAIN_SIGMA, best_gm, gm_grid
 
     log = load_log(path)
     if log.truth is None:
@@ -456,7 +456,7 @@ def tune_gm(path: str | Path) -> tuple[str, object, dict]:
         dt=log.dt,
     )
     scores = score(out, log.truth, log.valid, dt=log.dt, names=list(grid))
-    best = _tune_gm(scores)
+    best = best_gm(scores)
     return best, grid[best], scores
 
 
@@ -532,7 +532,7 @@ def evaluate_file(
     log = load_log(path, foot_names=foot_names, robot=robot)
     name, truth, desc, dt = log.name, log.truth, log.robot.description, log.dt
     mass = model_mass(log.robot.mj_model)
-    params, terrain_model, terrain, calibration = _estimator_for(
+    params, terrain_model, terrain, calibration = estimator_for(
         desc, dt, params_path, terrain_model, mass, mj_model=log.robot.mj_model,
         robot=log.robot.name,
     )  # fmt: skip
@@ -724,7 +724,7 @@ def _vs_probabilistic(
     return vs
 
 
-def _estimator_for(
+def estimator_for(
     desc,
     dt: float,
     params_path,

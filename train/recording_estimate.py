@@ -79,7 +79,7 @@ def estimate_recording(
     from jax_contact.robot import model_mass
     from jax_contact.train.cli_args import check_output_folder
     from jax_contact.train.evaluate import replay, score
-    from jax_contact.train.logs import _estimator_for, format_scores
+    from jax_contact.train.logs import estimator_for, format_scores
 
     # Before any work: the folder must take files (the command checks it the same way).
     check_output_folder("out_dir", out_dir)
@@ -90,7 +90,7 @@ def estimate_recording(
         rec, robot, names=names, units=units, resample=resample, force_threshold=force_threshold
     )
     desc = robot.description
-    params, terrain_model, terrain, calibration = _estimator_for(
+    params, terrain_model, terrain, calibration = estimator_for(
         desc, conv.dt, params_path, terrain_model, model_mass(robot.mj_model),
         mj_model=robot.mj_model, robot=robot.name,
     )  # fmt: skip

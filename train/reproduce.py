@@ -320,7 +320,7 @@ def _run(world, gait, n_envs, duration, seed, estimators, gms, *, diagnostics_of
     return roll, out
 
 
-def _tune_gm(scores: dict[str, dict]) -> str:
+def best_gm(scores: dict[str, dict]) -> str:
     """The GM grid point with the best per-step F1 on the tuning seeds (ties: fewer fails)."""
     grid = {k: v for k, v in scores.items() if k.startswith("gm_K")}
     return max(grid, key=lambda k: (np.nan_to_num(grid[k]["f1"]), -grid[k]["failures"]))
@@ -502,7 +502,7 @@ def table3(cfg: ReproduceConfig, out_dir: Path, tuned_row: dict | None = None) -
             gms,
             diagnostics_of="probabilistic",
         )
-        tuned[gait] = _tune_gm(score(out, roll.contact, roll.valid, dt=world.dt, names=list(gms)))
+        tuned[gait] = best_gm(score(out, roll.contact, roll.valid, dt=world.dt, names=list(gms)))
         _log(f"  GM tuned for {gait}: {tuned[gait]}")
 
     results = {}
