@@ -15,7 +15,7 @@ def test_named_feet_reach_every_scenario_world():
     feet = load_robot("go1").description.foot_names
     cfg = R.ReproduceConfig(foot_names=tuple(reversed(feet)))
     for scen in R.SCENARIOS:
-        assert R._scenario_world(scen, cfg).robot.description.foot_names == tuple(reversed(feet))
+        assert R.scenario_world_of(scen, cfg).robot.description.foot_names == tuple(reversed(feet))
 
 
 @pytest.mark.parametrize("robot", ["spot", "barkour"])
@@ -32,7 +32,7 @@ def test_added_mass_is_go1s_share_of_the_total_mass(robot):
     np.testing.assert_allclose([kg_base, kg_foot], [0.24 * total, 0.016 * total], atol=5e-4)  # g
     # The walk with added mass is not the plain walk (Spot's was, before).
     cfg = R.ReproduceConfig(robot=robot)
-    assert R._scenario_world("walk_added_mass", cfg).added_mass != ()
+    assert R.scenario_world_of("walk_added_mass", cfg).added_mass != ()
 
 
 def test_the_tuned_row_is_the_robots_preset_read_through_a_map_that_keeps_decisions(capsys):

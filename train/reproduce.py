@@ -222,7 +222,7 @@ def gm_grid() -> dict[str, GMParams]:
     }
 
 
-def _robot(cfg: ReproduceConfig):
+def robot_of(cfg: ReproduceConfig):
     """The nominal robot of a run, with the feet ``cfg.foot_names`` names (None: found)."""
     from jax_contact.envs.robots import load_robot
 
@@ -230,10 +230,12 @@ def _robot(cfg: ReproduceConfig):
     return load_robot(cfg.robot, foot_names=feet)
 
 
-def _scenario_world(name: str, cfg: ReproduceConfig, robot=None):
+def scenario_world_of(name: str, cfg: ReproduceConfig, robot=None):
+    """The world of scenario ``name`` (:data:`SCENARIOS`) for ``cfg``'s robot: the added
+    mass or the rough floor built in; ``robot`` the loaded robot, if it is (else loaded)."""
     from jax_contact.envs.simulate import build_world
 
-    robot = _robot(cfg) if robot is None else robot
+    robot = robot_of(cfg) if robot is None else robot
     if name == "walk_added_mass":
         return build_world(robot, added_mass=added_mass_for(cfg.robot, robot))
     if name == "rough":
@@ -245,7 +247,7 @@ def check_scenarios(cfg: ReproduceConfig, robot=None) -> None:
     """Builds every Table III scenario's world and checks its gait on the robot, so that
     what only one scenario cannot run (a rough floor MJX cannot collide the feet with,
     feet too few for the gait) is refused before Section III runs, not minutes later.
-    ``robot``: the run's nominal robot (:func:`_robot`), if loaded already.
+    ``robot``: the run's nominal robot (:func:`robot_of`), if loaded already.
 
     Raises:
       ValueError: naming the scenario and why.
@@ -254,7 +256,7 @@ def check_scenarios(cfg: ReproduceConfig, robot=None) -> None:
 
     for name in SCENARIOS:
         try:
-            world = _scenario_world(name, cfg, robot)
+            world = scenario_world_of(name, cfg, robot)
             check_gait_fits(_gait(name), world.robot)
         except ValueError as err:
             raise ValueError(f"Table III scenario {name!r}: {err}") from None
@@ -476,7 +478,7 @@ def table3(cfg: ReproduceConfig, out_dir: Path, tuned_row: dict | None = None) -
     row); :func:`run` loads it before anything is simulated, so a bad file fails at once.
     """
 
-    desc = _robot(cfg).description
+    desc = robot_of(cfg).description
     base = quadruped_estimator_params(desc)
     estimators = ablation_variants(base)
     if cfg.monte_carlo:
@@ -490,7 +492,7 @@ def table3(cfg: ReproduceConfig, out_dir: Path, tuned_row: dict | None = None) -
     tuned = {}
     for gait in ("walk", "trot"):
         _log(f"[table III] tuning GM on {gait} (seed {cfg.seed + 1000})")
-        world = _scenario_world(gait, cfg)
+        world = scenario_world_of(gait, cfg)
         # The same detectors as the evaluation runs, so all share one compiled replay.
         roll, out = _run(
             world,
@@ -508,7 +510,7 @@ def table3(cfg: ReproduceConfig, out_dir: Path, tuned_row: dict | None = None) -
     results = {}
     for name in SCENARIOS:
         _log(f"[table III] evaluating {name} (seed {cfg.seed})")
-        world = _scenario_world(name, cfg)
+        world = scenario_world_of(name, cfg)
         roll, out = _run(
             world,
             _gait(name),
@@ -619,7 +621,7 @@ def _run_into(cfg: ReproduceConfig, out_dir: Path) -> dict:
     from jax_contact.io import write_json_atomic
 
     t0 = time.perf_counter()
-    robot = _robot(cfg)
+    robot = robot_of(cfg)
     check_scenarios(cfg, robot)  # before minutes of work: each scenario's world and gait can run
     # A bad file fails here; another robot's warns (its mass).
     tuned_row = tuned_estimator(cfg, robot.description, mass_kg=model_mass(robot.mj_model))

@@ -82,7 +82,7 @@ def scenario_world(robot: str, scenario: str):
     from jax_contact.train import reproduce
 
     gait, _, _ = SCENARIOS[scenario]
-    world = reproduce._scenario_world(scenario, reproduce.ReproduceConfig(robot=robot))
+    world = reproduce.scenario_world_of(scenario, reproduce.ReproduceConfig(robot=robot))
     return world, gait, reproduce.SPEEDS.get(gait, (0.0, 0.0))
 
 
@@ -122,7 +122,7 @@ def simulate_log(
         "n_envs": n_envs,
         # The nominal robot's names (load_log resolves them), as simulate_to_file stores:
         # the simulated world calls Barkour's unnamed foot geoms gt_foot<i>.
-        "foot_names": list(reproduce._robot(cfg).description.foot_names),
+        "foot_names": list(reproduce.robot_of(cfg).description.foot_names),
         "reading_timing": READING_TIMING,
     }
     return write_log(path, roll.to_arrays(), attrs)
