@@ -891,7 +891,7 @@ def test_evaluate_notes_a_kinematic_detector_that_wins_and_prints_no_nan_delays(
     """Hand cases: the estimator's F1 0.695 against the kinematic detector's 0.907 (the
     hexapod's defaults, a user trial) gets the note; 0.90 against 0.91 (within the 0.02
     margin) does not. A delay with no detected event prints as 'none found', not nan±nan."""
-    from jax_contact.train.logs import weaker_than_kinematic
+    from jax_contact.train.log_evaluate import weaker_than_kinematic
     from jax_contact.train.report import format_delay
 
     est = {"f1": 0.695, "n_touchdowns": 20}

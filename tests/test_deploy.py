@@ -52,7 +52,7 @@ def _replay_go1(readings) -> np.ndarray:
     """P(contact) (T, L) of the offline estimator with Go1's default parameters."""
     from jax_contact.envs.robots import load_robot
     from jax_contact.train.evaluate import replay
-    from jax_contact.train.logs import default_estimator
+    from jax_contact.train.log_estimator import default_estimator
 
     robot = load_robot("go1")
     params, terrain = default_estimator(robot.description, 1.0 / 400.0)
@@ -252,7 +252,7 @@ def test_header_describes_inputs_and_parameters(deployed):
     assert h["pairing"]["delayed"] == ["qpos", "qvel"]
     # The stored parameters are the ones the offline estimator gets.
     from jax_contact.params_file import params_from_dict, params_to_dict
-    from jax_contact.train.logs import default_estimator
+    from jax_contact.train.log_estimator import default_estimator
 
     params, _ = default_estimator(load_robot("go1").description, 0.0025)
     stored = params_from_dict(h["params"])

@@ -62,7 +62,7 @@ def planar_log():
 @pytest.fixture(scope="module")
 def round_trip(planar_log, tmp_path_factory):
     """evaluate on the log, and estimate on its shuffled, renamed, degree recording."""
-    from jax_contact.train.logs import evaluate_file
+    from jax_contact.train.log_evaluate import evaluate_file
 
     tmp = tmp_path_factory.mktemp("estimate")
     evaluated = evaluate_file(LOG, gm_grid_log=LOG)
@@ -90,7 +90,8 @@ def test_round_trip_gives_evaluates_probabilities(round_trip):
 
 
 def test_evaluate_prints_every_metric_and_tunes_gm_on_a_grid_log(round_trip):
-    from jax_contact.train.logs import format_scores, tune_gm
+    from jax_contact.train.log_evaluate import tune_gm
+    from jax_contact.train.report import format_scores
     from jax_contact.train.reproduce import GM_K_I, GM_THRESHOLDS
 
     ev = round_trip.evaluated
@@ -1291,9 +1292,9 @@ def test_the_commands_copies_equal_the_librarys():
     assert estimate_cmd.RECORDING_SUFFIXES == recording.SUFFIXES
     assert estimate_cmd.UNITS == recording.UNITS
     assert estimate_cmd.FORCE_THRESHOLD == recording.FORCE_THRESHOLD
-    from jax_contact.train import logs
+    from jax_contact.train import log_estimator
 
-    assert estimate_cmd.TERRAIN_MODELS == logs.TERRAIN_MODELS
+    assert estimate_cmd.TERRAIN_MODELS == log_estimator.TERRAIN_MODELS
 
 
 def test_terrain_model_reaches_the_replay_of_evaluate_and_estimate(
@@ -1303,11 +1304,11 @@ def test_terrain_model_reaches_the_replay_of_evaluate_and_estimate(
     numbers, is what evaluate's and estimate's replay get; flat the plane itself; an unknown
     name is refused naming the argument."""
     import jax_contact as jc
-    from jax_contact.train import evaluate, logs
+    from jax_contact.train import evaluate, log_estimator, log_evaluate
 
     desc = planar_log.robot.description
-    _, plane = logs.default_estimator(desc, planar_log.dt)
-    _, memo = logs.default_estimator(desc, planar_log.dt, "memory")
+    _, plane = log_estimator.default_estimator(desc, planar_log.dt)
+    _, memo = log_estimator.default_estimator(desc, planar_log.dt, "memory")
     assert isinstance(plane, jc.FlatTerrain) and isinstance(memo, jc.FootholdMemory)
     np.testing.assert_allclose(
         [memo.fallback.height, memo.fallback.sigma], [plane.height, plane.sigma]
@@ -1316,7 +1317,7 @@ def test_terrain_model_reaches_the_replay_of_evaluate_and_estimate(
         [memo.sigma_foothold, memo.growth, memo.smoothing], [0.02, 0.3, 0.05], rtol=1e-6
     )
     with pytest.raises(ValueError, match="terrain_model must be one of"):
-        logs.default_estimator(desc, planar_log.dt, "rough")
+        log_estimator.default_estimator(desc, planar_log.dt, "rough")
 
     seen = []
 
@@ -1331,7 +1332,7 @@ def test_terrain_model_reaches_the_replay_of_evaluate_and_estimate(
     args = _parser().parse_args(["estimate", "r.csv", "--model", "m.xml", "--out", "o"])
     assert args.terrain_model is None  # the --params file's own, else flat
     with pytest.raises(Stop):
-        logs.evaluate_file(LOG, terrain_model="memory")
+        log_evaluate.evaluate_file(LOG, terrain_model="memory")
     cols = log_to_columns(planar_log, names=RENAME, units="rad")
     write_recording_csv(tmp_path / "r.csv", cols)
     with pytest.raises(Stop):
@@ -1347,19 +1348,19 @@ def test_a_params_file_runs_on_the_terrain_model_it_was_tuned_with(tmp_path, mon
     terrain model; a file that does not say, and no file, on the plane; a provenance naming
     an unknown model is refused naming the file and the field."""
     import jax_contact as jc
-    from jax_contact.train import evaluate, logs
+    from jax_contact.train import evaluate, log_estimator, log_evaluate
 
     desc = load_robot("planar_leg").description
-    params, _ = logs.default_estimator(desc, 0.0025)
+    params, _ = log_estimator.default_estimator(desc, 0.0025)
     jc.save_params(tmp_path / "mem.json", params, {"terrain_model": "memory"})
     jc.save_params(tmp_path / "old.json", params, {"tool": "before the option"})
     jc.save_params(tmp_path / "bad.json", params, {"terrain_model": "stairs"})
-    assert logs.file_terrain_model(tmp_path / "mem.json") == "memory"
-    assert logs.file_terrain_model(tmp_path / "old.json") is None
-    assert logs.resolve_terrain_model(None, None) == "flat"
-    assert logs.resolve_terrain_model("flat", tmp_path / "mem.json") == "flat"
+    assert log_estimator.file_terrain_model(tmp_path / "mem.json") == "memory"
+    assert log_estimator.file_terrain_model(tmp_path / "old.json") is None
+    assert log_estimator.resolve_terrain_model(None, None) == "flat"
+    assert log_estimator.resolve_terrain_model("flat", tmp_path / "mem.json") == "flat"
     with pytest.raises(ValueError, match=r"bad\.json.*'terrain_model'.*'stairs'"):
-        logs.resolve_terrain_model(None, tmp_path / "bad.json")
+        log_estimator.resolve_terrain_model(None, tmp_path / "bad.json")
 
     seen = []
 
@@ -1373,7 +1374,7 @@ def test_a_params_file_runs_on_the_terrain_model_it_was_tuned_with(tmp_path, mon
     monkeypatch.setattr(evaluate, "replay", fake_replay)
     for path, model in [("mem.json", None), ("mem.json", "flat"), ("old.json", None)]:
         with pytest.raises(Stop):
-            logs.evaluate_file(LOG, params_path=tmp_path / path, terrain_model=model)
+            log_evaluate.evaluate_file(LOG, params_path=tmp_path / path, terrain_model=model)
     assert seen == ["FootholdMemory", "FlatTerrain", "FlatTerrain"]
 
     # Parameters, terrain model and calibration map come from one read of the file.
@@ -1382,7 +1383,9 @@ def test_a_params_file_runs_on_the_terrain_model_it_was_tuned_with(tmp_path, mon
     reads = []
     text = jc_io._params_text
     monkeypatch.setattr(jc_io, "_params_text", lambda p: reads.append(p) or text(p))
-    got, model, terrain, calibration = logs.estimator_for(desc, 0.0025, tmp_path / "mem.json", None)
+    got, model, terrain, calibration = log_estimator.estimator_for(
+        desc, 0.0025, tmp_path / "mem.json", None
+    )
     assert (model, type(terrain).__name__, calibration) == ("memory", "FootholdMemory", None)
     assert len(reads) == 1
     assert float(got.stance_time) == float(params.stance_time)
@@ -1394,10 +1397,10 @@ def test_estimate_reports_p_through_the_files_calibration_map(round_trip, tmp_pa
     hand from the round trip's raw P (the file holds the defaults, so the recursion is the
     same), and records the map in the HDF5 attributes."""
     import jax_contact as jc
-    from jax_contact.train import logs
+    from jax_contact.train import log_estimator
 
     desc = load_robot("planar_leg").description
-    params, _ = logs.default_estimator(desc, 0.0025)
+    params, _ = log_estimator.default_estimator(desc, 0.0025)
     cal = jc.Calibration(temperature=1.5, temperature_air=3.0)
     jc.save_params(tmp_path / "cal.json", params, {"calibration": cal.as_dict()})
     args = _parser().parse_args(
@@ -1430,16 +1433,16 @@ def test_evaluate_adds_the_calibrated_row_of_a_file_with_a_calibration_map(tmp_p
     map, and a file without one adds no row."""
     import jax_contact as jc
     from jax_contact.metrics import expected_calibration_error, step_scores
-    from jax_contact.train import logs
+    from jax_contact.train import log_estimator, log_evaluate, logs
 
     desc = load_robot("planar_leg").description
-    params, _ = logs.default_estimator(desc, 0.0025)
+    params, _ = log_estimator.default_estimator(desc, 0.0025)
     jc.save_params(
         tmp_path / "cal.json", params, {"calibration": {"temperature": 2.0, "bias": 0.7}}
     )
     jc.save_params(tmp_path / "plain.json", params, {"tool": "no map"})
-    got = logs.evaluate_file(LOG, params_path=tmp_path / "cal.json")
-    plain = logs.evaluate_file(LOG, params_path=tmp_path / "plain.json")
+    got = log_evaluate.evaluate_file(LOG, params_path=tmp_path / "cal.json")
+    plain = log_evaluate.evaluate_file(LOG, params_path=tmp_path / "plain.json")
     assert "probabilistic+cal" in got["scores"] and "probabilistic+cal" not in plain["scores"]
     assert "probabilistic+cal" in capsys.readouterr().out  # printed in the table
     assert got["scores"]["probabilistic"] == plain["scores"]["probabilistic"]
@@ -1453,7 +1456,7 @@ def test_evaluate_adds_the_calibrated_row_of_a_file_with_a_calibration_map(tmp_p
     for key, value in got["scores"]["defaults"].items():
         assert value == (want[key] if value is None else pytest.approx(want[key], abs=1e-9)), key
     with pytest.raises(ValueError, match="needs at least 2"):  # the fixture has one env
-        logs.evaluate_file(LOG, bootstrap=10)
+        log_evaluate.evaluate_file(LOG, bootstrap=10)
 
     log = logs.load_log(LOG)
     # The float32 P keeps its logit down to -87 (its smallest normal); above 1 - 6e-8 it is 1.
@@ -1472,7 +1475,7 @@ def test_evaluate_adds_the_calibrated_row_of_a_file_with_a_calibration_map(tmp_p
 
 def test_a_params_file_is_checked_against_the_robot_and_rate(tmp_path):
     import jax_contact as jc
-    from jax_contact.train.logs import default_estimator, load_params_for
+    from jax_contact.train.log_estimator import default_estimator, load_params_for
 
     desc = load_robot("planar_leg").description
     params, _ = default_estimator(desc, 0.005)
@@ -1563,7 +1566,7 @@ def test_another_robots_file_warns_by_its_mass():
 
 
 def test_differentiated_coordinates_get_the_differences_noise(go1_log):
-    from jax_contact.train.logs import default_estimator
+    from jax_contact.train.log_estimator import default_estimator
     from jax_contact.train.recording_convert import noise_for_differences
 
     cols = log_to_columns(go1_log, velocities=False, accelerations=False)

@@ -169,10 +169,10 @@ def test_force_rows_keep_the_normal():
 
 def test_evaluate_and_export_defaults_choose_a_short_legs_force_rows():
     """``evaluate``, ``estimate`` and ``export`` build their defaults with
-    ``train.logs.default_estimator``: a floating-base robot of two-joint legs gets the
+    ``train.log_estimator.default_estimator``: a floating-base robot of two-joint legs gets the
     wrapper's force rows (the test above: (1, 2)), not the planar leg's estimator (it
     raised 'nv must be the planar leg's 3'); without the model it says what it needs."""
-    from jax_contact.train.logs import default_estimator
+    from jax_contact.train.log_estimator import default_estimator
 
     m = mujoco.MjModel.from_xml_string(ANT)
     desc, _ = feet.describe(m)

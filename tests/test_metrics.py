@@ -248,7 +248,7 @@ def test_evaluates_bounce_note_counts_rule_9bs_bounces_at_any_rate():
     """``evaluate``'s note on a log full of bounces counts the air phases rule 9b leaves
     out (10 ms), in steps of the log's own period: until the thirty-sixth session it
     counted 4 steps at any rate (10 ms only at 400 Hz)."""
-    from jax_contact.train.logs import bounce_note
+    from jax_contact.train.log_evaluate import bounce_note
 
     # One env, one leg: contact with three 6-step and three 30-step air phases between
     # contact runs; the first and last runs are contact, so all six phases count.

@@ -231,7 +231,7 @@ def test_evaluate_leaves_lost_readings_out_of_every_row(planar, tmp_path, capsys
     from the transition alone there, so ``evaluate`` (like ``estimate`` on a recording)
     scores those foot-steps for no detector; their truth stays known, so the air phase
     is not split (metrics rules 7b, 8). Before, the predicted-only steps were scored."""
-    from jax_contact.train.logs import evaluate_file
+    from jax_contact.train.log_evaluate import evaluate_file
 
     world, roll = planar
     attrs = {"robot": "planar_leg", "dt": world.dt, "gait": "hop", "noise": "anymal_like"}

@@ -206,7 +206,7 @@ def test_fixed_base_leg_force_is_the_floors():
 
     from jax_contact import adapter
     from jax_contact.measurement import dynamics_llr
-    from jax_contact.train.logs import default_estimator
+    from jax_contact.train.log_estimator import default_estimator
 
     m = mujoco.MjModel.from_xml_path(str(FIXED_LEG_XML))
     d = mujoco.MjData(m)

@@ -640,14 +640,14 @@ def test_config_rejects_bad_values():
 def test_tune_cmd_field_list_is_the_librarys():
     import argparse
 
-    from jax_contact.train import logs, tune_cmd
+    from jax_contact.train import log_estimator, tune_cmd
 
     assert tune_cmd.DEFAULT_FIELDS == jt.DEFAULT_FIELDS
     assert tune_cmd.OPTIONAL_FIELDS == jt.OPTIONAL_FIELDS
     p = tune_cmd.add_parser(argparse.ArgumentParser().add_subparsers())
     choices = {a.dest: a.choices for a in p._actions if a.choices}
     assert tuple(choices["select"]) == jt.SELECT_RULES
-    assert tuple(choices["terrain_model"]) == logs.TERRAIN_MODELS
+    assert tuple(choices["terrain_model"]) == log_estimator.TERRAIN_MODELS
     assert tuple(choices["tune_also"]) == jt.OPTIONAL_FIELDS
 
 

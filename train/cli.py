@@ -182,9 +182,9 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
 
 
 def _cmd_evaluate(args: argparse.Namespace) -> int:
-    from jax_contact.train import logs
+    from jax_contact.train import log_evaluate
 
-    logs.evaluate_file(
+    log_evaluate.evaluate_file(
         args.log,
         json_path=args.json,
         gm_grid_log=args.gm_grid,

@@ -187,7 +187,7 @@ def check_deploy_check(args: argparse.Namespace) -> None:
 
 DEFAULTS_PROVENANCE = {
     "source": "defaults",
-    "function": "jax_contact.train.logs.default_estimator",
+    "function": "jax_contact.train.log_estimator.default_estimator",
     "rule": "jax_contact.params_for with the anymal_like sensor model"
     " (jax_contact.envs.sensors); the planar leg's Section III estimator for one two-joint"
     " leg on a rail",
@@ -205,19 +205,19 @@ def export_to_file(
 ) -> dict:
     """Exports ``robot`` (a name or an MJCF path) to ``out``; returns the header.
 
-    The parameters are those of ``jax-contact evaluate`` (:func:`jax_contact.train.logs.
+    The parameters are those of ``jax-contact evaluate`` (:func:`jax_contact.train.log_estimator.
     default_estimator`), or ``params_path``'s checked as ``evaluate`` checks them (its
     ``nv``; a file tuned on a robot of another mass warns; a file of another period is
     moved to ``1 / rate_hz`` with a warning), with its calibration map and terrain model.
 
     Raises:
       ValueError: naming ``--params`` for a file that does not fit the robot, as
-        :func:`jax_contact.train.logs.load_params_for`.
+        :func:`jax_contact.train.log_estimator.load_params_for`.
     """
     from jax_contact import export
     from jax_contact.envs.robots import load_robot
     from jax_contact.robot import model_mass
-    from jax_contact.train.logs import estimator_for, params_file_provenance
+    from jax_contact.train.log_estimator import estimator_for, params_file_provenance
 
     try:
         loaded = load_robot(robot, foot_names=feet)

@@ -20,7 +20,7 @@ from pathlib import Path
 
 RECORDING_SUFFIXES = (".csv", ".npz", ".h5", ".hdf5")  # jax_contact.train.recording.SUFFIXES
 UNITS = ("rad", "deg")  # jax_contact.train.recording.UNITS
-TERRAIN_MODELS = ("flat", "memory")  # jax_contact.train.logs.TERRAIN_MODELS
+TERRAIN_MODELS = ("flat", "memory")  # jax_contact.train.log_estimator.TERRAIN_MODELS
 FORCE_THRESHOLD = 1.0  # N, jax_contact.train.recording.FORCE_THRESHOLD
 
 
@@ -137,8 +137,9 @@ def check_force_threshold(value: float) -> None:
 
 def add_feet_flag(p: argparse.ArgumentParser, default: str = "found in the model") -> None:
     """``--feet FOOT [FOOT ...]``: ``foot_names`` of ``jax_contact.envs.robots.load_robot`` /
-    ``jax_contact.train.logs.simulate_to_file`` / ``jax_contact.train.logs.evaluate_file`` (None:
-    the model's or the log's own, which ``default`` says in the help)."""
+    ``jax_contact.train.logs.simulate_to_file`` /
+    ``jax_contact.train.log_evaluate.evaluate_file`` (None: the model's or the log's own, which
+    ``default`` says in the help)."""
     p.add_argument(
         "--feet",
         nargs="+",
@@ -150,7 +151,7 @@ def add_feet_flag(p: argparse.ArgumentParser, default: str = "found in the model
 
 def add_terrain_model_flag(p: argparse.ArgumentParser) -> None:
     """``--terrain-model {flat,memory}``: ``terrain_model`` of
-    ``jax_contact.train.logs.evaluate_file`` and
+    ``jax_contact.train.log_evaluate.evaluate_file`` and
     ``jax_contact.train.recording_estimate.estimate_recording``."""
     p.add_argument(
         "--terrain-model",

@@ -154,7 +154,7 @@ def estimate_recordings(
         print("no pooled metrics: fewer than two recordings with ground truth at one rate")
     else:
         from jax_contact.io import write_json_atomic
-        from jax_contact.train.logs import format_scores
+        from jax_contact.train.report import format_scores
 
         # The columns' legend was printed under the first recording's table.
         title = f"{len(pooled_stems)} recordings pooled"

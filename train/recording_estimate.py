@@ -46,7 +46,7 @@ def estimate_recording(
     """``jax-contact estimate``: P(contact) per foot for a recording (module docstring).
 
     ``terrain_model``: the estimator's terrain model
-    (:data:`jax_contact.train.logs.TERRAIN_MODELS`): ``"flat"`` a plane at z = 0 of the
+    (:data:`jax_contact.train.log_estimator.TERRAIN_MODELS`): ``"flat"`` a plane at z = 0 of the
     recording's world frame, ``"memory"`` the feet's own footholds, for a ``base_pos`` that
     drifts (a state estimator's, over a long recording); None: the one ``params_path`` was
     tuned with, else ``"flat"``. ``force_threshold``: a ``force/<foot>`` column above it
@@ -79,7 +79,8 @@ def estimate_recording(
     from jax_contact.robot import model_mass
     from jax_contact.train.cli_args import check_output_folder
     from jax_contact.train.evaluate import replay, score
-    from jax_contact.train.logs import estimator_for, format_scores
+    from jax_contact.train.log_estimator import estimator_for
+    from jax_contact.train.report import format_scores
 
     # Before any work: the folder must take files (the command checks it the same way).
     check_output_folder("out_dir", out_dir)

@@ -2,7 +2,7 @@
 legend and the bootstrap's comparison lines.
 
 :mod:`jax_contact.train.reproduce` computes the scores; this module turns them into what it
-writes and prints, and ``jax-contact evaluate`` (:func:`jax_contact.train.logs.format_scores`)
+writes and prints, and ``jax-contact evaluate`` (:func:`jax_contact.train.report.format_scores`)
 prints its table with the same columns.
 """
 
@@ -272,3 +272,12 @@ def _describe_source(tp: dict) -> str:
 def _seeds(tuned_params: dict, key: str) -> str:
     seeds = tuned_params["seeds"].get(key)
     return "unknown" if not seeds else ", ".join(str(s) for s in sorted(set(seeds)))
+
+
+def format_scores(scores: dict[str, dict], *, title: str = "log", legend: bool = True) -> str:
+    """Every detector's full metric set as one table with a header and (``legend``) the
+    legend (``jax_contact.train.report.format_table``'s columns: TD / LO delays, F1,
+    accuracy, failures, per-air-phase failure rate, missed touch-downs and lift-offs, ECE)."""
+    rows = sorted(scores, key=lambda d: (not d.startswith("probabilistic"), d == "kinematic", d))
+    payload = {"scenarios": {title: {det: cell(scores[det]) for det in rows}}}
+    return format_table(payload, rows=rows, legend=legend)

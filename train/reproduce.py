@@ -375,7 +375,7 @@ def tuned_estimator(
     cfg: ReproduceConfig, desc, dt: float = 0.0025, mass_kg: float | None = None
 ) -> dict | None:
     """The row ``tuned`` of Table III: ``cfg.tuned_params`` loaded and checked against the
-    robot (``jax_contact.train.logs.load_params_for``), or None for no row.
+    robot (``jax_contact.train.log_estimator.load_params_for``), or None for no row.
 
     The file's calibration map is applied to the row's P after the recursion when it keeps
     every decision at 0.5 (the per-side map of docs/tuning.md, rule 14), so F1, accuracy,
@@ -439,7 +439,7 @@ def tuned_row_for(tuned_row: dict | None, scenario: str) -> dict | None:
 
 def _tuned_row(source: str, cfg: ReproduceConfig, desc, dt: float, mass_kg) -> dict:
     """One file's row (:func:`tuned_estimator`)."""
-    from jax_contact.train.logs import load_params_for
+    from jax_contact.train.log_estimator import load_params_for
     from jax_contact.tune import calibration_of
 
     params, prov = load_params_for(source, desc, dt, mass_kg, with_provenance=True, robot=cfg.robot)

@@ -143,7 +143,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     add_force_threshold_flag(p)
     p.add_argument(
         "--terrain-model",
-        choices=("flat", "memory"),  # jax_contact.train.logs.TERRAIN_MODELS
+        choices=("flat", "memory"),  # jax_contact.train.log_estimator.TERRAIN_MODELS
         default="flat",
         help="the estimator's ground while tuning, stored in the file's provenance (evaluate"
         " and estimate then use it): flat, the plane at z = 0 (5 cm std); memory, where each"

@@ -108,14 +108,14 @@ def load_tuning_log(path: str | Path, terrain_model: str = "flat"):
     """A log file -> (TuningData, robot, attrs, default params, terrain).
 
     ``terrain_model``: the estimator's terrain over the log's plane
-    (:func:`jax_contact.train.logs.terrain_for`).
+    (:func:`jax_contact.train.log_estimator.terrain_for`).
 
     Raises:
       ValueError: as :func:`read_truth_log`.
     """
     import numpy as np
 
-    from jax_contact.train.logs import terrain_for
+    from jax_contact.train.log_estimator import terrain_for
     from jax_contact.tune import TuningData
 
     readings, truth, valid, attrs, robot = read_truth_log(path)
@@ -167,7 +167,7 @@ def load_tuning_recording(
     The recording (``jax-contact estimate``'s schema, :mod:`jax_contact.train.recording`)
     is converted as ``estimate`` converts it (``names``, ``units``, ``resample`` and
     ``force_threshold`` as there), and the fit starts from the parameters ``estimate``
-    uses for the robot by default (:func:`jax_contact.train.logs.default_estimator`, which
+    uses for the robot by default (:func:`jax_contact.train.log_estimator.default_estimator`, which
     assume ``anymal_like`` sensors: :data:`RECORDING_NOISE`), restricted to the terms the
     recording's columns support (a recording without torques tunes no dynamics term).
     Scored steps: those ``estimate`` scores, a foot's steps whose truth is known and whose
@@ -193,7 +193,7 @@ def load_tuning_recording(
     import mujoco
     import numpy as np
 
-    from jax_contact.train.logs import default_estimator
+    from jax_contact.train.log_estimator import default_estimator
     from jax_contact.train.recording import read_recording
     from jax_contact.train.recording_checks import plane_floor_note
     from jax_contact.train.recording_convert import to_readings

@@ -266,7 +266,7 @@ def compare(
       robot: the robot simulated and evaluated.
       variants: row name -> parameter file or preset name, or None for the defaults, or a
         pair (one of those, terrain model); without a terrain model a file runs on the one
-        it was tuned with (:func:`jax_contact.train.logs.file_terrain_model`), the defaults
+        it was tuned with (:func:`jax_contact.train.log_estimator.file_terrain_model`), the defaults
         on the plane.
       plots: a folder for one reliability diagram per scenario, or None.
       bootstrap: if > 0, the number of env resamples of a paired bootstrap
@@ -286,7 +286,7 @@ def compare(
     from jax_contact.bootstrap import STATISTICS, row_differences
     from jax_contact.train.calibration import reliability_diagram
     from jax_contact.train.evaluate import replay, score
-    from jax_contact.train.logs import file_terrain_model, terrain_for
+    from jax_contact.train.log_estimator import file_terrain_model, terrain_for
 
     def terrain_model_of(source) -> tuple[object, str]:
         if isinstance(source, tuple):

@@ -1,0 +1,207 @@
+"""Which estimator runs on a log or recording: the robot's defaults or a parameter file,
+and the terrain model.
+
+``jax-contact evaluate``, ``estimate``, ``export`` and ``deploy-check`` build their
+estimator here, so that one robot, one period and one ``--params`` give the same parameters
+in every command (the one source of parameters: :func:`jax_contact.params_for`).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+# The estimator's terrain model for logs (``--terrain-model``): ``flat``, a plane at z = 0 of
+# the log's world frame; ``memory``, the height where each foot last stood (its stance
+# average) over that plane (docs/model_choices.md, "Base drift and the kinematics term").
+TERRAIN_MODELS = ("flat", "memory")
+
+
+# sigma at the foothold (m), its growth per metre walked, the stance average's weight.
+FOOTHOLD_MEMORY = dict(sigma_foothold=0.02, growth=0.3, smoothing=0.05)
+
+
+def default_estimator(desc, dt: float, terrain_model: str = "flat", *, mj_model=None):
+    """(EstimatorParams, terrain) that ``evaluate``, ``estimate`` and ``export`` use for a
+    robot: the planar leg's Section III estimator for one 2-joint leg on a 1-dof rail, else Table
+    III's (the one source: :func:`jax_contact.params_for` with ``anymal_like`` sensors,
+    ``jax_contact.train.reproduce``). Legs of fewer than three joints on a floating base
+    (a biped's, Brax's ant's) resist the force axes their Jacobian spans
+    (:func:`jax_contact.envs.contact_params.choose_force_rows`, which needs ``mj_model``).
+    ``terrain_model`` (:data:`TERRAIN_MODELS`): ``"flat"`` the plane of the reproduction,
+    ``"memory"`` a :func:`jax_contact.foothold_memory` over it with :data:`FOOTHOLD_MEMORY`,
+    for base positions that drift.
+
+    Raises:
+      ValueError: an unknown terrain model, or legs of fewer than three joints (not the
+        planar leg's) without ``mj_model``.
+    """
+    import jax_contact as jc
+    from jax_contact.train.reproduce import (
+        TERRAIN_SIGMA,
+        planar_estimator_params,
+        quadruped_estimator_params,
+    )
+
+    check_terrain_model(terrain_model)
+    if desc.n_leg_dofs == 2 and desc.n_legs == 1 and len(desc.base_dofs) == 1 and desc.nv == 3:
+        params, plane = planar_estimator_params(desc.nv, dt), jc.flat(0.0, 0.2)
+    elif desc.n_leg_dofs < 3:
+        if mj_model is None:
+            raise ValueError(
+                f"legs of {desc.n_leg_dofs} joints: their force axes are chosen from the"
+                " robot's model (pass mj_model)"
+            )
+        from jax_contact.envs.contact_params import choose_force_rows
+
+        rows = choose_force_rows(mj_model, desc)
+        params = quadruped_estimator_params(desc, dt, force_rows=rows)
+        plane = jc.flat(0.0, TERRAIN_SIGMA)
+    else:
+        params, plane = quadruped_estimator_params(desc, dt), jc.flat(0.0, TERRAIN_SIGMA)
+    return params, terrain_for(plane, terrain_model)
+
+
+def check_terrain_model(terrain_model: str) -> None:
+    """Raises ValueError unless ``terrain_model`` is one of :data:`TERRAIN_MODELS`."""
+    if terrain_model not in TERRAIN_MODELS:
+        raise ValueError(f"terrain_model must be one of {TERRAIN_MODELS}, got {terrain_model!r}")
+
+
+def terrain_for(plane, terrain_model: str):
+    """The estimator's terrain of ``terrain_model`` over ``plane``: the plane itself
+    (``"flat"``), or a :func:`jax_contact.foothold_memory` over it with
+    :data:`FOOTHOLD_MEMORY` (``"memory"``)."""
+    import jax_contact as jc
+
+    check_terrain_model(terrain_model)
+    if terrain_model == "memory":
+        return jc.foothold_memory(plane, **FOOTHOLD_MEMORY)
+    return plane
+
+
+def file_terrain_model(path) -> str | None:
+    """The terrain model a parameter file (or preset name) was tuned with
+    (``provenance["terrain_model"]`` of ``jax-contact tune``), or None when it does not say
+    (files written before the option: tuned on the plane)."""
+    from jax_contact.params_file import load_params
+
+    _, prov = load_params(path, with_provenance=True)
+    return _terrain_model_in(prov, path)
+
+
+def _terrain_model_in(provenance: dict, path) -> str | None:
+    """``provenance["terrain_model"]`` of the file ``path``, checked, or None."""
+    model = provenance.get("terrain_model")
+    if model is not None and model not in TERRAIN_MODELS:
+        raise ValueError(
+            f"parameter file {str(path)!r}: provenance field 'terrain_model' must be one of"
+            f" {TERRAIN_MODELS}, got {model!r}"
+        )
+    return model
+
+
+def resolve_terrain_model(
+    terrain_model: str | None, params_path, provenance: dict | None = None
+) -> str:
+    """``--terrain-model`` as given, else the parameter file's own
+    (:func:`file_terrain_model`), else ``"flat"``: parameters tuned with a foothold memory
+    are run with it unless the user says otherwise. ``provenance``: the file's, when the
+    caller has read it already (the file is then not read again)."""
+    if terrain_model is not None:
+        check_terrain_model(terrain_model)
+        return terrain_model
+    if params_path is not None:
+        if provenance is not None:
+            return _terrain_model_in(provenance, params_path) or "flat"
+        return file_terrain_model(params_path) or "flat"
+    return "flat"
+
+
+def params_file_provenance(params_path: str | Path) -> dict:
+    """Where a parameter file or shipped preset came from (its resolved path, or the
+    preset's name), its SHA-256 and its own ``provenance``: what ``evaluate --json`` and
+    ``export`` record of the ``--params`` they ran."""
+    import hashlib
+
+    from jax_contact._presets import preset_file
+
+    if (ref := preset_file(str(params_path))) is not None:
+        raw = ref.read_bytes()
+        where = {"source": "preset", "name": str(params_path)}
+    else:
+        raw = Path(params_path).read_bytes()
+        where = {"source": "file", "path": str(Path(params_path).resolve())}
+    return {
+        **where,
+        "sha256": hashlib.sha256(raw).hexdigest(),
+        "file_provenance": json.loads(raw).get("provenance", {}),
+    }
+
+
+def estimator_for(
+    desc,
+    dt: float,
+    params_path,
+    terrain_model: str | None,
+    mass_kg=None,
+    *,
+    mj_model=None,
+    period: str = "the log's",
+    robot: str | None = None,
+):
+    """(params, terrain model, terrain, calibration map or None) of ``evaluate`` and
+    ``estimate``: the defaults (:func:`default_estimator`) or ``params_path`` checked
+    against the robot (``robot``: the name it was loaded by) and period, with the file's
+    calibration map, on the terrain model
+    given, else the file's own (:func:`resolve_terrain_model`), which is then printed.
+    The file is read once; ``period`` names ``dt`` in the warning of a file of another
+    period (e.g. ``"the export's"``)."""
+    from jax_contact.calibration import file_calibration
+
+    provenance, calibration = None, None
+    if params_path is not None:
+        file_params, provenance = load_params_for(
+            params_path, desc, dt, mass_kg, with_provenance=True, mj_model=mj_model,
+            period=period, robot=robot,
+        )  # fmt: skip
+        calibration = file_calibration(provenance, params_path)
+    model = resolve_terrain_model(terrain_model, params_path, provenance)
+    if terrain_model is None and model != "flat":
+        print(f"terrain model {model!r}: the one {str(params_path)!r} was tuned with")
+    params, terrain = default_estimator(desc, dt, model, mj_model=mj_model)
+    if params_path is not None:
+        params = file_params
+    return params, model, terrain, calibration
+
+
+def load_params_for(
+    path,
+    desc,
+    dt,
+    mass_kg=None,
+    *,
+    with_provenance=False,
+    mj_model=None,
+    period="the log's",
+    robot=None,
+):
+    """A params file, checked against the robot (its ``nv`` and, given, its mass and the
+    name it was loaded by, ``robot``) and the log's period
+    (:func:`jax_contact.params_file.load_params_for`; ``with_provenance`` as there; ``mj_model`` as
+    :func:`default_estimator`'s, whose values move the file's period)."""
+    from jax_contact.params_file import load_params_for as load
+    from jax_contact.tune.space import robot_space
+
+    derive = lambda d: default_estimator(desc, d, mj_model=mj_model)[0]  # noqa: E731
+    return load(
+        path,
+        nv=desc.nv,
+        dt=dt,
+        derive=derive,
+        mass_kg=mass_kg,
+        with_provenance=with_provenance,
+        period=period,
+        robot=robot,
+        groups=robot_space(desc).named_groups(),
+    )

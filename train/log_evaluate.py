@@ -1,0 +1,328 @@
+"""``jax-contact evaluate`` on a log: every detector replayed on its readings and scored
+against its ground truth (the metrics of :mod:`jax_contact.metrics`).
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from jax_contact.io import write_json_atomic
+from jax_contact.metrics import bounce_counts, bounce_steps
+from jax_contact.robot import model_mass
+from jax_contact.train.log_estimator import default_estimator, estimator_for, params_file_provenance
+from jax_contact.train.logs import TRUTH_CONTACT, load_log
+from jax_contact.train.report import format_scores
+
+
+def scored_steps(out: dict, truth: np.ndarray, valid: np.ndarray):
+    """(scored, truth known), both (T, E, L) bool: the foot-steps a log's metrics score.
+
+    A log's truth is known on its valid steps. Where the estimator skipped a foot's
+    update because a reading it reads is not finite (``out["probabilistic/valid"]``,
+    present when :func:`jax_contact.train.evaluate.replay` ran with ``diagnostics_of=
+    "probabilistic"``), that foot-step is not scored for any detector, as ``jax-contact
+    estimate`` does on a recording; its truth stays known, so it does not cut a true air
+    phase in two (``jax_contact.metrics`` rules 7b and 8).
+
+    Args:
+      out: the replay's outputs.
+      truth: (T, E, L) bool.
+      valid: (T, E) bool.
+    """
+    known = np.broadcast_to(np.asarray(valid, bool)[..., None], np.shape(truth))
+    read = out.get("probabilistic/valid")
+    scored = known if read is None else known & np.asarray(read, bool)
+    return scored, known
+
+
+def tune_gm(path: str | Path) -> tuple[str, object, dict]:
+    """The GM observer setting of ``jax_contact.train.reproduce``'s grid with the best F1 on a log.
+
+    Runs every grid point (:func:`jax_contact.train.reproduce.gm_grid`) on the log and picks one
+    with
+    :func:`jax_contact.train.reproduce.best_gm` (best per-step F1, ties: fewer failures), the rule
+    the reproduction tunes by.
+
+    Returns:
+      (grid name, e.g. ``"gm_K50_F15"``, its GMParams, grid name -> scores).
+
+    Raises:
+      ValueError: the log has no ground truth, or as :func:`load_log`.
+    """
+    import jax_contact as jc
+    from jax_contact.train.evaluate import replay, score
+    from jax_contact.train.reproduce import TERRAIN_SIGMA, best_gm, gm_grid
+
+    log = load_log(path)
+    if log.truth is None:
+        raise ValueError(f"{log.name} has no ground truth ({TRUTH_CONTACT!r}): cannot tune on it")
+    grid = gm_grid()
+    out = replay(
+        log.robot,
+        log.readings,
+        estimators={},
+        terrain=jc.flat(0.0, TERRAIN_SIGMA),
+        gms=grid,
+        dt=log.dt,
+    )
+    scores = score(out, log.truth, log.valid, dt=log.dt, names=list(grid))
+    best = best_gm(scores)
+    return best, grid[best], scores
+
+
+def evaluate_file(
+    path: str | Path,
+    *,
+    json_path: str | Path | None = None,
+    gm_grid_log: str | Path | None = None,
+    params_path: str | Path | None = None,
+    foot_names: Sequence[str] | None = None,
+    robot: str | None = None,
+    terrain_model: str | None = None,
+    bootstrap: int = 0,
+    plots_dir: str | Path | None = None,
+) -> dict:
+    """Runs the estimator, GM observer and kinematic detector on a log; prints the metrics.
+
+    The log is replayed with the robot and feet it was made with (its ``foot_names``
+    attribute) unless ``foot_names`` is given. Every detector's full metric set is printed
+    as one table with a header and a legend (``jax_contact.train.report.format_table``):
+    touch-down and lift-off delays, F1, accuracy, failures, per-air-phase failure rate, missed
+    touch-downs and lift-offs, ECE. A parameter file that holds a calibration map
+    (``jax-contact tune --calibrate``, the shipped presets) adds the row
+    ``probabilistic+cal``: the estimator's P(contact) mapped by it
+    (:func:`jax_contact.tune.calibrate_probability`), flagged at calibrated P > 0.5. With a
+    parameter file the robot's default parameters run too, as the row ``defaults`` (same
+    terrain model), so a tuned file is seen beside what it was tuned from.
+
+    With ``bootstrap`` > 0 (and ground truth) every other row is compared with
+    ``probabilistic`` by a paired bootstrap of that many env resamples
+    (:func:`jax_contact.bootstrap.paired_bootstrap`, 95 %, seed 0): ``probabilistic - row``
+    of F1, accuracy, air-phase failures, ``|mean|`` delays and ECE, each called better,
+    worse or within noise (the log needs at least 2 envs).
+
+    A log without ground truth (no ``truth/contact``, e.g. one recorded on a robot) has no
+    metrics: the estimator's P(contact) per foot is then printed as a mean per foot and,
+    with ``json_path``, written per step and env under ``"p_contact"``.
+
+    Args:
+      json_path: write the result as JSON here.
+      gm_grid_log: tune the GM observer on this other log (:func:`tune_gm`) instead of
+        using the default setting (``make_gm_params()``).
+      params_path: estimator parameters (:func:`jax_contact.load_params`) instead of the
+        robot's defaults (:func:`default_estimator`).
+      foot_names: the feet, overriding the log's.
+      robot: the robot, overriding the one the log names (:func:`load_log`).
+      terrain_model: the estimator's terrain model, one of :data:`TERRAIN_MODELS`
+        (:func:`default_estimator`); None: the one ``params_path`` was tuned with, else
+        ``"flat"`` (:func:`resolve_terrain_model`).
+      bootstrap: env resamples of the comparison with ``probabilistic``; 0: none.
+      plots_dir: write the reliability diagram of every scored row
+        (:func:`jax_contact.train.calibration.reliability_diagram`, ECE in the legend) to
+        ``plots_dir/reliability_<log stem>.png``; without ground truth nothing is drawn
+        (a line says so).
+
+    Returns:
+      ``log``, ``attrs``, ``scores`` (detector -> metrics; empty without ground truth),
+      ``vs_probabilistic`` (row -> statistic -> ``[delta, low, high, verdict]``, with
+      ``bootstrap``),
+      ``has_truth``, ``foot_names``, ``gm`` (the GM setting used), ``outputs`` (the
+      replay's (T, E, L) arrays, not written to the JSON) and ``p_contact`` (foot -> (T, E)
+      nested lists) when the log has no ground truth.
+
+    Raises:
+      FileNotFoundError: no such file.
+      ValueError: one line naming the file, the field and what was expected: unreadable
+        file, a missing attribute or array, an array of the wrong shape, a robot whose
+        model does not fit the readings.
+    """
+    from jax_contact.baselines import make_gm_params, make_kinematic_params
+    from jax_contact.train.evaluate import replay, score
+
+    log = load_log(path, foot_names=foot_names, robot=robot)
+    name, truth, desc, dt = log.name, log.truth, log.robot.description, log.dt
+    mass = model_mass(log.robot.mj_model)
+    params, terrain_model, terrain, calibration = estimator_for(
+        desc, dt, params_path, terrain_model, mass, mj_model=log.robot.mj_model,
+        robot=log.robot.name,
+    )  # fmt: skip
+    if bootstrap and truth is not None and truth.shape[1] < 2:
+        raise ValueError(
+            f"{name} has {truth.shape[1]} env: the bootstrap resamples envs and needs at least 2"
+        )
+    estimators = {"probabilistic": params}
+    if params_path is not None:
+        estimators["defaults"] = default_estimator(
+            desc, dt, terrain_model, mj_model=log.robot.mj_model
+        )[0]
+    gm_name, gm = "gm", make_gm_params()
+    if gm_grid_log is not None and truth is not None:
+        gm_name, gm, _ = tune_gm(gm_grid_log)
+        print(f"GM observer tuned on {str(gm_grid_log)!r}: {gm_name} (best F1 of the grid)")
+    out = replay(
+        log.robot,
+        log.readings,
+        estimators=estimators,
+        terrain=terrain,
+        # Without ground truth only the estimator's P(contact) is reported.
+        gms={gm_name: gm} if truth is not None else None,
+        kinematic=make_kinematic_params() if truth is not None else None,
+        dt=dt,
+        # A reading that is not finite leaves its feet to the prediction alone: the
+        # estimator's per-foot validity says which, and those steps are not scored.
+        diagnostics_of="probabilistic" if truth is not None and log.lost else None,
+    )
+    if calibration is not None and truth is not None:
+        # The map fitted on the tuning logs, applied after the recursion: a second row,
+        # flagged at calibrated P > 0.5 (as in docs/tuning.md's comparisons).
+        from jax_contact.tune import calibrate_probability
+
+        out["probabilistic+cal"] = calibrate_probability(out["probabilistic"], calibration)
+    feet = list(desc.foot_names)
+    if params_path is not None:
+        print(
+            f"probabilistic: the estimator with --params {str(params_path)!r}; defaults: with the"
+            " robot's derived defaults, on the same readings"
+        )
+    result = {
+        "log": str(path),
+        "params": {"source": "defaults"}
+        if params_path is None
+        else params_file_provenance(params_path),
+        "terrain_model": terrain_model,
+        "attrs": log.attrs,
+        "has_truth": truth is not None,
+        "foot_names": feet,
+        "gm": {"name": gm_name, "K_I": float(gm.K_I), "threshold": float(gm.threshold)},
+    }
+    if truth is None:
+        p = np.asarray(out["probabilistic"])  # (T, E, L)
+        means = "  ".join(f"{f} {np.nanmean(p[..., i]):.3f}" for i, f in enumerate(feet))
+        print(
+            f"{name} has no ground truth ({TRUTH_CONTACT!r}): no metrics can be computed."
+            f"\nmean P(contact) per foot over {p.shape[0]} steps x {p.shape[1]} envs: {means}"
+        )
+        print(
+            f"P(contact) per foot, step and env written to {json_path}"
+            if json_path
+            else "pass --json FILE to write P(contact) per foot, step and env"
+        )
+        if bootstrap:
+            print("--bootstrap: no ground truth, so there is nothing to compare")
+        if plots_dir is not None:
+            print("--plots: no ground truth, so no reliability diagram")
+        result["scores"] = {}
+        result["p_contact"] = {f: p[..., i] for i, f in enumerate(feet)}
+    else:
+        scored, known = scored_steps(out, truth, log.valid)
+        scores = score(out, truth, scored, dt=dt, truth_known=known)
+        print(format_scores(scores, title=Path(path).name))
+        if note := weaker_than_kinematic(scores):
+            print(note)
+        if note := bounce_note(truth, log.valid, dt):
+            print(note)
+        result["scores"] = scores
+        if bootstrap:
+            result["vs_probabilistic"] = _vs_probabilistic(
+                out, scores, truth, scored, dt, bootstrap, truth_known=known
+            )
+        if plots_dir is not None:
+            from jax_contact.train.calibration import reliability_diagram
+
+            png = reliability_diagram(
+                out,
+                truth,
+                scored,
+                Path(plots_dir) / f"reliability_{Path(path).stem}.png",
+                names=list(scores),
+                title=f"{Path(path).name}: reliability of P(contact)",
+            )
+            print(f"wrote {png}")
+            result["plots"] = [str(png)]
+    if json_path:
+        written = write_json_atomic(json_path, json.loads(json.dumps(result, default=_plain)))
+        if truth is not None:  # without truth the line above says where P(contact) went
+            print(f"wrote {written}")
+    result["outputs"] = out  # not in the JSON: (T, E, L) arrays of every detector
+    return result
+
+
+def bounce_note(truth, valid, dt: float) -> str | None:
+    """The note ``evaluate`` prints when more than a quarter of a log's true air phases are
+    bounces (at most :func:`jax_contact.metrics.bounce_steps` steps, the 10 ms of rule 9b),
+    else None.
+
+    Args:
+      truth: (T, E, L) bool ground truth.
+      valid: (T, E) bool.
+      dt: period, s.
+    """
+    short, n_air = bounce_counts(truth, valid, dt)
+    n_bounce = bounce_steps(dt)
+    if not n_air or short <= 0.25 * n_air:
+        return None
+    return (
+        f"note: {short} of {n_air} true air phases last at most {n_bounce} steps"
+        f" ({n_bounce * dt * 1e3:.3g} ms), most often a resting foot's load dropping"
+        " for a step (the floor's soft contact): every detector's missed lift-offs"
+        " (mLO) count them, sw-ph leaves them out; truth/distance in the log holds"
+        " the sole's height"
+    )
+
+
+KINEMATIC_MARGIN = 0.02  # F1 by which the kinematic detector must win for the note below
+
+
+# True touch-downs a log needs before the note below is drawn (a 2-step or 0.5 s log's F1
+# says nothing about the parameters).
+KINEMATIC_MIN_EVENTS = 20
+
+
+def weaker_than_kinematic(scores: dict) -> str | None:
+    """A note when the kinematic detector (foot height alone) beats the estimator's F1 by
+    more than :data:`KINEMATIC_MARGIN` on a log of at least :data:`KINEMATIC_MIN_EVENTS`
+    true touch-downs: its parameters do not fit this robot or
+    its sensors (a light robot's loads sit near the torque noise), which tuning addresses."""
+    est, kin = scores.get("probabilistic"), scores.get("kinematic")
+    if not est or not kin or not kin["f1"] > est["f1"] + KINEMATIC_MARGIN:
+        return None
+    if est.get("n_touchdowns", 0) < KINEMATIC_MIN_EVENTS:
+        return None
+    return (
+        f"note: the kinematic detector's F1 ({kin['f1']:.3f}) beats the estimator's"
+        f" ({est['f1']:.3f}): its parameters do not fit this robot or sensor model; tune them"
+        " on logs with ground truth (jax-contact tune; docs/own_robot.md, 'A light robot')"
+    )
+
+
+def _vs_probabilistic(
+    out, scores, truth, valid, dt: float, n_resamples: int, *, truth_known=None
+) -> dict:
+    """``probabilistic - row`` for every other scored row, with its env-bootstrap interval;
+    printed, one line per row (``valid`` and ``truth_known`` as :func:`scored_steps`')."""
+    from jax_contact.bootstrap import STATISTICS, format_intervals, row_differences
+
+    print(
+        f"probabilistic - row, 95 % interval of a paired bootstrap of {n_resamples} env resamples:"
+    )
+    others = {row: tuple(STATISTICS) for row in scores if row != "probabilistic"}
+    vs = row_differences(
+        out, "probabilistic", others, truth, valid, dt=dt, n_resamples=n_resamples,
+        truth_known=truth_known,
+    )  # fmt: skip
+    for row, stats in vs.items():
+        print(f"  vs {row:18s} {format_intervals(stats)}")
+    return vs
+
+
+def _plain(x):
+    """``json.dumps``'s default for NumPy scalars and arrays."""
+    if isinstance(x, np.generic):
+        return x.item()
+    if isinstance(x, np.ndarray):
+        return x.tolist()
+    raise TypeError(type(x).__name__)
