@@ -18,6 +18,16 @@ on the foot is ``-(f_n n + f_t1 t1 + f_t2 t2)`` with ``t2 = n x t1`` (checked ag
 one point; a height field at up to 4 (MJX's ``hfield_sphere``), so those sensors have 4
 slots and the slots are summed.
 
+The force of a foot is the floor's force on its body: the foot geom's, plus that of every
+other geom of the foot's body that can collide with the floor (one more sensor each). Read
+from the foot geom alone, a foot geom that does not carry its leg's load makes the truth
+describe a pad: Menagerie's A1 (``solimp="0.015 1 0.031"`` on its foot spheres) stands on
+its calf capsules, which end at the spheres' centres; standing, each sphere is 10 mm into
+the floor and pushes 1.4 N, the capsule 26-33 N, and a trot's stance force read from the
+sphere was 2-5 N, dipping below the 1 N threshold within stances (docs/own_robot.md, "Soft
+foot pads"). Go1, Spot, Barkour and the planar leg have no such geom: their truth is the
+foot geom's.
+
 Contact flag: the normal force above a threshold, 1 N by default (Isaac Lab's and
 legged_gym's choice). Gap: the signed distance of the foot sphere's lowest point to the
 floor, ``n . (c - p_floor) - r`` for a plane (exact) and the vertical clearance
@@ -50,10 +60,35 @@ _PLANE = int(mujoco.mjtGeom.mjGEOM_PLANE)
 _HFIELD = int(mujoco.mjtGeom.mjGEOM_HFIELD)
 # Contacts MJX generates per geom pair: sphere-plane 1, sphere-hfield 4.
 _SLOTS = {_PLANE: 1, _HFIELD: 4}
+# Slots of the sensors on the foot body's other geoms (capsule-plane 2, box-plane 4; on a
+# height field the 4 deepest are kept).
+_BODY_SLOTS = 4
 
 
 def _sensor_name(foot: int, floor_geom: int) -> str:
     return f"{SENSOR_PREFIX}_foot{foot}_geom{floor_geom}"
+
+
+def _body_sensor_name(foot: int, floor_geom: int, geom: int) -> str:
+    return f"{SENSOR_PREFIX}_foot{foot}_geom{floor_geom}_body{geom}"
+
+
+def _body_geoms(m: mujoco.MjModel, foot_geom: int, floor_geom: int) -> list[int]:
+    """The other geoms of the foot's body that can collide with ``floor_geom``.
+
+    Menagerie's A1 stands on them: its foot spheres' ``solimp="0.015 1 0.031"`` is a pad
+    that pushes 1-5 N while it sinks 10 mm, and the calf capsule that ends at the sphere's
+    centre then lands and carries 95 % of the leg's load (module docstring)."""
+    body = int(m.geom_bodyid[foot_geom])
+    out = []
+    for g in range(m.ngeom):
+        if g == foot_geom or int(m.geom_bodyid[g]) != body:
+            continue
+        if (m.geom_contype[g] & m.geom_conaffinity[floor_geom]) or (
+            m.geom_contype[floor_geom] & m.geom_conaffinity[g]
+        ):
+            out.append(g)
+    return out
 
 
 def with_contact_sensors(robot: Robot) -> Robot:
@@ -77,6 +112,12 @@ def with_contact_sensors(robot: Robot) -> Robot:
     desc = robot.description
     m = robot.mj_model
     names = [_sensor_name(i, f) for i in range(desc.n_legs) for f in desc.floor_geom_ids]
+    names += [
+        _body_sensor_name(i, f, g)
+        for i, foot in enumerate(desc.foot_geom_ids)
+        for f in desc.floor_geom_ids
+        for g in _body_geoms(m, foot, f)
+    ]
     if all(mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SENSOR, n) >= 0 for n in names):
         return robot
     spec = robot.spec.copy()
@@ -110,6 +151,16 @@ def with_contact_sensors(robot: Robot) -> Robot:
                     _SLOTS.get(int(m.geom_type[f]), 4),
                 ],
             )
+            for g in _body_geoms(m, foot, f):
+                spec.add_sensor(
+                    name=_body_sensor_name(i, f, g),
+                    type=mujoco.mjtSensor.mjSENS_CONTACT,
+                    objtype=mujoco.mjtObj.mjOBJ_GEOM,
+                    objname=name_of(g, f"gt_foot{i}_body{g}"),
+                    reftype=mujoco.mjtObj.mjOBJ_GEOM,
+                    refname=floor_name,
+                    intprm=[_DATA_FORCE_NORMAL_TANGENT, _REDUCE_MINDIST, _BODY_SLOTS],
+                )
     mj_model = spec.compile()
     # Keep the caller's physics options (e.g. a changed timestep or solver iterations).
     for field in (
@@ -144,6 +195,8 @@ class TruthLayout:
       sensor_adr: static, per foot, per floor geom, the sensor's first index in
         ``sensordata``.
       sensor_slots: static, per floor geom, the number of contact slots of its sensors.
+      body_sensors: static, per foot, ``(first index, slots)`` of the sensors between the
+        floor and the foot body's other geoms (none on most robots).
       foot_geom_ids: static, the foot sphere geoms.
       foot_radii: static, their radii, m.
       floor_geom_ids: static, the floor geoms.
@@ -157,6 +210,7 @@ class TruthLayout:
 
     sensor_adr: tuple[tuple[int, ...], ...] = struct.field(pytree_node=False)
     sensor_slots: tuple[int, ...] = struct.field(pytree_node=False)
+    body_sensors: tuple[tuple[tuple[int, int], ...], ...] = struct.field(pytree_node=False)
     foot_geom_ids: tuple[int, ...] = struct.field(pytree_node=False)
     foot_radii: tuple[float, ...] = struct.field(pytree_node=False)
     floor_geom_ids: tuple[int, ...] = struct.field(pytree_node=False)
@@ -174,7 +228,7 @@ class FootTruth:
 
     Attributes:
       force: (n_feet, 3) contact force of the floor on the foot, world frame, N (summed
-        over the foot's contact points).
+        over the contact points of the foot geom and of its body's other geoms).
       normal_force: (n_feet,) its component along the contact normal (pushing the foot
         out of the floor), N, >= 0.
       contact: (n_feet,) bool, ``normal_force > threshold``.
@@ -203,7 +257,7 @@ def make_truth_layout(robot: Robot, *, threshold: float = 1.0) -> TruthLayout:
     if not (np.isfinite(threshold) and threshold >= 0):
         raise ValueError(f"threshold must be a finite float >= 0 (N), got {threshold!r}")
     m, desc = robot.mj_model, robot.description
-    adr = []
+    adr, body = [], []
     for i in range(desc.n_legs):
         row = []
         for f in desc.floor_geom_ids:
@@ -215,6 +269,18 @@ def make_truth_layout(robot: Robot, *, threshold: float = 1.0) -> TruthLayout:
                 )
             row.append(int(m.sensor_adr[sid]))
         adr.append(tuple(row))
+        extra = []
+        for f in desc.floor_geom_ids:
+            for g in _body_geoms(m, desc.foot_geom_ids[i], f):
+                sid = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SENSOR, _body_sensor_name(i, f, g))
+                if sid < 0:
+                    raise ValueError(
+                        f"robot {robot.name!r} lacks the ground-truth sensor of geom {g} on"
+                        f" foot {desc.foot_names[i]!r}'s body; pass it through"
+                        " with_contact_sensors first"
+                    )
+                extra.append((int(m.sensor_adr[sid]), int(m.sensor_dim[sid]) // _SLOT_SIZE))
+        body.append(tuple(extra))
     slots, types, sizes, heights = [], [], [], []
     for f in desc.floor_geom_ids:
         t = int(m.geom_type[f])
@@ -237,6 +303,7 @@ def make_truth_layout(robot: Robot, *, threshold: float = 1.0) -> TruthLayout:
     return TruthLayout(
         sensor_adr=tuple(adr),
         sensor_slots=tuple(slots),
+        body_sensors=tuple(body),
         foot_geom_ids=tuple(desc.foot_geom_ids),
         foot_radii=tuple(desc.foot_radii),
         floor_geom_ids=tuple(desc.floor_geom_ids),
@@ -286,10 +353,11 @@ def foot_truth(layout: TruthLayout, d: mjx.Data) -> FootTruth:
       The :class:`FootTruth` of this step.
     """
     forces, normals = [], []
-    for row in layout.sensor_adr:
+    for row, extra in zip(layout.sensor_adr, layout.body_sensors, strict=True):
         f_world = jnp.zeros(3)
         f_normal = jnp.zeros(())
-        for adr, n_slots in zip(row, layout.sensor_slots, strict=True):
+        pairs = list(zip(row, layout.sensor_slots, strict=True)) + list(extra)
+        for adr, n_slots in pairs:
             block = d.sensordata[adr : adr + n_slots * _SLOT_SIZE].reshape(n_slots, _SLOT_SIZE)
             f_c, n, t1 = block[:, 0:3], block[:, 3:6], block[:, 6:9]
             t2 = jnp.cross(n, t1)

@@ -194,6 +194,14 @@ def _strip_meshes(spec: mujoco.MjSpec, source: Path, *, keep_colliding: bool = F
     for mesh in list(spec.meshes):
         if mesh.name not in kept_meshes:
             spec.delete(mesh)
+    # Textures read from files are visual only (Menagerie's A1 paints its trunk with
+    # trunk_A1.png): deleted with the meshes, so their files need not exist either.
+    dropped = {texture.name for texture in spec.textures if texture.file}
+    for material in spec.materials:
+        material.textures = ["" if name in dropped else name for name in material.textures]
+    for texture in list(spec.textures):
+        if texture.name in dropped:
+            spec.delete(texture)
 
 
 def check_mjx_collisions(mj_model: mujoco.MjModel, source: str | Path) -> None:

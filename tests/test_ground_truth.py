@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import types
 
 import jax
@@ -14,6 +15,7 @@ from mujoco import mjx
 from jax_contact.envs.ground_truth import foot_truth, make_truth_layout, with_contact_sensors
 from jax_contact.envs.robots import load_robot, with_terrain
 from jax_contact.envs.simulate import rough_heights
+from jax_contact.robot import derive_description
 
 G = 9.81
 
@@ -198,3 +200,57 @@ def test_missing_sensors_and_bad_threshold_raise():
     assert with_contact_sensors(instrumented) is instrumented
     # Sensors are appended: ids and the description are unchanged.
     assert instrumented.description == robot.description
+
+
+def test_force_counts_the_foot_bodys_other_geoms():
+    """A foot that stands on another geom of its body (Menagerie's A1: a soft foot sphere,
+    ``solimp="0.015 1 0.031"``, sinks until the calf capsule ending at its centre lands):
+    the truth is the floor's force on the whole foot body, against mj_contactForce."""
+    base = load_robot("go1")
+    spec = base.spec.copy()
+    feet = list(base.description.foot_geom_ids)
+    for foot in [spec.geoms[g] for g in feet]:  # before the capsules shift the ids
+        foot.solimp = [0.015, 1.0, 0.031, 0.5, 2.0]
+        foot.priority = 1
+        centre = np.asarray(foot.pos, float)
+        foot.parent.add_geom(
+            type=mujoco.mjtGeom.mjGEOM_CAPSULE,
+            fromto=np.concatenate([centre, centre + [0.0, 0.0, 0.07]]),
+            size=[0.75 * foot.size[0], 0.0, 0.0],
+            contype=foot.contype,
+            conaffinity=foot.conaffinity,
+        )
+    m0 = spec.compile()
+    # The capsules shift the geom ids: the description is derived again.
+    desc = derive_description(m0, base.description.foot_names)
+    robot = with_contact_sensors(
+        dataclasses.replace(base, mj_model=m0, spec=spec, description=desc)
+    )
+    feet = list(robot.description.foot_geom_ids)
+    layout = make_truth_layout(robot)
+    assert all(len(extra) == 1 for extra in layout.body_sensors)
+    m = robot.mj_model
+    d = mujoco.MjData(m)
+    d.qpos[:] = robot.home_qpos
+    d.ctrl[:] = m.key_ctrl[0]
+    for _ in range(300):
+        mujoco.mj_step(m, d)
+    bodies = [int(m.geom_bodyid[g]) for g in feet]
+    expected = np.zeros((4, 3))
+    on_sphere = np.zeros(4)
+    for i in range(d.ncon):
+        c = d.contact[i]
+        f6 = np.zeros(6)
+        mujoco.mj_contactForce(m, d, i, f6)
+        world = c.frame.reshape(3, 3).T @ f6[:3]
+        for g, sign in ((c.geom1, -1.0), (c.geom2, 1.0)):
+            if int(m.geom_bodyid[g]) in bodies:
+                leg = bodies.index(int(m.geom_bodyid[g]))
+                expected[leg] += sign * world
+                if g in feet:
+                    on_sphere[leg] += f6[0]
+    truth = foot_truth(layout, _c_view(m, d))
+    np.testing.assert_allclose(truth.force, expected, rtol=1e-4, atol=1e-3)
+    # The scenario: the capsules carry most of the weight, the spheres a few newtons.
+    assert (np.asarray(truth.normal_force) > 3.0 * on_sphere).all()
+    np.testing.assert_allclose(truth.normal_force.sum(), m.body_subtreemass[1] * G, rtol=0.05)

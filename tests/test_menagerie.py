@@ -149,3 +149,25 @@ def test_an_mjcf_path_with_a_colliding_missing_mesh_names_the_file(tmp_path):
     (folder / "scene.xml").write_text(_scene("tiny.xml", PLANE))
     with pytest.raises(ValueError, match="thigh_0.obj"):
         load_robot(str(folder / "scene.xml"))
+
+
+def test_a_texture_file_that_does_not_exist_is_dropped_with_the_meshes(monkeypatch, tmp_path):
+    """Menagerie's A1 paints its trunk with a texture file (trunk_A1.png) that, like the
+    meshes, is visual only: the model loads without it, its physics unchanged."""
+    folder = tmp_path / NAME
+    folder.mkdir()
+    painted = (
+        _robot_xml("")
+        .replace(
+            "<asset>",
+            '<asset><texture name="skin" type="2d" file="skin.png"/>'
+            '<material name="painted" texture="skin"/>',
+        )
+        .replace('name="trunk_col"', 'name="trunk_col" material="painted"')
+    )
+    (folder / "tiny.xml").write_text(painted)
+    (folder / "scene.xml").write_text(_scene("tiny.xml", PLANE))
+    monkeypatch.setenv("MENAGERIE_ROOT", str(tmp_path))
+    m = load_robot(NAME).mj_model
+    assert m.ntex == 0 and m.nmat == 1
+    np.testing.assert_allclose(m.body_mass.sum(), 7.5, rtol=1e-12)
