@@ -119,17 +119,24 @@ def _barkour_on_a_height_field():
     return with_terrain(load_robot("barkour"), rough_heights(0.015, size_xy=size), size)
 
 
+def _settled(robot, steps: int = 300):
+    """C MuJoCo's (model, data) of ``robot`` after ``steps`` steps from its home pose, its
+    position servos holding the keyframe's targets."""
+    m = robot.mj_model
+    d = mujoco.MjData(m)
+    d.qpos[:] = robot.home_qpos
+    d.ctrl[:] = m.key_ctrl[0]
+    for _ in range(steps):
+        mujoco.mj_step(m, d)
+    return m, d
+
+
 def test_force_matches_mj_contact_force():
     """The sensor route against C MuJoCo's mj_contactForce, on a plane and a height field."""
     for robot in (load_robot("go1"), _barkour_on_a_height_field()):
         robot = with_contact_sensors(robot)
         layout = make_truth_layout(robot)
-        m = robot.mj_model
-        d = mujoco.MjData(m)
-        d.qpos[:] = robot.home_qpos
-        d.ctrl[:] = m.key_ctrl[0]
-        for _ in range(300):
-            mujoco.mj_step(m, d)
+        m, d = _settled(robot)
         # Independent reference: each contact's force in its frame (rows: normal, tangents),
         # acting on geom2; the floor's force on a foot is minus that if the foot is geom1.
         expected = np.zeros((4, 3))
@@ -229,12 +236,7 @@ def test_force_counts_the_foot_bodys_other_geoms():
     feet = list(robot.description.foot_geom_ids)
     layout = make_truth_layout(robot)
     assert all(len(extra) == 1 for extra in layout.body_sensors)
-    m = robot.mj_model
-    d = mujoco.MjData(m)
-    d.qpos[:] = robot.home_qpos
-    d.ctrl[:] = m.key_ctrl[0]
-    for _ in range(300):
-        mujoco.mj_step(m, d)
+    m, d = _settled(robot)
     bodies = [int(m.geom_bodyid[g]) for g in feet]
     expected = np.zeros((4, 3))
     on_sphere = np.zeros(4)
