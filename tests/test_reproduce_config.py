@@ -157,3 +157,15 @@ def test_a_run_replaces_its_outputs_as_one_or_leaves_them(tmp_path, monkeypatch)
     with pytest.raises(KeyboardInterrupt):
         R.run(R.ReproduceConfig(), tmp_path / "new")
     assert not (tmp_path / "new").exists()
+
+
+def test_a_robot_without_a_preset_gets_no_tuned_row_and_a_line_saying_why():
+    """``--params auto`` on a robot with no shipped preset (ANYmal C, a user trial) has no
+    row ``tuned``; the printed line names the robot and the way to add one."""
+    cfg = R.ReproduceConfig(robot="anybotics_anymal_c")
+    assert "anybotics_anymal_c" not in R.jc.preset_names()
+    assert R.tuned_estimator(cfg, desc=None) is None
+    line = R.no_tuned_row(cfg.robot)
+    assert line.startswith("tuned: no row, 'anybotics_anymal_c' has no shipped preset")
+    assert "--params FILE" in line
+    assert max(len(x) for x in line.splitlines()) <= 100  # printed wrapped, as the legend

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import dataclasses
 import sys
+import textwrap
 import time
 from pathlib import Path
 
@@ -413,6 +414,16 @@ def tuned_estimator(
     return _tuned_row(source, cfg, desc, dt, mass_kg)
 
 
+def no_tuned_row(robot: str) -> str:
+    """The line Table III prints when ``--params auto`` (or ``per-gait``) finds no shipped
+    preset of ``robot``: why the row ``tuned`` is missing and how to get one."""
+    return textwrap.fill(
+        f"{TUNED_ROW}: no row, {robot!r} has no shipped preset; --params FILE adds a tuned"
+        " file's row (docs/tuning.md)",
+        100,
+    )
+
+
 def per_gait_preset(robot: str, scenario: str) -> str | None:
     """The preset of the row ``tuned`` for ``scenario`` under ``tuned_params="per-gait"``:
     the robot's preset tuned on the scenario's gait alone
@@ -660,6 +671,8 @@ def _run_into(cfg: ReproduceConfig, out_dir: Path) -> dict:
         print(line)
     if payload.get("tuned_params"):
         print(format_tuned_source(payload["tuned_params"]))
+    elif cfg.tuned_params in ("auto", PER_GAIT):
+        print(no_tuned_row(cfg.robot))
     if payload.get("vs_gm") or payload.get("tuned_vs"):
         print(format_vs_gm(payload))
     print("\nAblation (same inputs; columns as Table III's):")
