@@ -101,6 +101,14 @@ def test_evaluate_prints_every_metric_and_tunes_gm_on_a_grid_log(round_trip):
     f1 = {k: (v["f1"], -v["failures"]) for k, v in grid_scores.items()}
     assert f1[best] == max(f1.values())
     assert ev["gm"] == {"name": best, "K_I": float(gm.K_I), "threshold": float(gm.threshold)}
+    # The kinematic detector is tuned on the same log by its own grid (best F1).
+    from jax_contact.train.log_evaluate import tune_baselines
+
+    kin_name, kin = tune_baselines(LOG)["kinematic"]
+    assert ev["kinematic"] == {
+        "height_threshold": float(kin.height_threshold),
+        "velocity_threshold": float(kin.velocity_threshold),
+    }
     assert set(ev["scores"]) == {"probabilistic", best, "kinematic"}
     text = format_scores(ev["scores"], title="planar_leg_hop.h5")
     lines = text.splitlines()

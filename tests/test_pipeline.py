@@ -63,13 +63,30 @@ def replayed(planar):
         estimators={"probabilistic": params},
         terrain=jc.flat(0.0, 0.2),
         gms={"gm": jc.baselines.make_gm_params()},
-        kinematic=jc.baselines.make_kinematic_params(),
+        # A grid as the reproduction tunes one: the defaults, and wider thresholds.
+        kinematic={
+            "kinematic": jc.baselines.make_kinematic_params(),
+            "kin_wide": jc.baselines.make_kinematic_params(0.04, 1.0),
+        },
         dt=world.dt,
         diagnostics_of="probabilistic",
         chunk=100,
         progress=False,
     )
     return out
+
+
+def test_replay_runs_a_grid_of_kinematic_detectors(replayed, planar):
+    """A mapping of kinematic settings gives one output each. The detector calls contact
+    where the sole is at most ``height_threshold`` above the ground and moves at most
+    ``velocity_threshold``, so wider thresholds flag contact wherever the defaults do, and
+    on this hop more (the landing's last centimetres and the stance's faster moments)."""
+    _, roll = planar
+    narrow, wide = replayed["kinematic"], replayed["kin_wide"]
+    assert narrow.shape == wide.shape == roll.contact.shape
+    assert set(np.unique(narrow)) <= {0.0, 1.0} and set(np.unique(wide)) <= {0.0, 1.0}
+    assert np.all(wide >= narrow)
+    assert wide.sum() > narrow.sum()
 
 
 def test_rollout_shapes_and_truth(planar):

@@ -169,3 +169,26 @@ def test_a_robot_without_a_preset_gets_no_tuned_row_and_a_line_saying_why():
     assert line.startswith("tuned: no row, 'anybotics_anymal_c' has no shipped preset")
     assert "--params FILE" in line
     assert max(len(x) for x in line.splitlines()) <= 100  # printed wrapped, as the legend
+
+
+def test_the_kinematic_detector_is_tuned_on_both_gaits_by_mean_f1():
+    """The grid point with the best F1 averaged over the walk and trot tuning runs wins,
+    ties going to fewer failures over both: a hand example."""
+
+    def s(f1, fails):
+        return {"f1": f1, "failures": fails}
+
+    # F1 values exact in binary, so the tie below is exact.
+    scores = {
+        "walk": {"a": s(0.5, 5), "b": s(0.75, 9), "c": s(1.0, 1)},
+        "trot": {"a": s(0.75, 5), "b": s(0.625, 1), "c": s(0.25, 1)},
+    }
+    # means: a 0.625, b 0.6875, c 0.625 -> b, although c is best on the walk alone
+    assert R.best_kinematic(scores) == "b"
+    scores["trot"]["a"] = s(0.875, 0)  # a: mean 0.6875 too, 5 failures against b's 10 -> a
+    assert R.best_kinematic(scores) == "a"
+    grid = R.kinematic_grid()
+    assert len(grid) == len(R.KIN_HEIGHTS) * len(R.KIN_SPEEDS)
+    default, point = R.make_kinematic_params(), grid["kin_h2_v0.3"]  # the defaults: a point
+    assert float(point.height_threshold) == float(default.height_threshold)
+    assert float(point.velocity_threshold) == float(default.velocity_threshold)

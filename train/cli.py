@@ -522,7 +522,8 @@ def build_parser() -> argparse.ArgumentParser:
         "--gm-grid",
         default=None,
         metavar="LOG",
-        help="tune the GM observer on this other log (jax_contact.train.reproduce's grid, best F1)",
+        help="tune the GM observer and the kinematic detector on this other log"
+        " (jax_contact.train.reproduce's grids, best F1)",
     )
     p.add_argument(
         "--params",

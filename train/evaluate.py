@@ -75,7 +75,7 @@ def replay(
     estimators: Mapping[str, jc.EstimatorParams],
     terrain,
     gms: Mapping[str, GMParams] | None = None,
-    kinematic: KinematicParams | None = None,
+    kinematic: KinematicParams | Mapping[str, KinematicParams] | None = None,
     dt: float,
     seed: int = 0,
     diagnostics_of: str | None = None,
@@ -92,7 +92,8 @@ def replay(
       estimators: name -> estimator parameters; each runs its own filter.
       terrain: the estimator's terrain model (``jax_contact.terrain``).
       gms: name -> generalized-momentum observer parameters.
-      kinematic: kinematic threshold detector parameters, or None.
+      kinematic: kinematic threshold detector parameters (output ``"kinematic"``), or
+        name -> parameters (one output each, as ``gms``: a grid to tune on), or None.
       dt: period of the readings, s.
       seed: seeds the Monte-Carlo touch-down draws.
       diagnostics_of: an estimator name whose per-term diagnostics are also returned.
@@ -105,12 +106,18 @@ def replay(
       progress: print progress to stderr.
 
     Returns:
-      name -> (T, E, L) array: each estimator's P(contact), each GM observer's and the
+      name -> (T, E, L) array: each estimator's P(contact), each GM observer's and
       kinematic detector's contact flag (as float 0/1), ``"gm_force/<name>"`` normal forces,
       and ``"<estimator>/<field>"`` for every diagnostic field of ``diagnostics_of``,
       ``"<estimator>/valid"`` the estimator's input-validity flag.
     """
     gms = dict(gms or {})
+    if kinematic is None:
+        kinematic = {}
+    elif isinstance(kinematic, KinematicParams):
+        kinematic = {"kinematic": kinematic}
+    else:
+        kinematic = dict(kinematic)
     if pairing not in ("delayed", "raw"):
         raise ValueError(f"pairing must be 'delayed' or 'raw', got {pairing!r}")
     qpos, qvel, qacc, tau = (np.asarray(readings[k]) for k in ("qpos", "qvel", "qacc", "tau"))
@@ -134,7 +141,7 @@ def replay(
     template = mjx.make_data(m)
     models = (m, template, dict(estimators), terrain, gms, kinematic)
     kw = dict(desc=desc, dt=jnp.float32(dt), diagnostics_of=diagnostics_of)
-    separate = pairing != "raw" and bool(gms or kinematic is not None)
+    separate = pairing != "raw" and bool(gms or kinematic)
     kw["separate_baselines"] = separate
     first = tuple(jnp.asarray(np.nan_to_num(a[0])) for a in (qpos, qvel, qacc, tau))
     beliefs, gm_states = _replay_init(*models, first, **kw)
@@ -280,13 +287,13 @@ def _replay_chunk(
             for i, name in enumerate(names):
                 out[name] = o.contact[i].astype(jnp.float32)
                 out[f"gm_force/{name}"] = o.force_normal[i]
-        if kinematic is not None:
+        for name, kp in kinematic.items():
 
-            def kin_one(ms):
+            def kin_one(ms, kp=kp):
                 tq = terrain.query(ms.p_f, jnp.zeros(3), jnp.array(False))
-                return kinematic_detect(kinematic, ms, tq).contact
+                return kinematic_detect(kp, ms, tq).contact
 
-            out["kinematic"] = jax.vmap(jax.vmap(kin_one))(base_meas).astype(jnp.float32)
+            out[name] = jax.vmap(jax.vmap(kin_one))(base_meas).astype(jnp.float32)
         return (new_beliefs, new_gm, key), out
 
     return jax.lax.scan(one_step, carry, xs)

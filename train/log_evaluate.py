@@ -39,39 +39,58 @@ def scored_steps(out: dict, truth: np.ndarray, valid: np.ndarray):
     return scored, known
 
 
-def tune_gm(path: str | Path) -> tuple[str, object, dict]:
-    """The GM observer setting of ``jax_contact.train.reproduce``'s grid with the best F1 on a log.
+def tune_baselines(path: str | Path) -> dict:
+    """The GM observer's and the kinematic detector's settings of
+    ``jax_contact.train.reproduce``'s grids with the best F1 on a log, from one replay.
 
-    Runs every grid point (:func:`jax_contact.train.reproduce.gm_grid`) on the log and picks one
-    with
-    :func:`jax_contact.train.reproduce.best_gm` (best per-step F1, ties: fewer failures), the rule
-    the reproduction tunes by.
+    Every point of :func:`jax_contact.train.reproduce.gm_grid` and
+    :func:`jax_contact.train.reproduce.kinematic_grid` runs on the log; the picks follow
+    the rules the reproduction tunes by (:func:`jax_contact.train.reproduce.best_gm`,
+    :func:`jax_contact.train.reproduce.best_kinematic`: best per-step F1, ties: fewer
+    failures).
 
     Returns:
-      (grid name, e.g. ``"gm_K50_F15"``, its GMParams, grid name -> scores).
+      ``{"gm": (name, GMParams), "kinematic": (name, KinematicParams), "scores": grid name
+      -> scores}``.
 
     Raises:
       ValueError: the log has no ground truth, or as :func:`load_log`.
     """
     import jax_contact as jc
     from jax_contact.train.evaluate import replay, score
-    from jax_contact.train.reproduce import TERRAIN_SIGMA, best_gm, gm_grid
+    from jax_contact.train.reproduce import (
+        TERRAIN_SIGMA,
+        best_gm,
+        best_kinematic,
+        gm_grid,
+        kinematic_grid,
+    )
 
     log = load_log(path)
     if log.truth is None:
         raise ValueError(f"{log.name} has no ground truth ({TRUTH_CONTACT!r}): cannot tune on it")
-    grid = gm_grid()
+    gms, kins = gm_grid(), kinematic_grid()
     out = replay(
         log.robot,
         log.readings,
         estimators={},
         terrain=jc.flat(0.0, TERRAIN_SIGMA),
-        gms=grid,
+        gms=gms,
+        kinematic=kins,
         dt=log.dt,
     )
-    scores = score(out, log.truth, log.valid, dt=log.dt, names=list(grid))
-    best = best_gm(scores)
-    return best, grid[best], scores
+    scores = score(out, log.truth, log.valid, dt=log.dt, names=[*gms, *kins])
+    gm = best_gm(scores)
+    kin = best_kinematic({log.name: {k: scores[k] for k in kins}})
+    return {"gm": (gm, gms[gm]), "kinematic": (kin, kins[kin]), "scores": scores}
+
+
+def tune_gm(path: str | Path) -> tuple[str, object, dict]:
+    """The GM observer of :func:`tune_baselines`: (grid name, e.g. ``"gm_K50_F15"``, its
+    GMParams, GM grid name -> scores)."""
+    tuned = tune_baselines(path)
+    name, gm = tuned["gm"]
+    return name, gm, {k: v for k, v in tuned["scores"].items() if k.startswith("gm_K")}
 
 
 def evaluate_file(
@@ -111,8 +130,9 @@ def evaluate_file(
 
     Args:
       json_path: write the result as JSON here.
-      gm_grid_log: tune the GM observer on this other log (:func:`tune_gm`) instead of
-        using the default setting (``make_gm_params()``).
+      gm_grid_log: tune the GM observer and the kinematic detector on this other log
+        (:func:`tune_baselines`) instead of using their default settings
+        (``make_gm_params()``, ``make_kinematic_params()``).
       params_path: estimator parameters (:func:`jax_contact.load_params`) instead of the
         robot's defaults (:func:`default_estimator`).
       foot_names: the feet, overriding the log's.
@@ -160,9 +180,14 @@ def evaluate_file(
             desc, dt, terrain_model, mj_model=log.robot.mj_model
         )[0]
     gm_name, gm = "gm", make_gm_params()
+    kinematic = make_kinematic_params()
     if gm_grid_log is not None and truth is not None:
-        gm_name, gm, _ = tune_gm(gm_grid_log)
-        print(f"GM observer tuned on {str(gm_grid_log)!r}: {gm_name} (best F1 of the grid)")
+        tuned = tune_baselines(gm_grid_log)
+        (gm_name, gm), (kin_name, kinematic) = tuned["gm"], tuned["kinematic"]
+        print(
+            f"GM observer and kinematic detector tuned on {str(gm_grid_log)!r}: {gm_name},"
+            f" {kin_name} (best F1 of each grid)"
+        )
     out = replay(
         log.robot,
         log.readings,
@@ -170,7 +195,7 @@ def evaluate_file(
         terrain=terrain,
         # Without ground truth only the estimator's P(contact) is reported.
         gms={gm_name: gm} if truth is not None else None,
-        kinematic=make_kinematic_params() if truth is not None else None,
+        kinematic=kinematic if truth is not None else None,
         dt=dt,
         # A reading that is not finite leaves its feet to the prediction alone: the
         # estimator's per-foot validity says which, and those steps are not scored.
@@ -198,6 +223,10 @@ def evaluate_file(
         "has_truth": truth is not None,
         "foot_names": feet,
         "gm": {"name": gm_name, "K_I": float(gm.K_I), "threshold": float(gm.threshold)},
+        "kinematic": {
+            "height_threshold": float(kinematic.height_threshold),
+            "velocity_threshold": float(kinematic.velocity_threshold),
+        },
     }
     if truth is None:
         p = np.asarray(out["probabilistic"])  # (T, E, L)

@@ -170,6 +170,7 @@ def table3_json(t3: dict) -> dict:
         **({"tuned_vs": tvs} if tvs else {}),
         **({"tuned_params": t3["tuned_params"]} if t3.get("tuned_params") else {}),
         "tuned_gm": t3["tuned_gm"],
+        "tuned_kinematic": t3.get("tuned_kinematic"),
         "reading_timing": "end_of_step",
         "input_lag_ms": t3.get("input_lag_ms"),
         "dt": t3.get("dt"),
