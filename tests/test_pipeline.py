@@ -89,6 +89,25 @@ def test_replay_runs_a_grid_of_kinematic_detectors(replayed, planar):
     assert wide.sum() > narrow.sum()
 
 
+def test_replay_refuses_two_detectors_of_one_name(planar):
+    """Each detector's name is one output key: an estimator and a kinematic setting both
+    named "kinematic" (the second output would replace the first) and a name holding '/'
+    (the diagnostics' key separator) are refused before anything compiles."""
+    world, roll = planar
+    readings = dict(qpos=roll.qpos, qvel=roll.qvel, qacc=roll.qacc, tau=roll.tau)
+    params = planar_estimator_params(3, world.dt)
+    kw = dict(terrain=jc.flat(0.0, 0.2), dt=world.dt, progress=False)
+    with pytest.raises(
+        ValueError, match="kinematic and estimators both name a detector 'kinematic'"
+    ):
+        kin = jc.baselines.make_kinematic_params()
+        replay(world.robot, readings, estimators={"kinematic": params}, kinematic=kin, **kw)
+    with pytest.raises(ValueError, match=r"gms: detector name 'gm/a' must be"):
+        replay(
+            world.robot, readings, estimators={}, gms={"gm/a": jc.baselines.make_gm_params()}, **kw
+        )
+
+
 def test_rollout_shapes_and_truth(planar):
     world, roll = planar
     t = int(round(DURATION / world.dt))

@@ -118,6 +118,7 @@ def replay(
         kinematic = {"kinematic": kinematic}
     else:
         kinematic = dict(kinematic)
+    _check_output_names(estimators, gms, kinematic)
     if pairing not in ("delayed", "raw"):
         raise ValueError(f"pairing must be 'delayed' or 'raw', got {pairing!r}")
     qpos, qvel, qacc, tau = (np.asarray(readings[k]) for k in ("qpos", "qvel", "qacc", "tau"))
@@ -158,6 +159,30 @@ def replay(
         carry, out = _replay_chunk(*models, carry, xs, **kw)
         pieces.append({k: np.asarray(v)[: stop - start] for k, v in out.items()})
     return {k: np.concatenate([p[k] for p in pieces], axis=0) for k in pieces[0]}
+
+
+def _check_output_names(estimators: Mapping, gms: Mapping, kinematic: Mapping) -> None:
+    """Every detector's name is an output key of :func:`replay`: the three sets must not
+    share one (the later detector's output would replace the earlier's without a word),
+    and no name may hold ``/`` (the diagnostics' ``<estimator>/<field>`` and GM's
+    ``gm_force/<name>`` keys).
+
+    Raises:
+      ValueError: naming the argument and the name.
+    """
+    seen: dict[str, str] = {}
+    for arg, names in (("estimators", estimators), ("gms", gms), ("kinematic", kinematic)):
+        for name in names:
+            if not isinstance(name, str) or not name or "/" in name:
+                raise ValueError(
+                    f"{arg}: detector name {name!r} must be a non-empty str without '/'"
+                )
+            if name in seen:
+                raise ValueError(
+                    f"{arg} and {seen[name]} both name a detector {name!r}: each name is one"
+                    " output of replay"
+                )
+            seen[name] = arg
 
 
 def _measure_batch(m, template, desc, qpos, qvel, qacc, tau):
