@@ -184,9 +184,9 @@ def test_the_kinematic_detector_is_tuned_on_both_gaits_by_mean_f1():
         "trot": {"a": s(0.75, 5), "b": s(0.625, 1), "c": s(0.25, 1)},
     }
     # means: a 0.625, b 0.6875, c 0.625 -> b, although c is best on the walk alone
-    assert R.best_kinematic(scores) == "b"
+    assert R.best_setting(scores) == "b"
     scores["trot"]["a"] = s(0.875, 0)  # a: mean 0.6875 too, 5 failures against b's 10 -> a
-    assert R.best_kinematic(scores) == "a"
+    assert R.best_setting(scores) == "a"
     grid = R.kinematic_grid()
     assert len(grid) == len(R.KIN_HEIGHTS) * len(R.KIN_SPEEDS)
     default, point = R.make_kinematic_params(), grid["kin_h2_v0.3"]  # the defaults: a point

@@ -312,13 +312,16 @@ def _replay_chunk(
             for i, name in enumerate(names):
                 out[name] = o.contact[i].astype(jnp.float32)
                 out[f"gm_force/{name}"] = o.force_normal[i]
-        for name, kp in kinematic.items():
-
-            def kin_one(ms, kp=kp):
-                tq = terrain.query(ms.p_f, jnp.zeros(3), jnp.array(False))
-                return kinematic_detect(kp, ms, tq).contact
-
-            out[name] = jax.vmap(jax.vmap(kin_one))(base_meas).astype(jnp.float32)
+        if kinematic:
+            # The terrain below each foot, queried once per step for every setting.
+            below = jax.vmap(
+                jax.vmap(lambda ms: terrain.query(ms.p_f, jnp.zeros(3), jnp.array(False)))
+            )(base_meas)
+            for name, kp in kinematic.items():
+                flag = jax.vmap(
+                    jax.vmap(lambda ms, tq, kp=kp: kinematic_detect(kp, ms, tq).contact)
+                )
+                out[name] = flag(base_meas, below).astype(jnp.float32)
         return (new_beliefs, new_gm, key), out
 
     return jax.lax.scan(one_step, carry, xs)

@@ -45,13 +45,12 @@ def tune_baselines(path: str | Path) -> dict:
 
     Every point of :func:`jax_contact.train.reproduce.gm_grid` and
     :func:`jax_contact.train.reproduce.kinematic_grid` runs on the log; the picks follow
-    the rules the reproduction tunes by (:func:`jax_contact.train.reproduce.best_gm`,
-    :func:`jax_contact.train.reproduce.best_kinematic`: best per-step F1, ties: fewer
-    failures).
+    rule the reproduction tunes by (:func:`jax_contact.train.reproduce.best_setting`: best
+    per-step F1, ties: fewer failures).
 
     Returns:
-      ``{"gm": (name, GMParams), "kinematic": (name, KinematicParams), "scores": grid name
-      -> scores}``.
+      ``{"gm": (name, GMParams), "kinematic": (name, KinematicParams), "scores": {"gm": GM
+      grid name -> scores, "kinematic": kinematic grid name -> scores}}``.
 
     Raises:
       ValueError: the log has no ground truth, or as :func:`load_log`.
@@ -60,8 +59,7 @@ def tune_baselines(path: str | Path) -> dict:
     from jax_contact.train.evaluate import replay, score
     from jax_contact.train.reproduce import (
         TERRAIN_SIGMA,
-        best_gm,
-        best_kinematic,
+        best_setting,
         gm_grid,
         kinematic_grid,
     )
@@ -79,9 +77,11 @@ def tune_baselines(path: str | Path) -> dict:
         kinematic=kins,
         dt=log.dt,
     )
-    scores = score(out, log.truth, log.valid, dt=log.dt, names=[*gms, *kins])
-    gm = best_gm(scores)
-    kin = best_kinematic({log.name: {k: scores[k] for k in kins}})
+    scores = {
+        grid: score(out, log.truth, log.valid, dt=log.dt, names=list(names))
+        for grid, names in (("gm", gms), ("kinematic", kins))
+    }
+    gm, kin = (best_setting({log.name: scores[grid]}) for grid in ("gm", "kinematic"))
     return {"gm": (gm, gms[gm]), "kinematic": (kin, kins[kin]), "scores": scores}
 
 
@@ -90,7 +90,7 @@ def tune_gm(path: str | Path) -> tuple[str, object, dict]:
     GMParams, GM grid name -> scores)."""
     tuned = tune_baselines(path)
     name, gm = tuned["gm"]
-    return name, gm, {k: v for k, v in tuned["scores"].items() if k.startswith("gm_K")}
+    return name, gm, tuned["scores"]["gm"]
 
 
 def evaluate_file(

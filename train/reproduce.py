@@ -345,23 +345,19 @@ def kinematic_grid() -> dict[str, KinematicParams]:
     }
 
 
-def best_kinematic(scores_by_gait: dict[str, dict[str, dict]]) -> str:
-    """The kinematic grid point with the best per-step F1 averaged over the tuning runs
-    (gait -> grid name -> scores; ties: fewer failures in all): one setting for every
-    scenario, as the detector has no gait to switch on."""
-    names = list(next(iter(scores_by_gait.values())))
+def best_setting(scores_by_run: dict[str, dict[str, dict]]) -> str:
+    """The grid point (GM's or the kinematic detector's) with the best per-step F1 on the
+    tuning runs (run -> grid name -> scores), averaged over the runs when there are
+    several; ties: fewer failures in all. GM is tuned per gait (one run each); the
+    kinematic detector on the walk and the trot together, one setting for every scenario,
+    as it has no gait to switch on."""
+    names = list(next(iter(scores_by_run.values())))
 
     def key(k):
-        f1 = np.mean([np.nan_to_num(s[k]["f1"]) for s in scores_by_gait.values()])
-        return (f1, -sum(s[k]["failures"] for s in scores_by_gait.values()))
+        f1 = np.mean([np.nan_to_num(s[k]["f1"]) for s in scores_by_run.values()])
+        return (f1, -sum(s[k]["failures"] for s in scores_by_run.values()))
 
     return max(names, key=key)
-
-
-def best_gm(scores: dict[str, dict]) -> str:
-    """The GM grid point with the best per-step F1 on the tuning seeds (ties: fewer fails)."""
-    grid = {k: v for k, v in scores.items() if k.startswith("gm_K")}
-    return max(grid, key=lambda k: (np.nan_to_num(grid[k]["f1"]), -grid[k]["failures"]))
 
 
 def section3(cfg: ReproduceConfig, out_dir: Path) -> dict:
@@ -552,10 +548,11 @@ def table3(cfg: ReproduceConfig, out_dir: Path, tuned_row: dict | None = None) -
             kins,
             diagnostics_of="probabilistic",
         )
-        tuned[gait] = best_gm(score(out, roll.contact, roll.valid, dt=world.dt, names=list(gms)))
+        gm_scores = score(out, roll.contact, roll.valid, dt=world.dt, names=list(gms))
+        tuned[gait] = best_setting({gait: gm_scores})
         _log(f"  GM tuned for {gait}: {tuned[gait]}")
         kin_scores[gait] = score(out, roll.contact, roll.valid, dt=world.dt, names=list(kins))
-    tuned_kin = best_kinematic(kin_scores)
+    tuned_kin = best_setting(kin_scores)
     _log(f"  kinematic detector tuned on both: {tuned_kin}")
 
     results = {}
