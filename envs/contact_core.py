@@ -400,6 +400,7 @@ def report(core: Core) -> dict:
         ],
         "leg_dofs": len(core.desc.leg_dofs[0]),
         "force_rows": tuple(int(i) for i in core.params.force_rows),
+        "sign_test": bool(core.params.unilateral),
         "truth": core.truth_source,
         "truth_gap_m": float(core.cfg.truth_gap) if core.truth_raw is not None else 0.0,
         "observe": core.cfg.observe,

@@ -69,6 +69,55 @@ def choose_force_rows(mj_model: mujoco.MjModel, desc: RobotDescription) -> tuple
     return tuple(sorted([2, *tangential]))
 
 
+def push_noise(mj_model: mujoco.MjModel, desc: RobotDescription, params) -> np.ndarray:
+    """(n_legs,) std of the dynamics term's estimated push ``e . F`` at the home pose, N.
+
+    Eq. 6's force is ``F = Lambda J_f M_l^-1 r + ...``: ``J_f`` the rows
+    ``params.force_rows`` of the foot's Jacobian over the leg's joints, ``Lambda = (J_f
+    M_l^-1 J_f^T + inv_damping I)^-1`` (damped as the term damps it), and the residual
+    ``r = tau - h - M_lb qdd_b`` carries ``Sigma_d`` (the torque noise and the model error
+    ``w_d``, ``params.noise.sigma_d``). Along the normal ``e = z`` its std is ``sqrt(g
+    Sigma_d g^T)``, ``g = e^T Lambda J_f M_l^-1`` (for a square ``J_f``, ``e^T J_f^-T``).
+    Home pose as in :func:`choose_force_rows`; the base acceleration's share of
+    ``Sigma_d`` is left out.
+    """
+    d = home_data(mj_model)
+    mujoco.mj_forward(mj_model, d)
+    M = np.zeros((mj_model.nv, mj_model.nv))
+    mujoco.mj_fullM(mj_model, d, M)
+    rows = list(params.force_rows)
+    e = np.array([0.0, 0.0, 1.0])[rows]
+    sigma_d = np.asarray(params.noise.sigma_d, np.float64)
+    points = foot_points_np(mj_model, d, desc)
+    out = []
+    for body, point, dofs in zip(desc.foot_body_ids, points, desc.leg_dofs, strict=True):
+        dofs = list(dofs)
+        jacp = np.zeros((3, mj_model.nv))
+        mujoco.mj_jac(mj_model, d, jacp, None, point, body)
+        J = jacp[rows][:, dofs]
+        M_inv = np.linalg.inv(M[np.ix_(dofs, dofs)])
+        lam_inv = J @ M_inv @ J.T + float(params.inv_damping) * np.eye(len(rows))
+        g = e @ np.linalg.solve(lam_inv, J @ M_inv)
+        out.append(float(np.sqrt(np.sum(g**2 * sigma_d[dofs] ** 2))))
+    return np.asarray(out)
+
+
+def choose_unilateral(mj_model: mujoco.MjModel, desc: RobotDescription, params) -> bool:
+    """Whether the dynamics term's sign test (``EstimatorParams.unilateral``) can read a
+    stance foot's load: a foot's share of the weight, ``m g / n_legs``, at least the
+    largest :func:`push_noise` of the legs. Below it the estimated push's sign is mostly
+    the torques' noise, which the test (under ``Sigma_f`` alone) would read as a sure
+    "pull": Brax's ant (0.91 kg, 2.2 N per foot against 3.6 N of noise) read its trot's
+    stance as air (docs/training.md, "Brax's ant, measured"). Every other robot measured
+    keeps the test: Go1 2.2x, Barkour 2.0x, Spot 13x, the planar leg 5x, Playground's
+    humanoids 2.9-16x. A description without a mass keeps it.
+    """
+    if desc.mass_kg is None:
+        return True
+    load = float(desc.mass_kg) * 9.81 / desc.n_legs
+    return bool(load >= float(np.max(push_noise(mj_model, desc, params))))
+
+
 def default_sensor_params(
     sensor: str | sensors.SensorParams, robot_or_desc, dt: float
 ) -> sensors.SensorParams:
@@ -166,11 +215,13 @@ def default_estimator_params(
 ) -> jc.EstimatorParams:
     """Estimator parameters consistent with a sensor model: :func:`jax_contact.params_for`.
 
-    The one source of parameters (its docstring lists the rules), with two things only a
-    simulated env knows: the force axes of legs with fewer than three joints, read from the
-    model, and ``sigma_qdd_model``, an acceleration model error for the control rate, where
-    ``qacc`` is the mean over a control period but the dynamics term predicts the
-    instantaneous acceleration, combined in quadrature with the sensor-derived
+    The one source of parameters (its docstring lists the rules), with three things only a
+    simulated env knows: the force axes of legs with fewer than three joints and whether
+    the dynamics term's sign test can read a foot's load (:func:`choose_unilateral`, unless
+    ``unilateral`` is given), both read from the model, and ``sigma_qdd_model``, an
+    acceleration model error for the control rate, where ``qacc`` is the mean over a
+    control period but the dynamics term predicts the instantaneous acceleration,
+    combined in quadrature with the sensor-derived
     ``sigma_qdd``. Default 0: measured with :func:`jax_contact.train.rates.compare_rates` (16
     rollouts, 20 ms control period, ``pairing="raw"``), 1000 rad/s^2 raised the control-rate
     accuracy of the hopping planar leg (stiff servos) from 0.858 to 0.905 but lowered the stepping
@@ -203,8 +254,8 @@ def default_estimator_params(
         raise ValueError(f"sensor_params.dt ({float(sensor_params.dt)}) must equal dt ({dt})")
     if not (np.isfinite(sigma_qdd_model) and sigma_qdd_model >= 0):
         raise ValueError(f"sigma_qdd_model must be >= 0, got {sigma_qdd_model!r}")
+    mj_model = _mj_model_of(robot_or_desc)
     if force_rows is None:
-        mj_model = _mj_model_of(robot_or_desc)
         if desc.n_leg_dofs < 3 and mj_model is None:
             raise ValueError(
                 f"legs with {desc.n_leg_dofs} joints span only some force axes: pass"
@@ -212,6 +263,8 @@ def default_estimator_params(
             )
         force_rows = choose_force_rows(mj_model, desc) if mj_model is not None else (0, 1, 2)
     params = jc.params_for(desc, sensor_params, dt, force_rows=force_rows, **params_for_kwargs)
+    if "unilateral" not in params_for_kwargs and mj_model is not None:
+        params = params.replace(unilateral=choose_unilateral(mj_model, desc, params))
     if sigma_qdd_model > 0:
         qdd = np.hypot(np.asarray(params.noise.sigma_qdd), sigma_qdd_model)
         params = params.replace(noise=params.noise.replace(sigma_qdd=jnp.asarray(qdd, jnp.float32)))

@@ -100,7 +100,8 @@ class _ContactMixin:
         return self._core.rate
 
     def contact_report(self) -> dict:
-        """The wrapper's choices: rate, feet and their contact points, force axes, truth."""
+        """The wrapper's choices: rate, feet and their contact points, force axes, sign test,
+        truth."""
         return contact_core.report(self._core)
 
     @property

@@ -19,7 +19,7 @@ from mujoco import mjx
 from jax_contact.envs import contact_truth, feet
 from jax_contact.envs import wrapper as W
 from jax_contact.envs.contact_config import validate_config
-from jax_contact.envs.robots import Robot
+from jax_contact.envs.robots import Robot, load_robot
 
 LEG = """
 <mujoco>
@@ -178,6 +178,7 @@ def test_evaluate_and_export_defaults_choose_a_short_legs_force_rows():
     desc, _ = feet.describe(m)
     params, _ = default_estimator(desc, 0.0025, mj_model=m)
     assert params.force_rows == (1, 2) and params.nv == desc.nv == 8
+    assert params.unilateral is False  # as the wrapper (the test below)
     with pytest.raises(ValueError, match=r"legs of 2 joints.*pass mj_model"):
         default_estimator(desc, 0.0025)
 
@@ -407,3 +408,40 @@ def test_a_model_that_is_no_legged_robot_is_told_so():
     m = mujoco.MjModel.from_xml_string(xml)
     with pytest.raises(ValueError, match=r"feet found by rule: \['pole_1'\]; is this a legged"):
         feet.describe(m)
+
+
+def test_sign_test_only_where_the_torques_can_read_a_feet_load():
+    """The ant-like leg above: its force rows (y, z) span J_r = [[0.3, 0], [0, -0.1]]
+    (hip, knee columns), square, so eq. 6's push along z is e^T J_r^-T r, g = (0, -10):
+    std 10 sigma_d(knee). Its 0.6 kg put 6 N on the one foot, below that ~21 N, so the
+    wrapper turns the sign test off and says so; a 10 kg torso (98 N) keeps it, as Go1
+    (31 N per foot against 14 N) does. A ``unilateral`` given is kept."""
+    from jax_contact.envs import contact_params as CP
+
+    def params_of(xml):
+        m = mujoco.MjModel.from_xml_string(xml)
+        desc, _ = feet.describe(m)
+        robot = Robot(name="ant", mj_model=m, description=desc, spec=mujoco.MjSpec.from_string(xml))
+        sp = CP.default_sensor_params("anymal_like", robot, 0.0025)
+        return robot, CP.default_estimator_params(robot, 0.0025, sp), sp
+
+    robot, params, sp = params_of(ANT)
+    knee = robot.description.leg_dofs[0][1]
+    noise = CP.push_noise(robot.mj_model, robot.description, params)
+    np.testing.assert_allclose(noise, [10.0 * float(params.noise.sigma_d[knee])], rtol=1e-6)
+    assert robot.description.mass_kg * 9.81 < noise[0]
+    assert params.unilateral is False
+    env = W.LeggedPipelineEnv(robot)
+    assert W.wrap_contact(env).contact_report()["sign_test"] is False
+    kept = CP.default_estimator_params(robot, 0.0025, sp, unilateral=True)
+    assert kept.unilateral is True
+
+    torso = '<geom type="sphere" size=".05"'
+    robot, params, _ = params_of(ANT.replace(torso, torso + ' mass="10"'))
+    noise = CP.push_noise(robot.mj_model, robot.description, params)
+    assert robot.description.mass_kg * 9.81 > noise[0]
+    assert params.unilateral is True
+
+    go1 = load_robot("go1")
+    sp = CP.default_sensor_params("anymal_like", go1, 0.0025)
+    assert CP.default_estimator_params(go1, 0.0025, sp).unilateral is True
