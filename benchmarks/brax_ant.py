@@ -30,6 +30,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jax_contact.benchmarks.common import (
+    SCORE_COLUMNS,
     bench_parser,
     check_json_arg,
     json_of_what_finished,
@@ -139,11 +140,7 @@ def main(argv=None) -> int:
     cols = [
         ("policy", "policy", "{}"),
         ("variant", "estimator", "{}"),
-        ("accuracy", "acc", "{:.3f}"),
-        ("f1", "F1", "{:.3f}"),
-        ("precision", "prec", "{:.3f}"),
-        ("recall", "rec", "{:.3f}"),
-        ("ece", "ECE", "{:.3f}"),
+        *SCORE_COLUMNS,
         ("always_air", "all-air", "{:.3f}"),
         ("foot_updates", "n", "{}"),
     ]

@@ -261,6 +261,17 @@ def machine() -> dict:
     }
 
 
+# The per-step scores of a detector, as the accuracy benchmarks print them
+# (jax_contact.metrics.ContactMetrics' names): columns of format_table.
+SCORE_COLUMNS = [
+    ("accuracy", "acc", "{:.3f}"),
+    ("f1", "F1", "{:.3f}"),
+    ("precision", "prec", "{:.3f}"),
+    ("recall", "rec", "{:.3f}"),
+    ("ece", "ECE", "{:.3f}"),
+]
+
+
 def format_table(rows: list[dict], columns: list[tuple[str, str, str]]) -> list[str]:
     """Formats rows as fixed-width lines (header first); columns are (key, header, format)."""
     headers = [h for _, h, _ in columns]

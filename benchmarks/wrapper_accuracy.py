@@ -38,6 +38,7 @@ import jax
 import numpy as np
 
 from jax_contact.benchmarks.common import (
+    SCORE_COLUMNS,
     bench_parser,
     check_env_arg,
     check_json_arg,
@@ -299,11 +300,7 @@ def main(argv=None) -> int:
     cols = [
         ("env", "env", "{}"),
         ("policy", "policy", "{}"),
-        ("accuracy", "acc", "{:.3f}"),
-        ("f1", "F1", "{:.3f}"),
-        ("precision", "prec", "{:.3f}"),
-        ("recall", "rec", "{:.3f}"),
-        ("ece", "ECE", "{:.3f}"),
+        *SCORE_COLUMNS,
         ("always_contact", "all-contact", "{:.3f}"),
         ("always_air", "all-air", "{:.3f}"),
         ("accuracy_raw_truth", "acc raw truth", "{:.3f}"),
