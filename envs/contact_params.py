@@ -110,7 +110,7 @@ def choose_unilateral(mj_model: mujoco.MjModel, desc: RobotDescription, params) 
     "pull": Brax's ant (0.91 kg, 2.2 N per foot against 3.6 N of noise) read its trot's
     stance as air (docs/training.md, "Brax's ant, measured"). Every other robot measured
     keeps the test: Go1 2.2x, Barkour 2.0x, Spot 13x, the planar leg 5x, Playground's
-    humanoids 2.9-16x. A description without a mass keeps it.
+    humanoids 2.2-15x. A description without a mass keeps it.
     """
     if desc.mass_kg is None:
         return True
