@@ -27,9 +27,9 @@ def default_estimator(desc, dt: float, terrain_model: str = "flat", *, mj_model=
     III's (the one source: :func:`jax_contact.params_for` with ``anymal_like`` sensors,
     ``jax_contact.train.reproduce``). Legs of fewer than three joints on a floating base
     (a biped's, Brax's ant's) resist the force axes their Jacobian spans
-    (:func:`jax_contact.envs.contact_params.choose_force_rows`, which needs ``mj_model``),
-    and keep the sign test only where their torques can read a foot's load
-    (:func:`jax_contact.envs.contact_params.choose_unilateral`), as the wrapper does.
+    (:func:`jax_contact.envs.contact_params.choose_force_rows`, which needs ``mj_model``).
+    With ``mj_model`` the sign test runs only where the legs' torques can read a foot's
+    load (:func:`jax_contact.envs.contact_params.choose_unilateral`), as in the wrapper.
     ``terrain_model`` (:data:`TERRAIN_MODELS`): ``"flat"`` the plane of the reproduction,
     ``"memory"`` a :func:`jax_contact.foothold_memory` over it with :data:`FOOTHOLD_MEMORY`,
     for base positions that drift.
@@ -54,14 +54,17 @@ def default_estimator(desc, dt: float, terrain_model: str = "flat", *, mj_model=
                 f"legs of {desc.n_leg_dofs} joints: their force axes are chosen from the"
                 " robot's model (pass mj_model)"
             )
-        from jax_contact.envs.contact_params import choose_force_rows, choose_unilateral
+        from jax_contact.envs.contact_params import choose_force_rows
 
         rows = choose_force_rows(mj_model, desc)
         params = quadruped_estimator_params(desc, dt, force_rows=rows)
-        params = params.replace(unilateral=choose_unilateral(mj_model, desc, params))
         plane = jc.flat(0.0, TERRAIN_SIGMA)
     else:
         params, plane = quadruped_estimator_params(desc, dt), jc.flat(0.0, TERRAIN_SIGMA)
+    if mj_model is not None:
+        from jax_contact.envs.contact_params import choose_unilateral
+
+        params = params.replace(unilateral=choose_unilateral(mj_model, desc, params))
     return params, terrain_for(plane, terrain_model)
 
 
