@@ -104,17 +104,19 @@ def push_noise(mj_model: mujoco.MjModel, desc: RobotDescription, params) -> np.n
 
 def choose_unilateral(mj_model: mujoco.MjModel, desc: RobotDescription, params) -> bool:
     """Whether the dynamics term's sign test (``EstimatorParams.unilateral``) can read a
-    stance foot's load: a foot's share of the weight, ``m g / n_legs``, at least the
-    largest :func:`push_noise` of the legs. Below it the estimated push's sign is mostly
-    the torques' noise, which the test (under ``Sigma_f`` alone) would read as a sure
-    "pull": Brax's ant (0.91 kg, 2.2 N per foot against 3.6 N of noise) read its trot's
-    stance as air (docs/training.md, "Brax's ant, measured"). Every other robot measured
-    keeps the test: Go1 2.2x, Barkour 2.0x, Spot 13x, the planar leg 5x, Playground's
-    humanoids 2.2-15x. A description without a mass keeps it.
+    stance foot's load: a foot's share of the weight, ``m g / n_legs`` (the model's
+    gravity), at least the largest :func:`push_noise` of the legs.
+
+    Below it the estimated push's sign is mostly the torques' noise, which the test (under
+    ``Sigma_f`` alone) would read as a sure "pull": Brax's ant (0.91 kg, 2.2 N per foot
+    against 3.6 N of noise) read its trot's stance as air (docs/training.md, "Brax's ant,
+    measured"). Every other robot measured keeps the test: Go1 2.2x, Barkour 2.0x, Spot
+    13x, the planar leg 5x, Playground's humanoids 2.2-15x. A description without a mass
+    keeps it.
     """
     if desc.mass_kg is None:
         return True
-    load = float(desc.mass_kg) * 9.81 / desc.n_legs
+    load = float(desc.mass_kg) * float(np.linalg.norm(mj_model.opt.gravity)) / desc.n_legs
     return bool(load >= float(np.max(push_noise(mj_model, desc, params))))
 
 
