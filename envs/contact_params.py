@@ -43,6 +43,19 @@ def _desc_of(robot_or_desc) -> RobotDescription:
     )
 
 
+def _home_jacobians(mj_model: mujoco.MjModel, desc: RobotDescription):
+    """(data at the home pose after ``mj_forward``, per foot its (3, nv) point Jacobian at
+    the foot's contact point): what :func:`choose_force_rows` and :func:`push_noise` read."""
+    d = home_data(mj_model)
+    mujoco.mj_forward(mj_model, d)
+    jacs = []
+    for body, point in zip(desc.foot_body_ids, foot_points_np(mj_model, d, desc), strict=True):
+        jacp = np.zeros((3, mj_model.nv))
+        mujoco.mj_jac(mj_model, d, jacp, None, point, body)
+        jacs.append(jacp)
+    return d, jacs
+
+
 def choose_force_rows(mj_model: mujoco.MjModel, desc: RobotDescription) -> tuple[int, ...]:
     """World axes of the contact force the legs can resist: the normal and the best others.
 
@@ -57,13 +70,9 @@ def choose_force_rows(mj_model: mujoco.MjModel, desc: RobotDescription) -> tuple
     n_l = desc.n_leg_dofs
     if n_l >= 3:
         return (0, 1, 2)
-    d = home_data(mj_model)
-    mujoco.mj_comPos(mj_model, d)
+    _, jacs = _home_jacobians(mj_model, desc)
     norms = np.zeros(3)
-    points = foot_points_np(mj_model, d, desc)
-    for body, point, dofs in zip(desc.foot_body_ids, points, desc.leg_dofs, strict=True):
-        jacp = np.zeros((3, mj_model.nv))
-        mujoco.mj_jac(mj_model, d, jacp, None, point, body)
+    for jacp, dofs in zip(jacs, desc.leg_dofs, strict=True):
         norms += np.linalg.norm(jacp[:, list(dofs)], axis=1)
     tangential = sorted((0, 1), key=lambda i: -norms[i])[: n_l - 1]
     return tuple(sorted([2, *tangential]))
@@ -81,19 +90,15 @@ def push_noise(mj_model: mujoco.MjModel, desc: RobotDescription, params) -> np.n
     Home pose as in :func:`choose_force_rows`; the base acceleration's share of
     ``Sigma_d`` is left out.
     """
-    d = home_data(mj_model)
-    mujoco.mj_forward(mj_model, d)
+    d, jacs = _home_jacobians(mj_model, desc)
     M = np.zeros((mj_model.nv, mj_model.nv))
     mujoco.mj_fullM(mj_model, d, M)
     rows = list(params.force_rows)
     e = np.array([0.0, 0.0, 1.0])[rows]
     sigma_d = np.asarray(params.noise.sigma_d, np.float64)
-    points = foot_points_np(mj_model, d, desc)
     out = []
-    for body, point, dofs in zip(desc.foot_body_ids, points, desc.leg_dofs, strict=True):
+    for jacp, dofs in zip(jacs, desc.leg_dofs, strict=True):
         dofs = list(dofs)
-        jacp = np.zeros((3, mj_model.nv))
-        mujoco.mj_jac(mj_model, d, jacp, None, point, body)
         J = jacp[rows][:, dofs]
         M_inv = np.linalg.inv(M[np.ix_(dofs, dofs)])
         lam_inv = J @ M_inv @ J.T + float(params.inv_damping) * np.eye(len(rows))

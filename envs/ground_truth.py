@@ -47,6 +47,7 @@ import numpy as np
 from flax import struct
 from mujoco import mjx
 
+from jax_contact.envs.feet import touches
 from jax_contact.envs.robots import Robot
 from jax_contact.robot import derive_description
 
@@ -74,21 +75,18 @@ def _body_sensor_name(foot: int, floor_geom: int, geom: int) -> str:
 
 
 def _body_geoms(m: mujoco.MjModel, foot_geom: int, floor_geom: int) -> list[int]:
-    """The other geoms of the foot's body that can collide with ``floor_geom``.
+    """The other geoms of the foot's body that can touch ``floor_geom`` (:func:`feet.touches`:
+    contype/conaffinity, or an explicit ``<pair>``).
 
     Menagerie's A1 stands on them: its foot spheres' ``solimp="0.015 1 0.031"`` is a pad
     that pushes 1-5 N while it sinks 10 mm, and the calf capsule that ends at the sphere's
     centre then lands and carries 95 % of the leg's load (module docstring)."""
     body = int(m.geom_bodyid[foot_geom])
-    out = []
-    for g in range(m.ngeom):
-        if g == foot_geom or int(m.geom_bodyid[g]) != body:
-            continue
-        if (m.geom_contype[g] & m.geom_conaffinity[floor_geom]) or (
-            m.geom_contype[floor_geom] & m.geom_conaffinity[g]
-        ):
-            out.append(g)
-    return out
+    return [
+        g
+        for g in range(m.ngeom)
+        if g != foot_geom and int(m.geom_bodyid[g]) == body and touches(m, g, [floor_geom])
+    ]
 
 
 def with_contact_sensors(robot: Robot) -> Robot:
