@@ -410,7 +410,7 @@ def test_a_model_that_is_no_legged_robot_is_told_so():
         feet.describe(m)
 
 
-def test_sign_test_only_where_the_torques_can_read_a_feet_load():
+def test_sign_test_only_where_the_torques_can_read_a_foots_load():
     """The ant-like leg above: its force rows (y, z) span J_r = [[0.3, 0], [0, -0.1]]
     (hip, knee columns), square, so eq. 6's push along z is e^T J_r^-T r, g = (0, -10):
     std 10 sigma_d(knee). Its 0.6 kg put 6 N on the one foot, below that ~21 N, so the
