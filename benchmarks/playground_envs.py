@@ -5,7 +5,10 @@ defaults (physics rate, anymal_like sensors, the env's own foot sensors as truth
 reset and step (compile times apart), run ``--steps`` steps of zero actions (the default
 pose) on one env, check the observation size and that nothing is NaN, and report the
 feet, the truth source and the fraction of foot-updates where the estimate matched the
-truth after the first 0.5 s (the reset drop). Prints the table and writes JSON.
+truth after the first 0.5 s (the reset drop) and up to the step whose ``done`` ends the
+episode (a humanoid holding its default pose falls; the steps after it, which no training
+loop would see without a reset, are not scored), with the number of scored foot-updates
+and that step. Prints the table and writes JSON.
 
     python -m jax_contact.benchmarks.playground_envs --json out/playground_envs.json [--names A B]
 """
@@ -54,13 +57,16 @@ def run_one(name: str, n_steps: int) -> dict:
     t = time.perf_counter()
     step = jax.jit(wrapped.step).lower(state, action).compile()
     row["step_compile_s"] = time.perf_counter() - t
-    hits, n, finite = 0.0, 0, True
+    hits, n, finite, done_step = 0.0, 0, True, None
     skip = int(round(0.5 / float(env.dt)))
     t = time.perf_counter()
     for i in range(n_steps):
+        was_done = done_step is not None
         state = step(state, action)
         finite &= all(bool(np.all(np.isfinite(np.asarray(x)))) for x in jax.tree.leaves(state.obs))
-        if i >= skip:
+        if not was_done and bool(np.asarray(state.done)):
+            done_step = i + 1
+        if i >= skip and not was_done:  # the step that ends the episode counts, none after it
             sub = state.info["contact_est_substeps"]
             hits += float(np.sum((np.asarray(sub["p_contact"]) > 0.5) == np.asarray(sub["truth"])))
             n += sub["p_contact"].size
@@ -73,7 +79,8 @@ def run_one(name: str, n_steps: int) -> dict:
         row["obs_ok"] = tuple(shapes) == (size,)
     row["finite"] = finite
     row["accuracy_standing"] = hits / n if n else None
-    row["done"] = bool(np.asarray(state.done))
+    row["scored_updates"] = n
+    row["done_step"] = done_step
     return row
 
 
@@ -113,6 +120,8 @@ def main(argv=None) -> int:
         ("obs_ok", "obs size", "{}"),
         ("finite", "no NaN", "{}"),
         ("accuracy_standing", "acc (stand)", "{:.3f}"),
+        ("scored_updates", "scored", "{}"),
+        ("done_step", "done at step", "{}"),
     ]
     print_table(result["rows"], cols)
     failed = [r["env"] for r in result["rows"] if "error" in r]
