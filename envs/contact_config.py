@@ -66,10 +66,10 @@ class ContactObsConfig:
       observe: what the policy sees: ``"estimate"`` the belief; ``"truth"`` the ground
         truth in the same layout (the privileged baseline); ``"none"`` nothing. The
         estimator runs and is scored in all three.
-      pairing: ``"delayed"`` (default) or ``"raw"``, as :func:`jax_contact.train.evaluate.replay`:
-      the
-        update after step ``k`` evaluates the model at the state read at ``k-1`` with the
-        acceleration over ``[k-1, k]`` and the torque read at ``k``; ``"raw"`` at ``k``.
+      pairing: ``"delayed"`` (default) or ``"raw"``, as
+        :func:`jax_contact.train.evaluate.replay`: the update after step ``k`` evaluates
+        the model at the state read at ``k-1`` with the acceleration over ``[k-1, k]`` and
+        the torque read at ``k``; ``"raw"`` at ``k``.
       include_logit: also observe the belief's logit (through ``calibration``), clipped to
         ``+-logit_clip``.
       include_terms: also observe the five per-term probabilities.
@@ -80,12 +80,13 @@ class ContactObsConfig:
       info_key: ``state.info`` key of the estimator state (:class:`ContactEstState`); the
         truth goes under ``info_key + "_truth"``, metrics under ``info_key + "/..."``.
       truth: ground-truth source, one of :data:`TRUTH_SOURCES`
-      (:mod:`jax_contact.envs.contact_truth`). truth_threshold: normal force above which a foot is
-      in contact, N. truth_gap: (at most :data:`TRUTH_GAP_MAX`) a foot whose sole is less
-        than this distance above the
-      floor, or inside it, also counts as in contact, m (default 1 mm: the micro-bounces
-      of a foot at rest in Playground's soft contact, and a foot still inside the soft
-      floor after an impact, :mod:`jax_contact.envs.contact_truth`; 0: the raw source).
+        (:mod:`jax_contact.envs.contact_truth`).
+      truth_threshold: normal force above which a foot is in contact, N.
+      truth_gap: (at most :data:`TRUTH_GAP_MAX`) a foot whose sole is less than this
+        distance above the floor, or inside it, also counts as in contact, m (default 1
+        mm: the micro-bounces of a foot at rest in Playground's soft contact, and a foot
+        still inside the soft floor after an impact, :mod:`jax_contact.envs.contact_truth`;
+        0: the raw source).
       record_substeps: substep rate only: keep every substep's ``p_contact`` and truth
         (and, with ``truth_gap > 0``, ``truth_raw``: the source without the tolerance),
         (n_substeps, n_legs), and its sensor readings (``reading``, a
