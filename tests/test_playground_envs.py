@@ -22,6 +22,7 @@ from wrapper_helpers import Traced
 
 from jax_contact.envs import playground_offline
 from jax_contact.envs import wrapper as W
+from jax_contact.train import cli_args
 
 # robot prefix -> (feet, their kind as jax_contact.envs.feet names it)
 FEET = {
@@ -41,6 +42,7 @@ def test_offline_names():
     # robot XML, not only meshes) and OP3 (bodies without explicit inertials: the
     # placeholder meshes would set their masses).
     assert set(locomotion.ALL_ENVS) - set(NAMES) == {"BarkourJoystick", "Op3Joystick"}
+    assert NAMES == cli_args.PLAYGROUND_ENV_NAMES  # the CLI's copy (`train --task`)
     for name in ("BarkourJoystick", "Op3Joystick"):
         with pytest.raises(ValueError, match="cannot be built offline|depends on the mesh"):
             playground_offline.load(name)

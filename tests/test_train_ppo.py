@@ -533,3 +533,55 @@ def test_estimator_params_reach_the_wrapper_and_the_run_record():
     assert ppo.config_of(run).estimator_params is None
     with pytest.raises(ValueError, match="estimator_params: the hop task"):
         tasks.get_task("hop").make_env("estimate", cfg)
+
+
+def test_playground_tasks_take_playgrounds_settings_for_their_env():
+    """`jax-contact train --task NAME` for any offline Playground locomotion env: its
+    configurations are Playground's published ones for that env (a field left out takes
+    Brax PPO's default, as Playground's training script does); the run's env, its critic's
+    observation key and its record follow the name."""
+    from jax_contact.train import tasks
+
+    # The general route on Go1's joystick gives the two configurations checked by hand
+    # against Playground's above.
+    assert dict(tasks.playground_configs(ppo.ENV_NAME)) == {"small": ppo.SMALL, "full": ppo.FULL}
+    assert tasks.get_task("Go1JoystickFlatTerrain").name == "go1"
+    # Values read off Playground's locomotion_params for SpotGetup: 100 M steps, 300-step
+    # episodes, critic on "state", no clipping_epsilon (Brax's default 0.3), 10 resets.
+    spot = tasks.get_task("SpotGetup")
+    small, full = (dict(spot.configs)[c] for c in ("small", "full"))
+    assert (spot.name, spot.env_name) == ("SpotGetup", "SpotGetup")
+    assert (full.num_timesteps, full.episode_length, full.value_obs_key) == (
+        100_000_000,
+        300,
+        "state",
+    )
+    assert (full.clipping_epsilon, full.num_resets_per_eval, full.num_evals) == (0.3, 10, 10)
+    assert full.policy_hidden == (128, 128, 128, 128)
+    assert full.value_hidden == (256, 256, 256, 256, 256)
+    # small: this CPU's size, networks and reward; the env's episodes and keys.
+    assert (small.num_envs, small.num_timesteps, small.policy_hidden, small.reward) == (
+        256, 2_457_600, (128, 128, 128), "unclipped"
+    )  # fmt: skip
+    assert (small.episode_length, small.value_obs_key) == (300, "state")
+    # T1 sets clipping_epsilon 0.2 and its critic reads "privileged_state".
+    t1 = dict(tasks.get_task("T1JoystickFlatTerrain").configs)["full"]
+    assert (t1.clipping_epsilon, t1.value_obs_key, t1.num_evals) == (0.2, "privileged_state", 20)
+    with pytest.raises(ValueError, match="task must be one of"):
+        tasks.get_task("SpotJoystick")
+    # The critic reads the configured key (a dict observation without "privileged_state"
+    # would be refused with the default).
+    sizes = {"state": (10,)}
+    for cfg in (dataclasses.replace(TINY, value_obs_key="state"), TINY):
+        factory = ppo.network_factory(cfg)
+        if cfg.value_obs_key == "state":
+            factory(sizes, 3, preprocess_observations_fn=running_statistics.normalize)
+        else:
+            with pytest.raises(KeyError, match="privileged_state"):
+                factory(sizes, 3, preprocess_observations_fn=running_statistics.normalize)
+    # A run of it is evaluated in its own env (run.json's "env"), not Go1's.
+    env = policy_eval.ColumnEvaluator(small, 4, env_name="SpotGetup").env("estimate")
+    assert type(env.unwrapped).__module__.endswith("spot.getup")
+    assert env.contact_core.cfg.observe == "estimate"
+    # Spot's envs observe one array: the policy reads all of it, 4 features appended.
+    assert policy_eval.policy_obs_shape(env) == (env.env.observation_size + 4,)

@@ -55,6 +55,7 @@ from jax_contact.train.cli_args import (  # noqa: F401  (COLUMNS ... SCENES: re-
     LOG_SUFFIXES,
     NOISES,
     ONE_LEGGED,
+    PLAYGROUND_TASKS,
     REPRODUCE_OUTPUTS,
     ROBOT_NAMES,
     SCENES,
@@ -108,11 +109,12 @@ TINY_REPRODUCE = dict(
     planar_envs=1,
     planar_duration=0.5,
 )
-# Each task's own configurations (jax_contact.train.tasks: Task.configs), plus "tiny" for both.
+# Each task's own configurations (jax_contact.train.tasks: Task.configs), plus "tiny" for all.
 TASK_CONFIGS = {
     "go1": ("small", "full"),
     "hop": ("small", "reduced"),
     "hop_blind": ("small", "reduced"),
+    **{n: ("small", "full") for n in PLAYGROUND_TASKS},  # the other Playground envs
 }
 PPO_CONFIGS = ("tiny", *dict.fromkeys(c for cs in TASK_CONFIGS.values() for c in cs))
 TINY_PPO = dict(
@@ -365,10 +367,10 @@ def _check_train(args: argparse.Namespace) -> None:
             f" ({', '.join(have)})"
         )
     if args.params is not None:
-        if args.task != "go1":
+        if args.task in ("hop", "hop_blind"):
             raise ValueError(
                 f"argument --params: the {args.task} task runs the planar leg's own estimator;"
-                " --params is for the go1 task"
+                " --params is for the Playground tasks (go1, ...)"
             )
         check_params_source("--params", args.params)
 
@@ -549,7 +551,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = command(
         "train",
-        "PPO (Go1 joystick or the hop, --task) with no / true / estimated contact observed",
+        "PPO (Go1 joystick, the hop or any Playground locomotion env, --task) with no / true /"
+        " estimated contact observed",
         _cmd_train,
         _check_train,
     )
@@ -564,16 +567,20 @@ def build_parser() -> argparse.ArgumentParser:
         "--config",
         choices=PPO_CONFIGS,
         default="small",
-        help="small: this 2-core CPU, <= 20 min per variant; full (go1): a GPU; reduced (hop):"
-        " a third of small, docs/training_hop.md's run; tiny: 160 steps of 8 envs, checks that"
-        " every step runs (learns nothing)",
+        help="small: this 2-core CPU, <= 20 min per variant (Go1); full (Playground tasks):"
+        " Playground's published configuration of the env, for a GPU; reduced (hop): a third of"
+        " small, docs/training_hop.md's run; tiny: 160 steps of 8 envs, checks that every step"
+        " runs (learns nothing)",
     )
     p.add_argument(
         "--task",
         choices=TASKS,
         default="go1",
-        help="go1: Playground's Go1 joystick; hop: the planar leg hopping to a commanded apex"
-        " height, where contact timing matters (docs/training_hop.md)",
+        metavar="TASK",
+        help="go1: Playground's Go1 joystick; hop, hop_blind: the planar leg hopping to a"
+        " commanded apex height, where contact timing matters (docs/training_hop.md); or any"
+        f" other Playground locomotion env by its name ({', '.join(PLAYGROUND_TASKS)}), with"
+        " Playground's PPO settings for it",
     )
     p.add_argument(
         "--timesteps",
@@ -595,7 +602,8 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="FILE|PRESET",
         help="the wrapper's estimator parameters for the estimate variant (and the estimator"
         " every variant is scored with): a parameter file or a shipped preset, e.g."
-        " go1_playground (go1 task only; recorded in run.json); default: the wrapper's defaults",
+        " go1_playground (Playground tasks; recorded in run.json); default: the wrapper's"
+        " defaults",
     )
     p.add_argument("--out", default="out/train", help="output folder (a run folder per variant)")
     p.add_argument(
@@ -641,7 +649,7 @@ def build_parser() -> argparse.ArgumentParser:
         _cmd_transfer,
         check_transfer,
         description="Evaluates every ROOT/seed*/{none,truth,estimate} run folder of `jax-contact"
-        " train --seed S --out ROOT/seedS` (Go1 joystick or the hop, by each run.json) in every"
+        " train --seed S --out ROOT/seedS` (a Playground env or the hop, by each run.json) in every"
         " column of the transfer matrix (jax_contact.train.transfer: truth, estimate,"
         " estimate_harsh, estimate_lat1, estimate_lat2) and prints the mean, std and per-seed"
         " values of each metric; --json writes them.",

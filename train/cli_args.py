@@ -48,7 +48,30 @@ COLUMNS = (  # jax_contact.train.transfer.COLUMNS
     "estimate_lat1",
     "estimate_lat2",
 )
-TASKS = ("go1", "hop", "hop_blind")  # jax_contact.train.tasks.TASK_NAMES
+# The Playground locomotion envs that load offline:
+# jax_contact.envs.playground_offline.offline_names().
+PLAYGROUND_ENV_NAMES = (
+    "ApolloJoystickFlatTerrain",
+    "BerkeleyHumanoidJoystickFlatTerrain",
+    "BerkeleyHumanoidJoystickRoughTerrain",
+    "G1JoystickFlatTerrain",
+    "G1JoystickRoughTerrain",
+    "Go1Footstand",
+    "Go1Getup",
+    "Go1Handstand",
+    "Go1JoystickFlatTerrain",
+    "Go1JoystickRoughTerrain",
+    "H1InplaceGaitTracking",
+    "H1JoystickGaitTracking",
+    "SpotFlatTerrainJoystick",
+    "SpotGetup",
+    "SpotJoystickGaitTracking",
+    "T1JoystickFlatTerrain",
+    "T1JoystickRoughTerrain",
+)
+# The tasks of `jax-contact train` that are Playground envs by name (Go1's joystick is "go1").
+PLAYGROUND_TASKS = tuple(n for n in PLAYGROUND_ENV_NAMES if n != "Go1JoystickFlatTerrain")
+TASKS = ("go1", "hop", "hop_blind", *PLAYGROUND_TASKS)  # jax_contact.train.tasks.TASK_NAMES
 SCENES = ("planar_leg", "go1", "go1_walk", "go1_trot")  # jax_contact.train.rates.SCENES
 LOG_SUFFIXES = (".h5", ".hdf5")
 # The fewest readings per second the estimator takes, for an export's rate and a

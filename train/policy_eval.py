@@ -23,6 +23,7 @@ import numpy as np
 from mujoco_playground._src import wrapper as pg_wrapper
 
 from jax_contact.train.ppo import (
+    ENV_NAME,
     INFO_KEY,
     VARIANTS,
     PPOConfig,
@@ -31,6 +32,7 @@ from jax_contact.train.ppo import (
     read_run,
     unfinished_run,
 )
+from jax_contact.train.tasks import is_playground_task
 
 
 @contextlib.contextmanager
@@ -155,8 +157,9 @@ def latest_checkpoint(run_dir: str | Path) -> Path:
 # ------------------------------------------------------------------------ evaluate
 
 
-def column_env(column: str, cfg: PPOConfig):
-    """The unbatched Go1 env of a transfer-matrix column for a run trained with ``cfg``.
+def column_env(column: str, cfg: PPOConfig, env_name: str = ENV_NAME):
+    """The unbatched Playground env of a transfer-matrix column for a run trained with
+    ``cfg``.
 
     Args:
       column: a name of :data:`jax_contact.train.transfer.COLUMNS` or a variant
@@ -165,6 +168,7 @@ def column_env(column: str, cfg: PPOConfig):
         preset, extra env steps of latency).
       cfg: the run's configuration (its ``sensor`` is the training preset, its ``reward``
         the reward).
+      env_name: the Playground env the run trained in (``run.json``'s ``env``).
     """
     from jax_contact.train import transfer
 
@@ -175,6 +179,7 @@ def column_env(column: str, cfg: PPOConfig):
         reward=cfg.reward,
         extra_latency=extra,
         params=cfg.estimator_params,
+        env_name=env_name,
     )
 
 
@@ -221,7 +226,8 @@ def policy_rollout(env, make_policy, n_envs: int, episode_length: int) -> Callab
 
 
 class ColumnEvaluator:
-    """Go1 checkpoints evaluated in transfer-matrix columns, sharing compiled rollouts.
+    """Checkpoints of a Playground env (Go1's joystick, ...) evaluated in transfer-matrix
+    columns, sharing compiled rollouts.
 
     One env per column (:func:`column_env`) and one compiled :func:`policy_rollout` per
     (column, ``make_policy``): pass the same ``make_policy`` for checkpoints of the same
@@ -231,24 +237,31 @@ class ColumnEvaluator:
       cfg: the runs' configuration (sensor preset, reward, episode length).
       n_envs: episodes per evaluation.
       episode_length: env steps per episode; None: ``cfg.episode_length``.
+      env_name: the env the runs trained in (``run.json``'s ``env``).
     """
 
-    def __init__(self, cfg: PPOConfig, n_envs: int, episode_length: int | None = None):
-        self.cfg, self.n_envs = cfg, int(n_envs)
+    def __init__(
+        self,
+        cfg: PPOConfig,
+        n_envs: int,
+        episode_length: int | None = None,
+        env_name: str = ENV_NAME,
+    ):
+        self.cfg, self.n_envs, self.env_name = cfg, int(n_envs), env_name
         self.episode_length = int(episode_length or cfg.episode_length)
         self._envs: dict = {}
         self._fns: dict = {}
 
     def env(self, column: str):
         if column not in self._envs:
-            self._envs[column] = column_env(column, self.cfg)
+            self._envs[column] = column_env(column, self.cfg, self.env_name)
         return self._envs[column]
 
     def evaluate(self, run_dir: str | Path, column: str, seed: int, loaded=None) -> dict:
         """The latest checkpoint of ``run_dir`` in ``column`` (:func:`evaluate_policy`'s dict).
 
         Args:
-          run_dir: a Go1 run folder.
+          run_dir: a run folder of this evaluator's env.
           column: as :func:`column_env`.
           seed: seeds the episodes.
           loaded: ``load_policy(ckpt, parts=True)`` of its latest checkpoint, if loaded.
@@ -261,7 +274,7 @@ class ColumnEvaluator:
         ckpt = latest_checkpoint(run_dir)
         make_policy, params, sizes = loaded or load_policy(ckpt, parts=True)
         env = self.env(column)
-        have = tuple(env.observation_size["state"])
+        have = policy_obs_shape(env)
         if tuple(sizes["state"]) != have:
             raise ValueError(
                 f"observing {column!r} gives a policy observation of shape {have}; the"
@@ -286,6 +299,16 @@ class ColumnEvaluator:
             **rollout_metrics(ret, p, truth, alive, fell, dt=float(env.dt)),
             "wall_s": round(wall, 1),
         }
+
+
+def policy_obs_shape(env) -> tuple[int, ...]:
+    """The shape of what the policy reads from ``env``'s observation: the dict's
+    ``"state"`` (Go1, the humanoids), or the whole array (Spot's and H1's envs observe one
+    array), as :func:`load_policy` names a checkpoint's ``"state"``."""
+    size = env.observation_size
+    if isinstance(size, dict):
+        return tuple(size["state"])
+    return tuple(size) if isinstance(size, tuple) else (int(size),)
 
 
 def rollout_metrics(ret, p, truth, alive, fell, *, dt: float) -> dict:
@@ -360,7 +383,7 @@ def evaluate_policy(
         raise ValueError(f"observe must be one of {VARIANTS}, got {observe!r}")
     run_dir = Path(run_dir)
     run = read_run(run_dir)
-    if run.get("task", "go1") != "go1":  # a hop task: its own evaluation (task metrics)
+    if not is_playground_task(run.get("task", "go1")):  # a hop: its own evaluation
         from jax_contact.train import transfer
 
         return transfer.evaluate_run(
@@ -378,7 +401,7 @@ def evaluate_policy(
             f" still training): evaluating its latest checkpoint, {ckpt.name}",
             stacklevel=2,
         )
-    ev = ColumnEvaluator(config_of(run), n_envs, episode_length)
+    ev = ColumnEvaluator(config_of(run), n_envs, episode_length, run.get("env", ENV_NAME))
     return ev.evaluate(run_dir, column or observe or run["variant"], seed)
 
 

@@ -19,7 +19,9 @@ features in the same slots, next to the policy trained on ``"estimate"``.
 
 Training is ``brax.training.agents.ppo.train`` with Playground's training wrappers; only the
 configuration is ours: :data:`SMALL` (this 2-core CPU, under 20 minutes per variant) and
-:data:`FULL` (Playground's published Go1 configuration, for a GPU).
+:data:`FULL` (Playground's published Go1 configuration, for a GPU). Every other Playground
+locomotion env that loads offline trains the same way, by its name
+(:mod:`jax_contact.train.tasks`, :func:`~jax_contact.train.tasks.playground_configs`).
 
 A run folder ``<out>/<variant>/`` holds ``run.json`` (variant and configuration),
 ``progress.csv`` (one row per evaluation, rewritten atomically after each),
@@ -98,7 +100,12 @@ class PPOConfig:
         :class:`UnclippedReward`).
       estimator_params: the wrapper's estimator parameters, a parameter file or a shipped
         preset (``ContactObsConfig.params``, its calibration map applied; e.g.
-        ``"go1_playground"``), or None for the wrapper's defaults. Go1 task only.
+        ``"go1_playground"``), or None for the wrapper's defaults. Playground tasks only
+        (the hop runs the planar leg's own estimator).
+      policy_obs_key, value_obs_key: the dict observation's entries the policy and the
+        critic read (Playground's configuration of the env: Go1's critic reads
+        ``"privileged_state"``, Spot's and H1's ``"state"``). The contact features are in
+        ``"state"``.
     """
 
     num_timesteps: int
@@ -114,7 +121,7 @@ class PPOConfig:
     entropy_cost: float = 1e-2
     discounting: float = 0.97
     reward_scaling: float = 1.0
-    max_grad_norm: float = 1.0
+    max_grad_norm: float | None = 1.0
     clipping_epsilon: float = 0.3
     normalize_observations: bool = True
     policy_hidden: tuple[int, ...] = (512, 256, 128)
@@ -126,6 +133,8 @@ class PPOConfig:
     sensor: str = "anymal_like"
     reward: str = "playground"
     estimator_params: str | None = None
+    policy_obs_key: str = "state"
+    value_obs_key: str = "privileged_state"
 
     @property
     def steps_per_training_step(self) -> int:
@@ -303,7 +312,8 @@ def make_env(
     extra_latency: int = 0,
     params: str | None = None,
 ):
-    """The unbatched Go1 joystick env with the contact wrapper, observing ``observe``.
+    """The unbatched Playground env (Go1 joystick by default) with the contact wrapper,
+    observing ``observe``.
 
     Args:
       observe: one of :data:`VARIANTS`.
@@ -339,8 +349,8 @@ def make_env(
 
 
 def network_factory(cfg: PPOConfig):
-    """Brax's PPO networks for the dict observation: policy on ``state``, critic on
-    ``privileged_state``."""
+    """Brax's PPO networks for the dict observation: the policy on ``cfg.policy_obs_key``,
+    the critic on ``cfg.value_obs_key``."""
     from brax.training.agents.ppo import networks as ppo_networks
 
     extra = {}
@@ -353,8 +363,8 @@ def network_factory(cfg: PPOConfig):
         ppo_networks.make_ppo_networks,
         policy_hidden_layer_sizes=tuple(cfg.policy_hidden),
         value_hidden_layer_sizes=tuple(cfg.value_hidden),
-        policy_obs_key="state",
-        value_obs_key="privileged_state",
+        policy_obs_key=cfg.policy_obs_key,
+        value_obs_key=cfg.value_obs_key,
         distribution_type=cfg.distribution,
         init_noise_std=cfg.init_noise_std,
         **extra,

@@ -1,8 +1,9 @@
 """The transfer matrix: trained with one contact signal, evaluated with others.
 
-For the hop task (:mod:`jax_contact.envs.hop_task`) and Go1 joystick
-(:mod:`jax_contact.train.ppo`); :func:`transfer_matrix` dispatches on each run's
-``run.json`` ``task`` (absent: ``"go1"``, the runs written before there were tasks).
+For the hop task (:mod:`jax_contact.envs.hop_task`), Go1 joystick
+(:mod:`jax_contact.train.ppo`) and every other Playground task (evaluated as Go1's, in the
+run's own env); :func:`transfer_matrix` dispatches on each run's ``run.json`` ``task``
+(absent: ``"go1"``, the runs written before there were tasks).
 
 Rows: the policies trained with ``observe`` in {none, truth, estimate} (one run folder per
 seed, written by :func:`jax_contact.train.ppo.train`). Columns (:data:`COLUMNS`): what the
@@ -265,16 +266,18 @@ class _HopCells:
 
 
 class _Go1Cells:
-    """Go1 joystick's cells: :class:`jax_contact.train.policy_eval.ColumnEvaluator`,
-    :data:`GO1_METRICS`."""
+    """The cells of Go1's joystick and every other Playground task:
+    :class:`jax_contact.train.policy_eval.ColumnEvaluator` in the runs' env (``run.json``'s
+    ``env``), :data:`GO1_METRICS`."""
 
     metrics = GO1_METRICS
 
     def __init__(self, first_run: Path, n_envs: int, episode_length: int | None):
-        from jax_contact.train import policy_eval
+        from jax_contact.train import policy_eval, ppo
 
-        _, cfg = _run_cfg(first_run)
-        self._ev = policy_eval.ColumnEvaluator(cfg, n_envs, episode_length)
+        run, cfg = _run_cfg(first_run)
+        env_name = run.get("env", ppo.ENV_NAME)
+        self._ev = policy_eval.ColumnEvaluator(cfg, n_envs, episode_length, env_name)
 
     def cell(self, run_dir: Path, column: str, seed: int, loaded) -> dict:
         r = self._ev.evaluate(run_dir, column, seed, loaded)
@@ -297,7 +300,8 @@ class _Go1Cells:
         )
 
 
-# run.json's task -> its cells (a test swaps in its own).
+# run.json's task -> its cells (a test swaps in its own); the other Playground tasks
+# (tasks.PLAYGROUND_TASK_NAMES) take "go1"'s, in their own env.
 _CELLS = {"hop": _HopCells, "hop_blind": _HopCells, "go1": _Go1Cells}
 
 
@@ -328,7 +332,8 @@ def transfer_matrix(
     seed: int = 12345,
     log=print,
 ) -> dict:
-    """The transfer matrix over seeds, of hop or of Go1 joystick runs.
+    """The transfer matrix over seeds, of hop runs or of runs in a Playground env (Go1's
+    joystick, ...).
 
     Args:
       runs: trained variant -> run folders (one per training seed), all of one task
@@ -361,9 +366,12 @@ def transfer_matrix(
             f" ({', '.join(f'{d} is {t}' for d, t in found.items())})"
         )
     task = task_names[0]
-    if task not in _CELLS:
-        raise ValueError(f"run.json's task must be one of {tuple(_CELLS)}, got {task!r}")
-    cells_of = _CELLS[task](dirs_all[0], n_envs, episode_length)
+    from jax_contact.train import tasks
+
+    kind = "go1" if task in tasks.PLAYGROUND_TASK_NAMES else task  # Go1's cells, its env
+    if kind not in _CELLS:
+        raise ValueError(f"run.json's task must be one of {tasks.TASK_NAMES}, got {task!r}")
+    cells_of = _CELLS[kind](dirs_all[0], n_envs, episode_length)
     cells: dict = {}
     makers: dict = {}  # one make_policy per network, so rollouts are shared
     for variant, dirs in runs.items():
