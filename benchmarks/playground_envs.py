@@ -32,6 +32,31 @@ from jax_contact.benchmarks.common import (
 from jax_contact.train.cli_args import positive_int
 
 
+def score_until_done(records, skip: int) -> tuple[int, int, int | None]:
+    """Agreement of the estimate with the truth over an episode's env steps.
+
+    Args:
+      records: per env step, ``(p_contact, truth, done)``: the step's substeps' P(contact)
+        and truth, (n_substeps, n_legs), and its ``done``.
+      skip: env steps left out at the start (the reset drop).
+
+    Returns:
+      ``(hits, n, done_step)``: the foot-updates whose ``P > 0.5`` equals the truth and
+      their number, over the steps from ``skip`` up to and including the first whose
+      ``done`` is set (none after it: a training loop would have reset the env), and that
+      step, counted from 1 (None if the episode did not end).
+    """
+    hits, n = 0, 0
+    for i, (p, truth, done) in enumerate(records):
+        p = np.asarray(p)
+        if i >= skip:
+            hits += int(np.sum((p > 0.5) == np.asarray(truth, bool)))
+            n += p.size
+        if bool(np.asarray(done)):
+            return hits, n, i + 1
+    return hits, n, None
+
+
 def run_one(name: str, n_steps: int) -> dict:
     from jax_contact.envs import playground_offline
     from jax_contact.envs import wrapper as W
@@ -57,20 +82,15 @@ def run_one(name: str, n_steps: int) -> dict:
     t = time.perf_counter()
     step = jax.jit(wrapped.step).lower(state, action).compile()
     row["step_compile_s"] = time.perf_counter() - t
-    hits, n, finite, done_step = 0.0, 0, True, None
-    skip = int(round(0.5 / float(env.dt)))
+    finite, records = True, []
     t = time.perf_counter()
-    for i in range(n_steps):
-        was_done = done_step is not None
+    for _ in range(n_steps):
         state = step(state, action)
         finite &= all(bool(np.all(np.isfinite(np.asarray(x)))) for x in jax.tree.leaves(state.obs))
-        if not was_done and bool(np.asarray(state.done)):
-            done_step = i + 1
-        if i >= skip and not was_done:  # the step that ends the episode counts, none after it
-            sub = state.info["contact_est_substeps"]
-            hits += float(np.sum((np.asarray(sub["p_contact"]) > 0.5) == np.asarray(sub["truth"])))
-            n += sub["p_contact"].size
+        sub = state.info["contact_est_substeps"]
+        records.append((sub["p_contact"], sub["truth"], state.done))
     row["run_s_per_step"] = (time.perf_counter() - t) / n_steps
+    hits, n, done_step = score_until_done(records, skip=int(round(0.5 / float(env.dt))))
     size = wrapped.observation_size
     shapes = jax.tree.map(lambda x: x.shape, state.obs)
     if isinstance(size, dict):

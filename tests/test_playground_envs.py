@@ -113,3 +113,20 @@ def test_jitted_reset_and_steps(name):
     assert int(state.info["contact_est"].n_updates) == 3 * env.n_substeps
     assert state.info["contact_est_truth"].shape == (2,)
     assert (reset.traces, step.traces) == (1, 1)
+
+
+def test_the_benchmark_scores_an_episode_up_to_its_done():
+    """benchmarks/playground_envs.py's accuracy column: from the skipped reset drop to the
+    step whose done ends the episode (a humanoid holding its default pose falls within a
+    second; the fallen robot was scored before)."""
+    from jax_contact.benchmarks.playground_envs import score_until_done
+
+    records = [
+        ([[0.9, 0.1]], [[1, 0]], 0.0),  # skipped (the drop)
+        ([[0.9, 0.6], [0.2, 0.4]], [[1, 0], [0, 0]], 0.0),  # 3 of 4 agree (0.6 vs air)
+        ([[0.4, 0.7]], [[1, 1]], 1.0),  # 1 of 2; done: the last step scored
+        ([[0.0, 0.0]], [[1, 1]], 0.0),  # after the done: not scored
+    ]
+    assert score_until_done(records, skip=1) == (4, 6, 3)
+    no_done = [(p, t, 0.0) for p, t, _ in records]
+    assert score_until_done(no_done, skip=1) == (4, 8, None)  # + 0 of 2 on the last step
