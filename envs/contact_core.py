@@ -304,7 +304,7 @@ def make_core(env, cfg: ContactObsConfig) -> Core:
     if params is None:
         params_source = "default"
         params = contact_params.default_estimator_params(
-            robot, dt, sensor_params, force_rows=cfg.force_rows
+            robot, dt, sensor_params, force_rows=cfg.force_rows, feet=resolved
         )
     elif isinstance(params, str | os.PathLike):
         params_source = str(params)
@@ -314,7 +314,7 @@ def make_core(env, cfg: ContactObsConfig) -> Core:
             def derive(d):
                 sp = contact_params.default_sensor_params(cfg.sensor, robot, d)
                 return contact_params.default_estimator_params(
-                    robot, d, sp, force_rows=cfg.force_rows
+                    robot, d, sp, force_rows=cfg.force_rows, feet=resolved
                 )
 
         params, provenance = load_params_for(

@@ -43,16 +43,18 @@ def _desc_of(robot_or_desc) -> RobotDescription:
     )
 
 
-def _home_jacobians(mj_model: mujoco.MjModel, desc: RobotDescription):
+def _home_jacobians(mj_model: mujoco.MjModel, desc: RobotDescription, rotational: bool = False):
     """(data at the home pose after ``mj_forward``, per foot its (3, nv) point Jacobian at
-    the foot's contact point): what :func:`choose_force_rows` and :func:`push_noise` read."""
+    the foot's contact point; with ``rotational``, per foot ``(jacp, jacr)``, the second
+    its body's (3, nv) rotational Jacobian): what :func:`choose_force_rows`,
+    :func:`push_noise` and :func:`moment_push` read."""
     d = home_data(mj_model)
     mujoco.mj_forward(mj_model, d)
     jacs = []
     for body, point in zip(desc.foot_body_ids, foot_points_np(mj_model, d, desc), strict=True):
-        jacp = np.zeros((3, mj_model.nv))
-        mujoco.mj_jac(mj_model, d, jacp, None, point, body)
-        jacs.append(jacp)
+        jacp, jacr = np.zeros((3, mj_model.nv)), np.zeros((3, mj_model.nv))
+        mujoco.mj_jac(mj_model, d, jacp, jacr, point, body)
+        jacs.append((jacp, jacr) if rotational else jacp)
     return d, jacs
 
 
@@ -90,39 +92,86 @@ def push_noise(mj_model: mujoco.MjModel, desc: RobotDescription, params) -> np.n
     Home pose as in :func:`choose_force_rows`; the base acceleration's share of
     ``Sigma_d`` is left out.
     """
-    d, jacs = _home_jacobians(mj_model, desc)
+    sigma_d = np.asarray(params.noise.sigma_d, np.float64)
+    return np.asarray(
+        [
+            float(np.sqrt(np.sum(g**2 * sigma_d[list(dofs)] ** 2)))
+            for g, _, dofs in _push_gains(mj_model, desc, params)
+        ]
+    )
+
+
+def _push_gains(mj_model: mujoco.MjModel, desc: RobotDescription, params):
+    """Per leg ``(g, jacr, dofs)`` at the home pose: ``g = e^T Lambda J_f M_l^-1`` (the
+    normal push per newton metre of residual torque, over the leg's joints; damped as the
+    dynamics term damps it) and the foot body's rotational Jacobian over the leg's joints."""
+    d, jacs = _home_jacobians(mj_model, desc, rotational=True)
     M = np.zeros((mj_model.nv, mj_model.nv))
     mujoco.mj_fullM(mj_model, d, M)
     rows = list(params.force_rows)
     e = np.array([0.0, 0.0, 1.0])[rows]
-    sigma_d = np.asarray(params.noise.sigma_d, np.float64)
     out = []
-    for jacp, dofs in zip(jacs, desc.leg_dofs, strict=True):
+    for (jacp, jacr), dofs in zip(jacs, desc.leg_dofs, strict=True):
         dofs = list(dofs)
         J = jacp[rows][:, dofs]
         M_inv = np.linalg.inv(M[np.ix_(dofs, dofs)])
         lam_inv = J @ M_inv @ J.T + float(params.inv_damping) * np.eye(len(rows))
-        g = e @ np.linalg.solve(lam_inv, J @ M_inv)
-        out.append(float(np.sqrt(np.sum(g**2 * sigma_d[dofs] ** 2))))
+        out.append((e @ np.linalg.solve(lam_inv, J @ M_inv), jacr[:, dofs], dofs))
+    return out
+
+
+def moment_push(mj_model: mujoco.MjModel, desc: RobotDescription, params, feet=None) -> np.ndarray:
+    """(n_legs,) the largest error in the estimated push ``e . F`` per newton of the foot's
+    load that a sole's moment can cause, at the home pose (dimensionless).
+
+    Eq. 6 models a foot as a point that transmits a force and no moment. A sole (a box or
+    mesh, several spheres or capsules, a capsule) also transmits a moment: its centre of
+    pressure may lie anywhere on it, up to ``h`` from the contact point (``h`` the largest
+    distance of the sole's corners, spheres' centres or capsules' ends,
+    :attr:`jax_contact.envs.feet.Foot.sole`, from the foot's point), so under a load ``f``
+    the moment is up to ``f h`` about a horizontal axis. Through the leg it is the joint
+    torque ``J_r^T m`` (``J_r`` the foot body's rotational Jacobian), which eq. 6 reads as
+    push: ``g J_r^T m`` with ``g`` as in :func:`push_noise`. This returns ``h |(g
+    J_r^T)_{x,y}|``; a foot of one sphere or point (no sole, or ``feet`` None) gives 0.
+    """
+    if feet is None:
+        return np.zeros(desc.n_legs)
+    out = []
+    for foot, (g, jacr, _) in zip(feet, _push_gains(mj_model, desc, params), strict=True):
+        sole = np.asarray(foot.sole, np.float64).reshape(-1, 3)
+        h = (
+            float(np.max(np.linalg.norm(sole - np.asarray(foot.point), axis=1)))
+            if len(sole)
+            else 0.0
+        )
+        out.append(h * float(np.linalg.norm((g @ jacr.T)[:2])))
     return np.asarray(out)
 
 
-def choose_unilateral(mj_model: mujoco.MjModel, desc: RobotDescription, params) -> bool:
+def choose_unilateral(mj_model: mujoco.MjModel, desc: RobotDescription, params, feet=None) -> bool:
     """Whether the dynamics term's sign test (``EstimatorParams.unilateral``) can read a
-    stance foot's load: a foot's share of the weight, ``m g / n_legs`` (the model's
-    gravity), at least the largest :func:`push_noise` of the legs.
+    stance foot's load: on every leg, a foot's share of the weight, ``f = m g / n_legs``
+    (the model's gravity), at least ``sqrt(push_noise^2 + (f moment_push)^2)``: the
+    estimated push's noise and, for a foot with a sole (``feet``, as
+    :func:`jax_contact.envs.feet.describe` resolves them), the error its moment can cause.
 
-    Below it the estimated push's sign is mostly the torques' noise, which the test (under
-    ``Sigma_f`` alone) would read as a sure "pull": Brax's ant (0.91 kg, 2.2 N per foot
-    against 3.6 N of noise) read its trot's stance as air (docs/training.md, "Brax's ant,
-    measured"). Every other robot measured keeps the test: Go1 2.2x, Barkour 2.0x, Spot
-    13x, the planar leg 5x, Playground's humanoids 2.2-15x. A description without a mass
-    keeps it.
+    Below it the estimated push's sign is mostly the torques' noise or the sole's moment,
+    which the test (under ``Sigma_f`` alone) would read as a sure "pull". Brax's ant
+    (0.91 kg, 2.2 N per foot against 3.6 N of noise) read its trot's stance as air, and
+    T1 standing on both soles (155 N each; noise 71 N, a sole's moment up to ~200 N)
+    chattered between 0 and 1 at every physics step (docs/training.md, "Brax's ant,
+    measured" and "A sole's moment and the sign test"). Measured ratios: Go1 2.2, Barkour
+    2.0, Spot 13, the planar leg 5, Berkeley Humanoid 2.0, H1 3.3 keep the test; the ant
+    0.61, T1 0.73, G1 0.57, Apollo 0.54 do not (the 17 Playground envs: docs/training.md).
+    A description without a mass keeps it.
     """
     if desc.mass_kg is None:
         return True
     load = float(desc.mass_kg) * float(np.linalg.norm(mj_model.opt.gravity)) / desc.n_legs
-    return bool(load >= float(np.max(push_noise(mj_model, desc, params))))
+    noise = np.hypot(
+        push_noise(mj_model, desc, params), load * moment_push(mj_model, desc, params, feet)
+    )
+    return bool(load >= float(np.max(noise)))
 
 
 def default_sensor_params(
@@ -218,6 +267,7 @@ def default_estimator_params(
     *,
     sigma_qdd_model: float = 0.0,
     force_rows: Sequence[int] | None = None,
+    feet: Sequence | None = None,
     **params_for_kwargs,
 ) -> jc.EstimatorParams:
     """Estimator parameters consistent with a sensor model: :func:`jax_contact.params_for`.
@@ -241,6 +291,8 @@ def default_estimator_params(
       sigma_qdd_model: see above, rad/s^2.
       force_rows: world axes of the contact force; None: :func:`choose_force_rows` (all
         three for legs of three or more joints; a ``Robot`` is needed for shorter legs).
+      feet: the resolved feet (:func:`jax_contact.envs.feet.describe`), whose soles
+        :func:`choose_unilateral` weighs; None: points.
       **params_for_kwargs: passed to :func:`jax_contact.params_for` (``gait``,
         ``disturbance``, ``bias_horizon_s``, and any ``make_params`` argument).
 
@@ -271,7 +323,7 @@ def default_estimator_params(
         force_rows = choose_force_rows(mj_model, desc) if mj_model is not None else (0, 1, 2)
     params = jc.params_for(desc, sensor_params, dt, force_rows=force_rows, **params_for_kwargs)
     if "unilateral" not in params_for_kwargs and mj_model is not None:
-        params = params.replace(unilateral=choose_unilateral(mj_model, desc, params))
+        params = params.replace(unilateral=choose_unilateral(mj_model, desc, params, feet))
     if sigma_qdd_model > 0:
         qdd = np.hypot(np.asarray(params.noise.sigma_qdd), sigma_qdd_model)
         params = params.replace(noise=params.noise.replace(sigma_qdd=jnp.asarray(qdd, jnp.float32)))

@@ -445,3 +445,44 @@ def test_sign_test_only_where_the_torques_can_read_a_foots_load():
     go1 = load_robot("go1")
     sp = CP.default_sensor_params("anymal_like", go1, 0.0025)
     assert CP.default_estimator_params(go1, 0.0025, sp).unilateral is True
+
+
+def test_a_soles_moment_can_turn_the_sign_test_off():
+    """The ant-like leg above with a 10 kg torso and a box sole of half-size (a, 0.02) in
+    place of the sphere. At home the shank's rotational Jacobian over (hip about z, knee
+    about y) is J_r = [[0, 0], [0, 1], [1, 0]] (rows x, y, z), and the sole's centre keeps
+    the sphere's point Jacobian rows (y, z) = [[0.3, 0], [0, -0.1]], so g = (0, -10) as
+    above and g J_r^T = (0, -10, 0): a moment about y moves the estimated push by 10 N per
+    N m. The sole's corners lie h = sqrt(a^2 + 0.02^2) from its centre, so
+    ``moment_push`` = 10 h. a = 0.05: 0.539, under the ~21 N noise the load (~104 N) still
+    clears sqrt(21^2 + (0.539 * 104)^2) = 60 N, and the test runs; a = 0.12: 1.217 > 1,
+    no load can clear it, the test is off. A sphere foot has no sole: 0."""
+    from jax_contact.envs import contact_params as CP
+
+    torso = '<geom type="sphere" size=".05"'
+    heavy = ANT.replace(torso, torso + ' mass="10"')
+    sphere = '<geom name="foot" type="sphere" pos=".1 0 -.2" size=".02"/>'
+    assert heavy.count(sphere) == 1
+    for a, expect_push, expect_on in (
+        (None, 0.0, True),
+        (0.05, 0.5385, True),
+        (0.12, 1.2166, False),
+    ):
+        xml = (
+            heavy
+            if a is None
+            else heavy.replace(
+                sphere, f'<geom name="foot" type="box" pos=".1 0 -.2" size="{a} .02 .005"/>'
+            )
+        )
+        m = mujoco.MjModel.from_xml_string(xml)
+        desc, resolved = feet.describe(m)
+        robot = Robot(name="ant", mj_model=m, description=desc, spec=mujoco.MjSpec.from_string(xml))
+        sp = CP.default_sensor_params("anymal_like", robot, 0.0025)
+        params = CP.default_estimator_params(robot, 0.0025, sp, feet=resolved)
+        push = CP.moment_push(m, desc, params, resolved)
+        np.testing.assert_allclose(push, [expect_push], rtol=2e-4, atol=1e-9)
+        assert params.unilateral is expect_on, a
+        # Without the feet (a recording's points) the moment is not weighed.
+        assert CP.moment_push(m, desc, params)[0] == 0.0
+        assert W.wrap_contact(W.LeggedPipelineEnv(robot)).contact_report()["sign_test"] is expect_on
