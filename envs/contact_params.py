@@ -92,12 +92,14 @@ def push_noise(mj_model: mujoco.MjModel, desc: RobotDescription, params) -> np.n
     Home pose as in :func:`choose_force_rows`; the base acceleration's share of
     ``Sigma_d`` is left out.
     """
+    return _push_noise_of(_push_gains(mj_model, desc, params), params)
+
+
+def _push_noise_of(gains, params) -> np.ndarray:
+    """:func:`push_noise` from :func:`_push_gains`' per-leg gains."""
     sigma_d = np.asarray(params.noise.sigma_d, np.float64)
     return np.asarray(
-        [
-            float(np.sqrt(np.sum(g**2 * sigma_d[list(dofs)] ** 2)))
-            for g, _, dofs in _push_gains(mj_model, desc, params)
-        ]
+        [float(np.sqrt(np.sum(g**2 * sigma_d[list(dofs)] ** 2))) for g, _, dofs in gains]
     )
 
 
@@ -136,8 +138,13 @@ def moment_push(mj_model: mujoco.MjModel, desc: RobotDescription, params, feet=N
     """
     if feet is None:
         return np.zeros(desc.n_legs)
+    return _moment_push_of(_push_gains(mj_model, desc, params), feet)
+
+
+def _moment_push_of(gains, feet) -> np.ndarray:
+    """:func:`moment_push` from :func:`_push_gains`' per-leg gains and the resolved feet."""
     out = []
-    for foot, (g, jacr, _) in zip(feet, _push_gains(mj_model, desc, params), strict=True):
+    for foot, (g, jacr, _) in zip(feet, gains, strict=True):
         sole = np.asarray(foot.sole, np.float64).reshape(-1, 3)
         h = (
             float(np.max(np.linalg.norm(sole - np.asarray(foot.point), axis=1)))
@@ -168,9 +175,9 @@ def choose_unilateral(mj_model: mujoco.MjModel, desc: RobotDescription, params, 
     if desc.mass_kg is None:
         return True
     load = float(desc.mass_kg) * float(np.linalg.norm(mj_model.opt.gravity)) / desc.n_legs
-    noise = np.hypot(
-        push_noise(mj_model, desc, params), load * moment_push(mj_model, desc, params, feet)
-    )
+    gains = _push_gains(mj_model, desc, params)  # the home pose's Jacobians and M, once
+    moment = np.zeros(desc.n_legs) if feet is None else _moment_push_of(gains, feet)
+    noise = np.hypot(_push_noise_of(gains, params), load * moment)
     return bool(load >= float(np.max(noise)))
 
 

@@ -52,6 +52,7 @@ from jax_contact.train.cli_args import (  # noqa: F401  (COLUMNS ... SCENES: re-
     BENCH_ENVS,
     COLUMNS,
     GAITS,
+    HOP_TASKS,
     LOG_SUFFIXES,
     NOISES,
     ONE_LEGGED,
@@ -112,8 +113,7 @@ TINY_REPRODUCE = dict(
 # Each task's own configurations (jax_contact.train.tasks: Task.configs), plus "tiny" for all.
 TASK_CONFIGS = {
     "go1": ("small", "full"),
-    "hop": ("small", "reduced"),
-    "hop_blind": ("small", "reduced"),
+    **{n: ("small", "reduced") for n in HOP_TASKS},
     **{n: ("small", "full") for n in PLAYGROUND_TASKS},  # the other Playground envs
 }
 PPO_CONFIGS = ("tiny", *dict.fromkeys(c for cs in TASK_CONFIGS.values() for c in cs))
@@ -367,7 +367,7 @@ def _check_train(args: argparse.Namespace) -> None:
             f" ({', '.join(have)})"
         )
     if args.params is not None:
-        if args.task in ("hop", "hop_blind"):
+        if args.task in HOP_TASKS:
             raise ValueError(
                 f"argument --params: the {args.task} task runs the planar leg's own estimator;"
                 " --params is for the Playground tasks (go1, ...)"

@@ -71,7 +71,8 @@ PLAYGROUND_ENV_NAMES = (
 )
 # The tasks of `jax-contact train` that are Playground envs by name (Go1's joystick is "go1").
 PLAYGROUND_TASKS = tuple(n for n in PLAYGROUND_ENV_NAMES if n != "Go1JoystickFlatTerrain")
-TASKS = ("go1", "hop", "hop_blind", *PLAYGROUND_TASKS)  # jax_contact.train.tasks.TASK_NAMES
+HOP_TASKS = ("hop", "hop_blind")  # jax_contact.train.tasks.HOP_TASK_NAMES
+TASKS = ("go1", *HOP_TASKS, *PLAYGROUND_TASKS)  # jax_contact.train.tasks.TASK_NAMES
 SCENES = ("planar_leg", "go1", "go1_walk", "go1_trot")  # jax_contact.train.rates.SCENES
 LOG_SUFFIXES = (".h5", ".hdf5")
 # The fewest readings per second the estimator takes, for an export's rate and a

@@ -26,7 +26,7 @@ import dataclasses
 import functools
 from collections.abc import Callable
 
-from jax_contact.train.cli_args import PLAYGROUND_TASKS
+from jax_contact.train.cli_args import HOP_TASKS, PLAYGROUND_TASKS
 from jax_contact.train.ppo import PPOConfig
 
 # Sized for the 2-core CPU: a 7-number observation (5 leg + command + 1 contact), small
@@ -202,7 +202,7 @@ HOP_BLIND_TASK = dataclasses.replace(
     make_env=functools.partial(_hop_env, "hop_blind"),
 )
 
-HOP_TASK_NAMES = ("hop", "hop_blind")
+HOP_TASK_NAMES = HOP_TASKS
 # The Playground locomotion envs that load offline (jax_contact.envs.playground_offline;
 # tests/test_cli.py checks the list against it), less the go1 task's.
 PLAYGROUND_TASK_NAMES = PLAYGROUND_TASKS
