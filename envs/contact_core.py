@@ -167,7 +167,7 @@ class Core:
         # computed at the step's start and applied over it, the interval ``qacc`` spans.
         at = prev if self.cfg.pairing == "delayed" else r
         d = adapter.prepare(self.mjx_model, data.replace(qpos=at.qpos, qvel=at.qvel))
-        return feet.measurement(
+        return adapter.robot_measurement(
             self.mjx_model,
             d,
             self.desc,
@@ -304,7 +304,7 @@ def make_core(env, cfg: ContactObsConfig) -> Core:
     if params is None:
         params_source = "default"
         params = contact_params.default_estimator_params(
-            robot, dt, sensor_params, force_rows=cfg.force_rows, feet=resolved
+            robot, dt, sensor_params, force_rows=cfg.force_rows
         )
     elif isinstance(params, str | os.PathLike):
         params_source = str(params)
@@ -314,7 +314,7 @@ def make_core(env, cfg: ContactObsConfig) -> Core:
             def derive(d):
                 sp = contact_params.default_sensor_params(cfg.sensor, robot, d)
                 return contact_params.default_estimator_params(
-                    robot, d, sp, force_rows=cfg.force_rows, feet=resolved
+                    robot, d, sp, force_rows=cfg.force_rows
                 )
 
         params, provenance = load_params_for(

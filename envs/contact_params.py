@@ -122,45 +122,40 @@ def _push_gains(mj_model: mujoco.MjModel, desc: RobotDescription, params):
     return out
 
 
-def moment_push(mj_model: mujoco.MjModel, desc: RobotDescription, params, feet=None) -> np.ndarray:
+def moment_push(mj_model: mujoco.MjModel, desc: RobotDescription, params) -> np.ndarray:
     """(n_legs,) the largest error in the estimated push ``e . F`` per newton of the foot's
     load that a sole's moment can cause, at the home pose (dimensionless).
 
     Eq. 6 models a foot as a point that transmits a force and no moment. A sole (a box or
     mesh, several spheres or capsules, a capsule) also transmits a moment: its centre of
     pressure may lie anywhere on it, up to ``h`` from the contact point (``h`` the largest
-    distance of the sole's corners, spheres' centres or capsules' ends,
-    :attr:`jax_contact.envs.feet.Foot.sole`, from the foot's point), so under a load ``f``
+    distance of the sole's corners, spheres' centres or capsules' ends, ``desc.foot_soles``,
+    from the foot's point ``desc.foot_offsets``), so under a load ``f``
     the moment is up to ``f h`` about a horizontal axis. Through the leg it is the joint
     torque ``J_r^T m`` (``J_r`` the foot body's rotational Jacobian), which eq. 6 reads as
     push: ``g J_r^T m`` with ``g`` as in :func:`push_noise`. This returns ``h |(g
-    J_r^T)_{x,y}|``; a foot of one sphere or point (no sole, or ``feet`` None) gives 0.
+    J_r^T)_{x,y}|``; a foot of one sphere or point (no sole) gives 0.
     """
-    if feet is None:
-        return np.zeros(desc.n_legs)
-    return _moment_push_of(_push_gains(mj_model, desc, params), feet)
+    return _moment_push_of(_push_gains(mj_model, desc, params), desc)
 
 
-def _moment_push_of(gains, feet) -> np.ndarray:
-    """:func:`moment_push` from :func:`_push_gains`' per-leg gains and the resolved feet."""
+def _moment_push_of(gains, desc: RobotDescription) -> np.ndarray:
+    """:func:`moment_push` from :func:`_push_gains`' per-leg gains and the description."""
+    soles = desc.foot_soles or ((),) * desc.n_legs
     out = []
-    for foot, (g, jacr, _) in zip(feet, gains, strict=True):
-        sole = np.asarray(foot.sole, np.float64).reshape(-1, 3)
-        h = (
-            float(np.max(np.linalg.norm(sole - np.asarray(foot.point), axis=1)))
-            if len(sole)
-            else 0.0
-        )
+    for sole, point, (g, jacr, _) in zip(soles, desc.foot_offsets, gains, strict=True):
+        sole = np.asarray(sole, np.float64).reshape(-1, 3)
+        h = float(np.max(np.linalg.norm(sole - np.asarray(point), axis=1))) if len(sole) else 0.0
         out.append(h * float(np.linalg.norm((g @ jacr.T)[:2])))
     return np.asarray(out)
 
 
-def choose_unilateral(mj_model: mujoco.MjModel, desc: RobotDescription, params, feet=None) -> bool:
+def choose_unilateral(mj_model: mujoco.MjModel, desc: RobotDescription, params) -> bool:
     """Whether the dynamics term's sign test (``EstimatorParams.unilateral``) can read a
     stance foot's load: on every leg, a foot's share of the weight, ``f = m g / n_legs``
     (the model's gravity), at least ``sqrt(push_noise^2 + (f moment_push)^2)``: the
-    estimated push's noise and, for a foot with a sole (``feet``, as
-    :func:`jax_contact.envs.feet.describe` resolves them), the error its moment can cause.
+    estimated push's noise and, for a foot with a sole (``desc.foot_soles``, as
+    :func:`jax_contact.envs.feet.describe` resolves it), the error its moment can cause.
 
     Below it the estimated push's sign is mostly the torques' noise or the sole's moment,
     which the test (under ``Sigma_f`` alone) would read as a sure "pull". Brax's ant
@@ -176,7 +171,7 @@ def choose_unilateral(mj_model: mujoco.MjModel, desc: RobotDescription, params, 
         return True
     load = float(desc.mass_kg) * float(np.linalg.norm(mj_model.opt.gravity)) / desc.n_legs
     gains = _push_gains(mj_model, desc, params)  # the home pose's Jacobians and M, once
-    moment = np.zeros(desc.n_legs) if feet is None else _moment_push_of(gains, feet)
+    moment = _moment_push_of(gains, desc)
     noise = np.hypot(_push_noise_of(gains, params), load * moment)
     return bool(load >= float(np.max(noise)))
 
@@ -274,7 +269,6 @@ def default_estimator_params(
     *,
     sigma_qdd_model: float = 0.0,
     force_rows: Sequence[int] | None = None,
-    feet: Sequence | None = None,
     **params_for_kwargs,
 ) -> jc.EstimatorParams:
     """Estimator parameters consistent with a sensor model: :func:`jax_contact.params_for`.
@@ -298,8 +292,6 @@ def default_estimator_params(
       sigma_qdd_model: see above, rad/s^2.
       force_rows: world axes of the contact force; None: :func:`choose_force_rows` (all
         three for legs of three or more joints; a ``Robot`` is needed for shorter legs).
-      feet: the resolved feet (:func:`jax_contact.envs.feet.describe`), whose soles
-        :func:`choose_unilateral` weighs; None: points.
       **params_for_kwargs: passed to :func:`jax_contact.params_for` (``gait``,
         ``disturbance``, ``bias_horizon_s``, and any ``make_params`` argument).
 
@@ -330,7 +322,7 @@ def default_estimator_params(
         force_rows = choose_force_rows(mj_model, desc) if mj_model is not None else (0, 1, 2)
     params = jc.params_for(desc, sensor_params, dt, force_rows=force_rows, **params_for_kwargs)
     if "unilateral" not in params_for_kwargs and mj_model is not None:
-        params = params.replace(unilateral=choose_unilateral(mj_model, desc, params, feet))
+        params = params.replace(unilateral=choose_unilateral(mj_model, desc, params))
     if sigma_qdd_model > 0:
         qdd = np.hypot(np.asarray(params.noise.sigma_qdd), sigma_qdd_model)
         params = params.replace(noise=params.noise.replace(sigma_qdd=jnp.asarray(qdd, jnp.float32)))

@@ -45,7 +45,9 @@ docs/training.md measures both on Berkeley Humanoid.
 
 :func:`describe` returns a :class:`jax_contact.robot.RobotDescription` (foot points as
 ``foot_offsets``, ``foot_geom_ids`` the first geom of each foot, -1 for a site or a bare
-body) and :func:`measurement` the estimator's input at those points.
+body); :func:`jax_contact.adapter.robot_measurement` takes such a description and
+computes the estimator's input at those points (``sole``: the rolling point, or the
+fixed one), the wrapper's as the log commands'.
 """
 
 from __future__ import annotations
@@ -53,20 +55,25 @@ from __future__ import annotations
 import dataclasses
 
 import jax
-import jax.numpy as jnp
 import mujoco
 import numpy as np
 
 from jax_contact import adapter
-from jax_contact.robot import RobotDescription, actuated_dofs, body_chain, leg_of, model_mass
-from jax_contact.types import RobotMeasurement
+from jax_contact.adapter import SOLE_SOFTNESS, SOLES  # noqa: F401 (this module's names too)
+from jax_contact.robot import (
+    RobotDescription,
+    actuated_dofs,
+    body_chain,
+    derive_description,
+    floor_spheres,
+    leg_of,
+    model_mass,
+    sphere_foot_names,
+)
 
 _T = mujoco.mjtGeom
 _FLOOR_TYPES = (int(_T.mjGEOM_PLANE), int(_T.mjGEOM_HFIELD))
-SOLES = ("rolling", "centre")
 _ROUND = ("sphere", "capsule")  # geoms with a radius; the others' soles are flat (radius 0)
-# Softness of the rolling sole's lowest point, m: corners this much higher weigh 1/e.
-SOLE_SOFTNESS = 0.002
 
 
 @dataclasses.dataclass(frozen=True)
@@ -353,57 +360,36 @@ def describe(m: mujoco.MjModel, feet=None) -> tuple[RobotDescription, tuple[Foot
     return desc, resolved
 
 
+def robot_description(m: mujoco.MjModel, foot_names=None) -> RobotDescription:
+    """The description of a robot model that ``load_robot`` (the log commands: simulate,
+    evaluate, estimate, export, tune) uses.
+
+    Where the feet are sphere geoms (no names and some floor-touching sphere, or every
+    name a floor-touching sphere geom or its body), :func:`jax_contact.robot.
+    derive_description`'s: the distal sphere of each joint chain. Otherwise
+    :func:`describe`'s, as the wrapper resolves feet (module docstring): a box, cylinder
+    or mesh sole (Berkeley Humanoid's ``l_foot1``), a body of several geoms (T1's corner
+    spheres, G1's ``<pair>`` feet), a site, a body; without names, every floor-touching
+    geom on a leg, grouped by body. Its errors name the foot and list the valid names.
+    """
+    _, spheres = floor_spheres(m)
+    if foot_names is None:
+        use_spheres = bool(spheres)
+    elif isinstance(foot_names, str) or not len(foot_names):
+        use_spheres = True  # derive_description names the bad argument
+    else:
+        names = sphere_foot_names(m, spheres)
+        use_spheres = all(isinstance(n, str) and n in names for n in foot_names)
+    if use_spheres:
+        return derive_description(m, foot_names)
+    return describe(m, foot_names)[0]
+
+
 def foot_points(desc: RobotDescription, d, sole: str = "centre") -> jax.Array:
-    """(n_legs, 3) world positions of the feet's contact points.
-
-    Args:
-      desc: the description (:func:`describe`).
-      d: data after kinematics.
-      sole: ``"centre"``: each foot's fixed point (``foot_offsets``); ``"rolling"``: for
-        a foot with a flat sole or round geoms of one radius (``foot_soles``: the
-        sole's corners, or the spheres' centres and capsules' ends), the mean of those
-        points weighted
-        by ``exp(-(z - z_min) / SOLE_SOFTNESS)`` (module docstring), so the sole's centre
-        when it lies flat and its lowest edge or corner when it rolls; feet without a
-        flat sole keep their fixed point.
-    """
-    if sole not in SOLES:
-        raise ValueError(f"sole must be one of {SOLES}, got {sole!r}")
-    if sole == "centre" or not any(desc.foot_soles):
-        return adapter.foot_centres(desc, d)
-    k = max(len(c) for c in desc.foot_soles)
-    # One (k, 3) block per foot: its corners repeated cyclically up to k (a foot without
-    # a sole: its fixed point k times), which leaves every foot's weighted mean unchanged
-    # when k is a multiple of its count.
-    blocks = []
-    for c, o in zip(desc.foot_soles, desc.foot_offsets, strict=True):
-        pts = np.asarray(c or [o], np.float32).reshape(-1, 3)
-        blocks.append(pts[np.arange(k) % len(pts)])
-    world = adapter.on_foot_bodies(desc, d, np.stack(blocks))
-    z = world[..., 2]
-    w = jax.nn.softmax(-(z - jnp.min(z, axis=1, keepdims=True)) / SOLE_SOFTNESS, axis=1)
-    return jnp.einsum("nk,nki->ni", w, world)
-
-
-def measurement(
-    m, d, desc: RobotDescription, *, qdd, tau, include_passive: bool, sole: str = "centre"
-) -> RobotMeasurement:
-    """:func:`jax_contact.adapter.robot_measurement` at the feet's contact points.
-
-    :func:`jax_contact.adapter.measurement_at_points` (the same quantities), the point being
-    :func:`foot_points`'s (``sole``) on the foot's body instead of a sphere's centre (for a
-    sphere foot the two are equal). ``d`` must be prepared (``adapter.prepare``).
-    """
-    return adapter.measurement_at_points(
-        m,
-        d,
-        desc,
-        foot_points(desc, d, sole),
-        jnp.asarray(desc.foot_radii, jnp.float32),
-        qdd=qdd,
-        tau=tau,
-        include_passive=include_passive,
-    )
+    """(n_legs, 3) world positions of the feet's contact points:
+    :func:`jax_contact.adapter.contact_points` (``sole`` ``"centre"`` or ``"rolling"``,
+    module docstring), which :func:`jax_contact.adapter.robot_measurement` reads."""
+    return adapter.contact_points(desc, d, sole)
 
 
 def foot_points_np(m: mujoco.MjModel, d: mujoco.MjData, desc: RobotDescription) -> np.ndarray:

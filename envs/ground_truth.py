@@ -47,9 +47,8 @@ import numpy as np
 from flax import struct
 from mujoco import mjx
 
-from jax_contact.envs.feet import touches
+from jax_contact.envs.feet import robot_description, touches
 from jax_contact.envs.robots import Robot
-from jax_contact.robot import derive_description
 
 SENSOR_PREFIX = "gt_contact"
 # MuJoCo contact-sensor data bits (mjtConDataType): found 0, force 1, torque 2, dist 3,
@@ -177,7 +176,7 @@ def with_contact_sensors(robot: Robot) -> Robot:
     return dataclasses.replace(
         robot,
         mj_model=mj_model,
-        description=derive_description(mj_model, desc.foot_names),
+        description=robot_description(mj_model, desc.foot_names),
         spec=spec,
     )
 

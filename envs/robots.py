@@ -49,7 +49,7 @@ from typing import TYPE_CHECKING
 import mujoco
 import numpy as np
 
-from jax_contact.robot import RobotDescription, derive_description
+from jax_contact.robot import RobotDescription
 
 if TYPE_CHECKING:
     from jax_contact.envs.gaits import GaitSettings
@@ -384,8 +384,11 @@ def load_robot(
 
     Args:
       name: one of :data:`ROBOT_NAMES`, or a path to an MJCF file (with its floor).
-      foot_names: passed to :func:`jax_contact.robot.derive_description`; None finds the
-        feet (the distal sphere geom of each joint chain that can touch the floor).
+      foot_names: the feet, in leg order (:func:`jax_contact.envs.feet.robot_description`):
+        sphere geoms or their bodies, or as the wrapper names feet (a box or mesh sole,
+        a body of several geoms, a site); None finds them (the distal sphere geom of each
+        joint chain that can touch the floor, else every floor-touching geom on a leg,
+        grouped by body).
       gait: the robot's gait settings (:class:`jax_contact.envs.gaits.GaitSettings`); None takes
         :data:`jax_contact.envs.gaits.GAIT_SETTINGS` of the name, else derives them from the model
         when first needed.
@@ -439,8 +442,10 @@ def load_robot(
         raise ValueError(
             f"gait must be a jax_contact.envs.gaits.GaitSettings, got {type(gait).__name__}"
         )
+    from jax_contact.envs.feet import robot_description
+
     try:
-        description = derive_description(mj_model, foot_names)
+        description = robot_description(mj_model, foot_names)
     except ValueError as err:
         if source is None:
             raise
@@ -561,10 +566,12 @@ def with_terrain(
         size_xy=(sx, sy),
         geom_name=geom_name,
     )
+    from jax_contact.envs.feet import robot_description
+
     return Robot(
         name=robot.name,
         mj_model=mj_model,
-        description=derive_description(mj_model, robot.description.foot_names),
+        description=robot_description(mj_model, robot.description.foot_names),
         spec=spec,
         terrain=terrain,
         gait=robot.gait,

@@ -23,7 +23,9 @@ Where each quantity comes from (all at the state in ``mjx_data``):
 - ``qdd``: ``qacc`` of the data (the simulator's true acceleration), unless given.
 - ``J``, ``p_f``, ``v_f``: ``mjx.jac`` at the foot's point, its body's pose applied to
   ``desc.foot_offsets`` (:func:`foot_centres`: a sphere geom's centre, a site, a point on a
-  body); ``v_f = J qd``.
+  body), or for a foot with a sole (``desc.foot_soles``: a flat sole's corners, the
+  centres of several spheres, a capsule's ends) the rolling point of
+  :func:`contact_points`; ``v_f = J qd``.
 - ``Jdot_qd``: the foot centre's acceleration at zero ``qacc`` without gravity, from the
   velocity-stage quantities ``cvel`` and ``cdof_dot`` (see :func:`foot_bias_acceleration`);
   it equals the C library's ``mj_jacDot(point) @ qvel``.
@@ -39,6 +41,13 @@ from mujoco import mjx
 
 from jax_contact.robot import RobotDescription
 from jax_contact.types import LegMeasurement, RobotMeasurement
+
+# Where a foot with a sole touches (contact_points): "rolling" follows the sole's lowest
+# edge or corner, "centre" keeps its fixed point.
+SOLES = ("rolling", "centre")
+# Softness of the rolling sole's lowest point, m: corners this much higher weigh 1/e (set,
+# not fitted; docs/training.md measures the rolling point on Berkeley Humanoid).
+SOLE_SOFTNESS = 0.002
 
 
 def prepare(mjx_model: mjx.Model, mjx_data: mjx.Data) -> mjx.Data:
@@ -189,6 +198,7 @@ def robot_measurement(
     qdd: jax.Array | None = None,
     tau: jax.Array | None = None,
     include_passive: bool = False,
+    sole: str = "rolling",
 ) -> RobotMeasurement:
     """The robot's measurement at the state of ``mjx_data`` (after :func:`prepare`).
 
@@ -201,6 +211,9 @@ def robot_measurement(
         ``mjx_data.qfrc_actuator``.
       include_passive: static; if True, ``h`` also holds the joint spring and damper
         forces: ``h = qfrc_bias - qfrc_passive``.
+      sole: static, where a foot with a sole touches (:func:`contact_points`):
+        ``"rolling"`` (default) or ``"centre"``; a sphere foot, a site or a body offset
+        has its fixed point either way.
 
     Returns:
       A :class:`RobotMeasurement`: ``q`` (nq,), ``qd``/``qdd``/``tau``/``h`` (nv,), ``M``
@@ -209,8 +222,7 @@ def robot_measurement(
 
     Raises:
       ValueError: ``desc`` does not match the model, ``qdd``/``tau`` have the wrong
-        shape, or a foot has a rolling point (``foot_soles``:
-        :func:`jax_contact.envs.feet.measurement` takes those).
+        shape, or ``sole`` is not one of :data:`SOLES`.
     """
     m, d = mjx_model, mjx_data
     _check_mjx_inputs(m, d)
@@ -219,15 +231,6 @@ def robot_measurement(
             f"desc has nv={desc.nv}, nq={desc.nq} but mjx_model has nv={m.nv}, nq={m.nq}:"
             " derive the description from the same model"
         )
-    soles = desc.foot_soles or ((),) * desc.n_legs
-    if any(soles):
-        flat = [n for n, c in zip(desc.foot_names, soles, strict=True) if c]
-        raise ValueError(
-            f"feet {flat} have a rolling contact point (a flat sole, capsules, several spheres):"
-            " robot_measurement reads each foot's fixed point and radius; use"
-            " jax_contact.envs.feet.measurement for these feet (its sole='rolling' follows the"
-            " sole's lowest edge or sphere)"
-        )
     for name, value in (("qdd", qdd), ("tau", tau)):
         if value is not None and jnp.shape(value) != (m.nv,):
             raise ValueError(f"{name} must have shape ({m.nv},) (nv), got {jnp.shape(value)}")
@@ -235,12 +238,51 @@ def robot_measurement(
         m,
         d,
         desc,
-        foot_centres(desc, d),
+        contact_points(desc, d, sole),
         jnp.asarray(desc.foot_radii, d.xpos.dtype),
         qdd=qdd,
         tau=tau,
         include_passive=include_passive,
     )
+
+
+def contact_points(desc: RobotDescription, mjx_data: mjx.Data, sole: str = "rolling") -> jax.Array:
+    """(n_legs, 3) world positions of the feet's contact points, m.
+
+    Eq. 6 treats a foot as one point. For a foot with a sole (``desc.foot_soles``: a flat
+    sole's four corners, or the centres of a foot's spheres and its capsules' segment ends,
+    one radius) that point moves: a sole that lands on its heel or rolls over its toe
+    touches the floor at that edge, while its centre is centimetres up and moving.
+    ``"rolling"`` takes the mean of the sole's points weighted by ``exp(-(z - z_min) /
+    SOLE_SOFTNESS)``: the centre when the sole lies flat, the middle of the lowest edge
+    when it tilts by more than a degree or two, the lowest corner on a corner.
+    ``"centre"`` keeps the fixed point (:func:`foot_centres`), as does every foot without
+    a sole.
+
+    Args:
+      desc: the robot description.
+      mjx_data: data after kinematics (``xpos``, ``xmat``).
+      sole: static, ``"rolling"`` or ``"centre"`` (:data:`SOLES`).
+
+    Raises:
+      ValueError: ``sole`` is not one of :data:`SOLES`.
+    """
+    if sole not in SOLES:
+        raise ValueError(f"sole must be one of {SOLES}, got {sole!r}")
+    if sole == "centre" or not any(desc.foot_soles):
+        return foot_centres(desc, mjx_data)
+    k = max(len(c) for c in desc.foot_soles)
+    # One (k, 3) block per foot: its points repeated cyclically up to k (a foot without a
+    # sole: its fixed point k times), which leaves every foot's weighted mean unchanged
+    # when k is a multiple of its count.
+    blocks = []
+    for c, o in zip(desc.foot_soles, desc.foot_offsets, strict=True):
+        pts = np.asarray(c or [o], np.float32).reshape(-1, 3)
+        blocks.append(pts[np.arange(k) % len(pts)])
+    world = on_foot_bodies(desc, mjx_data, np.stack(blocks))
+    z = world[..., 2]
+    w = jax.nn.softmax(-(z - jnp.min(z, axis=1, keepdims=True)) / SOLE_SOFTNESS, axis=1)
+    return jnp.einsum("nk,nki->ni", w, world)
 
 
 def foot_centres(desc: RobotDescription, mjx_data: mjx.Data) -> jax.Array:
@@ -285,9 +327,7 @@ def measurement_at_points(
 
     The one place the measurement is assembled: ``J`` from ``mjx.jac`` at the point,
     ``Jdot qd`` from :func:`foot_bias_acceleration`, ``M`` from ``mjx.full_m``, ``h`` from
-    ``qfrc_bias``. :func:`robot_measurement` passes the sphere feet's centres;
-    :func:`jax_contact.envs.feet.measurement` any foot's contact point (a box sole, a site,
-    a body offset).
+    ``qfrc_bias``. :func:`robot_measurement` passes :func:`contact_points`.
 
     Args:
       mjx_model, mjx_data, desc: as :func:`robot_measurement` (shapes not re-checked).
@@ -347,6 +387,7 @@ def leg_measurements(
     qdd: jax.Array | None = None,
     tau: jax.Array | None = None,
     include_passive: bool = False,
+    sole: str = "rolling",
 ) -> LegMeasurement:
     """Per-leg measurements at the state of ``mjx_data`` (after :func:`prepare`).
 
@@ -363,5 +404,5 @@ def leg_measurements(
         shape.
     """
     return robot_measurement(
-        mjx_model, mjx_data, desc, qdd=qdd, tau=tau, include_passive=include_passive
+        mjx_model, mjx_data, desc, qdd=qdd, tau=tau, include_passive=include_passive, sole=sole
     ).legs()

@@ -194,6 +194,30 @@ def _distal(spheres: list[int], m: mujoco.MjModel) -> list[int]:
     return sorted(out)
 
 
+def floor_spheres(m: mujoco.MjModel) -> tuple[list[int], list[int]]:
+    """(the floor geoms: planes and height fields of the world body; the sphere geoms
+    outside the world body that can collide with one of them), geom ids."""
+    floors = [
+        g for g in range(m.ngeom) if m.geom_bodyid[g] == 0 and int(m.geom_type[g]) in _FLOOR_TYPES
+    ]
+    spheres = [
+        g
+        for g in range(m.ngeom)
+        if int(m.geom_type[g]) == int(mujoco.mjtGeom.mjGEOM_SPHERE)
+        and m.geom_bodyid[g] != 0
+        and any(_can_collide(m, g, f) for f in floors)
+    ]
+    return floors, spheres
+
+
+def sphere_foot_names(m: mujoco.MjModel, spheres: Sequence[int]) -> set[str]:
+    """The names that :func:`derive_description` takes as feet: those of ``spheres``
+    (:func:`floor_spheres`) and of their bodies (unnamed ones left out)."""
+    return {m.geom(g).name for g in spheres if m.geom(g).name} | {
+        m.body(m.geom_bodyid[g]).name for g in spheres if m.body(m.geom_bodyid[g]).name
+    }
+
+
 def derive_description(
     mj_model: mujoco.MjModel, foot_names: Sequence[str] | None = None
 ) -> RobotDescription:
@@ -214,20 +238,9 @@ def derive_description(
         actuated joint, or the legs have different numbers of dofs.
     """
     m = mj_model
-    floors = [
-        g for g in range(m.ngeom) if m.geom_bodyid[g] == 0 and int(m.geom_type[g]) in _FLOOR_TYPES
-    ]
+    floors, candidates = floor_spheres(m)
     if not floors:
         raise ValueError("mj_model has no floor: no plane or height-field geom in the world body")
-
-    def touches_floor(g: int) -> bool:
-        return m.geom_bodyid[g] != 0 and any(_can_collide(m, g, f) for f in floors)
-
-    candidates = [
-        g
-        for g in range(m.ngeom)
-        if int(m.geom_type[g]) == int(mujoco.mjtGeom.mjGEOM_SPHERE) and touches_floor(g)
-    ]
     if not candidates:
         raise ValueError(
             "mj_model has no floor contact: no sphere geom outside the world body can collide"
@@ -248,10 +261,7 @@ def derive_description(
             raise ValueError(
                 f"foot_names must be a non-empty sequence of names, got {foot_names!r}"
             )
-        valid = sorted(
-            {m.geom(g).name for g in candidates if m.geom(g).name}
-            | {m.body(m.geom_bodyid[g]).name for g in candidates}
-        )
+        valid = sorted(sphere_foot_names(m, candidates))
         feet = []
         for name in foot_names:
             by_geom = [g for g in candidates if m.geom(g).name == name]

@@ -127,7 +127,7 @@ def test_logs_replay_with_the_feet_they_store(tmp_path):
     from jax_contact.io import write_log
 
     write_log(tmp_path / "heel.h5", arrays, attrs | {"foot_names": ["heel"]})
-    with pytest.raises(ValueError, match=r"'heel' is not a sphere geom"):
+    with pytest.raises(ValueError, match=r"foot 'heel' is no geom, site or body of the model"):
         load_log(tmp_path / "heel.h5")
     assert load_log(LOG).robot.description.foot_names == ("foot",)
 

@@ -362,12 +362,13 @@ def test_corner_spheres_roll_to_the_lowest():
     np.testing.assert_allclose(rolling, centre, atol=1e-6)  # level: the capsule's centre
 
 
-def test_robot_measurement_places_site_feet_and_refuses_flat_soles():
+def test_robot_measurement_places_site_feet_and_rolling_soles():
     """adapter.robot_measurement reads each foot's fixed point (its body's pose applied to
     foot_offsets) and radius. A site foot on a body that carries a geom is at the site, not
     at the geom's centre: against MuJoCo C in float64 (site_xpos, mj_jac at the site). A
-    box sole's point depends on how the sole tilts, so robot_measurement refuses it, naming
-    the foot (feet.measurement is the route for it)."""
+    box sole's point depends on how the sole tilts: by default the rolling point (the log
+    commands' and the wrapper's), with sole="centre" the fixed centre; both against the
+    C library's frames and mj_jac at that point."""
     from jax_contact import adapter
 
     m = _model()
@@ -389,10 +390,26 @@ def test_robot_measurement_places_site_feet_and_refuses_flat_soles():
     assert np.linalg.norm(d.geom_xpos[m.geom("sole").id] - d.site_xpos[site]) > 0.07
 
     desc, _ = feet.describe(m)
+    b = m.body("shank").id
+    # Knee 0.2 rad: the shank pitches toes down (test_rolling_sole_point), so the rolling
+    # point is the middle of the toe edge, (0.09, 0, -0.26) in the shank frame; the
+    # centre is the sole's, (0.01, 0, -0.26).
+    d.qpos[:] = (0.55, 0.0, 0.2)
+    mujoco.mj_forward(m, d)
+    dx = adapter.prepare(mjx.put_model(m), mjx.put_data(m, d))
+    R = d.xmat[b].reshape(3, 3)
+    for sole, local in (("rolling", (0.09, 0.0, -0.26)), ("centre", (0.01, 0.0, -0.26))):
+        point = d.xpos[b] + R @ np.array(local)
+        jacp = np.zeros((3, m.nv))
+        mujoco.mj_jac(m, d, jacp, None, point, b)
+        meas = adapter.robot_measurement(mjx.put_model(m), dx, desc, sole=sole)
+        np.testing.assert_allclose(meas.p_f[0], point, atol=1e-5)
+        np.testing.assert_allclose(meas.J[0], jacp, atol=1e-5)
+        np.testing.assert_allclose(meas.v_f[0], jacp @ d.qvel, atol=2e-5)
     with pytest.raises(
-        ValueError, match=r"feet \['sole'\] have a rolling contact point.*feet.measurement"
+        ValueError, match=r"sole must be one of \('rolling', 'centre'\), got 'lowest'"
     ):
-        adapter.robot_measurement(mjx.put_model(m), mjx.put_data(m, mujoco.MjData(m)), desc)
+        adapter.robot_measurement(mjx.put_model(m), dx, desc, sole="lowest")
 
 
 def test_a_model_that_is_no_legged_robot_is_told_so():
@@ -447,7 +464,7 @@ def test_sign_test_only_where_the_torques_can_read_a_foots_load():
     assert CP.default_estimator_params(go1, 0.0025, sp).unilateral is True
 
 
-def test_a_soles_moment_can_turn_the_sign_test_off():
+def test_a_soles_moment_can_turn_the_sign_test_off(tmp_path):
     """The ant-like leg above with a 10 kg torso and a box sole of half-size (a, 0.02) in
     place of the sphere. At home the shank's rotational Jacobian over (hip about z, knee
     about y) is J_r = [[0, 0], [0, 1], [1, 0]] (rows x, y, z), and the sole's centre keeps
@@ -458,6 +475,7 @@ def test_a_soles_moment_can_turn_the_sign_test_off():
     clears sqrt(21^2 + (0.539 * 104)^2) = 60 N, and the test runs; a = 0.12: 1.217 > 1,
     no load can clear it, the test is off. A sphere foot has no sole: 0."""
     from jax_contact.envs import contact_params as CP
+    from jax_contact.train.log_estimator import default_estimator
 
     torso = '<geom type="sphere" size=".05"'
     heavy = ANT.replace(torso, torso + ' mass="10"')
@@ -479,10 +497,14 @@ def test_a_soles_moment_can_turn_the_sign_test_off():
         desc, resolved = feet.describe(m)
         robot = Robot(name="ant", mj_model=m, description=desc, spec=mujoco.MjSpec.from_string(xml))
         sp = CP.default_sensor_params("anymal_like", robot, 0.0025)
-        params = CP.default_estimator_params(robot, 0.0025, sp, feet=resolved)
-        push = CP.moment_push(m, desc, params, resolved)
+        params = CP.default_estimator_params(robot, 0.0025, sp)
+        push = CP.moment_push(m, desc, params)
         np.testing.assert_allclose(push, [expect_push], rtol=2e-4, atol=1e-9)
         assert params.unilateral is expect_on, a
-        # Without the feet (a recording's points) the moment is not weighed.
-        assert CP.moment_push(m, desc, params)[0] == 0.0
+        # The log commands' robot (load_robot: the model's feet as the wrapper resolves
+        # them) weighs the same sole: what `jax-contact estimate` and `export` run.
+        (tmp_path / "ant.xml").write_text(xml)
+        logged = load_robot(str(tmp_path / "ant.xml"))
+        assert (logged.description.foot_soles or ((),)) == desc.foot_soles  # sphere: none
+        assert default_estimator(logged.description, 0.0025, mj_model=m)[0].unilateral is expect_on
         assert W.wrap_contact(W.LeggedPipelineEnv(robot)).contact_report()["sign_test"] is expect_on

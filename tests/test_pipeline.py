@@ -347,6 +347,12 @@ def test_table_shapes():
     assert got["accuracy"] == 0.95 and got["liftoff_delay_ms"] == [3.0, 2.0]
     text = format_table(payload)
     assert "5.0±1.0" in text and "25.0%" in text and "0.950" in text
+    # A log without a true air phase (a robot standing throughout): both rates have no
+    # denominator and read n/a (air-ph printed "nan%" where sw-ph said n/a).
+    nan = float("nan")
+    quiet = {**cell, "air_phase_failure_rate": nan, "swing_phase_failure_rate": nan}
+    table = format_table({"scenarios": {"stand": {"probabilistic": quiet}}}, legend=False)
+    assert table.splitlines()[1].split()[6:8] == ["n/a", "n/a"] and "nan" not in table
     # With a tuned row (the robot's preset): its cell, its comparisons and its source are
     # stored, and the printed table shows it right after the defaults.
     scores["tuned"] = {**cell, "f1": 0.97}

@@ -198,6 +198,23 @@ def test_fixed_base_leg_has_no_base_coordinates():
         assert desc.base_dofs == () and desc.base_body_id == 0
 
 
+def _hold_fixed_leg(m, d, target) -> np.ndarray:
+    """Resets ``d`` to the fixed leg's joint ``target`` and holds it there for 2 s (PD,
+    settled) in C MuJoCo; returns the floor's force on the foot, world frame, N
+    (``mj_contactForce`` over the contacts)."""
+    mujoco.mj_resetData(m, d)
+    d.qpos[:] = target
+    for _ in range(800):
+        d.ctrl[:] = np.clip(20.0 * (np.asarray(target) - d.qpos) - d.qvel, -30, 30)
+        mujoco.mj_step(m, d)
+    f_on_foot = np.zeros(3)
+    for i in range(d.ncon):
+        c = np.zeros(6)
+        mujoco.mj_contactForce(m, d, i, c)
+        f_on_foot += d.contact[i].frame.reshape(3, 3).T @ c[:3]
+    return f_on_foot
+
+
 def test_fixed_base_leg_force_is_the_floors():
     """The dynamics term on a fixed-base leg (no other coordinates: empty base blocks)
     gives the contact force MuJoCo's C library resolves (``mj_contactForce``), and its
@@ -220,16 +237,7 @@ def test_fixed_base_leg_force_is_the_floors():
     # (0.40 - 0.2 cos 0.3 - 0.2 cos(-0.15) - 0.02 = -0.009 m before the leg yields);
     # lifted: the knee folded, the foot 0.1 m up.
     for target, pressed in (((0.3, -0.45), True), ((0.5, -1.6), False)):
-        mujoco.mj_resetData(m, d)
-        d.qpos[:] = target
-        for _ in range(800):  # 2 s: settled
-            d.ctrl[:] = np.clip(20.0 * (np.asarray(target) - d.qpos) - d.qvel, -30, 30)
-            mujoco.mj_step(m, d)
-        f_on_foot = np.zeros(3)
-        for i in range(d.ncon):
-            c = np.zeros(6)
-            mujoco.mj_contactForce(m, d, i, c)
-            f_on_foot += d.contact[i].frame.reshape(3, 3).T @ c[:3]
+        f_on_foot = _hold_fixed_leg(m, d, target)
         dx = adapter.prepare(mx, mjx.put_data(m, d))
         meas = adapter.robot_measurement(
             mx, dx, desc, qdd=jnp.asarray(d.qacc), tau=jnp.asarray(d.qfrc_actuator)
@@ -244,6 +252,55 @@ def test_fixed_base_leg_force_is_the_floors():
             assert d.ncon == 0
             np.testing.assert_allclose(np.asarray(force)[[0, 2]], 0.0, atol=1.0)
             assert float(llr) < 0.0
+
+
+def test_a_box_sole_through_load_robot_gives_the_floors_force(tmp_path):
+    """The log commands take a flat foot (load_robot: the feet as the wrapper resolves
+    them). The fixed leg with a 8 x 4 x 2 cm box for a foot, pressed by the PD hold of the
+    test above: its shin pitches by hip + knee = -0.15 rad, so the sole stands on one
+    edge, which the rolling contact point follows (adapter.contact_points). A 2-joint leg
+    resolves a force at one point in its plane; at that edge it equals the force
+    MuJoCo's C library resolves on the two corners touching (mj_contactForce). Read at
+    the sole's centre instead, the same torques are explained by a force at the wrong
+    point: the centre lies h = 4 cm cos 0.15 along the sole from the edge. Measured on
+    this host: 0.03 / 0.05 N (x / z) off MuJoCo's 15.5 / 135.3 N at the edge, 16 / 31 N at
+    the centre."""
+    import jax.numpy as jnp
+
+    from jax_contact import adapter
+    from jax_contact.measurement import dynamics_llr
+    from jax_contact.train.log_estimator import default_estimator
+
+    sphere = '<geom name="foot" type="sphere" pos="0 0 -0.2" size="0.02" mass="0.05"/>'
+    box = '<geom name="foot" type="box" pos="0 0 -0.21" size="0.04 0.02 0.01" mass="0.05"/>'
+    text = FIXED_LEG_XML.read_text()
+    assert text.count(sphere) == 1
+    (tmp_path / "box_leg.xml").write_text(text.replace(sphere, box))
+    robot = load_robot(str(tmp_path / "box_leg.xml"))
+    desc, m = robot.description, robot.mj_model
+    assert desc.foot_names == ("foot",) and len(desc.foot_soles[0]) == 4
+    params, _ = default_estimator(desc, 0.0025, mj_model=m)
+    d = mujoco.MjData(m)
+    f_on_foot = _hold_fixed_leg(m, d, (0.3, -0.45))  # pressed, as in the test above
+    assert d.ncon == 2 and f_on_foot[2] > 20.0  # one edge: two corners carry the push
+    mx = mjx.put_model(m)
+    dx = adapter.prepare(mx, mjx.put_data(m, d))
+    normal = jnp.array([0.0, 0.0, 1.0])
+    errors = {}
+    for sole in ("rolling", "centre"):
+        meas = adapter.robot_measurement(
+            mx, dx, desc, qdd=jnp.asarray(d.qacc), tau=jnp.asarray(d.qfrc_actuator), sole=sole
+        )
+        llr, force = dynamics_llr(params, meas.leg(0), normal)
+        errors[sole] = np.abs(np.asarray(force)[[0, 2]] + f_on_foot[[0, 2]])
+        if sole == "rolling":
+            # The point is on the touching edge: its height is the corners' (MuJoCo's
+            # contact positions, at the floor up to the penetration).
+            z_edge = np.mean([d.contact[i].pos[2] for i in range(d.ncon)])
+            assert abs(float(meas.p_f[0, 2]) - z_edge) < 2e-3
+            assert float(llr) > 0.5
+    np.testing.assert_array_less(errors["rolling"], 1.0)
+    assert errors["centre"].max() > 5.0 * max(errors["rolling"].max(), 0.2), errors
 
 
 def test_a_log_replayed_on_an_edited_model_warns(tmp_path):

@@ -316,13 +316,13 @@ def params_and_terrain(header: dict):
     return params, plane(t)
 
 
-def offline_estimate(header: dict, readings: dict, *, dt: float):
-    """(T, L) P(contact) of the offline estimator (``replay``) on one env's readings."""
-    from jax_contact.envs.robots import load_robot
+def offline_estimate(header: dict, readings: dict, *, dt: float, robot=None):
+    """(T, L) P(contact) of the offline estimator (``replay``) on one env's readings;
+    ``robot``: the export's robot if already loaded (:func:`export_robot`), else loaded."""
     from jax_contact.train.evaluate import replay
 
     params, terrain = params_and_terrain(header)
-    robot = load_robot(header["robot"]["source"], foot_names=header["robot"]["feet"])
+    robot = robot or export_robot(header)
     out = replay(
         robot,
         {k: v[:, None] for k, v in readings.items()},
@@ -338,6 +338,13 @@ def offline_estimate(header: dict, readings: dict, *, dt: float):
 
         p = calibrate_probability(p, Calibration.from_dict(cal))
     return p
+
+
+def export_robot(header: dict):
+    """The robot an export was made for (its header's source and feet), loaded."""
+    from jax_contact.envs.robots import load_robot
+
+    return load_robot(header["robot"]["source"], foot_names=header["robot"]["feet"])
 
 
 def realtime_replay(
@@ -424,11 +431,12 @@ def deploy_check(
     if is_recording(log):
         if env != 0:
             raise ValueError(f"argument --env: a recording holds one robot (env 0), got {env}")
-        name, conv, desc = _recording_readings(header, log, terms, names, units, resample)
+        robot = export_robot(header)
+        name, conv = _recording_readings(robot, log, terms, names, units, resample)
         dt, readings, robot_name = conv.dt, conv.readings, header["robot"]["source"]
         other_robot = None  # a recording is read with the export's own robot model
     else:
-        conv = None
+        conv, robot = None, None
         # Checked, and re-aligned to end-of-step readings if older (what the export pairs).
         loaded = load_log(log)
         name, dt, readings = loaded.name, loaded.dt, loaded.readings
@@ -451,7 +459,7 @@ def deploy_check(
 
     est = deploy.load(artefact)
     rt = realtime_replay(est, one, period_s=dt, pace=pace)
-    offline = offline_estimate(header, one, dt=dt)
+    offline = offline_estimate(header, one, dt=dt, robot=robot)
     diff = np.abs(rt["p_contact"] - offline)
     lat_us = 1e6 * rt["latency_s"]
     result = {
@@ -483,7 +491,7 @@ def deploy_check(
         seconds=result["steps"] * dt,
     )
     notes = list(conv.notes) if conv is not None else []
-    torque = torque_note(rt, terms, desc, conv, notes) if conv is not None else None
+    torque = torque_note(rt, terms, robot.description, conv, notes) if conv is not None else None
     # Every warning of the run, in the order printed: the recording's, the torque check's
     # and the summary's (every foot reads air).
     result["warnings"] = [
@@ -578,21 +586,20 @@ def is_recording(path: str | Path) -> bool:
         return False  # not HDF5: load_log names the file and the reason
 
 
-def _recording_readings(header: dict, log, terms, names, units: str, resample: bool):
-    """(name, :class:`~jax_contact.train.recording_convert.Converted`, robot description)
-    of a recording of the artefact's robot, its notes and warnings printed as ``jax-contact
-    estimate`` prints them; ``terms``: the exported estimator's measurement terms.
+def _recording_readings(robot, log, terms, names, units: str, resample: bool):
+    """(name, :class:`~jax_contact.train.recording_convert.Converted`) of a recording of
+    the artefact's robot (:func:`export_robot`), its notes and warnings printed as
+    ``jax-contact estimate`` prints them; ``terms``: the exported estimator's measurement
+    terms.
 
     Raises:
       ValueError: as :func:`jax_contact.train.recording_convert.to_readings`, or the
         recording lacks torques that the exported estimator's dynamics term reads.
     """
-    from jax_contact.envs.robots import load_robot
     from jax_contact.train.recording import read_recording
     from jax_contact.train.recording_convert import to_readings
     from jax_contact.train.recording_estimate import print_note
 
-    robot = load_robot(header["robot"]["source"], foot_names=header["robot"]["feet"])
     conv = to_readings(read_recording(log), robot, names=names, units=units, resample=resample)
     name = f"recording {str(log)!r}"
     if not conv.has_torque and "dynamics" in terms:
@@ -603,7 +610,7 @@ def _recording_readings(header: dict, log, terms, names, units: str, resample: b
         )
     for note in conv.notes:
         print_note(note)
-    return name, conv, robot.description
+    return name, conv
 
 
 def run_deploy_check(args: argparse.Namespace) -> int:

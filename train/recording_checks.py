@@ -495,7 +495,7 @@ def floor_offset(mj_model, desc, qpos: np.ndarray) -> str | None:
     for k, r in enumerate(rows):
         data.qpos[:] = q[r]
         mujoco.mj_kinematics(mj_model, data)
-        for i, b in enumerate(desc.foot_body_ids):  # each foot sphere's lowest point
+        for i, b in enumerate(desc.foot_body_ids):  # a sphere's lowest point, a sole's centre
             rot_z = data.xmat[b].reshape(3, 3)[2]
             soles[k, i] = data.xpos[b, 2] + rot_z @ desc.foot_offsets[i] - desc.foot_radii[i]
     lowest = np.quantile(soles, 0.1, axis=0)

@@ -203,7 +203,7 @@ _COLUMNS = (
     ("F1", 6, lambda c: f"{c['f1']:.3f}"),
     ("acc", 6, lambda c: f"{c['accuracy']:.3f}"),
     ("fail", 5, lambda c: f"{c['failures']}"),
-    ("air-ph", 7, lambda c: f"{100 * c['air_phase_failure_rate']:5.1f}%"),
+    ("air-ph", 7, lambda c: _percent(c["air_phase_failure_rate"])),
     ("sw-ph", 7, lambda c: _percent(c.get("swing_phase_failure_rate"))),
     ("mTD", 4, lambda c: f"{c['missed']}"),
     ("mLO", 4, lambda c: f"{c['missed_liftoffs']}"),
