@@ -90,8 +90,18 @@ class RobotDescription:
 
 
 def model_mass(m: mujoco.MjModel) -> float:
-    """The model's total mass, kg (every body's, the world's 0 included)."""
-    return float(np.sum(m.body_mass))
+    """The robot's mass, kg: every body that moves under the physics (``body_weldid != 0``,
+    not a mocap body).
+
+    A body welded to the world (a staircase of the scene) or a mocap body (a target the
+    user moves) is scenery: Go1's Playground stairs scene holds a 300 kg static ``stairs``
+    body, which counted as robot made Go1 weigh 312.7 kg there, so the sign-test rule
+    (``envs.contact_params.choose_unilateral``) read a foot load of 767 N instead of 31 N
+    and Go1's own preset warned that it was tuned on another robot (masses x24.5). No
+    shipped robot or other Playground robot scene has a static body with mass: their masses
+    are unchanged.
+    """
+    return float(np.sum(m.body_mass[(m.body_weldid != 0) & (m.body_mocapid < 0)]))
 
 
 # The compiled model's arrays that the estimator and the physics read: bodies' kinematic

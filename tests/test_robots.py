@@ -254,6 +254,39 @@ def test_fixed_base_leg_force_is_the_floors():
             assert float(llr) < 0.0
 
 
+def test_robot_mass_leaves_static_scenery_out(tmp_path):
+    """model_mass counts the bodies that move: the fixed leg's hip 0.8 kg, shin 0.3 kg and
+    foot 0.05 kg = 1.15 kg (the fixture's masses). A 300 kg staircase body welded to the
+    world (Go1's Playground stairs scene has one) and a mocap target are scenery, not
+    robot; a free box is a body that moves, so it counts (5 kg)."""
+    from jax_contact.robot import model_mass
+
+    text = FIXED_LEG_XML.read_text()
+    scenery = (
+        '<body name="stairs" pos="1 0 0.1"><geom type="box" size=".2 .2 .1" mass="300"/></body>'
+        '<body name="target" mocap="true"><geom type="sphere" size=".01" mass="2"'
+        ' contype="0" conaffinity="0"/></body>'
+    )
+    floor = '<geom name="floor" type="plane" size="2 2 0.1"/>'
+    assert text.count(floor) == 1
+    m = mujoco.MjModel.from_xml_string(text.replace(floor, floor + scenery))
+    assert model_mass(m) == pytest.approx(1.15, abs=1e-9)
+    assert load_robot(
+        _write(tmp_path / "leg.xml", text.replace(floor, floor + scenery))
+    ).description.mass_kg == pytest.approx(1.15, abs=1e-9)
+    free = (
+        '<body name="box" pos="0.5 0 0.2"><freejoint/>'
+        '<geom type="box" size=".05 .05 .05" mass="5"/></body>'
+    )
+    m = mujoco.MjModel.from_xml_string(text.replace(floor, floor + free))
+    assert model_mass(m) == pytest.approx(6.15, abs=1e-9)
+
+
+def _write(path: Path, text: str) -> str:
+    path.write_text(text)
+    return str(path)
+
+
 def test_a_box_sole_through_load_robot_gives_the_floors_force(tmp_path):
     """The log commands take a flat foot (load_robot: the feet as the wrapper resolves
     them). The fixed leg with a 8 x 4 x 2 cm box for a foot, pressed by the PD hold of the
