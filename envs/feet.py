@@ -372,11 +372,11 @@ def robot_description(m: mujoco.MjModel, foot_names=None) -> RobotDescription:
     spheres, G1's ``<pair>`` feet), a site, a body; without names, every floor-touching
     geom on a leg, grouped by body. Its errors name the foot and list the valid names.
     """
+    if foot_names is not None and (isinstance(foot_names, str) or not len(foot_names)):
+        raise ValueError(f"foot_names must be a non-empty sequence of names, got {foot_names!r}")
     _, spheres = floor_spheres(m)
     if foot_names is None:
         use_spheres = bool(spheres)
-    elif isinstance(foot_names, str) or not len(foot_names):
-        use_spheres = True  # derive_description names the bad argument
     else:
         names = sphere_foot_names(m, spheres)
         use_spheres = all(isinstance(n, str) and n in names for n in foot_names)

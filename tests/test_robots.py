@@ -312,6 +312,9 @@ def test_a_box_sole_through_load_robot_gives_the_floors_force(tmp_path):
     robot = load_robot(str(tmp_path / "box_leg.xml"))
     desc, m = robot.description, robot.mj_model
     assert desc.foot_names == ("foot",) and len(desc.foot_soles[0]) == 4
+    for bad in ("foot", ()):  # a str or nothing: named, not "no sphere geom" (user trial)
+        with pytest.raises(ValueError, match="foot_names must be a non-empty sequence of names"):
+            load_robot(str(tmp_path / "box_leg.xml"), foot_names=bad)
     params, _ = default_estimator(desc, 0.0025, mj_model=m)
     d = mujoco.MjData(m)
     f_on_foot = _hold_fixed_leg(m, d, (0.3, -0.45))  # pressed, as in the test above
