@@ -53,6 +53,7 @@ fixed one), the wrapper's as the log commands'.
 from __future__ import annotations
 
 import dataclasses
+from collections import Counter
 
 import jax
 import mujoco
@@ -365,7 +366,7 @@ def robot_description(m: mujoco.MjModel, foot_names=None) -> RobotDescription:
     evaluate, estimate, export, tune) uses.
 
     Where the feet are sphere geoms (no names and some floor-touching sphere, or every
-    name a floor-touching sphere geom or its body), :func:`jax_contact.robot.
+    name a floor-touching sphere geom or the body of one), :func:`jax_contact.robot.
     derive_description`'s: the distal sphere of each joint chain. Otherwise
     :func:`describe`'s, as the wrapper resolves feet (module docstring): a box, cylinder
     or mesh sole (Berkeley Humanoid's ``l_foot1``), a body of several geoms (T1's corner
@@ -378,7 +379,12 @@ def robot_description(m: mujoco.MjModel, foot_names=None) -> RobotDescription:
     if foot_names is None:
         use_spheres = bool(spheres)
     else:
-        names = sphere_foot_names(m, spheres)
+        # A body whose several spheres touch the floor (T1's four corners) is one foot of
+        # those spheres, as the wrapper reads its name, not its first sphere.
+        per_body = Counter(int(m.geom_bodyid[g]) for g in spheres)
+        names = sphere_foot_names(m, spheres) - {
+            m.body(b).name for b, n in per_body.items() if n > 1
+        } | {m.geom(g).name for g in spheres if m.geom(g).name}
         use_spheres = all(isinstance(n, str) and n in names for n in foot_names)
     if use_spheres:
         return derive_description(m, foot_names)

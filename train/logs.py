@@ -128,6 +128,23 @@ def note_found_feet(robot) -> str:
             " a foot? (a leg without its foot geom walks on the lowest sphere left, e.g. a"
             " shin's); name the feet with --feet"
         )
+    # The rule takes one sphere per leg; a foot body of several (T1's corner spheres) is
+    # one sole when named by its body, as the wrapper names it.
+    from jax_contact.robot import floor_spheres
+
+    spheres = floor_spheres(m)[1]
+    several = {
+        m.body(b).name: n
+        for b in desc.foot_body_ids
+        if (n := sum(int(m.geom_bodyid[g]) == b for g in spheres)) > 1 and m.body(b).name
+    }
+    if several:
+        bodies = ", ".join(f"{b} ({n})" for b, n in several.items())
+        line += (
+            f"\nnote: the feet's bodies carry several floor-touching spheres ({bodies}): each"
+            f" foot above is one of them; --feet {' '.join(several)} reads each body's"
+            " spheres as one sole"
+        )
     return line
 
 
