@@ -19,6 +19,11 @@ issue 14 (x, y: no normal, so no sign test). The policy (``--policy``):
 docs/training.md ("Brax's ant, measured") reports seed 1; seed 1000 was looked at first.
 
     python -m jax_contact.benchmarks.brax_ant --seed 1 --json out/brax_ant.json
+
+``--env walker2d | hopper | halfcheetah`` runs Brax's planar runners the same way
+(``random`` or ``stand``; their legs are three hinges about y), with the defaults (force
+axes (x, z): the y row of their legs' Jacobians is zero) against all three axes, the rule
+before the forty-fifth session (docs/training.md, "Brax's planar runners").
 """
 
 from __future__ import annotations
@@ -41,11 +46,18 @@ from jax_contact.benchmarks.common import (
 from jax_contact.train.cli_args import nonnegative_float, positive_int, seed_int
 
 POLICIES = ("trot", "random", "stand")
-# name -> extra arguments of default_estimator_params (compare_rates' params_kwargs)
+ENVS = ("ant", "walker2d", "hopper", "halfcheetah")
+# env -> name -> extra arguments of default_estimator_params (compare_rates' params_kwargs)
 VARIANTS = {
-    "defaults": {},
-    "sign test on": {"unilateral": True},
-    "old axes (x, y)": {"force_rows": (0, 1)},
+    "ant": {
+        "defaults": {},
+        "sign test on": {"unilateral": True},
+        "old axes (x, y)": {"force_rows": (0, 1)},
+    },
+    **{
+        planar: {"defaults": {}, "old axes (x, y, z)": {"force_rows": (0, 1, 2)}}
+        for planar in ENVS[1:]
+    },
 }
 TROT = dict(kp=100.0, kd=10.0, freq=1.0, stance=0.95, lift=0.35, hip=0.2)
 
@@ -74,7 +86,7 @@ def trot_feedback(mj_model):
     return feedback
 
 
-def run_variant(env, policy, variant, n_steps, n_envs, skip_s, seed) -> dict:
+def run_variant(env, env_name, policy, variant, n_steps, n_envs, skip_s, seed) -> dict:
     from jax_contact.train.rates import compare_rates, model_of
 
     rng = np.random.default_rng(seed)
@@ -91,12 +103,15 @@ def run_variant(env, policy, variant, n_steps, n_envs, skip_s, seed) -> dict:
         key=jax.random.PRNGKey(seed),
         skip_s=skip_s,
         feedback=feedback,
-        params_kwargs=VARIANTS[variant],
+        params_kwargs=VARIANTS[env_name][variant],
     )
     wall = time.perf_counter() - t0
-    print(f"ant, {policy}, {variant}: {n_envs} x {n_steps} steps ({wall:.0f} s)\n{res.table()}")
+    print(
+        f"{env_name}, {policy}, {variant}: {n_envs} x {n_steps} steps ({wall:.0f} s)\n{res.table()}"
+    )
     m = res.substep_all
     return {
+        "env": env_name,
         "policy": policy,
         "variant": variant,
         "accuracy": m.accuracy,
@@ -118,7 +133,13 @@ def run_variant(env, policy, variant, n_steps, n_envs, skip_s, seed) -> dict:
 def main(argv=None) -> int:
     parser = bench_parser(__doc__)
     parser.add_argument("--json", default=None, help="write the rows and the machine here")
-    parser.add_argument("--policy", default="trot", choices=POLICIES, help="what drives the ant")
+    parser.add_argument("--env", default="ant", choices=ENVS, help="the Brax env")
+    parser.add_argument(
+        "--policy",
+        default=None,
+        choices=POLICIES,
+        help="what drives it (default: trot for the ant, random for the others; trot is the ant's)",
+    )
     parser.add_argument("--steps", type=positive_int, default=150, help="env steps per rollout")
     parser.add_argument("--rollouts", type=positive_int, default=8, help="rollouts")
     parser.add_argument(
@@ -127,17 +148,22 @@ def main(argv=None) -> int:
     parser.add_argument("--seed", type=seed_int, default=0, help="rollout seed")
     args = parser.parse_args(argv)
     check_json_arg(parser, args.json)
+    if args.policy is None:
+        args.policy = "trot" if args.env == "ant" else "random"
+    if args.policy == "trot" and args.env != "ant":
+        parser.error(f"argument --policy: trot drives the ant only, not {args.env!r}")
     from brax import envs
 
-    env = envs.get_environment("ant", backend="mjx")
+    env = envs.get_environment(args.env, backend="mjx")
     result = {"machine": machine(), "args": vars(args), "rows": []}
     with json_of_what_finished(args.json, result):
-        for variant in VARIANTS:
+        for variant in VARIANTS[args.env]:
             row = run_variant(
-                env, args.policy, variant, args.steps, args.rollouts, args.skip, args.seed
+                env, args.env, args.policy, variant, args.steps, args.rollouts, args.skip, args.seed
             )
             result["rows"].append(row)
     cols = [
+        ("env", "env", "{}"),
         ("policy", "policy", "{}"),
         ("variant", "estimator", "{}"),
         *SCORE_COLUMNS,

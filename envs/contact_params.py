@@ -23,6 +23,11 @@ from jax_contact.robot import RobotDescription
 _PRESET_LATENCY_DT = 0.0025
 
 
+# A Jacobian row (over a leg's joints, summed over the legs) below this share of the largest
+# is not spanned: a planar leg's out-of-plane row is zero up to round-off.
+SPAN_TOLERANCE = 1e-6
+
+
 def floating_base(mj_model: mujoco.MjModel) -> bool:
     free = int(mujoco.mjtJoint.mjJNT_FREE)
     return mj_model.njnt > 0 and int(mj_model.jnt_type[0]) == free and mj_model.jnt_qposadr[0] == 0
@@ -61,22 +66,24 @@ def _home_jacobians(mj_model: mujoco.MjModel, desc: RobotDescription, rotational
 def choose_force_rows(mj_model: mujoco.MjModel, desc: RobotDescription) -> tuple[int, ...]:
     """World axes of the contact force the legs can resist: the normal and the best others.
 
-    A leg of ``n_l >= 3`` joints spans all three axes. A shorter leg resists a force only
-    along the directions its Jacobian spans: the rows of ``J`` (at the feet's contact
-    points, home pose, or ``qpos0`` without a ``home`` key) are ranked by their norm over
-    the leg's joints, summed over the legs, and the ``n_l - 1`` largest tangential axes
-    are kept beside the normal (z), which is always included (contact is decided along
-    it). The planar leg (hip, knee in the x-z plane) gets (0, 2); Brax's ant (hip about
-    z, knee) gets z and the larger of x, y.
+    A leg resists a force only along the directions its Jacobian spans: the rows of ``J``
+    (at the feet's contact points, home pose, or ``qpos0`` without a ``home`` key) are
+    ranked by their norm over the leg's joints, summed over the legs; the normal (z) is
+    always kept (contact is decided along it), and beside it at most ``n_l - 1`` of the
+    tangential axes whose row is not zero (:data:`SPAN_TOLERANCE` of the largest row). A
+    spatial leg of three or more joints (Go1, Spot, a humanoid's) gets (0, 1, 2); the
+    planar leg (hip, knee in the x-z plane) (0, 2); Brax's ant (hip about z, knee) z and
+    the larger of x, y; a planar leg of three joints (Brax's walker2d, hopper,
+    halfcheetah: hinges about y) (0, 2), where the old rule gave every leg of three
+    joints all three axes, one of which its joints cannot push along.
     """
     n_l = desc.n_leg_dofs
-    if n_l >= 3:
-        return (0, 1, 2)
     _, jacs = _home_jacobians(mj_model, desc)
     norms = np.zeros(3)
     for jacp, dofs in zip(jacs, desc.leg_dofs, strict=True):
         norms += np.linalg.norm(jacp[:, list(dofs)], axis=1)
-    tangential = sorted((0, 1), key=lambda i: -norms[i])[: n_l - 1]
+    spanned = [i for i in (0, 1) if norms[i] > SPAN_TOLERANCE * np.max(norms)]
+    tangential = sorted(spanned, key=lambda i: -norms[i])[: n_l - 1]
     return tuple(sorted([2, *tangential]))
 
 

@@ -554,6 +554,8 @@ INT_ERR = "must be an int >= 1"
         ("wrapper_accuracy", ["--rollouts", "0"], INT_ERR),
         ("brax_ant", ["--rollouts", "0"], INT_ERR),
         ("brax_ant", ["--policy", "hop"], "argument --policy: invalid choice: 'hop'"),
+        ("brax_ant", ["--env", "hopper", "--policy", "trot"], "trot drives the ant only"),
+        ("brax_ant", ["--env", "humanoid"], "argument --env: invalid choice: 'humanoid'"),
         ("brax_ant", ["--json", "/proc"], "argument --json: '/proc' is a folder"),
         ("sensor_limits", ["--robot", "go2"], "argument --robot: unknown robot 'go2'"),
         ("sensor_limits", ["--robot", "planar_leg"], "'planar_leg' has one leg"),

@@ -167,6 +167,47 @@ def test_force_rows_keep_the_normal():
         W.wrap_contact(env, W.ContactObsConfig(force_rows=(0, 3)))
 
 
+# One leg of three hinges, the first about {axis}, then a knee and an ankle about y; the
+# foot sphere 0.1 m ahead of and 0.45 m below the hip.
+LEG_3 = """
+<mujoco>
+  <worldbody>
+    <geom name="floor" type="plane" size="5 5 .1"/>
+    <body name="torso" pos="0 0 0.5">
+      <freejoint/>
+      <geom type="sphere" size=".05" contype="0" conaffinity="0"/>
+      <body name="hip_body">
+        <joint name="hip" axis="{axis}"/>
+        <geom type="capsule" fromto="0 0 0 0 0 -.2" size=".02" contype="0" conaffinity="0"/>
+        <body name="thigh" pos="0 0 -.2">
+          <joint name="knee" axis="0 1 0"/>
+          <geom type="capsule" fromto="0 0 0 .05 0 -.2" size=".02" contype="0" conaffinity="0"/>
+          <body name="shank" pos=".05 0 -.2">
+            <joint name="ankle" axis="0 1 0"/>
+            <geom name="foot" type="sphere" pos=".05 0 -.05" size=".02"/>
+          </body>
+        </body>
+      </body>
+    </body>
+  </worldbody>
+  <actuator><motor joint="hip"/><motor joint="knee"/><motor joint="ankle"/></actuator>
+</mujoco>
+"""
+
+
+def test_a_planar_leg_of_three_joints_keeps_the_plane():
+    """Brax's walker2d, hopper and halfcheetah have legs of three hinges about y: the foot
+    moves in the x-z plane only, so the y row of every leg's Jacobian is zero (a hinge
+    about y moves a point by y x r, which has no y component) and the leg cannot push
+    along y: rows (0, 2), where every leg of three joints used to get (0, 1, 2). The same
+    leg with its first hinge about x (a hip abduction) spans y: (0, 1, 2)."""
+    for axis, rows in (("0 1 0", (0, 2)), ("1 0 0", (0, 1, 2))):
+        m = mujoco.MjModel.from_xml_string(LEG_3.format(axis=axis))
+        desc, _ = feet.describe(m)
+        assert desc.n_leg_dofs == 3
+        assert W.choose_force_rows(m, desc) == rows, axis
+
+
 def test_evaluate_and_export_defaults_choose_a_short_legs_force_rows():
     """``evaluate``, ``estimate`` and ``export`` build their defaults with
     ``train.log_estimator.default_estimator``: a floating-base robot of two-joint legs gets the
