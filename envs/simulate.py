@@ -274,6 +274,15 @@ def check_gait_fits(gait: GaitParams, robot: Robot) -> None:
         raise ValueError(
             f"gait {gait.kind!r} needs two or more legs; {robot.name!r} has one: use 'hop'"
         )
+    if gait.family != "hop" and n_legs < 3 and len(robot.description.base_dofs) > 1:
+        # A trot or walk of two legs leaves one foot on the floor at times: a point, no
+        # support polygon. Berkeley Humanoid fell in 2 of 2 envs within 1 s (a user trial).
+        raise ValueError(
+            f"gait {gait.kind!r} is scripted without balance control, and {robot.name!r} stands"
+            f" on {n_legs} legs with a free base: it falls under it; record the robot under"
+            " its own controller and run `jax-contact estimate` on the recording"
+            " (docs/own_robot.md, route 2)"
+        )
 
 
 def simulate(

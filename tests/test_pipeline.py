@@ -40,7 +40,7 @@ def test_a_rollout_shorter_than_two_steps_is_refused(planar):
             simulate(world, "hop", "anymal_like", 1, duration, 0, progress=False)
 
 
-def test_a_gait_the_robot_cannot_run_is_refused(planar):
+def test_a_gait_the_robot_cannot_run_is_refused(planar, tmp_path):
     """The planar leg on its rail cannot trot or walk (it would only drop its base at each
     swing) and a quadruped cannot hop: refused, naming the gait and the robot's legs,
     before anything compiles."""
@@ -51,6 +51,26 @@ def test_a_gait_the_robot_cannot_run_is_refused(planar):
     go1 = build_world("go1")
     with pytest.raises(ValueError, match=r"gait 'hop' runs a one-legged robot.*4 legs"):
         simulate(go1, "hop", "anymal_like", 1, 0.1, 0, progress=False)
+    # Two legs (hip and knee, sphere feet) under a free base: the scripted gaits cannot
+    # balance it (Berkeley Humanoid fell in both envs within 1 s).
+    leg = (
+        "<body pos='0 {y} -.1'><joint name='hip{i}' axis='0 1 0'/><geom type='capsule'"
+        " fromto='0 0 0 0 0 -.2' size='.02'/><body pos='0 0 -.2'><joint name='knee{i}'"
+        " axis='0 1 0'/><geom type='capsule'"
+        " fromto='0 0 0 0 0 -.2' size='.02'/><geom name='foot{i}' type='sphere' pos='0 0 -.2'"
+        " size='.02'/></body></body>"
+    )
+    biped = tmp_path / "biped.xml"
+    biped.write_text(
+        "<mujoco><worldbody><geom name='floor' type='plane' size='5 5 .1'/><body pos='0 0 .5'>"
+        "<freejoint/><geom type='box' size='.1 .1 .1'/>"
+        + "".join(leg.format(y=y, i=i) for i, y in enumerate((0.1, -0.1)))
+        + "</body></worldbody><actuator>"
+        + "".join(f"<motor joint='{j}{i}'/>" for i in (0, 1) for j in ("hip", "knee"))
+        + "</actuator></mujoco>"
+    )
+    with pytest.raises(ValueError, match=r"gait 'walk' is scripted without balance.*2 legs"):
+        simulate(build_world(str(biped)), "walk", "anymal_like", 1, 0.1, 0, progress=False)
 
 
 @pytest.fixture(scope="module")
