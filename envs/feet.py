@@ -17,9 +17,12 @@ compares ``p_f,z - r`` with the terrain) fixed to a body. A foot can be named as
   floor only through explicit ``<pair>`` elements (``contype = 0``): pairs count as
   floor contact here.
 
-With no names, the feet are the floor-touching sphere geoms on legs, grouped by body; if
-there is no such sphere, every floor-touching geom on a leg, grouped by body (Berkeley
-Humanoid's boxes ``l_foot1``, ``r_foot1``; G1; Apollo). The geoms of a foot are what the
+With no names, the feet are the floor-touching sphere geoms on legs, grouped by body, at the
+ends of the legs (no floor-touching geom on a body below), a body's spheres within
+``SOLE_SPREAD`` of its lowest at the home pose (T1's four corners, not a calf sphere above
+the foot's); if there is no such sphere, every floor-touching geom on a leg, grouped by
+body, at the ends of the legs (Berkeley Humanoid's boxes ``l_foot1``, ``r_foot1``; G1;
+Apollo). The geoms of a foot are what the
 ground truth reads (:mod:`jax_contact.envs.contact_truth`): a named geom that cannot touch
 the floor (T1's foot boxes ``left_foot``, ``right_foot`` collide only with each other)
 gives the foot its point and its body's floor-touching geoms the truth, as a site does; a
@@ -75,6 +78,9 @@ from jax_contact.robot import (
 _T = mujoco.mjtGeom
 _FLOOR_TYPES = (int(_T.mjGEOM_PLANE), int(_T.mjGEOM_HFIELD))
 _ROUND = ("sphere", "capsule")  # geoms with a radius; the others' soles are flat (radius 0)
+# A found foot's spheres: those whose lowest points at the home pose lie within this of the
+# lowest, m (T1's four corners lie level; a calf's sphere lies a calf above its foot's).
+SOLE_SPREAD = 0.01
 
 
 @dataclasses.dataclass(frozen=True)
@@ -140,6 +146,14 @@ def home_data(m) -> mujoco.MjData:
         d.qpos[:] = m.key_qpos[0]
     mujoco.mj_kinematics(m, d)
     return d
+
+
+def _lowest_spheres(m, d, geoms: list[int]) -> list[int]:
+    """The spheres among ``geoms`` whose lowest point at the home pose (``d``) is within
+    :data:`SOLE_SPREAD` of the lowest one's."""
+    bottom = {g: float(d.geom_xpos[g][2] - m.geom_size[g, 0]) for g in geoms}
+    low = min(bottom.values())
+    return [g for g in geoms if bottom[g] - low <= SOLE_SPREAD]
 
 
 def _geom_point(m, d, g: int) -> tuple[str, np.ndarray, float, tuple]:
@@ -302,11 +316,14 @@ def find_feet(m: mujoco.MjModel, feet=None) -> tuple[tuple[Foot, ...], list[int]
             " have no joint between them and the base"
         )
     bodies = list(dict.fromkeys(int(m.geom_bodyid[g]) for g in chosen))
-    if not spheres:  # keep the ends of the legs: no floor-touching geom further down
-        bodies = [b for b in bodies if not any(b in body_chain(m, o)[1:] for o in bodies)]
+    # Keep the ends of the legs: no floor-touching geom further down (a model whose every
+    # collision geom is a sphere, Menagerie's Go2, has spheres on hips, thighs and calves).
+    bodies = [b for b in bodies if not any(b in body_chain(m, o)[1:] for o in bodies)]
     out = []
     for b in bodies:
         geoms = [g for g in chosen if m.geom_bodyid[g] == b]
+        if spheres:  # the sole's spheres (T1's corners), not a calf's sphere above its foot
+            geoms = _lowest_spheres(m, d, geoms)
         label = _name_of(m, mujoco.mjtObj.mjOBJ_GEOM, geoms[0]) if len(geoms) == 1 else ""
         out.append(_body_foot(m, d, label or _name_of(m, mujoco.mjtObj.mjOBJ_BODY, b), b, geoms))
     return tuple(out), floor_ids

@@ -20,6 +20,7 @@ from jax_contact.envs import contact_truth, feet
 from jax_contact.envs import wrapper as W
 from jax_contact.envs.contact_config import validate_config
 from jax_contact.envs.robots import Robot, load_robot
+from jax_contact.robot import derive_description
 
 LEG = """
 <mujoco>
@@ -74,6 +75,36 @@ def test_box_sole_site_body_and_offset():
     assert (spec.kind, spec.point, spec.radius) == ("body", (-0.07, 0.0, -0.26), 0.005)
     with pytest.raises(ValueError, match="valid names"):
         feet.describe(m, ["nope"])
+
+
+def test_found_feet_of_an_all_sphere_model_are_the_legs_ends():
+    """Menagerie's Go2 MJX model makes every collision geom a sphere: hips, thighs, calves
+    and feet. Here two legs whose thigh carries a 3 cm sphere 0.1 m down and whose calf
+    carries a 2.5 cm sphere 0.1 m down besides the 2 cm foot 0.2 m down. The found feet are
+    the legs' ends (the calves: no floor-touching body below them) and, of a calf's
+    spheres, the one at the sole: the calf sphere's lowest point is 0.1 - 0.025 + 0.02 =
+    0.095 m above the foot's at the home pose (qpos0, legs straight), beyond SOLE_SPREAD.
+    Before, every body with a sphere was a foot: 'every leg must have the same number of
+    dofs' (a thigh's leg has one joint, a calf's two)."""
+    leg = (
+        '<body name="{s}_thigh" pos="{x} 0 0"><joint name="{s}_hip" axis="0 1 0"/>'
+        '<geom type="sphere" size=".03" pos="0 0 -.1"/><body name="{s}_calf" pos="0 0 -.2">'
+        '<joint name="{s}_knee" axis="0 1 0"/><geom type="sphere" size=".025" pos="0 0 -.1"/>'
+        '<geom name="{s}" type="sphere" size=".02" pos="0 0 -.2"/></body></body>'
+    )
+    m = mujoco.MjModel.from_xml_string(
+        '<mujoco><worldbody><geom name="floor" type="plane" size="5 5 .1"/>'
+        '<body name="base" pos="0 0 .45"><freejoint/><geom type="box" size=".2 .1 .05"/>'
+        + "".join(leg.format(s=s, x=x) for s, x in (("F", 0.2), ("H", -0.2)))
+        + "</body></worldbody><actuator>"
+        + "".join(f'<motor joint="{s}_{j}"/>' for s in "FH" for j in ("hip", "knee"))
+        + "</actuator></mujoco>"
+    )
+    desc, resolved = feet.describe(m)
+    assert desc.foot_names == ("F", "H") and [f.kind for f in resolved] == ["sphere"] * 2
+    assert desc.foot_offsets == ((0.0, 0.0, -0.2),) * 2 and desc.foot_radii == (0.02, 0.02)
+    assert desc.leg_dofs == ((6, 7), (8, 9))
+    assert derive_description(m).foot_names == desc.foot_names  # the log commands' rule
 
 
 def test_rotated_box_takes_its_lowest_face():
