@@ -382,19 +382,30 @@ def robot_description(m: mujoco.MjModel, foot_names=None) -> RobotDescription:
     """The description of a robot model that ``load_robot`` (the log commands: simulate,
     evaluate, estimate, export, tune) uses.
 
-    Where the feet are sphere geoms (no names and some floor-touching sphere, or every
-    name a floor-touching sphere geom or the body of one), :func:`jax_contact.robot.
+    Where the feet are single sphere geoms (no names and some floor-touching sphere, or
+    every name a floor-touching sphere geom or the body of one), :func:`jax_contact.robot.
     derive_description`'s: the distal sphere of each joint chain. Otherwise
     :func:`describe`'s, as the wrapper resolves feet (module docstring): a box, cylinder
     or mesh sole (Berkeley Humanoid's ``l_foot1``), a body of several geoms (T1's corner
-    spheres, G1's ``<pair>`` feet), a site, a body; without names, every floor-touching
-    geom on a leg, grouped by body. Its errors name the foot and list the valid names.
+    spheres, G1's ``<pair>`` feet), a site, a body; without names, where a foot found by
+    its rule is several level spheres (T1), or no floor-touching sphere exists. Its errors
+    name the foot and list the valid names.
     """
     if foot_names is not None and (isinstance(foot_names, str) or not len(foot_names)):
         raise ValueError(f"foot_names must be a non-empty sequence of names, got {foot_names!r}")
     _, spheres = floor_spheres(m)
     if foot_names is None:
         use_spheres = bool(spheres)
+        if use_spheres:
+            # Feet of several level spheres (T1's corners) are found as the wrapper finds
+            # them, one sole each; feet of one sphere by the distal-sphere rule, as before.
+            try:
+                desc, resolved = describe(m)
+            except ValueError:
+                pass  # derive_description's rule, and its errors
+            else:
+                if any(len(f.geom_ids) > 1 for f in resolved):
+                    return desc
     else:
         # A body whose several spheres touch the floor (T1's four corners) is one foot of
         # those spheres, as the wrapper reads its name, not its first sphere.

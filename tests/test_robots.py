@@ -457,44 +457,55 @@ def test_simulate_names_the_feet_it_found_and_a_foot_above_the_others():
     )
 
 
-def test_a_foot_of_corner_spheres_is_one_sole_when_named_by_its_body(tmp_path):
-    """T1's feet are four corner spheres on one body. Found by the rule, a foot is the
-    distal sphere alone (as for Go2's calf spheres) and simulate's note says how to read
-    the four; named by the body, the log commands take the four as one sole, as the
-    wrapper does: the rolling point of their centres, one radius (envs/feet.py). Naming
-    one sphere keeps that sphere. Here a leg (rail, hip, knee) whose shank carries four
-    spheres of radius 1 cm at x = +-4 cm, y = +-2 cm, 0.3 m down."""
+def test_a_foot_of_corner_spheres_is_one_sole_as_in_the_wrapper(tmp_path):
+    """T1's feet are four corner spheres on one body. Found or named by the body, the log
+    commands take the four as one sole, as the wrapper does (feet.describe): the rolling
+    point of their centres, one radius. Naming one sphere keeps that sphere. With a corner
+    sole of one low sphere and three 2 cm higher (beyond feet.SOLE_SPREAD, 1 cm), the
+    rule finds the low sphere alone and simulate's note names the body that reads all
+    four. Here a leg (rail, hip, knee)
+    whose shank carries four spheres of radius 1 cm at x = +-4 cm, y = +-2 cm, 0.3 m
+    down."""
+    from jax_contact.envs import feet
     from jax_contact.train.logs import note_found_feet
 
-    corners = "".join(
-        f'<geom name="c{i}" type="sphere" size=".01" pos="{x} {y} -.3"/>'
-        for i, (x, y) in enumerate(((0.04, 0.02), (0.04, -0.02), (-0.04, 0.02), (-0.04, -0.02)))
-    )
-    path = tmp_path / "corners.xml"
-    spec = mujoco.MjSpec.from_string(
-        "<mujoco><worldbody><geom name='floor' type='plane' size='1 1 .1'/>"
-        "<body name='base'><joint type='slide' axis='0 0 1'/><geom type='box' size='.1 .1 .1'"
-        " mass='1'/><body name='b'><joint name='j' type='hinge'/><inertial pos='0 0 -.1'"
-        " mass='.5' diaginertia='.01 .01 .01'/><body name='shank'><joint name='k'"
-        f" type='hinge'/><inertial pos='0 0 -.2' mass='.2' diaginertia='.01 .01 .01'/>{corners}"
-        "</body></body></body></worldbody><actuator><motor joint='j'/><motor joint='k'/>"
-        "</actuator></mujoco>"
-    )
-    path.write_text(spec.to_xml())
-    found = load_robot(str(path))
-    assert found.description.foot_names == ("c0",) and not any(found.description.foot_soles)
-    assert note_found_feet(found).splitlines()[-1] == (
+    def leg(*z: float) -> str:
+        corners = "".join(
+            f'<geom name="c{i}" type="sphere" size=".01" pos="{x} {y} {zi}"/>'
+            for i, (x, y, zi) in enumerate(
+                zip((0.04, 0.04, -0.04, -0.04), (0.02, -0.02, 0.02, -0.02), z, strict=True)
+            )
+        )
+        path = tmp_path / f"corners{z[1]}.xml"
+        path.write_text(
+            "<mujoco><worldbody><geom name='floor' type='plane' size='1 1 .1'/>"
+            "<body name='base'><joint type='slide' axis='0 0 1'/><geom type='box'"
+            " size='.1 .1 .1' mass='1'/><body name='b'><joint name='j' type='hinge'/>"
+            "<inertial pos='0 0 -.1' mass='.5' diaginertia='.01 .01 .01'/><body name='shank'>"
+            "<joint name='k' type='hinge'/><inertial pos='0 0 -.2' mass='.2'"
+            f" diaginertia='.01 .01 .01'/>{corners}</body></body></body></worldbody><actuator>"
+            "<motor joint='j'/><motor joint='k'/></actuator></mujoco>"
+        )
+        return str(path)
+
+    level = leg(-0.3, -0.3, -0.3, -0.3)
+    corners = sorted((x, y, -0.3) for x in (0.04, -0.04) for y in (0.02, -0.02))
+    for names in (None, ["shank"]):
+        sole = load_robot(level, foot_names=names)
+        desc = sole.description
+        assert desc.foot_names == ("shank",) and desc.foot_radii == (0.01,)
+        np.testing.assert_allclose(desc.foot_offsets[0], (0.0, 0.0, -0.3), atol=1e-12)
+        assert sorted(desc.foot_soles[0]) == corners
+        assert desc == feet.describe(sole.mj_model, names)[0]
+    assert "several floor-touching" not in note_found_feet(load_robot(level))
+    one = load_robot(level, foot_names=["c3"]).description
+    assert one.foot_names == ("c3",) and one.foot_offsets[0] == (-0.04, -0.02, -0.3)
+    raised = load_robot(leg(-0.3, -0.28, -0.28, -0.28))
+    assert raised.description.foot_names == ("c0",)
+    assert note_found_feet(raised).splitlines()[-1] == (
         "note: the feet's bodies carry several floor-touching spheres (shank (4)): each foot"
         " above is one of them; --feet shank reads each body's spheres as one sole"
     )
-    sole = load_robot(str(path), foot_names=["shank"]).description
-    assert sole.foot_names == ("shank",) and sole.foot_radii == (0.01,)
-    np.testing.assert_allclose(sole.foot_offsets[0], (0.0, 0.0, -0.3), atol=1e-12)
-    assert sorted(sole.foot_soles[0]) == sorted(
-        (x, y, -0.3) for x in (0.04, -0.04) for y in (0.02, -0.02)
-    )
-    one = load_robot(str(path), foot_names=["c3"]).description
-    assert one.foot_names == ("c3",) and one.foot_offsets[0] == (-0.04, -0.02, -0.3)
 
 
 def test_short_air_phases_by_hand():

@@ -128,15 +128,19 @@ def note_found_feet(robot) -> str:
             " a foot? (a leg without its foot geom walks on the lowest sphere left, e.g. a"
             " shin's); name the feet with --feet"
         )
-    # The rule takes one sphere per leg; a foot body of several (T1's corner spheres) is
-    # one sole when named by its body, as the wrapper names it.
+    # A foot found as one sphere whose body carries more (a heel sphere above a toe
+    # sphere at the home pose) is one sole when named by its body, as the wrapper names it.
     from jax_contact.robot import floor_spheres
 
     spheres = floor_spheres(m)[1]
+    soles = desc.foot_soles or ((),) * desc.n_legs
     several = {
         m.body(b).name: n
-        for b in desc.foot_body_ids
-        if (n := sum(int(m.geom_bodyid[g]) == b for g in spheres)) > 1 and m.body(b).name
+        for b, g, sole in zip(desc.foot_body_ids, desc.foot_geom_ids, soles, strict=True)
+        if g in spheres
+        and not sole  # one sphere, not a sole of several
+        and (n := sum(int(m.geom_bodyid[s]) == b for s in spheres)) > 1
+        and m.body(b).name
     }
     if several:
         bodies = ", ".join(f"{b} ({n})" for b, n in several.items())
