@@ -447,6 +447,8 @@ def test_a_degree_recording_read_as_radians_warns(round_trip, tmp_path, capsys):
         round_trip.tmp / "robot.csv", tmp_path / "out", names=AS_RECORDED["names"], plots=False
     )
     text = capsys.readouterr().out
+    # No --feet: the feet the rule found are named, as simulate names them.
+    assert "note: feet found in the model: ['foot'] (name them with --feet)" in text
     assert "warning: column 'q/HIP_J': outside the range of joint 'hip', [-1.6, 1.6] rad" in text
     assert "pass --units deg" in text
     assert np.mean(got["outputs"]["probabilistic"] > 0.5) < 0.01

@@ -108,9 +108,9 @@ FOOT_HEIGHT_SPREAD_M = 0.03
 
 
 def note_found_feet(robot) -> str:
-    """The ``note:`` line naming the feet the model's rule found (``simulate`` without
-    ``--feet``), with a warning when their soles' heights at the home pose (the model's
-    ``home`` keyframe, else its first, else ``qpos0``) spread over more than
+    """The ``note:`` line naming the feet the model's rule found (``simulate`` and
+    ``estimate`` without ``--feet``), with a warning when their soles' heights at the home
+    pose (the model's ``home`` keyframe, else its first, else ``qpos0``) spread over more than
     :data:`FOOT_HEIGHT_SPREAD_M`: a user trial's Go2 with one foot geom deleted walked on
     that leg's shin sphere, and only a lower score said so."""
     from jax_contact.envs.feet import foot_points_np, home_data

@@ -123,6 +123,10 @@ def estimate_recordings(
     out_dir = Path(out_dir)
     check_output_folder("out_dir", out_dir)
     robot = load_robot(model, foot_names=feet)
+    if feet is None:
+        from jax_contact.train.logs import note_found_feet
+
+        print(note_found_feet(robot))
     dts = {}
     with warnings.catch_warnings():  # said again when each recording is estimated
         warnings.simplefilter("ignore")

@@ -87,6 +87,10 @@ def estimate_recording(
     rec = read_recording(path)
     if robot is None:
         robot = load_robot(model, foot_names=feet)
+        if feet is None:
+            from jax_contact.train.logs import note_found_feet
+
+            print(note_found_feet(robot))
     conv = to_readings(
         rec, robot, names=names, units=units, resample=resample, force_threshold=force_threshold
     )
