@@ -387,8 +387,8 @@ def load_robot(
       foot_names: the feet, in leg order (:func:`jax_contact.envs.feet.robot_description`):
         sphere geoms or their bodies, or as the wrapper names feet (a box or mesh sole,
         a body of several geoms, a site); None finds them (the distal sphere geom of each
-        joint chain that can touch the floor, else every floor-touching geom on a leg,
-        grouped by body).
+        joint chain that can touch the floor, or a foot's level spheres as one sole; with
+        no such sphere, every floor-touching geom on a leg, grouped by body).
       gait: the robot's gait settings (:class:`jax_contact.envs.gaits.GaitSettings`); None takes
         :data:`jax_contact.envs.gaits.GAIT_SETTINGS` of the name, else derives them from the model
         when first needed.
