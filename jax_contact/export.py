@@ -516,8 +516,9 @@ def readings_header(mj_model) -> list[dict]:
 
 
 def _robot_header(mj_model, desc, source: str) -> dict:
-    from jax_contact.robot import model_fingerprint  # mujoco: at export time only
+    from jax_contact.robot import model_fingerprint, model_mass  # mujoco: at export time only
 
+    soles = desc.foot_soles or ((),) * desc.n_legs
     return {
         "source": str(source),
         "nq": int(desc.nq),
@@ -526,7 +527,12 @@ def _robot_header(mj_model, desc, source: str) -> dict:
         "leg_dofs": [list(leg) for leg in desc.leg_dofs],
         "base_dofs": list(desc.base_dofs),
         "foot_radii": list(desc.foot_radii),
-        "total_mass_kg": float(np.sum(mj_model.body_mass)),
+        # Each foot's contact point on its body (m, body frame): a fixed point, or for a
+        # foot with a sole its rolling point over these points (adapter.contact_points).
+        "foot_points": [list(p) for p in desc.foot_offsets],
+        "foot_soles": [[list(c) for c in sole] for sole in soles],
+        "contact_point": "rolling" if any(soles) else "fixed",
+        "total_mass_kg": model_mass(mj_model),
         "timestep_s": float(mj_model.opt.timestep),
         # The physics' fingerprint, as simulated logs store it: deploy-check compares them.
         "model_sha256": model_fingerprint(mj_model),

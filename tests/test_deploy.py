@@ -250,6 +250,11 @@ def test_header_describes_inputs_and_parameters(deployed):
     assert h["params"]["provenance"]["source"] == "defaults"
     assert h["library_version"] and h["exported_with"]["jax"]
     assert h["pairing"]["delayed"] == ["qpos", "qvel"]
+    # Go1's feet: spheres, each at its geom's centre (0.213 m down the calf), no sole.
+    r = h["robot"]
+    assert r["foot_points"] == [[0.0, 0.0, -0.213]] * 4 and r["foot_radii"] == [0.023] * 4
+    assert r["foot_soles"] == [[]] * 4 and r["contact_point"] == "fixed"
+    assert r["total_mass_kg"] == pytest.approx(12.743, abs=1e-3)  # test_estimate's hand sum
     # The stored parameters are the ones the offline estimator gets.
     from jax_contact.params_file import params_from_dict, params_to_dict
     from jax_contact.train.log_estimator import default_estimator
@@ -257,6 +262,39 @@ def test_header_describes_inputs_and_parameters(deployed):
     params, _ = default_estimator(load_robot("go1").description, 0.0025)
     stored = params_from_dict(h["params"])
     assert params_to_dict(stored)["values"] == params_to_dict(params)["values"]
+
+
+def test_header_of_a_sole_and_static_scenery():
+    """A box sole's header says where its contact point rolls: the sole's centre (0.01, 0,
+    -0.26) in the shank frame and its four corners, x 0.01 +- 0.08, y +- 0.03 (a box at
+    (0.01, 0, -0.25) of half sizes .08 .03 .01). A 300 kg static body of the scene is not
+    the robot's mass: the moving bodies' are (model_mass, 5 + 0.5 + 0.5 kg here)."""
+    import mujoco
+
+    from jax_contact.envs import feet
+    from jax_contact.export import _robot_header
+    from jax_contact.robot import model_mass
+
+    m = mujoco.MjModel.from_xml_string(
+        '<mujoco><worldbody><geom name="floor" type="plane" size="5 5 .1"/>'
+        '<body name="stairs" pos="1 0 0"><geom type="box" size=".1 .1 .1" mass="300"/></body>'
+        '<body name="base" pos="0 0 .6"><joint type="slide" axis="0 0 1"/>'
+        '<geom type="box" size=".1 .1 .05" contype="0" conaffinity="0" mass="5"/>'
+        '<body name="thigh"><joint name="hip" axis="0 1 0"/><inertial pos="0 0 -.1" mass=".5"'
+        ' diaginertia=".01 .01 .01"/><body name="shank" pos="0 0 -.25"><joint name="knee"'
+        ' axis="0 1 0"/><inertial pos="0 0 -.1" mass=".5" diaginertia=".01 .01 .01"/>'
+        '<geom name="sole" type="box" pos="0.01 0 -0.25" size=".08 .03 .01" mass="0"/>'
+        "</body></body></body></worldbody><actuator><motor joint='hip'/><motor joint='knee'/>"
+        "</actuator></mujoco>"
+    )
+    assert model_mass(m) == pytest.approx(6.0) and float(np.sum(m.body_mass)) == pytest.approx(306)
+    desc, _ = feet.describe(m, ["sole"])
+    r = _robot_header(m, desc, "box_leg.xml")
+    np.testing.assert_allclose(r["foot_points"], [[0.01, 0.0, -0.26]], atol=1e-12)
+    corners = sorted([0.01 + sx * 0.08, sy * 0.03, -0.26] for sx in (1, -1) for sy in (1, -1))
+    np.testing.assert_allclose(sorted(r["foot_soles"][0]), corners, atol=1e-12)
+    assert r["contact_point"] == "rolling" and r["foot_radii"] == [0.0]
+    assert r["total_mass_kg"] == pytest.approx(6.0)
 
 
 def test_a_shipped_preset_exports_by_name(deployed, tmp_path):
