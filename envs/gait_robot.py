@@ -27,6 +27,7 @@ from jax_contact.envs.gait_settings import (
     resolve_gait_settings,
 )
 from jax_contact.envs.robots import Robot
+from jax_contact.robot import model_mass
 
 
 @struct.dataclass
@@ -231,7 +232,7 @@ def make_gait_robot(
         phase_offset=f32(phase_offset),
         base_height=f32(base_height),
         foot_radius=f32(desc.foot_radii[0]),
-        mass=f32(float(np.sum(m.body_mass))),
+        mass=f32(model_mass(m)),
         kp=f32(kp),
         kd=f32(kd),
         raibert=f32(raibert),

@@ -19,6 +19,7 @@ import mujoco
 import numpy as np
 
 from jax_contact.envs.robots import Robot
+from jax_contact.robot import model_mass
 
 KINDS = ("trot", "walk", "hop")
 GRAVITY = 9.81
@@ -175,7 +176,7 @@ def _gains(m: mujoco.MjModel, desc, settings: GaitSettings, height: float) -> tu
         kp0, kd0 = float(-bias[0, 1]), float(-bias[0, 2])
         kd0 = kd0 if kd0 > 0 else _KD_OVER_KP * kp0
     else:
-        weight_moment = float(np.sum(m.body_mass)) * GRAVITY * height / desc.n_legs
+        weight_moment = model_mass(m) * GRAVITY * height / desc.n_legs
         kp0 = _KP_PER_WEIGHT_MOMENT * weight_moment
         kd0 = _KD_OVER_KP * kp0
     kp = settings.kp if settings.kp is not None else kp0

@@ -287,7 +287,7 @@ def added_mass_for(robot_name: str, robot=None) -> tuple[tuple[str, float], ...]
 
     robot = robot if robot is not None else load_robot(robot_name)
     m, desc = robot.mj_model, robot.description
-    total = float(m.body_mass.sum())
+    total = model_mass(m)
     base = next(b for b in range(1, m.nbody) if m.body_parentid[b] == 0)
     foot = desc.foot_body_ids[0]
     name = lambda b: mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_BODY, b)  # noqa: E731
