@@ -14,9 +14,10 @@ from collections.abc import Sequence
 import numpy as np
 from flax import struct
 
+from jax_contact.adapter import SOLES
 from jax_contact.calibration import Calibration
 from jax_contact.defaults import is_number
-from jax_contact.envs.feet import SOLES, FootSpec
+from jax_contact.envs.feet import FootSpec
 from jax_contact.terrain import FlatTerrain, FootholdMemory, HeightFieldTerrain
 
 # What config.terrain may be (None: the default plane).
@@ -98,7 +99,7 @@ class ContactObsConfig:
         several spheres or capsules of one radius: ``"rolling"`` (default) the lowest part
         of its sole at each step, its centre when it lies flat, the edge, corner or
         sphere it stands on when it rolls; ``"centre"`` the sole's centre at the home
-        pose, fixed to the foot (:func:`jax_contact.envs.feet.foot_points`). A foot of
+        pose, fixed to the foot (:func:`jax_contact.adapter.contact_points`). A foot of
         one sphere is the same under both.
     """
 

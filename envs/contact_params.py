@@ -148,9 +148,8 @@ def moment_push(mj_model: mujoco.MjModel, desc: RobotDescription, params) -> np.
 
 def _moment_push_of(gains, desc: RobotDescription) -> np.ndarray:
     """:func:`moment_push` from :func:`_push_gains`' per-leg gains and the description."""
-    soles = desc.foot_soles or ((),) * desc.n_legs
     out = []
-    for sole, point, (g, jacr, _) in zip(soles, desc.foot_offsets, gains, strict=True):
+    for sole, point, (g, jacr, _) in zip(desc.soles, desc.foot_offsets, gains, strict=True):
         sole = np.asarray(sole, np.float64).reshape(-1, 3)
         h = float(np.max(np.linalg.norm(sole - np.asarray(point), axis=1))) if len(sole) else 0.0
         out.append(h * float(np.linalg.norm((g @ jacr.T)[:2])))

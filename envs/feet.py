@@ -38,9 +38,10 @@ Which point: a flat sole that lands on its toe or heel, or rolls over an edge, t
 floor at that edge, not at its centre, which is then centimetres above the floor and
 moving (the kinematics and differential-kinematics terms say air). So by default
 (``ContactObsConfig.sole = "rolling"``) a flat foot's point is recomputed at each step
-from its sole's four corners (:func:`foot_points`; for round geoms of one radius, the
-spheres' centres and the capsules' segment ends, the radius kept): their mean weighted by
-``exp(-(z_i - z_min) / SOLE_SOFTNESS)``, ``SOLE_SOFTNESS`` = 2 mm (set, not fitted): the
+from its sole's four corners (:func:`jax_contact.adapter.contact_points`; for round
+geoms of one radius, the spheres' centres and the capsules' segment ends, the radius
+kept): their mean weighted by ``exp(-(z_i - z_min) / adapter.SOLE_SOFTNESS)``,
+``SOLE_SOFTNESS`` = 2 mm (set, not fitted): the
 centre when the sole lies flat, the middle of the lowest edge when it is tilted by more
 than a degree or two, the lowest corner on a corner. The Jacobian, the foot's velocity and
 height are those of that point. ``sole = "centre"`` keeps the fixed centre.
@@ -58,12 +59,9 @@ from __future__ import annotations
 import dataclasses
 from collections import Counter
 
-import jax
 import mujoco
 import numpy as np
 
-from jax_contact import adapter
-from jax_contact.adapter import SOLE_SOFTNESS, SOLES  # noqa: F401 (this module's names too)
 from jax_contact.robot import (
     RobotDescription,
     actuated_dofs,
@@ -417,13 +415,6 @@ def robot_description(m: mujoco.MjModel, foot_names=None) -> RobotDescription:
     if use_spheres:
         return derive_description(m, foot_names)
     return describe(m, foot_names)[0]
-
-
-def foot_points(desc: RobotDescription, d, sole: str = "centre") -> jax.Array:
-    """(n_legs, 3) world positions of the feet's contact points:
-    :func:`jax_contact.adapter.contact_points` (``sole`` ``"centre"`` or ``"rolling"``,
-    module docstring), which :func:`jax_contact.adapter.robot_measurement` reads."""
-    return adapter.contact_points(desc, d, sole)
 
 
 def foot_points_np(m: mujoco.MjModel, d: mujoco.MjData, desc: RobotDescription) -> np.ndarray:

@@ -518,7 +518,7 @@ def readings_header(mj_model) -> list[dict]:
 def _robot_header(mj_model, desc, source: str) -> dict:
     from jax_contact.robot import model_fingerprint, model_mass  # mujoco: at export time only
 
-    soles = desc.foot_soles or ((),) * desc.n_legs
+    soles = desc.soles
     return {
         "source": str(source),
         "nq": int(desc.nq),

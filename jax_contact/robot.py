@@ -50,8 +50,8 @@ class RobotDescription:
       foot_soles: per foot, the points its contact rolls between, in its body frame,
         ((x, y, z), ...), m: a flat sole's corners, or the centres of a foot's spheres and
         the ends of its capsules (one radius), for the rolling contact point of
-        :func:`jax_contact.envs.feet.foot_points`; empty for a sphere foot (default:
-        none).
+        :func:`jax_contact.adapter.contact_points`; empty for a sphere foot (default:
+        none; :attr:`soles` has one entry per foot either way).
       leg_dofs: per leg, the indices into ``nv`` of its joints' dofs, base side first.
       other_dofs: per leg, the complement of ``leg_dofs`` in ``range(nv)``, ascending.
       base_dofs: dofs of the base's own joints (6 for a free joint, 1 for the planar
@@ -82,6 +82,12 @@ class RobotDescription:
     @property
     def n_legs(self) -> int:
         return len(self.foot_names)
+
+    @property
+    def soles(self) -> tuple[tuple[tuple[float, float, float], ...], ...]:
+        """``foot_soles`` with one entry per foot, ``()`` for a foot without a sole (a
+        description of sphere feet leaves ``foot_soles`` empty)."""
+        return self.foot_soles or ((),) * self.n_legs
 
     @property
     def n_leg_dofs(self) -> int:

@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 from mujoco import mjx
 
+from jax_contact import adapter
 from jax_contact.envs import contact_truth, feet
 from jax_contact.envs import wrapper as W
 from jax_contact.envs.contact_config import validate_config
@@ -354,7 +355,7 @@ def _sole_points(m, knee: float):
     d.qpos[:] = (0.6, 0.0, knee)
     mujoco.mj_kinematics(m, d)
     dx = mjx.put_data(m, d)
-    pts = [np.asarray(feet.foot_points(desc, dx, s))[0] for s in ("centre", "rolling")]
+    pts = [np.asarray(adapter.contact_points(desc, dx, s))[0] for s in ("centre", "rolling")]
     return (*pts, desc, d)
 
 
@@ -379,14 +380,14 @@ def test_rolling_sole_point():
     # exp(-(z - z_min) / SOLE_SOFTNESS) over the C library's world corners.
     centre, rolling, _, d = _sole_points(m, 0.005)
     world = d.xpos[b] + corners @ d.xmat[b].reshape(3, 3).T
-    w = np.exp(-(world[:, 2] - world[:, 2].min()) / feet.SOLE_SOFTNESS)
+    w = np.exp(-(world[:, 2] - world[:, 2].min()) / adapter.SOLE_SOFTNESS)
     np.testing.assert_allclose(rolling, (w / w.sum()) @ world, atol=2e-6)
     # By hand: toe weight 1, heel e^-(0.16 sin 0.005 / 0.002) = e^-0.4 = 0.670, so the
     # point is (0.09 - 0.670 x 0.07) / 1.670 = 0.0258 along the sole, 15.8 mm ahead of
     # the centre.
     assert np.linalg.norm(rolling - centre) == pytest.approx(0.0158, abs=2e-4)
     with pytest.raises(ValueError, match="sole must be one of"):
-        feet.foot_points(desc, mjx.put_data(m, d), "lowest")
+        adapter.contact_points(desc, mjx.put_data(m, d), "lowest")
     with pytest.raises(ValueError, match="config.sole"):
         validate_config(W.ContactObsConfig(sole="lowest"))
 
@@ -577,6 +578,6 @@ def test_a_soles_moment_can_turn_the_sign_test_off(tmp_path):
         # them) weighs the same sole: what `jax-contact estimate` and `export` run.
         (tmp_path / "ant.xml").write_text(xml)
         logged = load_robot(str(tmp_path / "ant.xml"))
-        assert (logged.description.foot_soles or ((),)) == desc.foot_soles  # sphere: none
+        assert logged.description.soles == desc.soles  # a sphere: ((),)
         assert default_estimator(logged.description, 0.0025, mj_model=m)[0].unilateral is expect_on
         assert W.wrap_contact(W.LeggedPipelineEnv(robot)).contact_report()["sign_test"] is expect_on

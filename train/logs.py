@@ -133,10 +133,9 @@ def note_found_feet(robot) -> str:
     from jax_contact.robot import floor_spheres
 
     spheres = floor_spheres(m)[1]
-    soles = desc.foot_soles or ((),) * desc.n_legs
     several = {
         m.body(b).name: n
-        for b, g, sole in zip(desc.foot_body_ids, desc.foot_geom_ids, soles, strict=True)
+        for b, g, sole in zip(desc.foot_body_ids, desc.foot_geom_ids, desc.soles, strict=True)
         if g in spheres
         and not sole  # one sphere, not a sole of several
         and (n := sum(int(m.geom_bodyid[s]) == b for s in spheres)) > 1
