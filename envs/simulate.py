@@ -37,8 +37,10 @@ from mujoco import mjx
 
 from jax_contact.envs.gaits import GaitParams, gait_control, make_gait, make_gait_robot
 from jax_contact.envs.ground_truth import foot_truth, make_truth_layout, with_contact_sensors
-from jax_contact.envs.robots import Robot, check_mjx_collisions, load_robot, with_terrain
-from jax_contact.envs.sensors import SensorParams, add_mass, sensor_init, sensor_preset, sensor_step
+from jax_contact.envs.model_files import check_mjx_collisions
+from jax_contact.envs.payload import add_mass
+from jax_contact.envs.robots import Robot, load_robot, with_terrain
+from jax_contact.envs.sensors import SensorParams, sensor_init, sensor_preset, sensor_step
 from jax_contact.robot import actuated_dofs
 
 TERRAINS = ("flat", "rough")

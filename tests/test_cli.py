@@ -160,7 +160,7 @@ def test_output_folder_check_creates_nothing(tmp_path):
 
 def test_static_lists_equal_the_librarys():
     """cli.py copies lists whose modules import JAX; the copies must not drift."""
-    from jax_contact.envs import gaits, robots, sensors, simulate
+    from jax_contact.envs import gaits, model_files, robots, sensors, simulate
     from jax_contact.train import ppo, rates
 
     assert cli.ROBOT_NAMES == robots.ROBOT_NAMES
@@ -189,7 +189,7 @@ def test_static_lists_equal_the_librarys():
 
     assert cli_args._SIMULATE_DT == inspect.signature(simulate.build_world).parameters["dt"].default
     assert cli.ONE_LEGGED == tuple(
-        n for n in robots._BUILTIN if robots.load_robot(n).description.n_legs == 1
+        n for n in model_files.BUILTIN_NAMES if robots.load_robot(n).description.n_legs == 1
     )
 
 

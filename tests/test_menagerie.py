@@ -14,7 +14,8 @@ import mujoco
 import numpy as np
 import pytest
 
-from jax_contact.envs.robots import MENAGERIE_SCENES, load_robot
+from jax_contact.envs.model_files import MENAGERIE_SCENES
+from jax_contact.envs.robots import load_robot
 
 NAME = "unitree_go2"  # a Menagerie name the loader knows; the model is the test's own
 

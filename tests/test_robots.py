@@ -15,13 +15,8 @@ import numpy as np
 import pytest
 from mujoco import mjx
 
-from jax_contact.envs import robots
-from jax_contact.envs.robots import (
-    PLANAR_LEG_XML,
-    RobotUnavailableError,
-    load_robot,
-    with_terrain,
-)
+from jax_contact.envs.model_files import PLANAR_LEG_XML, playground_xml
+from jax_contact.envs.robots import RobotUnavailableError, load_robot, with_terrain
 from jax_contact.robot import RobotDescription, derive_description
 
 BUILTIN = ("go1", "spot", "barkour", "planar_leg")
@@ -69,7 +64,7 @@ TOTAL_MASS = {"go1": 12.743448, "spot": 50.34}
 def test_playground_robot_dynamics_as_shipped(loaded, name):
     robot = loaded[name]
     m = robot.mj_model
-    xml_dir = robots._playground_xml(name).parent
+    xml_dir = playground_xml(name).parent
     reference = _xml_inertials(xml_dir / f"{name}_mjx_feetonly.xml")
     assert len(reference) == m.nbody - 1  # every body but the world has an <inertial>
     for body_name, (mass, com, inertia) in reference.items():
