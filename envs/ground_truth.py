@@ -98,7 +98,7 @@ def with_contact_sensors(robot: Robot) -> Robot:
 
     The copy is compiled from ``robot.spec``: edits made to ``robot.mj_model`` after
     compiling are lost, except ``opt`` (timestep, solver iterations, ...), which is copied
-    over. Apply :func:`jax_contact.envs.sensors.add_mass` and similar model edits after this call.
+    over. Apply :func:`jax_contact.envs.payload.add_mass` and similar model edits after this call.
 
     Args:
       robot: a robot from :func:`jax_contact.envs.robots.load_robot` (or ``with_terrain``).
