@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-SOURCES = ("pyproject.toml", "README.md", "jax_contact", "envs", "train", "benchmarks")
+SOURCES = ("pyproject.toml", "README.md", "LICENSE", "jax_contact", "envs", "train", "benchmarks")
 
 
 @pytest.fixture(scope="module")
@@ -47,6 +47,9 @@ def test_wheel_has_one_top_level_package(wheel):
     # the data files the code opens next to itself
     assert "jax_contact/envs/assets/planar_leg.xml" in names
     assert {"jax_contact/presets/go1.json", "jax_contact/presets/spot.json"} <= set(names)
+    # pyproject's license = "Apache-2.0" ships its text (setuptools >= 77 finds LICENSE)
+    licenses = [n for n in names if n.startswith("jax_contact-0.1.0.dist-info/licenses/")]
+    assert licenses == ["jax_contact-0.1.0.dist-info/licenses/LICENSE"], licenses
 
 
 def test_wheel_entry_point_is_namespaced(wheel):
