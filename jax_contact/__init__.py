@@ -120,7 +120,20 @@ if TYPE_CHECKING:  # the same names, eagerly, for type checkers and IDEs
     )
 
 
+def _installed_version() -> str:
+    """The installed distribution's version; ``"unknown"`` for a source tree never installed."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("jax-contact")
+    except PackageNotFoundError:
+        return "unknown"
+
+
 def __getattr__(name: str):
+    if name == "__version__":  # read once, from the installed package's metadata
+        globals()[name] = _installed_version()
+        return globals()[name]
     if name not in _LAZY:
         # Any submodule, as an eager package would have after importing it (``jc.io``,
         # ``jc.baselines``, ``jc.envs``).
@@ -136,7 +149,7 @@ def __getattr__(name: str):
 
 
 def __dir__():
-    return sorted(set(globals()) | set(_LAZY))
+    return sorted(set(globals()) | set(_LAZY) | {"__version__"})
 
 
 __all__ = [

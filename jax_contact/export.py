@@ -50,6 +50,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+import jax_contact
 from jax_contact.calibration import probability
 
 MAGIC = b"JAX-CONTACT-EXP\n"  # 16 bytes
@@ -396,7 +397,7 @@ def export_robot(
     header = {
         "format": FORMAT,
         "format_version": FORMAT_VERSION,
-        "library_version": _library_version(),
+        "library_version": jax_contact.__version__,
         "created": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
         "exported_with": {
             "jax": jax.__version__,
@@ -550,10 +551,6 @@ def _terrain_header(terrain) -> dict:
         elif np.ndim(value) == 0:
             out[f.name] = float(value)
     return out
-
-
-def _library_version() -> str:
-    return _version("jax-contact")
 
 
 def _version(dist: str) -> str:

@@ -67,12 +67,9 @@ def params_to_dict(params, provenance: Mapping | None = None) -> dict:
     of floats), ``values`` (scalar field -> float), ``options`` (the static fields) and
     ``provenance`` (free-form: how the values were obtained).
     """
-    from importlib.metadata import PackageNotFoundError, version
+    import jax_contact
 
-    try:
-        lib = version("jax-contact")
-    except PackageNotFoundError:  # running from a source tree that was never installed
-        lib = "unknown"
+    lib = jax_contact.__version__
     names = _param_sections()
     noise = {f: np.asarray(getattr(params.noise, f)).tolist() for f in names["noise"]}
     values = {f: float(np.asarray(getattr(params, f))) for f in names["values"]}

@@ -50,6 +50,23 @@ def test_importing_the_cli_does_not_import_jax():
     assert res.stdout.strip() == "[]"
 
 
+def test_version_is_the_installed_distributions_without_importing_jax():
+    """``jax-contact --version`` and ``jax_contact.__version__`` read the package metadata
+    (the one version a bug report, a params file and an exported estimator name)."""
+    from importlib.metadata import version
+
+    code = (
+        "import sys, jax_contact as jc, jax_contact.train.cli as c; print(jc.__version__);"
+        " print([m for m in ('jax', 'numpy') if m in sys.modules])"
+    )
+    res, _ = _run([sys.executable, "-c", code])
+    assert res.returncode == 0, res.stderr
+    assert res.stdout.split("\n")[:2] == [version("jax-contact"), "[]"]
+    res, _ = _run([*CLI, "--version"])
+    assert res.returncode == 0, res.stderr
+    assert res.stdout.strip() == f"jax-contact {version('jax-contact')}"
+
+
 @pytest.mark.parametrize(
     "argv, names",
     [

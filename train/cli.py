@@ -41,6 +41,7 @@ import sys
 import warnings
 from pathlib import Path
 
+import jax_contact
 from jax_contact.train import (  # stdlib-only at import
     deploy_cmd,
     estimate_cmd,
@@ -404,6 +405,9 @@ def build_parser() -> argparse.ArgumentParser:
         prog="jax-contact",
         description="Probabilistic foot contact estimation (Hwangbo et al., IROS 2016) in JAX.",
         formatter_class=HelpFormatter,
+    )
+    parser.add_argument(
+        "--version", action="version", version=f"jax-contact {jax_contact.__version__}"
     )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
 

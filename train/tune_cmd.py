@@ -654,8 +654,6 @@ def far_from_derived(table, factor: float = FAR_FACTOR) -> list[str]:
 def fit_and_write(args: argparse.Namespace, inputs: Inputs) -> int:
     """Tunes on ``inputs`` with ``args``' tuning options, prints the progress and the
     tuned values, writes ``args.out`` with its provenance; returns 0."""
-    import importlib.metadata
-
     import jax
     import numpy as np
 
@@ -753,10 +751,7 @@ def fit_and_write(args: argparse.Namespace, inputs: Inputs) -> int:
             " bounds the stds)",
             file=sys.stderr,
         )
-    try:
-        lib = importlib.metadata.version("jax-contact")
-    except importlib.metadata.PackageNotFoundError:
-        lib = "unknown"
+    lib = jc.__version__
     provenance = {
         "tool": f"jax-contact {getattr(args, 'command', None) or 'tune'}",  # or tune-env
         "arguments": {k: v for k, v in vars(args).items() if k not in ("func", "check")},
