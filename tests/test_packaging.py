@@ -46,6 +46,7 @@ def test_wheel_has_one_top_level_package(wheel):
         assert f"jax_contact/{module}" in names
     # the data files the code opens next to itself
     assert "jax_contact/envs/assets/planar_leg.xml" in names
+    assert "jax_contact/py.typed" in names  # PEP 561: a type checker reads the annotations
     assert {"jax_contact/presets/go1.json", "jax_contact/presets/spot.json"} <= set(names)
     # pyproject's license = "Apache-2.0" ships its text (setuptools >= 77 finds LICENSE)
     licenses = [n for n in names if n.startswith("jax_contact-0.1.0.dist-info/licenses/")]
