@@ -834,12 +834,12 @@ def test_evaluate_plots_writes_the_reliability_diagram_of_every_scored_row(tmp_p
 
 
 def test_tune_refuses_mixed_copied_and_unscoreable_logs(tmp_path):
-    """``jax-contact tune``'s logs (tune_cmd.load_logs) are refused before any fit when they
+    """``jax-contact tune``'s logs (tune_inputs.load_logs) are refused before any fit when they
     mix sensor models or periods (the fit would start from whichever came first), when a
     validation log is a tuning log's run under another name, when a tuning log is given
     twice, when a log has no step that counts, and when the tuning logs hold one class
     only."""
-    from jax_contact.train import tune_cmd
+    from jax_contact.train import tune_inputs
 
     rng = np.random.default_rng(2)
     truth = {"truth/contact": rng.random((12, 1, 1)) < 0.5}
@@ -855,7 +855,7 @@ def test_tune_refuses_mixed_copied_and_unscoreable_logs(tmp_path):
             logs=logs, validate=validate, terrain_model="flat", noise_floor="none"
         )
         with pytest.raises(ValueError, match=match):
-            tune_cmd.load_logs(args)
+            tune_inputs.load_logs(args)
 
     a, b = log("a.h5", 0), log("b.h5", 1)
     harsh = log("harsh.h5", 2, attrs={"noise": "harsh"})

@@ -322,7 +322,7 @@ def test_tune_refuses_recordings_it_cannot_tune_on(round_trip, tmp_path, case, m
     (``estimate`` adds their noise to any parameters, so a tuned file would count it
     twice), recordings whose columns support different terms, a validation recording
     given twice, and a simulated log given with --model."""
-    from jax_contact.train import tune_cmd
+    from jax_contact.train import tune_inputs
 
     def change(cols):
         if case == "no_truth":
@@ -346,7 +346,7 @@ def test_tune_refuses_recordings_it_cannot_tune_on(round_trip, tmp_path, case, m
         force_threshold=1.0,
     )  # fmt: skip
     with pytest.raises(ValueError, match=match):
-        tune_cmd.load_logs(args)
+        tune_inputs.load_logs(args)
 
 
 def test_tune_warns_on_recordings_the_model_does_not_fit(round_trip, tmp_path, capsys):
@@ -355,7 +355,7 @@ def test_tune_warns_on_recordings_the_model_does_not_fit(round_trip, tmp_path, c
     floor warning for each recording and a summary naming them (reading alone). Angles in
     degrees read as radians: after the fit, the untuned estimator's validation F1 (near 0)
     with what to check."""
-    from jax_contact.train import tune_cmd
+    from jax_contact.train import tune_cmd, tune_inputs
 
     def raised(cols):
         cols["q/slider_z"] = cols["q/slider_z"] + 0.3
@@ -366,7 +366,7 @@ def test_tune_warns_on_recordings_the_model_does_not_fit(round_trip, tmp_path, c
         model="planar_leg", feet=None, names=NAMES_INLINE, units="deg", resample=False,
         force_threshold=1.0,
     )  # fmt: skip
-    tune_cmd.load_logs(args)
+    tune_inputs.load_logs(args)
     err = capsys.readouterr().err
     for path in (first, second):
         assert re.search(

@@ -46,7 +46,7 @@ import math
 import sys
 import time
 
-from jax_contact.train import tune_cmd
+from jax_contact.train import tune_cmd, tune_inputs
 from jax_contact.train.env_rollouts import (
     PLAYGROUND_SKIP_S,
     RATES_SKIP_S,
@@ -353,7 +353,7 @@ def _fit(args: argparse.Namespace, recordings, robot: str) -> int:
         from jax_contact.defaults import sensor_noise_floor
 
         floor = sensor_noise_floor(core.desc, core.sensor, float(core.params.dt))
-    inputs = tune_cmd.Inputs(
+    inputs = tune_inputs.Inputs(
         train=train,
         vals=vals,
         infos=infos,
