@@ -25,6 +25,7 @@ test: $(STAMP)
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check jax_contact envs train tests benchmarks
+	$(VENV)/bin/ruff format --check jax_contact envs train tests benchmarks
 
 clean:
 	rm -rf $(VENV) out .pytest_cache
