@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING
 import mujoco
 import numpy as np
 
-from jax_contact.envs.model_files import (
+from jax_contact.envs.model_files import (  # noqa: F401  (the names load_robot takes, its error)
     MENAGERIE_NAMES,
     ROBOT_NAMES,
     RobotUnavailableError,
@@ -33,16 +33,6 @@ from jax_contact.robot import RobotDescription
 
 if TYPE_CHECKING:
     from jax_contact.envs.gaits import GaitSettings
-
-__all__ = [
-    "MENAGERIE_NAMES",
-    "ROBOT_NAMES",
-    "HeightField",
-    "Robot",
-    "RobotUnavailableError",
-    "load_robot",
-    "with_terrain",
-]
 
 
 @dataclasses.dataclass(frozen=True)
