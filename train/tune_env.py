@@ -5,7 +5,7 @@ The shipped presets were tuned on this library's robots at 400 Hz. On another en
 model of the robot, another physics step, other feet) they carry over only in part
 (docs/training.md, "A shipped preset in the wrapper"). This command tunes on the env itself:
 
-1. It wraps the env at the physics rate as :func:`jax_contact.envs.wrap_contact` does for
+1. It wraps the env at the physics rate as :func:`jax_contact.envs.wrapper.wrap_contact` does for
    training (the same feet, sensor model, pairing, ground truth; the wrapper's default
    parameters at the physics step are the starting point and the prior's centre).
 2. For each seed it rolls out a scripted policy and keeps every physics step's sensor
