@@ -802,6 +802,54 @@ def test_a_log_without_ground_truth_gives_p_contact(tmp_path, capsys):
     assert np.all((p[np.isfinite(p)] >= 0) & (p[np.isfinite(p)] <= 1))
 
 
+def test_evaluate_pools_several_logs(tmp_path, capsys):
+    """``evaluate A B C``: each log's own table, then the logs with ground truth of one
+    robot and rate pooled. Every env of every log is its own sequence, so (hand
+    derivation) the pooled counts are the sums of the logs' own and the per-step scores
+    their step-weighted means; a log without truth is named as not pooled; the bootstrap
+    resamples the pooled envs."""
+    rng = np.random.default_rng(3)
+    a = _planar_log(
+        tmp_path / "a.h5", n_t=40, n_envs=2, **{"truth/contact": rng.random((40, 2, 1)) < 0.5}
+    )
+    b = _planar_log(
+        tmp_path / "b.h5", n_t=30, n_envs=1, **{"truth/contact": rng.random((30, 1, 1)) < 0.5}
+    )
+    c = _planar_log(tmp_path / "c.h5", n_t=20, truth=False)
+    out_json = tmp_path / "pooled.json"
+    argv = ["evaluate", str(a), str(b), str(c), "--json", str(out_json), "--bootstrap", "9"]
+    assert cli.main(argv) == 0
+    out = capsys.readouterr().out
+    assert "a.h5" in out and "b.h5" in out and "2 logs pooled" in out
+    assert f"note: {str(c)!r} is not pooled: no ground truth" in out
+    got = json.loads(out_json.read_text())
+    assert [r["log"] for r in got["logs"]] == [str(a), str(b), str(c)]
+    assert got["pooled_logs"] == [str(a), str(b)] and got["not_pooled"] == {
+        str(c): "no ground truth"
+    }
+    assert got["logs"][2]["scores"] == {}
+    each = [r["scores"] for r in got["logs"][:2]]
+    assert set(got["pooled"]) == set(each[0]) == {"probabilistic", "gm", "kinematic"}
+    for row, pooled in got["pooled"].items():
+        n = [e[row]["n_steps"] for e in each]
+        assert pooled["n_steps"] == sum(n) == 2 * 40 + 30
+        for count in ("failures", "n_air_phases", "n_touchdowns", "missed", "n_liftoffs"):
+            assert pooled[count] == sum(e[row][count] for e in each), (row, count)
+        for mean in ("accuracy", "brier"):
+            want = sum(e[row][mean] * k for e, k in zip(each, n, strict=True)) / sum(n)
+            assert pooled[mean] == pytest.approx(want, abs=1e-12), (row, mean)
+    assert set(got["vs_probabilistic"]) == {"gm", "kinematic"}
+    # The same log twice would count twice; two logs of one name would draw one PNG.
+    assert cli.main(["evaluate", str(a), str(tmp_path / "." / "a.h5")]) == 2
+    assert "given twice" in capsys.readouterr().err
+    (tmp_path / "other").mkdir()
+    a2 = _planar_log(tmp_path / "other" / "a.h5")
+    assert cli.main(["evaluate", str(a), str(a2), "--plots", str(tmp_path / "plots")]) == 2
+    err = capsys.readouterr().err
+    assert "argument --plots" in err and "reliability_a.png" in err
+    assert not (tmp_path / "plots").exists()
+
+
 def test_evaluate_plots_writes_the_reliability_diagram_of_every_scored_row(tmp_path, capsys):
     """``evaluate --plots DIR`` (issue 15): one PNG, named after the log, one curve per
     detector; an unwritable folder is refused before anything runs."""

@@ -187,7 +187,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
 def _cmd_evaluate(args: argparse.Namespace) -> int:
     from jax_contact.train import log_evaluate
 
-    log_evaluate.evaluate_file(
+    log_evaluate.evaluate_files(
         args.log,
         json_path=args.json,
         gm_grid_log=args.gm_grid,
@@ -338,16 +338,30 @@ def _check_simulate(args: argparse.Namespace) -> None:
 
 
 def _check_evaluate(args: argparse.Namespace) -> None:
-    check_input_file("log", args.log)
+    seen: dict[str, str] = {}
+    for log in args.log:
+        check_input_file("log", log)
+        if (key := str(Path(log).resolve())) in seen:
+            raise ValueError(f"argument log: {log!r} is given twice (pooled, it would count twice)")
+        seen[key] = log
     check_robot("--robot", args.robot)
     check_output_file("--json", args.json)
-    check_not_an_input("--json", args.json, log=args.log, gm_grid_log=args.gm_grid)
+    logs = {f"log {log!r}": log for log in args.log}
+    check_not_an_input("--json", args.json, **logs, gm_grid_log=args.gm_grid)
     if args.plots is not None:
         check_output_folder("--plots", args.plots)
-        png = Path(args.plots) / f"reliability_{Path(args.log).stem}.png"
-        check_outputs_not_folders("--plots", args.plots, [png.name])
-        if args.json is not None and Path(args.json).resolve() == png.resolve():
-            raise ValueError(f"argument --json: {args.json!r} is the file --plots draws")
+        stems: dict[str, str] = {}
+        for log in args.log:
+            if (stem := Path(log).stem) in stems:
+                raise ValueError(
+                    f"argument --plots: {stems[stem]!r} and {log!r} would both draw"
+                    f" reliability_{stem}.png; rename one"
+                )
+            stems[stem] = log
+        pngs = [Path(args.plots) / f"reliability_{stem}.png" for stem in stems]
+        check_outputs_not_folders("--plots", args.plots, [png.name for png in pngs])
+        if args.json is not None and any(Path(args.json).resolve() == p.resolve() for p in pngs):
+            raise ValueError(f"argument --json: {args.json!r} is a file --plots draws")
     if args.gm_grid:
         check_input_file("--gm-grid", args.gm_grid)
     if args.params:
@@ -500,15 +514,24 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = command(
         "evaluate",
-        "run the estimator and baselines on a saved log",
+        "run the estimator and baselines on saved logs",
         _cmd_evaluate,
         _check_evaluate,
         description="Runs the estimator, the generalized-momentum observer and a kinematic"
         " detector on a log and prints their metrics against the log's ground truth. A log"
         " without ground truth (no truth/contact) has no metrics: then the estimator's mean"
-        " P(contact) per foot is printed, and --json gets it per step and env.",
+        " P(contact) per foot is printed, and --json gets it per step and env. Given several"
+        " logs, each is evaluated as it would be alone, and the metrics of those with ground"
+        " truth of one robot and rate are pooled (every env of every log one sequence).",
     )
-    p.add_argument("log", help="an .h5 log written by `jax-contact simulate`")
+    p.add_argument(
+        "log",
+        nargs="+",
+        metavar="LOG",
+        help="an .h5 log written by `jax-contact simulate`; several: each evaluated, then"
+        " those with ground truth of one robot and rate pooled (each env of each log one"
+        " sequence)",
+    )
     p.add_argument("--json", default=None, help="write the metrics (or P(contact)) here")
     p.add_argument(
         "--plots",
@@ -545,7 +568,8 @@ def build_parser() -> argparse.ArgumentParser:
         default=0,
         metavar="N",
         help="compare every other row with the estimator by a paired bootstrap of N env"
-        " resamples: each difference called better, worse or within noise (1000 is typical)",
+        " resamples: each difference called better, worse or within noise (1000 is typical);"
+        " with several logs, of the pooled envs",
     )
     estimate_cmd.add_terrain_model_flag(p)
     estimate_cmd.add_parser(sub)

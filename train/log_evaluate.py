@@ -1,5 +1,6 @@
-"""``jax-contact evaluate`` on a log: every detector replayed on its readings and scored
-against its ground truth (the metrics of :mod:`jax_contact.metrics`).
+"""``jax-contact evaluate`` on logs: every detector replayed on each log's readings and
+scored against its ground truth (the metrics of :mod:`jax_contact.metrics`); given several
+logs, their metrics pooled too (:func:`evaluate_files`).
 """
 
 from __future__ import annotations
@@ -104,6 +105,8 @@ def evaluate_file(
     terrain_model: str | None = None,
     bootstrap: int = 0,
     plots_dir: str | Path | None = None,
+    tuned_baselines: dict | None = None,
+    legend: bool = True,
 ) -> dict:
     """Runs the estimator, GM observer and kinematic detector on a log; prints the metrics.
 
@@ -145,6 +148,10 @@ def evaluate_file(
         (:func:`jax_contact.train.calibration.reliability_diagram`, ECE in the legend) to
         ``plots_dir/reliability_<log stem>.png``; without ground truth nothing is drawn
         (a line says so).
+      tuned_baselines: :func:`tune_baselines` of ``gm_grid_log``, already computed (several
+        logs tuned on one: :func:`evaluate_files`); None tunes here when ``gm_grid_log``
+        is given.
+      legend: print the table's legend under it (:func:`evaluate_files` prints it once).
 
     Returns:
       ``log``, ``attrs``, ``scores`` (detector -> metrics; empty without ground truth),
@@ -152,7 +159,9 @@ def evaluate_file(
       ``bootstrap``),
       ``has_truth``, ``foot_names``, ``gm`` (the GM setting used), ``outputs`` (the
       replay's (T, E, L) arrays, not written to the JSON) and ``p_contact`` (foot -> (T, E)
-      nested lists) when the log has no ground truth.
+      nested lists) when the log has no ground truth; beside ``outputs``, also not in the
+      JSON: ``dt``, ``robot`` (the name it was loaded by) and, with ground truth, the
+      (T, E, L) ``truth``, ``scored`` and ``truth_known`` the scores were computed on.
 
     Raises:
       FileNotFoundError: no such file.
@@ -182,12 +191,13 @@ def evaluate_file(
     gm_name, gm = "gm", make_gm_params()
     kinematic = make_kinematic_params()
     if gm_grid_log is not None and truth is not None:
-        tuned = tune_baselines(gm_grid_log)
+        tuned = tuned_baselines or tune_baselines(gm_grid_log)
         (gm_name, gm), (kin_name, kinematic) = tuned["gm"], tuned["kinematic"]
-        print(
-            f"GM observer and kinematic detector tuned on {str(gm_grid_log)!r}: {gm_name},"
-            f" {kin_name} (best F1 of each grid)"
-        )
+        if tuned_baselines is None:
+            print(
+                f"GM observer and kinematic detector tuned on {str(gm_grid_log)!r}: {gm_name},"
+                f" {kin_name} (best F1 of each grid)"
+            )
     out = replay(
         log.robot,
         log.readings,
@@ -228,6 +238,7 @@ def evaluate_file(
             "velocity_threshold": float(kinematic.velocity_threshold),
         },
     }
+    scored = known = None
     if truth is None:
         p = np.asarray(out["probabilistic"])  # (T, E, L)
         means = "  ".join(f"{f} {np.nanmean(p[..., i]):.3f}" for i, f in enumerate(feet))
@@ -249,7 +260,7 @@ def evaluate_file(
     else:
         scored, known = scored_steps(out, truth, log.valid)
         scores = score(out, truth, scored, dt=dt, truth_known=known)
-        print(format_scores(scores, title=Path(path).name))
+        print(format_scores(scores, title=Path(path).name, legend=legend))
         if note := weaker_than_kinematic(scores):
             print(note)
         if note := bounce_note(truth, log.valid, dt):
@@ -276,8 +287,115 @@ def evaluate_file(
         written = write_json_atomic(json_path, json.loads(json.dumps(result, default=_plain)))
         if truth is not None:  # without truth the line above says where P(contact) went
             print(f"wrote {written}")
-    result["outputs"] = out  # not in the JSON: (T, E, L) arrays of every detector
+    # Not in the JSON: (T, E, L) arrays of every detector, and what pooling needs.
+    result.update(outputs=out, dt=dt, robot=log.robot.name)
+    if truth is not None:
+        result.update(truth=truth, scored=scored, truth_known=known)
     return result
+
+
+def evaluate_files(
+    paths: Sequence[str | Path],
+    *,
+    json_path: str | Path | None = None,
+    gm_grid_log: str | Path | None = None,
+    bootstrap: int = 0,
+    **options,
+) -> dict:
+    """:func:`evaluate_file` on each of ``paths``, and their metrics pooled.
+
+    One log is :func:`evaluate_file` itself (its JSON as there). With several, each log's
+    table is printed as it would be alone (``options``: ``params_path``, ``foot_names``,
+    ``robot``, ``terrain_model``, ``plots_dir``, for all of them), the GM observer and
+    kinematic detector are tuned once on ``gm_grid_log`` for all, and the logs with ground
+    truth of one robot at one period (the largest such set,
+    :func:`jax_contact.train.recording_batch.pool_groups`; at least two) are scored
+    together: every env of every log one sequence of one (T, E, L) batch, padded with
+    unscored steps to the longest log (:func:`jax_contact.train.recording_batch.
+    pooled_arrays`), so the counts (steps, failures, air phases, events) are the sums of the
+    logs' own and the per-step scores their step-weighted means. ``bootstrap`` resamples
+    the pooled envs (several logs of few envs compare where one could not); the per-log
+    tables then have no bootstrap.
+
+    Returns:
+      One log: :func:`evaluate_file`'s result. Several: ``logs`` (each one's result),
+      ``pooled`` (detector -> metrics, or None when fewer than two logs pool),
+      ``pooled_logs`` (their paths), ``not_pooled`` (path -> why), and with ``bootstrap``
+      ``vs_probabilistic`` of the pooled envs. ``json_path`` gets all of it but the arrays,
+      written once at the end.
+
+    Raises:
+      ValueError: as :func:`evaluate_file`, naming the log; a log given twice.
+    """
+    from jax_contact.train.recording_batch import pool_groups, pooled_arrays
+
+    paths = [str(p) for p in paths]
+    if len(paths) == 1:
+        return evaluate_file(
+            paths[0], json_path=json_path, gm_grid_log=gm_grid_log, bootstrap=bootstrap, **options
+        )
+    seen: dict[str, str] = {}
+    for p in paths:
+        if (key := str(Path(p).resolve())) in seen:
+            raise ValueError(f"argument log: {p!r} is given twice (pooled, it would count twice)")
+        seen[key] = p
+    tuned = None
+    if gm_grid_log is not None:
+        tuned = tune_baselines(gm_grid_log)
+        print(
+            f"GM observer and kinematic detector tuned on {str(gm_grid_log)!r}: {tuned['gm'][0]},"
+            f" {tuned['kinematic'][0]} (best F1 of each grid), for every log"
+        )
+    results = [
+        evaluate_file(p, gm_grid_log=gm_grid_log, tuned_baselines=tuned, legend=False, **options)
+        for p in paths
+    ]
+    keys = [str(i) for i in range(len(paths))]
+    dts = {k: r["dt"] if r["has_truth"] else None for k, r in zip(keys, results, strict=True)}
+    robots = [r["robot"] for r in results if r["has_truth"]]
+    robot = max(robots, key=robots.count) if robots else None  # the most logs' robot
+    for k, r in zip(keys, results, strict=True):
+        if r["has_truth"] and r["robot"] != robot:
+            dts[k] = None  # pooled with its own robot's logs only
+    pooled_keys, why = pool_groups(dts)
+    not_pooled = {}
+    for k, r in zip(keys, results, strict=True):
+        if k in pooled_keys:
+            continue
+        if not r["has_truth"]:
+            not_pooled[r["log"]] = "no ground truth"
+        elif r["robot"] != robot:
+            not_pooled[r["log"]] = f"robot {r['robot']!r}; the pooled logs' is {robot!r}"
+        else:
+            reason = why.get(k, "fewer than two logs to pool")
+            not_pooled[r["log"]] = reason.replace("recording", "log")
+    for path, reason in not_pooled.items():
+        print(f"note: {path!r} is not pooled: {reason}")
+    summary = {"pooled": None, "pooled_logs": [], "not_pooled": not_pooled}
+    if pooled_keys:
+        group = {k: results[int(k)] for k in pooled_keys}
+        outputs, truth, valid, known, dt = pooled_arrays(group)
+        from jax_contact.train.evaluate import score
+
+        pooled = score(outputs, truth, valid, dt=dt, names=list(outputs), truth_known=known)
+        summary["pooled"] = pooled
+        summary["pooled_logs"] = [g["log"] for g in group.values()]
+        print(format_scores(pooled, title=f"{len(group)} logs pooled"))
+        if bootstrap:
+            summary["vs_probabilistic"] = _vs_probabilistic(
+                outputs, pooled, truth, valid, dt, bootstrap, truth_known=known
+            )
+    else:
+        print("no pooled metrics: fewer than two logs with ground truth of one robot and rate")
+        if bootstrap:
+            print("--bootstrap: nothing pooled, so nothing to compare")
+    arrays = ("outputs", "truth", "scored", "truth_known", "dt", "robot")
+    logs = [{k: v for k, v in r.items() if k not in arrays} for r in results]
+    if json_path:
+        payload = {"logs": logs, **summary}
+        written = write_json_atomic(json_path, json.loads(json.dumps(payload, default=_plain)))
+        print(f"wrote {written}")
+    return {"logs": results, **summary}
 
 
 def bounce_note(truth, valid, dt: float) -> str | None:

@@ -185,9 +185,20 @@ def pool(scored: dict) -> dict:
     result with ground truth; periods within :data:`POOL_RATE_TOLERANCE`,
     :func:`pool_groups`) scored over their foot-steps pooled: each recording one env,
     padded with unscored steps to the longest, at the first one's period."""
-    import numpy as np
-
     from jax_contact.train.evaluate import score
+
+    outputs, truth, valid, known, dt = pooled_arrays(scored)
+    return score(outputs, truth, valid, dt=dt, names=list(outputs), truth_known=known)
+
+
+def pooled_arrays(scored: dict) -> tuple[dict, object, object, object, float]:
+    """``(outputs, truth, scored, truth_known, dt)`` of :func:`pool`: the (T, E, L) arrays
+    of every result in ``scored`` (name -> a result with ``dt``, ``scores``, ``outputs``,
+    ``truth``, ``scored``, ``truth_known``) side by side along the env axis, each padded
+    with unscored steps of unknown truth to the longest; ``outputs`` holds the detectors
+    that scored all of them. A result's envs stay its own sequences: no event crosses from
+    one into the next."""
+    import numpy as np
 
     dt = float(next(iter(scored.values()))["dt"])
     rows = [
@@ -209,7 +220,10 @@ def pool(scored: dict) -> dict:
         )
 
     outputs = {n: stacked(n, 0.0, "outputs") for n in rows}
-    truth = stacked("truth", False)
-    valid = stacked("scored", False)
-    known = stacked("truth_known", False)
-    return score(outputs, truth, valid, dt=dt, names=rows, truth_known=known)
+    return (
+        outputs,
+        stacked("truth", False),
+        stacked("scored", False),
+        stacked("truth_known", False),
+        dt,
+    )
