@@ -67,6 +67,7 @@ from jax_contact.train.cli_args import (  # noqa: F401  (COLUMNS ... SCENES: re-
     HelpFormatter,
     add_transfer_arguments,
     bootstrap_int,
+    check_distinct_files,
     check_gait_for_robot,
     check_input_file,
     check_log_size,
@@ -338,12 +339,9 @@ def _check_simulate(args: argparse.Namespace) -> None:
 
 
 def _check_evaluate(args: argparse.Namespace) -> None:
-    seen: dict[str, str] = {}
     for log in args.log:
         check_input_file("log", log)
-        if (key := str(Path(log).resolve())) in seen:
-            raise ValueError(f"argument log: {log!r} is given twice (pooled, it would count twice)")
-        seen[key] = log
+    check_distinct_files("log", args.log)
     check_robot("--robot", args.robot)
     check_output_file("--json", args.json)
     logs = {f"log {log!r}": log for log in args.log}

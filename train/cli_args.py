@@ -386,6 +386,18 @@ def check_input_file(arg: str, path: str) -> None:
         raise ValueError(f"argument {arg}: {path!r} is not a file")
 
 
+def check_distinct_files(arg: str, paths) -> None:
+    """Raises ValueError naming the first of ``paths`` that is given twice (the same file
+    under two names counts: pooled, it would count twice)."""
+    seen: set[str] = set()
+    for path in paths:
+        if (key := str(Path(path).resolve())) in seen:
+            raise ValueError(
+                f"argument {arg}: {str(path)!r} is given twice (pooled, it would count twice)"
+            )
+        seen.add(key)
+
+
 def check_params_source(arg: str, source: str) -> None:
     """Raises ValueError unless ``source`` is the name of a shipped preset
     (``jax_contact.preset_names()``) or an existing parameter file whose JSON header reads

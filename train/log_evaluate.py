@@ -327,6 +327,7 @@ def evaluate_files(
     Raises:
       ValueError: as :func:`evaluate_file`, naming the log; a log given twice.
     """
+    from jax_contact.train.cli_args import check_distinct_files
     from jax_contact.train.recording_batch import pool_groups, pooled_arrays
 
     paths = [str(p) for p in paths]
@@ -334,11 +335,7 @@ def evaluate_files(
         return evaluate_file(
             paths[0], json_path=json_path, gm_grid_log=gm_grid_log, bootstrap=bootstrap, **options
         )
-    seen: dict[str, str] = {}
-    for p in paths:
-        if (key := str(Path(p).resolve())) in seen:
-            raise ValueError(f"argument log: {p!r} is given twice (pooled, it would count twice)")
-        seen[key] = p
+    check_distinct_files("log", paths)
     tuned = None
     if gm_grid_log is not None:
         tuned = tune_baselines(gm_grid_log)
