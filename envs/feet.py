@@ -71,6 +71,7 @@ from jax_contact.robot import (
     leg_of,
     model_mass,
     sphere_foot_names,
+    split_legs,
 )
 
 _T = mujoco.mjtGeom
@@ -348,6 +349,7 @@ def describe(m: mujoco.MjModel, feet=None) -> tuple[RobotDescription, tuple[Foot
             raise ValueError(f"foot {f.name!r}: none of its leg's joints is actuated{found}")
         legs.append(tuple(dofs))
         bases.append(base)
+    legs, others = split_legs(m, legs, [f.name for f in resolved], actuated)
     if len({len(x) for x in legs}) != 1:
         per = ", ".join(f"{f.name}: {len(x)}" for f, x in zip(resolved, legs, strict=True))
         raise ValueError(f"every leg must have the same number of dofs, got {per}")
@@ -364,8 +366,8 @@ def describe(m: mujoco.MjModel, feet=None) -> tuple[RobotDescription, tuple[Foot
         foot_offsets=tuple(tuple(float(x) for x in f.point) for f in resolved),
         foot_radii=tuple(f.radius for f in resolved),
         foot_soles=tuple(f.sole for f in resolved),
-        leg_dofs=tuple(legs),
-        other_dofs=tuple(tuple(i for i in range(m.nv) if i not in leg) for leg in legs),
+        leg_dofs=legs,
+        other_dofs=others,
         base_dofs=tuple(range(start, start + n)) if n > 0 else (),
         base_body_id=int(base),
         floor_geom_ids=used or tuple(floor_ids),

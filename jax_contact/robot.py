@@ -52,7 +52,9 @@ class RobotDescription:
         the ends of its capsules (one radius), for the rolling contact point of
         :func:`jax_contact.adapter.contact_points`; empty for a sphere foot (default:
         none; :attr:`soles` has one entry per foot either way).
-      leg_dofs: per leg, the indices into ``nv`` of its joints' dofs, base side first.
+      leg_dofs: per leg, the indices into ``nv`` of its joints' dofs, base side first: the
+        joints between the foot and the base that no other foot hangs from
+        (:func:`split_legs`; a waist or spine above several feet is not in any leg).
       other_dofs: per leg, the complement of ``leg_dofs`` in ``range(nv)``, ascending.
       base_dofs: dofs of the base's own joints (6 for a free joint, 1 for the planar
         leg's rail, empty for a fixed base).
@@ -197,6 +199,49 @@ def leg_of(m: mujoco.MjModel, body: int, actuated: set[int]) -> tuple[int, list[
     return base, sorted(d for b in leg_bodies for d in _body_dofs(m, b))
 
 
+def split_legs(
+    m: mujoco.MjModel,
+    chains: Sequence[Sequence[int]],
+    labels: Sequence[str],
+    actuated: set[int],
+) -> tuple[tuple[tuple[int, ...], ...], tuple[tuple[int, ...], ...]]:
+    """Eq. 4's split of each foot's coordinates into its leg ``l`` and the rest ``b``.
+
+    ``chains`` holds, per foot, the dofs between it and the base (:func:`leg_of`). A dof on
+    the chains of several feet (a waist or a spine above two legs) carries the forces of
+    every foot below it, while eq. 6 explains the leg's torques by its own foot's force
+    alone: such a dof counts with the base, in every foot's ``b``. Robots whose legs meet
+    only at the base (every shipped robot) keep their whole chains.
+
+    Returns:
+      ``(leg_dofs, other_dofs)`` as :class:`RobotDescription` holds them.
+
+    Raises:
+      ValueError: a foot with no actuated joint of its own (two feet on one body or one
+        chain: name them as one foot), naming the feet that share its joints.
+    """
+    uses: dict[int, int] = {}
+    for chain in chains:
+        for d in set(chain):
+            uses[d] = uses.get(d, 0) + 1
+    legs = tuple(tuple(d for d in chain if uses[d] == 1) for chain in chains)
+    for leg, chain, label in zip(legs, chains, labels, strict=True):
+        if not actuated.intersection(leg):
+            sharing = [
+                other
+                for other, c in zip(labels, chains, strict=True)
+                if other != label and set(c) & set(chain)
+            ]
+            joints = [m.joint(int(m.dof_jntid[d])).name or f"<dof {d}>" for d in chain]
+            raise ValueError(
+                f"foot {label!r} has no actuated joint of its own: its joints {joints} are"
+                f" shared with foot(s) {sharing}, whose forces they also carry; feet on one"
+                " body or one chain are one foot (name their body, or one of them)"
+            )
+    others = tuple(tuple(d for d in range(m.nv) if d not in leg) for leg in legs)
+    return legs, others
+
+
 def _distal(spheres: list[int], m: mujoco.MjModel) -> list[int]:
     """The distal sphere of each joint chain among ``spheres``, in geom order."""
     bodies = {int(m.geom_bodyid[g]) for g in spheres}
@@ -310,6 +355,7 @@ def derive_description(
             )
         legs.append(tuple(dofs))
         bases.append(base)
+    legs, others = split_legs(m, legs, [_geom_label(m, g) for g in feet], actuated)
 
     if len({len(d) for d in legs}) != 1:
         raise ValueError(
@@ -331,8 +377,8 @@ def derive_description(
         foot_geom_ids=tuple(int(g) for g in feet),
         foot_offsets=tuple(tuple(float(x) for x in m.geom_pos[g]) for g in feet),
         foot_radii=tuple(float(m.geom_size[g, 0]) for g in feet),
-        leg_dofs=tuple(legs),
-        other_dofs=tuple(tuple(d for d in range(m.nv) if d not in leg) for leg in legs),
+        leg_dofs=legs,
+        other_dofs=others,
         base_dofs=tuple(_body_dofs(m, base)),
         base_body_id=int(base),
         floor_geom_ids=used_floors,

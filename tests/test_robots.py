@@ -249,6 +249,105 @@ def test_fixed_base_leg_force_is_the_floors():
             assert float(llr) < 0.0
 
 
+WAIST_BIPED_XML = Path(__file__).parent / "fixtures" / "waist_biped.xml"
+
+
+def _waist_forces(target, desc=None):
+    """The waist biped held at joint ``target`` (waist, left hip, knee, right hip, knee)
+    for 2 s by its position servos (settled); returns ``(feet, {foot: (eq. 6's force the
+    foot exerts on the ground, N; the dynamics term's log-odds)})``, feet as MuJoCo's C
+    library resolves the floor's force on them (``mj_contactForce``, world frame, N).
+    ``desc``: a description of the model other than its own."""
+    import jax.numpy as jnp
+
+    from jax_contact import adapter
+    from jax_contact.measurement import dynamics_llr
+    from jax_contact.train.log_estimator import default_estimator
+
+    m = mujoco.MjModel.from_xml_path(str(WAIST_BIPED_XML))
+    d = mujoco.MjData(m)
+    desc = desc or derive_description(m)
+    d.qpos[:] = target
+    d.ctrl[:] = target
+    for _ in range(800):
+        mujoco.mj_step(m, d)
+    assert np.abs(d.qvel).max() < 1e-3  # settled
+    feet = {}
+    for i in range(d.ncon):
+        c = np.zeros(6)
+        mujoco.mj_contactForce(m, d, i, c)
+        name = m.geom(d.contact[i].geom2).name
+        feet[name] = feet.get(name, 0.0) + d.contact[i].frame.reshape(3, 3).T @ c[:3]
+    params, _ = default_estimator(desc, 0.0025, mj_model=m)
+    mx = mjx.put_model(m)
+    dx = adapter.prepare(mx, mjx.put_data(m, d))
+    meas = adapter.robot_measurement(
+        mx, dx, desc, qdd=jnp.asarray(d.qacc), tau=jnp.asarray(d.qfrc_actuator)
+    )
+    normal = jnp.array([0.0, 0.0, 1.0])
+    est = {}
+    for leg, foot in enumerate(desc.foot_names):
+        llr, force = dynamics_llr(params, meas.leg(leg), normal)
+        est[foot] = (np.asarray(force), float(llr))
+    return feet, est
+
+
+def test_a_waist_above_both_legs_belongs_to_neither():
+    """A joint on the chains of two feet (tests/fixtures/waist_biped.xml: a pitching waist
+    above two 2-joint legs) carries both feet's forces, while eq. 6 explains a leg's
+    torques by its own foot's alone: it counts with the base, in each foot's ``b``
+    (jax_contact.robot.split_legs), for the log commands' and the wrapper's descriptions.
+    Against MuJoCo's C library (mj_contactForce), settled, measured on this host:
+
+    - both feet pressed (each 62.9 N): eq. 6's force is the floor's to 0.05 N; with the
+      waist in both legs (the rule before), 5.7 N off: the waist's torque holds both
+      feet's moment about it, and each leg's fit takes it for its own;
+    - the left foot pressed, the right one lifted: the lifted foot's force is 0 and its
+      dynamics term says air (log-odds -0.82); with the waist in its leg the waist's
+      torque, the left foot's moment, reads as a push under the right foot (-0.13).
+    """
+    import dataclasses
+
+    m = mujoco.MjModel.from_xml_path(str(WAIST_BIPED_XML))
+    from jax_contact.envs.feet import describe
+
+    for desc in (derive_description(m), describe(m)[0]):
+        # dofs: waist 0, left hip 1, knee 2, right hip 3, knee 4
+        assert desc.leg_dofs == ((1, 2), (3, 4)), desc.leg_dofs
+        assert desc.other_dofs == ((0, 3, 4), (0, 1, 2))
+    shared = dataclasses.replace(
+        derive_description(m), leg_dofs=((0, 1, 2), (0, 3, 4)), other_dofs=((3, 4), (1, 2))
+    )
+    pressed, lifted = (0.3, -0.45), (0.5, -1.6)  # the fixed-leg test's two holds
+    both = (0.0, *pressed, *pressed)
+    feet, own = _waist_forces(both)
+    _, old = _waist_forces(both, shared)
+    for foot in ("l_foot", "r_foot"):
+        assert feet[foot][2] > 30.0
+        # The force the foot exerts on the ground is minus the floor's on the foot.
+        np.testing.assert_allclose(own[foot][0][[0, 2]], -feet[foot][[0, 2]], atol=0.5)
+        assert np.abs(old[foot][0][[0, 2]] + feet[foot][[0, 2]]).max() > 3.0
+    one = (0.0, *pressed, *lifted)
+    feet, own = _waist_forces(one)
+    _, old = _waist_forces(one, shared)
+    assert set(feet) == {"l_foot"} and feet["l_foot"][2] > 30.0
+    np.testing.assert_allclose(own["l_foot"][0][[0, 2]], -feet["l_foot"][[0, 2]], atol=0.5)
+    np.testing.assert_allclose(own["r_foot"][0], 0.0, atol=0.1)
+    assert own["r_foot"][1] < -0.5  # the lifted foot reads as air
+    assert old["r_foot"][1] > own["r_foot"][1] + 0.4  # the waist's load read as its push
+
+
+def test_two_feet_on_one_leg_are_refused():
+    """Two feet that share every joint (a toe and a heel sphere on one shin, named as two
+    feet) have no joint of their own to resolve either force: refused, naming both."""
+    toe = '<geom name="toe" type="sphere" pos="0.03 0 -0.2" size="0.02" mass="0.01"/>'
+    foot = '<geom name="foot" type="sphere" pos="0 0 -0.2" size="0.02" mass="0.05"/>'
+    text = FIXED_LEG_XML.read_text()
+    m = mujoco.MjModel.from_xml_string(text.replace(foot, foot + toe))
+    with pytest.raises(ValueError, match="foot 'foot' has no actuated joint of its own.*'toe'"):
+        derive_description(m, foot_names=("foot", "toe"))
+
+
 def test_robot_mass_leaves_static_scenery_out(tmp_path):
     """model_mass counts the bodies that move: the fixed leg's hip 0.8 kg, shin 0.3 kg and
     foot 0.05 kg = 1.15 kg (the fixture's masses). A 300 kg staircase body welded to the
