@@ -41,7 +41,8 @@ class GaitRobot:
       link_rot: (n_legs, n_chain, 3, 3) its orientation in its parent.
       joint_pos: (n_legs, n_chain, 3) the body's hinge anchor in the body frame, m.
       joint_axis: (n_legs, n_chain, 3) the hinge axis in the body frame (unit).
-      joint_slot: (n_legs, n_chain) int32, which of the leg's joints the hinge is (-1: none).
+      joint_slot: (n_legs, n_chain) int32, which of the leg's joints the hinge is (-1: none,
+        or a joint above several feet, folded into the link at its standing angle).
       foot_offset: (n_legs, 3) foot sphere centre in the last chain body, m.
       leg_qpos: (n_legs, n_l) int32 ``qpos`` index of each leg joint.
       leg_dof: (n_legs, n_l) int32 ``qvel`` index of each leg joint.
@@ -59,6 +60,10 @@ class GaitRobot:
       act_gain, act_bias0, act_bias1, act_bias2, act_gear: (nu,) affine actuator law
         ``force = gain ctrl + b0 + b1 gear q + b2 gear qd``, joint torque ``gear force``.
       ctrl_low, ctrl_high: (nu,) control range (+-inf where not limited).
+      held_qpos, held_dof: (k,) int32 ``qpos`` / ``qvel`` index of each joint above several
+        feet (a waist, a spine: in no leg, :func:`jax_contact.robot.split_legs`), which the
+        controller holds at its standing angle ``held_home`` (k,), rad, with ``kp``, ``kd``;
+        k = 0 for robots whose legs meet only at the base.
       floating_base: static, whether ``qpos[0:7]`` is a free joint.
       nu: static, number of actuators.
     """
@@ -90,6 +95,9 @@ class GaitRobot:
     act_gear: jax.Array
     ctrl_low: jax.Array
     ctrl_high: jax.Array
+    held_qpos: jax.Array
+    held_dof: jax.Array
+    held_home: jax.Array
     floating_base: bool = struct.field(pytree_node=False, default=True)
     nu: int = struct.field(pytree_node=False, default=12)
 
@@ -164,6 +172,7 @@ def make_gait_robot(
     leg_dof = np.zeros((n_legs, n_l), dtype=np.int32)
     q_low = np.full((n_legs, n_l), -np.inf)
     q_high = np.full((n_legs, n_l), np.inf)
+    held: dict[int, tuple[int, float]] = {}  # dof -> (qpos index, standing angle)
     for i, chain in enumerate(chains):
         # Pad at the front: identity links before the first real body change nothing.
         pad = n_chain - len(chain)
@@ -179,6 +188,17 @@ def make_gait_robot(
             j = joints[0]
             if int(m.jnt_type[j]) != int(mujoco.mjtJoint.mjJNT_HINGE):
                 raise ValueError(f"leg joint {m.joint(j).name!r} is not a hinge")
+            if int(m.jnt_dofadr[j]) not in desc.leg_dofs[i]:
+                # Above several feet (a waist): a fixed link at its standing angle, held there.
+                angle = float(home[m.jnt_qposadr[j]])
+                quat = np.zeros(4)
+                mujoco.mju_axisAngle2Quat(quat, np.asarray(m.jnt_axis[j], np.float64), angle)
+                r_j = _quat_to_mat_np(quat)
+                a = np.asarray(m.jnt_pos[j], dtype=np.float64)
+                link_pos[i, kk] = link_pos[i, kk] + link_rot[i, kk] @ (a - r_j @ a)
+                link_rot[i, kk] = link_rot[i, kk] @ r_j
+                held[int(m.jnt_dofadr[j])] = (int(m.jnt_qposadr[j]), angle)
+                continue
             slot = desc.leg_dofs[i].index(int(m.jnt_dofadr[j]))
             joint_pos[i, kk] = m.jnt_pos[j]
             joint_axis[i, kk] = m.jnt_axis[j]
@@ -244,6 +264,9 @@ def make_gait_robot(
         act_gear=f32(m.actuator_gear[:, 0]),
         ctrl_low=f32(ctrl_low),
         ctrl_high=f32(ctrl_high),
+        held_qpos=jnp.asarray([q for q, _ in held.values()], dtype=jnp.int32),
+        held_dof=jnp.asarray(list(held), dtype=jnp.int32),
+        held_home=f32([angle for _, angle in held.values()]),
         floating_base=floating,
         nu=nu,
     )

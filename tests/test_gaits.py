@@ -400,3 +400,44 @@ def test_torque_motor_gains_are_derived_from_the_weight():
     h = d.xpos[b, 2] - d.geom_xpos[g, 2] + robot.description.foot_radii[0]
     kp = 7.0 * float(m.body_mass.sum()) * 9.81 * h
     np.testing.assert_allclose([s.kp, s.kd], [kp, 0.025 * kp], rtol=1e-9)
+
+
+def test_a_waist_above_both_legs_is_a_fixed_link_held_at_its_standing_angle():
+    """A joint above several feet is in no leg (jax_contact.robot.split_legs), so the
+    scripted gaits do not solve for it: its link is fixed at the standing angle in the
+    legs' kinematics, and the controller holds it there. On tests/fixtures/waist_biped.xml
+    standing with the waist pitched 0.2 rad: leg_fk at the standing joint angles is where
+    MuJoCo puts each foot (base frame, float32 round-off), and with the waist 0.1 rad past
+    its standing angle, at rest, the waist's servo applies kp (-0.1) N m (the actuator
+    force C MuJoCo computes from the controller's ctrl)."""
+    from pathlib import Path
+
+    path = Path(__file__).parent / "fixtures" / "waist_biped.xml"
+    home = (0.2, 0.3, -0.45, 0.5, -1.6)
+    kp, kd = 20.0, 1.0
+    robot = load_robot(str(path), gait=GaitSettings(home_qpos=home, base_height=0.45, kp=kp, kd=kd))
+    gr = make_gait_robot(robot)
+    m = robot.mj_model
+    assert np.asarray(gr.held_dof).tolist() == [0] and float(gr.held_home[0]) == pytest.approx(0.2)
+    d = mujoco.MjData(m)
+    d.qpos[:] = home
+    mujoco.mj_kinematics(m, d)
+    base = robot.description.base_body_id
+    rot, pos = d.xmat[base].reshape(3, 3), d.xpos[base]
+    for leg, foot in enumerate(robot.description.foot_names):
+        want = rot.T @ (d.geom_xpos[m.geom(foot).id] - pos)
+        q_leg = np.asarray(home)[list(np.asarray(gr.leg_qpos[leg]))]
+        np.testing.assert_allclose(leg_fk(gr, leg, jnp.asarray(q_leg)), want, atol=2e-6)
+    d.qpos[:] = (0.3, *home[1:])
+    d.qvel[:] = 0.0
+    gait = make_gait("trot")
+    d.ctrl[:] = np.asarray(
+        gait_control(
+            gait,
+            gr,
+            jnp.float32(0.0),
+            types.SimpleNamespace(qpos=jnp.asarray(d.qpos), qvel=jnp.asarray(d.qvel)),
+        )
+    )
+    mujoco.mj_forward(m, d)
+    assert d.actuator_force[0] == pytest.approx(kp * -0.1, rel=1e-4)
