@@ -12,6 +12,8 @@ Reading a header needs no JAX (:func:`read_params_file`: the command line checks
 
 from __future__ import annotations
 
+import dataclasses
+import hashlib
 import json
 import os
 import re
@@ -147,21 +149,45 @@ def check_params_header(payload, source: str) -> None:
         )
 
 
-def read_params_file(path) -> tuple[dict, str]:
-    """``(payload, description for errors)`` of a parameter file or preset name, its
-    header checked (:func:`check_params_header`); no JAX is imported.
+@dataclasses.dataclass(frozen=True)
+class ParamsRead:
+    """A parameter file or preset as read, once.
+
+    Attributes:
+      payload: the JSON payload, its header checked (:func:`check_params_header`).
+      source: how errors and warnings name it (``"preset 'go1'"``, ``"parameter file
+        '...'"``).
+      record: what a run records of it: ``source`` (``"preset"`` with its ``name``, or
+        ``"file"`` with its resolved ``path``) and the ``sha256`` of the bytes read.
+    """
+
+    payload: dict
+    source: str
+    record: dict
+
+
+def read_params(path) -> ParamsRead:
+    """A parameter file or preset name, read once (:class:`ParamsRead`); no JAX is
+    imported. A run that records which file it ran hashes the bytes it parsed, not a later
+    read of a file that may have been replaced since.
 
     Raises:
       ValueError: the file is missing (or the name is no preset), not JSON, or its header
         is wrong (named).
     """
-    text, source = _params_text(path)
+    raw, source, where = _params_bytes(path)
     try:
-        payload = json.loads(text)
+        payload = json.loads(raw.decode("utf-8"))
     except (json.JSONDecodeError, UnicodeDecodeError) as err:
         raise ValueError(f"{source} is not JSON: {err}") from None
     check_params_header(payload, source)
-    return payload, source
+    return ParamsRead(payload, source, {**where, "sha256": hashlib.sha256(raw).hexdigest()})
+
+
+def read_params_file(path) -> tuple[dict, str]:
+    """``(payload, description for errors)`` of :func:`read_params`."""
+    read = read_params(path)
+    return read.payload, read.source
 
 
 def params_from_dict(payload: Mapping, *, source: str = "params"):
@@ -263,6 +289,7 @@ def load_params_for(
     with_provenance: bool = False,
     robot: str | None = None,
     groups: dict | None = None,
+    read: ParamsRead | None = None,
 ):
     """:func:`load_params` of a file or preset, checked against the robot and the period
     it will run at.
@@ -298,6 +325,8 @@ def load_params_for(
       derive: optional ``dt -> EstimatorParams``, the caller's derived parameters.
       mass_kg: optional, the robot's total mass, kg.
       with_provenance: also return the file's ``provenance`` dict (one read of the file).
+      read: ``path`` as :func:`read_params` read it already (a caller that records the
+        file's hash parses the same bytes); None reads it here.
 
     Returns:
       The parameters at ``dt``, or ``(params, provenance)``.
@@ -309,8 +338,10 @@ def load_params_for(
 
     import jax.numpy as jnp
 
-    params, provenance = load_params(path, with_provenance=True)
-    what = f"preset {path!r}" if preset_file(path) is not None else f"parameter file {str(path)!r}"
+    read = read or read_params(path)
+    params = params_from_dict(read.payload, source=read.source)
+    provenance = dict(read.payload.get("provenance") or {})
+    what = read.source
     if params.nv != nv:
         raise ValueError(f"{what} is for nv = {params.nv}; the robot has nv = {nv}")
     file_mass, file_robot = provenance.get("robot_mass_kg"), provenance.get("robot")
@@ -377,15 +408,16 @@ def _robot_name(x) -> bool:
     return isinstance(x, str) and re.fullmatch(r"[A-Za-z0-9_\-]+", x) is not None
 
 
-def _params_text(path) -> tuple[str, str]:
-    """(text, description for errors) of a parameter file or a preset name."""
+def _params_bytes(path) -> tuple[bytes, str, dict]:
+    """(bytes, description for errors, where they came from) of a parameter file or a
+    preset name: the one read of :func:`read_params`."""
     if not isinstance(path, str | os.PathLike):
         raise ValueError(f"a parameter file is a path or a preset name, got {type(path).__name__}")
     if str(path).strip() == "":
         raise ValueError("a parameter file is a path or a preset name, got an empty string")
     ref = preset_file(path)
     if ref is not None:
-        return ref.read_text(), f"preset {path!r}"
+        return ref.read_bytes(), f"preset {path!r}", {"source": "preset", "name": str(path)}
     p = Path(path)
     if isinstance(path, str) and p.suffix == "" and len(p.parts) == 1 and not p.is_file():
         raise ValueError(
@@ -393,10 +425,9 @@ def _params_text(path) -> tuple[str, str]:
             f" {', '.join(preset_names()) or 'none'})"
         )
     try:
-        return p.read_text(), f"parameter file {str(p)!r}"
+        raw = p.read_bytes()
     except FileNotFoundError:
         raise ValueError(f"parameter file {str(p)!r} does not exist") from None
     except IsADirectoryError:
         raise ValueError(f"parameter file {str(p)!r} is a folder") from None
-    except UnicodeDecodeError as err:
-        raise ValueError(f"parameter file {str(p)!r} is not JSON: {err}") from None
+    return raw, f"parameter file {str(p)!r}", {"source": "file", "path": str(p.resolve())}

@@ -1387,18 +1387,32 @@ def test_a_params_file_runs_on_the_terrain_model_it_was_tuned_with(tmp_path, mon
             log_evaluate.evaluate_file(LOG, params_path=tmp_path / path, terrain_model=model)
     assert seen == ["FootholdMemory", "FlatTerrain", "FlatTerrain"]
 
-    # Parameters, terrain model and calibration map come from one read of the file.
+    # Parameters, terrain model, calibration map and the recorded hash come from one read
+    # of the file: here the file is replaced as soon as it is read (another run writing
+    # it), and the record still names the bytes that were parsed (it hashed a second
+    # read before the forty-sixth session).
     import jax_contact.params_file as jc_io
 
     reads = []
-    text = jc_io._params_text
-    monkeypatch.setattr(jc_io, "_params_text", lambda p: reads.append(p) or text(p))
-    got, model, terrain, calibration = log_estimator.estimator_for(
+    read_bytes = jc_io._params_bytes
+    original = (tmp_path / "mem.json").read_bytes()
+
+    def read_then_replace(p):
+        reads.append(p)
+        out = read_bytes(p)
+        Path(p).write_text((tmp_path / "old.json").read_text())
+        return out
+
+    monkeypatch.setattr(jc_io, "_params_bytes", read_then_replace)
+    got, model, terrain, calibration, record = log_estimator.estimator_for(
         desc, 0.0025, tmp_path / "mem.json", None
     )
     assert (model, type(terrain).__name__, calibration) == ("memory", "FootholdMemory", None)
     assert len(reads) == 1
     assert float(got.stance_time) == float(params.stance_time)
+    assert record["source"] == "file" and record["path"] == str((tmp_path / "mem.json").resolve())
+    assert record["sha256"] == hashlib.sha256(original).hexdigest()
+    assert record["file_provenance"] == json.loads(original)["provenance"]
 
 
 def test_estimate_reports_p_through_the_files_calibration_map(round_trip, tmp_path, capsys):

@@ -323,7 +323,7 @@ def test_save_params_into_a_folder_names_it_and_writes_nothing(go1, tmp_path):
 def test_a_calibration_map_without_its_temperature_is_named(tmp_path):
     from jax_contact.calibration import load_calibration
 
-    payload = json.loads(jc.params_file._params_text("go1")[0])
+    payload = dict(jc.params_file.read_params("go1").payload)
     payload["provenance"]["calibration"] = {"kind": "sign", "temperature_air": 2.0}
     path = tmp_path / "cal.json"
     path.write_text(json.dumps(payload))

@@ -217,7 +217,7 @@ def export_to_file(
     from jax_contact import export
     from jax_contact.envs.robots import load_robot
     from jax_contact.robot import model_mass
-    from jax_contact.train.log_estimator import estimator_for, params_file_provenance
+    from jax_contact.train.log_estimator import estimator_for
 
     try:
         loaded = load_robot(robot, foot_names=feet)
@@ -229,7 +229,7 @@ def export_to_file(
     desc = loaded.description
     dt = 1.0 / float(rate_hz)
     try:
-        params, _, terrain, calibration = estimator_for(
+        params, _, terrain, calibration, params_record = estimator_for(
             desc,
             dt,
             params_path,
@@ -243,10 +243,7 @@ def export_to_file(
         if params_path is None:
             raise
         raise ValueError(f"argument --params: {err}") from None
-    if params_path is None:
-        provenance = {**DEFAULTS_PROVENANCE, "dt": dt}
-    else:
-        provenance = params_file_provenance(params_path)
+    provenance = params_record or {**DEFAULTS_PROVENANCE, "dt": dt}
     source = robot if robot in _robot_names() else str(Path(robot).resolve())
     header, payload = export.export_robot(
         loaded.mj_model,

@@ -8,8 +8,7 @@ in every command (the one source of parameters: :func:`jax_contact.params_for`).
 
 from __future__ import annotations
 
-import json
-from pathlib import Path
+from typing import NamedTuple
 
 # The estimator's terrain model for logs (``--terrain-model``): ``flat``, a plane at z = 0 of
 # the log's world frame; ``memory``, the height where each foot last stood (its stance
@@ -124,25 +123,24 @@ def resolve_terrain_model(
     return "flat"
 
 
-def params_file_provenance(params_path: str | Path) -> dict:
-    """Where a parameter file or shipped preset came from (its resolved path, or the
-    preset's name), its SHA-256 and its own ``provenance``: what ``evaluate --json`` and
-    ``export`` record of the ``--params`` they ran."""
-    import hashlib
+def params_record(read) -> dict:
+    """What ``evaluate --json`` and ``export`` record of the ``--params`` they ran: where
+    the parameter file or shipped preset came from (its resolved path, or the preset's
+    name), the SHA-256 of the bytes that were parsed, and the file's own ``provenance``
+    (``read``: :func:`jax_contact.params_file.read_params`)."""
+    return {**read.record, "file_provenance": read.payload.get("provenance", {})}
 
-    from jax_contact._presets import preset_file
 
-    if (ref := preset_file(str(params_path))) is not None:
-        raw = ref.read_bytes()
-        where = {"source": "preset", "name": str(params_path)}
-    else:
-        raw = Path(params_path).read_bytes()
-        where = {"source": "file", "path": str(Path(params_path).resolve())}
-    return {
-        **where,
-        "sha256": hashlib.sha256(raw).hexdigest(),
-        "file_provenance": json.loads(raw).get("provenance", {}),
-    }
+class EstimatorSetup(NamedTuple):
+    """What :func:`estimator_for` gives: ``params``, the ``terrain_model`` name and its
+    ``terrain``, the file's ``calibration`` map (None without one) and ``params_record``
+    (:func:`params_record` of the file read, None for the defaults)."""
+
+    params: object
+    terrain_model: str
+    terrain: object
+    calibration: object
+    params_record: dict | None
 
 
 def estimator_for(
@@ -156,29 +154,32 @@ def estimator_for(
     period: str = "the log's",
     robot: str | None = None,
 ):
-    """(params, terrain model, terrain, calibration map or None) of ``evaluate`` and
-    ``estimate``: the defaults (:func:`default_estimator`) or ``params_path`` checked
-    against the robot (``robot``: the name it was loaded by) and period, with the file's
-    calibration map, on the terrain model
-    given, else the file's own (:func:`resolve_terrain_model`), which is then printed.
-    The file is read once; ``period`` names ``dt`` in the warning of a file of another
+    """The :class:`EstimatorSetup` of ``evaluate``, ``estimate`` and ``export``: the
+    defaults (:func:`default_estimator`) or ``params_path`` checked against the robot
+    (``robot``: the name it was loaded by) and period, with the file's calibration map, on
+    the terrain model given, else the file's own (:func:`resolve_terrain_model`), which
+    is then printed. The file is read once: its parameters, map and recorded hash come
+    from the same bytes. ``period`` names ``dt`` in the warning of a file of another
     period (e.g. ``"the export's"``)."""
     from jax_contact.calibration import file_calibration
+    from jax_contact.params_file import read_params
 
-    provenance, calibration = None, None
+    provenance, calibration, record = None, None, None
     if params_path is not None:
+        read = read_params(params_path)
         file_params, provenance = load_params_for(
             params_path, desc, dt, mass_kg, with_provenance=True, mj_model=mj_model,
-            period=period, robot=robot,
+            period=period, robot=robot, read=read,
         )  # fmt: skip
         calibration = file_calibration(provenance, params_path)
+        record = params_record(read)
     model = resolve_terrain_model(terrain_model, params_path, provenance)
     if terrain_model is None and model != "flat":
         print(f"terrain model {model!r}: the one {str(params_path)!r} was tuned with")
     params, terrain = default_estimator(desc, dt, model, mj_model=mj_model)
     if params_path is not None:
         params = file_params
-    return params, model, terrain, calibration
+    return EstimatorSetup(params, model, terrain, calibration, record)
 
 
 def load_params_for(
@@ -191,11 +192,13 @@ def load_params_for(
     mj_model=None,
     period="the log's",
     robot=None,
+    read=None,
 ):
     """A params file, checked against the robot (its ``nv`` and, given, its mass and the
     name it was loaded by, ``robot``) and the log's period
-    (:func:`jax_contact.params_file.load_params_for`; ``with_provenance`` as there; ``mj_model`` as
-    :func:`default_estimator`'s, whose values move the file's period)."""
+    (:func:`jax_contact.params_file.load_params_for`; ``with_provenance`` and ``read`` as
+    there; ``mj_model`` as :func:`default_estimator`'s, whose values move the file's
+    period)."""
     from jax_contact.params_file import load_params_for as load
     from jax_contact.tune.space import robot_space
 
@@ -210,4 +213,5 @@ def load_params_for(
         period=period,
         robot=robot,
         groups=robot_space(desc).named_groups(),
+        read=read,
     )

@@ -14,7 +14,7 @@ import numpy as np
 from jax_contact.io import write_json_atomic
 from jax_contact.metrics import bounce_counts, bounce_steps
 from jax_contact.robot import model_mass
-from jax_contact.train.log_estimator import default_estimator, estimator_for, params_file_provenance
+from jax_contact.train.log_estimator import default_estimator, estimator_for
 from jax_contact.train.logs import TRUTH_CONTACT, load_log
 from jax_contact.train.report import format_scores
 
@@ -175,7 +175,7 @@ def evaluate_file(
     log = load_log(path, foot_names=foot_names, robot=robot)
     name, truth, desc, dt = log.name, log.truth, log.robot.description, log.dt
     mass = model_mass(log.robot.mj_model)
-    params, terrain_model, terrain, calibration = estimator_for(
+    params, terrain_model, terrain, calibration, params_record = estimator_for(
         desc, dt, params_path, terrain_model, mass, mj_model=log.robot.mj_model,
         robot=log.robot.name,
     )  # fmt: skip
@@ -225,9 +225,7 @@ def evaluate_file(
         )
     result = {
         "log": str(path),
-        "params": {"source": "defaults"}
-        if params_path is None
-        else params_file_provenance(params_path),
+        "params": params_record or {"source": "defaults"},
         "terrain_model": terrain_model,
         "attrs": log.attrs,
         "has_truth": truth is not None,

@@ -95,7 +95,7 @@ def estimate_recording(
         rec, robot, names=names, units=units, resample=resample, force_threshold=force_threshold
     )
     desc = robot.description
-    params, terrain_model, terrain, calibration = estimator_for(
+    params, terrain_model, terrain, calibration, _ = estimator_for(
         desc, conv.dt, params_path, terrain_model, model_mass(robot.mj_model),
         mj_model=robot.mj_model, robot=robot.name,
     )  # fmt: skip
