@@ -62,8 +62,12 @@ class GaitRobot:
       ctrl_low, ctrl_high: (nu,) control range (+-inf where not limited).
       held_qpos, held_dof: (k,) int32 ``qpos`` / ``qvel`` index of each joint above several
         feet (a waist, a spine: in no leg, :func:`jax_contact.robot.split_legs`), which the
-        controller holds at its standing angle ``held_home`` (k,), rad, with ``kp``, ``kd``;
-        k = 0 for robots whose legs meet only at the base.
+        controller holds at its standing angle ``held_home`` (k,), rad; k = 0 for robots
+        whose legs meet only at the base.
+      held_kp, held_kd: (k,) their PD gains: a position servo's own stiffness (the servo
+        holds the joint as its designer tuned it; damping in the legs' ratio ``kd / kp``),
+        else ``kp``, ``kd`` times the number of feet below the joint (it carries their
+        loads).
       floating_base: static, whether ``qpos[0:7]`` is a free joint.
       nu: static, number of actuators.
     """
@@ -98,6 +102,8 @@ class GaitRobot:
     held_qpos: jax.Array
     held_dof: jax.Array
     held_home: jax.Array
+    held_kp: jax.Array
+    held_kd: jax.Array
     floating_base: bool = struct.field(pytree_node=False, default=True)
     nu: int = struct.field(pytree_node=False, default=12)
 
@@ -173,6 +179,7 @@ def make_gait_robot(
     q_low = np.full((n_legs, n_l), -np.inf)
     q_high = np.full((n_legs, n_l), np.inf)
     held: dict[int, tuple[int, float]] = {}  # dof -> (qpos index, standing angle)
+    below: dict[int, int] = {}  # held dof -> number of feet whose chain it is on
     for i, chain in enumerate(chains):
         # Pad at the front: identity links before the first real body change nothing.
         pad = n_chain - len(chain)
@@ -198,6 +205,7 @@ def make_gait_robot(
                 link_pos[i, kk] = link_pos[i, kk] + link_rot[i, kk] @ (a - r_j @ a)
                 link_rot[i, kk] = link_rot[i, kk] @ r_j
                 held[int(m.jnt_dofadr[j])] = (int(m.jnt_qposadr[j]), angle)
+                below[int(m.jnt_dofadr[j])] = below.get(int(m.jnt_dofadr[j]), 0) + 1
                 continue
             slot = desc.leg_dofs[i].index(int(m.jnt_dofadr[j]))
             joint_pos[i, kk] = m.jnt_pos[j]
@@ -235,6 +243,17 @@ def make_gait_robot(
     ctrl_low = np.where(limited, m.actuator_ctrlrange[:, 0], -np.inf)
     ctrl_high = np.where(limited, m.actuator_ctrlrange[:, 1], np.inf)
 
+    held_kp, held_kd = [], []
+    for dof in held:
+        servo = [a for a in range(nu) if act_dof[a] == dof and bias[a, 1] < 0]
+        if servo:
+            gear2 = float(m.actuator_gear[servo[0], 0]) ** 2
+            held_kp.append(-bias[servo[0], 1] * gear2)
+            held_kd.append(held_kp[-1] * kd / kp)
+        else:
+            held_kp.append(kp * below[dof])
+            held_kd.append(kd * below[dof])
+
     f32 = lambda x: jnp.asarray(x, dtype=jnp.float32)  # noqa: E731
     return GaitRobot(
         link_pos=f32(link_pos),
@@ -267,6 +286,8 @@ def make_gait_robot(
         held_qpos=jnp.asarray([q for q, _ in held.values()], dtype=jnp.int32),
         held_dof=jnp.asarray(list(held), dtype=jnp.int32),
         held_home=f32([angle for _, angle in held.values()]),
+        held_kp=f32(held_kp),
+        held_kd=f32(held_kd),
         floating_base=floating,
         nu=nu,
     )

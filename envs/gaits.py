@@ -409,7 +409,8 @@ def gait_control(gait: GaitParams, robot: GaitRobot, t: jax.Array, data: mjx.Dat
     tau_legs = jax.vmap(leg_torque)(legs, targets, target_vel, force_b)
     tau = jnp.zeros(qvel.shape[0]).at[robot.leg_dof].set(tau_legs)
     # A joint above several feet (a waist, a spine) is in no leg: held where it stands.
-    held = robot.kp * (robot.held_home - qpos[robot.held_qpos]) - robot.kd * qvel[robot.held_dof]
+    held_q, held_qd = qpos[robot.held_qpos], qvel[robot.held_dof]
+    held = robot.held_kp * (robot.held_home - held_q) - robot.held_kd * held_qd
     tau = tau.at[robot.held_dof].set(held)
 
     return torque_to_ctrl(robot, tau, qpos, qvel)

@@ -41,7 +41,7 @@ from jax_contact.envs.model_files import check_mjx_collisions
 from jax_contact.envs.payload import add_mass
 from jax_contact.envs.robots import Robot, load_robot, with_terrain
 from jax_contact.envs.sensors import SensorParams, sensor_init, sensor_preset, sensor_step
-from jax_contact.robot import actuated_dofs
+from jax_contact.robot import actuated_dofs, leg_of
 
 TERRAINS = ("flat", "rough")
 UPRIGHT_MIN_Z_AXIS = 0.7  # base z-axis . world z, as in the gait survival benchmark
@@ -250,10 +250,13 @@ def check_gait_fits(gait: GaitParams, robot: Robot) -> None:
     has no base to move.
     """
     n_legs = robot.description.n_legs
-    on_legs = {d for leg in robot.description.leg_dofs for d in leg}
-    limp = sorted(actuated_dofs(robot.mj_model) - on_legs - set(robot.description.base_dofs))
+    m, actuated = robot.mj_model, actuated_dofs(robot.mj_model)
+    # The legs' joints, and those above several feet (a waist, a spine), which the gaits
+    # hold at their standing angle (jax_contact.envs.gait_robot).
+    driven = {d for b in robot.description.foot_body_ids for d in leg_of(m, b, actuated)[1]}
+    limp = sorted(actuated - driven - set(robot.description.base_dofs))
     if limp:
-        joints = sorted({robot.mj_model.joint(int(robot.mj_model.dof_jntid[d])).name for d in limp})
+        joints = sorted({m.joint(int(m.dof_jntid[d])).name for d in limp})
         feet = list(robot.description.foot_names)
         raise ValueError(
             f"actuated joints {joints} are on no leg of the feet {feet}:"

@@ -408,8 +408,10 @@ def test_a_waist_above_both_legs_is_a_fixed_link_held_at_its_standing_angle():
     legs' kinematics, and the controller holds it there. On tests/fixtures/waist_biped.xml
     standing with the waist pitched 0.2 rad: leg_fk at the standing joint angles is where
     MuJoCo puts each foot (base frame, float32 round-off), and with the waist 0.1 rad past
-    its standing angle, at rest, the waist's servo applies kp (-0.1) N m (the actuator
-    force C MuJoCo computes from the controller's ctrl)."""
+    its standing angle, at rest, the waist's servo applies its own stiffness, 500 N m/rad
+    (the fixture's), times -0.1 rad (the actuator force C MuJoCo computes from the
+    controller's ctrl): a waist carries both legs' loads, which the legs' gains would not
+    hold."""
     from pathlib import Path
 
     path = Path(__file__).parent / "fixtures" / "waist_biped.xml"
@@ -419,6 +421,7 @@ def test_a_waist_above_both_legs_is_a_fixed_link_held_at_its_standing_angle():
     gr = make_gait_robot(robot)
     m = robot.mj_model
     assert np.asarray(gr.held_dof).tolist() == [0] and float(gr.held_home[0]) == pytest.approx(0.2)
+    assert float(gr.held_kp[0]) == pytest.approx(500.0)
     d = mujoco.MjData(m)
     d.qpos[:] = home
     mujoco.mj_kinematics(m, d)
@@ -440,4 +443,58 @@ def test_a_waist_above_both_legs_is_a_fixed_link_held_at_its_standing_angle():
         )
     )
     mujoco.mj_forward(m, d)
-    assert d.actuator_force[0] == pytest.approx(kp * -0.1, rel=1e-4)
+    assert d.actuator_force[0] == pytest.approx(500.0 * -0.1, rel=1e-4)
+
+
+def test_a_spine_above_the_front_legs_is_held_and_the_legs_keep_their_joints(tmp_path):
+    """Playground's Go1 with a pitching spine between its trunk and its front hips (a
+    position servo, kp 300), as a user would build one: before the forty-sixth session
+    its front legs had 4 joints and its hind legs 3, and the model was refused ("every
+    leg must have the same number of dofs"). Now each leg keeps its 3 joints, the spine
+    counts with the base, the scripted gaits hold it with its servo's stiffness, and
+    simulate takes the trot. (Simulated with Go1's gains, 8 envs x 4 s, seed 0: every
+    robot upright on the trot and the walk; docs/own_robot.md has the scores.)"""
+    import re
+    import shutil
+
+    from jax_contact.envs.model_files import playground_xml
+    from jax_contact.envs.simulate import check_gait_fits
+
+    src = playground_xml("go1").parent
+    shutil.copytree(src, tmp_path / "xmls")
+    robot_xml = tmp_path / "xmls" / "go1_mjx_feetonly.xml"
+    text = robot_xml.read_text()
+    a, b = text.index('      <body name="FR_hip"'), text.index('      <body name="RR_hip"')
+    spine = (
+        '      <body name="front">\n'
+        '        <joint name="spine" axis="0 1 0" range="-0.3 0.3" damping="2" frictionloss="0"/>\n'
+        '        <inertial pos="0.1 0 0" mass="0.5" diaginertia="0.001 0.001 0.001"/>\n'
+    )
+    text = text[:a] + spine + text[a:b] + "      </body>\n" + text[b:]
+    last = '    <position class="knee" name="RL_calf" joint="RL_calf_joint"/>\n'
+    assert text.count(last) == 1
+    servo = '    <position name="spine" joint="spine" kp="300" forcerange="-60 60"/>\n'
+    robot_xml.write_text(text.replace(last, last + servo))
+    scene = tmp_path / "xmls" / "scene_mjx_feetonly_flat_terrain.xml"
+
+    def with_spine(attr, at):  # a 0 for the spine in every keyframe's qpos / ctrl
+        def insert(match):
+            values = match.group(2).split()
+            values.insert(len(values) if at is None else at, "0")
+            return f"{attr}={match.group(1)}{' '.join(values)}{match.group(1)}"
+
+        return lambda t: re.sub(rf"{attr}=([\"'])(.*?)\1", insert, t, flags=re.S)
+
+    text = scene.read_text()
+    text = with_spine("ctrl", None)(with_spine("qpos", 7)(text))  # after the free joint
+    scene.write_text(text)
+
+    robot = load_robot(str(scene), gait=GaitSettings(kp=60.0, kd=1.5))
+    desc, m = robot.description, robot.mj_model
+    spine_dof = int(m.jnt_dofadr[m.joint("spine").id])
+    assert spine_dof == 6 and [len(leg) for leg in desc.leg_dofs] == [3, 3, 3, 3]
+    assert all(spine_dof in other for other in desc.other_dofs)
+    check_gait_fits(make_gait("trot"), robot)  # the spine is driven, not left limp
+    gr = make_gait_robot(robot)
+    assert np.asarray(gr.held_dof).tolist() == [spine_dof]
+    assert float(gr.held_kp[0]) == pytest.approx(300.0)
