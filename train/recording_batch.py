@@ -36,14 +36,15 @@ def recording_folders(paths: Sequence[str | Path]) -> list[str]:
     """Each recording's output folder name (its file name without the suffix).
 
     Raises:
-      ValueError: two recordings would share a folder (both named).
+      ValueError: a recording given twice, or two that would share a folder (both named).
     """
+    from jax_contact.train.cli_args import check_distinct_files
+
+    check_distinct_files("recording", paths)
     seen: dict[str, str] = {}
     for p in paths:
         stem = Path(p).stem
         if stem in seen:
-            if Path(seen[stem]).resolve() == Path(p).resolve():
-                raise ValueError(f"argument recording: {str(p)!r} is given twice")
             raise ValueError(
                 f"argument recording: {seen[stem]!r} and {str(p)!r} would both write to the"
                 f" folder {stem!r}; rename one"
