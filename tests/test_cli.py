@@ -32,9 +32,7 @@ CLI = [str(_ENTRY)] if _ENTRY.exists() else [sys.executable, "-m", "jax_contact.
 
 
 def _run(args, *, timeout=60, **kwargs):
-    t0 = time.perf_counter()
-    res = subprocess.run(args, capture_output=True, text=True, timeout=timeout, cwd=ROOT, **kwargs)
-    return res, time.perf_counter() - t0
+    return subprocess.run(args, capture_output=True, text=True, timeout=timeout, cwd=ROOT, **kwargs)
 
 
 # --------------------------------------------------------------- arguments, before JAX
@@ -45,7 +43,7 @@ def test_importing_the_cli_does_not_import_jax():
         "import sys, jax_contact.train.cli; heavy = [m for m in ('jax', 'jaxlib', 'mujoco', 'h5py',"
         " 'numpy', 'brax') if m in sys.modules]; print(heavy)"
     )
-    res, _ = _run([sys.executable, "-c", code])
+    res = _run([sys.executable, "-c", code])
     assert res.returncode == 0, res.stderr
     assert res.stdout.strip() == "[]"
 
@@ -59,12 +57,26 @@ def test_version_is_the_installed_distributions_without_importing_jax():
         "import sys, jax_contact as jc, jax_contact.train.cli as c; print(jc.__version__);"
         " print([m for m in ('jax', 'numpy') if m in sys.modules])"
     )
-    res, _ = _run([sys.executable, "-c", code])
+    res = _run([sys.executable, "-c", code])
     assert res.returncode == 0, res.stderr
     assert res.stdout.split("\n")[:2] == [version("jax-contact"), "[]"]
-    res, _ = _run([*CLI, "--version"])
+    res = _run([*CLI, "--version"])
     assert res.returncode == 0, res.stderr
     assert res.stdout.strip() == f"jax-contact {version('jax-contact')}"
+
+
+# Runs ``jax-contact ARGS`` (``cli.main``) and prints the heavy modules it imported.
+_MAIN_THEN_HEAVY = (
+    "import sys\n"
+    "from jax_contact.train import cli\n"
+    "try:\n"
+    "    code = cli.main(sys.argv[1:])\n"
+    "except SystemExit as stop:\n"
+    "    code = stop.code\n"
+    "heavy = [m for m in ('jax', 'jaxlib', 'mujoco', 'brax') if m in sys.modules]\n"
+    "print(f'heavy: {heavy}')\n"
+    "sys.exit(code)\n"
+)
 
 
 @pytest.mark.parametrize(
@@ -136,11 +148,13 @@ def test_version_is_the_installed_distributions_without_importing_jax():
     ],
 )
 def test_bad_arguments_are_reported_at_once(argv, names):
-    """Each bad argument: exit code 2, one error line naming the argument, in a second or
-    so (JAX's imports used to come first: 45-65 s on a loaded machine)."""
-    res, elapsed = _run(CLI + argv, timeout=30)
+    """Each bad argument: exit code 2, one error line naming the argument, before JAX,
+    MuJoCo or Brax is imported (they used to come first: 45-65 s on a loaded machine).
+    ``main`` runs in a fresh interpreter that prints, after it returns, which of them it
+    imported."""
+    res = _run([sys.executable, "-c", _MAIN_THEN_HEAVY, *argv], timeout=60)
     assert res.returncode == 2, (res.stdout, res.stderr)
-    assert elapsed < 10, f"{argv}: {elapsed:.1f} s"
+    assert res.stdout.splitlines()[-1] == "heavy: []", (argv, res.stdout)
     errors = [line for line in res.stderr.splitlines() if "error:" in line]
     assert len(errors) == 1 and errors[0].startswith(f"jax-contact {argv[0]}: error:"), res.stderr
     for name in names:
@@ -159,10 +173,11 @@ def test_tuning_refuses_an_unwritable_out_before_it_tunes(tmp_path, command):
         "tune": [str(tmp_path / "a.h5"), "--validate", str(tmp_path / "b.h5")],
         "tune-env": ["planar_leg", "--seeds", "0", "--validate-seed", "1"],
     }[command]
-    res, elapsed = _run(CLI + [command, *inputs, "--out", "/proc/t.json"], timeout=30)
+    argv = [command, *inputs, "--out", "/proc/t.json"]
+    res = _run([sys.executable, "-c", _MAIN_THEN_HEAVY, *argv], timeout=60)
     assert res.returncode == 2, (res.stdout, res.stderr)
     assert "argument --out" in res.stderr and "'/proc'" in res.stderr, res.stderr
-    assert elapsed < 10
+    assert res.stdout.splitlines()[-1] == "heavy: []", res.stdout  # before any tuning
 
 
 def test_output_folder_check_creates_nothing(tmp_path):
@@ -235,9 +250,9 @@ def test_xla_log_lines_are_silenced_unless_the_user_set_a_level():
         " print(os.environ['TF_CPP_MIN_LOG_LEVEL'])"
     )
     env = {k: v for k, v in os.environ.items() if k != "TF_CPP_MIN_LOG_LEVEL"}
-    res, _ = _run([sys.executable, "-c", code], env=env)
+    res = _run([sys.executable, "-c", code], env=env)
     assert res.stdout.strip() == "3", res.stderr
-    res, _ = _run([sys.executable, "-c", code], env={**env, "TF_CPP_MIN_LOG_LEVEL": "0"})
+    res = _run([sys.executable, "-c", code], env={**env, "TF_CPP_MIN_LOG_LEVEL": "0"})
     assert res.stdout.strip() == "0", res.stderr
 
 
@@ -250,7 +265,6 @@ def _interrupt(args, *, wait_s, cwd):
     )
     time.sleep(wait_s)
     assert proc.poll() is None, proc.communicate()
-    t0 = time.perf_counter()
     proc.send_signal(signal.SIGINT)
     try:
         out, err = proc.communicate(timeout=30)
@@ -258,20 +272,20 @@ def _interrupt(args, *, wait_s, cwd):
         proc.kill()
         out, err = proc.communicate()
         pytest.fail(f"still running 30 s after SIGINT; stderr: {err[-2000:]}")
-    return proc.returncode, time.perf_counter() - t0, out, err
+    return proc.returncode, out, err
 
 
 def test_ctrl_c_stops_simulate_at_once_and_leaves_nothing(tmp_path):
     """SIGINT during imports or compilation (a 30 s rollout takes minutes here): exit 130
-    within seconds, one line on stderr, no output file and no temporary file."""
-    code, after, out, err = _interrupt(
+    (``_interrupt`` fails the test if the process still runs 30 s after the signal), one
+    line on stderr, no output file and no temporary file."""
+    code, out, err = _interrupt(
         [*CLI, "simulate", "out.h5", "--envs", "2", "--duration", "30"],
         wait_s=8.0,
         cwd=tmp_path,
     )
     env_note = f"stdout {out!r}, stderr {err!r}"
     assert code == 130, env_note
-    assert after < 10, f"{after:.1f} s after SIGINT; {env_note}"
     assert err.strip().splitlines()[-1] == "jax-contact simulate: interrupted", env_note
     assert "Traceback" not in err and "Exception ignored" not in err, env_note
     assert len(err.strip().splitlines()) <= 3, env_note
@@ -293,9 +307,8 @@ def test_ctrl_c_during_a_write_removes_the_temporary_file(tmp_path):
         "    write_atomic(sys.argv[1], write)\n"
         "print('not reached')\n"
     )
-    res, elapsed = _run([sys.executable, "-c", script, str(tmp_path / "out.json")])
+    res = _run([sys.executable, "-c", script, str(tmp_path / "out.json")])
     assert res.returncode == 130, res.stderr
-    assert elapsed < 15
     assert res.stderr == "jax-contact test: interrupted\n"
     assert "not reached" not in res.stdout
     assert list(tmp_path.iterdir()) == []
@@ -315,7 +328,7 @@ def test_ctrl_c_after_a_write_names_the_file_as_complete(tmp_path):
         "os.kill(os.getpid(), signal.SIGINT)\n"
         "time.sleep(20)\n"
     )
-    res, _ = _run([sys.executable, "-c", script, str(tmp_path)])
+    res = _run([sys.executable, "-c", script, str(tmp_path)])
     assert res.returncode == 130
     names = ", ".join(str(tmp_path / f"{i}.txt") for i in range(2, 7))
     assert res.stderr == (
@@ -338,7 +351,7 @@ def test_ctrl_c_names_what_the_command_keeps_on_purpose():
         "    os.kill(os.getpid(), signal.SIGINT)\n"
         "    time.sleep(20)\n"
     )
-    res, _ = _run([sys.executable, "-c", script, "kept out/estimate"])
+    res = _run([sys.executable, "-c", script, "kept out/estimate"])
     assert res.returncode == 130
     assert res.stderr == "jax-contact test: interrupted\njax-contact test: kept out/estimate\n"
 
@@ -357,9 +370,8 @@ def test_ctrl_c_while_the_io_module_is_still_importing(tmp_path):
         "    time.sleep(20)\n"
         "print('not reached')\n"
     )
-    res, elapsed = _run([sys.executable, "-c", script])
+    res = _run([sys.executable, "-c", script])
     assert res.returncode == 130, res.stderr
-    assert elapsed < 15
     assert res.stderr == "jax-contact test: interrupted\n"
     assert "not reached" not in res.stdout
 
@@ -385,9 +397,8 @@ def test_a_signal_during_a_staged_folder_leaves_the_earlier_run(tmp_path, sig, c
         "        time.sleep(20)\n"
         "print('not reached')\n"
     )
-    res, elapsed = _run([sys.executable, "-c", script, str(out)])
+    res = _run([sys.executable, "-c", script, str(out)])
     assert res.returncode == code, res.stderr
-    assert elapsed < 15
     assert res.stderr == f"jax-contact test: {word}\n"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["est"]
     assert (out / "estimate.csv").read_text() == "earlier"
@@ -799,7 +810,15 @@ def test_a_log_without_ground_truth_gives_p_contact(tmp_path, capsys):
     (foot,) = got["foot_names"]
     p = np.array(got["p_contact"][foot], dtype=float)
     assert p.shape == (12, 1)
-    assert np.all((p[np.isfinite(p)] >= 0) & (p[np.isfinite(p)] <= 1))
+    # Truth never feeds the estimator: the same readings with a truth column give the same
+    # P(contact), step for step (a step the estimator cannot score is NaN in both).
+    from jax_contact.train.log_evaluate import evaluate_file
+
+    same = _planar_log(tmp_path / "with_truth.h5", truth=True)
+    want = np.asarray(evaluate_file(same)["outputs"]["probabilistic"], float)[..., 0]
+    capsys.readouterr()
+    assert np.isfinite(p).sum() >= 10, p  # at most the first steps before a pair of readings
+    np.testing.assert_allclose(p, want, rtol=1e-6, atol=1e-7, equal_nan=True)
 
 
 def test_evaluate_pools_several_logs(tmp_path, capsys):
