@@ -371,7 +371,7 @@ def test_kinematic_batch_matches_oracle(mode):
 
 def test_kinematic_hand_case_and_bad_input():
     # Flat ground at 0.1 m, foot radius 0.02 m, centre at 0.13 m: sole gap 0.01 m < 0.02 m.
-    # Speed (0.1, 0, -0.2): norm 0.2236 < 0.3 -> contact; "normal" mode uses 0.2 as well.
+    # Speed (0.1, 0, -0.2): norm 0.2236 < 0.3 -> contact ("normal" mode: 0.2, below).
     rng = np.random.default_rng(6)
     m = _meas((), rng, LEGS[0], p_f=np.array([5.0, -3.0, 0.13]), v_f=np.array([0.1, 0.0, -0.2]))
     terrain = TerrainQuery(
@@ -385,6 +385,15 @@ def test_kinematic_hand_case_and_bad_input():
     # With a 0.2 m/s threshold the same foot (0.2236 m/s) is too fast -> air.
     slow = make_kinematic_params(0.02, 0.2)
     assert not bool(kinematic_detect(slow, _to_jax(m, jnp.float32), terrain).contact)
+    # 0.21 m/s separates the modes: the norm (0.2236) is above it -> air; the component
+    # along the normal, |e . v_f| = 0.2 (the sideways 0.1 left out), is below -> contact.
+    norm = kinematic_detect(make_kinematic_params(0.02, 0.21), _to_jax(m, jnp.float32), terrain)
+    normal = kinematic_detect(
+        make_kinematic_params(0.02, 0.21, velocity_mode="normal"), _to_jax(m, jnp.float32), terrain
+    )
+    assert not bool(norm.contact) and bool(normal.contact)
+    np.testing.assert_allclose(normal.speed, 0.2, rtol=1e-6)
+    np.testing.assert_allclose(normal.gap, 0.01, atol=1e-6)
     with pytest.raises(ValueError, match="height_threshold"):
         make_kinematic_params(height_threshold=-0.01)
     with pytest.raises(ValueError, match="velocity_threshold"):

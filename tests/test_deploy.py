@@ -447,19 +447,88 @@ def test_deploy_check_compares_the_physics_not_the_name(deployed):
     assert "robot 'spot'" in _other_robot("log", "x.contact", old, spot)
 
 
-def test_deploy_check_reports_latency_and_agreement(deployed, live, tmp_path):
-    from jax_contact.train.deploy_cmd import deploy_check
+def test_deploy_check_reports_latency_and_agreement(deployed, live, tmp_path, monkeypatch):
+    from jax_contact.train import deploy_cmd
 
+    replays = []
+
+    def recorded(*args, **kwargs):
+        replays.append(real(*args, **kwargs))
+        return replays[-1]
+
+    real = deploy_cmd.realtime_replay
+    monkeypatch.setattr(deploy_cmd, "realtime_replay", recorded)
     out = tmp_path / "check.json"
-    res = deploy_check(deployed["artefact"], deployed["log"], json_path=out)
+    res = deploy_cmd.deploy_check(deployed["artefact"], deployed["log"], json_path=out)
     saved = json.loads(out.read_text())
-    assert set(saved["latency_us"]) == {"median", "p99", "p999", "max"}
-    lat = saved["latency_us"]
-    assert 0 < lat["median"] <= lat["p99"] <= lat["p999"] <= lat["max"]
-    assert isinstance(saved["deadline_misses"], int)
+    # The summary is of the replay's own per-call latencies, one per step.
+    (rt,) = replays
+    lat_us = 1e6 * rt["latency_s"]
+    assert lat_us.shape == (N_STEPS,)
+    assert saved["latency_us"] == pytest.approx(
+        {"median": np.median(lat_us), "p99": np.percentile(lat_us, 99),
+         "p999": np.percentile(lat_us, 99.9), "max": lat_us.max()}
+    )  # fmt: skip
+    assert saved["deadline_misses"] == rt["deadline_misses"]
     assert saved["max_abs_diff"] <= P_TOL
     assert res["steps"] == N_STEPS
     assert saved["cpus"] == sorted(os.sched_getaffinity(0))  # what --cpu pins is recorded
+
+
+class _TimedEstimator:
+    """An estimator whose k-th call after its latest ``init`` takes ``durations[k]`` s of a
+    fake clock; calls before that ``init`` (the warm-up) take none. Its P(contact) is the
+    reading."""
+
+    reading_names = ("x",)
+    feet = ("foot",)
+
+    def __init__(self, clock, durations):
+        self.clock, self.durations, self.inits, self.calls = clock, durations, 0, 0
+
+    def init(self):
+        self.inits, self.calls = self.inits + 1, 0
+        return None
+
+    def update(self, belief, reading):
+        if self.inits % 2 == 0:  # realtime_replay inits twice: the warm-up, then the replay
+            self.clock[0] += self.durations[self.calls]
+        self.calls += 1
+        diag = {"p_dynamics": [0.5], "p_diff_kinematics": [0.5], "valid": [True]}
+        return belief, np.array([reading["x"]], np.float32), diag
+
+
+def test_realtime_replay_paces_calls_and_counts_missed_deadlines(monkeypatch):
+    """Calls released every 10 ms of a fake clock (from t0); call k takes 4, 13, 2, 25, 1
+    ms. Hand count, ms after t0: call 0 runs 0-4 (deadline 10), call 1 runs 10-23 (deadline
+    20: missed), call 2 starts late, 23-25 (deadline 30), call 3 runs 30-55 (deadline 40:
+    missed), call 4 starts at 55 (its release, 40, is past), 55-56 (deadline 50: missed).
+    Three misses; each latency is the call's own time. Back to back (no pacing): none."""
+    import time
+
+    from jax_contact.train.deploy_cmd import realtime_replay
+
+    clock = [0.0]
+
+    def perf_counter():
+        clock[0] += 1e-9  # a clock that moves, so the pacing's spin always ends
+        return clock[0]
+
+    def sleep(s):
+        clock[0] += s
+
+    monkeypatch.setattr(time, "perf_counter", perf_counter)
+    monkeypatch.setattr(time, "sleep", sleep)
+    durations = [0.004, 0.013, 0.002, 0.025, 0.001]
+    est = _TimedEstimator(clock, durations)
+    readings = {"x": np.arange(5, dtype=np.float32)}
+    rt = realtime_replay(est, readings, period_s=0.010, spin_s=0.0)
+    np.testing.assert_allclose(rt["latency_s"], durations, atol=1e-8)
+    assert rt["deadline_misses"] == 3
+    np.testing.assert_array_equal(rt["p_contact"][:, 0], readings["x"])
+    rt = realtime_replay(est, readings, period_s=0.010, pace=False)
+    np.testing.assert_allclose(rt["latency_s"], durations, atol=1e-8)
+    assert rt["deadline_misses"] == 0
 
 
 def test_deploy_check_reads_a_recording_and_warns_as_estimate(deployed, live, tmp_path, capsys):

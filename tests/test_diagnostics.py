@@ -51,10 +51,14 @@ def test_events_whose_window_is_not_valid_or_cut_are_dropped():
 
 
 def test_false_contact_terms_average_over_the_flagged_air_steps():
-    # Air steps 4, 5, 6; P(C) > 0.5 on 5 and 6 only (0.5 is not above the threshold).
+    # Air steps 4, 5, 6 with P(C) 0.2, 0.5, 0.9: only step 6 is flagged (0.5 is not
+    # above the threshold), so the flagged steps' p_dynamics (STEP) is 0.6 alone.
     p = np.array([1, 1, 1, 1, 0.2, 0.5, 0.9, 1, 1, 1])
     out = _out(p, STEP, STEP, STEP, STEP, STEP)
-    out["e"] = np.asarray(p, np.float32)[:, None, None]
+    res = false_contact_terms(out, TRUTH, np.ones((10, 1), bool), "e")
+    assert res["n_false_contact_steps"] == 1 and res["n_air_steps"] == 3
+    np.testing.assert_allclose(res["p_dynamics"]["false_contact"], 0.6, atol=1e-6)
+    # With step 5 at 0.6, steps 5 and 6 are flagged: p_dynamics 0.5 and 0.6.
     out["e"][5] = 0.6
     res = false_contact_terms(out, TRUTH, np.ones((10, 1), bool), "e")
     assert res["n_false_contact_steps"] == 2 and res["n_air_steps"] == 3

@@ -453,7 +453,8 @@ def test_default_estimator_params_follow_the_sensor_model(leg_robot):
 
 def test_substep_belief_tracks_truth_and_rate_comparison(brax_leg):
     """Hopping planar leg, anymal_like sensors: the substep-rate belief carried in info
-    tracks the truth (F1 > 0.9); the control-rate numbers come from the same rollouts."""
+    tracks the truth (F1 > 0.9); the control-rate numbers come from the same rollouts
+    (the same scored steps and true phases) and show the control rate's documented cost."""
     n_steps, n_envs = 150, 2
     acts = np.broadcast_to(hop_actions(n_steps, float(brax_leg.dt))[:, None], (n_steps, n_envs, 2))
     res = W.compare_rates(brax_leg, acts, key=jax.random.PRNGKey(0), skip_s=0.1)
@@ -463,7 +464,15 @@ def test_substep_belief_tracks_truth_and_rate_comparison(brax_leg):
     assert res.substep_all.n_touchdowns >= 2 * n_envs  # the leg really hops
     assert res.substep.f1 > 0.9
     assert res.substep_all.f1 > 0.9
-    assert 0.0 <= res.control.f1 <= 1.0
+    # One truth for both rates (the env step's): the same steps, phases and events scored.
+    for field in ("n_steps", "n_air_phases", "n_touchdowns", "n_liftoffs"):
+        assert getattr(res.control, field) == getattr(res.substep, field), field
+    # On the stiff hop the control rate finds the stances but calls part of each swing
+    # contact (its acceleration is a mean across the impact; docs/training.md, "Physics rate
+    # against control rate": 0.12-0.14 accuracy lost at 20 ms, recall 0.975): here 4
+    # substeps, recall 0.98, accuracy 0.22 below the substep rate's on these rollouts.
+    assert res.control.recall > 0.9, res.control
+    assert res.control.accuracy < res.substep.accuracy - 0.05, (res.control, res.substep)
 
 
 def test_rate_comparison_closed_loop_and_stop(brax_leg):
