@@ -72,11 +72,13 @@ FD_EARLY = 2  # steps of early window in the FD problem (event_early_s = 2 dt)
 
 
 @functools.cache  # the event test compares with the plain loss's gradient: compiled once
-def _fd_setup(event_weight: float = 0.0):
+def _fd_setup(event_weight: float = 0.0, touchdown: str = "quadrature"):
     """Float64 params, space, data and a flat-vector loss (call under enable_x64); with
-    ``event_weight > 0`` the loss has the air-phase event term."""
+    ``event_weight > 0`` the loss has the air-phase event term. With ``touchdown`` of
+    ``"monte_carlo"`` the loss is a smooth function of the parameters too: the key is
+    fixed, so the draws are, and each enters through inverse CDFs and Phi."""
     noise, scalars, meas, truth = _fd_problem()
-    base = make_params(make_noise(NV, **noise), **scalars, touchdown="quadrature")
+    base = make_params(make_noise(NV, **noise), **scalars, touchdown=touchdown)
     base = jax.tree.map(lambda x: jnp.asarray(x, jnp.float64), base)
     space = jt.make_space(NV, dof_groups=(0, 0, 1, 1, 1, 2, 2, 2), fields=jt.TUNABLE_FIELDS)
     theta0 = jax.tree.map(lambda x: jnp.asarray(x, jnp.float64), jt.init_theta(space, base))
@@ -124,9 +126,13 @@ def _fd_setup(event_weight: float = 0.0):
     )
 
 
-@pytest.mark.parametrize("event_weight", [0.0, 5.0], ids=["bce", "bce+event"])
-def test_gradient_matches_central_differences(x64, event_weight):
-    loss, grad, x, (logits, data, unravel) = _fd_setup(event_weight)
+@pytest.mark.parametrize(
+    "event_weight, touchdown",
+    [(0.0, "quadrature"), (5.0, "quadrature"), (0.0, "monte_carlo")],
+    ids=["bce", "bce+event", "bce-monte-carlo"],
+)
+def test_gradient_matches_central_differences(x64, event_weight, touchdown):
+    loss, grad, x, (logits, data, unravel) = _fd_setup(event_weight, touchdown)
     assert loss(x).dtype == jnp.float64
     if event_weight:
         # Not vacuous: some air steps are scored at x, and the event term changes the
@@ -332,9 +338,46 @@ def test_select_cells_keeps_the_lowest_loss_epoch_no_worse_than_the_defaults():
     assert cell0["touchdown_ms"] == pytest.approx(abs(m.touchdown_delay_ms[0]), abs=1e-6)
     chosen = hist[res.best_epoch]
     assert jt.no_worse(chosen["val_cells"], hist[0]["val_cells"])
+    assert res.best_epoch == jt.select_epoch(hist, config)  # the rule's cases: test below
     for row in hist[1:]:
         if row["val_loss"] < chosen["val_loss"] - config.min_delta:
             assert not jt.no_worse(row["val_cells"], hist[0]["val_cells"]), row["epoch"]
+
+
+def test_select_epoch_passes_over_lower_losses_the_rule_refuses():
+    """The selection on a hand-made history (the recovery runs above keep their lowest-loss
+    epoch, so they never reach the refusals). Epochs 0-5, val_loss 1.0, 0.8, 0.5, 0.6,
+    0.4, 0.79 and val_bce 0.9, 0.8, 0.7, 0.6, 0.5, 0.1, min_delta 0.05; epoch 2's F1 is
+    worse than epoch 0's (0.90 < 0.95) and it has a cell worse beyond the spread; epoch 4
+    was rejected (feasible directions). Hand selection, in order from epoch 0:
+    "loss": 1 (0.8 < 0.95), 2 (0.5 < 0.75), 3 and 5 not below 0.45, 4 rejected -> 2;
+    "cells" and "spread": 1, 2 refused, 3 (0.6 < 0.75), 4 rejected, 5 not below 0.55 -> 3;
+    "bce": every bce is more than 0.05 below the one kept but 4's (rejected) -> 5."""
+    base = dict(f1=0.95, accuracy=0.95, ece=0.01, fail=0.01, touchdown_ms=5.0, liftoff_ms=3.0)
+    ok, bad = dict(base, f1=0.96), dict(base, f1=0.90)
+    rows = [
+        (1.0, 0.9, base, [], False),
+        (0.8, 0.8, ok, [], False),
+        (0.5, 0.7, bad, ["f1"], False),
+        (0.6, 0.6, ok, [], False),
+        (0.4, 0.5, ok, [], True),
+        (0.79, 0.1, ok, [], False),
+    ]
+    history = [
+        dict(epoch=e, val_loss=loss, val_bce=bce, val_cells=[cells], val_worse=worse, rejected=rej)
+        for e, (loss, bce, cells, worse, rej) in enumerate(rows)
+    ]
+    pick = lambda **kw: jt.select_epoch(history, jt.TuneConfig(min_delta=0.05, **kw))  # noqa: E731
+    assert pick(select="loss") == 2
+    assert pick(select="cells") == 3
+    assert pick(select="spread") == 3
+    assert pick(select="bce") == 5
+    # Not rejected, epoch 4 (0.4) is more than 0.05 below 2's and 3's and admissible.
+    for row in history:
+        row["rejected"] = False
+    assert pick(select="loss") == pick(select="cells") == pick(select="spread") == 4
+    # min_delta 0.25: epoch 1's 0.8 is not below 1.0 - 0.25, so epoch 0 stays.
+    assert jt.select_epoch(history[:2], jt.TuneConfig(min_delta=0.25)) == 0
 
 
 def test_select_spread_keeps_the_lowest_loss_epoch_without_a_cell_worse_beyond_the_spread():
@@ -349,6 +392,7 @@ def test_select_spread_keeps_the_lowest_loss_epoch_without_a_cell_worse_beyond_t
     assert hist[0]["val_worse"] == []  # epoch 0 against itself
     chosen = hist[res.best_epoch]
     assert chosen["val_worse"] == []
+    assert res.best_epoch == jt.select_epoch(hist, config)  # the rule's cases: test below
     for row in hist[1:]:
         if row["val_loss"] < chosen["val_loss"] - config.min_delta:
             assert row["val_worse"], row["epoch"]

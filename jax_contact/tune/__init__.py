@@ -206,6 +206,7 @@ from jax_contact.tune.fit import (
     reference_cells,
     score_logits,
     score_logs,
+    select_epoch,
     sigmoid_np,
     tune,
 )
@@ -273,6 +274,7 @@ __all__ = [
     "robot_space",
     "SCALAR_FIELDS",
     "score_logits",
+    "select_epoch",
     "score_logs",
     "scored_air_steps",
     "SELECT_RULES",

@@ -237,6 +237,34 @@ class TuneResult:
     wall_s: float
 
 
+def select_epoch(history: Sequence[dict], config: TuneConfig) -> int:
+    """The epoch :func:`tune` returns from a history of its rows (``TuneResult.history``).
+
+    Going through the epochs in order from epoch 0, an epoch replaces the one kept if it
+    was not ``rejected`` (``config.feasible``), its criterion (``val_bce`` with
+    ``config.select == "bce"``, else ``val_loss``) is below the kept one's by more than
+    ``config.min_delta``, and it is admissible: with ``"cells"`` :func:`no_worse` than
+    epoch 0 in every validation cell (within ``config.cell_tolerance``), with ``"spread"``
+    no ``val_worse`` cell. ``tune`` calls it after every epoch (an epoch that is not kept
+    counts against ``patience``).
+    """
+    crit = "val_bce" if config.select == "bce" else "val_loss"
+    first = history[0]
+
+    def admissible(row) -> bool:
+        if config.select == "spread":
+            return not row["val_worse"]
+        return config.select != "cells" or no_worse(
+            row["val_cells"], first["val_cells"], config.cell_tolerance
+        )
+
+    best, kept = first[crit], 0
+    for row in history[1:]:
+        if not row.get("rejected") and row[crit] < best - config.min_delta and admissible(row):
+            best, kept = row[crit], row["epoch"]
+    return kept
+
+
 def tune(
     base: EstimatorParams,
     terrain,
@@ -328,8 +356,7 @@ def tune(
     history.append(first)
     if progress:
         progress(first)
-    crit = "val_bce" if config.select == "bce" else "val_loss"
-    best, best_theta, best_epoch, bad = first[crit], theta, 0, 0
+    best_theta, best_epoch, bad = theta, 0, 0
 
     # The compiled training step depends on the loss and optimiser only: one program
     # whatever the epochs, patience or selection rule.
@@ -337,13 +364,6 @@ def tune(
         config, select="loss", max_epochs=0, patience=1, min_delta=0.0, cell_tolerance=0.0,
         noise_ratio=0.0,  # the box enters as bounds, traced
     )  # fmt: skip
-
-    def admissible(row) -> bool:
-        if config.select == "spread":
-            return not row["val_worse"]
-        return config.select != "cells" or no_worse(
-            row["val_cells"], first["val_cells"], config.cell_tolerance
-        )
 
     def tuning_cells(th) -> list[dict]:
         return scores(th, train, jax.random.fold_in(key, 3 * 10**6))["cells"]
@@ -407,8 +427,8 @@ def tune(
         history.append(row)
         if progress:
             progress(row)
-        if not rejected and row[crit] < best - config.min_delta and admissible(row):
-            best, best_theta, best_epoch, bad = row[crit], theta, epoch, 0
+        if select_epoch(history, config) == epoch:
+            best_theta, best_epoch, bad = theta, epoch, 0
         else:
             bad += 1
             if bad >= config.patience:
