@@ -244,8 +244,11 @@ def test_evaluate_and_export_defaults_choose_a_short_legs_force_rows():
     """``evaluate``, ``estimate`` and ``export`` build their defaults with
     ``train.log_estimator.default_estimator``: a floating-base robot of two-joint legs gets the
     wrapper's force rows (the test above: (1, 2)), not the planar leg's estimator (it
-    raised 'nv must be the planar leg's 3'); without the model it says what it needs."""
+    raised 'nv must be the planar leg's 3'); without the model it says what it needs.
+    ``tune`` on a simulated log starts from the same (it raised that error on such logs),
+    with the log's sensor preset in place of ``anymal_like``."""
     from jax_contact.train.log_estimator import default_estimator
+    from jax_contact.train.tune_data import default_params
 
     m = mujoco.MjModel.from_xml_string(ANT)
     desc, _ = feet.describe(m)
@@ -254,6 +257,12 @@ def test_evaluate_and_export_defaults_choose_a_short_legs_force_rows():
     assert params.unilateral is False  # as the wrapper (the test below)
     with pytest.raises(ValueError, match=r"legs of 2 joints.*pass mj_model"):
         default_estimator(desc, 0.0025)
+    robot = Robot(name="ant", mj_model=m, description=desc, spec=None)
+    same, _ = default_params(robot, 0.0025, "anymal_like")
+    assert jax.tree.all(jax.tree.map(lambda a, b: bool(np.all(a == b)), same, params))
+    ideal, _ = default_params(robot, 0.0025, "ideal")
+    assert ideal.force_rows == (1, 2) and ideal.unilateral is False
+    assert float(ideal.noise.sigma_qd[-1]) < float(params.noise.sigma_qd[-1])  # its own sensors
 
 
 def test_contact_truth_carries_the_weight():

@@ -45,7 +45,7 @@ def default_estimator(desc, dt: float, terrain_model: str = "flat", *, mj_model=
     )
 
     check_terrain_model(terrain_model)
-    if desc.n_leg_dofs == 2 and desc.n_legs == 1 and len(desc.base_dofs) == 1 and desc.nv == 3:
+    if is_planar_leg(desc):
         params, plane = planar_estimator_params(desc.nv, dt), jc.flat(0.0, 0.2)
     elif desc.n_leg_dofs < 3:
         if mj_model is None:
@@ -65,6 +65,12 @@ def default_estimator(desc, dt: float, terrain_model: str = "flat", *, mj_model=
 
         params = params.replace(unilateral=choose_unilateral(mj_model, desc, params))
     return params, terrain_for(plane, terrain_model)
+
+
+def is_planar_leg(desc) -> bool:
+    """Whether ``desc`` is Section III's planar leg (one 2-joint leg on a 1-dof rail), which
+    gets that section's estimator rather than Table III's."""
+    return desc.n_leg_dofs == 2 and desc.n_legs == 1 and len(desc.base_dofs) == 1 and desc.nv == 3
 
 
 def check_terrain_model(terrain_model: str) -> None:

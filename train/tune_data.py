@@ -255,23 +255,23 @@ def load_tuning_recording(
 
 
 def default_params(robot, dt: float, noise: str = "anymal_like"):
-    """(params, terrain) of ``jax-contact evaluate`` for this robot; other sensor presets
-    than ``anymal_like`` get ``params_for`` with that preset."""
+    """(params, terrain) that ``jax-contact tune`` starts from on a simulated log: those of
+    ``jax-contact evaluate`` (:func:`jax_contact.train.log_estimator.default_estimator`, the
+    robot's force axes and sign test included), with the log's own sensor preset ``noise``
+    in place of ``anymal_like`` (through ``params_for``) on every robot but the planar leg.
+    """
     import jax_contact as jc
     from jax_contact.envs.sensors import sensor_preset
-    from jax_contact.train.reproduce import (
-        TERRAIN_SIGMA,
-        planar_estimator_params,
-        quadruped_estimator_params,
-    )
+    from jax_contact.train.log_estimator import default_estimator, is_planar_leg
 
     desc = robot.description
-    if desc.n_leg_dofs == 2:
-        return planar_estimator_params(desc.nv, dt), jc.flat(0.0, 0.2)
-    if noise == "anymal_like":
-        return quadruped_estimator_params(desc, dt), jc.flat(0.0, TERRAIN_SIGMA)
-    sp = sensor_preset(noise, desc.nv, dt=dt)
-    return jc.params_for(desc, sp, dt), jc.flat(0.0, TERRAIN_SIGMA)
+    params, plane = default_estimator(desc, dt, mj_model=robot.mj_model)
+    if noise != "anymal_like" and not is_planar_leg(desc):
+        sp = sensor_preset(noise, desc.nv, dt=dt)
+        params = jc.params_for(desc, sp, dt, force_rows=params.force_rows).replace(
+            unilateral=params.unilateral
+        )
+    return params, plane
 
 
 def sensor_floor(robot, dt: float, noise: str = "anymal_like") -> dict:
