@@ -122,8 +122,9 @@ class GaitPrior:
         differential-kinematics term (eq. 8), rad/s (m/s for prismatic joints).
       takeoff_accel: ``a_F``, the largest take-off acceleration of the foot along the
         terrain normal (eq. 15), m/s^2. 100 m/s^2 was chosen on the reproduction's
-        tuning seed (Go1 trot and walk, seed 1000; 200 m/s^2, docs/model.md's example for the
-        planar leg, lifted off 0.7 ms later there), never on an evaluation seed.
+        tuning seed (Go1 trot and walk, seed 1000; 200 m/s^2, the value of
+        ``params.make_params`` and of the reproduction's ``paper_model``, lifted off 0.7 ms
+        later there), never on an evaluation seed.
 
     The defaults (``T_s`` 0.3 s, swing 0.2 s, 25 rad/s: Table I's joint limit) describe a
     quadruped's trot; pass the gait's own numbers where they are known.

@@ -157,10 +157,11 @@ def add_terrain_model_flag(p: argparse.ArgumentParser) -> None:
         "--terrain-model",
         choices=TERRAIN_MODELS,
         default=None,
-        help="the estimator's ground: flat, a plane at z = 0 of the log's world frame (5 cm"
-        " std; the reproduction's); memory, where each foot last stood, averaged over its"
-        " stance: for a base position that drifts (docs/model_choices.md). Default: the one"
-        " the --params file was tuned with (its provenance), else flat",
+        help="the estimator's ground: flat, a plane at z = 0 of the log's world frame (std"
+        " 5 cm, 0.2 m for the planar leg: the reproduction's); memory, where each foot last"
+        " stood, averaged over its stance: for a base position that drifts"
+        " (docs/model_choices.md). Default: the one the --params file was tuned with (its"
+        " provenance), else flat",
     )
 
 

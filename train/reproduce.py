@@ -187,10 +187,10 @@ def _f32(x) -> jax.Array:
 def paper_model(params: jc.EstimatorParams) -> jc.EstimatorParams:
     """``params`` with every robustness change of docs/model_choices.md undone: pure
     Gaussian terms, uncapped transitions, the symmetric 0.9 cap on differential kinematics,
-    the two-sided kinematics ratio, the foothold written whenever P(C) > 0.5, docs/model.md's
-    a_F = 200 m/s^2, the rigid contact constraint of eq. 6, every term at the interval's
-    start and the still contact foot of eq. 8-9 (the paper's model with this library's
-    noise)."""
+    the two-sided kinematics ratio, the foothold written whenever P(C) > 0.5,
+    a_F = 200 m/s^2 (``params.make_params``' own default), the rigid contact constraint of
+    eq. 6, every term at the interval's start and the still contact foot of eq. 8-9 (the
+    paper's model with this library's noise)."""
     return params.replace(
         contact_damping=_f32(0.0),
         kinematics_lead=_f32(0.0),

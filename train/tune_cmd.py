@@ -145,8 +145,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         choices=("flat", "memory"),  # jax_contact.train.log_estimator.TERRAIN_MODELS
         default="flat",
         help="the estimator's ground while tuning, stored in the file's provenance (evaluate"
-        " and estimate then use it): flat, the plane at z = 0 (5 cm std); memory, where each"
-        " foot last stood, for a base position that drifts (docs/model_choices.md)",
+        " and estimate then use it): flat, the plane at z = 0 (std 5 cm, 0.2 m for the planar"
+        " leg); memory, where each foot last stood, for a base position that drifts"
+        " (docs/model_choices.md)",
     )
     add_tuning_options(p)
     p.set_defaults(func=run, check=check)
