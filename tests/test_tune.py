@@ -818,6 +818,34 @@ def test_shipped_presets_load_by_name_with_their_provenance(name):
         assert np.all(got >= values * (1 - 1e-5)), (field, got / values)
 
 
+@pytest.mark.parametrize("robot", ["planar_leg", "go1"])
+def test_tunes_start_and_floor_read_one_sensor_model(robot):
+    """``tune`` on a simulated log starts from ``tune_data.default_params`` and bounds the
+    stds by ``tune_data.sensor_floor``, both for the log's sensor preset. They used to read
+    different ones (the start kept ``anymal_like`` on the planar leg), so a planar-leg log
+    of ``harsh`` sensors was refused: 'base.noise.sigma_q[1] = 0.02 lies below its floor
+    0.04'. The bound's own check (``theta_lower_bounds``) now passes for every preset, and
+    the start's joint stds are the preset's (``harsh`` doubles ``anymal_like``'s joint
+    noise, envs/sensors.py)."""
+    from jax_contact.envs.robots import load_robot
+    from jax_contact.envs.sensors import PRESETS
+    from jax_contact.train.tune_data import default_params, sensor_floor
+
+    r = load_robot(robot)
+    space = jt.make_space(r.description.nv, fields=jt.NOISE_FIELDS)
+    start = {}
+    for noise in PRESETS:
+        params, _ = default_params(r, 0.0025, noise)
+        jt.theta_lower_bounds(space, params, sensor_floor(r, 0.0025, noise))  # raises if below
+        start[noise] = params
+    joint = np.asarray(r.description.leg_dofs).reshape(-1)
+    ratio = (
+        np.asarray(start["harsh"].noise.sigma_q)[joint]
+        / np.asarray(start["anymal_like"].noise.sigma_q)[joint]
+    )
+    np.testing.assert_allclose(ratio, 2.0, rtol=0.05)
+
+
 def test_fit_calibration_stays_finite_when_logits_sit_at_their_bounds(np_rng):
     # Most logits at +-30 (a capped, confident filter) and a few mistakes among them: a
     # plain Newton step from the identity overshot to T ~ 0 here; the line search keeps

@@ -20,10 +20,13 @@ TERRAIN_MODELS = ("flat", "memory")
 FOOTHOLD_MEMORY = dict(sigma_foothold=0.02, growth=0.3, smoothing=0.05)
 
 
-def default_estimator(desc, dt: float, terrain_model: str = "flat", *, mj_model=None):
-    """(EstimatorParams, terrain) that ``evaluate``, ``estimate`` and ``export`` use for a
-    robot: the planar leg's Section III estimator for one 2-joint leg on a 1-dof rail, else Table
-    III's (the one source: :func:`jax_contact.params_for` with ``anymal_like`` sensors,
+def default_estimator(
+    desc, dt: float, terrain_model: str = "flat", *, mj_model=None, noise: str = "anymal_like"
+):
+    """(EstimatorParams, terrain) that ``evaluate``, ``estimate``, ``export`` and ``tune``
+    use for a robot: the planar leg's Section III estimator for one 2-joint leg on a 1-dof
+    rail, else Table III's (the one source: :func:`jax_contact.params_for` with the sensor
+    preset ``noise``, ``anymal_like`` unless a simulated log names its own,
     ``jax_contact.train.reproduce``). Legs of fewer than three joints on a floating base
     (a biped's, Brax's ant's) resist the force axes their Jacobian spans
     (:func:`jax_contact.envs.contact_params.choose_force_rows`, which needs ``mj_model``).
@@ -46,7 +49,7 @@ def default_estimator(desc, dt: float, terrain_model: str = "flat", *, mj_model=
 
     check_terrain_model(terrain_model)
     if is_planar_leg(desc):
-        params, plane = planar_estimator_params(desc.nv, dt), jc.flat(0.0, 0.2)
+        params, plane = planar_estimator_params(desc.nv, dt, noise=noise), jc.flat(0.0, 0.2)
     elif desc.n_leg_dofs < 3:
         if mj_model is None:
             raise ValueError(
@@ -56,10 +59,11 @@ def default_estimator(desc, dt: float, terrain_model: str = "flat", *, mj_model=
         from jax_contact.envs.contact_params import choose_force_rows
 
         rows = choose_force_rows(mj_model, desc)
-        params = quadruped_estimator_params(desc, dt, force_rows=rows)
+        params = quadruped_estimator_params(desc, dt, force_rows=rows, noise=noise)
         plane = jc.flat(0.0, TERRAIN_SIGMA)
     else:
-        params, plane = quadruped_estimator_params(desc, dt), jc.flat(0.0, TERRAIN_SIGMA)
+        params = quadruped_estimator_params(desc, dt, noise=noise)
+        plane = jc.flat(0.0, TERRAIN_SIGMA)
     if mj_model is not None:
         from jax_contact.envs.contact_params import choose_unilateral
 

@@ -17,9 +17,10 @@
    and against the fused terms without the measurement-dependent transition model.
 
 Nothing is tuned on the evaluation seeds. The estimator's parameters are fixed, documented
-defaults (:func:`quadruped_estimator_params`); beside them, the row ``tuned`` runs the
-robot's shipped preset (tuned by gradient on seeds 1000 and 1001, docs/tuning.md) on the
-same inputs, when the robot has one (:func:`tuned_estimator`).
+defaults (:func:`jax_contact.train.log_estimator.default_estimator`, which is
+:func:`quadruped_estimator_params` on a quadruped of 3-joint legs); beside them, the row
+``tuned`` runs the robot's shipped preset (tuned by gradient on seeds 1000 and 1001,
+docs/tuning.md) on the same inputs, when the robot has one (:func:`tuned_estimator`).
 """
 
 from __future__ import annotations
@@ -145,33 +146,37 @@ def _log(msg: str) -> None:
 PLANAR_GAIT = jc.GaitPrior(stance_time=0.45, swing_time=0.15)
 
 
-def planar_estimator_params(nv: int = 3, dt: float = 0.0025, **overrides) -> jc.EstimatorParams:
+def planar_estimator_params(
+    nv: int = 3, dt: float = 0.0025, *, noise: str = "anymal_like", **overrides
+) -> jc.EstimatorParams:
     """Section III's estimator: :func:`jax_contact.params_for` with the planar leg's
-    ``anymal_like`` sensors (which are Table II on that leg, ``jax_contact.envs.sensors``), its x-z
-    force rows and the hop's gait prior."""
+    ``anymal_like`` sensors (which are Table II on that leg, ``jax_contact.envs.sensors``;
+    another preset with ``noise``), its x-z force rows and the hop's gait prior."""
     from jax_contact.envs.robots import load_robot
     from jax_contact.envs.sensors import sensor_preset
 
     desc = load_robot("planar_leg").description
     if desc.nv != nv:
         raise ValueError(f"nv must be the planar leg's {desc.nv}, got {nv}")
-    sp = sensor_preset("anymal_like", nv, dt=dt, floating_base=False, base_dofs=desc.base_dofs)
+    sp = sensor_preset(noise, nv, dt=dt, floating_base=False, base_dofs=desc.base_dofs)
     kw = dict(gait=PLANAR_GAIT, force_rows=(0, 2))
     return jc.params_for(desc, sp, dt, **(kw | overrides))
 
 
-def quadruped_estimator_params(desc, dt: float = 0.0025, **overrides) -> jc.EstimatorParams:
+def quadruped_estimator_params(
+    desc, dt: float = 0.0025, *, noise: str = "anymal_like", **overrides
+) -> jc.EstimatorParams:
     """Table III's estimator: :func:`jax_contact.params_for` with the ``anymal_like``
-    sensors of a floating-base quadruped and the default gait prior (the one source of
-    parameters; the wrapper and ``jax-contact evaluate`` build the same). A robot whose
-    base is not free (``desc.base_dofs`` not the free joint's 6: a leg on a rail or fixed
-    to the world) gets the sensors of :func:`jax_contact.envs.sensors.sensor_preset`'s
-    fixed base on its base coordinates."""
+    sensors (another preset with ``noise``) of a floating-base quadruped and the default
+    gait prior (the one source of parameters; the wrapper and ``jax-contact evaluate``
+    build the same). A robot whose base is not free (``desc.base_dofs`` not the free
+    joint's 6: a leg on a rail or fixed to the world) gets the sensors of
+    :func:`jax_contact.envs.sensors.sensor_preset`'s fixed base on its base coordinates."""
     from jax_contact.envs.sensors import sensor_preset
 
     floating = len(desc.base_dofs) == 6
     sp = sensor_preset(
-        "anymal_like",
+        noise,
         desc.nv,
         dt=dt,
         floating_base=floating,
@@ -520,8 +525,12 @@ def table3(cfg: ReproduceConfig, out_dir: Path, tuned_row: dict | None = None) -
     row); :func:`run` loads it before anything is simulated, so a bad file fails at once.
     """
 
-    desc = robot_of(cfg).description
-    base = quadruped_estimator_params(desc)
+    from jax_contact.train.log_estimator import default_estimator
+
+    robot = robot_of(cfg)
+    # evaluate's defaults (force axes from the Jacobian for legs of two joints, the sign
+    # test where the legs' torques can read a load): the same on the shipped robots.
+    base = default_estimator(robot.description, 0.0025, mj_model=robot.mj_model)[0]
     estimators = ablation_variants(base)
     if cfg.monte_carlo:
         estimators["probabilistic_mc"] = base.replace(touchdown="monte_carlo")

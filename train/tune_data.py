@@ -257,21 +257,11 @@ def load_tuning_recording(
 def default_params(robot, dt: float, noise: str = "anymal_like"):
     """(params, terrain) that ``jax-contact tune`` starts from on a simulated log: those of
     ``jax-contact evaluate`` (:func:`jax_contact.train.log_estimator.default_estimator`, the
-    robot's force axes and sign test included), with the log's own sensor preset ``noise``
-    in place of ``anymal_like`` (through ``params_for``) on every robot but the planar leg.
-    """
-    import jax_contact as jc
-    from jax_contact.envs.sensors import sensor_preset
-    from jax_contact.train.log_estimator import default_estimator, is_planar_leg
+    robot's force axes and sign test included) with the log's own sensor preset ``noise``,
+    the one :func:`sensor_floor` reads."""
+    from jax_contact.train.log_estimator import default_estimator
 
-    desc = robot.description
-    params, plane = default_estimator(desc, dt, mj_model=robot.mj_model)
-    if noise != "anymal_like" and not is_planar_leg(desc):
-        sp = sensor_preset(noise, desc.nv, dt=dt)
-        params = jc.params_for(desc, sp, dt, force_rows=params.force_rows).replace(
-            unilateral=params.unilateral
-        )
-    return params, plane
+    return default_estimator(robot.description, dt, mj_model=robot.mj_model, noise=noise)
 
 
 def sensor_floor(robot, dt: float, noise: str = "anymal_like") -> dict:
