@@ -821,6 +821,38 @@ def test_a_log_without_ground_truth_gives_p_contact(tmp_path, capsys):
     np.testing.assert_allclose(p, want, rtol=1e-6, atol=1e-7, equal_nan=True)
 
 
+def test_a_log_without_ground_truth_reports_p_through_the_files_map(tmp_path, capsys):
+    """With a --params file that holds a calibration map, a truth-less log's P(contact) is
+    the file's raw P read through that map, as estimate, export and the wrapper report it
+    (it was the raw P). The reference: the same readings with truth, whose raw row is the
+    estimator's own output, mapped here by hand: l' = l / T_c above 0, l / T_a below."""
+    import jax_contact as jc
+    from jax_contact.envs.robots import load_robot
+    from jax_contact.train.log_estimator import default_estimator
+    from jax_contact.train.log_evaluate import evaluate_file
+
+    desc = load_robot("planar_leg").description
+    params, _ = default_estimator(desc, 0.0025)
+    cal = {"kind": "sign", "temperature": 0.8, "bias": 0.0, "temperature_air": 2.0}
+    file = jc.save_params(tmp_path / "mapped.json", params, {"calibration": cal})
+    path = _planar_log(tmp_path / "log.h5", truth=False)
+    out_json = tmp_path / "p.json"
+    assert cli.main(["evaluate", str(path), "--params", str(file), "--json", str(out_json)]) == 0
+    assert "read through the calibration map" in capsys.readouterr().out
+    got = json.loads(out_json.read_text())
+    assert got["p_contact_calibrated"] is True
+    p = np.array(got["p_contact"]["foot"], dtype=float)[..., 0]
+    same = _planar_log(tmp_path / "with_truth.h5", truth=True)
+    raw = np.asarray(evaluate_file(same, params_path=file)["outputs"]["probabilistic"], float)
+    raw = raw[:, 0, 0]  # (T, E, L): env 0's only foot
+    logit = np.log(raw) - np.log1p(-raw)
+    mapped = 1 / (1 + np.exp(-np.where(logit > 0, logit / 0.8, logit / 2.0)))
+    capsys.readouterr()
+    assert np.isfinite(p).sum() >= 10
+    np.testing.assert_allclose(p, mapped, rtol=1e-5, atol=1e-6, equal_nan=True)
+    assert not np.allclose(p[np.isfinite(p)], raw[np.isfinite(p)], atol=1e-3)
+
+
 def test_evaluate_pools_several_logs(tmp_path, capsys):
     """``evaluate A B C``: each log's own table, then the logs with ground truth of one
     robot and rate pooled. Every env of every log is its own sequence, so (hand

@@ -239,6 +239,13 @@ def evaluate_file(
     scored = known = None
     if truth is None:
         p = np.asarray(out["probabilistic"])  # (T, E, L)
+        if calibration is not None:
+            # What estimate, export and the wrapper report for this file: P through its map.
+            from jax_contact.tune import calibrate_probability
+
+            p = np.asarray(calibrate_probability(p, calibration))
+            print(f"P(contact) read through the calibration map of {str(params_path)!r}")
+        result["p_contact_calibrated"] = calibration is not None
         means = "  ".join(f"{f} {np.nanmean(p[..., i]):.3f}" for i, f in enumerate(feet))
         print(
             f"{name} has no ground truth ({TRUTH_CONTACT!r}): no metrics can be computed."
