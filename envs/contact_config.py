@@ -59,7 +59,9 @@ class ContactObsConfig:
         normal (z) always kept (:func:`jax_contact.envs.contact_params.choose_force_rows`).
         The choice is reported by the wrapper's ``contact_report()``.
       terrain: a :mod:`jax_contact.terrain` model; None:
-        :func:`jax_contact.envs.contact_params.default_terrain`.
+        :func:`jax_contact.envs.contact_params.default_terrain`, or, for a parameter file
+        whose provenance names the terrain model it was tuned with (``"memory"``), that
+        model over it (:func:`jax_contact.terrain.terrain_for`), as the log commands run it.
       rate: ``"substep"``: an estimator update after every physics step (Brax and
         Playground, :mod:`jax_contact.envs.substeps`); ``"control"``: one per env step (``dt =
         env.dt``); ``"auto"`` (default) is ``"substep"``. The wrapper's ``contact_rate``

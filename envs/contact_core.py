@@ -36,6 +36,7 @@ from jax_contact.envs.robots import Robot
 from jax_contact.params import TERMS
 from jax_contact.params_file import load_params_for
 from jax_contact.robot import RobotDescription, model_mass
+from jax_contact.terrain import terrain_for, terrain_model_of
 from jax_contact.tune.space import robot_space
 
 
@@ -301,6 +302,7 @@ def make_core(env, cfg: ContactObsConfig) -> Core:
     robot = Robot(name="wrapped env", mj_model=mj_model, description=desc, spec=None)
     sensor_params = contact_params.default_sensor_params(cfg.sensor, robot, dt)
     params, params_source, calibration_in_file = cfg.params, "given", None
+    file_terrain = None  # the terrain model a parameter file was tuned with, if it says
     if params is None:
         params_source = "default"
         params = contact_params.default_estimator_params(
@@ -328,6 +330,7 @@ def make_core(env, cfg: ContactObsConfig) -> Core:
             groups=robot_space(desc).named_groups(),
         )
         calibration_in_file = file_calibration(provenance, cfg.params)
+        file_terrain = terrain_model_of(provenance, cfg.params)
         if unused := [t for t in TERMS if t not in params.terms]:
             # The wrapped env reads every joint torque, so every term can run here.
             warnings.warn(
@@ -350,7 +353,10 @@ def make_core(env, cfg: ContactObsConfig) -> Core:
             )
     terrain = cfg.terrain
     if terrain is None:
-        terrain = contact_params.default_terrain(mj_model, desc)
+        # The floor's plane, or the model a parameter file was tuned with over it (as the
+        # log commands run it: jax_contact.train.log_estimator.resolve_terrain_model).
+        plane = contact_params.default_terrain(mj_model, desc)
+        terrain = terrain_for(plane, file_terrain or "flat")
     truth_raw, source = contact_truth.truth_reader(
         mj_model, desc, resolved, cfg.truth, cfg.truth_threshold
     )

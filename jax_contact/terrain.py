@@ -240,3 +240,50 @@ def foothold_memory(
         growth=_positive("growth", growth),
         smoothing=a,
     )
+
+
+# ------------------------------------------------------------------------ named models
+
+# The terrain models a parameter file can name (``provenance["terrain_model"]``, written by
+# ``jax-contact tune --terrain-model`` and ``tune-env``), rebuilt from that name over the
+# floor's plane by every entry point (the log commands, the reproduction, the wrapper):
+# ``"flat"``, the plane itself; ``"memory"``, the height where each foot last stood (its
+# stance average) over that plane (docs/model_choices.md, "Base drift and the kinematics
+# term").
+TERRAIN_MODELS = ("flat", "memory")
+
+# The memory's sigma at the foothold (m), its growth per metre walked, the stance average's
+# weight.
+FOOTHOLD_MEMORY = dict(sigma_foothold=0.02, growth=0.3, smoothing=0.05)
+
+
+def check_terrain_model(terrain_model: str) -> None:
+    """Raises ValueError unless ``terrain_model`` is one of :data:`TERRAIN_MODELS`."""
+    if terrain_model not in TERRAIN_MODELS:
+        raise ValueError(f"terrain_model must be one of {TERRAIN_MODELS}, got {terrain_model!r}")
+
+
+def terrain_for(plane, terrain_model: str):
+    """The estimator's terrain of ``terrain_model`` over ``plane``: the plane itself
+    (``"flat"``), or a :func:`foothold_memory` over it with :data:`FOOTHOLD_MEMORY`
+    (``"memory"``)."""
+    check_terrain_model(terrain_model)
+    if terrain_model == "memory":
+        return foothold_memory(plane, **FOOTHOLD_MEMORY)
+    return plane
+
+
+def terrain_model_of(provenance: dict, source) -> str | None:
+    """``provenance["terrain_model"]`` of the parameter file ``source``, checked, or None
+    when it does not say (files written before the option: tuned on the plane).
+
+    Raises:
+      ValueError: naming ``source`` and the field, for a name not in :data:`TERRAIN_MODELS`.
+    """
+    model = (provenance or {}).get("terrain_model")
+    if model is not None and model not in TERRAIN_MODELS:
+        raise ValueError(
+            f"parameter file {str(source)!r}: provenance field 'terrain_model' must be one of"
+            f" {TERRAIN_MODELS}, got {model!r}"
+        )
+    return model

@@ -361,6 +361,36 @@ def test_config_fields_are_checked_and_named(brax_leg, fields, match):
 # ------------------------------------------------ parameter files and calibration maps
 
 
+def test_a_parameter_file_brings_its_terrain_model(brax_leg, tmp_path):
+    """A file tuned on the foothold memory (``tune --terrain-model memory``) runs on it in
+    the wrapper as in the log commands: FOOTHOLD_MEMORY over the floor's plane (it ran on
+    the plane alone); a file that names none runs on the plane, config.terrain wins over
+    both, and a file naming an unknown model is refused naming it and the field."""
+    from jax_contact.envs.contact_params import default_terrain
+    from jax_contact.terrain import FOOTHOLD_MEMORY, FlatTerrain, FootholdMemory
+
+    core = W.wrap_contact(brax_leg).contact_core
+    params, plane = core.params, default_terrain(brax_leg.mj_model, core.desc)
+    assert core.terrain == plane
+    files = {}
+    for name, prov in (("memory", {"terrain_model": "memory"}), ("plain", {}),
+                       ("stairs", {"terrain_model": "stairs"})):  # fmt: skip
+        files[name] = str(jc.save_params(tmp_path / f"{name}.json", params, prov))
+    mem = W.wrap_contact(brax_leg, W.ContactObsConfig(params=files["memory"])).contact_core
+    assert isinstance(mem.terrain, FootholdMemory)
+    assert float(mem.terrain.sigma_foothold) == pytest.approx(FOOTHOLD_MEMORY["sigma_foothold"])
+    assert float(mem.terrain.growth) == pytest.approx(FOOTHOLD_MEMORY["growth"])
+    assert float(mem.terrain.smoothing) == pytest.approx(FOOTHOLD_MEMORY["smoothing"])
+    assert mem.terrain.fallback == plane
+    plain = W.wrap_contact(brax_leg, W.ContactObsConfig(params=files["plain"])).contact_core
+    assert isinstance(plain.terrain, FlatTerrain) and plain.terrain == plane
+    chosen = jc.flat(0.1, 0.01)
+    given = W.ContactObsConfig(params=files["memory"], terrain=chosen)
+    assert W.wrap_contact(brax_leg, given).contact_core.terrain == chosen
+    with pytest.raises(ValueError, match=r"stairs\.json.*'terrain_model'.*'stairs'"):
+        W.wrap_contact(brax_leg, W.ContactObsConfig(params=files["stairs"]))
+
+
 def test_a_parameter_file_brings_its_calibration_map(brax_leg, tmp_path):
     """params given as a file: the wrapper runs the file's parameters and observes (and
     scores) the belief through the file's calibration map, while the recursion runs on the

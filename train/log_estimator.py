@@ -10,14 +10,15 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
-# The estimator's terrain model for logs (``--terrain-model``): ``flat``, a plane at z = 0 of
-# the log's world frame; ``memory``, the height where each foot last stood (its stance
-# average) over that plane (docs/model_choices.md, "Base drift and the kinematics term").
-TERRAIN_MODELS = ("flat", "memory")
-
-
-# sigma at the foothold (m), its growth per metre walked, the stance average's weight.
-FOOTHOLD_MEMORY = dict(sigma_foothold=0.02, growth=0.3, smoothing=0.05)
+# The named terrain models (``--terrain-model``, a parameter file's provenance) live with the
+# terrains; imported here, where the log commands read them.
+from jax_contact.terrain import (  # noqa: F401  (TERRAIN_MODELS, FOOTHOLD_MEMORY: re-exported)
+    FOOTHOLD_MEMORY,
+    TERRAIN_MODELS,
+    check_terrain_model,
+    terrain_for,
+    terrain_model_of,
+)
 
 
 def default_estimator(
@@ -77,24 +78,6 @@ def is_planar_leg(desc) -> bool:
     return desc.n_leg_dofs == 2 and desc.n_legs == 1 and len(desc.base_dofs) == 1 and desc.nv == 3
 
 
-def check_terrain_model(terrain_model: str) -> None:
-    """Raises ValueError unless ``terrain_model`` is one of :data:`TERRAIN_MODELS`."""
-    if terrain_model not in TERRAIN_MODELS:
-        raise ValueError(f"terrain_model must be one of {TERRAIN_MODELS}, got {terrain_model!r}")
-
-
-def terrain_for(plane, terrain_model: str):
-    """The estimator's terrain of ``terrain_model`` over ``plane``: the plane itself
-    (``"flat"``), or a :func:`jax_contact.foothold_memory` over it with
-    :data:`FOOTHOLD_MEMORY` (``"memory"``)."""
-    import jax_contact as jc
-
-    check_terrain_model(terrain_model)
-    if terrain_model == "memory":
-        return jc.foothold_memory(plane, **FOOTHOLD_MEMORY)
-    return plane
-
-
 def file_terrain_model(path) -> str | None:
     """The terrain model a parameter file (or preset name) was tuned with
     (``provenance["terrain_model"]`` of ``jax-contact tune``), or None when it does not say
@@ -102,18 +85,7 @@ def file_terrain_model(path) -> str | None:
     from jax_contact.params_file import load_params
 
     _, prov = load_params(path, with_provenance=True)
-    return _terrain_model_in(prov, path)
-
-
-def _terrain_model_in(provenance: dict, path) -> str | None:
-    """``provenance["terrain_model"]`` of the file ``path``, checked, or None."""
-    model = provenance.get("terrain_model")
-    if model is not None and model not in TERRAIN_MODELS:
-        raise ValueError(
-            f"parameter file {str(path)!r}: provenance field 'terrain_model' must be one of"
-            f" {TERRAIN_MODELS}, got {model!r}"
-        )
-    return model
+    return terrain_model_of(prov, path)
 
 
 def resolve_terrain_model(
@@ -128,7 +100,7 @@ def resolve_terrain_model(
         return terrain_model
     if params_path is not None:
         if provenance is not None:
-            return _terrain_model_in(provenance, params_path) or "flat"
+            return terrain_model_of(provenance, params_path) or "flat"
         return file_terrain_model(params_path) or "flat"
     return "flat"
 
