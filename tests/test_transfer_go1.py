@@ -101,6 +101,26 @@ def test_go1_columns_build_their_sensors():
     assert {tuple(e.observation_size["state"]) for e in envs.values()} == {(52,)}
 
 
+def test_latency_columns_run_the_estimate_columns_estimator():
+    """A run trained with a parameter file of another period (``go1``: 2.5 ms, the Go1
+    joystick's physics step 4 ms): the wrapper moves it to 4 ms by re-deriving the preset's
+    values there (``load_params_for``'s ``derive``), which it can do only from a preset
+    name. The latency columns are built with a delayed ``SensorParams`` and ran the file
+    with only its ``dt`` replaced; they now run the estimate column's estimator, leaf for
+    leaf, with its map and terrain, and differ from it in their readings' latency alone."""
+    cfg = dataclasses.replace(ppo.SMALL, estimator_params="go1")
+    with pytest.warns(UserWarning, match="period"):
+        envs = {c: policy_eval.column_env(c, cfg) for c in ("estimate", "estimate_lat1")}
+    est, lat = (envs[c].contact_core for c in ("estimate", "estimate_lat1"))
+    leaves = zip(jax.tree.leaves(est.params), jax.tree.leaves(lat.params), strict=True)
+    assert jax.tree.structure(est.params) == jax.tree.structure(lat.params)
+    assert all(np.array_equal(np.asarray(a), np.asarray(b)) for a, b in leaves)
+    assert float(est.params.dt) == pytest.approx(0.004)
+    assert est.calibration == lat.calibration and est.calibration is not None
+    assert est.terrain == lat.terrain
+    assert (est.sensor.latency, lat.sensor.latency) == (1, 6)
+
+
 # ----------------------------------------------------------------------- dispatch
 
 

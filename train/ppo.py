@@ -344,8 +344,12 @@ def make_env(
     if extra_latency == 0:
         return wrapped
     # The preset as the wrapper resolved it (estimator period, latency in its steps), delayed.
-    delayed = with_extra_latency(wrapped.contact_core.sensor, extra_latency, float(env.dt))
-    return W.wrap_contact(env, cfg, sensor=delayed)
+    # The estimator as resolved too (a file moved to this period from the preset, its map
+    # and terrain): the column differs from "estimate" in its readings' latency alone.
+    core = wrapped.contact_core
+    delayed = with_extra_latency(core.sensor, extra_latency, float(env.dt))
+    same = cfg.replace(params=core.params, calibration=core.calibration, terrain=core.terrain)
+    return W.wrap_contact(env, same, sensor=delayed)
 
 
 def network_factory(cfg: PPOConfig):
