@@ -232,12 +232,18 @@ def test_a_planar_leg_of_three_joints_keeps_the_plane():
     moves in the x-z plane only, so the y row of every leg's Jacobian is zero (a hinge
     about y moves a point by y x r, which has no y component) and the leg cannot push
     along y: rows (0, 2), where every leg of three joints used to get (0, 1, 2). The same
-    leg with its first hinge about x (a hip abduction) spans y: (0, 1, 2)."""
+    leg with its first hinge about x (a hip abduction) spans y: (0, 1, 2). The log
+    commands' defaults (``default_estimator`` with the model) take the same rows; without
+    the model a leg of three joints keeps all three."""
+    from jax_contact.train.log_estimator import default_estimator
+
     for axis, rows in (("0 1 0", (0, 2)), ("1 0 0", (0, 1, 2))):
         m = mujoco.MjModel.from_xml_string(LEG_3.format(axis=axis))
         desc, _ = feet.describe(m)
         assert desc.n_leg_dofs == 3
         assert W.choose_force_rows(m, desc) == rows, axis
+        assert default_estimator(desc, 0.0025, mj_model=m)[0].force_rows == rows, axis
+        assert default_estimator(desc, 0.0025)[0].force_rows == (0, 1, 2), axis
 
 
 def test_evaluate_and_export_defaults_choose_a_short_legs_force_rows():

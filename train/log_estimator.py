@@ -28,11 +28,13 @@ def default_estimator(
     use for a robot: the planar leg's Section III estimator for one 2-joint leg on a 1-dof
     rail, else Table III's (the one source: :func:`jax_contact.params_for` with the sensor
     preset ``noise``, ``anymal_like`` unless a simulated log names its own,
-    ``jax_contact.train.reproduce``). Legs of fewer than three joints on a floating base
-    (a biped's, Brax's ant's) resist the force axes their Jacobian spans
-    (:func:`jax_contact.envs.contact_params.choose_force_rows`, which needs ``mj_model``).
-    With ``mj_model`` the sign test runs only where the legs' torques can read a foot's
-    load (:func:`jax_contact.envs.contact_params.choose_unilateral`), as in the wrapper.
+    ``jax_contact.train.reproduce``). With ``mj_model`` the legs resist the force axes
+    their Jacobians span, as in the wrapper
+    (:func:`jax_contact.envs.contact_params.choose_force_rows`: all three for a spatial
+    leg, x and z for a planar one such as Brax's walker2d); legs of fewer than three joints
+    (a biped's, Brax's ant's) need it. With ``mj_model`` the sign test runs only where the
+    legs' torques can read a foot's load
+    (:func:`jax_contact.envs.contact_params.choose_unilateral`), as in the wrapper.
     ``terrain_model`` (:data:`TERRAIN_MODELS`): ``"flat"`` the plane of the reproduction,
     ``"memory"`` a :func:`jax_contact.foothold_memory` over it with :data:`FOOTHOLD_MEMORY`,
     for base positions that drift.
@@ -51,19 +53,18 @@ def default_estimator(
     check_terrain_model(terrain_model)
     if is_planar_leg(desc):
         params, plane = planar_estimator_params(desc.nv, dt, noise=noise), jc.flat(0.0, 0.2)
-    elif desc.n_leg_dofs < 3:
-        if mj_model is None:
+    else:
+        if desc.n_leg_dofs < 3 and mj_model is None:
             raise ValueError(
                 f"legs of {desc.n_leg_dofs} joints: their force axes are chosen from the"
                 " robot's model (pass mj_model)"
             )
-        from jax_contact.envs.contact_params import choose_force_rows
+        rows = (0, 1, 2)  # a spatial leg's; without the model, legs of 3+ joints get them
+        if mj_model is not None:  # the wrapper's rule: the axes the legs' Jacobians span
+            from jax_contact.envs.contact_params import choose_force_rows
 
-        rows = choose_force_rows(mj_model, desc)
+            rows = choose_force_rows(mj_model, desc)
         params = quadruped_estimator_params(desc, dt, force_rows=rows, noise=noise)
-        plane = jc.flat(0.0, TERRAIN_SIGMA)
-    else:
-        params = quadruped_estimator_params(desc, dt, noise=noise)
         plane = jc.flat(0.0, TERRAIN_SIGMA)
     if mj_model is not None:
         from jax_contact.envs.contact_params import choose_unilateral
