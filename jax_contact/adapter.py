@@ -74,7 +74,12 @@ def prepare(mjx_model: mjx.Model, mjx_data: mjx.Data) -> mjx.Data:
 
     Returns:
       The data with the position- and velocity-dependent fields recomputed.
+
+    Raises:
+      ValueError: C MuJoCo's model or data instead of MJX's, or ``qpos``/``qvel`` not of
+        one robot of this model (a batch: ``jax.vmap`` it).
     """
+    _check_mjx_inputs(mjx_model, mjx_data)
     qpos = mjx_data.qpos
     d = mjx_data.replace(qpos=jnp.where(jnp.isfinite(qpos), qpos, mjx_model.qpos0))
     d = mjx.kinematics(mjx_model, d)
@@ -188,6 +193,30 @@ def _check_mjx_inputs(mjx_model, mjx_data) -> None:
     if not isinstance(mjx_data, mjx.Data):
         hint = " (mjx.put_data(mj_model, mj_data))" if isinstance(mjx_data, mujoco.MjData) else ""
         raise ValueError(f"mjx_data must be an mjx.Data{hint}, got {type(mjx_data).__name__}")
+    # One robot's data: a batch (or another robot's state) failed deep inside MJX's tree scan.
+    for name, n in (("qpos", mjx_model.nq), ("qvel", mjx_model.nv)):
+        shape = jnp.shape(getattr(mjx_data, name))
+        if shape != (n,):
+            hint = (
+                ": one robot's data; jax.vmap over envs (as the README's estimate does)"
+                if len(shape) == 2 and shape[1] == n
+                else f" (the model's {'nq' if name == 'qpos' else 'nv'})"
+            )
+            raise ValueError(f"mjx_data.{name} has shape {shape}; expected ({n},){hint}")
+
+
+def _check_description(desc, mjx_model) -> None:
+    """``desc`` is the :class:`RobotDescription` of ``mjx_model``."""
+    if not isinstance(desc, RobotDescription):
+        hint = " (robot.description)" if hasattr(desc, "description") else ""
+        raise ValueError(
+            f"desc must be a jax_contact.robot.RobotDescription{hint}, got {type(desc).__name__}"
+        )
+    if (desc.nv, desc.nq) != (mjx_model.nv, mjx_model.nq):
+        raise ValueError(
+            f"desc has nv={desc.nv}, nq={desc.nq} but mjx_model has nv={mjx_model.nv},"
+            f" nq={mjx_model.nq}: derive the description from the same model"
+        )
 
 
 def robot_measurement(
@@ -226,11 +255,7 @@ def robot_measurement(
     """
     m, d = mjx_model, mjx_data
     _check_mjx_inputs(m, d)
-    if (desc.nv, desc.nq) != (m.nv, m.nq):
-        raise ValueError(
-            f"desc has nv={desc.nv}, nq={desc.nq} but mjx_model has nv={m.nv}, nq={m.nq}:"
-            " derive the description from the same model"
-        )
+    _check_description(desc, m)
     for name, value in (("qdd", qdd), ("tau", tau)):
         if value is not None and jnp.shape(value) != (m.nv,):
             raise ValueError(f"{name} must have shape ({m.nv},) (nv), got {jnp.shape(value)}")

@@ -223,6 +223,19 @@ def test_refusals(robots, compiled):
         leg_measurements(mm_go1, mujoco.MjData(m_c), robots["go1"].description)
     with pytest.raises(ValueError, match=r"mjx_model must be an mjx\.Model \(mjx\.put_model"):
         leg_measurements(m_c, d, robots["go1"].description)
+    # prepare is called first (the README's order): the same refusals there (it raised an
+    # AttributeError on MjData, and MJX's broadcasting errors on a batch).
+    with pytest.raises(ValueError, match=r"mjx_data must be an mjx\.Data \(mjx\.put_data"):
+        prepare(mm_go1, mujoco.MjData(m_c))
+    batch = jax.vmap(lambda _: mjx.make_data(mm_go1))(jnp.arange(4))
+    with pytest.raises(ValueError, match=r"qpos has shape \(4, 19\); expected \(19,\).*vmap"):
+        prepare(mm_go1, batch)
+    other = d.replace(qvel=jnp.zeros(3))  # another robot's readings
+    with pytest.raises(ValueError, match=r"mjx_data\.qvel has shape \(3,\); expected \(18,\)"):
+        prepare(mm_go1, other)
+    # The robot where its description belongs (robot.description).
+    with pytest.raises(ValueError, match=r"desc must be .*RobotDescription \(robot\.description\)"):
+        leg_measurements(mm_go1, d, robots["go1"])
 
 
 # One reading of each kind lost on Go1's front-left leg (leg 1: dofs 9-11, qpos 10-12),

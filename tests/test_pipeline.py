@@ -128,6 +128,33 @@ def test_replay_refuses_two_detectors_of_one_name(planar):
         )
 
 
+def test_replay_refuses_a_users_likely_mistakes(planar):
+    """Refused before anything compiles, naming the argument: one params object where a
+    mapping of them belongs, a diagnostics_of typo (its outputs were missing without a
+    word), parameters of another period (they ran with the wrong gait prior and sigma_qdd
+    without a word), a read_log dict's keys, and one env's (T, nq) readings (an opaque
+    vmap error on 'inconsistent sizes' before)."""
+    world, roll = planar
+    readings = dict(qpos=roll.qpos, qvel=roll.qvel, qacc=roll.qacc, tau=roll.tau)
+    params = planar_estimator_params(3, world.dt)
+    kw = dict(terrain=jc.flat(0.0, 0.2), dt=world.dt, progress=False)
+    with pytest.raises(ValueError, match=r"estimators must be a mapping .* got EstimatorParams"):
+        replay(world.robot, readings, estimators=params, **kw)
+    with pytest.raises(ValueError, match=r"diagnostics_of 'estmate' is not one of .*'estimate'"):
+        replay(
+            world.robot, readings, estimators={"estimate": params}, diagnostics_of="estmate", **kw
+        )
+    slow = planar_estimator_params(3, 2 * world.dt)
+    with pytest.raises(ValueError, match=r"estimators\['slow'\] has dt=0\.005 s .* dt=0\.0025 s"):
+        replay(world.robot, readings, estimators={"slow": slow}, **kw)
+    logged = {f"readings/{k}": v for k, v in readings.items()}
+    with pytest.raises(ValueError, match=r"readings lack \['qpos', 'qvel', 'qacc', 'tau'\]"):
+        replay(world.robot, logged, estimators={"estimate": params}, **kw)
+    one_env = {k: v[:, 0] for k, v in readings.items()}
+    with pytest.raises(ValueError, match=r"readings\['qpos'\] has shape \(\d+, 3\); expected"):
+        replay(world.robot, one_env, estimators={"estimate": params}, **kw)
+
+
 def test_rollout_shapes_and_truth(planar):
     world, roll = planar
     t = int(round(DURATION / world.dt))

@@ -111,6 +111,13 @@ def replay(
       and ``"<estimator>/<field>"`` for every diagnostic field of ``diagnostics_of``,
       ``"<estimator>/valid"`` the estimator's input-validity flag.
     """
+    for arg, value, kind in (("estimators", estimators, "EstimatorParams"),
+                             ("gms", gms, "GMParams")):  # fmt: skip
+        if value is not None and not isinstance(value, Mapping):
+            raise ValueError(
+                f"{arg} must be a mapping name -> {kind} (e.g. {{'estimate': params}}), got"
+                f" {type(value).__name__}"
+            )
     gms = dict(gms or {})
     if kinematic is None:
         kinematic = {}
@@ -121,6 +128,19 @@ def replay(
     _check_output_names(estimators, gms, kinematic)
     if pairing not in ("delayed", "raw"):
         raise ValueError(f"pairing must be 'delayed' or 'raw', got {pairing!r}")
+    if diagnostics_of is not None and diagnostics_of not in estimators:
+        raise ValueError(
+            f"diagnostics_of {diagnostics_of!r} is not one of estimators {list(estimators)}"
+        )
+    for name, params in estimators.items():
+        # Another period's gait prior, sigma_qdd and caps would run silently.
+        if not np.isclose(float(params.dt), float(dt), rtol=1e-4):
+            raise ValueError(
+                f"estimators[{name!r}] has dt={float(params.dt):g} s but the readings' period"
+                f" is dt={float(dt):g} s: move the parameters to it"
+                " (jax_contact.params_file.load_params_for)"
+            )
+    _check_readings(readings, robot)
     qpos, qvel, qacc, tau = (np.asarray(readings[k]) for k in ("qpos", "qvel", "qacc", "tau"))
     # The baselines read no differenced acceleration, so they get each reading when it
     # arrives (no delayed pairing): scored on what they would use on the robot.
@@ -159,6 +179,32 @@ def replay(
         carry, out = _replay_chunk(*models, carry, xs, **kw)
         pieces.append({k: np.asarray(v)[: stop - start] for k, v in out.items()})
     return {k: np.concatenate([p[k] for p in pieces], axis=0) for k in pieces[0]}
+
+
+def _check_readings(readings: Mapping, robot) -> None:
+    """``readings`` hold ``qpos`` (T, E, nq) and ``qvel``, ``qacc``, ``tau`` (T, E, nv) of
+    ``robot``'s model, over one (T, E).
+
+    Raises:
+      ValueError: naming the missing keys, or the array, its shape and the one expected.
+    """
+    keys = ("qpos", "qvel", "qacc", "tau")
+    if missing := [k for k in keys if k not in readings]:
+        raise ValueError(
+            f"readings lack {missing}: replay needs qpos (T, E, nq) and qvel, qacc, tau"
+            f" (T, E, nv), got keys {sorted(readings)[:8]}"
+        )
+    m = robot.mj_model
+    lead = np.shape(readings["qpos"])[:2]
+    for k in keys:
+        shape = np.shape(readings[k])
+        n = m.nq if k == "qpos" else m.nv
+        if len(shape) != 3 or shape[2] != n or shape[:2] != lead:
+            raise ValueError(
+                f"readings[{k!r}] has shape {shape}; expected (T, E, {n}) for robot"
+                f" {robot.name!r} ({'nq' if k == 'qpos' else 'nv'} = {n}; one env: add the"
+                " axis, readings[k][:, None])"
+            )
 
 
 def _check_output_names(estimators: Mapping, gms: Mapping, kinematic: Mapping) -> None:
