@@ -286,6 +286,13 @@ def params_for(
             " keep the normal and the largest tangential ones"
         )
     s = _sensor_fields(sensors, nv)
+    # A sensor model with its own period (SensorParams) differentiates velocities at it:
+    # sigma_qdd below is for readings at dt.
+    if hasattr(sensors, "dt") and not np.isclose(float(np.asarray(sensors.dt)), dt, rtol=1e-4):
+        raise ValueError(
+            f"sensors.dt = {float(np.asarray(sensors.dt)):g} s but dt = {dt:g} s: build the"
+            " sensor model at the estimator's period (sensor_preset(..., dt=dt))"
+        )
 
     white = _sensor_noise(s, dt, bias_horizon_s=0.0)
     drift = _sensor_noise(s, dt, bias_horizon_s=bias_horizon_s)

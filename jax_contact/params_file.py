@@ -235,13 +235,37 @@ def save_params(path: str | os.PathLike, params, provenance: Mapping | None = No
 
     Raises:
       ValueError: ``params`` fails :func:`jax_contact.validate_params` (the field named;
-        nothing is written: a NaN would be written as ``null`` and the file not load).
+        nothing is written: a NaN would be written as ``null`` and the file not load), or
+        ``provenance`` is not a mapping of JSON values (the key named), or holds what
+        :func:`load_params` refuses (``robot_mass_kg``, ``calibration``, ``terrain_model``):
+        a file that could not be read back is not written.
       OSError: the file cannot be created (its path named).
     """
+    import json
+
+    from jax_contact.calibration import file_calibration
+    from jax_contact.io import _finite
     from jax_contact.params import validate_params
+    from jax_contact.terrain import terrain_model_of
 
     validate_params(params)
-    return write_json_atomic(path, params_to_dict(params, provenance))
+    if provenance is not None and not isinstance(provenance, Mapping):
+        raise ValueError(
+            f"provenance must be a mapping of JSON values (e.g. {{'note': ...}}), got"
+            f" {type(provenance).__name__}"
+        )
+    for key, value in (provenance or {}).items():
+        try:
+            json.dumps(_finite(value))
+        except (TypeError, ValueError) as err:
+            hint = " (a Calibration: pass cal.as_dict())" if hasattr(value, "as_dict") else ""
+            raise ValueError(f"provenance[{key!r}] is not a JSON value{hint}: {err}") from None
+    payload = json.loads(json.dumps(_finite(params_to_dict(params, provenance))))
+    source = f"provenance for {str(path)!r}"  # what load_params would refuse, said now
+    check_params_header(payload, source)
+    file_calibration(payload["provenance"], source)
+    terrain_model_of(payload["provenance"], source)
+    return write_json_atomic(path, payload)
 
 
 def load_params(path: str | os.PathLike, *, with_provenance: bool = False):

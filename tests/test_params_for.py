@@ -118,6 +118,10 @@ def test_params_for_names_bad_input(go1):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
     with pytest.raises(ValueError, match=r"desc must be a RobotDescription .*MjModel without"):
         jc.params_for(load_robot("go1").mj_model, sp, DT)
+    # The sensor model of another period: its velocities are differenced at 2.5 ms, so a
+    # 20 ms sigma_qdd (8x smaller) was silently wrong.
+    with pytest.raises(ValueError, match=r"sensors\.dt = 0\.0025 s but dt = 0\.02 s"):
+        jc.params_for(go1, sp, 0.02)
     # Static flags and sequences are typed: bool("no") and tuple("dynamics") were accepted.
     noise = p.noise
     with pytest.raises(ValueError, match="unilateral must be True or False, got 'no'"):
@@ -159,6 +163,21 @@ def test_save_params_refuses_invalid_params_and_names_an_unwritable_path(go1, tm
     (tmp_path / "file").write_text("x")
     with pytest.raises(OSError, match=r"cannot create '.*file/sub/p\.json'"):
         jc.save_params(tmp_path / "file" / "sub" / "p.json", p)
+    # A provenance that is not JSON (a str, a Calibration object) or that load_params would
+    # refuse: named, and nothing written (the last were written and could not be read back).
+    cal = jc.Calibration(temperature=1.2, temperature_air=2.0)
+    for bad, said in (
+        ("tuned by hand", r"provenance must be a mapping .* got str"),
+        ({"calibration": cal}, r"provenance\['calibration'\] is not a JSON value \(a Calib"),
+        ({"robot_mass_kg": 0}, r"provenance for .*'robot_mass_kg' must be a positive number"),
+        ({"calibration": {"kind": "sign"}}, r"provenance for .*field 'calibration'"),
+        ({"terrain_model": "stairs"}, r"provenance for .*'terrain_model' must be one of"),
+    ):
+        with pytest.raises(ValueError, match=said):
+            jc.save_params(tmp_path / "bad.json", p, bad)
+    assert sorted(f.name for f in tmp_path.iterdir()) == ["file"]
+    jc.save_params(tmp_path / "ok.json", p, {"calibration": cal.as_dict(), "n": np.int64(3)})
+    assert jc.load_params(tmp_path / "ok.json", with_provenance=True)[1]["n"] == 3
 
 
 def test_bad_params_file_names_the_field(go1, tmp_path):
