@@ -154,6 +154,13 @@ def _check_call(fn: str, params, terrain, key) -> None:
             f" quadrature touch-down of params_for draws nothing from it), got {type(key).__name__}"
             + ("" if dtype is None else f" of dtype {dtype}")
         )
+    typed = jnp.issubdtype(dtype, jax.dtypes.prng_key)
+    if np.ndim(key) != (0 if typed else 1):
+        raise ValueError(
+            f"{fn}: key must be one PRNG key (shape {'()' if typed else '(2,), raw'}), got an"
+            f" array of keys of shape {np.shape(key)}: pass one key, which {fn} splits over"
+            " the steps, envs and feet it runs (or jax.vmap an unbatched step)"
+        )
 
 
 def _check_shapes(

@@ -203,9 +203,24 @@ def _check_int(name: str, value, lowest: int) -> int:
     return int(value)
 
 
+# The longest sample period taken for one, s: a contact estimate sampled slower than 1 Hz
+# has no touch-down to time; a larger dt is a period in ms or a rate in Hz.
+MAX_DT = 1.0
+
+
+def _check_dt(dt) -> float:
+    dt = _check_positive("dt", dt)
+    if dt > MAX_DT:
+        raise ValueError(
+            f"dt is the period between samples in seconds (0.0025 at 400 Hz), got {dt:g}:"
+            " a period in ms or a rate in Hz?"
+        )
+    return dt
+
+
 def _event_settings(dt, early_window_s, min_on) -> tuple[float, int, int]:
     """Checked (dt, early window in steps, min_on) of the event matching (rules 1-2)."""
-    dt = _check_positive("dt", dt)
+    dt = _check_dt(dt)
     early_s = _check_positive("early_window_s", early_window_s, allow_zero=True)
     return dt, int(round(early_s / dt)), _check_int("min_on", min_on, 1)
 

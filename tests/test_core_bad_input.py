@@ -469,6 +469,14 @@ def test_key_terrain_and_params_are_named_before_anything_is_traced():
     for field, value in (("cap_dynamics", 2.0), ("dt", 0.0)):
         with pytest.raises(ValueError, match=rf"step: params: {field} "):
             step(params.replace(**{field: jnp.float32(value)}), TERRAIN, b0, one, key=key)
+    # One key per env (jax.random.split's output): jax.random.split then raised 'split
+    # accepts a single key ... use jax.vmap', the wrong advice for step_batch.
+    batch = init_belief_batch(params, 2, 1)
+    meas2 = _as_meas(_meas_fields((2, 1)))
+    for keys in (jax.random.split(key, 2), jax.random.split(jax.random.PRNGKey(0), 2)):
+        with pytest.raises(ValueError, match=r"step_batch: key must be one PRNG key .*\(2,"):
+            step_batch(params, TERRAIN, batch, meas2, key=keys)
+    step_batch(params, TERRAIN, batch, meas2, key=jax.random.PRNGKey(0))  # a raw key is one
     noise = params.noise.replace(sigma_qdd=-params.noise.sigma_qdd)
     with pytest.raises(ValueError, match=r"step_batch: params: noise\.sigma_qdd"):
         step_batch(

@@ -795,6 +795,12 @@ def test_bad_input_raises():
         step_scores(p, g.astype(int) * 2)
     with pytest.raises(ValueError, match="dt"):
         match_events(p, g, dt=0.0)
+    # A period in ms or a rate in Hz (the early window rounded to 0 steps and every delay
+    # scaled by 1000 or more, silently).
+    for wrong in (2.5, 400.0):
+        with pytest.raises(ValueError, match=r"dt is the period .* in seconds .* got"):
+            evaluate(p, g, dt=wrong)
+    evaluate(p, g, dt=1.0)  # 1 Hz, the slowest taken
     with pytest.raises(ValueError, match="min_on"):
         match_events(p, g, dt=DT, min_on=0)
     for bad_persist in (0, 2.5, True):
