@@ -248,6 +248,16 @@ def test_tune_refuses_logs_it_cannot_learn_from():
         jt.tune(params, flat(0.0, 0.05), [data], [data, dead], space)
     with pytest.raises(ValueError, match=r"tuning logs have no air step among their 100"):
         jt.tune(params, flat(0.0, 0.05), [stance], data, space)
+    # Arrays that do not fit each other, named (NumPy's and the windows' errors before): a
+    # log's (T, E) valid mask, inputs one step short of the truth (the delayed pairing).
+    env_mask = data.replace(mask=np.ones(data.truth.shape[:2], bool))
+    with pytest.raises(ValueError, match=r"tuning log 1 of 1: mask has shape \(50, 2\);"):
+        jt.tune(params, flat(0.0, 0.05), [env_mask], data, space)
+    short = data.replace(meas=jax.tree.map(lambda x: x[:-1], data.meas))
+    with pytest.raises(ValueError, match=r"validation log 1 of 1: meas\.qdd has shape \(49,"):
+        jt.tune(params, flat(0.0, 0.05), [data], short, space)
+    with pytest.raises(ValueError, match=r"space has nv=8 .* base has nv=4"):
+        jt.tune(params, flat(0.0, 0.05), [data], data, jt.make_space(8, fields=("sigma_J",)))
 
 
 def test_tuning_recovers_a_mis_set_noise_std():
@@ -585,6 +595,29 @@ def test_fit_calibration_recovers_temperature_and_bias(np_rng):
     got = jt.apply_calibration(np.array([2.0]), cal)
     np.testing.assert_allclose(got, 2.0 / cal.temperature + cal.bias)
     assert cal.kind == "affine" and not cal.keeps_decisions
+
+
+def test_fit_calibration_refuses_what_is_not_logits(np_rng):
+    """P(contact) (what replay and the diagnostics return) passed as logits put every step
+    on the contact side and fitted a map to the wrong quantity without a word; a NaN logit
+    made the affine fit return the identity; arrays of different shapes failed in NumPy's
+    boolean indexing."""
+    logits = np_rng.normal(scale=4.0, size=1000)
+    truth = np_rng.random(logits.shape) < 1 / (1 + np.exp(-logits))
+    mask = np.ones_like(truth)
+    p = 1 / (1 + np.exp(-logits))
+    with pytest.raises(ValueError, match=r"logits: every masked value lies in \[0, 1\]"):
+        jt.fit_calibration(p, truth, mask)
+    bad = logits.copy()
+    bad[3] = np.nan
+    for kind in ("sign", "affine"):
+        with pytest.raises(ValueError, match=r"logits: 1 masked steps are not finite"):
+            jt.fit_calibration(bad, truth, mask, kind=kind)
+    masked = mask.copy()
+    masked[3] = False
+    jt.fit_calibration(bad, truth, masked)  # left out of the mask: fitted
+    with pytest.raises(ValueError, match=r"one shape, got .*'mask': \(999,\)"):
+        jt.fit_calibration(logits, truth, mask[:-1])
 
 
 def test_fit_calibration_per_side_recovers_both_temperatures_and_keeps_every_sign(np_rng):

@@ -50,16 +50,32 @@ def fit_calibration(
       iterations: Newton steps at most (per side).
 
     Raises:
-      ValueError: an unknown kind, no masked step, only one class, or no finite positive
-        temperature.
+      ValueError: an unknown kind, arrays of different shapes, no masked step, only one
+        class, a non-finite masked logit, probabilities given as logits (every masked
+        value in [0, 1]), or no finite positive temperature.
     """
     if kind not in CALIBRATION_KINDS:
         raise ValueError(f"kind must be one of {CALIBRATION_KINDS}, got {kind!r}")
+    shapes = {n: np.shape(a) for n, a in (("logits", logits), ("truth", truth), ("mask", mask))}
+    if len(set(shapes.values())) != 1:
+        raise ValueError(f"logits, truth and mask must have one shape, got {shapes}")
     m = np.asarray(mask, bool)
     x = np.asarray(logits, np.float64)[m]
     y = np.asarray(truth, bool)[m].astype(np.float64)
     if x.size == 0 or y.min() == y.max():
         raise ValueError("fit_calibration needs masked steps of both classes")
+    if not np.all(np.isfinite(x)):
+        raise ValueError(
+            f"logits: {int(np.sum(~np.isfinite(x)))} masked steps are not finite (leave them"
+            " out of mask)"
+        )
+    if x.size >= 10 and np.all((x >= 0.0) & (x <= 1.0)):
+        # P(contact) where its logit belongs: every step on the contact side, a map fitted
+        # to the wrong quantity without a word.
+        raise ValueError(
+            "logits: every masked value lies in [0, 1]: these look like probabilities; pass"
+            " logits (jax_contact.tune.predict_logits, or log(p) - log1p(-p))"
+        )
     x = np.clip(x, -50.0, 50.0)
     if kind == "sign":
         temps = []

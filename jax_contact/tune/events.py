@@ -74,6 +74,31 @@ class TuningData:
         return int(self.truth.shape[0])
 
 
+def _check_shapes(d: TuningData, where: str) -> None:
+    """``truth``, ``mask`` (and ``known``) of one (T, E, L) shape, and ``meas`` of the same
+    steps and envs (``qdd`` (T, E, nv) of a RobotMeasurement, (T, E, L, nv) of a
+    LegMeasurement): a log's (T, E) valid mask, or inputs one step short of the truth
+    (easy with the delayed pairing), failed deep inside NumPy or the windows."""
+    if not isinstance(d, TuningData):
+        raise ValueError(f"{where} must be a TuningData, got {type(d).__name__}")
+    truth = np.shape(d.truth)
+    if len(truth) != 3:
+        raise ValueError(f"{where}: truth has shape {truth}; expected (T, E, L)")
+    for field in ("mask", "known"):
+        value = getattr(d, field)
+        if value is not None and np.shape(value) != truth:
+            raise ValueError(
+                f"{where}: {field} has shape {np.shape(value)}; expected truth's {truth}"
+            )
+    qdd = np.shape(d.meas.qdd)
+    want = truth[:2] if isinstance(d.meas, RobotMeasurement) else truth
+    if qdd[: len(want)] != want:
+        raise ValueError(
+            f"{where}: meas.qdd has shape {qdd}; its leading axes must be truth's {want}"
+            " (one input per step, env and foot)"
+        )
+
+
 def check_scored_steps(logs: Sequence[TuningData], what: str, names=None) -> None:
     """Refuses logs the loss cannot learn from, before anything is fitted.
 
@@ -87,11 +112,13 @@ def check_scored_steps(logs: Sequence[TuningData], what: str, names=None) -> Non
       names: each log's name for the message (e.g. its path); None: its 1-based index.
 
     Raises:
-      ValueError: naming the log without a counted step, or the class the logs lack.
+      ValueError: naming the log whose arrays do not fit each other, the log without a
+        counted step, or the class the logs lack.
     """
     names = [f"{i + 1} of {len(logs)}" for i in range(len(logs))] if names is None else names
     n_contact = n_air = 0
     for d, name in zip(logs, names, strict=True):
+        _check_shapes(d, f"{what} {name}")
         mask = np.asarray(d.mask, bool)
         truth = np.broadcast_to(np.asarray(d.truth, bool), mask.shape)
         if not mask.any():

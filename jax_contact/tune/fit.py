@@ -300,8 +300,14 @@ def tune(
       ValueError: no tuning log, a log without a step that counts, logs without both
         contact and air (:func:`check_scored_steps`), or parameters that fail validation.
     """
+    train = [train] if isinstance(train, TuningData) else list(train)  # as validation
     if not train:
         raise ValueError("tune needs at least one tuning log")
+    if len(space.dof_groups) != base.nv:
+        raise ValueError(
+            f"space has nv={len(space.dof_groups)} (its dof_groups) but base has nv={base.nv}:"
+            " make the space for the same robot (make_space(base.nv) or robot_space(desc))"
+        )
     t_start = time.perf_counter()
     key = jax.random.key(config.seed)
     theta = init_theta(space, base)
