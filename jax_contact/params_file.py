@@ -261,7 +261,7 @@ def save_params(path: str | os.PathLike, params, provenance: Mapping | None = No
             hint = " (a Calibration: pass cal.as_dict())" if hasattr(value, "as_dict") else ""
             raise ValueError(f"provenance[{key!r}] is not a JSON value{hint}: {err}") from None
     payload = json.loads(json.dumps(_finite(params_to_dict(params, provenance))))
-    source = f"provenance for {str(path)!r}"  # what load_params would refuse, said now
+    source = str(path)  # what load_params would refuse of the file, said before writing it
     check_params_header(payload, source)
     file_calibration(payload["provenance"], source)
     terrain_model_of(payload["provenance"], source)

@@ -690,7 +690,10 @@ def test_load_calibration_reads_a_files_map_and_probability_applies_it(tmp_path)
     params = jc.load_params("spot")
     jc.save_params(tmp_path / "none.json", params, {"tool": "by hand"})
     assert jc.load_calibration(tmp_path / "none.json") is None
-    jc.save_params(tmp_path / "bad.json", params, {"calibration": {"temperature": -1.0}})
+    # Edited by hand after writing (save_params refuses to write such a map).
+    bad = json.loads(jc.save_params(tmp_path / "bad.json", params).read_text())
+    bad["provenance"] = {"calibration": {"temperature": -1.0}}
+    (tmp_path / "bad.json").write_text(json.dumps(bad))
     with pytest.raises(ValueError, match="bad.json.*'calibration'.*temperature must be"):
         jc.load_calibration(tmp_path / "bad.json")
     logits = np.array([-30.0, -2.0, 0.0, 0.5, 12.0])
