@@ -257,7 +257,8 @@ def _update(
     log_prior = jax.nn.logsumexp(belief.log_transition + log_b_prev[:, None], axis=0)
     prior_logit = log_prior[0] - log_prior[1]
 
-    # eq. 3: the product of the terms is the sum of their log-likelihood ratios.
+    # eq. 3: the product of the terms is the sum of their log-likelihood ratios; eq. 2's
+    # normalisation over the two states is the logit itself (below).
     terms = measurement_terms(params, leg, tq, kin, sw.kinematics_neutral_below)
     llr = sum(jnp.where(sw.terms[i], getattr(terms, name), 0.0) for i, name in enumerate(TERMS))
     # A term that is not finite on finite inputs (a numerical failure, e.g. a singular

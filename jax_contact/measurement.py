@@ -222,8 +222,9 @@ def diff_kinematics_llr(
 ) -> jax.Array:
     """Differential kinematics term (eq. 8-9): is the foot still?
 
-    Contact: ``v_f ~ N(0, J Sigma_qd J^T + Sigma_J)``. Air: the leg's joints move with the
-    zero-mean prior ``Sigma_prior`` while the other coordinates move as measured,
+    Contact (eq. 9): ``v_f ~ N(0, J Sigma_qd J^T + Sigma_J)``. Air (eq. 8): the leg's
+    joints move with the zero-mean prior ``Sigma_prior`` while the other coordinates move
+    as measured,
     ``v_f ~ N(J_fb qd_b, J_fl Sigma_prior J_fl^T + J Sigma_qd J^T + Sigma_J)``.
 
     With ``params.slip_prob`` ``rho > 0`` the contact hypothesis is the mixture

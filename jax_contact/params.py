@@ -115,7 +115,7 @@ class EstimatorParams:
         force counts as air (docs/model_choices.md, "A loaded contact").
       slip_prob: () probability ``rho`` in [0, 1) that a foot in contact slides: the
         differential-kinematics term's contact hypothesis is the mixture of the still
-        foot (eq. 8-9) and, with weight ``rho``, a foot that keeps to the terrain's
+        foot (eq. 9) and, with weight ``rho``, a foot that keeps to the terrain's
         tangent plane and moves along it with std ``slip_speed`` per tangent axis. 0
         (default) is the paper's still foot (docs/model_choices.md, "A sliding contact").
       slip_speed: () m/s, the sliding foot's tangential velocity std (with ``slip_prob``).

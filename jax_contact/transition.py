@@ -146,6 +146,7 @@ def log_touchdown_monte_carlo(
     x_f = jnp.clip(points[0], 1e-7, 1.0 - 1e-7)
     v = jnp.maximum(points[1], 1e-7)
     p_f = gap + sigma_pf * ndtri(x_f)
+    # Eq. 17: the terrain point drawn from N(0, sigma_pi^2) truncated to p_i <= p_f.
     p_i = sigma_pi * upper_truncated_normal_icdf(v, p_f / sigma_pi)
     # Eq. 16: the gap phi(t + 1) = p_f + dt u' - p_i closes (< 0) iff u' < -(p_f - p_i) / dt.
     arg = (-(p_f - p_i) / dt - u) / sigma_u
@@ -190,8 +191,9 @@ def log_touchdown_quadrature(
     """(2,) log [P(C | A), P(A | A)]: the integral of Algorithm 1 by a deterministic rule.
 
     Integrating the truncated terrain height out analytically leaves
-    ``P(C | A) = E_{p_f, u'}[1 - Phi(z_f + k u') / Phi(z_f)]^+`` over independent Gaussians
-    ``p_f ~ N(gap, sigma_pf^2)`` and ``u' ~ N(u, sigma_u^2)``, with
+    ``P(C | A) = E_{p_f, u'}[1 - Phi(z_f + k u') / Phi(z_f)]^+`` (the division by
+    ``Phi(z_f)`` is eq. 17's truncation of the terrain to ``p_i <= p_f``) over independent
+    Gaussians ``p_f ~ N(gap, sigma_pf^2)`` and ``u' ~ N(u, sigma_u^2)``, with
     ``z_f = p_f / sigma_pi`` and ``k = dt / sigma_pi``. Only ``u' < 0`` contributes, so the
     velocity integral runs over the lower half-line only (Gauss-Legendre in the CDF of the
     upper-truncated normal, smooth there); the foot position integral is Gauss-Hermite.

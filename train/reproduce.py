@@ -194,7 +194,7 @@ def paper_model(params: jc.EstimatorParams) -> jc.EstimatorParams:
     Gaussian terms, uncapped transitions, the symmetric 0.9 cap on differential kinematics,
     the two-sided kinematics ratio, the foothold written whenever P(C) > 0.5,
     a_F = 200 m/s^2 (``params.make_params``' own default), the rigid contact constraint of
-    eq. 6, every term at the interval's start and the still contact foot of eq. 8-9 (the
+    eq. 6, every term at the interval's start and the still contact foot of eq. 9 (the
     paper's model with this library's noise)."""
     return params.replace(
         contact_damping=_f32(0.0),
