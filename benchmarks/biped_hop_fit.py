@@ -107,12 +107,19 @@ def main(argv=None) -> int:
     parser.add_argument("--json", default=None, help="write the gains and rows here")
     args = parser.parse_args(argv)
     check_json_arg(parser, args.json)
+    gains = bh.BERKELEY_HOP
+    if args.start:  # checked before the env loads
+        try:
+            start = json.loads(args.start)
+            if not isinstance(start, dict):
+                raise ValueError(f"a JSON object of fields, got {type(start).__name__}")
+            gains = dataclasses.replace(gains, **start)
+        except (ValueError, TypeError) as err:  # bad JSON, an unknown field
+            fields = [f.name for f in dataclasses.fields(gains)]
+            parser.error(f"argument --start: {err} (HopGains fields: {fields})")
     from jax_contact.envs import playground_offline
 
     env = playground_offline.load("BerkeleyHumanoidJoystickFlatTerrain")
-    gains = bh.BERKELEY_HOP
-    if args.start:
-        gains = dataclasses.replace(gains, **json.loads(args.start))
     result = {"machine": machine(), "args": vars(args)}
     with json_of_what_finished(args.json, result):
         if args.fit:

@@ -31,6 +31,7 @@ import json
 import os
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -364,6 +365,7 @@ def profile(artefact: str, calls: int = 50) -> dict:
 def _spawn(what: str, env_extra: dict, args) -> dict:
     env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[1]))
     env.setdefault("TF_CPP_MIN_LOG_LEVEL", "3")
+    env.setdefault("JAX_PLATFORMS", "cpu")  # every option is an XLA:CPU one, on a GPU host too
     pin = env_extra.pop("_PIN", None)
     env.update(env_extra)
     cmd = [sys.executable, "-m", "jax_contact.benchmarks.deploy_latency", "--child", what]
@@ -419,24 +421,50 @@ def main(argv=None) -> dict:
         print(json.dumps(child(args.artefact, args.log, args.steps, args.repeats)))
         return {}
 
-    results = {}
-    for name in args.options:
-        if name == "dots_as_reductions":
-            variant = Path(args.artefact).with_suffix(".dots.contact")
-            export_variant(Path(args.artefact), variant)
-            res = _spawn(name, {}, argparse.Namespace(**{**vars(args), "artefact": variant}))
-        else:
-            res = _spawn(name, dict(OPTIONS[name]), args)
-        results[name] = {"env": OPTIONS.get(name, {}), **res}
-        print(f"{name:24s} {json.dumps(res)}", flush=True)
-    if not args.no_floor:
-        for what in ("floor", "split", "profile"):
-            results[what] = _spawn(what, {}, args)
-            print(f"{what:24s} {json.dumps(results[what])}", flush=True)
-    if args.json:
-        from jax_contact.io import write_json_atomic
+    from jax_contact.benchmarks.common import json_of_what_finished, machine, print_table
 
-        write_json_atomic(args.json, results)
+    results = {"machine": machine()}
+    # What finished is written if an option fails late (a missing taskset, a child's
+    # error); the re-exported variant goes to a temporary folder, not beside the input.
+    with json_of_what_finished(args.json, results), tempfile.TemporaryDirectory() as tmp:
+        for name in args.options:
+            if name == "dots_as_reductions":
+                variant = Path(tmp) / "variant.dots.contact"
+                export_variant(Path(args.artefact), variant)
+                res = _spawn(name, {}, argparse.Namespace(**{**vars(args), "artefact": variant}))
+            else:
+                res = _spawn(name, dict(OPTIONS[name]), args)
+            results[name] = {"env": OPTIONS.get(name, {}), **res}
+            print(f"{name:24s} {'error: ' + str(res['error']) if 'error' in res else 'done'}")
+        if not args.no_floor:
+            for what in ("floor", "split", "profile"):
+                results[what] = _spawn(what, {}, args)
+                print(f"{what:24s} {json.dumps(results[what])}", flush=True)
+        rows = [
+            {
+                "option": name,
+                **results[name],
+                "p99_us": results[name]["paced"]["p99_us"],
+                "deadline_misses": results[name]["paced"]["deadline_misses"],
+            }
+            for name in args.options
+            if "error" not in results[name]
+        ]
+        print_table(
+            rows,
+            [
+                ("option", "option", "{}"),
+                ("kernels", "kernels", "{}"),
+                ("compile_s", "compile s", "{:.1f}"),
+                ("median_us", "update us", "{:.1f}"),
+                ("raw_call_us", "raw us", "{:.1f}"),
+                ("p99_us", "paced p99 us", "{:.1f}"),
+                ("deadline_misses", "misses", "{}"),
+            ],
+        )
+        failed = [name for name in args.options if "error" in results[name]]
+        if failed:
+            raise RuntimeError(f"options {failed} failed in their processes (their 'error')")
     return results
 
 

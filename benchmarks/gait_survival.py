@@ -20,13 +20,12 @@ Definitions (per environment):
 Prints a table (robot, gait, n_envs, upright %, stepping % (which implies upright),
 touch-downs per foot per period, median achieved / commanded speed, env-steps/s, compile
 time) and writes JSON. Barkour's height-field floor is replaced by a plane (flat ground).
-Run ``python benchmarks/gait_survival.py --help``.
+Run ``python -m jax_contact.benchmarks.gait_survival --help``.
 """
 
 from __future__ import annotations
 
 import time
-from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -35,15 +34,21 @@ import numpy as np
 from flax import struct
 from mujoco import mjx
 
-from jax_contact.benchmarks.common import bench_parser, check_json_arg, check_robot_arg, run_main
+from jax_contact.benchmarks.common import (
+    bench_parser,
+    check_json_arg,
+    check_robot_arg,
+    json_of_what_finished,
+    machine,
+    run_main,
+)
 from jax_contact.envs.gaits import gait_control, make_gait, make_gait_robot
 from jax_contact.envs.ground_truth import foot_truth, make_truth_layout, with_contact_sensors
 from jax_contact.envs.robots import Robot, load_robot
 from jax_contact.envs.sensors import perturb_qpos
 from jax_contact.envs.simulate import upright as is_upright
-from jax_contact.io import write_json_atomic
 from jax_contact.robot import derive_description
-from jax_contact.train.cli_args import positive_float, positive_int, seed_int
+from jax_contact.train.cli_args import nonnegative_float, positive_float, positive_int, seed_int
 
 # Forward-speed command ranges (m/s), per gait.
 SPEEDS = {"trot": (0.0, 0.5), "walk": (0.0, 0.15)}
@@ -180,6 +185,7 @@ def run_one(
         (data, tally), _ = jax.lax.scan(body, (data, tally), jnp.arange(n_chunk))
         return data, tally
 
+    data, tally = jax.block_until_ready((data, tally))  # not running while it compiles
     t_compile = time.perf_counter()
     lowered = chunk.lower(data, tally, jnp.float32(0.0)).compile()
     t_compile = time.perf_counter() - t_compile
@@ -238,17 +244,21 @@ def main(argv=None) -> None:
     parser.add_argument("--n-envs", type=positive_int, default=256, help="envs per robot and gait")
     parser.add_argument("--duration", type=positive_float, default=20.0, help="simulated seconds")
     parser.add_argument("--chunk", type=positive_float, default=2.0, help="seconds per jitted scan")
-    parser.add_argument("--min-air", type=float, default=0.02, help="s off the ground")
+    parser.add_argument("--min-air", type=nonnegative_float, default=0.02, help="s off the ground")
     parser.add_argument("--seed", type=seed_int, default=0, help="simulation seed")
-    parser.add_argument(
-        "--out", type=Path, default=Path("out/gait_survival.json"), help="the JSON of the rows"
-    )
+    parser.add_argument("--json", help="write the rows and the machine as JSON (atomically)")
     args = parser.parse_args(argv)
     for name in args.robots:
         check_robot_arg(parser, "--robots", name)
-    check_json_arg(parser, args.out, "--out")
+    check_json_arg(parser, args.json)
 
-    results = []
+    result = {"machine": machine(), "rows": []}
+    with json_of_what_finished(args.json, result):  # the robots that finished, if one fails
+        _run_all(args, result["rows"])
+
+
+def _run_all(args, results: list[dict]) -> None:
+    """Runs every robot and gait, appending each row to ``results`` and printing it."""
     header = (
         f"{'robot':<8} {'gait':<5} {'n_envs':>6} {'upright%':>9} {'stepping%':>10}"
         f" {'td/foot/period':>14} {'v/v_cmd':>8} {'steps/s':>9} {'compile_s':>9}"
@@ -274,8 +284,6 @@ def main(argv=None) -> None:
                 f" {r['compile_s']:>9.1f}",
                 flush=True,
             )
-    write_json_atomic(args.out, results)
-    print(f"wrote {args.out}")
 
 
 if __name__ == "__main__":

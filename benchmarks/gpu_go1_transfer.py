@@ -193,6 +193,9 @@ def _matrix_child(args: argparse.Namespace) -> int:
 def _versions() -> dict:
     import importlib.metadata as md
 
+    # The parent only reads the devices: without this JAX would reserve 75 % of the GPU's
+    # memory for it, and the training children's shares (_child_env) would not fit.
+    os.environ.setdefault("XLA_PYTHON_CLIENT_PREALLOCATE", "false")
     import jax
 
     out = {"python": sys.version.split()[0], "backend": jax.default_backend()}
@@ -396,6 +399,18 @@ def _positive_int(text: str) -> int:
     return check(text)
 
 
+def _positive_float(text: str) -> float:
+    from jax_contact.train.cli_args import positive_float as check
+
+    return check(text)
+
+
+def _seed(text: str) -> int:
+    from jax_contact.train.cli_args import seed_int as check
+
+    return check(text)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="role")
@@ -404,7 +419,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--runs", default="/tmp/go1_runs", help="run folders (not copied to --out)")
     p.add_argument("--config", default="full", choices=("full", "small", "tiny"))
     p.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=VARIANTS)
-    p.add_argument("--seeds", nargs="+", type=int, default=[0], help="one run per variant each")
+    p.add_argument("--seeds", nargs="+", type=_seed, default=[0], help="one run per variant each")
     p.add_argument("--num-evals", type=_positive_int, default=6, help="evaluations per run")
     p.add_argument(
         "--timesteps",
@@ -412,19 +427,21 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         help="env steps per variant (rounded to whole epochs); default: train-s x assumed-sps",
     )
-    p.add_argument("--train-s", type=float, default=160.0, help="training seconds per variant")
+    p.add_argument(
+        "--train-s", type=_positive_float, default=160.0, help="training seconds per variant"
+    )
     p.add_argument(
         "--assumed-sps",
-        type=float,
+        type=_positive_float,
         default=1e5,
         help="env steps/s per variant while all train together: an estimate (module docstring)",
     )
-    p.add_argument("--train-deadline-s", type=float, default=360.0)
-    p.add_argument("--matrix-deadline-s", type=float, default=555.0)
+    p.add_argument("--train-deadline-s", type=_positive_float, default=360.0)
+    p.add_argument("--matrix-deadline-s", type=_positive_float, default=555.0)
     p.add_argument("--columns", nargs="+", default=list(COLUMNS), choices=COLUMNS)
     p.add_argument("--eval-envs", type=_positive_int, default=128, help="episodes per cell")
     p.add_argument("--episode-length", type=_positive_int, default=None)
-    p.add_argument("--eval-seed", type=int, default=12345)
+    p.add_argument("--eval-seed", type=_seed, default=12345)
     p.add_argument("--no-checkpoints", dest="keep_checkpoints", action="store_false")
     p.add_argument("--started-at", type=float, default=None, help="time.time() of the start")
 

@@ -38,7 +38,10 @@ from jax_contact import measurement, transition
 from jax_contact.benchmarks.common import (
     bench_parser,
     check_folder_arg,
+    check_json_arg,
+    json_of_what_finished,
     kernel_count,
+    machine,
     run_main,
     synthetic_robot_measurements,
 )
@@ -61,12 +64,15 @@ def _call_times(compiled, args, calls: int) -> list[float]:
 
 
 def _time(name: str, fn, args, n_legs: int, repeats: int) -> dict:
+    t = time.perf_counter()
     compiled = jax.jit(fn).lower(*args).compile()
+    compile_s = time.perf_counter() - t
     cost = compiled.cost_analysis()
     cost = (cost[0] if isinstance(cost, list) else cost) or {}
     times = _call_times(compiled, args, repeats)
     row = {
         "piece": name,
+        "compile_s": compile_s,
         "median_ms": 1e3 * statistics.median(times),
         "min_ms": 1e3 * min(times),
         "flops_per_leg": cost.get("flops", 0.0) / n_legs,
@@ -211,8 +217,18 @@ def main(argv=None) -> list[dict]:
     )
     parser.add_argument("--repeats", type=positive_int, default=20, help="timed calls per piece")
     parser.add_argument("--trace", metavar="DIR", help="also profile step_batch into DIR")
+    parser.add_argument("--json", help="write the rows and the machine as JSON (atomically)")
     args = parser.parse_args(argv)
     check_folder_arg(parser, "--trace", args.trace)
+    check_json_arg(parser, args.json)
+    result = {"machine": machine(), "envs": args.envs, "repeats": args.repeats, "rows": []}
+    with json_of_what_finished(args.json, result):  # what finished, if a piece fails
+        _profile(args, result["rows"])
+    return result["rows"]
+
+
+def _profile(args, rows: list[dict]) -> None:
+    """Appends each piece's row to ``rows`` as it is measured."""
     n, legs = args.envs, args.envs * N_LEGS
     meas = synthetic_robot_measurements(n, N_LEGS, NV)
     terrain = jc.flat()
@@ -227,7 +243,6 @@ def main(argv=None) -> list[dict]:
     def query(m):
         return terrain.query(m.p_f, jnp.zeros(3), jnp.array(False))
 
-    rows = []
     keys = jax.random.split(jax.random.key(0), legs).reshape(n, N_LEGS)
     for mode in args.modes:
         mode_params = jc.make_params(jc.make_noise(NV), touchdown=mode)
@@ -275,7 +290,6 @@ def main(argv=None) -> list[dict]:
     # whole batch, no arithmetic to speak of.
     rows.append(_time("read inputs once", _read_once, (meas,), legs, args.repeats))
     rows.append(launch_cost(args.repeats))
-    return rows
 
 
 if __name__ == "__main__":

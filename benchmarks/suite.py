@@ -16,17 +16,20 @@ writes one JSON holding the keys of both: ``machine``, ``throughput``,
 
 from __future__ import annotations
 
-import argparse
-
 from jax_contact.benchmarks import estimator, versus
-from jax_contact.benchmarks.common import check_json_arg, json_of_what_finished
+from jax_contact.benchmarks.common import (
+    bench_parser,
+    check_json_arg,
+    json_of_what_finished,
+    run_main,
+)
 from jax_contact.train.cli_args import positive_int  # the CLI's argument type: one rule for sizes
 
 
 def main(argv=None) -> dict:
     """Runs both benchmarks; with ``--json``, writes what finished even when a part fails
     (then with an ``"error"`` key saying what stopped it)."""
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = bench_parser(__doc__)  # every default shown in --help
     # Sizes are checked here, before minutes of benchmarks run on them.
     parser.add_argument(
         "--envs", type=positive_int, nargs="+", default=list(estimator.DEFAULT_ENVS)
@@ -55,4 +58,4 @@ def main(argv=None) -> dict:
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(run_main(main, "suite"))

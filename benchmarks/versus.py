@@ -230,7 +230,12 @@ def sharded(n_envs: int = 4096, devices: int = 8, *, script: str | None = None) 
     """
     n = shard_batch(n_envs, devices)
     env = dict(os.environ)
-    env["XLA_FLAGS"] = f"--xla_force_host_platform_device_count={devices}"
+    # The simulated devices are the CPU's, on a GPU host too (where jax.devices() would be
+    # the one GPU, and the parent would hold 75 % of its memory); the user's own XLA
+    # flags are kept.
+    env["JAX_PLATFORMS"] = "cpu"
+    flags = f"--xla_force_host_platform_device_count={devices}"
+    env["XLA_FLAGS"] = f"{env.get('XLA_FLAGS', '')} {flags}".strip()
     env["PYTHONPATH"] = str(SITE) + os.pathsep + env.get("PYTHONPATH", "")
     res = subprocess.run(
         [sys.executable, "-c", script or SHARD_SCRIPT, str(n)],

@@ -571,9 +571,11 @@ INT_ERR = "must be an int >= 1"
         ("playground_envs", ["--steps", "0"], INT_ERR),
         ("profile_pieces", ["--repeats", "0"], INT_ERR),  # StatisticsError after compiling
         ("profile_pieces", ["--trace", "/proc/version"], "argument --trace: '/proc/version'"),
+        ("profile_pieces", ["--json", "/proc"], "argument --json: '/proc' is a folder"),
         ("gait_survival", ["--n-envs", "0"], INT_ERR),  # a table of NaN and exit 0
         ("gait_survival", ["--robots", "go2"], "argument --robots: unknown robot 'go2'"),
-        ("gait_survival", ["--out", "/proc"], "argument --out: '/proc' is a folder"),
+        ("gait_survival", ["--json", "/proc"], "argument --json: '/proc' is a folder"),
+        ("gait_survival", ["--min-air", "-0.1"], "argument --min-air"),
         ("wrapper_throughput", ["--calls", "0"], INT_ERR),
         ("wrapper_throughput", ["--env", "Go1Bogus"], "argument --env: unknown env 'Go1Bogus'"),
         ("wrapper_throughput", ["--json", "/proc"], "argument --json: '/proc' is a folder"),
@@ -589,6 +591,8 @@ INT_ERR = "must be an int >= 1"
         ("sensor_limits", ["--robot", "planar_leg"], "'planar_leg' has one leg"),
         ("sensor_limits", ["--envs", "0"], INT_ERR),
         ("biped_hop_fit", ["--fit", "-1"], "must be an int >= 0"),  # ran and exited 0
+        ("biped_hop_fit", ["--start", "{kp: 1"], "argument --start: Expecting"),  # a traceback
+        ("biped_hop_fit", ["--start", '{"kq": 1}'], "argument --start: "),  # a TypeError
         (
             "deploy_latency",
             ["--artefact", "/no/a.contact", "--log", "/no/l.h5"],
@@ -607,6 +611,49 @@ def test_benchmark_scripts_check_their_arguments_before_measuring(module, argv, 
         main(argv)
     assert stop.value.code == 2
     assert expect in capsys.readouterr().err
+
+
+def test_deploy_latency_keeps_what_finished_and_writes_nothing_beside_its_input(
+    tmp_path, monkeypatch, capsys
+):
+    """The parent of the latency benchmark (children faked: they compile for minutes):
+    one table row per option that finished, the machine in the JSON, the re-exported
+    variant in a temporary folder (it was written beside the user's artefact), and an
+    option that failed in its process makes the run fail with the JSON of what finished
+    (every result was lost when the last option raised)."""
+    from jax_contact.benchmarks import deploy_latency as D
+
+    art, log = tmp_path / "go1.contact", tmp_path / "go1.h5"
+    art.write_bytes(b"x")
+    log.write_bytes(b"x")
+    made = []
+    monkeypatch.setattr(D, "export_variant", lambda src, out: made.append(out) or out.touch())
+
+    def spawn(what, env, args):
+        if what == "no_xnnpack":
+            return {"error": ["taskset: not found"]}
+        paced = {"median_us": 300.0, "p99_us": 410.0, "max_us": 500.0, "deadline_misses": 2}
+        return {"kernels": 420, "compile_s": 1.5, "median_us": 190.0, "raw_call_us": 185.0,
+                "paced": paced}  # fmt: skip
+
+    monkeypatch.setattr(D, "_spawn", spawn)
+    out = tmp_path / "lat.json"
+    base = ["--artefact", str(art), "--log", str(log), "--no-floor", "--json", str(out)]
+    D.main([*base, "--options", "default", "dots_as_reductions"])
+    lines = capsys.readouterr().out.splitlines()
+    header = next(i for i, line in enumerate(lines) if "update us" in line)
+    assert "190.0" in lines[header + 1] and "410.0" in lines[header + 1]  # update vs paced p99
+    assert lines[header + 2].split()[0] == "dots_as_reductions"
+    got = json.loads(out.read_text())
+    assert got["complete"] is True and got["machine"]["jaxlib"]
+    assert got["default"]["paced"]["deadline_misses"] == 2
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["go1.contact", "go1.h5", "lat.json"]
+    assert made and not made[0].parent.exists()  # the temporary folder is gone
+    with pytest.raises(RuntimeError, match=r"options \['no_xnnpack'\] failed"):
+        D.main([*base, "--options", "default", "no_xnnpack"])
+    got = json.loads(out.read_text())
+    assert got["complete"] is False and got["default"]["median_us"] == 190.0
+    assert got["no_xnnpack"]["error"] == ["taskset: not found"]
 
 
 def test_benchmark_json_says_when_where_and_whether_complete(tmp_path):

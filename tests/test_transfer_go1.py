@@ -362,3 +362,22 @@ def test_install_only_where_jax_lacks_it(monkeypatch):
     monkeypatch.setattr(_compat, "jax", fake)
     assert _compat.install() is True
     assert fake.device_put_replicated is _compat.device_put_replicated
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["--train-s", "-1"],  # became one epoch through max(1, ...)
+        ["--train-deadline-s", "0"],  # killed every training process at once
+        ["--assumed-sps", "nan"],
+        ["--seeds", "-3"],
+        ["--eval-seed", "1.5"],
+    ],
+)
+def test_gpu_script_refuses_bad_numbers_before_anything_runs(argv, capsys):
+    """The GPU script's sizes and deadlines are checked by argparse (exit 2, the argument
+    named), not found out minutes into a lent machine's time."""
+    with pytest.raises(SystemExit) as stop:
+        G.build_parser().parse_args(["run", *argv])
+    assert stop.value.code == 2
+    assert f"argument {argv[0]}" in capsys.readouterr().err
