@@ -176,8 +176,9 @@ def load(name: str, config_overrides: dict | None = None, *, check: bool = True)
 
     Raises:
       ValueError: an unknown name (the message lists the valid ones and the closest), an
-        override that names no field of the env's config, or an env that needs more of
-        Menagerie than stand-in visual meshes (with the reason).
+        override that names no field of the env's config, an ``impl`` other than
+        ``"jax"``, or an env that needs more of Menagerie than stand-in visual meshes (with
+        the reason).
     """
     check_name(name)
     overrides = {"impl": "jax", **(config_overrides or {})}
@@ -188,6 +189,12 @@ def load(name: str, config_overrides: dict | None = None, *, check: bool = True)
         raise ValueError(
             f"config_overrides: {unknown} name no field of {name}'s config (its fields:"
             f" {sorted(config)})"
+        )
+    if overrides["impl"] != "jax":
+        # Checked here: the constructor's ValueError read as a scene that needs Menagerie.
+        raise ValueError(
+            f"config_overrides['impl'] must be 'jax' (MJX's JAX implementation, the one the"
+            f" estimator's adapter reads), got {overrides['impl']!r}"
         )
     with _menagerie_at(standin_menagerie()):
         try:

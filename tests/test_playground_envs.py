@@ -62,6 +62,12 @@ def test_load_names_what_is_wrong_before_building():
     # A key of no config field: Playground raised a KeyError with the whole config in it.
     with pytest.raises(ValueError, match=r"config_overrides: \['nope'\] name no field of Go1"):
         playground_offline.load("Go1JoystickFlatTerrain", {"nope": 1})
+    # impl: the constructor's "'JAX' is not a valid Impl" was reported as a scene that
+    # needs more of Menagerie than visual meshes.
+    for impl in ("JAX", "warp"):
+        said = rf"config_overrides\['impl'\] must be 'jax'.*{impl!r}"
+        with pytest.raises(ValueError, match=said):
+            playground_offline.load("Go1JoystickFlatTerrain", {"impl": impl})
 
 
 @pytest.mark.parametrize("name", NAMES)
