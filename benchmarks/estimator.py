@@ -25,6 +25,7 @@ from jax_contact.benchmarks.common import (
     check_json_arg,
     compile_and_time,
     format_table,
+    json_of_what_finished,
     kernel_count,
     machine,
     pin_to_cpu,
@@ -33,7 +34,6 @@ from jax_contact.benchmarks.common import (
     synthetic,
 )
 from jax_contact.export import export_flat, load_exported
-from jax_contact.io import write_json_atomic
 from jax_contact.train.cli_args import positive_int
 
 DEFAULT_ENVS = (1, 64, 256, 1024, 4096, 16384)
@@ -229,6 +229,14 @@ def main(argv=None, *, into: dict | None = None) -> dict:
         )
     result = {} if into is None else into
     result.update(machine=machine(), args=vars(args), layout=args.layout)
+    # Standalone, what finished is written if a later part fails (suite wraps its own).
+    with json_of_what_finished(args.json, result):
+        _measure(args, result)
+    return result
+
+
+def _measure(args, result: dict) -> None:
+    """Throughput, latency and memory into ``result``, each part as it finishes."""
     rows = result.setdefault("throughput", [])  # the rows as they are measured
     if not args.latency_only:
         throughput(args.envs, n_samples=args.samples, layout=args.layout, rows=rows)
@@ -258,10 +266,6 @@ def main(argv=None, *, into: dict | None = None) -> dict:
             "linearity": lin,
         }
     )
-    if args.json:
-        write_json_atomic(args.json, result)
-        print(f"\nwrote {args.json}")
-    return result
 
 
 if __name__ == "__main__":

@@ -252,7 +252,7 @@ def main(argv=None) -> int:
     parser.add_argument("--json", default=None, help="write the rows and the machine here")
     parser.add_argument(
         "--envs",
-        nargs="*",
+        nargs="+",  # "--envs" with no names ran nothing and exited 0
         default=list(ENVS),
         help="registry names, each optionally NAME:POLICY (policies: " + ", ".join(POLICIES) + ")",
     )

@@ -582,6 +582,7 @@ INT_ERR = "must be an int >= 1"
         ("wrapper_accuracy", ["--envs", "Bogus"], "argument --envs: unknown env 'Bogus'"),
         ("wrapper_accuracy", ["--envs", "Go1Getup:skate"], "policy must be one of walk"),
         ("wrapper_accuracy", ["--rollouts", "0"], INT_ERR),
+        ("wrapper_accuracy", ["--envs"], "argument --envs: expected at least one argument"),
         ("brax_ant", ["--rollouts", "0"], INT_ERR),
         ("brax_ant", ["--policy", "hop"], "argument --policy: invalid choice: 'hop'"),
         ("brax_ant", ["--env", "hopper", "--policy", "trot"], "trot drives the ant only"),
