@@ -47,7 +47,6 @@ from jax_contact.benchmarks.common import (
 from jax_contact.train.cli_args import positive_float, positive_int, seed_int
 
 SCENARIOS = ("trot", "walk", "walk_added_mass", "rough")
-ROBOTS = ("go1", "spot", "barkour")
 
 
 def sensor_variants(nv: int, dt: float) -> dict:
