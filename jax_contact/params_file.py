@@ -1,6 +1,6 @@
 """Parameter files: the versioned JSON of :class:`~jax_contact.EstimatorParams`.
 
-:func:`save_params` writes one (atomically, :func:`jax_contact.io.write_json_atomic`),
+:func:`save_params` writes one (atomically, :func:`jax_contact.io.write_text_atomic`),
 :func:`load_params` reads one or a shipped preset by name (:func:`preset_names`), and
 :func:`load_params_for` reads one for a given robot and period, warning where the file is
 another robot's or another rate's. Layout (:func:`params_to_dict`): ``format``,
@@ -23,7 +23,6 @@ from pathlib import Path
 import numpy as np
 
 from jax_contact._presets import preset_file, preset_names
-from jax_contact.io import write_json_atomic
 
 PARAMS_FORMAT = "jax-contact-params"
 PARAMS_VERSION = 1
@@ -244,7 +243,7 @@ def save_params(path: str | os.PathLike, params, provenance: Mapping | None = No
     import json
 
     from jax_contact.calibration import file_calibration
-    from jax_contact.io import _finite
+    from jax_contact.io import _finite, write_text_atomic
     from jax_contact.params import validate_params
     from jax_contact.terrain import terrain_model_of
 
@@ -254,18 +253,23 @@ def save_params(path: str | os.PathLike, params, provenance: Mapping | None = No
             f"provenance must be a mapping of JSON values (e.g. {{'note': ...}}), got"
             f" {type(provenance).__name__}"
         )
-    for key, value in (provenance or {}).items():
-        try:
-            json.dumps(_finite(value))
-        except (TypeError, ValueError) as err:
-            hint = " (a Calibration: pass cal.as_dict())" if hasattr(value, "as_dict") else ""
-            raise ValueError(f"provenance[{key!r}] is not a JSON value{hint}: {err}") from None
-    payload = json.loads(json.dumps(_finite(params_to_dict(params, provenance))))
-    source = str(path)  # what load_params would refuse of the file, said before writing it
+    try:
+        text = json.dumps(_finite(params_to_dict(params, provenance)), indent=2)
+    except (TypeError, ValueError):  # params_to_dict's own values are numbers: a provenance key
+        for key, value in provenance.items():
+            try:
+                json.dumps(_finite(value))
+            except (TypeError, ValueError) as err:
+                hint = " (a Calibration: pass cal.as_dict())" if hasattr(value, "as_dict") else ""
+                raise ValueError(f"provenance[{key!r}] is not a JSON value{hint}: {err}") from None
+        raise
+    # The file as load_params will read it back, checked before it is written.
+    payload = json.loads(text)
+    source = str(path)
     check_params_header(payload, source)
     file_calibration(payload["provenance"], source)
     terrain_model_of(payload["provenance"], source)
-    return write_json_atomic(path, payload)
+    return write_text_atomic(path, text)
 
 
 def load_params(path: str | os.PathLike, *, with_provenance: bool = False):
