@@ -48,6 +48,9 @@ import time
 from collections.abc import Sequence
 from pathlib import Path
 
+# The CLI's argument types (the module imports only the standard library).
+from jax_contact.train.cli_args import positive_float, positive_int, seed_int
+
 COLUMNS = ("truth", "estimate", "estimate_harsh", "estimate_lat1", "estimate_lat2")
 VARIANTS = ("none", "truth", "estimate")
 _MODULE = "jax_contact.benchmarks.gpu_go1_transfer"
@@ -393,24 +396,6 @@ def run(args: argparse.Namespace) -> dict:
 # ---------------------------------------------------------------------------- parser
 
 
-def _positive_int(text: str) -> int:
-    from jax_contact.train.cli_args import positive_int as check
-
-    return check(text)
-
-
-def _positive_float(text: str) -> float:
-    from jax_contact.train.cli_args import positive_float as check
-
-    return check(text)
-
-
-def _seed(text: str) -> int:
-    from jax_contact.train.cli_args import seed_int as check
-
-    return check(text)
-
-
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="role")
@@ -419,29 +404,31 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--runs", default="/tmp/go1_runs", help="run folders (not copied to --out)")
     p.add_argument("--config", default="full", choices=("full", "small", "tiny"))
     p.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=VARIANTS)
-    p.add_argument("--seeds", nargs="+", type=_seed, default=[0], help="one run per variant each")
-    p.add_argument("--num-evals", type=_positive_int, default=6, help="evaluations per run")
+    p.add_argument(
+        "--seeds", nargs="+", type=seed_int, default=[0], help="one run per variant each"
+    )
+    p.add_argument("--num-evals", type=positive_int, default=6, help="evaluations per run")
     p.add_argument(
         "--timesteps",
-        type=_positive_int,
+        type=positive_int,
         default=None,
         help="env steps per variant (rounded to whole epochs); default: train-s x assumed-sps",
     )
     p.add_argument(
-        "--train-s", type=_positive_float, default=160.0, help="training seconds per variant"
+        "--train-s", type=positive_float, default=160.0, help="training seconds per variant"
     )
     p.add_argument(
         "--assumed-sps",
-        type=_positive_float,
+        type=positive_float,
         default=1e5,
         help="env steps/s per variant while all train together: an estimate (module docstring)",
     )
-    p.add_argument("--train-deadline-s", type=_positive_float, default=360.0)
-    p.add_argument("--matrix-deadline-s", type=_positive_float, default=555.0)
+    p.add_argument("--train-deadline-s", type=positive_float, default=360.0)
+    p.add_argument("--matrix-deadline-s", type=positive_float, default=555.0)
     p.add_argument("--columns", nargs="+", default=list(COLUMNS), choices=COLUMNS)
-    p.add_argument("--eval-envs", type=_positive_int, default=128, help="episodes per cell")
-    p.add_argument("--episode-length", type=_positive_int, default=None)
-    p.add_argument("--eval-seed", type=_seed, default=12345)
+    p.add_argument("--eval-envs", type=positive_int, default=128, help="episodes per cell")
+    p.add_argument("--episode-length", type=positive_int, default=None)
+    p.add_argument("--eval-seed", type=seed_int, default=12345)
     p.add_argument("--no-checkpoints", dest="keep_checkpoints", action="store_false")
     p.add_argument("--started-at", type=float, default=None, help="time.time() of the start")
 
