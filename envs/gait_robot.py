@@ -195,7 +195,8 @@ def make_gait_robot(
             j = joints[0]
             if int(m.jnt_type[j]) != int(mujoco.mjtJoint.mjJNT_HINGE):
                 raise ValueError(f"leg joint {m.joint(j).name!r} is not a hinge")
-            if int(m.jnt_dofadr[j]) not in desc.leg_dofs[i]:
+            dof = int(m.jnt_dofadr[j])
+            if dof not in desc.leg_dofs[i]:
                 # Above several feet (a waist): a fixed link at its standing angle, held there.
                 angle = float(home[m.jnt_qposadr[j]])
                 quat = np.zeros(4)
@@ -204,15 +205,15 @@ def make_gait_robot(
                 a = np.asarray(m.jnt_pos[j], dtype=np.float64)
                 link_pos[i, kk] = link_pos[i, kk] + link_rot[i, kk] @ (a - r_j @ a)
                 link_rot[i, kk] = link_rot[i, kk] @ r_j
-                held[int(m.jnt_dofadr[j])] = (int(m.jnt_qposadr[j]), angle)
-                below[int(m.jnt_dofadr[j])] = below.get(int(m.jnt_dofadr[j]), 0) + 1
+                held[dof] = (int(m.jnt_qposadr[j]), angle)
+                below[dof] = below.get(dof, 0) + 1
                 continue
-            slot = desc.leg_dofs[i].index(int(m.jnt_dofadr[j]))
+            slot = desc.leg_dofs[i].index(dof)
             joint_pos[i, kk] = m.jnt_pos[j]
             joint_axis[i, kk] = m.jnt_axis[j]
             joint_slot[i, kk] = slot
             leg_qpos[i, slot] = m.jnt_qposadr[j]
-            leg_dof[i, slot] = m.jnt_dofadr[j]
+            leg_dof[i, slot] = dof
             if m.jnt_limited[j]:
                 q_low[i, slot], q_high[i, slot] = m.jnt_range[j]
 

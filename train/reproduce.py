@@ -528,8 +528,8 @@ def table3(cfg: ReproduceConfig, out_dir: Path, tuned_row: dict | None = None) -
     from jax_contact.train.log_estimator import default_estimator
 
     robot = robot_of(cfg)
-    # evaluate's defaults (force axes from the Jacobian for legs of two joints, the sign
-    # test where the legs' torques can read a load): the same on the shipped robots.
+    # evaluate's defaults (the force axes the legs' Jacobians span, the sign test where the
+    # legs' torques can read a load): the same on the shipped robots.
     base = default_estimator(robot.description, 0.0025, mj_model=robot.mj_model)[0]
     estimators = ablation_variants(base)
     if cfg.monte_carlo:

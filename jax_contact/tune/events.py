@@ -119,8 +119,7 @@ def check_scored_steps(logs: Sequence[TuningData], what: str, names=None) -> Non
     n_contact = n_air = 0
     for d, name in zip(logs, names, strict=True):
         _check_shapes(d, f"{what} {name}")
-        mask = np.asarray(d.mask, bool)
-        truth = np.broadcast_to(np.asarray(d.truth, bool), mask.shape)
+        mask, truth = np.asarray(d.mask, bool), np.asarray(d.truth, bool)  # one shape
         if not mask.any():
             raise ValueError(
                 f"{what} {name} has no step that counts (its valid mask is false everywhere:"
