@@ -17,12 +17,6 @@ from jax_contact.envs.feet import foot_points_np, home_data
 from jax_contact.envs.robots import Robot
 from jax_contact.robot import RobotDescription
 
-# The sensor presets' latency is one step at the paper's 400 Hz (2.5 ms); at other rates
-# the wrapper keeps that delay in seconds rather than in steps (a choice, see
-# default_sensor_params).
-_PRESET_LATENCY_DT = 0.0025
-
-
 # A Jacobian row (over a leg's joints, summed over the legs) below this share of the largest
 # is not spanned: a planar leg's out-of-plane row is zero up to round-off.
 SPAN_TOLERANCE = 1e-6
@@ -188,12 +182,10 @@ def default_sensor_params(
     """The sensor model of a robot at estimator period ``dt``.
 
     A preset name is built with :func:`jax_contact.envs.sensors.sensor_preset` for the robot's
-    coordinates (floating base or not; the base dofs of the description otherwise). The
-    presets' latency is one step at 400 Hz (2.5 ms); it is kept in seconds here, as
-    ``round(latency * 2.5 ms / dt)`` steps, so that the control-rate mode (20 ms steps)
-    does not turn a 2.5 ms delay into 20 ms (a choice). A
-    :class:`~jax_contact.envs.sensors.SensorParams` is returned as given, after checking its size
-    and period.
+    coordinates (floating base or not; the base dofs of the description otherwise), whose
+    latency is in seconds (``anymal_like``'s 2.5 ms: one step at 400 Hz, none at the
+    control rate's 20 ms). A :class:`~jax_contact.envs.sensors.SensorParams` is returned as
+    given, after checking its size and period.
 
     Raises:
       ValueError: an unknown preset (the message lists them), a ``SensorParams`` of the
@@ -223,11 +215,9 @@ def default_sensor_params(
         raise ValueError(
             f"sensor must be a SensorParams or one of {sensors.PRESETS}, got {sensor!r}"
         )
-    params = sensors.sensor_preset(
+    return sensors.sensor_preset(
         sensor, desc.nv, dt=dt, floating_base=floating, base_dofs=desc.base_dofs
     )
-    latency = int(round(params.latency * _PRESET_LATENCY_DT / dt))
-    return params.replace(latency=latency)
 
 
 def with_extra_latency(

@@ -210,6 +210,24 @@ def test_bias_random_walk_variance_grows_linearly():
     np.testing.assert_array_equal(bias_q[:, :, 6:], 0.0)
 
 
+def test_preset_latency_is_a_time_not_a_step_count():
+    """anymal_like delays its readings 2.5 ms and harsh 7.5 ms at every period, in whole
+    steps by Python's round (half to even): 2.5 ms / 4 ms = 0.625 -> 1 step, 7.5 / 4 =
+    1.875 -> 2; at 1 kHz 2.5 -> 2 and 7.5 -> 8; at the control rate's 20 ms 0.125 and
+    0.375 -> 0. The simulator and the wrapper read the same rule (they differed at any
+    period but 2.5 ms: one step whatever its length in the simulator)."""
+    from jax_contact.envs.contact_params import default_sensor_params
+    from jax_contact.envs.robots import load_robot
+
+    for dt, want in ((0.0025, (1, 3)), (0.004, (1, 2)), (0.001, (2, 8)), (0.02, (0, 0))):
+        got = tuple(sensor_preset(n, NV, dt=dt).latency for n in ("anymal_like", "harsh"))
+        assert got == want, dt
+    leg = load_robot("planar_leg")
+    wrapper = default_sensor_params("harsh", leg, 0.004)
+    sim = sensor_preset("harsh", 3, dt=0.004, floating_base=False, base_dofs=(0,))
+    assert wrapper.latency == sim.latency == 2
+
+
 def test_presets_and_vmap_matches_loop():
     for name in PRESETS:
         p = sensor_preset(name, NV, dt=DT)
