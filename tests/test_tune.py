@@ -1255,3 +1255,36 @@ def test_values_far_from_their_derived_ones_are_named():
     # factor 5: x0.2 is on the boundary (inside); factor 4.2: x4.12 inside, x4.46 not.
     assert far_from_derived(table, factor=5.0) == []
     assert far_from_derived(table, factor=4.2) == ["sigma_d joint0 x4.46", "takeoff_accel x0.2"]
+
+
+def test_compare_moves_a_file_of_another_period_as_evaluate_does(tmp_path):
+    """tune_presets.compare reads a parameter file as ``jax-contact evaluate`` does
+    (log_estimator.load_params_for): a file written at 5 ms is moved to the log's 2.5 ms
+    by the derivation rules, with the warning naming both periods. The file here is the
+    defaults derived at 5 ms, so moved to 2.5 ms it is the 2.5 ms defaults again, and its
+    row must score exactly as the defaults' row (before, the file was replayed unmoved,
+    and the replay refused its dt)."""
+    import shutil
+    import warnings
+
+    import jax_contact as jc
+    from jax_contact.envs.robots import load_robot
+    from jax_contact.train.log_estimator import default_estimator
+    from jax_contact.train.tune_presets import compare
+
+    shutil.copy("tests/fixtures/planar_leg_hop.h5", tmp_path / "planar_leg_trot_s0.h5")
+    robot = load_robot("planar_leg")
+    slow, _ = default_estimator(robot.description, 0.005, mj_model=robot.mj_model)
+    path = jc.save_params(tmp_path / "slow.json", slow, {"robot": "planar_leg"})
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        got = compare(
+            "planar_leg", {"defaults": None, "file": str(path)}, scenarios=("trot",),
+            workdir=tmp_path,
+        )["trot"]  # fmt: skip
+    said = [str(w.message) for w in caught]
+    assert any("dt = 0.005" in m and "0.0025" in m for m in said), said
+    # Same flags; P equal up to the float32 round-off of the move (ECE within 1e-6).
+    for key in ("f1", "accuracy", "air_phase_failure_rate"):
+        assert got["file"][key] == got["defaults"][key], key
+    assert got["file"]["ece"] == pytest.approx(got["defaults"]["ece"], rel=1e-6)

@@ -281,12 +281,12 @@ def compare(
       ``[delta, low, high, verdict]`` (:meth:`jax_contact.bootstrap.Difference.as_list`).
     """
 
-    import jax_contact as jc
     from jax_contact import tune as jt
     from jax_contact.bootstrap import STATISTICS, row_differences
+    from jax_contact.robot import model_mass
     from jax_contact.train.calibration import reliability_diagram
     from jax_contact.train.evaluate import replay, score
-    from jax_contact.train.log_estimator import file_terrain_model, terrain_for
+    from jax_contact.train.log_estimator import file_terrain_model, load_params_for, terrain_for
 
     def terrain_model_of(source) -> tuple[object, str]:
         if isinstance(source, tuple):
@@ -303,7 +303,8 @@ def compare(
         if not path.is_file():
             simulate_log(path, robot, scenario, seed, n_envs=n_envs, duration=duration)
         readings, truth, valid, attrs, robo = read_truth_log(path)
-        base, plane = default_params(robo, float(attrs["dt"]), attrs.get("noise", "anymal_like"))
+        dt = float(attrs["dt"])
+        base, plane = default_params(robo, dt, attrs.get("noise", "anymal_like"))
         out, cals = {}, {}
         # One replay per terrain model (the replay runs every estimator on one terrain).
         for model in dict.fromkeys(m for _, m in sources.values()):
@@ -314,26 +315,30 @@ def compare(
                 if source is None:
                     estimators[name] = base
                     continue
-                params, prov = jc.load_params(source, with_provenance=True)
+                # evaluate's route: checked against the robot, moved to the log's period.
+                params, prov = load_params_for(
+                    source, robo.description, dt, model_mass(robo.mj_model),
+                    with_provenance=True, mj_model=robo.mj_model, robot=robot,
+                )  # fmt: skip
                 estimators[name] = params
                 if (cal := jt.calibration_of(prov)) is not None:
                     cals[name] = cal
             out.update(
                 replay(
                     robo, readings, estimators=estimators, terrain=terrain_for(plane, model),
-                    dt=float(attrs["dt"]), seed=seed, progress=False,
+                    dt=dt, seed=seed, progress=False,
                 )
             )  # fmt: skip
         for name, cal in cals.items():
             out[f"{name}+cal"] = jt.calibrate_probability(out[name], cal)
-        results[scenario] = score(out, truth, valid, dt=float(attrs["dt"]))
+        results[scenario] = score(out, truth, valid, dt=dt)
         if bootstrap:
             for name in results[scenario]:
                 if name == reference:
                     continue
                 vs = row_differences(
                     out, name, {reference: tuple(STATISTICS)}, truth, valid,
-                    dt=float(attrs["dt"]), n_resamples=bootstrap,
+                    dt=dt, n_resamples=bootstrap,
                 )  # fmt: skip
                 results[scenario][name]["vs_reference"] = vs[reference]
         if plots is not None:
