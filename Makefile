@@ -24,8 +24,8 @@ test: $(STAMP)
 	$(PY) -m pytest -q -p no:cacheprovider -n $(TEST_WORKERS) --dist loadfile
 
 lint: $(STAMP)
-	$(VENV)/bin/ruff check jax_contact envs train tests benchmarks
-	$(VENV)/bin/ruff format --check jax_contact envs train tests benchmarks
+	$(VENV)/bin/ruff check jax_contact envs train tests benchmarks notebooks
+	$(VENV)/bin/ruff format --check jax_contact envs train tests benchmarks notebooks
 
 clean:
 	rm -rf $(VENV) out .pytest_cache
