@@ -700,6 +700,20 @@ def bounce_steps(dt: float, bounce_s: float = BOUNCE_S) -> int:
     return int(round(b / dt))
 
 
+def _scoring_inputs(
+    estimate, truth, valid, dt, threshold, early_window_s, min_on, n_bins, bounce_s, truth_known
+):
+    """The checked settings and arrays that :func:`evaluate` and :func:`env_sums` score:
+    ``(dt, early window in steps, min_on, n_bins, bounce steps, prob, flag, truth, valid,
+    known)``."""
+    dt, early, min_on = _event_settings(dt, early_window_s, min_on)
+    n_bins = _check_int("n_bins", n_bins, 1)
+    n_bounce = bounce_steps(dt, bounce_s)
+    prob, flag, tru, val = _inputs(estimate, truth, valid, threshold)
+    known = _known(truth_known, truth, val)
+    return dt, early, min_on, n_bins, n_bounce, prob, flag, tru, val, known
+
+
 def evaluate(
     estimate,
     truth,
@@ -722,12 +736,11 @@ def evaluate(
     ``min_on``) is the debounce of the persistent delays (rule 11); ``bounce_s`` (>= 0, s)
     the longest air phase rule 9b leaves out of the swing phases.
     """
-    dt, early, min_on = _event_settings(dt, early_window_s, min_on)
-    n_bins = _check_int("n_bins", n_bins, 1)
     persist_steps = _check_int("persist_steps", persist_steps, 1)
-    n_bounce = bounce_steps(dt, bounce_s)
-    prob, flag, tru, val = _inputs(estimate, truth, valid, threshold)
-    known = _known(truth_known, truth, val)
+    dt, early, min_on, n_bins, n_bounce, prob, flag, tru, val, known = _scoring_inputs(
+        estimate, truth, valid, dt, threshold, early_window_s, min_on, n_bins, bounce_s,
+        truth_known,
+    )  # fmt: skip
     kg, kf = _flat_codes(tru, val), _flat_codes(flag, val)
     kt = None if known is val else _flat_codes(tru, known)
     ev, failure_starts = _match_codes(kg, kf, dt, early, min_on, kt)
@@ -856,11 +869,10 @@ def env_sums(
     Raises:
       ValueError: as :func:`evaluate`, or for a batch without an env axis.
     """
-    dt, early, min_on = _event_settings(dt, early_window_s, min_on)
-    n_bins = _check_int("n_bins", n_bins, 1)
-    n_bounce = bounce_steps(dt, bounce_s)
-    prob, flag, tru, val = _inputs(estimate, truth, valid, threshold)
-    known = _known(truth_known, truth, val)
+    dt, early, min_on, n_bins, n_bounce, prob, flag, tru, val, known = _scoring_inputs(
+        estimate, truth, valid, dt, threshold, early_window_s, min_on, n_bins, bounce_s,
+        truth_known,
+    )  # fmt: skip
     if prob.ndim < 2 or prob.shape[1] < 1:
         raise ValueError(f"estimate must have shape (T, E, ...) with E >= 1, got {prob.shape}")
     rows = []
