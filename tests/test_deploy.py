@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import subprocess
 import sys
 import textwrap
@@ -498,6 +499,7 @@ class _TimedEstimator:
             self.clock[0] += self.durations[self.calls]
         self.calls += 1
         diag = {"p_dynamics": [0.5], "p_diff_kinematics": [0.5], "valid": [True]}
+        diag["force"] = [[0.0, 0.0, -10.0]]  # the exported update also gives the force
         return belief, np.array([reading["x"]], np.float32), diag
 
 
@@ -570,6 +572,8 @@ def test_deploy_check_reads_a_recording_and_warns_as_estimate(deployed, live, tm
     res = deploy_check(deployed["artefact"], tmp_path / "fr.csv", pace=False)
     assert res["warnings"] and res["warnings"][0].startswith("the dynamics term reads air")
     assert "(FR 9" in res["warnings"][0] and f"[{', '.join(fr)}]" in res["warnings"][0]
+    # ... and its push, from the exported update's force: the negated leg pulls.
+    assert re.search(r"\(FR 9\d% air, median push -\d", res["warnings"][0])
     no_tau = {k: v for k, v in cols.items() if not k.startswith("tau/")}
     write_recording_csv(tmp_path / "no_tau.csv", no_tau)
     with pytest.raises(ValueError, match=r"no_tau.csv' has no tau/ column .* dynamics term"):

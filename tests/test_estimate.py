@@ -480,8 +480,11 @@ def test_torques_of_the_wrong_sign_warn_naming_the_foot(round_trip, tmp_path, ca
     text = capsys.readouterr().out
     warned = [n for n in got["notes"] if "dynamics term reads air" in n]
     assert len(warned) == 1 and "warning: the dynamics term reads air" in text
-    # The planar leg's one foot, with its leg's two torque columns (the rail has none).
-    assert re.search(r"\(foot 9\d% \[tau/hip, tau/knee\];", warned[0])
+    # The planar leg's one foot, with its leg's two torque columns (the rail has none); its
+    # estimated push on the still steps is negative (the recorded sample's is about +100 N).
+    assert re.search(
+        r"\(foot 9\d% air, median push -\d+(\.\d)? N \[tau/hip, tau/knee\];", warned[0]
+    )
     assert "check those tau/ columns' sign" in warned[0]
     assert "consequence of the warnings above" not in warned[0]  # the only warning
     # With the rail's acceleration negated as well, its warning comes first and the torque
@@ -550,6 +553,37 @@ def test_the_torque_check_counts_only_valid_still_steps():
     text = dynamics_disagrees(p_dyn, p_dk, valid, ["a", "b", "c"], cols)
     assert "(a 82% [tau/a1, tau/a2];" in text and "tau/b1" not in text
     assert dynamics_disagrees(p_dyn[:, 1:], p_dk[:, 1:], valid[:, 1:], ["b", "c"]) is None
+
+
+def test_the_torque_check_reads_a_pulling_foot_without_the_sign_test():
+    """Where the dynamics term runs without its sign test (a light robot) it reads air on
+    few still steps whatever the torques' sign; the push tells. Hand-made: 50 still steps
+    of three feet whose dynamics term reads air on 10 of them (20 %, under the 80 % bound).
+    Foot a's push is -3 N on 30 still steps and +5 N on 20 (median -3 N): named as pulling.
+    Foot b's is +5 N on 30 and -3 N on 20 (median +5 N): quiet. Foot c pulls on every step
+    but is still on 39 valid steps only: too few to judge. Without ``push`` all are quiet
+    (the dynamics term alone)."""
+    from jax_contact.train.recording_checks import dynamics_disagrees
+
+    t = 60
+    p_dk = np.zeros((t, 3))
+    p_dk[:50] = 0.65
+    p_dyn = np.full((t, 3), 0.9)
+    p_dyn[:10] = 0.1
+    valid = np.ones((t, 3), bool)
+    valid[39:, 2] = False
+    push = np.full((t, 3), 5.0)
+    push[:30, 0] = -3.0
+    push[30:50, 1] = -3.0
+    push[:, 2] = -3.0
+    push[50:] = -100.0  # steps that are not still do not count
+    assert dynamics_disagrees(p_dyn, p_dk, valid, ["a", "b", "c"]) is None
+    text = dynamics_disagrees(p_dyn, p_dk, valid, ["a", "b", "c"], push=push)
+    assert text.startswith(
+        "the dynamics term reads air on most steps where the foot stands still, or the foot"
+        " pulls on the ground there (a 20% air, median push -3 N;"
+    )
+    assert " b " not in text and " c " not in text
 
 
 def test_the_python_call_checks_its_output_folder_first(tmp_path):

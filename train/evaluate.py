@@ -65,6 +65,7 @@ DIAGNOSTIC_FIELDS = (
     "p_kinematics",
     "p_takeoff",
     "p_touchdown",
+    "force",
 )
 
 
@@ -108,7 +109,8 @@ def replay(
     Returns:
       name -> (T, E, L) array: each estimator's P(contact), each GM observer's and
       kinematic detector's contact flag (as float 0/1), ``"gm_force/<name>"`` normal forces,
-      and ``"<estimator>/<field>"`` for every diagnostic field of ``diagnostics_of``,
+      and ``"<estimator>/<field>"`` for every diagnostic field of ``diagnostics_of``
+      (:data:`DIAGNOSTIC_FIELDS`; ``force`` is (T, E, L, 3), world frame, N),
       ``"<estimator>/valid"`` the estimator's input-validity flag.
     """
     for arg, value, kind in (("estimators", estimators, "EstimatorParams"),

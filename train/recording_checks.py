@@ -274,7 +274,7 @@ def holds_gravity(acc: np.ndarray) -> str | None:
 # held up by its torques. Measured (docs/own_robot.md): 0.10-0.37 per foot with the
 # recorded torques, 0.86-0.97 with their signs flipped, on Go1, Spot and Barkour trotting
 # and walking and the planar leg; a 3.4 kg hexapod, whose loads are near anymal_like's
-# torque noise, 0.67-0.77 with its own torques.
+# torque noise, 0.63-0.77 with its own torques.
 DYNAMICS_AIR_WHEN_STILL, MIN_STILL_STEPS = 0.8, 40
 
 
@@ -284,6 +284,7 @@ def dynamics_disagrees(
     valid: np.ndarray,
     foot_names: Sequence[str],
     foot_columns: Sequence[Sequence[str]] | None = None,
+    push: np.ndarray | None = None,
 ) -> str | None:
     """A warning naming the feet whose torques look wrong, and their torque columns, else None.
 
@@ -291,8 +292,12 @@ def dynamics_disagrees(
     loaded, and the dynamics term then reads contact; torques of the wrong sign (a joint
     axis opposite the model's, a motor current's convention) or scale (amperes, the motor
     side of a gearbox) cannot push the foot into the ground, and it reads air on nearly
-    every such step. Steps with ``valid`` False are left out. The term is one per leg, so
-    it cannot say which of a leg's joints is wrong: the message lists them all.
+    every such step. Where the dynamics term runs without its sign test (a light robot's,
+    ``jax_contact.envs.contact_params.choose_unilateral``) it cannot tell a pull from a
+    push, so the estimated push itself is read too: a foot whose median ``push`` over its
+    still steps is negative pulls on the ground (its torques' sign), whatever the term
+    says. Steps with ``valid`` False are left out. The term is one per leg, so it cannot
+    say which of a leg's joints is wrong: the message lists them all.
 
     Args:
       p_dynamics, p_diff_kinematics: (T, L) each term's probability of contact.
@@ -300,22 +305,39 @@ def dynamics_disagrees(
       foot_names: (L,) names for the message.
       foot_columns: (L,) per foot, the recording's ``tau/`` columns of its leg's joints
         (listed after the foot's name), or None.
+      push: (T, L) the estimated vertical push of each foot on the ground under the
+        contact hypothesis (N; ``-force[..., 2]`` of the diagnostics), or None to judge by
+        the dynamics term alone.
     """
     still = (p_diff_kinematics > 0.5) & valid.astype(bool)
     n_still = still.sum(axis=0)
     share = ((p_dynamics < 0.5) & still).sum(axis=0) / np.maximum(n_still, 1)
     columns = foot_columns if foot_columns is not None else [()] * len(foot_names)
-    bad = [
-        f"{name} {s:.0%}" + (f" [{', '.join(cols)}]" if cols else "")
-        for name, s, n, cols in zip(foot_names, share, n_still, columns, strict=True)
-        if n >= MIN_STILL_STEPS and s > DYNAMICS_AIR_WHEN_STILL
-    ]
+    bad = []
+    for i, (name, s, n, cols) in enumerate(zip(foot_names, share, n_still, columns, strict=True)):
+        if n < MIN_STILL_STEPS:
+            continue
+        median = None if push is None else float(np.median(np.asarray(push)[still[:, i], i]))
+        if s > DYNAMICS_AIR_WHEN_STILL or (median is not None and median < 0.0):
+            told = (
+                f"{name} {s:.0%}"
+                if median is None
+                else f"{name} {s:.0%} air, median push {median:.3g} N"
+            )
+            bad.append(told + (f" [{', '.join(cols)}]" if cols else ""))
     if not bad:
         return None
+    own = (
+        "it is well under half"
+        if push is None
+        else "the term reads air on well under half and the push is positive"
+    )
     return (
-        "the dynamics term reads air on most steps where the foot stands still ("
+        "the dynamics term reads air on most steps where the foot stands still"
+        + ("" if push is None else ", or the foot pulls on the ground there")
+        + " ("
         + "; ".join(bad)
-        + "; with a recording's own torques it is well under half): check those tau/ columns'"
+        + f"; with a recording's own torques {own}): check those tau/ columns'"
         " sign (positive along the model's joint axis, as MuJoCo's qfrc_actuator) and unit"
         " (N m at the joint, not amperes or the motor side of a gearbox); on a light robot"
         " the sensor model's torque noise may swamp its loads (jax-contact tune)"

@@ -245,8 +245,8 @@ def estimate_recording(
     return result
 
 
-# The per-step diagnostics (each (T, L)) that :func:`torque_note` reads.
-TORQUE_CHECK_INPUTS = ("p_dynamics", "p_diff_kinematics", "valid")
+# The per-step diagnostics (each (T, L), force (T, L, 3)) that :func:`torque_note` reads.
+TORQUE_CHECK_INPUTS = ("p_dynamics", "p_diff_kinematics", "valid", "force")
 
 
 def torque_note(
@@ -260,7 +260,8 @@ def torque_note(
     (also when the estimator ran without the dynamics or differential-kinematics term).
 
     Args:
-      terms_of: :data:`TORQUE_CHECK_INPUTS` -> (T, L) of the estimate of the recording.
+      terms_of: :data:`TORQUE_CHECK_INPUTS` -> (T, L) of the estimate of the recording
+        (``force`` (T, L, 3), world frame, N: its vertical push is checked too).
       terms: the measurement terms the estimator ran with.
       desc: the robot description (feet and their legs' dofs).
       conv: the recording as :func:`~jax_contact.train.recording_convert.to_readings`
@@ -272,8 +273,9 @@ def torque_note(
     if not {"dynamics", "diff_kinematics"} <= set(terms):
         return None
     columns = [[conv.tau_columns[d] for d in leg if d in conv.tau_columns] for leg in desc.leg_dofs]
+    p_dyn, p_dk, valid, force = (np.asarray(terms_of[k]) for k in TORQUE_CHECK_INPUTS)
     disagrees = dynamics_disagrees(
-        *(terms_of[k] for k in TORQUE_CHECK_INPUTS), desc.foot_names, columns
+        p_dyn, p_dk, valid, desc.foot_names, columns, push=-force[..., 2]
     )
     if not disagrees:
         return None
