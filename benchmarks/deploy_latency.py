@@ -396,7 +396,9 @@ def main(argv=None) -> dict:
         choices=list(OPTIONS) + ["dots_as_reductions"],
         help="XLA options to time the exported program under",
     )
-    parser.add_argument("--no-floor", action="store_true", help="skip the floor and split")
+    parser.add_argument(
+        "--no-floor", action="store_true", help="skip the floor, split and profile runs"
+    )
     parser.add_argument("--json", default=None, help="write the results here")
     parser.add_argument("--child", default=None, help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
