@@ -54,9 +54,9 @@ class ContactObsConfig:
         None: no map; or a :class:`jax_contact.Calibration`. The wrapper's
         ``contact_report()`` says which.
       force_rows: world axes of the contact force, for the parameters the wrapper derives
-        (refused beside ``params``, which have their own); None: all three for legs of
-        three or more joints, else chosen from the leg Jacobian at the home pose, the
-        normal (z) always kept (:func:`jax_contact.envs.contact_params.choose_force_rows`).
+        (refused beside ``params``, which have their own); None: the axes the legs'
+        Jacobians span at the home pose, the normal (z) always kept
+        (:func:`jax_contact.envs.contact_params.choose_force_rows`).
         The choice is reported by the wrapper's ``contact_report()``.
       terrain: a :mod:`jax_contact.terrain` model; None:
         :func:`jax_contact.envs.contact_params.default_terrain`, or, for a parameter file

@@ -270,7 +270,7 @@ def default_estimator_params(
     """Estimator parameters consistent with a sensor model: :func:`jax_contact.params_for`.
 
     The one source of parameters (its docstring lists the rules), with three things only a
-    simulated env knows: the force axes of legs with fewer than three joints and whether
+    simulated env knows: the force axes the legs' Jacobians span and whether
     the dynamics term's sign test can read a foot's load (:func:`choose_unilateral`, unless
     ``unilateral`` is given), both read from the model, and ``sigma_qdd_model``, an
     acceleration model error for the control rate, where ``qacc`` is the mean over a
@@ -286,8 +286,8 @@ def default_estimator_params(
       dt: estimator period, s (physics step in the substep mode, control period else).
       sensor_params: the sensor model (its ``dt`` must be ``dt``).
       sigma_qdd_model: see above, rad/s^2.
-      force_rows: world axes of the contact force; None: :func:`choose_force_rows` (all
-        three for legs of three or more joints; a ``Robot`` is needed for shorter legs).
+      force_rows: world axes of the contact force; None: :func:`choose_force_rows` with a
+        ``Robot`` (any legs); with a description alone (0, 1, 2), for legs of 3+ joints.
       **params_for_kwargs: passed to :func:`jax_contact.params_for` (``gait``,
         ``disturbance``, ``bias_horizon_s``, and any ``make_params`` argument).
 

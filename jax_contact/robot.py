@@ -17,7 +17,8 @@ strings and tuples, so it is hashable and can be a static argument of ``jax.jit`
 - the base: the body with a free joint on the chain from a foot to the world, else the
   first body under the world on that chain (e.g. the planar leg's base on its rail);
 - each leg: the dofs of the joints on the chain from the foot's body up to, not including,
-  the base.
+  the base, except a joint that other feet hang from too (a waist, a spine): it counts
+  with the base (:func:`split_legs`).
 """
 
 from __future__ import annotations

@@ -189,8 +189,9 @@ DEFAULTS_PROVENANCE = {
     "source": "defaults",
     "function": "jax_contact.train.log_estimator.default_estimator",
     "rule": "jax_contact.params_for with the anymal_like sensor model"
-    " (jax_contact.envs.sensors); the planar leg's Section III estimator for one two-joint"
-    " leg on a rail",
+    " (jax_contact.envs.sensors), the force axes the legs' Jacobians span and the sign test"
+    " where the legs' torques can read a foot's load (both from the robot's model); the"
+    " planar leg's Section III estimator for one two-joint leg on a rail",
 }
 
 

@@ -272,7 +272,7 @@ def holds_gravity(acc: np.ndarray) -> str | None:
 # A foot whose dynamics term reads air on more than this share of the steps where the
 # differential-kinematics term reads it still (at least MIN_STILL_STEPS of them) is not
 # held up by its torques. Measured (docs/own_robot.md): 0.10-0.37 per foot with the
-# recorded torques, 0.86-0.97 with their signs flipped, on Go1, Spot and Barkour trotting
+# recorded torques, 0.88-0.97 with their signs flipped, on Go1, Spot and Barkour trotting
 # and walking and the planar leg; a 3.4 kg hexapod, whose loads are near anymal_like's
 # torque noise, 0.63-0.77 with its own torques.
 DYNAMICS_AIR_WHEN_STILL, MIN_STILL_STEPS = 0.8, 40
