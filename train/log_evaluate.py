@@ -113,9 +113,9 @@ def evaluate_file(
     The log is replayed with the robot and feet it was made with (its ``foot_names``
     attribute) unless ``foot_names`` is given. Every detector's full metric set is printed
     as one table with a header and a legend (``jax_contact.train.report.format_table``):
-    touch-down and lift-off delays, F1, accuracy, failures, per-air-phase failure rate, missed
-    touch-downs and lift-offs, ECE. A parameter file that holds a calibration map
-    (``jax-contact tune --calibrate``, the shipped presets) adds the row
+    touch-down and lift-off delays, F1, accuracy, failures, per-air-phase and per-swing-phase
+    failure rates, missed touch-downs and lift-offs, ECE. A parameter file that holds a
+    calibration map (``jax-contact tune --calibrate``, the shipped presets) adds the row
     ``probabilistic+cal``: the estimator's P(contact) mapped by it
     (:func:`jax_contact.tune.calibrate_probability`), flagged at calibrated P > 0.5. With a
     parameter file the robot's default parameters run too, as the row ``defaults`` (same
@@ -124,8 +124,9 @@ def evaluate_file(
     With ``bootstrap`` > 0 (and ground truth) every other row is compared with
     ``probabilistic`` by a paired bootstrap of that many env resamples
     (:func:`jax_contact.bootstrap.paired_bootstrap`, 95 %, seed 0): ``probabilistic - row``
-    of F1, accuracy, air-phase failures, ``|mean|`` delays and ECE, each called better,
-    worse or within noise (the log needs at least 2 envs).
+    of every statistic of :data:`jax_contact.bootstrap.STATISTICS` (F1, accuracy, air- and
+    swing-phase failures, ``|mean|`` delays, ECE), each called better, worse or within
+    noise (the log needs at least 2 envs).
 
     A log without ground truth (no ``truth/contact``, e.g. one recorded on a robot) has no
     metrics: the estimator's P(contact) per foot is then printed as a mean per foot and,

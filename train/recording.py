@@ -20,6 +20,7 @@ column                        needed    meaning, unit
 ``qd/<joint>``                no        joint velocity, rad/s (deg/s) or m/s;
                                         absent: backward difference of ``q``
 ``qdd/<joint>``               no        joint acceleration; absent: difference of ``qd``
+                                        (with ``qd`` absent too: the dynamics term off)
 ``tau/<joint>``               no        joint torque (force), N m or N; absent: the
                                         dynamics term is switched off (said in the output)
 ``base_quat/{w,x,y,z}``       floating  base orientation, base -> world (MuJoCo order)
@@ -36,7 +37,8 @@ column                        needed    meaning, unit
                                         difference of ``base_angvel``
 ``contact/<foot>``            no        ground truth: 1 in contact, 0 not
 ``force/<foot>``              no        ground truth: normal force, N (contact above
-                                        1 N, the simulator's threshold)
+                                        ``--force-threshold``, 1 N by default, the
+                                        simulator's threshold)
 ============================  ========  ==========================================
 
 Columns the schema does not name are ignored (their names are listed). A missing needed
@@ -53,7 +55,9 @@ and (after the replay) torques that cannot hold the feet up
 
 A row with a NaN in a column that is used is not dropped: the estimator receives the NaN
 and its per-leg validity (``valid = False``: the belief only follows the transition
-prior) handles it; the rows are listed in the output and left out of the metrics.
+prior) handles it; the rows are listed in the output, and the steps of the feet whose terms read
+the lost value (a joint's: its leg's foot; a base reading's: every foot) are left out of
+the metrics.
 
 The conversion of a recording into readings (the timing of a row, the rate, resampling)
 is :mod:`jax_contact.train.recording_convert`; the ``jax-contact estimate`` job is

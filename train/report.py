@@ -278,7 +278,8 @@ def _seeds(tuned_params: dict, key: str) -> str:
 def format_scores(scores: dict[str, dict], *, title: str = "log", legend: bool = True) -> str:
     """Every detector's full metric set as one table with a header and (``legend``) the
     legend (``jax_contact.train.report.format_table``'s columns: TD / LO delays, F1,
-    accuracy, failures, per-air-phase failure rate, missed touch-downs and lift-offs, ECE)."""
+    accuracy, failures, per-air-phase and per-swing-phase failure rates, missed touch-downs
+    and lift-offs, ECE)."""
     rows = sorted(scores, key=lambda d: (not d.startswith("probabilistic"), d == "kinematic", d))
     payload = {"scenarios": {title: {det: cell(scores[det]) for det in rows}}}
     return format_table(payload, rows=rows, legend=legend)

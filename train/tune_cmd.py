@@ -15,8 +15,11 @@ validates the arguments first, and :func:`run` imports the library. Register it 
 CLI with ``tune_cmd.add_parser(sub)``; ``python -m jax_contact.train.tune_cmd ...`` runs it alone.
 
 The default parameters that tuning starts from (and that the prior is centred on) are
-the ones ``jax-contact evaluate`` uses for the log's robot: ``params_for`` with the log's
-sensor preset (``anymal_like`` unless the log says otherwise) and the default gait prior.
+the ones ``jax-contact evaluate`` uses for the log's robot
+(:func:`jax_contact.train.log_estimator.default_estimator`): ``params_for`` with the log's
+sensor preset (``anymal_like`` unless the log says otherwise), the default gait prior and
+the force axes and sign test read from the robot's model; Section III's estimator for the
+planar leg.
 
 With ``--model ROBOT`` the inputs are recordings of your own robot with ground truth
 (``contact/<foot>`` or ``force/<foot>`` columns; the schema of ``jax-contact estimate``,
