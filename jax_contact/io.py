@@ -20,8 +20,10 @@ Schema of a rollout log (``jax-contact simulate``), all arrays with leading axes
     /valid            (T, E)      bool     env upright and finite at this step
     /time             (T,)        float32  time since the start, s
 
-and root attributes ``robot``, ``gait``, ``noise``, ``terrain``, ``seed``, ``dt`` (s),
-``rate_hz``, ``n_envs``, ``foot_names``, ``reading_timing``, ``format_version``.
+and root attributes ``robot``, ``gait``, ``noise``, ``terrain``, ``roughness``, ``seed``,
+``dt`` (s), ``rate_hz``, ``n_envs``, ``foot_names``, ``gait_settings``, ``reading_timing``,
+``format_version`` and ``model_sha256`` (the simulated model's fingerprint: loading warns
+when the robot's model now differs).
 ``reading_timing`` is ``"end_of_step"``: reading ``k`` is what the sensors give at the end
 of physics step ``k`` (the state after it, the acceleration over it, the torque applied
 during it), and the truth of ``k`` is the contact during that step (train/evaluate.py's

@@ -35,7 +35,8 @@ column                        needed    meaning, unit
                                         gravity); absent: difference of ``base_linvel``
 ``base_angacc/{x,y,z}``       no        base angular acceleration, base frame; absent:
                                         difference of ``base_angvel``
-``contact/<foot>``            no        ground truth: 1 in contact, 0 not
+``contact/<foot>``            no        ground truth: 1 in contact, 0 not; a blank
+                                        cell is unknown (left out of the metrics)
 ``force/<foot>``              no        ground truth: normal force, N (contact above
                                         ``--force-threshold``, 1 N by default, the
                                         simulator's threshold)

@@ -56,8 +56,10 @@ def estimate_recording(
     recordings load it once), or None to load it here.
 
     Writes into ``out_dir``: ``estimate.h5`` (``time`` (T,), ``p_contact``, each of
-    :data:`DIAGNOSTICS` and ``valid`` as (T, L) arrays, ``truth/contact`` when known;
-    attributes ``model``, ``foot_names``, ``terms``, ``dt``, ``notes``), ``estimate.csv``
+    :data:`DIAGNOSTICS` and ``valid`` as (T, L) arrays, ``truth/contact`` and
+    ``truth/known`` with ground truth; attributes ``model``, ``recording``,
+    ``terrain_model``, ``foot_names``, ``terms``, ``dt``, ``notes``, ``reading_timing``,
+    ``calibration``), ``estimate.csv``
     (``time`` and ``<field>/<foot>`` columns), ``<foot>.png`` per foot, and with ground
     truth ``metrics.json``. Prints the notes (derived columns, terms off), a summary per
     foot and, with ground truth, the metrics table of ``jax-contact evaluate``.
