@@ -1266,13 +1266,15 @@ def test_compare_moves_a_file_of_another_period_as_evaluate_does(tmp_path):
     and the replay refused its dt)."""
     import shutil
     import warnings
+    from pathlib import Path
 
     import jax_contact as jc
     from jax_contact.envs.robots import load_robot
     from jax_contact.train.log_estimator import default_estimator
     from jax_contact.train.tune_presets import compare
 
-    shutil.copy("tests/fixtures/planar_leg_hop.h5", tmp_path / "planar_leg_trot_s0.h5")
+    sample = Path(__file__).parent / "fixtures" / "planar_leg_hop.h5"
+    shutil.copy(sample, tmp_path / "planar_leg_trot_s0.h5")
     robot = load_robot("planar_leg")
     slow, _ = default_estimator(robot.description, 0.005, mj_model=robot.mj_model)
     path = jc.save_params(tmp_path / "slow.json", slow, {"robot": "planar_leg"})
