@@ -36,7 +36,7 @@ contact, whichever source is read.
 - Just above it: on Playground's Go1 (soft contact, one solver iteration, 4 ms steps;
   docs/training.md) a loaded foot at rest leaves the floor for 1-2 physics steps by
   0.1-0.7 mm (90 % below 0.7 mm), which every source above calls air; these
-  micro-bounces were 40-65 % of all air phases of a scripted walk or trot. No estimator
+  micro-bounces were 45-65 % of all air phases of a scripted trot or walk. No estimator
   reading joint states can (or should) see them.
 
 The rule is causal (no look-ahead), so the online metric keeps it; ``truth_gap=0``

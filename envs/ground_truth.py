@@ -23,7 +23,7 @@ other geom of the foot's body that can collide with the floor (one more sensor e
 from the foot geom alone, a foot geom that does not carry its leg's load makes the truth
 describe a pad: Menagerie's A1 (``solimp="0.015 1 0.031"`` on its foot spheres) stands on
 its calf capsules, which end at the spheres' centres; standing, each sphere is 10 mm into
-the floor and pushes 1.4 N, the capsule 26-33 N, and a trot's stance force read from the
+the floor and pushes 1.4-1.6 N, the capsule 26-33 N, and a trot's stance force read from the
 sphere was 2-5 N, dipping below the 1 N threshold within stances (docs/own_robot.md, "Soft
 foot pads"). Go1, Spot, Barkour and the planar leg have no such geom: their truth is the
 foot geom's.

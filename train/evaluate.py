@@ -257,8 +257,8 @@ def _groups(tree: Mapping) -> list[list[str]]:
     structure instead of one per variant. Estimators are grouped with their four
     structural switches taken out as data (:func:`jax_contact.params.without_switches`,
     ``Switches``), so the reproduction's 15 ablation variants are one structure (they were
-    seven: the Go1 replay's cold compile 90 -> 46 s), its GM grid another. Results equal a
-    loop over the variants up to float rounding (same keys).
+    seven: the Go1 replay's cold compile 90 -> 49 s, docs/performance.md), its GM grid
+    another. Results equal a loop over the variants up to float rounding (same keys).
     """
     by_def: dict = {}
     for name, params in tree.items():

@@ -36,7 +36,7 @@ The scripted gaits stand for 0.30 s (trot: period 0.5 s, duty 0.6) and 1.02 s (w
 1.2 s, 0.85); a quadruped of Go1's size trotting at 3 Hz with duty 0.5 stands for
 ~0.17 s. :data:`STANCE_TIME_BOUNDS` = (0.15, 1.2) s covers these with a margin and no
 more. Without the bound, plain-BCE tuning drove ``T_s`` to 61-104 ms (docs/tuning.md): a
-knob for earlier lift-offs (a take-off hazard ``dt / T_s`` of 4 % per step), not a stance
+knob for earlier lift-offs (a take-off hazard ``dt / T_s`` of 2.5-4 % per step), not a stance
 duration. The bound is hard (the sigmoid), and the prior below acts on ``theta``.
 
 Floors (``tune(..., floor=...)``; ``jax-contact tune`` passes the log's sensor model's,
