@@ -313,11 +313,12 @@ def dynamics_disagrees(
     n_still = still.sum(axis=0)
     share = ((p_dynamics < 0.5) & still).sum(axis=0) / np.maximum(n_still, 1)
     columns = foot_columns if foot_columns is not None else [()] * len(foot_names)
+    push = None if push is None else np.asarray(push)
     bad = []
     for i, (name, s, n, cols) in enumerate(zip(foot_names, share, n_still, columns, strict=True)):
         if n < MIN_STILL_STEPS:
             continue
-        median = None if push is None else float(np.median(np.asarray(push)[still[:, i], i]))
+        median = None if push is None else float(np.median(push[still[:, i], i]))
         if s > DYNAMICS_AIR_WHEN_STILL or (median is not None and median < 0.0):
             told = (
                 f"{name} {s:.0%}"
