@@ -335,16 +335,17 @@ def write_json_atomic(path: str | os.PathLike, payload) -> Path:
 
     NaN and infinity are written as ``null``, so the file is strict JSON.
     """
-    return write_text_atomic(path, json.dumps(_finite(payload), indent=2))
+    return write_text_atomic(path, json.dumps(json_safe(payload), indent=2))
 
 
-def _finite(x):
+def json_safe(x):
+    """``x`` as JSON values: numpy arrays and scalars as Python ones, NaN and inf as None."""
     if isinstance(x, dict):
-        return {str(k): _finite(v) for k, v in x.items()}
+        return {str(k): json_safe(v) for k, v in x.items()}
     if isinstance(x, list | tuple):
-        return [_finite(v) for v in x]
+        return [json_safe(v) for v in x]
     if isinstance(x, np.ndarray):
-        return _finite(x.tolist())
+        return json_safe(x.tolist())
     if isinstance(x, np.generic):
         x = x.item()
     if isinstance(x, float) and not np.isfinite(x):

@@ -243,7 +243,7 @@ def save_params(path: str | os.PathLike, params, provenance: Mapping | None = No
     import json
 
     from jax_contact.calibration import file_calibration
-    from jax_contact.io import _finite, write_text_atomic
+    from jax_contact.io import json_safe, write_text_atomic
     from jax_contact.params import validate_params
     from jax_contact.terrain import terrain_model_of
 
@@ -254,11 +254,11 @@ def save_params(path: str | os.PathLike, params, provenance: Mapping | None = No
             f" {type(provenance).__name__}"
         )
     try:
-        text = json.dumps(_finite(params_to_dict(params, provenance)), indent=2)
+        text = json.dumps(json_safe(params_to_dict(params, provenance)), indent=2)
     except (TypeError, ValueError):  # params_to_dict's own values are numbers: a provenance key
         for key, value in provenance.items():
             try:
-                json.dumps(_finite(value))
+                json.dumps(json_safe(value))
             except (TypeError, ValueError) as err:
                 hint = " (a Calibration: pass cal.as_dict())" if hasattr(value, "as_dict") else ""
                 raise ValueError(f"provenance[{key!r}] is not a JSON value{hint}: {err}") from None

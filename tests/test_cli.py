@@ -1132,3 +1132,55 @@ def test_a_negative_force_threshold_is_refused_before_anything_runs(tmp_path, ca
         capsys.readouterr().err
     )
     assert not (tmp_path / "o").exists()
+
+
+def test_an_output_that_is_an_input_or_a_runs_file_is_refused_at_once(tmp_path, capsys):
+    """evaluate's and rates' --json could replace the --params file they read (a tuned
+    file lost after minutes of evaluation); policy-eval's and transfer's --json a run's
+    run.json (the run then unreadable); estimate's outputs a recording kept in --out;
+    tune's --out and deploy-check's --json the --names map. Each is refused before
+    anything runs, the input left as it was."""
+    params = tmp_path / "tuned.json"
+    params.write_text((ROOT / "jax_contact/presets/go1.json").read_text())
+    before = params.read_text()
+    log = str(ROOT / "tests/fixtures/planar_leg_hop.h5")
+    for argv in (
+        ["evaluate", log, "--params", str(params), "--json", str(params)],
+        ["rates", "--params", str(params), "--json", str(params)],
+    ):
+        assert cli.main(argv) == 2, argv
+        assert "argument --json: " in capsys.readouterr().err
+    assert params.read_text() == before
+
+    run = tmp_path / "runs" / "seed0" / "estimate"
+    run.mkdir(parents=True)
+    record = {"variant": "estimate", "task": "go1", "config": "tiny", "finished": True}
+    (run / "run.json").write_text(json.dumps(record))
+    (tmp_path / "runs" / "seed0" / "summary.json").write_text("{}")
+    for argv in (
+        ["policy-eval", str(run), "--json", str(run / "run.json")],
+        ["transfer", str(tmp_path / "runs"), "--json", str(run / "run.json")],
+        ["transfer", str(tmp_path / "runs"), "--json", str(run / "checkpoints" / "x.json")],
+        ["transfer", str(tmp_path / "runs"), "--json", str(tmp_path / "runs/seed0/summary.json")],
+    ):
+        assert cli.main(argv) == 2, argv
+        err = capsys.readouterr().err
+        assert "argument --json: " in err and "is a file of the run in" in err, err
+    assert json.loads((run / "run.json").read_text()) == record
+
+    out = tmp_path / "est"
+    out.mkdir()
+    recording = out / "estimate.csv"  # the user's recording, kept where the outputs go
+    recording.write_text((ROOT / "tests/fixtures/planar_leg_hop.csv").read_text())
+    argv = ["estimate", str(recording), "--model", "planar_leg", "--out", str(out)]
+    assert cli.main(argv) == 2
+    assert "argument --out: " in capsys.readouterr().err
+    names = tmp_path / "map.json"
+    names.write_text('{"a": "b"}')
+    csv = str(ROOT / "tests/fixtures/planar_leg_hop.csv")
+    copy = tmp_path / "v.csv"  # a validation recording other than the tuning one
+    copy.write_text(Path(csv).read_text())
+    argv = ["tune", csv, "--validate", str(copy), "--model", "planar_leg"]
+    assert cli.main([*argv, "--names", str(names), "--out", str(names)]) == 2
+    assert "argument --out: " in capsys.readouterr().err
+    assert names.read_text() == '{"a": "b"}'

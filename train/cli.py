@@ -71,6 +71,7 @@ from jax_contact.train.cli_args import (  # noqa: F401  (COLUMNS ... SCENES: re-
     check_gait_for_robot,
     check_input_file,
     check_log_size,
+    check_not_a_run_file,
     check_not_an_input,
     check_output_file,
     check_output_folder,
@@ -345,7 +346,7 @@ def _check_evaluate(args: argparse.Namespace) -> None:
     check_robot("--robot", args.robot)
     check_output_file("--json", args.json)
     logs = {f"log {log!r}": log for log in args.log}
-    check_not_an_input("--json", args.json, **logs, gm_grid_log=args.gm_grid)
+    check_not_an_input("--json", args.json, **logs, gm_grid_log=args.gm_grid, params=args.params)
     if args.plots is not None:
         check_output_folder("--plots", args.plots)
         stems: dict[str, str] = {}
@@ -396,6 +397,7 @@ def _check_policy_eval(args: argparse.Namespace) -> None:
         raise ValueError(f"argument run: {not_a_run_folder(run)}")
     check_run_record("run", run, args.column or args.observe)
     check_output_file("--json", args.json)
+    check_not_a_run_file("--json", args.json, [run])
 
 
 def _check_bench(args: argparse.Namespace) -> None:
@@ -404,6 +406,7 @@ def _check_bench(args: argparse.Namespace) -> None:
 
 def _check_rates(args: argparse.Namespace) -> None:
     check_output_file("--json", args.json)
+    check_not_an_input("--json", args.json, params=args.params)
     if args.params is not None:
         check_params_source("--params", args.params)
 

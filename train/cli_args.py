@@ -234,14 +234,46 @@ def check_outputs_not_folders(arg: str, folder, names) -> None:
 
 def check_not_an_input(arg: str, out, **inputs) -> None:
     """Raises ValueError when the output ``out`` is one of the command's input files
-    (``name=path``): writing it would destroy the input (a log overwritten with JSON)."""
-    if out is None or not Path(out).exists():
+    (``name=path``): writing it would destroy the input (a log overwritten with JSON).
+    An input that is no existing file (None, a preset name, an inline map) is skipped."""
+    if not _exists(out):
         return
     for name, path in inputs.items():
-        if path is not None and Path(path).exists() and os.path.samefile(out, path):
+        if _exists(path) and os.path.samefile(out, path):
             raise ValueError(
                 f"argument {arg}: {str(out)!r} is this command's {name}; writing it would"
                 " replace it: pass another path"
+            )
+
+
+def _exists(path) -> bool:
+    """Whether ``path`` (None, or text that may be no valid path at all) names a file."""
+    if path is None or not str(path):
+        return False
+    try:
+        return Path(path).exists()
+    except OSError:  # e.g. an inline --names map longer than a file name may be
+        return False
+
+
+def check_not_a_run_file(arg: str, out, run_dirs, root=None) -> None:
+    """Raises ValueError when ``out`` is a file that ``jax-contact train`` keeps in one of
+    ``run_dirs`` (its record, progress, checkpoints) or in the training's ``root`` folder
+    (its summary): replacing it would damage the run."""
+    from jax_contact.train.run_folder import RUN_FILES, SUMMARY_FILES
+
+    if out is None:
+        return
+    target = Path(out).resolve()
+    owned = [(Path(d).resolve(), RUN_FILES) for d in run_dirs]
+    if root is not None:
+        owned.append((Path(root).resolve(), SUMMARY_FILES))
+    for folder, names in owned:
+        inside_checkpoints = folder / "checkpoints" in target.parents
+        if inside_checkpoints or (target.parent == folder and target.name in names):
+            raise ValueError(
+                f"argument {arg}: {str(out)!r} is a file of the run in {str(folder)!r};"
+                " writing it would replace it: pass another path"
             )
 
 
@@ -365,6 +397,11 @@ def check_transfer(args) -> None:
     if problem := transfer_root_problem(args.root):
         raise ValueError(f"argument root: {problem}")
     check_output_file("--json", args.json)
+    runs = [p.parent for p in Path(args.root).glob("seed*/*/run.json")]
+    seeds = [p for p in Path(args.root).glob("seed*") if p.is_dir()]
+    check_not_a_run_file("--json", args.json, runs, root=args.root)
+    for seed in seeds:  # each seed's own training summary (jax-contact train --out root/seedS)
+        check_not_a_run_file("--json", args.json, [], root=seed)
 
 
 def transfer_root_problem(root: str | os.PathLike) -> str | None:

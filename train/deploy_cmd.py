@@ -179,7 +179,7 @@ def check_deploy_check(args: argparse.Namespace) -> None:
                 f"argument --cpu: {args.cpu} is not one of this process's CPUs {allowed}"
             )
     check_output_file("--json", args.json)
-    check_not_an_input("--json", args.json, artefact=args.artefact, log=args.log)
+    check_not_an_input("--json", args.json, artefact=args.artefact, log=args.log, names=args.names)
 
 
 # -------------------------------------------------------------------------------- export

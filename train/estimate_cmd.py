@@ -258,6 +258,7 @@ def check(args: argparse.Namespace) -> None:
     from jax_contact.train.cli_args import (
         ESTIMATE_OUTPUTS,
         check_input_file,
+        check_not_an_input,
         check_output_folder,
         check_outputs_not_folders,
         check_params_source,
@@ -277,13 +278,20 @@ def check(args: argparse.Namespace) -> None:
     parse_names(args.names)
     check_force_threshold(args.force_threshold)
     check_output_folder("--out", args.out)
+    # The inputs an output would replace: a recording, or the --names file, named like one.
+    inputs = {f"recording {r!r}": r for r in args.recording} | {"--names file": args.names}
     if len(args.recording) == 1:
         check_outputs_not_folders("--out", args.out, ESTIMATE_OUTPUTS)
+        for name in ESTIMATE_OUTPUTS:
+            check_not_an_input("--out", Path(args.out) / name, **inputs)
         return
     check_outputs_not_folders("--out", args.out, (POOLED_FILE,))
+    check_not_an_input("--out", Path(args.out) / POOLED_FILE, **inputs)
     for folder in recording_folders(args.recording):
         check_output_folder("--out", Path(args.out) / folder)
         check_outputs_not_folders("--out", Path(args.out) / folder, ESTIMATE_OUTPUTS)
+        for name in ESTIMATE_OUTPUTS:
+            check_not_an_input("--out", Path(args.out) / folder / name, **inputs)
 
 
 def run(args: argparse.Namespace) -> int:

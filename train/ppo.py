@@ -50,7 +50,7 @@ from mujoco_playground._src import wrapper as pg_wrapper
 
 from jax_contact.train.cli_args import check_run_folder, unfinished_run  # noqa: F401  (re-exported)
 from jax_contact.train.interrupt import set_kept
-from jax_contact.train.run_folder import EarlierRun
+from jax_contact.train.run_folder import SUMMARY_FILES, EarlierRun
 
 VARIANTS = ("none", "truth", "estimate")
 REWARDS = ("playground", "unclipped")
@@ -724,7 +724,7 @@ def train_variants(
     else:
         log("final evaluation skipped (eval_envs=0); `jax-contact policy-eval RUN` runs it")
     summary = write_summary(evals, "done" if eval_envs else "skipped")
-    written = ["summary.json", "reward_curves.csv", "training_curves.csv", "reward_curves.png"]
+    written = list(SUMMARY_FILES)
     log(f"wrote {', '.join(written)} and the run folders {', '.join(results)} in {out_dir}")
     return summary
 

@@ -25,6 +25,11 @@ from pathlib import Path
 
 from jax_contact.train import interrupt
 
+# What ``jax-contact train`` writes into a run folder (besides ``checkpoints/``) and into
+# its --out folder: outputs of other commands must not replace them.
+RUN_FILES = ("run.json", "progress.csv", "training.csv", "reward.png")
+SUMMARY_FILES = ("summary.json", "reward_curves.csv", "training_curves.csv", "reward_curves.png")
+
 
 def earlier_path(run_dir: Path) -> Path:
     """Where an ``--overwrite`` run keeps the run it replaces until its first checkpoint."""

@@ -347,9 +347,10 @@ def check_tuning_options(args: argparse.Namespace) -> None:
         raise ValueError(f"argument --stance-time-bounds: LO must be < HI, got {bounds}")
     # The suffix, not a folder, and a folder files can be created in (probed, as the
     # atomic write will): checked before minutes of tuning, not after.
-    from jax_contact.train.cli_args import check_output_file
+    from jax_contact.train.cli_args import check_not_an_input, check_output_file
 
     check_output_file("--out", args.out, (".json",))
+    check_not_an_input("--out", args.out, names=getattr(args, "names", None))
 
 
 # ---------------------------------------------------------------------------------- run
