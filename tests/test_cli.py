@@ -1096,7 +1096,9 @@ def test_train_checks_its_run_folders_before_anything_runs(tmp_path, capsys):
     assert cli.main(["train", "--variants", "truth", "--out", str(tmp_path / "runs")]) == 2
     assert "holds an unfinished run" in capsys.readouterr().err
     assert "with no checkpoint yet: train it again" in EarlierRun(run, False).note()
-    (run / "checkpoints" / "000").mkdir(parents=True)
+    (run / "checkpoints" / "000").mkdir(parents=True)  # a save stopped midway: no checkpoint
+    assert "with no checkpoint yet: train it again" in EarlierRun(run, False).note()
+    (run / "checkpoints" / "000" / "ppo_network_config.json").write_text("{}")  # Brax's last
     note = EarlierRun(run, False).note()
     assert "with the checkpoints saved so far:" in note and "policy-eval" in note
 

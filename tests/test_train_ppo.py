@@ -174,6 +174,18 @@ def test_evaluate_refuses_an_observation_the_network_cannot_take(saved, tmp_path
         FileNotFoundError, match=rf"the run it replaced is in .*{tmp_path.name}.earlier"
     ):
         policy_eval.latest_checkpoint(tmp_path)
+    (tmp_path.parent / f"{tmp_path.name}.earlier").rmdir()
+    # A save stopped midway (Brax made the step folder; its config, written last, is not
+    # there) is passed over for the newest finished one, or named when it is the only one.
+    stopped = tmp_path / "checkpoints" / "000000000320"
+    stopped.mkdir()
+    with pytest.raises(FileNotFoundError, match=r"folder \(000000000320\) was not finished"):
+        policy_eval.latest_checkpoint(tmp_path)
+    done = tmp_path / "checkpoints" / "000000000160"
+    done.mkdir()
+    (done / "ppo_network_config.json").write_text("{}")
+    (stopped / "ppo_network_config.json").write_text('{"network_factory_kw')  # cut short
+    assert policy_eval.latest_checkpoint(tmp_path) == done
 
 
 def test_policy_eval_checks_the_run_record_before_jax(saved, tmp_path):
@@ -299,7 +311,14 @@ def test_overwrite_keeps_the_earlier_run_until_the_new_ones_first_checkpoint(tmp
 
     monkeypatch.setattr(interrupt, "_discarded", [])
     run = tmp_path / "estimate"
-    (run / "checkpoints" / "000000000160").mkdir(parents=True)
+
+    def checkpoint(step: int, finished: bool = True):  # Brax writes the config file last
+        folder = run / "checkpoints" / f"{step:012d}"
+        folder.mkdir(parents=True)
+        if finished:
+            (folder / "ppo_network_config.json").write_text("{}")
+
+    checkpoint(160)
     (run / "progress.csv").write_text("earlier\n")
     aside = earlier_path(run)
     assert aside == tmp_path / "estimate.earlier"
@@ -323,9 +342,18 @@ def test_overwrite_keeps_the_earlier_run_until_the_new_ones_first_checkpoint(tmp
     other = tmp_path / "estimate2" / "run.json"
     assert interrupt.still_written([str(run / "run.json"), str(other)]) == [str(other)]
     assert (run / "progress.csv").read_text() == "earlier\n" and not aside.exists()
+    # A save stopped midway (the step folder made, the config not yet written) is no
+    # checkpoint: the earlier run comes back (the audit found it deleted, the new run's
+    # half-written folder kept as "the checkpoints saved so far").
+    earlier = EarlierRun(run, True)
+    checkpoint(320, finished=False)
+    earlier.settle()
+    assert aside.exists()
+    assert "the earlier run is back in" in earlier.note()
+    assert (run / "progress.csv").read_text() == "earlier\n" and not aside.exists()
     # Once the new run has a checkpoint it stays and the earlier one goes.
     earlier = EarlierRun(run, True)
-    (run / "checkpoints" / "000000000320").mkdir(parents=True)
+    checkpoint(320)
     earlier.settle()
     assert not aside.exists() and not (run / "progress.csv").exists()
     assert "checkpoints saved so far" in earlier.note()

@@ -71,10 +71,12 @@ def load_policy(ckpt: str | Path, *, deterministic: bool = True, parts: bool = F
     from brax.training.agents.ppo import checkpoint as ppo_checkpoint
     from brax.training.agents.ppo import networks as ppo_networks
 
+    from jax_contact.train.run_folder import CHECKPOINT_CONFIG
+
     ckpt = Path(ckpt).resolve()  # orbax refuses relative paths
-    path = ckpt / "ppo_network_config.json"
+    path = ckpt / CHECKPOINT_CONFIG
     if not path.is_file():
-        raise FileNotFoundError(f"no ppo_network_config.json in {ckpt}: not a Brax PPO checkpoint")
+        raise FileNotFoundError(f"no {CHECKPOINT_CONFIG} in {ckpt}: not a Brax PPO checkpoint")
     damaged = "the checkpoint is damaged or incomplete; train again with --overwrite"
     try:
         cfg = json.loads(path.read_text())
@@ -125,18 +127,28 @@ def load_policy(ckpt: str | Path, *, deterministic: bool = True, parts: bool = F
 
 
 def latest_checkpoint(run_dir: str | Path) -> Path:
-    """The checkpoint folder with the most steps in ``<run_dir>/checkpoints``."""
-    folder = Path(run_dir) / "checkpoints"
-    steps = sorted(p for p in folder.glob("*") if p.is_dir() and p.name.isdigit())
-    if not steps:
-        from jax_contact.train.run_folder import earlier_path
+    """The checkpoint folder with the most steps in ``<run_dir>/checkpoints`` among those
+    Brax finished saving (:func:`jax_contact.train.run_folder.complete_checkpoints`: a save
+    stopped midway is passed over for the one before it)."""
+    from jax_contact.train.run_folder import CHECKPOINT_CONFIG, complete_checkpoints, earlier_path
 
+    folder = Path(run_dir) / "checkpoints"
+    steps = complete_checkpoints(run_dir)
+    if not steps:
         earlier = earlier_path(Path(run_dir))
+        started = sorted(p.name for p in folder.glob("*") if p.is_dir() and p.name.isdigit())
         if earlier.exists():  # an --overwrite run killed before its first checkpoint
             why = (
                 f"the run it replaced is in {earlier} (an --overwrite run was stopped before"
                 f" its first checkpoint): move it back to {Path(run_dir)} to evaluate it, or"
                 " delete it and train again"
+            )
+        elif started:
+            why = (
+                f"its only checkpoint folder{'s' if len(started) > 1 else ''}"
+                f" ({', '.join(started)}) {'were' if len(started) > 1 else 'was'} not finished"
+                f" (no readable {CHECKPOINT_CONFIG}: the save was stopped); train again"
+                " with --overwrite"
             )
         elif unfinished_run(Path(run_dir)):
             why = (

@@ -20,6 +20,7 @@ Standard library only (the CLI checks run folders before JAX loads).
 
 from __future__ import annotations
 
+import json
 import shutil
 from pathlib import Path
 
@@ -37,10 +38,35 @@ def earlier_path(run_dir: Path) -> Path:
     return run_dir.with_name(run_dir.name + ".earlier")
 
 
+# Brax's PPO checkpoint writes this file last, after orbax has moved the parameters in.
+CHECKPOINT_CONFIG = "ppo_network_config.json"
+
+
+def complete_checkpoints(run_dir: Path) -> list[Path]:
+    """The checkpoint folders of ``run_dir`` that Brax finished saving, oldest first.
+
+    Brax saves a checkpoint as ``checkpoints/<step>/``: it makes the folder, has orbax
+    write the parameters (into a temporary folder renamed into place) and writes
+    ``ppo_network_config.json`` last. A folder without that file as readable JSON is a
+    save that was stopped (Ctrl-C, a full disk) and is not a checkpoint.
+    """
+    folder = Path(run_dir) / "checkpoints"
+    if not folder.is_dir():
+        return []
+    done = []
+    for p in folder.iterdir():
+        if p.is_dir() and p.name.isdigit():
+            try:
+                json.loads((p / CHECKPOINT_CONFIG).read_text())
+            except (OSError, ValueError):
+                continue
+            done.append(p)
+    return sorted(done, key=lambda p: int(p.name))
+
+
 def has_checkpoint(run_dir: Path) -> bool:
-    """True if ``run_dir/checkpoints`` holds anything (Brax writes one folder per save)."""
-    ckpt = Path(run_dir) / "checkpoints"
-    return ckpt.is_dir() and any(ckpt.iterdir())
+    """True if ``run_dir`` holds a checkpoint that Brax finished saving."""
+    return bool(complete_checkpoints(run_dir))
 
 
 class EarlierRun:

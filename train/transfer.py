@@ -316,10 +316,11 @@ def _load(run_dir: Path, makers: dict):
     """``load_policy(parts=True)`` of the latest checkpoint, with one ``make_policy`` per
     network configuration, so that compiled rollouts are shared across checkpoints."""
     from jax_contact.train import policy_eval
+    from jax_contact.train.run_folder import CHECKPOINT_CONFIG
 
     ckpt = policy_eval.latest_checkpoint(run_dir)
     make_policy, params, sizes = policy_eval.load_policy(ckpt, parts=True)
-    net = (ckpt.resolve() / "ppo_network_config.json").read_text()
+    net = (ckpt.resolve() / CHECKPOINT_CONFIG).read_text()
     return makers.setdefault(net, make_policy), params, sizes
 
 
