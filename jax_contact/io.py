@@ -276,10 +276,16 @@ def staged_folder(folder: str | os.PathLike, stale: Callable[[Path], Iterable[st
       The temporary folder (a :class:`~pathlib.Path`).
     """
     folder = Path(folder)
-    folder.parent.mkdir(parents=True, exist_ok=True)
-    with _LOCK:
-        tmp = tempfile.mkdtemp(dir=folder.parent, prefix=f".{folder.name}.", suffix=".tmp")
-        _PENDING.add(tmp)
+    try:
+        folder.parent.mkdir(parents=True, exist_ok=True)
+        with _LOCK:
+            tmp = tempfile.mkdtemp(dir=folder.parent, prefix=f".{folder.name}.", suffix=".tmp")
+            _PENDING.add(tmp)
+    except OSError as err:  # named, not the temporary folder's errno
+        raise OSError(
+            f"cannot write into {str(folder)!r}: its files are staged beside it, in"
+            f" {str(folder.parent)!r}, which takes no new folders ({err.strerror or err})"
+        ) from None
     try:
         yield Path(tmp)
         folder.mkdir(exist_ok=True)

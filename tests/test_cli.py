@@ -1186,3 +1186,44 @@ def test_an_output_that_is_an_input_or_a_runs_file_is_refused_at_once(tmp_path, 
     assert cli.main([*argv, "--names", str(names), "--out", str(names)]) == 2
     assert "argument --out: " in capsys.readouterr().err
     assert names.read_text() == '{"a": "b"}'
+
+
+def test_a_staged_output_folder_needs_a_writable_parent_and_says_so(tmp_path, monkeypatch, capsys):
+    """demo, reproduce and estimate stage their files in a folder beside --out: with --out
+    writable and its parent not (a shared project folder), estimate replayed the whole
+    recording and then failed on an errno naming '.out.XXXX.tmp'. The parent is probed
+    with --out now, and the staging names --out if it fails anyway."""
+    import tempfile
+
+    from jax_contact.train.cli_args import check_output_folder
+
+    out = tmp_path / "shared" / "out"
+    out.mkdir(parents=True)
+    real_mkstemp, real_mkdtemp = tempfile.mkstemp, tempfile.mkdtemp
+
+    def refused(dir):  # as the kernel refuses a user the parent folder (root is never refused)
+        if Path(dir) == out.parent:
+            raise PermissionError(13, "Permission denied")
+
+    def mkstemp(*args, dir=None, **kwargs):
+        refused(dir)
+        return real_mkstemp(*args, dir=dir, **kwargs)
+
+    def mkdtemp(*args, dir=None, **kwargs):
+        refused(dir)
+        return real_mkdtemp(*args, dir=dir, **kwargs)
+
+    monkeypatch.setattr(tempfile, "mkstemp", mkstemp)
+    monkeypatch.setattr(tempfile, "mkdtemp", mkdtemp)
+    check_output_folder("--out", out)  # files can be made in --out itself
+    with pytest.raises(ValueError, match=r"argument --out: .*staging its files beside it"):
+        check_output_folder("--out", out, staged=True)
+    argv = ["estimate", str(ROOT / "tests/fixtures/planar_leg_hop.csv"), "--model", "planar_leg"]
+    assert cli.main([*argv, "--out", str(out)]) == 2
+    assert "argument --out: " in capsys.readouterr().err
+    with pytest.raises(OSError, match=rf"cannot write into '{out}': its files are staged"):
+        with io.staged_folder(out):
+            pass
+    assert list(out.parent.iterdir()) == [out]
+    with pytest.raises(ValueError, match="argument --out: an empty name"):
+        check_output_folder("--out", "")  # it meant the working folder

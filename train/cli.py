@@ -299,7 +299,7 @@ def _cmd_rates(args: argparse.Namespace) -> int:
 
 
 def _check_demo(args: argparse.Namespace) -> None:
-    check_output_folder("--out", args.out)
+    check_output_folder("--out", args.out, staged=True)
     check_outputs_not_folders("--out", args.out, REPRODUCE_OUTPUTS)
 
 
@@ -310,7 +310,7 @@ def _check_reproduce(args: argparse.Namespace) -> None:
             f"argument --robot: Table III needs a quadruped; {args.robot!r} has one leg (its"
             " hop is Section III, which every reproduce runs)"
         )
-    check_output_folder("--out", args.out)
+    check_output_folder("--out", args.out, staged=True)
     check_outputs_not_folders("--out", args.out, REPRODUCE_OUTPUTS)
     modes = ("auto", "per-gait", "none")
     if args.params not in modes:

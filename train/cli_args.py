@@ -457,14 +457,26 @@ def check_params_source(arg: str, source: str) -> None:
         raise ValueError(f"argument {arg}: {err}") from None
 
 
-def check_output_folder(arg: str, folder: str | os.PathLike) -> None:
+def check_output_folder(arg: str, folder: str | os.PathLike, *, staged: bool = False) -> None:
     """Raises ValueError unless files can be created in ``folder`` (once created).
 
     The nearest existing ancestor is probed by creating and removing a file in it, as the
     atomic writes do: permission bits alone are no answer for root, nor for folders such
-    as ``/proc``.
+    as ``/proc``. With ``staged`` (outputs written through :func:`jax_contact.io.
+    staged_folder`, which stages them in a folder beside ``folder``) the parent of an
+    existing ``folder`` is probed too.
     """
     p = Path(folder).expanduser().absolute()
+    if not str(folder).strip():
+        raise ValueError(f"argument {arg}: an empty name; expected a folder")
+    if staged and p.is_dir():
+        try:
+            check_output_folder(arg, p.parent)
+        except ValueError as err:
+            raise ValueError(
+                f"{err}; this command writes {str(p)!r} by staging its files beside it, in"
+                f" {str(p.parent)!r}: pass a folder whose parent you can write to"
+            ) from None
     if p.exists() and not p.is_dir():
         raise ValueError(f"argument {arg}: {str(p)!r} exists and is not a folder")
     existing = p

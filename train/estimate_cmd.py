@@ -277,7 +277,7 @@ def check(args: argparse.Namespace) -> None:
         check_params_source("--params", args.params)
     parse_names(args.names)
     check_force_threshold(args.force_threshold)
-    check_output_folder("--out", args.out)
+    check_output_folder("--out", args.out, staged=len(args.recording) == 1)
     # The inputs an output would replace: a recording, or the --names file, named like one.
     inputs = {f"recording {r!r}": r for r in args.recording} | {"--names file": args.names}
     if len(args.recording) == 1:
@@ -288,7 +288,7 @@ def check(args: argparse.Namespace) -> None:
     check_outputs_not_folders("--out", args.out, (POOLED_FILE,))
     check_not_an_input("--out", Path(args.out) / POOLED_FILE, **inputs)
     for folder in recording_folders(args.recording):
-        check_output_folder("--out", Path(args.out) / folder)
+        check_output_folder("--out", Path(args.out) / folder, staged=True)
         check_outputs_not_folders("--out", Path(args.out) / folder, ESTIMATE_OUTPUTS)
         for name in ESTIMATE_OUTPUTS:
             check_not_an_input("--out", Path(args.out) / folder / name, **inputs)
