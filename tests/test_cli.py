@@ -129,6 +129,15 @@ _MAIN_THEN_HEAVY = (
             ["argument --seed", "2147483647"],
         ),
         (["simulate", "out.h5", "--seed", "-1"], ["argument --seed", "'-1'"]),
+        # Accepted, then a TypeError traceback after JAX loaded.
+        (["simulate", ""], ["argument output", "missing"]),
+        # Accepted, then refused after JAX loaded naming GaitSettings' field, not the flag.
+        (["simulate", "out.h5", "--speed", "0.2", "nan"], ["argument --speed", "finite"]),
+        (["simulate", "out.h5", "--kp", "inf"], ["argument --kp", "finite"]),
+        (["simulate", "out.h5", "--home-qpos", "nan"], ["argument --home-qpos", "finite"]),
+        # A repeat trained twice (or failed after the first had trained); ran a scene again.
+        (["train", "--variants", "truth", "truth"], ["argument --variants", "repeated variant"]),
+        (["rates", "--scenes", "go1", "go1"], ["argument --scenes", "repeated scene"]),
         (["evaluate", "README.md", "--bootstrap", "99999999999"], ["argument --bootstrap"]),
         (["tune", "README.md", "--validate", "x.h5", "--out", "t.json"], ["argument LOG"]),
         (["evaluate", "README.md", "--params", "pyproject.toml"], ["argument --params", "JSON"]),

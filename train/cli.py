@@ -71,6 +71,7 @@ from jax_contact.train.cli_args import (  # noqa: F401  (COLUMNS ... SCENES: re-
     check_gait_for_robot,
     check_input_file,
     check_log_size,
+    check_no_repeats,
     check_not_a_run_file,
     check_not_an_input,
     check_output_file,
@@ -326,7 +327,7 @@ def _check_simulate(args: argparse.Namespace) -> None:
             f"argument output: given twice ({args.output!r} and --out {args.out_option!r});"
             " give one"
         )
-    if args.output is None and args.out_option is None:
+    if not args.output and not args.out_option:
         raise ValueError(
             "argument output: missing: the .h5 file to write, e.g. jax-contact simulate"
             " out/go1.h5 (or --out out/go1.h5)"
@@ -369,6 +370,9 @@ def _check_evaluate(args: argparse.Namespace) -> None:
 
 def _check_train(args: argparse.Namespace) -> None:
     check_output_folder("--out", args.out)
+    check_no_repeats(
+        "--variants", args.variants, "variant"
+    )  # the repeat trained twice, or failed late
     for variant in args.variants:  # each variant's run folder, before JAX loads
         try:
             check_run_folder(Path(args.out) / variant, args.overwrite)
@@ -405,6 +409,9 @@ def _check_bench(args: argparse.Namespace) -> None:
 
 
 def _check_rates(args: argparse.Namespace) -> None:
+    check_no_repeats(
+        "--scenes", args.scenes, "scene"
+    )  # a repeat ran again, its first result dropped
     check_output_file("--json", args.json)
     check_not_an_input("--json", args.json, params=args.params)
     if args.params is not None:

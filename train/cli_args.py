@@ -246,6 +246,13 @@ def check_not_an_input(arg: str, out, **inputs) -> None:
             )
 
 
+def check_no_repeats(arg: str, values, what: str = "value") -> None:
+    """Raises ValueError naming ``arg`` when ``values`` names one thing twice."""
+    values = list(values or ())
+    if len(set(values)) != len(values):
+        raise ValueError(f"argument {arg}: repeated {what} in {values}")
+
+
 def _exists(path) -> bool:
     """Whether ``path`` (None, or text that may be no valid path at all) names a file."""
     if path is None or not str(path):

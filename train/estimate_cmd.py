@@ -207,10 +207,16 @@ def gait_overrides(args: argparse.Namespace) -> dict:
             raise ValueError(f"argument --speed: the {gait!r} gait has no speed command")
         out[f"{gait}_speed"] = tuple(speed)
     for name in ("base_height", "kp", "kd"):
-        if name in out and not out[name] > 0:
-            raise ValueError(f"argument --{name.replace('_', '-')}: must be > 0, got {out[name]}")
+        if name in out and not (math.isfinite(out[name]) and out[name] > 0):
+            raise ValueError(
+                f"argument --{name.replace('_', '-')}: must be a finite number > 0, got {out[name]}"
+            )
+    if "home_qpos" in out and not all(math.isfinite(q) for q in out["home_qpos"]):
+        raise ValueError(f"argument --home-qpos: must be finite numbers, got {out['home_qpos']}")
     if "trot_speed" in out or "walk_speed" in out:
         low, high = out.get("trot_speed") or out["walk_speed"]
+        if not (math.isfinite(low) and math.isfinite(high)):
+            raise ValueError(f"argument --speed: must be finite speeds in m/s, got {low} {high}")
         if low > high:
             raise ValueError(f"argument --speed: LOW {low} > HIGH {high}")
     return out

@@ -111,15 +111,15 @@ def check(args: argparse.Namespace) -> None:
     """ValueError naming the argument, before JAX is imported (the scene's name is checked
     at the start of :func:`run`, before anything is simulated: Playground's registry
     imports JAX)."""
+    from jax_contact.train.cli_args import check_no_repeats
+
     seeds, vals = list(args.seeds), list(args.validate_seed)
     for arg, given in (("--seeds", seeds), ("--validate-seed", vals)):
-        if len(set(given)) != len(given):
-            raise ValueError(f"argument {arg}: repeated seed in {given}")
+        check_no_repeats(arg, given, "seed")
     both = sorted(set(seeds) & set(vals))
     if both:
         raise ValueError(f"argument --validate-seed: seed(s) {both} are also tuning seeds")
-    if len(set(args.scenes)) != len(args.scenes):
-        raise ValueError(f"argument SCENE: repeated scene in {list(args.scenes)}")
+    check_no_repeats("SCENE", args.scenes, "scene")
     tune_cmd.check_tuning_options(args)
 
 
