@@ -799,6 +799,25 @@ def _evaluate_error(capsys, path) -> str:
     return lines[0]
 
 
+def test_a_bad_log_among_several_is_named_before_any_is_replayed(tmp_path, capsys, monkeypatch):
+    """evaluate read each log when its turn came: a bad last log failed after the earlier
+    logs' replays (a compile and minutes each), and nothing was written. Every log is read
+    and checked first now."""
+    from jax_contact.train import evaluate
+
+    def replay(*args, **kwargs):
+        raise AssertionError("a log was replayed before every log was checked")
+
+    monkeypatch.setattr(evaluate, "replay", replay)
+    bad = tmp_path / "b.h5"
+    bad.write_text("not HDF5")
+    good = ROOT / "tests/fixtures/planar_leg_hop.h5"
+    assert cli.main(["evaluate", str(good), str(bad), "--json", str(tmp_path / "m.json")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("jax-contact evaluate: error:") and str(bad) in err, err
+    assert not (tmp_path / "m.json").exists()
+
+
 def test_a_non_hdf5_log_is_one_line(tmp_path, capsys):
     path = tmp_path / "text.h5"
     path.write_text("not an HDF5 file\n")

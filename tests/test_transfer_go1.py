@@ -124,12 +124,15 @@ def test_latency_columns_run_the_estimate_columns_estimator():
 # ----------------------------------------------------------------------- dispatch
 
 
-def _run_folder(path: Path, variant: str, task: str | None) -> Path:
+def _run_folder(path: Path, variant: str, task: str | None, checkpoint: bool = True) -> Path:
     path.mkdir(parents=True)
     run = {"variant": variant, "config": dataclasses.asdict(ppo.SMALL)}
     if task is not None:
         run["task"] = task
     (path / "run.json").write_text(json.dumps(run))
+    if checkpoint:  # a step folder as Brax leaves it, its config file written last
+        (path / "checkpoints" / "000000000100").mkdir(parents=True)
+        (path / "checkpoints" / "000000000100" / "ppo_network_config.json").write_text("{}")
     return path
 
 
@@ -145,7 +148,7 @@ def test_evaluate_policy_dispatches_hop_runs_with_the_column(tmp_path, monkeypat
     with pytest.raises(ValueError, match="observe must be one of"):
         policy_eval.evaluate_policy(run, observe="estimate_harsh")
     # No task in run.json is a Go1 run: it needs a checkpoint, not the hop evaluation.
-    go1 = _run_folder(tmp_path / "old" / "truth", "truth", None)
+    go1 = _run_folder(tmp_path / "old" / "truth", "truth", None, checkpoint=False)
     with pytest.raises(FileNotFoundError, match="no checkpoint"):
         policy_eval.evaluate_policy(go1, column="estimate_lat1")
 
@@ -233,7 +236,16 @@ def test_transfer_main_prints_the_go1_metrics(tmp_path, fake_cells, monkeypatch,
     assert "\nreturn\n| trained with | truth | estimate | estimate_harsh" in out
     assert "| truth | 0.000 ± 0.000 | 1.000 ± 0.000 | 2.000 ± 0.000 |" in out
     assert json.loads((tmp_path / "m.json").read_text())["cells"] == res["cells"]
-    _run_folder(tmp_path / "seed1" / "truth", "truth", "hop")
+    # A run stopped before its first checkpoint is named before any cell is evaluated
+    # (it failed after every earlier run's cells, and nothing was written).
+    _run_folder(tmp_path / "seed1" / "estimate", "estimate", None, checkpoint=False)
+    fake_cells.clear()
+    with pytest.raises(SystemExit):
+        transfer.main([str(tmp_path), "--json", str(tmp_path / "m2.json")])
+    err = capsys.readouterr().err
+    assert "argument root: no checkpoint in" in err and "seed1/estimate" in err, err
+    assert fake_cells == [] and not (tmp_path / "m2.json").exists()
+    _run_folder(tmp_path / "seed2" / "truth", "truth", "hop")
     with pytest.raises(SystemExit):
         transfer.main([str(tmp_path)])
     assert "argument root:" in capsys.readouterr().err

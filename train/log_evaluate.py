@@ -15,7 +15,7 @@ from jax_contact.io import write_json_atomic
 from jax_contact.metrics import bounce_counts, bounce_steps
 from jax_contact.robot import model_mass
 from jax_contact.train.log_estimator import default_estimator, estimator_for
-from jax_contact.train.logs import TRUTH_CONTACT, load_log
+from jax_contact.train.logs import TRUTH_CONTACT, LoadedLog, load_log
 from jax_contact.train.report import format_scores
 
 
@@ -107,6 +107,7 @@ def evaluate_file(
     plots_dir: str | Path | None = None,
     tuned_baselines: dict | None = None,
     legend: bool = True,
+    loaded: LoadedLog | None = None,
 ) -> dict:
     """Runs the estimator, GM observer and kinematic detector on a log; prints the metrics.
 
@@ -141,6 +142,8 @@ def evaluate_file(
         robot's defaults (:func:`default_estimator`).
       foot_names: the feet, overriding the log's.
       robot: the robot, overriding the one the log names (:func:`load_log`).
+      loaded: ``path`` as :func:`load_log` already read it (with ``foot_names`` and
+        ``robot``); None: it is read here.
       terrain_model: the estimator's terrain model, one of :data:`TERRAIN_MODELS`
         (:func:`default_estimator`); None: the one ``params_path`` was tuned with, else
         ``"flat"`` (:func:`resolve_terrain_model`).
@@ -173,7 +176,7 @@ def evaluate_file(
     from jax_contact.baselines import make_gm_params, make_kinematic_params
     from jax_contact.train.evaluate import replay, score
 
-    log = load_log(path, foot_names=foot_names, robot=robot)
+    log = loaded or load_log(path, foot_names=foot_names, robot=robot)
     name, truth, desc, dt = log.name, log.truth, log.robot.description, log.dt
     mass = model_mass(log.robot.mj_model)
     params, terrain_model, terrain, calibration, params_record = estimator_for(
@@ -342,6 +345,11 @@ def evaluate_files(
             paths[0], json_path=json_path, gm_grid_log=gm_grid_log, bootstrap=bootstrap, **options
         )
     check_distinct_files("log", paths)
+    # Every log read and checked before the first replay: a bad last log failed after the
+    # others' replays (minutes each), and nothing was written.
+    logs = [
+        load_log(p, foot_names=options.get("foot_names"), robot=options.get("robot")) for p in paths
+    ]
     tuned = None
     if gm_grid_log is not None:
         tuned = tune_baselines(gm_grid_log)
@@ -349,10 +357,15 @@ def evaluate_files(
             f"GM observer and kinematic detector tuned on {str(gm_grid_log)!r}: {tuned['gm'][0]},"
             f" {tuned['kinematic'][0]} (best F1 of each grid), for every log"
         )
-    results = [
-        evaluate_file(p, gm_grid_log=gm_grid_log, tuned_baselines=tuned, legend=False, **options)
-        for p in paths
-    ]
+    results = []
+    for i, p in enumerate(paths):
+        results.append(
+            evaluate_file(
+                p, gm_grid_log=gm_grid_log, tuned_baselines=tuned, legend=False, loaded=logs[i],
+                **options,
+            )
+        )  # fmt: skip
+        logs[i] = None  # its readings are not needed again
     keys = [str(i) for i in range(len(paths))]
     dts = {k: r["dt"] if r["has_truth"] else None for k, r in zip(keys, results, strict=True)}
     robots = [r["robot"] for r in results if r["has_truth"]]

@@ -482,10 +482,16 @@ def run_transfer(args, error) -> dict:
     printed per metric and written as JSON; ``error(message)`` reports a bad ``root``."""
     from jax_contact.io import write_json_atomic
     from jax_contact.train.compile_cache import enable_compilation_cache
+    from jax_contact.train.policy_eval import latest_checkpoint
 
     try:
         runs = runs_under(args.root)
         tasks = {run_task(d) for dirs in runs.values() for d in dirs}
+        # Every run's checkpoint found before the first cell: a run without one (stopped
+        # before its first save) failed after every earlier run had been evaluated.
+        for dirs in runs.values():
+            for d in dirs:
+                latest_checkpoint(d)
     except (FileNotFoundError, ValueError) as err:  # ValueError: a damaged run.json
         error(f"argument root: {err}")
     if len(tasks) > 1:
