@@ -326,13 +326,13 @@ def profile(artefact: str, calls: int = 50) -> dict:
         t = time.perf_counter()
         jax.block_until_ready(compiled(*args))
         wall.append(time.perf_counter() - t)
-    out_dir = tempfile.mkdtemp(prefix="deploy_profile.")
-    with jax.profiler.trace(out_dir):
-        for _ in range(calls):
-            jax.block_until_ready(compiled(*args))
-    (path,) = glob.glob(os.path.join(out_dir, "**", "*.trace.json.gz"), recursive=True)
-    with gzip.open(path) as f:
-        events = json.load(f)["traceEvents"]
+    with tempfile.TemporaryDirectory(prefix="deploy_profile.") as out_dir:
+        with jax.profiler.trace(out_dir):
+            for _ in range(calls):
+                jax.block_until_ready(compiled(*args))
+        (path,) = glob.glob(os.path.join(out_dir, "**", "*.trace.json.gz"), recursive=True)
+        with gzip.open(path) as f:
+            events = json.load(f)["traceEvents"]
     per_scope = collections.defaultdict(list)
     per_op = collections.defaultdict(float)
     for e in events:

@@ -173,6 +173,13 @@ def run_one(
 
     n_chunk = max(1, int(round(chunk_s / dt)))
     n_total = int(round(duration / dt))
+    simulated = -(-n_total // n_chunk) * n_chunk * dt  # whole chunks
+    if simulated <= float(template.ramp_time):  # before the compile, not after the run
+        raise ValueError(
+            f"--duration: {simulated:g} s simulated is not past the"
+            f" {float(template.ramp_time):g} s speed ramp of {robot_name}'s {kind}: nothing to"
+            " measure the speed on"
+        )
 
     @jax.jit
     def chunk(data, tally, t0):
@@ -242,7 +249,12 @@ def main(argv=None) -> None:
         "--gaits", nargs="+", default=["trot", "walk"], choices=list(SPEEDS), help="gaits"
     )
     parser.add_argument("--n-envs", type=positive_int, default=256, help="envs per robot and gait")
-    parser.add_argument("--duration", type=positive_float, default=20.0, help="simulated seconds")
+    parser.add_argument(
+        "--duration",
+        type=positive_float,
+        default=20.0,
+        help="simulated seconds, rounded up to whole --chunk scans",
+    )
     parser.add_argument("--chunk", type=positive_float, default=2.0, help="seconds per jitted scan")
     parser.add_argument("--min-air", type=nonnegative_float, default=0.02, help="s off the ground")
     parser.add_argument("--seed", type=seed_int, default=0, help="simulation seed")
@@ -251,6 +263,10 @@ def main(argv=None) -> None:
     for name in args.robots:
         check_robot_arg(parser, "--robots", name)
     check_json_arg(parser, args.json)
+    if args.duration < args.chunk:  # it ran no step at all, and divided by the 0 s simulated
+        parser.error(
+            f"argument --duration: {args.duration:g} s is shorter than --chunk {args.chunk:g} s"
+        )
 
     result = {"machine": machine(), "rows": []}
     with json_of_what_finished(args.json, result):  # the robots that finished, if one fails

@@ -585,6 +585,8 @@ INT_ERR = "must be an int >= 1"
         ("gait_survival", ["--robots", "go2"], "argument --robots: unknown robot 'go2'"),
         ("gait_survival", ["--json", "/proc"], "argument --json: '/proc' is a folder"),
         ("gait_survival", ["--min-air", "-0.1"], "argument --min-air"),
+        # No step ran (the chunk is 2 s): a ZeroDivisionError after the compile.
+        ("gait_survival", ["--duration", "0.0005"], "argument --duration: 0.0005 s is shorter"),
         ("wrapper_throughput", ["--calls", "0"], INT_ERR),
         ("wrapper_throughput", ["--env", "Go1Bogus"], "argument --env: unknown env 'Go1Bogus'"),
         ("wrapper_throughput", ["--json", "/proc"], "argument --json: '/proc' is a folder"),

@@ -177,10 +177,11 @@ def _preset_logs(
     robot: str, workdir: Path, n_envs: int, duration: float, keys=PRESET_TUNE + PRESET_VALIDATE
 ) -> dict:
     """(scenario, seed) -> path of the tuning and validation logs ``keys``, simulated
-    unless there."""
+    unless there (at this size: the name holds it, so a log of another size is not
+    taken for it)."""
     logs = {}
     for scenario, seed in keys:
-        path = workdir / f"{robot}_{scenario}_s{seed}.h5"
+        path = workdir / f"{robot}_{scenario}_s{seed}_{n_envs}x{duration:g}s.h5"
         if not path.is_file():
             simulate_log(path, robot, scenario, seed, n_envs=n_envs, duration=duration)
         logs[(scenario, seed)] = str(path)
