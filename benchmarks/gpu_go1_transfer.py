@@ -49,7 +49,13 @@ from collections.abc import Sequence
 from pathlib import Path
 
 # The CLI's argument types (the module imports only the standard library).
-from jax_contact.train.cli_args import positive_float, positive_int, seed_int
+from jax_contact.train.cli_args import (
+    check_no_repeats,
+    check_output_folder,
+    positive_float,
+    positive_int,
+    seed_int,
+)
 
 COLUMNS = ("truth", "estimate", "estimate_harsh", "estimate_lat1", "estimate_lat2")
 VARIANTS = ("none", "truth", "estimate")
@@ -270,7 +276,14 @@ def _curve(run_dir: Path) -> dict:
 
 
 def _tar_runs(runs: Path, path: Path) -> None:
-    """Each run's run.json, CSVs and latest checkpoint, as one file."""
+    """Each run's run.json, CSVs and latest checkpoint, as one file (written atomically: a
+    run stopped at its deadline while taring leaves no truncated archive)."""
+    from jax_contact.io import write_atomic
+
+    write_atomic(path, lambda tmp: _tar_into(runs, tmp))
+
+
+def _tar_into(runs: Path, path) -> None:
     from jax_contact.train import policy_eval
 
     with tarfile.open(path, "w:gz") as tar:
@@ -288,7 +301,7 @@ def _tar_runs(runs: Path, path: Path) -> None:
 
 def run(args: argparse.Namespace) -> dict:
     """Trains, evaluates and writes everything (module docstring)."""
-    from jax_contact.io import write_json_atomic
+    from jax_contact.io import write_json_atomic, write_text_atomic
     from jax_contact.train import transfer
 
     t_start = args.started_at or time.time()
@@ -360,21 +373,24 @@ def run(args: argparse.Namespace) -> dict:
         (trained, [c]) for c in args.columns if trained
     ]
     part_paths = [runs / f"part{i}.json" for i in range(len(groups))]
+    for p in part_paths:  # an earlier run's parts would be merged as this run's cells
+        p.unlink(missing_ok=True)
     common = ["--runs", str(runs), "--eval-envs", str(args.eval_envs)]
     common += ["--eval-seed", str(args.eval_seed)]
     if args.episode_length:
         common += ["--episode-length", str(args.episode_length)]
-    with open(out / "matrix.log", "w") as mlog:
-        procs = []
-        for i, (variants, cols) in enumerate(groups):
-            argv = ["matrix", "--variants", *variants, "--columns", *cols, "--part"]
-            procs.append(
-                _spawn([*argv, str(part_paths[i]), *common], runs / f"matrix{i}.log", len(groups))
-            )
-        codes = _wait(procs, t_start + args.matrix_deadline_s)
-        for i, c in enumerate(codes):
-            mlog.write(f"--- matrix process {i} {groups[i]}: exit {c}\n")
-            mlog.write((runs / f"matrix{i}.log").read_text())
+    procs = []
+    for i, (variants, cols) in enumerate(groups):
+        argv = ["matrix", "--variants", *variants, "--columns", *cols, "--part"]
+        procs.append(
+            _spawn([*argv, str(part_paths[i]), *common], runs / f"matrix{i}.log", len(groups))
+        )
+    codes = _wait(procs, t_start + args.matrix_deadline_s)
+    mlog = "".join(
+        f"--- matrix process {i} {groups[i]}: exit {c}\n" + (runs / f"matrix{i}.log").read_text()
+        for i, c in enumerate(codes)
+    )
+    write_text_atomic(out / "matrix.log", mlog)
     parts = [json.loads(p.read_text()) for p in part_paths if p.is_file()]
     matrix = merge_parts(parts, args.columns)
     matrix["wall_s"] = round(time.time() - t0, 1)
@@ -452,11 +468,43 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def check_run_args(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
+    """Exits 2 naming the argument before anything runs: output folders that cannot be
+    written, repeats, deadlines out of order, and run folders of an earlier run in
+    ``--runs`` (every training child would refuse them, and the matrix would evaluate the
+    earlier run's checkpoints as this run's)."""
+    try:
+        check_output_folder("--out", args.out)
+        check_output_folder("--runs", args.runs)
+        check_no_repeats("--seeds", args.seeds, "seed")
+        check_no_repeats("--variants", args.variants, "variant")
+        check_no_repeats("--columns", args.columns, "column")
+    except ValueError as err:
+        parser.error(str(err))
+    if args.train_deadline_s >= args.matrix_deadline_s:
+        parser.error(
+            f"argument --train-deadline-s: {args.train_deadline_s:g} s leaves the matrix no"
+            f" time before --matrix-deadline-s {args.matrix_deadline_s:g} s"
+        )
+    earlier = [
+        f"seed{s}/{v}" for s in args.seeds for v in args.variants
+        if (Path(args.runs) / f"seed{s}" / v).exists()
+    ]  # fmt: skip
+    if earlier:
+        parser.error(
+            f"argument --runs: {args.runs} already holds run folders ({', '.join(earlier)}):"
+            " pass an empty folder, or remove them"
+        )
+
+
 def main(argv: Sequence[str] | None = None):
     argv = list(sys.argv[1:] if argv is None else argv)
     if not argv or argv[0] not in ("run", "train", "matrix", "-h", "--help"):
         argv = ["run", *argv]
-    args = build_parser().parse_args(argv)
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if args.role == "run":
+        check_run_args(parser, args)
     if args.role == "train":
         return _train_child(args)
     if args.role == "matrix":

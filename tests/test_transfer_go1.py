@@ -393,3 +393,55 @@ def test_gpu_script_refuses_bad_numbers_before_anything_runs(argv, capsys):
         G.build_parser().parse_args(["run", *argv])
     assert stop.value.code == 2
     assert f"argument {argv[0]}" in capsys.readouterr().err
+
+
+def test_gpu_script_refuses_what_would_mix_runs_before_anything_runs(tmp_path, capsys):
+    """Run folders of an earlier run in --runs made every training child refuse to start
+    while the matrix evaluated the earlier checkpoints as this run's; a repeated seed,
+    deadlines out of order and an unwritable --out were found only on the lent machine.
+    Each exits 2 naming the argument, before anything is spawned."""
+    runs = tmp_path / "runs"
+    (runs / "seed0" / "truth").mkdir(parents=True)
+    base = ["run", "--out", str(tmp_path / "out"), "--runs", str(runs)]
+    cases = [
+        (["--seeds", "0"], "argument --runs: ", "seed0/truth"),
+        (["--seeds", "1", "1"], "argument --seeds: repeated seed in [1, 1]", ""),
+        (["--seeds", "1", "--train-deadline-s", "600"], "argument --train-deadline-s: 600 s", ""),
+        (["--seeds", "1", "--out", "/proc/x"], "argument --out: ", "'/proc'"),
+    ]
+    for extra, message, detail in cases:
+        with pytest.raises(SystemExit) as stop:
+            G.main([*base, *extra])
+        err = capsys.readouterr().err
+        assert stop.value.code == 2 and message in err and detail in err, (extra, err)
+    assert not (tmp_path / "out").exists()
+    assert sorted(p.name for p in runs.iterdir()) == ["seed0"]
+
+
+def test_gpu_script_tars_atomically(tmp_path, monkeypatch):
+    """runs.tar.gz was written at its final path: a run stopped at its deadline while
+    taring left a truncated archive there."""
+    import tarfile
+
+    run = _run_folder(tmp_path / "runs" / "seed0" / "truth", "truth", None)
+    (run / "progress.csv").write_text("step\n0\n")
+    real_add = tarfile.TarFile.add
+
+    def stopped(self, *args, **kwargs):  # the deadline's signal, after the first file
+        real_add(self, *args, **kwargs)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(tarfile.TarFile, "add", stopped)
+    with pytest.raises(KeyboardInterrupt):
+        G._tar_runs(tmp_path / "runs", tmp_path / "runs.tar.gz")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["runs"]  # nothing half-written
+    monkeypatch.setattr(tarfile.TarFile, "add", real_add)
+    G._tar_runs(tmp_path / "runs", tmp_path / "runs.tar.gz")
+    with tarfile.open(tmp_path / "runs.tar.gz") as tar:
+        names = sorted(tar.getnames())
+    assert names == [
+        "seed0/truth/checkpoints/000000000100",
+        "seed0/truth/checkpoints/000000000100/ppo_network_config.json",
+        "seed0/truth/progress.csv",
+        "seed0/truth/run.json",
+    ]
