@@ -1054,7 +1054,7 @@ def test_tune_refuses_mixed_copied_and_unscoreable_logs(tmp_path):
             r" neither be tuned on nor validate a fit")  # fmt: skip
 
 
-def test_sensor_limit_variants_each_remove_only_what_they_name():
+def test_sensor_limit_variants_each_remove_only_what_they_name(capsys):
     from jax_contact.benchmarks import sensor_limits
     from jax_contact.envs.sensors import SensorParams
 
@@ -1082,8 +1082,9 @@ def test_sensor_limit_variants_each_remove_only_what_they_name():
         for f in ("sigma_q", "sigma_qd", "sigma_tau", "sigma_acc", "bias_rw_q", "bias_rw_qd"):
             assert not np.any(np.asarray(getattr(v[name], f))), (name, f)
         assert float(v[name].outlier_prob) == 0.0
-    with pytest.raises(SystemExit):
+    with pytest.raises(SystemExit) as stop:
         sensor_limits.main(["--envs", "0"])
+    assert stop.value.code == 2 and "argument --envs" in capsys.readouterr().err
 
 
 def test_evaluate_notes_a_kinematic_detector_that_wins_and_prints_no_nan_delays():

@@ -594,7 +594,7 @@ def test_deploy_check_reads_a_recording_and_warns_as_estimate(deployed, live, tm
         deploy_check(deployed["artefact"], tmp_path / "slow.csv", pace=False)
 
 
-def test_cli_arguments_are_checked_without_jax(tmp_path):
+def test_cli_arguments_are_checked_without_jax(tmp_path, capsys):
     import argparse
 
     from jax_contact.train import deploy_cmd
@@ -618,8 +618,10 @@ def test_cli_arguments_are_checked_without_jax(tmp_path):
     args = parser.parse_args(["export", "--robot", "go1", "--out", ""])
     with pytest.raises(ValueError, match=r"argument --out: an empty name"):
         args.check(args)  # it said "'' is a folder"
-    with pytest.raises(SystemExit):  # --robot and --model together
+    with pytest.raises(SystemExit) as stop:  # --robot and --model together
         parser.parse_args(["export", "--robot", "go1", "--model", "a.xml", "--out", "a.contact"])
+    assert stop.value.code == 2
+    assert "argument --model: not allowed with argument --robot" in capsys.readouterr().err
     # --model takes a robot name as estimate's and tune's do (it used to say "file 'go1'
     # does not exist"), else an existing MJCF .xml file.
     args = parser.parse_args(["export", "--model", "go1", "--out", str(tmp_path / "a.contact")])

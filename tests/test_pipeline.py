@@ -172,11 +172,17 @@ def test_rollout_shapes_and_truth(planar):
 def test_replay_tracks_truth(planar, replayed):
     _, roll = planar
     scores = score(replayed, roll.contact, roll.valid, dt=0.0025)
-    # The estimator tracks the hop (F1 well above the 0.5-ish of always-contact guessing
-    # for this duty cycle); the outputs are probabilities in [0, 1] without NaN.
+    # The estimator tracks the hop: its F1 is well above that of always-contact guessing,
+    # 2 s / (1 + s) at a contact share s (precision s, recall 1; 0.86 at the hop's duty
+    # 0.75), and its accuracy is well above a constant flag's, max(s, 1 - s). The outputs
+    # are probabilities in [0, 1] without NaN.
     p = replayed["probabilistic"]
     assert np.isfinite(p).all() and ((p >= 0) & (p <= 1)).all()
-    assert scores["probabilistic"]["f1"] > 0.9
+    share = float(roll.contact[roll.valid].mean())
+    got = scores["probabilistic"]
+    # Measured (2026-12-06): s = 0.78, F1 0.985 against 0.876, accuracy 0.978 against 0.78.
+    assert got["f1"] > max(0.9, 2 * share / (1 + share) + 0.05), (share, got["f1"])
+    assert got["accuracy"] > max(share, 1 - share) + 0.1, (share, got["accuracy"])
     assert scores["probabilistic"]["n_touchdowns"] >= 2 * N_ENVS
     for f in ("p_dynamics", "p_diff_kinematics", "p_kinematics", "p_takeoff", "p_touchdown"):
         assert replayed[f"probabilistic/{f}"].shape == p.shape

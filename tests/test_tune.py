@@ -330,11 +330,11 @@ def test_calibration_entry_fits_a_map_that_keeps_every_flag(capsys):
     assert "calibration (sign): T" in capsys.readouterr().err
 
 
-def test_select_cells_keeps_the_lowest_loss_epoch_no_worse_than_the_defaults():
+def test_select_cells_scores_the_untuned_epoch_as_the_metrics_do():
     """select="cells" on the recovery problem (the same compiled training step): epoch 0's
     cells are jax_contact.metrics of the untuned filter on the validation log (recomputed
-    here), the epoch returned is no worse than epoch 0 in any cell, and every epoch with a
-    lower validation loss is worse in some cell (the rule, tune's docstring)."""
+    here). Which epoch the rule then keeps is tested on a hand-made history below, where
+    lower losses are refused (this run has none to refuse)."""
     from jax_contact.metrics import evaluate
 
     res, val, wrong, config = _recovery_run("cells")
@@ -346,12 +346,6 @@ def test_select_cells_keeps_the_lowest_loss_epoch_no_worse_than_the_defaults():
     assert cell0["ece"] == pytest.approx(m.ece, abs=1e-6)
     assert cell0["fail"] == pytest.approx(m.swing_phase_failure_rate, abs=1e-9)
     assert cell0["touchdown_ms"] == pytest.approx(abs(m.touchdown_delay_ms[0]), abs=1e-6)
-    chosen = hist[res.best_epoch]
-    assert jt.no_worse(chosen["val_cells"], hist[0]["val_cells"])
-    assert res.best_epoch == jt.select_epoch(hist, config)  # the rule's cases: test below
-    for row in hist[1:]:
-        if row["val_loss"] < chosen["val_loss"] - config.min_delta:
-            assert not jt.no_worse(row["val_cells"], hist[0]["val_cells"]), row["epoch"]
 
 
 def test_select_epoch_passes_over_lower_losses_the_rule_refuses():
@@ -390,11 +384,11 @@ def test_select_epoch_passes_over_lower_losses_the_rule_refuses():
     assert jt.select_epoch(history[:2], jt.TuneConfig(min_delta=0.25)) == 0
 
 
-def test_select_spread_keeps_the_lowest_loss_epoch_without_a_cell_worse_beyond_the_spread():
+def test_select_spread_records_the_cells_worse_beyond_the_bootstrap_spread():
     """select="spread" on the recovery problem: every epoch records the validation cells
     worse than epoch 0's beyond a paired env bootstrap (recomputed here for the epoch kept
-    from the logits of its parameters and epoch 0's), the epoch kept has none, and every
-    epoch with a lower validation loss has some."""
+    from the logits of its parameters and epoch 0's), and the epoch kept has none. Which
+    epoch the rule keeps is tested on a hand-made history above."""
     from jax_contact.bootstrap import paired_bootstrap
 
     res, val, wrong, config = _recovery_run("spread")
@@ -402,10 +396,6 @@ def test_select_spread_keeps_the_lowest_loss_epoch_without_a_cell_worse_beyond_t
     assert hist[0]["val_worse"] == []  # epoch 0 against itself
     chosen = hist[res.best_epoch]
     assert chosen["val_worse"] == []
-    assert res.best_epoch == jt.select_epoch(hist, config)  # the rule's cases: test below
-    for row in hist[1:]:
-        if row["val_loss"] < chosen["val_loss"] - config.min_delta:
-            assert row["val_worse"], row["epoch"]
     key = jax.random.fold_in(jax.random.fold_in(jax.random.key(config.seed), 10**6), 0)
     p0, p1 = (
         jt.sigmoid_np(jt.predict_logits(p, flat(0.0, 0.05), val, key=key, chunk=300))
@@ -566,11 +556,19 @@ def test_contact_damping_is_tuned_in_log_space_only_when_asked():
 
 
 def test_caps_stay_in_their_interval():
+    """A cap is tuned in logit space over (0.5, 1): cap = 0.5 + 0.5 sigmoid(z), so z = 0
+    gives 0.75, z = +-30 the interval's ends (sigmoid(30) = 1 - 9.4e-14), z = 2 gives
+    0.5 + 0.5 / (1 + e^-2) = 0.940399."""
     base = make_params(make_noise(3))
     space = jt.make_space(3, fields=("cap_dynamics",))
-    for z in (-30.0, 0.0, 30.0):
-        cap = float(jt.to_params(space, base, {"cap_dynamics": jnp.float32(z)}).cap_dynamics)
-        assert 0.5 <= cap <= 1.0
+
+    def cap(z):
+        return float(jt.to_params(space, base, {"cap_dynamics": jnp.float32(z)}).cap_dynamics)
+
+    assert cap(0.0) == pytest.approx(0.75, abs=1e-7)
+    assert cap(2.0) == pytest.approx(0.940399, abs=1e-6)
+    assert cap(-30.0) == pytest.approx(0.5, abs=1e-7)
+    assert cap(30.0) == pytest.approx(1.0, abs=1e-7)
 
 
 def test_robot_space_groups_go1_like():

@@ -144,6 +144,13 @@ def test_go1_joystick_offline_smoke():
     # standing is called contact by the end.
     assert scores.accuracy >= 0.85
     assert np.all(probs[-1] > 0.9), probs[-1]
+    # A detector stuck at contact passes both checks above (the feet stand from 0.2 s on),
+    # so the drop's bounce is checked too: the hind foot's true air steps in the first 10
+    # (5 here: RR of env 0 at step 3, of env 1 at steps 2-5, measured 2026-12-06) are each
+    # called air (P 0.0-0.21 measured).
+    early_p, early_air = np.stack(probs)[:10], ~np.stack(truths)[:10]
+    assert early_air.sum() >= 3, early_air.sum()
+    assert np.all(early_p[early_air] < 0.5), early_p[early_air]
     np.testing.assert_array_equal(est.n_updates, 20)
 
     # Auto-reset: end the episodes now (EpisodeWrapper truncates at 1000 steps).
