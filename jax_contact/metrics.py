@@ -118,7 +118,9 @@ import numpy as np
 # ----------------------------------------------------------------------------- inputs
 
 
-def _as_bool(name: str, x, valid: np.ndarray | None) -> np.ndarray:
+def as_bool(name: str, x, valid: np.ndarray | None) -> np.ndarray:
+    """``x`` as a bool array: bool, or numbers that are 0 or 1 where ``valid`` (None: all);
+    ValueError naming ``name`` otherwise (a NaN or a 0.3 is no truth value)."""
     arr = np.asarray(x)
     if arr.dtype == bool:
         return arr
@@ -144,8 +146,8 @@ def _inputs(estimate, truth, valid, threshold: float):
         val = np.asarray(valid)
         if val.shape != est.shape:
             raise ValueError(f"valid has shape {val.shape}, but estimate has shape {est.shape}")
-        val = _as_bool("valid", val, None)
-    tru = _as_bool("truth", tru, val)
+        val = as_bool("valid", val, None)
+    tru = as_bool("truth", tru, val)
     th = float(threshold)
     if not 0.0 <= th < 1.0:
         raise ValueError(f"threshold must lie in [0, 1), got {threshold!r}")
@@ -179,13 +181,13 @@ def _known(truth_known, truth, val: np.ndarray) -> np.ndarray:
     known = np.asarray(truth_known)
     if known.shape != val.shape:
         raise ValueError(f"truth_known has shape {known.shape}, but estimate has shape {val.shape}")
-    known = _as_bool("truth_known", known, None)
+    known = as_bool("truth_known", known, None)
     if np.any(val & ~known):
         raise ValueError(
             "truth_known is False at valid steps: a step can be scored only where its truth is"
             " known (pass valid=valid & truth_known)"
         )
-    _as_bool("truth", truth, known)
+    as_bool("truth", truth, known)
     return known
 
 
@@ -834,8 +836,19 @@ class EnvSums:
           ``touchdown_delay_ms`` and
           ``liftoff_delay_ms`` (the mean delays), ``ece``: each (...) float64, NaN where
           :func:`evaluate` gives NaN (a ratio 0 / 0).
+
+        Raises:
+          ValueError: ``weights`` whose last axis is not the E envs, or a weight that is
+            negative or not finite (it gave an F1 above 1 and negative failure rates).
         """
         w = np.asarray(weights, np.float64)
+        n_envs = len(self.tp)
+        if w.ndim < 1 or w.shape[-1] != n_envs:
+            raise ValueError(
+                f"weights must have shape (..., {n_envs}) (one per env), got {w.shape}"
+            )
+        if not np.all(np.isfinite(w) & (w >= 0)):
+            raise ValueError("weights must be finite and >= 0 (counts of each env)")
         s = {f.name: w @ getattr(self, f.name) for f in dataclasses.fields(self)}
         gap = np.abs(s["bin_truth"] - s["bin_prob"]).sum(axis=-1)
         with np.errstate(divide="ignore", invalid="ignore"):

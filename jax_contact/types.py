@@ -339,12 +339,24 @@ def validate_measurement(meas: LegMeasurement, nv: int | None = None) -> tuple[i
         raise ValueError(f"leg_dofs must hold between 1 and nv = {n} indices, got {n_l}")
     try:  # the values, where they are known (not while traced)
         legs = np.asarray(meas.leg_dofs).reshape(-1, n_l)
+        others = np.asarray(meas.other_dofs).reshape(len(legs), n - n_l)
     except jax.errors.TracerArrayConversionError:
         return batch
     for leg in np.unique(legs, axis=0):
         if len(set(leg.tolist())) != n_l or not np.all((leg >= 0) & (leg < n)):
             raise ValueError(
                 f"leg_dofs {leg.tolist()} must be {n_l} distinct indices into nv = {n}"
+            )
+    # other_dofs: the rest of range(nv), which the dynamics term's blocks of M and J are
+    # taken with (an overlap or a negative index, which wraps, gave plausible wrong
+    # numbers; one past nv an IndexError naming nothing).
+    for row in np.unique(np.concatenate([legs, others], axis=1), axis=0):
+        leg, other = row[:n_l], row[n_l:]
+        if sorted(leg.tolist() + other.tolist()) != list(range(n)):
+            rest = sorted(set(range(n)) - set(leg.tolist()))
+            raise ValueError(
+                f"other_dofs {other.tolist()} must be the nv - n_l = {n - n_l} indices of"
+                f" range({n}) not in leg_dofs {leg.tolist()}: {rest}"
             )
     return batch
 

@@ -68,6 +68,12 @@ def test_env_sums_pool_to_evaluate_on_the_resampled_envs():
             for key in ("touchdown_delay_ms", "liftoff_delay_ms"):
                 assert got[key] == pytest.approx(getattr(want, key)[0], rel=1e-12), key
         assert np.isnan(sums.pooled(np.zeros(5))["f1"])  # no step: 0 / 0, as evaluate's NaN
+        # Weights are counts: a negative one gave F1 1.013 and a negative failure rate, a
+        # wrong length NumPy's matmul error (a helper's audit).
+        with pytest.raises(ValueError, match=r"weights must be finite and >= 0"):
+            sums.pooled(np.array([1.0, -1.0, 1.0, 1.0, 1.0]))
+        with pytest.raises(ValueError, match=r"weights must have shape \(\.\.\., 5\).*\(4,\)"):
+            sums.pooled(np.ones(4))
     every = evaluate(p, truth, valid3, dt=DT, bounce_s=0.03)
     assert 0 < every.n_swing_phases < every.n_air_phases
     assert every.swing_phase_failure_rate != every.air_phase_failure_rate

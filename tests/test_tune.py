@@ -616,6 +616,22 @@ def test_fit_calibration_refuses_what_is_not_logits(np_rng):
     jt.fit_calibration(bad, truth, masked)  # left out of the mask: fitted
     with pytest.raises(ValueError, match=r"one shape, got .*'mask': \(999,\)"):
         jt.fit_calibration(logits, truth, mask[:-1])
+    # Truth or mask values that are not 0/1 were read as True (a NaN label moved the air
+    # side's temperature from 0.97 to 1.79 in a helper's audit); a truth value outside
+    # the mask is not read.
+    soft = truth.astype(float)
+    soft[5] = np.nan
+    with pytest.raises(ValueError, match=r"truth must be bool or hold only 0 and 1"):
+        jt.fit_calibration(logits, soft, mask)
+    with pytest.raises(ValueError, match=r"truth must be bool or hold only 0 and 1"):
+        jt.fit_calibration(logits, truth * 0.3, mask)
+    masked = mask.copy()
+    masked[5] = False
+    jt.fit_calibration(logits, soft, masked)
+    with pytest.raises(ValueError, match=r"mask must be bool or hold only 0 and 1"):
+        jt.fit_calibration(logits, truth, np.full(truth.shape, 0.5))
+    with pytest.raises(ValueError, match=r"iterations must be an int >= 1, got -1"):
+        jt.fit_calibration(logits, truth, mask, iterations=-1)  # returned the identity
 
 
 def test_fit_calibration_per_side_recovers_both_temperatures_and_keeps_every_sign(np_rng):

@@ -13,6 +13,7 @@ from jax_contact.calibration import (
     calibration_of,
     sigmoid_np,
 )
+from jax_contact.metrics import as_bool
 
 __all__ = [
     "CALIBRATION_KINDS",
@@ -50,18 +51,24 @@ def fit_calibration(
       iterations: Newton steps at most (per side).
 
     Raises:
-      ValueError: an unknown kind, arrays of different shapes, no masked step, only one
-        class, a non-finite masked logit, probabilities given as logits (every masked
-        value in [0, 1]), or no finite positive temperature.
+      ValueError: an unknown kind, arrays of different shapes, a mask or a masked truth
+        value other than bool or 0/1, no masked step, only one class, a non-finite masked
+        logit, probabilities given as logits (every masked value in [0, 1]), iterations
+        not an int >= 1, or no finite positive temperature.
     """
     if kind not in CALIBRATION_KINDS:
         raise ValueError(f"kind must be one of {CALIBRATION_KINDS}, got {kind!r}")
     shapes = {n: np.shape(a) for n, a in (("logits", logits), ("truth", truth), ("mask", mask))}
     if len(set(shapes.values())) != 1:
         raise ValueError(f"logits, truth and mask must have one shape, got {shapes}")
-    m = np.asarray(mask, bool)
+    if isinstance(iterations, bool) or not isinstance(iterations, int | np.integer):
+        raise ValueError(f"iterations must be an int >= 1, got {iterations!r}")
+    if iterations < 1:
+        raise ValueError(f"iterations must be an int >= 1, got {iterations}")
+    # A NaN, 2 or 0.3 read as True moved the map applied to every env (a helper's audit).
+    m = as_bool("mask", mask, None)
     x = np.asarray(logits, np.float64)[m]
-    y = np.asarray(truth, bool)[m].astype(np.float64)
+    y = as_bool("truth", truth, m)[m].astype(np.float64)
     if x.size == 0 or y.min() == y.max():
         raise ValueError("fit_calibration needs masked steps of both classes")
     if not np.all(np.isfinite(x)):
