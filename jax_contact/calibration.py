@@ -15,6 +15,7 @@ JAX arrays.
 from __future__ import annotations
 
 import dataclasses
+import difflib
 import os
 
 import numpy as np
@@ -27,6 +28,9 @@ def sigmoid_np(logit) -> np.ndarray:
 
 
 CALIBRATION_KINDS = ("sign", "affine")
+# The temperatures a map may hold: fits keep theirs in [0.05, 20]; outside this range
+# 1 / T overflows or underflows float32 and the reported P is no probability.
+TEMPERATURE_RANGE = (1e-3, 1e3)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -49,12 +53,22 @@ class Calibration:
     temperature_air: float | None = None
 
     def __post_init__(self):
+        for name in ("temperature", "temperature_air", "bias"):
+            v = getattr(self, name)
+            if name == "temperature_air" and v is None:
+                continue
+            if isinstance(v, bool) or not isinstance(v, int | float | np.integer | np.floating):
+                raise ValueError(f"{name} must be a number, got {v!r}")
         for name in ("temperature", "temperature_air"):
             v = getattr(self, name)
             if name == "temperature_air" and v is None:
                 continue
-            if not (np.isfinite(v) and v > 0):
-                raise ValueError(f"{name} must be a finite number > 0, got {v!r}")
+            # Bounded: 1 / T overflowed float32 for T ~ 1e-40, and 0 * inf made P NaN.
+            if not (np.isfinite(v) and TEMPERATURE_RANGE[0] <= v <= TEMPERATURE_RANGE[1]):
+                raise ValueError(
+                    f"{name} must be a finite number in [{TEMPERATURE_RANGE[0]:g},"
+                    f" {TEMPERATURE_RANGE[1]:g}], got {v!r}"
+                )
         if not np.isfinite(self.bias):
             raise ValueError(f"bias must be finite, got {self.bias!r}")
         if self.temperature_air is not None and self.bias != 0:
@@ -93,6 +107,16 @@ class Calibration:
                 f"calibration: expected a mapping with 'temperature' (and 'bias' or"
                 f" 'temperature_air'), got {d!r}"
             )
+        # A typo ("tempreature_air") silently made a per-side map affine. Other keys are
+        # the map's notes (fitted_on, validation_after, ...), kept as they are.
+        fields = ("kind", "temperature", "bias", "temperature_air")
+        for key in set(d) - set(fields):
+            if close := difflib.get_close_matches(str(key), fields, n=1, cutoff=0.8):
+                raise ValueError(f"calibration: unknown field {key!r}; did you mean {close[0]!r}?")
+        for name in ("temperature", "bias", "temperature_air"):
+            v = d.get(name)
+            if v is not None and (isinstance(v, bool) or not isinstance(v, int | float)):
+                raise ValueError(f"calibration.{name} must be a number, got {v!r}")
         air = d.get("temperature_air")
         cal = cls(
             temperature=float(d["temperature"]),
@@ -130,7 +154,17 @@ def calibrate_probability(p, calibration: Calibration) -> np.ndarray:
     there the logit is read as 16.1 (the map of a larger logit differs by at most 1e-7 in
     P: every shipped map has ``temperature`` near 1).
     """
-    q = np.clip(np.asarray(p, np.float64), np.finfo(np.float32).tiny, 1.0 - 1e-7)
+    p = np.asarray(p)
+    if not (np.issubdtype(p.dtype, np.floating) or np.issubdtype(p.dtype, np.integer)):
+        raise ValueError(f"p must be probabilities (numbers in [0, 1]), got dtype {p.dtype}")
+    p = p.astype(np.float64)
+    if np.any((p < 0) | (p > 1)):  # a logit passed as P came back as a confident P
+        bad = p[(p < 0) | (p > 1)]
+        raise ValueError(
+            f"p must lie in [0, 1] (probabilities, not logits: apply_calibration maps a"
+            f" logit), got {bad.size} values outside, e.g. {bad.flat[0]:g}"
+        )
+    q = np.clip(p, np.finfo(np.float32).tiny, 1.0 - 1e-7)
     return sigmoid_np(apply_calibration(np.log(q) - np.log1p(-q), calibration))
 
 

@@ -272,6 +272,10 @@ def params_for(
     if not (is_number(contact_timeconst) and contact_timeconst > 0):
         raise ValueError(f"contact_timeconst must be a number > 0 (s), got {contact_timeconst!r}")
     nv, n_l = int(desc.nv), int(desc.n_leg_dofs)
+    if isinstance(force_rows, str) or not (
+        force_rows is None or isinstance(force_rows, tuple | list | np.ndarray)
+    ):
+        raise ValueError(f"force_rows must be a sequence of axes (e.g. (0, 2)), got {force_rows!r}")
     if force_rows is None:
         if n_l < 3:
             raise ValueError(

@@ -23,7 +23,8 @@ Schema of a rollout log (``jax-contact simulate``), all arrays with leading axes
 and root attributes ``robot``, ``gait``, ``noise``, ``terrain``, ``roughness``, ``seed``,
 ``dt`` (s), ``rate_hz``, ``n_envs``, ``foot_names``, ``gait_settings``, ``reading_timing``,
 ``format_version`` and ``model_sha256`` (the simulated model's fingerprint: loading warns
-when the robot's model now differs).
+when the robot's model now differs). A ``rough`` log's floor is drawn with its ``seed``
+(since the forty-ninth session; before, every seed had seed 0's floor).
 ``reading_timing`` is ``"end_of_step"``: reading ``k`` is what the sensors give at the end
 of physics step ``k`` (the state after it, the acceleration over it, the torque applied
 during it), and the truth of ``k`` is the contact during that step (train/evaluate.py's
@@ -72,9 +73,16 @@ def write_log(path: str | os.PathLike, arrays: Mapping[str, np.ndarray], attrs: 
       The path written.
 
     Raises:
-      ValueError: an array holds objects, or an attribute cannot be stored.
+      ValueError: an array holds objects, an attribute cannot be stored, or ``attrs``
+        sets ``format_version`` to another value than the library's (a file it would refuse
+        to read; the attributes of a log read by :func:`read_log` carry the same value).
     """
     path = Path(path)
+    if attrs.get("format_version", FORMAT_VERSION) != FORMAT_VERSION:
+        raise ValueError(
+            f"attrs: 'format_version' {attrs['format_version']!r} is not this library's"
+            f" ({FORMAT_VERSION}), which write_log writes itself: leave it out"
+        )
     for name, arr in arrays.items():
         if np.asarray(arr).dtype == object:
             raise ValueError(f"array {name!r} has dtype object and cannot be written")
@@ -109,11 +117,13 @@ def read_log(path: str | os.PathLike) -> tuple[dict[str, np.ndarray], dict]:
 
     Raises:
       FileNotFoundError: no such file.
-      ValueError: one line naming the file: not an HDF5 file, truncated or otherwise
+      ValueError: one line naming the file: a folder, not an HDF5 file, truncated or otherwise
         unreadable (naming the array that could not be read), not a jax-contact log (no
         ``format_version``) or a newer one.
     """
     path = Path(path)
+    if path.is_dir():
+        raise ValueError(f"log file {str(path)!r} is a folder")
     if not path.is_file():
         raise FileNotFoundError(f"log file {str(path)!r} does not exist")
     arrays: dict[str, np.ndarray] = {}

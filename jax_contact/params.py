@@ -52,6 +52,13 @@ class NoiseParams:
     sigma_qd_prior: jnp.ndarray
 
 
+# The largest static sizes of the touch-down transition: Monte-Carlo draws per foot and
+# quadrature nodes per dimension (docs/model_choices.md: 8 is the default, 32-64 where the
+# foot's height is far more uncertain than the terrain's).
+MAX_N_SAMPLES = 100_000
+MAX_N_QUAD = 128
+
+
 @struct.dataclass
 class EstimatorParams:
     """Everything the estimator needs besides the measurements and the terrain.
@@ -366,6 +373,13 @@ def make_params(
     for name, seq in (("terms", terms), ("force_rows", force_rows)):
         if isinstance(seq, str) or not isinstance(seq, Sequence | np.ndarray):
             raise ValueError(f"{name} must be a sequence (e.g. a tuple), got {seq!r}")
+    # Entries of the right kind before they are converted: (0.9, 2.5) became (0, 2).
+    if any(
+        isinstance(r, bool | np.bool_) or not isinstance(r, int | np.integer) for r in force_rows
+    ):
+        raise ValueError(f"force_rows must hold integer axes among (0, 1, 2), got {force_rows!r}")
+    if any(not isinstance(t, str) for t in terms):
+        raise ValueError(f"terms must hold names among {TERMS}, got {terms!r}")
     params = EstimatorParams(
         noise=noise,
         dt=jnp.float32(dt),
@@ -465,10 +479,15 @@ def validate_params(params: EstimatorParams) -> None:
     v = np.asarray(params.initial_contact)
     if v.shape != () or not (0.0 < float(v) < 1.0):
         raise ValueError(f"initial_contact must lie in (0, 1), got {_shown(v)}")
-    if not isinstance(params.n_samples, int | np.integer) or params.n_samples < 1:
-        raise ValueError(f"n_samples must be an int >= 1, got {params.n_samples!r}")
-    if not isinstance(params.n_quad, int | np.integer) or params.n_quad < 1:
-        raise ValueError(f"n_quad must be an int >= 1, got {params.n_quad!r}")
+    # Bounded: a file's n_quad of 1e6 built 1e12 nodes per foot at the first step.
+    for name, top in (("n_samples", MAX_N_SAMPLES), ("n_quad", MAX_N_QUAD)):
+        v = getattr(params, name)
+        if (
+            isinstance(v, bool | np.bool_)
+            or not isinstance(v, int | np.integer)
+            or not 1 <= v <= top
+        ):
+            raise ValueError(f"{name} must be an int in [1, {top}], got {v!r}")
     if params.touchdown not in TOUCHDOWN_MODES:
         raise ValueError(f"touchdown must be one of {TOUCHDOWN_MODES}, got {params.touchdown!r}")
     rows = params.force_rows

@@ -447,6 +447,8 @@ def _params_bytes(path) -> tuple[bytes, str, dict]:
     if ref is not None:
         return ref.read_bytes(), f"preset {path!r}", {"source": "preset", "name": str(path)}
     p = Path(path)
+    if p.is_dir():  # before the preset-name case, which called a folder missing
+        raise ValueError(f"parameter file {str(p)!r} is a folder")
     if isinstance(path, str) and p.suffix == "" and len(p.parts) == 1 and not p.is_file():
         raise ValueError(
             f"parameter file {path!r} does not exist and is no preset name (presets:"

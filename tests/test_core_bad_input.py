@@ -120,6 +120,13 @@ def test_caps_inside_interval_are_accepted(cap):
         (dict(n_samples=-3), "n_samples"),
         (dict(n_samples=2.5), "n_samples"),
         (dict(n_quad=0), "n_quad"),
+        # Accepted before a helper's audit: a bool count, a size that hangs the first step,
+        # axes truncated to integers ((0.9, 2.5) became (0, 2)), a term that is no name.
+        (dict(n_samples=True), "n_samples must be an int in \\[1, 100000\\], got True"),
+        (dict(n_quad=10**6), "n_quad must be an int in \\[1, 128\\]"),
+        (dict(force_rows=(0.9, 2.5)), "force_rows must hold integer axes"),
+        (dict(force_rows=(True,)), "force_rows must hold integer axes"),
+        (dict(terms=(["dynamics"],)), "terms must hold names"),
         (dict(touchdown="mc"), "touchdown"),
         (dict(touchdown=""), "touchdown"),
         (dict(force_rows=()), "force_rows"),

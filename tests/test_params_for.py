@@ -248,6 +248,10 @@ def test_contact_force_std_is_at_most_a_share_of_a_foots_load(go1):
     np.testing.assert_allclose(np.asarray(jc.params_for(unknown, sp, DT).noise.sigma_f), 10.0)
     with pytest.raises(ValueError, match="desc.mass_kg must be a finite number > 0"):
         jc.params_for(dataclasses.replace(go1, mass_kg=-1.0), sp, DT)
+    # A string of axes was split into them ("02" -> (0, 2)), an int failed in tuple().
+    for rows in ("02", 2):
+        with pytest.raises(ValueError, match="force_rows must be a sequence of axes"):
+            jc.params_for(go1, sp, DT, force_rows=rows)
 
 
 def test_a_light_robots_contact_force_std_is_derived_from_its_mass():
@@ -322,9 +326,13 @@ def test_still_side_cap_is_a_rate_of_evidence(go1):
         assert got == pytest.approx(want, abs=1e-6)
 
 
-def test_load_params_of_a_folder_or_of_no_path_is_one_clear_error(tmp_path):
+def test_load_params_of_a_folder_or_of_no_path_is_one_clear_error(tmp_path, monkeypatch):
     with pytest.raises(ValueError, match=r"parameter file '.*' is a folder"):
         jc.load_params(tmp_path)
+    (tmp_path / "files").mkdir()  # a one-part name without a suffix: "no preset name" before
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(ValueError, match=r"parameter file 'files' is a folder"):
+        jc.load_params("files")
     with pytest.raises(ValueError, match="a path or a preset name, got NoneType"):
         jc.load_params(None)
     with pytest.raises(ValueError, match="a path or a preset name, got an empty string"):

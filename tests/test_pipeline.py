@@ -244,7 +244,12 @@ def test_failed_write_leaves_nothing(tmp_path):
         write_log(tmp_path / "x.h5", {"a": np.array([object()])}, {})
     with pytest.raises(ValueError, match="attribute 'bad'"):
         write_log(tmp_path / "y.h5", {"a": np.zeros(3)}, {"bad": object()})
+    # A version of its own wrote a file read_log then refused (a helper's audit).
+    with pytest.raises(ValueError, match=r"attrs: 'format_version' 99 is not this library's"):
+        write_log(tmp_path / "z.h5", {"a": np.zeros(3)}, {"format_version": 99})
     assert list(tmp_path.iterdir()) == []
+    with pytest.raises(ValueError, match=r"log file '.*' is a folder"):
+        read_log(tmp_path)  # it said "does not exist"
 
 
 def test_read_log_errors(tmp_path):
@@ -438,7 +443,7 @@ def test_table3_says_what_its_missed_liftoffs_count():
     truth = np.array([1, 1, 0, 1, 1, 0, 0, 0, 0, 0, 0, 1], bool)[:, None, None]
     assert short_air_phase_counts(truth, np.ones((12, 1), bool), 0.0025) == [1, 2]
     line = format_short_air_phases({"short_air_phases": {"walk": [1, 2]}, "dt": 0.0025})
-    assert line.startswith("mLO: true air phases of at most 4 steps (10 ms)")
+    assert line.startswith("short air phases: true air phases of at most 4 steps (10 ms)")
     assert line.endswith("walk 1 of 2 air phases")
     assert format_short_air_phases({"short_air_phases": {}, "dt": 0.0025}) is None
     # The legend follows a table unless asked not to (reproduce prints it once).

@@ -668,8 +668,23 @@ def test_fit_calibration_per_side_recovers_both_temperatures_and_keeps_every_sig
         jt.Calibration.from_dict({"kind": "sign", "temperature": 2.0, "bias": 0.0})
     with pytest.raises(ValueError, match="has no bias"):
         jt.Calibration(temperature=1.0, bias=0.5, temperature_air=2.0)
-    with pytest.raises(ValueError, match="temperature_air must be a finite number > 0"):
+    with pytest.raises(
+        ValueError, match=r"temperature_air must be a finite number in \[0.001, 1000\]"
+    ):
         jt.Calibration(temperature_air=0.0)
+    # A temperature of 1e-40 overflowed 1 / T in float32 and gave P = NaN; a typo in a
+    # hand-edited map's field made it affine; a string was read as a number; a logit
+    # passed as P came back as a confident P (a helper's audit).
+    with pytest.raises(ValueError, match=r"temperature must be a finite number in"):
+        jt.Calibration(temperature=1e-40)
+    with pytest.raises(ValueError, match=r"unknown field 'tempreature_air'; did you mean"):
+        jt.Calibration.from_dict({"temperature": 1.2, "tempreature_air": 0.8})
+    with pytest.raises(ValueError, match=r"calibration.temperature must be a number, got '2'"):
+        jt.Calibration.from_dict({"temperature": "2"})
+    noted = {**cal.as_dict(), "fitted_on": ["a.h5"]}  # a file's notes beside the map
+    assert jt.Calibration.from_dict(noted) == cal
+    with pytest.raises(ValueError, match=r"p must lie in \[0, 1\] .*not logits.* e\.g\. 3\.2"):
+        jt.calibrate_probability(np.array([0.5, 3.2]), cal)
     with pytest.raises(ValueError, match="kind must be one of"):
         jt.fit_calibration(logits, truth, np.ones_like(truth), kind="isotonic")
     # A side that is never wrong has no finite maximum: its temperature stops at 0.05.
