@@ -80,7 +80,7 @@ def run_scenario(robot: str, scenario: str, n_envs: int, duration: float, seed: 
     from jax_contact.train.evaluate import replay, score
     from jax_contact.train.tune_presets import scenario_world
 
-    world, gait, speeds = scenario_world(robot, scenario)
+    world, gait, speeds = scenario_world(robot, scenario, seed)
     params = reproduce.quadruped_estimator_params(world.robot.description, world.dt)
     rows, truth0 = [], None
     for name, sensors in sensor_variants(world.robot.description.nv, world.dt).items():

@@ -92,11 +92,12 @@ def test_round_trip_gives_evaluates_probabilities(round_trip):
 def test_evaluate_prints_every_metric_and_tunes_gm_on_a_grid_log(round_trip):
     from jax_contact.train.log_evaluate import tune_gm
     from jax_contact.train.report import format_scores
-    from jax_contact.train.reproduce import GM_K_I, GM_THRESHOLDS
+    from jax_contact.train.reproduce import GM_K_I, GM_LOAD_FRACTIONS
 
     ev = round_trip.evaluated
     best, gm, grid_scores = tune_gm(LOG)  # compiled already by evaluate's own tuning
-    assert len(grid_scores) == len(GM_K_I) * len(GM_THRESHOLDS)
+    # Every K_I with K_I dt <= 1 at the log's 400 Hz (all five) x every load fraction.
+    assert len(grid_scores) == len(GM_K_I) * len(GM_LOAD_FRACTIONS)
     # The grid point with the best F1 (ties: fewer failures) is the one evaluate used.
     f1 = {k: (v["f1"], -v["failures"]) for k, v in grid_scores.items()}
     assert f1[best] == max(f1.values())

@@ -434,6 +434,36 @@ def test_table_shapes():
     ]
 
 
+def test_a_flags_ece_is_shown_as_flag_and_left_out_of_the_calibration_comparison():
+    """A 0/1 flag's ECE and Brier are 1 - accuracy (here 2 of 8 steps wrong: 0.25), which
+    the table printed beside the estimator's calibration error; it now reads `flag`, and
+    evaluate's bootstrap compares no ECE with a flag."""
+    from jax_contact.train.evaluate import is_flag, score
+    from jax_contact.train.report import format_scores
+
+    truth = np.array([1, 1, 1, 0, 0, 0, 1, 1], bool)[:, None, None]
+    flag = np.array([1, 1, 0, 0, 1, 0, 1, 1], np.float32)[:, None, None]
+    prob = np.array([0.9, 0.8, 0.6, 0.2, 0.3, 0.1, 0.7, 0.9], np.float32)[:, None, None]
+    sc = score({"probabilistic": prob, "gm": flag}, truth, np.ones((8, 1), bool), dt=0.0025)
+    assert sc["gm"]["is_flag"] and not sc["probabilistic"]["is_flag"]
+    assert sc["gm"]["ece"] == pytest.approx(0.25) == 1 - sc["gm"]["accuracy"]
+    assert is_flag(np.array([0.0, 1.0, np.nan])) and not is_flag(np.array([0.0, 0.5]))
+    rows = format_scores(sc, legend=False).splitlines()
+    assert rows[1].split()[0] == "probabilistic" and rows[1].split()[-1] != "flag"
+    assert rows[2].split()[0] == "gm" and rows[2].split()[-1] == "flag"
+    # The bootstrap against a flag row: every statistic but ECE.
+    from jax_contact.train.log_evaluate import _vs_probabilistic
+
+    rng = np.random.default_rng(0)
+    truth = (np.arange(60)[:, None, None] // 6 % 2 == 0) & np.ones((60, 6, 1), bool)
+    prob = np.clip(truth + rng.normal(0, 0.3, truth.shape), 0, 1).astype(np.float32)
+    out = {"probabilistic": prob, "gm": (prob > 0.4).astype(np.float32)}
+    valid = np.ones(truth.shape, bool)
+    sc = score(out, truth, valid[..., 0], dt=0.0025)
+    vs = _vs_probabilistic(out, sc, truth, valid, 0.0025, 50)
+    assert "ece" not in vs["gm"] and "f1" in vs["gm"]
+
+
 def test_table3_says_what_its_missed_liftoffs_count():
     """mLO of 222 beside F1 0.99 read as a defect to a newcomer: Table III is followed by
     the scenarios' one-step air phases, counted by hand here. Truth 1 1 0 1 1 0 0 0 0 0 0 1:
@@ -444,7 +474,7 @@ def test_table3_says_what_its_missed_liftoffs_count():
     assert short_air_phase_counts(truth, np.ones((12, 1), bool), 0.0025) == [1, 2]
     line = format_short_air_phases({"short_air_phases": {"walk": [1, 2]}, "dt": 0.0025})
     assert line.startswith("short air phases: true air phases of at most 4 steps (10 ms)")
-    assert line.endswith("walk 1 of 2 air phases")
+    assert " ".join(line.split()).endswith("walk 1 of 2 air phases")  # wrapped at 100
     assert format_short_air_phases({"short_air_phases": {}, "dt": 0.0025}) is None
     # The legend follows a table unless asked not to (reproduce prints it once).
     text = format_table({"scenarios": {}}, legend=False)

@@ -192,3 +192,43 @@ def test_the_kinematic_detector_is_tuned_on_both_gaits_by_mean_f1():
     default, point = R.make_kinematic_params(), grid["kin_h2_v0.3"]  # the defaults: a point
     assert float(point.height_threshold) == float(default.height_threshold)
     assert float(point.velocity_threshold) == float(default.velocity_threshold)
+
+
+def test_gms_grid_scales_with_the_robot_and_names_a_pick_on_its_edge():
+    """GM's thresholds are fractions of a foot's share of the weight (Go1: 12.74 kg x 9.81
+    / 4 = 31.25 N, so 0.2 of it is 6.25 N), K_I only where K_I dt <= 1 (300 1/s drops out
+    at 200 Hz); a pick at the smallest or largest value of a field is named (the old
+    absolute grid's picks sat on its edges)."""
+    load = R.foot_load(load_robot("go1"))
+    assert load == pytest.approx(12.74 * 9.81 / 4, abs=0.05)
+    grid = R.gm_grid(load, 0.0025)
+    assert len(grid) == len(R.GM_K_I) * len(R.GM_LOAD_FRACTIONS)
+    assert float(grid["gm_K50_F6.25"].threshold) == pytest.approx(0.2 * load, rel=1e-6)
+    assert float(grid["gm_K50_F6.25"].K_I) == 50.0
+    assert {float(p.K_I) for p in R.gm_grid(load, 0.005).values()} == {5, 20, 50, 150}
+    assert R.grid_edges(grid, "gm_K50_F6.25", ("K_I", "threshold")) == []
+    assert R.grid_edges(grid, "gm_K300_F1.56", ("K_I", "threshold")) == [
+        "K_I at its largest",
+        "threshold at its smallest",
+    ]
+    kins = R.kinematic_grid()
+    assert R.grid_edges(kins, "kin_h8_v0.3", ("height_threshold", "velocity_threshold")) == [
+        "height_threshold at its largest"
+    ]
+
+
+def test_each_seed_walks_its_own_rough_floor():
+    """Every seed had seed 0's rough floor (terrain_seed 0), so a tuning seed's rough log
+    was the evaluation seed's patch of ground; the floor is now drawn with the seed, and
+    seed 0's is the one it always was."""
+    from jax_contact.envs.simulate import build_world
+
+    def heights(world):
+        return np.asarray(world.robot.mj_model.hfield_data).copy()
+
+    cfg = R.ReproduceConfig(robot="go1")
+    rough0 = heights(R.scenario_world_of("rough", cfg))
+    rough1000 = heights(R.scenario_world_of("rough", R.ReproduceConfig(robot="go1", seed=1000)))
+    old = heights(build_world("go1", terrain="rough", roughness=cfg.roughness))
+    np.testing.assert_array_equal(rough0, old)
+    assert rough0.shape == rough1000.shape and np.abs(rough0 - rough1000).max() > 1e-3

@@ -364,6 +364,12 @@ def _check_evaluate(args: argparse.Namespace) -> None:
             raise ValueError(f"argument --json: {args.json!r} is a file --plots draws")
     if args.gm_grid:
         check_input_file("--gm-grid", args.gm_grid)
+        for log in args.log:
+            if Path(log).exists() and os.path.samefile(log, args.gm_grid):
+                raise ValueError(
+                    f"argument --gm-grid: {args.gm_grid!r} is an evaluated log; the baselines"
+                    " would be scored on the log they were tuned on: pass another seed's log"
+                )
     if args.params:
         check_params_source("--params", args.params)
 

@@ -440,6 +440,15 @@ def score(
     valid = per_foot(valid)
     known = None if truth_known is None else per_foot(truth_known)
     names = names or [k for k in outputs if "/" not in k]
-    return {
-        n: evaluate(outputs[n], truth, valid, dt=dt, truth_known=known).as_dict() for n in names
-    }
+    scores = {}
+    for n in names:
+        scores[n] = evaluate(outputs[n], truth, valid, dt=dt, truth_known=known).as_dict()
+        scores[n]["is_flag"] = is_flag(outputs[n])
+    return scores
+
+
+def is_flag(p) -> bool:
+    """Whether an output is a 0/1 flag (GM, the kinematic detector), not a probability:
+    its ECE and Brier score are then ``1 - accuracy`` and say nothing of calibration."""
+    p = np.asarray(p)
+    return bool(np.all((p == 0) | (p == 1) | np.isnan(p)))

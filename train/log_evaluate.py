@@ -40,6 +40,12 @@ def scored_steps(out: dict, truth: np.ndarray, valid: np.ndarray):
     return scored, known
 
 
+UNTUNED_BASELINES = (
+    "gm and kinematic: the baselines at their untuned defaults (K_I 50 1/s, 20 N; 2 cm,"
+    " 0.3 m/s); --gm-grid LOG tunes them on another seed's log, as the reproduction does"
+)
+
+
 def tune_baselines(path: str | Path) -> dict:
     """The GM observer's and the kinematic detector's settings of
     ``jax_contact.train.reproduce``'s grids with the best F1 on a log, from one replay.
@@ -51,7 +57,8 @@ def tune_baselines(path: str | Path) -> dict:
 
     Returns:
       ``{"gm": (name, GMParams), "kinematic": (name, KinematicParams), "scores": {"gm": GM
-      grid name -> scores, "kinematic": kinematic grid name -> scores}}``.
+      grid name -> scores, "kinematic": kinematic grid name -> scores}, "grid_edges":
+      {"gm": [...], "kinematic": [...]}}`` (:func:`jax_contact.train.reproduce.grid_edges`).
 
     Raises:
       ValueError: the log has no ground truth, or as :func:`load_log`.
@@ -61,14 +68,16 @@ def tune_baselines(path: str | Path) -> dict:
     from jax_contact.train.reproduce import (
         TERRAIN_SIGMA,
         best_setting,
+        foot_load,
         gm_grid,
+        grid_edges,
         kinematic_grid,
     )
 
     log = load_log(path)
     if log.truth is None:
         raise ValueError(f"{log.name} has no ground truth ({TRUTH_CONTACT!r}): cannot tune on it")
-    gms, kins = gm_grid(), kinematic_grid()
+    gms, kins = gm_grid(foot_load(log.robot), log.dt), kinematic_grid()
     out = replay(
         log.robot,
         log.readings,
@@ -83,7 +92,27 @@ def tune_baselines(path: str | Path) -> dict:
         for grid, names in (("gm", gms), ("kinematic", kins))
     }
     gm, kin = (best_setting({log.name: scores[grid]}) for grid in ("gm", "kinematic"))
-    return {"gm": (gm, gms[gm]), "kinematic": (kin, kins[kin]), "scores": scores}
+    edges = {
+        "gm": grid_edges(gms, gm, ("K_I", "threshold")),
+        "kinematic": grid_edges(kins, kin, ("height_threshold", "velocity_threshold")),
+    }
+    return {
+        "gm": (gm, gms[gm]),
+        "kinematic": (kin, kins[kin]),
+        "scores": scores,
+        "grid_edges": edges,
+    }
+
+
+def tuned_line(gm_grid_log, tuned: dict) -> str:
+    """What :func:`tune_baselines` chose on ``gm_grid_log``, with the picks on an edge of
+    their grid named (the grid may hold them back there)."""
+    edges = [f"{k} {', '.join(v)}" for k, v in tuned["grid_edges"].items() if v]
+    on_edge = f"; on the grid's edge: {'; '.join(edges)}" if edges else ""
+    return (
+        f"GM observer and kinematic detector tuned on {str(gm_grid_log)!r}: {tuned['gm'][0]},"
+        f" {tuned['kinematic'][0]} (best F1 of each grid{on_edge})"
+    )
 
 
 def tune_gm(path: str | Path) -> tuple[str, object, dict]:
@@ -196,12 +225,9 @@ def evaluate_file(
     kinematic = make_kinematic_params()
     if gm_grid_log is not None and truth is not None:
         tuned = tuned_baselines or tune_baselines(gm_grid_log)
-        (gm_name, gm), (kin_name, kinematic) = tuned["gm"], tuned["kinematic"]
+        (gm_name, gm), (_, kinematic) = tuned["gm"], tuned["kinematic"]
         if tuned_baselines is None:
-            print(
-                f"GM observer and kinematic detector tuned on {str(gm_grid_log)!r}: {gm_name},"
-                f" {kin_name} (best F1 of each grid)"
-            )
+            print(tuned_line(gm_grid_log, tuned))
     out = replay(
         log.robot,
         log.readings,
@@ -227,6 +253,8 @@ def evaluate_file(
             f"probabilistic: the estimator with --params {str(params_path)!r}; defaults: with the"
             " robot's derived defaults, on the same readings"
         )
+    if gm_grid_log is None and truth is not None and legend:
+        print(UNTUNED_BASELINES)
     result = {
         "log": str(path),
         "params": params_record or {"source": "defaults"},
@@ -351,12 +379,11 @@ def evaluate_files(
         load_log(p, foot_names=options.get("foot_names"), robot=options.get("robot")) for p in paths
     ]
     tuned = None
+    if gm_grid_log is None and any(log.truth is not None for log in logs):
+        print(UNTUNED_BASELINES)
     if gm_grid_log is not None:
         tuned = tune_baselines(gm_grid_log)
-        print(
-            f"GM observer and kinematic detector tuned on {str(gm_grid_log)!r}: {tuned['gm'][0]},"
-            f" {tuned['kinematic'][0]} (best F1 of each grid), for every log"
-        )
+        print(tuned_line(gm_grid_log, tuned) + ", for every log")
     results = []
     for i, p in enumerate(paths):
         results.append(
@@ -468,11 +495,17 @@ def _vs_probabilistic(
     """``probabilistic - row`` for every other scored row, with its env-bootstrap interval;
     printed, one line per row (``valid`` and ``truth_known`` as :func:`scored_steps`')."""
     from jax_contact.bootstrap import STATISTICS, format_intervals, row_differences
+    from jax_contact.train.evaluate import is_flag
 
     print(
         f"probabilistic - row, 95 % interval of a paired bootstrap of {n_resamples} env resamples:"
     )
-    others = {row: tuple(STATISTICS) for row in scores if row != "probabilistic"}
+    # A flag's ECE is 1 - accuracy: compared as calibration it would only restate accuracy.
+    others = {
+        row: tuple(s for s in STATISTICS if not (s == "ece" and is_flag(out[row])))
+        for row in scores
+        if row != "probabilistic"
+    }
     vs = row_differences(
         out, "probabilistic", others, truth, valid, dt=dt, n_resamples=n_resamples,
         truth_known=truth_known,

@@ -76,13 +76,15 @@ def preset_path(robot: str) -> Path:
     return Path(__file__).resolve().parents[1] / "jax_contact" / "presets" / f"{robot}.json"
 
 
-def scenario_world(robot: str, scenario: str):
-    """(world, gait kind, forward speed range) of one scenario of ``jax_contact.train.reproduce``:
-    what :func:`jax_contact.envs.simulate.simulate` needs besides the sensors and sizes."""
+def scenario_world(robot: str, scenario: str, seed: int = 0):
+    """(world, gait kind, forward speed range) of one scenario of ``jax_contact.train.reproduce``
+    at ``seed`` (the rough floor's): what :func:`jax_contact.envs.simulate.simulate` needs
+    besides the sensors and sizes."""
     from jax_contact.train import reproduce
 
     gait, _, _ = SCENARIOS[scenario]
-    world = reproduce.scenario_world_of(scenario, reproduce.ReproduceConfig(robot=robot))
+    cfg = reproduce.ReproduceConfig(robot=robot, seed=seed)
+    world = reproduce.scenario_world_of(scenario, cfg)
     return world, gait, reproduce.SPEEDS.get(gait, (0.0, 0.0))
 
 
@@ -104,7 +106,7 @@ def simulate_log(
     from jax_contact.train import reproduce
     from jax_contact.train.logs import READING_TIMING
 
-    world, gait, speeds = scenario_world(robot, scenario)
+    world, gait, speeds = scenario_world(robot, scenario, seed)
     roll = simulate(world, make_gait(gait), noise, n_envs, duration, seed, speed_range=speeds)
     cfg = reproduce.ReproduceConfig(robot=robot)
     attrs = {
