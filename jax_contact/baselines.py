@@ -167,6 +167,8 @@ class GMState:
       M_prev: (n_l, nv) leg rows of the previous mass matrix, for ``Mdot qd``.
       force: (3,) last force estimate (held across invalid steps), N.
       force_normal: () last ground-reaction normal force, N.
+      held: () int32, invalid steps since the last update: the next valid one integrates
+        over all of them (``(held + 1) dt``), as the momentum it reads has moved over them.
     """
 
     p0: jax.Array
@@ -175,6 +177,7 @@ class GMState:
     M_prev: jax.Array
     force: jax.Array
     force_normal: jax.Array
+    held: jax.Array
 
 
 @struct.dataclass
@@ -233,6 +236,7 @@ def gm_init(meas: LegMeasurement) -> GMState:
         M_prev=rows,
         force=jnp.zeros((3,), rows.dtype),
         force_normal=jnp.zeros((), rows.dtype),
+        held=jnp.zeros((), jnp.int32),
     )
 
 
@@ -297,7 +301,12 @@ def gm_step(
     p = rows @ qd
     # (M_k - M_{k-1}) qd_k ~ Mdot qd dt: the C^T qd - g = Mdot qd - h identity.
     mdot_qd_dt = (rows - state.M_prev) @ qd
-    integral = state.integral + (meas.tau[l] - meas.h[l] + state.residual) * dt + mdot_qd_dt
+    # After lost readings the momentum p has moved over every step since the last update:
+    # the integral advances over as long (the readings held constant), not one step, which
+    # left a spike of K_I times the gap's momentum change (22 N after 3 lost readings of a
+    # swinging leg, a helper's audit; 0.2 N this way).
+    elapsed = (state.held + 1).astype(rows.dtype) * dt
+    integral = state.integral + (meas.tau[l] - meas.h[l] + state.residual) * elapsed + mdot_qd_dt
     residual = params.K_I * (p - state.p0 - integral)
     force = _foot_force(J_l, residual, params.damping)
     force_normal = -jnp.dot(normal, force)
@@ -310,8 +319,11 @@ def gm_step(
         M_prev=rows,
         force=force,
         force_normal=force_normal,
+        held=jnp.zeros((), jnp.int32),
     )
-    state = jax.tree.map(lambda a, b: jnp.where(valid, a, b), new, state)
+    state = jax.tree.map(
+        lambda a, b: jnp.where(valid, a, b), new, state.replace(held=state.held + 1)
+    )
     out = GMOutput(
         residual=state.residual,
         force=state.force,

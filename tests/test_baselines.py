@@ -80,6 +80,7 @@ def gm_oracle(K_I, threshold, damping, dt, m, normal):
     r = np.zeros(n_l)
     force = np.zeros(3)
     m_prev = rows
+    held = 0  # lost readings since the last update: the next one integrates over them too
     out_r, out_f, out_n = [np.zeros(n_l)], [np.zeros(3)], [0.0]
     for k in range(1, T):
         # What the observer reads: the leg's rows of M, the velocities they involve
@@ -89,11 +90,14 @@ def gm_oracle(K_I, threshold, damping, dt, m, normal):
         read = (rows_k, qd_k, tau[k][leg], h[k][leg], J[k][:, leg])
         if all(np.all(np.isfinite(x)) for x in read):
             rows = rows_k
-            s = s + (tau[k][leg] - h[k][leg] + r) * dt + (rows - m_prev) @ qd_k
+            s = s + (tau[k][leg] - h[k][leg] + r) * (held + 1) * dt + (rows - m_prev) @ qd_k
+            held = 0
             r = K_I * (rows @ qd_k - p0 - s)
             jl = J[k][:, leg]
             force = -np.linalg.solve(jl @ jl.T + damping * np.eye(3), jl @ r)
             m_prev = rows
+        else:
+            held += 1
         out_r.append(r.copy())
         out_f.append(force.copy())
         out_n.append(-normal @ force)
@@ -408,3 +412,44 @@ def test_kinematic_hand_case_and_bad_input():
 
     with pytest.raises(ValueError, match=r"terrain must be a TerrainQuery, got FlatTerrain.*query"):
         kinematic_detect_batch(params, batch, flat())
+
+
+def test_gm_after_lost_readings_integrates_over_the_gap():
+    # The closed form above with constant qdd and h (so tau constant): once converged,
+    # r = -J_l^T F exactly. After n lost readings p has moved by (n + 1) M_l qdd dt; the
+    # integral must advance by (tau - h + r)_l (n + 1) dt for r to stay -J_l^T F. Advancing
+    # it by one dt (before a helper's audit) left r off by K_I n (M qdd)_l dt: a force
+    # spike of tens of newtons on a swinging leg after a gap.
+    rng = np.random.default_rng(4)
+    T, gap = 400, slice(300, 303)
+    leg = LEGS[1]
+    M = _spd(rng, NV)
+    J = rng.normal(scale=0.3, size=(3, NV))
+    J[:, LEGS[0]] = 0.0
+    F = np.array([3.0, -4.0, -60.0])
+    qdd = np.broadcast_to(rng.normal(scale=5.0, size=NV), (T, NV))
+    qd = 0.5 + np.cumsum(qdd * DT, axis=0)
+    h = np.broadcast_to(rng.normal(size=NV), (T, NV))
+    tau = qdd @ M.T + h + J.T @ F
+    tau[gap] = np.nan  # three lost readings
+    m = _meas(
+        (T,),
+        rng,
+        leg,
+        qd=qd,
+        qdd=qdd,
+        tau=tau,
+        h=h,
+        M=np.broadcast_to(M, (T, NV, NV)),
+        J=np.broadcast_to(J, (T, 3, NV)),
+    )
+    with jax.enable_x64(True):
+        params = make_gm_params(K_I=40.0, threshold=30.0, damping=1e-12)
+        out = GM_RUN(params, _to_jax(m, jnp.float64), DT, jnp.array([0.0, 0.0, 1.0]))
+        force = np.asarray(out.force)
+    # Converged before the gap (1 - 0.9^299 ~ 1), held through it, and F right after it.
+    np.testing.assert_allclose(force[299], F, atol=1e-6)
+    np.testing.assert_array_equal(np.asarray(out.valid)[gap], False)
+    np.testing.assert_allclose(force[303:], np.broadcast_to(F, (T - 303, 3)), atol=1e-6)
+    ref = gm_oracle(40.0, 30.0, 1e-12, DT, m, np.array([0.0, 0.0, 1.0]))
+    np.testing.assert_allclose(force, ref[1], atol=1e-6)
