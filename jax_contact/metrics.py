@@ -93,6 +93,12 @@ step rather than as a bare count:
    counts as an air phase without a failure. ``swing_phase_failure_rate =
    swing_phases_with_failure / n_swing_phases`` is rule 9's rate without them (on Go1's
    demo walk on rough ground 0.046 where rule 9 gives 0.020).
+9c. A flag that stays on through a whole swing phase has no failure in it (rule 7 needs a
+   rising edge in the air), only a missed lift-off (rule 5) and a touch-down already on
+   (rule 3), so rules 9 and 9b favour a detector that sticks on over one that flickers
+   (a hand example: 50 % of the air steps wrong and no failure). ``swing_phases_flag_on``
+   counts the swing phases (rule 9b) with the flag on at every valid step, and
+   ``swing_phase_flag_on_rate = swing_phases_flag_on / n_swing_phases`` (NaN for none).
 10. ``air_false_contact_rate`` = (valid steps with ``truth`` off and the flag on) / (valid
     steps with ``truth`` off), NaN for none: the per-step false-positive rate
     (1 - specificity), independent of ``min_on`` and of the event matching.
@@ -501,6 +507,20 @@ def _air_phase_failures(
     return int(np.sum(air)), int(np.sum(hit & air)), int(np.sum(swing)), int(np.sum(hit & swing))
 
 
+def _swing_phases_flag_on(
+    kg: np.ndarray, kf: np.ndarray, bounce_steps: int, kt: np.ndarray | None = None
+) -> int:
+    """Rule 9c: the swing phases (rule 9b's runs of ``kt``, None: ``kg``) in which the
+    flag codes ``kf`` are on at every valid step."""
+    kt = kg if kt is None else kt
+    ts, te, tv, _, _ = _runs(kt)
+    valid_before = np.concatenate([[0], np.cumsum(kg != -1)])
+    on_before = np.concatenate([[0], np.cumsum(kf == 1)])
+    n_valid = valid_before[te] - valid_before[ts]
+    swing = (tv == 0) & (n_valid > 0) & (te - ts > bounce_steps)
+    return int(np.sum(swing & (on_before[te] - on_before[ts] == n_valid)))
+
+
 # ----------------------------------------------------------------------------- per step
 
 
@@ -639,6 +659,8 @@ class ContactMetrics:
       n_swing_phases, swing_phases_with_failure, swing_phase_failure_rate: the same over
         the air phases longer than ``bounce_s`` (rule 9b): the truth's one-step bounces of a
         resting foot left out, which dilute the rate above.
+      swing_phases_flag_on, swing_phase_flag_on_rate: the swing phases with the flag on
+        at every valid step, and their share of the swing phases (rule 9c).
       air_false_contact_rate: fraction of the valid truth-off steps with the flag on
         (rule 10); NaN for none.
       n_liftoffs, liftoff_already_off: as above, for lift-offs.
@@ -666,6 +688,8 @@ class ContactMetrics:
     n_swing_phases: int
     swing_phases_with_failure: int
     swing_phase_failure_rate: float
+    swing_phases_flag_on: int
+    swing_phase_flag_on_rate: float
     air_false_contact_rate: float
     n_liftoffs: int
     missed_liftoffs: int
@@ -751,6 +775,7 @@ def evaluate(
         ev if persist_steps == min_on else _match_codes(kg, kf, dt, early, persist_steps, kt)[0]
     )
     n_air, air_failed, n_swing, swing_failed = _air_phase_failures(kg, failure_starts, n_bounce, kt)
+    swing_on = _swing_phases_flag_on(kg, kf, n_bounce, kt)
     air_steps = val & ~tru
     steps = _step_scores(flag, tru, val)
     td, lo = ev.touchdown, ev.liftoff
@@ -770,6 +795,8 @@ def evaluate(
         n_swing_phases=n_swing,
         swing_phases_with_failure=swing_failed,
         swing_phase_failure_rate=_ratio(swing_failed, n_swing),
+        swing_phases_flag_on=swing_on,
+        swing_phase_flag_on_rate=_ratio(swing_on, n_swing),
         air_false_contact_rate=_ratio(int(np.sum(flag & air_steps)), int(np.sum(air_steps))),
         n_liftoffs=lo.n_events,
         missed_liftoffs=lo.missed,

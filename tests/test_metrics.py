@@ -244,6 +244,38 @@ def test_swing_phase_failure_rate_leaves_the_truths_bounces_out():
             evaluate(p, g, dt=DT, bounce_s=bad)
 
 
+def test_a_flag_on_through_a_whole_swing_is_counted_by_rule_9c():
+    """A helper's fairness audit: stance 40 / swing 40 / stance 40 / swing 40 / stance 40
+    steps. Detector A stays on through the first swing (steps [40, 80) all wrong) and is
+    right elsewhere: no failure, sw-ph 0, 50 % of the air steps wrong; detector B has one
+    3-step blip in the first swing: sw-ph 1/2. Rule 9c counts A's swing, 1 of 2 phases,
+    and none of B's (its flag falls)."""
+    n = 200
+    g = _truth([(0, 40), (80, 120), (160, 200)], n)
+    a = evaluate(_seq([(0, 120), (160, 200)], n), g, dt=DT)
+    b = evaluate(_seq([(0, 40), (50, 53), (80, 120), (160, 200)], n), g, dt=DT)
+    assert (a.failures, a.swing_phase_failure_rate, a.missed_liftoffs) == (0, 0.0, 1)
+    assert a.air_false_contact_rate == 0.5
+    assert (a.swing_phases_flag_on, a.swing_phase_flag_on_rate) == (1, 0.5)
+    assert (b.failures, b.swing_phase_failure_rate) == (1, 0.5)
+    assert (b.swing_phases_flag_on, b.swing_phase_flag_on_rate) == (0, 0.0)
+    # A bounce the flag stays on through is no swing phase (rule 9b's bounce_s): the
+    # earlier test's sequence holds one, [30, 32), and no swing phase the flag holds on.
+    m = evaluate(
+        _seq([(12, 50), (60, 61), (72, 80)]), _truth([(10, 30), (32, 50), (70, 80)]), dt=DT
+    )
+    assert (m.n_swing_phases, m.swing_phases_flag_on) == (2, 0)
+    assert (
+        evaluate(
+            _seq([(12, 50), (60, 61), (72, 80)]),
+            _truth([(10, 30), (32, 50), (70, 80)]),
+            dt=DT,
+            bounce_s=0.0,
+        ).swing_phases_flag_on
+        == 1
+    )
+
+
 def test_evaluates_bounce_note_counts_rule_9bs_bounces_at_any_rate():
     """``evaluate``'s note on a log full of bounces counts the air phases rule 9b leaves
     out (10 ms), in steps of the log's own period: until the thirty-sixth session it
@@ -430,6 +462,7 @@ def test_summary_holds_the_new_and_the_kept_fields():
         "air_phases_with_failure",
         "air_phase_failure_rate",
         "swing_phase_failure_rate",
+        "swing_phase_flag_on_rate",
         "air_false_contact_rate",
     ):
         assert key in d

@@ -90,6 +90,7 @@ def cell(s: dict) -> dict:
         "failures": int(s["failures"]),
         "air_phase_failure_rate": float(s["air_phase_failure_rate"]),
         "swing_phase_failure_rate": float(s.get("swing_phase_failure_rate", np.nan)),
+        "swing_phase_flag_on_rate": float(s.get("swing_phase_flag_on_rate", np.nan)),
         "air_false_contact_rate": float(s["air_false_contact_rate"]),
         "missed": int(s["missed"]),
         "missed_liftoffs": int(s["missed_liftoffs"]),
@@ -210,6 +211,7 @@ _COLUMNS = (
     ("fail", 5, lambda c: f"{c['failures']}"),
     ("air-ph", 7, lambda c: _percent(c["air_phase_failure_rate"])),
     ("sw-ph", 7, lambda c: _percent(c.get("swing_phase_failure_rate"))),
+    ("sw-on", 7, lambda c: _percent(c.get("swing_phase_flag_on_rate"))),
     ("mTD", 4, lambda c: f"{c['missed']}"),
     ("mLO", 4, lambda c: f"{c['missed_liftoffs']}"),
     ("ECE", 6, lambda c: "flag" if c.get("is_flag") else f"{c['ece']:.3f}"),
@@ -221,7 +223,9 @@ LEGEND = (
     " true event: the truth has none); fail: false contacts in the air, counted as events"
     " (runs of the flag that start in a true air phase; the paper's failures); air-ph:"
     " share of true air phases with a false contact; sw-ph: the same share over the air"
-    " phases longer than 10 ms (the truth's bounces of a resting foot left out); mTD / mLO:"
+    " phases longer than 10 ms (the truth's bounces of a resting foot left out); sw-on: share"
+    " of those swing phases with the flag on throughout (no failure in sw-ph, a missed"
+    " lift-off); mTD / mLO:"
     " missed touch-downs / lift-offs; acc, F1: per step; ECE: expected calibration error"
     " (flag: a detector whose output is 0 or 1, whose ECE is 1 - acc)"
 )
