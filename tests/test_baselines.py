@@ -191,6 +191,20 @@ def test_gm_starts_at_the_first_finite_reading_of_each_env(gm_params):
     assert np.abs(ref_late[2]).max() > 1.0
 
 
+def _constant_mass_meas(rng, leg, M, J, **readings) -> dict:
+    """A (T,) sequence of one foot's measurements with a constant mass matrix and
+    Jacobian, ``readings`` (qd, qdd, tau, h) given per step."""
+    T = readings["qd"].shape[0]
+    return _meas(
+        (T,),
+        rng,
+        leg,
+        M=np.broadcast_to(M, (T, NV, NV)),
+        J=np.broadcast_to(J, (T, 3, NV)),
+        **readings,
+    )
+
+
 def test_gm_moving_leg_with_constant_mass_follows_closed_form(gm_params):
     # Constant M, qd_k = qd_{k-1} + qdd_k dt (backward difference), tau_k = M qdd_k + h_k
     # + J^T F with a constant foot force F. Then in gm_step, p_k - p_{k-1} = M_l qdd_k dt
@@ -212,17 +226,7 @@ def test_gm_moving_leg_with_constant_mass_follows_closed_form(gm_params):
     qd = 0.5 + np.cumsum(qdd * DT, axis=0)
     h = rng.normal(size=(T, NV))
     tau = qdd @ M.T + h + J.T @ F
-    m = _meas(
-        (T,),
-        rng,
-        leg,
-        qd=qd,
-        qdd=qdd,
-        tau=tau,
-        h=h,
-        M=np.broadcast_to(M, (T, NV, NV)),
-        J=np.broadcast_to(J, (T, 3, NV)),
-    )
+    m = _constant_mass_meas(rng, leg, M, J, qd=qd, qdd=qdd, tau=tau, h=h)
     K_I = float(gm_params.K_I)
     frac = 1.0 - (1.0 - K_I * DT) ** np.arange(T)
     normal = np.array([0.0, 0.0, 1.0])
@@ -432,17 +436,7 @@ def test_gm_after_lost_readings_integrates_over_the_gap():
     h = np.broadcast_to(rng.normal(size=NV), (T, NV))
     tau = qdd @ M.T + h + J.T @ F
     tau[gap] = np.nan  # three lost readings
-    m = _meas(
-        (T,),
-        rng,
-        leg,
-        qd=qd,
-        qdd=qdd,
-        tau=tau,
-        h=h,
-        M=np.broadcast_to(M, (T, NV, NV)),
-        J=np.broadcast_to(J, (T, 3, NV)),
-    )
+    m = _constant_mass_meas(rng, leg, M, J, qd=qd, qdd=qdd, tau=tau, h=h)
     with jax.enable_x64(True):
         params = make_gm_params(K_I=40.0, threshold=30.0, damping=1e-12)
         out = GM_RUN(params, _to_jax(m, jnp.float64), DT, jnp.array([0.0, 0.0, 1.0]))
