@@ -42,8 +42,9 @@ def scored_steps(out: dict, truth: np.ndarray, valid: np.ndarray):
 
 UNTUNED_BASELINES = (
     "gm and kinematic: the baselines at their untuned defaults (K_I 50 1/s, 20 N; 2 cm,"
-    " 0.3 m/s); --gm-grid LOG tunes them on another seed's log, as the reproduction does"
+    " 0.3 m/s), not tuned for this robot"
 )
+GM_GRID_HINT = "; --gm-grid LOG tunes them on another seed's log, as the reproduction does"
 
 
 def tune_baselines(path: str | Path) -> dict:
@@ -254,7 +255,7 @@ def evaluate_file(
             " robot's derived defaults, on the same readings"
         )
     if gm_grid_log is None and truth is not None and legend:
-        print(UNTUNED_BASELINES)
+        print(UNTUNED_BASELINES + GM_GRID_HINT)
     result = {
         "log": str(path),
         "params": params_record or {"source": "defaults"},
@@ -380,7 +381,7 @@ def evaluate_files(
     ]
     tuned = None
     if gm_grid_log is None and any(log.truth is not None for log in logs):
-        print(UNTUNED_BASELINES)
+        print(UNTUNED_BASELINES + GM_GRID_HINT)
     if gm_grid_log is not None:
         tuned = tune_baselines(gm_grid_log)
         print(tuned_line(gm_grid_log, tuned) + ", for every log")

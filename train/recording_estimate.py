@@ -82,6 +82,7 @@ def estimate_recording(
     from jax_contact.train.cli_args import check_output_folder
     from jax_contact.train.evaluate import replay, score
     from jax_contact.train.log_estimator import estimator_for
+    from jax_contact.train.log_evaluate import UNTUNED_BASELINES
     from jax_contact.train.report import format_scores
 
     # Before any work: the folder must take files (the command checks it the same way).
@@ -224,6 +225,8 @@ def estimate_recording(
             if swapped := truth_order(p, conv.truth[:, 0], scored[:, 0], feet_names):
                 notes.append(swapped)
                 print_note(swapped)
+            if legend and ("gm" in scores or "kinematic" in scores):  # once for several
+                print(UNTUNED_BASELINES)
             print(format_scores(scores, title=Path(path).name, legend=legend))
             files.append(write_json_atomic(stage / "metrics.json", scores))
         else:
