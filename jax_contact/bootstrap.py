@@ -206,15 +206,28 @@ def paired_bootstrap(
 
     Raises:
       ValueError: on a shape mismatch, fewer than 2 envs, an unknown statistic, or a bad
-        ``n_resamples`` / ``level``.
+        ``n_resamples`` / ``level`` / ``seed``.
     """
     unknown = [s for s in statistics if s not in STATISTICS]
     if unknown:
         raise ValueError(f"statistics: unknown {unknown}; known: {sorted(STATISTICS)}")
-    if int(n_resamples) != n_resamples or n_resamples < 1:
+
+    def whole(x) -> bool:  # an int, or a float of an int's value (inf: an OverflowError)
+        return (
+            not isinstance(x, bool)
+            and isinstance(x, int | float | np.integer | np.floating)
+            and np.isfinite(x)
+            and int(x) == x
+        )
+
+    if not whole(n_resamples) or n_resamples < 1:
         raise ValueError(f"n_resamples must be an integer >= 1, got {n_resamples!r}")
+    if isinstance(level, bool) or not isinstance(level, int | float | np.floating):
+        raise ValueError(f"level must be a number in (0, 1), got {level!r}")
     if not 0.0 < level < 1.0:
         raise ValueError(f"level must lie in (0, 1), got {level!r}")
+    if not whole(seed) or seed < 0:
+        raise ValueError(f"seed must be an integer >= 0, got {seed!r}")
     ref, cand, tru, val = _env_axis_inputs(reference, candidate, truth, valid)
     sums_ref = env_sums(ref, tru, val, dt=dt, **evaluate_kwargs)
     sums_cand = env_sums(cand, tru, val, dt=dt, **evaluate_kwargs)

@@ -334,6 +334,15 @@ def _diag_dict(diag) -> dict[str, jax.Array]:
     return {name: getattr(diag, name) for name, _ in DIAGNOSTIC_FIELDS}
 
 
+def check_rate_hz(rate_hz) -> float:
+    """``rate_hz`` as a float: a finite number > 0 (Hz), else a ValueError naming it."""
+    if isinstance(rate_hz, bool) or not isinstance(rate_hz, int | float | np.integer | np.floating):
+        raise ValueError(f"rate_hz must be a finite number > 0 (Hz), got {rate_hz!r}")
+    if not (np.isfinite(rate_hz) and rate_hz > 0):
+        raise ValueError(f"rate_hz must be a finite number > 0 (Hz), got {rate_hz!r}")
+    return float(rate_hz)
+
+
 def export_robot(
     mj_model,
     desc,
@@ -374,8 +383,7 @@ def export_robot(
     """
     from jax_contact.params_file import params_to_dict
 
-    if not (np.isfinite(rate_hz) and rate_hz > 0):
-        raise ValueError(f"rate_hz must be a finite number > 0 (Hz), got {rate_hz!r}")
+    check_rate_hz(rate_hz)
     dt = float(np.asarray(params.dt))
     if abs(dt * rate_hz - 1.0) > 1e-6:
         raise ValueError(

@@ -44,7 +44,12 @@ def init_belief(params: EstimatorParams) -> LegBelief:
     """The belief of one foot before its first measurement.
 
     ``P(C) = params.initial_contact``, the gait prior as the first transition, no foothold.
+
+    Raises:
+      ValueError: ``params`` that are not valid :class:`EstimatorParams` (checked when
+        concrete): a prior of 0 or 1 made the belief's logit infinite, a NaN one NaN.
     """
+    _check_params("init_belief", params)
     p = params.initial_contact
     return LegBelief(
         logit=jnp.log(p) - jnp.log1p(-p),
@@ -62,7 +67,7 @@ def init_belief_batch(params: EstimatorParams, n_envs: int, n_legs: int) -> LegB
       ValueError: ``n_envs`` or ``n_legs`` is not a positive int.
     """
     for name, n in (("n_envs", n_envs), ("n_legs", n_legs)):
-        if not isinstance(n, int | np.integer) or n < 1:
+        if isinstance(n, bool | np.bool_) or not isinstance(n, int | np.integer) or n < 1:
             raise ValueError(f"{name} must be a positive int, got {n!r}")
     one = init_belief(params)
     return jax.tree.map(lambda x: jnp.broadcast_to(x, (n_envs, n_legs) + x.shape), one)
@@ -125,11 +130,9 @@ def step(
     return _step(params, terrain, belief, meas, key)
 
 
-def _check_call(fn: str, params, terrain, key) -> None:
-    """Trace-time checks of the arguments besides the measurement: ``params`` in range
-    (:func:`jax_contact.params.validate_params`, when they are concrete: parameters
-    traced by ``jit``, ``vmap`` or ``grad`` are not read), a terrain model and a PRNG
-    key. Raises ValueError naming the argument."""
+def _check_params(fn: str, params) -> None:
+    """``params`` are EstimatorParams in range (:func:`jax_contact.params.validate_params`,
+    when concrete: parameters traced by ``jit``, ``vmap`` or ``grad`` are not read)."""
     if not isinstance(params, EstimatorParams):
         raise ValueError(
             f"{fn}: params must be EstimatorParams (jax_contact.params_for, load_params), got"
@@ -140,6 +143,14 @@ def _check_call(fn: str, params, terrain, key) -> None:
             validate_params(params)
         except ValueError as err:
             raise ValueError(f"{fn}: params: {err}") from None
+
+
+def _check_call(fn: str, params, terrain, key) -> None:
+    """Trace-time checks of the arguments besides the measurement: ``params`` in range
+    (:func:`jax_contact.params.validate_params`, when they are concrete: parameters
+    traced by ``jit``, ``vmap`` or ``grad`` are not read), a terrain model and a PRNG
+    key. Raises ValueError naming the argument."""
+    _check_params(fn, params)
     if not callable(getattr(terrain, "query", None)):
         raise ValueError(
             f"{fn}: terrain must be a terrain model of jax_contact.terrain (e.g. flat()), got"

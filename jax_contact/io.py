@@ -143,7 +143,14 @@ def read_log(path: str | os.PathLike) -> tuple[dict[str, np.ndarray], dict]:
         version = f.attrs.get("format_version")
         if version is None:
             raise ValueError(f"{str(path)!r} is not a jax-contact log (no format_version)")
-        if int(version) > FORMAT_VERSION:
+        try:
+            version = int(version)
+        except (TypeError, ValueError, OverflowError):
+            raise ValueError(
+                f"{str(path)!r}: format_version {version!r} is not an integer; not a"
+                " jax-contact log, or a corrupt one"
+            ) from None
+        if version > FORMAT_VERSION:
             raise ValueError(
                 f"{str(path)!r} has format_version {int(version)}; this library reads up to"
                 f" {FORMAT_VERSION}"

@@ -154,14 +154,17 @@ def _inputs(estimate, truth, valid, threshold: float):
             raise ValueError(f"valid has shape {val.shape}, but estimate has shape {est.shape}")
         val = as_bool("valid", val, None)
     tru = as_bool("truth", tru, val)
-    th = float(threshold)
+    try:
+        th = float(threshold)
+    except (TypeError, ValueError):
+        raise ValueError(f"threshold must be a number in [0, 1), got {threshold!r}") from None
     if not 0.0 <= th < 1.0:
         raise ValueError(f"threshold must lie in [0, 1), got {threshold!r}")
     if est.dtype == bool:
         flag = est
         prob = est.astype(np.float64)
     else:
-        if not np.issubdtype(est.dtype, np.number):
+        if not np.issubdtype(est.dtype, np.number) or np.issubdtype(est.dtype, np.complexfloating):
             raise ValueError(f"estimate must be float probabilities or bool, got {est.dtype}")
         prob = est.astype(np.float64)
         seen = prob[val]
@@ -198,9 +201,12 @@ def _known(truth_known, truth, val: np.ndarray) -> np.ndarray:
 
 
 def _check_positive(name: str, value, *, allow_zero: bool = False) -> float:
-    v = float(value)
+    bound = ">=" if allow_zero else ">"
+    try:  # None, a string or an array named nothing (float()'s own errors)
+        v = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be a finite number {bound} 0, got {value!r}") from None
     if not np.isfinite(v) or v < 0 or (v == 0 and not allow_zero):
-        bound = ">=" if allow_zero else ">"
         raise ValueError(f"{name} must be finite and {bound} 0, got {value!r}")
     return v
 
@@ -214,6 +220,9 @@ def _check_int(name: str, value, lowest: int) -> int:
 # The longest sample period taken for one, s: a contact estimate sampled slower than 1 Hz
 # has no touch-down to time; a larger dt is a period in ms or a rate in Hz.
 MAX_DT = 1.0
+# The longest early window taken, s: a detection more than this before the event is no
+# early detection of it (the default is 50 ms).
+MAX_EARLY_S = 10.0
 
 
 def _check_dt(dt) -> float:
@@ -230,6 +239,8 @@ def _event_settings(dt, early_window_s, min_on) -> tuple[float, int, int]:
     """Checked (dt, early window in steps, min_on) of the event matching (rules 1-2)."""
     dt = _check_dt(dt)
     early_s = _check_positive("early_window_s", early_window_s, allow_zero=True)
+    if early_s > MAX_EARLY_S:  # 1e30 s overflowed int() with an OverflowError
+        raise ValueError(f"early_window_s must be at most {MAX_EARLY_S:g} s, got {early_s:g}")
     return dt, int(round(early_s / dt)), _check_int("min_on", min_on, 1)
 
 
@@ -723,7 +734,7 @@ def bounce_steps(dt: float, bounce_s: float = BOUNCE_S) -> int:
         raise ValueError(f"bounce_s must be a number >= 0 (s), got {bounce_s!r}") from None
     if not (np.isfinite(b) and b >= 0):
         raise ValueError(f"bounce_s must be a number >= 0 (s), got {bounce_s!r}")
-    return int(round(b / dt))
+    return int(round(b / _check_dt(dt)))
 
 
 def _scoring_inputs(

@@ -197,6 +197,14 @@ def test_bad_inputs_name_the_argument():
         paired_bootstrap(p, p, truth, dt=DT, n_resamples=0)
     with pytest.raises(ValueError, match="valid has shape"):
         paired_bootstrap(p, p, truth, np.ones((T, 2), bool), dt=DT)
+    # Raised by NumPy before, naming nothing (a helper's audit): an OverflowError, a
+    # "non-negative integer" of the generator, a str comparison.
+    with pytest.raises(ValueError, match=r"n_resamples must be an integer >= 1, got inf"):
+        paired_bootstrap(p, p, truth, dt=DT, n_resamples=float("inf"))
+    with pytest.raises(ValueError, match=r"seed must be an integer >= 0, got -1"):
+        paired_bootstrap(p, p, truth, dt=DT, seed=-1)
+    with pytest.raises(ValueError, match=r"level must be a number in \(0, 1\), got '0.9'"):
+        paired_bootstrap(p, p, truth, dt=DT, level="0.9")
 
 
 def test_comparison_table_names_the_cells_beyond_noise():

@@ -17,6 +17,7 @@ import pytest
 from jax_contact import (
     LegMeasurement,
     flat,
+    init_belief,
     init_belief_batch,
     make_noise,
     make_params,
@@ -148,6 +149,23 @@ def test_caps_inside_interval_are_accepted(cap):
 def test_bad_scalar_and_static_params(kwargs, field):
     with pytest.raises(ValueError, match=field):
         make_params(make_noise(3), **kwargs)
+
+
+def test_the_first_belief_is_built_only_from_valid_parameters():
+    """init_belief read any params: an initial_contact of 1 gave an infinite logit, NaN a
+    NaN one, which a later step with other, valid params carried on (a helper's audit);
+    a bool batch size was taken for 1."""
+    params = make_params(make_noise(3))
+    for bad in (1.0, np.nan):
+        with pytest.raises(ValueError, match=r"init_belief: params: initial_contact must lie"):
+            init_belief(params.replace(initial_contact=jnp.float32(bad)))
+    with pytest.raises(ValueError, match=r"init_belief: params must be EstimatorParams"):
+        init_belief({})
+    with pytest.raises(ValueError, match=r"n_envs must be a positive int, got True"):
+        init_belief_batch(params, True, 2)
+    # p = 0.5: logit 0, the gait prior's transition, no foothold (the contract).
+    b = init_belief(params.replace(initial_contact=jnp.float32(0.5)))
+    assert float(b.logit) == 0.0 and not bool(b.foothold_valid)
 
 
 def test_bad_static_field_after_replace():

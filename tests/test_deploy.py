@@ -615,6 +615,14 @@ def test_cli_arguments_are_checked_without_jax(tmp_path, capsys):
     args = parser.parse_args(["export", "--robot", "go1", "--rate", "1e9", "--out", "a.contact"])
     with pytest.raises(ValueError, match=r"argument --rate: 1e\+09 Hz; at most 100000"):
         args.check(args)  # it wrote a file whose period is 1 ns
+    # The library function behind it, called as code: 1 / rate_hz came first (0 was a
+    # ZeroDivisionError, a string a TypeError).
+    from jax_contact.train.deploy_cmd import export_to_file
+
+    for rate in (0, float("inf"), "400", None):
+        with pytest.raises(ValueError, match=r"rate_hz must be a finite number > 0 \(Hz\)"):
+            export_to_file(tmp_path / "x.contact", robot="planar_leg", rate_hz=rate)
+    assert not (tmp_path / "x.contact").exists()
     args = parser.parse_args(["export", "--robot", "go1", "--out", ""])
     with pytest.raises(ValueError, match=r"argument --out: an empty name"):
         args.check(args)  # it said "'' is a folder"

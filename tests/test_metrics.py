@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from jax_contact.metrics import (
+    bounce_steps,
     brier_score,
     evaluate,
     expected_calibration_error,
@@ -847,3 +848,16 @@ def test_bad_input_raises():
         expected_calibration_error(p, g, n_bins=0)
     with pytest.raises(ValueError, match="estimate"):
         evaluate(np.zeros(()), np.zeros((), bool), dt=DT)
+    # NumPy's or Python's own errors before, naming nothing (a helper's audit); a complex
+    # estimate lost its imaginary part with only a warning.
+    with pytest.raises(ValueError, match=r"threshold must be a number in \[0, 1\), got 'abc'"):
+        evaluate(p, g, dt=DT, threshold="abc")
+    for wrong in (None, np.array([0.01, 0.02])):
+        with pytest.raises(ValueError, match=r"dt must be a finite number > 0"):
+            evaluate(p, g, dt=wrong)
+    with pytest.raises(ValueError, match=r"early_window_s must be at most 10 s, got 1e\+30"):
+        evaluate(p, g, dt=DT, early_window_s=1e30)
+    with pytest.raises(ValueError, match=r"estimate must be float probabilities or bool"):
+        evaluate(p.astype(complex) + 0.5j, g, dt=DT)
+    with pytest.raises(ValueError, match=r"dt must be finite and > 0, got 0.0"):
+        bounce_steps(0.0)

@@ -259,6 +259,12 @@ def test_read_log_errors(tmp_path):
         f["x"] = np.zeros(2)
     with pytest.raises(ValueError, match="not a jax-contact log"):
         read_log(tmp_path / "other.h5")
+    # A version that is no integer named nothing ("invalid literal for int()").
+    with h5py.File(tmp_path / "odd.h5", "w") as f:
+        f["x"] = np.zeros(2)
+        f.attrs["format_version"] = "one"
+    with pytest.raises(ValueError, match=r"odd.h5': format_version 'one' is not an integer"):
+        read_log(tmp_path / "odd.h5")
     with pytest.raises(ValueError, match="missing arrays"):
         Rollout.from_arrays({"readings/qpos": np.zeros((1, 1, 3))})
 

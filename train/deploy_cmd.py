@@ -220,6 +220,8 @@ def export_to_file(
     from jax_contact.robot import model_mass
     from jax_contact.train.log_estimator import estimator_for
 
+    # Before 1 / rate_hz below: 0 was a ZeroDivisionError, a string a TypeError.
+    rate_hz = export.check_rate_hz(rate_hz)
     try:
         loaded = load_robot(robot, foot_names=feet)
     except ValueError as err:  # the library's argument is foot_names, the command's --feet
