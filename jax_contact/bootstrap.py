@@ -229,8 +229,16 @@ def paired_bootstrap(
     if not whole(seed) or seed < 0:
         raise ValueError(f"seed must be an integer >= 0, got {seed!r}")
     ref, cand, tru, val = _env_axis_inputs(reference, candidate, truth, valid)
-    sums_ref = env_sums(ref, tru, val, dt=dt, **evaluate_kwargs)
-    sums_cand = env_sums(cand, tru, val, dt=dt, **evaluate_kwargs)
+    sums = {}
+    for name, x in (("reference", ref), ("candidate", cand)):
+        try:  # metrics name their input "estimate": say which of the two it was
+            sums[name] = env_sums(x, tru, val, dt=dt, **evaluate_kwargs)
+        except ValueError as err:
+            msg = str(err)
+            if msg.startswith("estimate"):
+                raise ValueError(name + msg[len("estimate") :]) from None
+            raise
+    sums_ref, sums_cand = sums["reference"], sums["candidate"]
     n_envs = tru.shape[1]
     # Each resample as the number of times it draws each env: (B, E) counts.
     counts = np.random.default_rng(seed).multinomial(

@@ -235,9 +235,10 @@ def save_params(path: str | os.PathLike, params, provenance: Mapping | None = No
     Raises:
       ValueError: ``params`` fails :func:`jax_contact.validate_params` (the field named;
         nothing is written: a NaN would be written as ``null`` and the file not load), or
-        ``provenance`` is not a mapping of JSON values (the key named), or holds what
-        :func:`load_params` refuses (``robot_mass_kg``, ``calibration``, ``terrain_model``):
-        a file that could not be read back is not written.
+        ``provenance`` is not a mapping of JSON values (the key named), or holds what the
+        file's readers refuse (``robot_mass_kg``, as :func:`load_params`; a NaN mass is
+        refused, not written as null; ``calibration`` and ``terrain_model``, as the
+        commands and the wrapper): a file that could not be read back is not written.
       OSError: the file cannot be created (its path named).
     """
     import json
@@ -252,6 +253,12 @@ def save_params(path: str | os.PathLike, params, provenance: Mapping | None = No
         raise ValueError(
             f"provenance must be a mapping of JSON values (e.g. {{'note': ...}}), got"
             f" {type(provenance).__name__}"
+        )
+    mass = (provenance or {}).get("robot_mass_kg")
+    if isinstance(mass, float | np.floating) and not np.isfinite(mass):
+        # Refused here: JSON would turn it into null, which reads back as "no mass".
+        raise ValueError(
+            f"provenance['robot_mass_kg'] must be a positive number of kg (or absent), got {mass!r}"
         )
     try:
         text = json.dumps(json_safe(params_to_dict(params, provenance)), indent=2)

@@ -203,6 +203,13 @@ def test_bad_inputs_name_the_argument():
         paired_bootstrap(p, p, truth, dt=DT, n_resamples=float("inf"))
     with pytest.raises(ValueError, match=r"seed must be an integer >= 0, got -1"):
         paired_bootstrap(p, p, truth, dt=DT, seed=-1)
+    # Which detector holds the NaN (both said "estimate holds ...").
+    nan = p.copy()
+    nan[5, 1] = np.nan
+    with pytest.raises(ValueError, match=r"^candidate holds NaN or inf"):
+        paired_bootstrap(p, nan, truth, dt=DT)
+    with pytest.raises(ValueError, match=r"^reference holds NaN or inf"):
+        paired_bootstrap(nan, p, truth, dt=DT)
     with pytest.raises(ValueError, match=r"level must be a number in \(0, 1\), got '0.9'"):
         paired_bootstrap(p, p, truth, dt=DT, level="0.9")
 

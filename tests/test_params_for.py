@@ -170,6 +170,7 @@ def test_save_params_refuses_invalid_params_and_names_an_unwritable_path(go1, tm
         ("tuned by hand", r"provenance must be a mapping .* got str"),
         ({"calibration": cal}, r"provenance\['calibration'\] is not a JSON value \(a Calib"),
         ({"robot_mass_kg": 0}, r"bad\.json: provenance field 'robot_mass_kg' must be a positive"),
+        ({"robot_mass_kg": float("nan")}, r"provenance\['robot_mass_kg'\] must be a positive"),
         ({"calibration": {"kind": "sign"}}, r"bad\.json': provenance field 'calibration'"),
         ({"terrain_model": "stairs"}, r"bad\.json': provenance field 'terrain_model'"),
     ):
