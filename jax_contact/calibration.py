@@ -59,12 +59,10 @@ class Calibration:
                 continue
             if isinstance(v, bool) or not isinstance(v, int | float | np.integer | np.floating):
                 raise ValueError(f"{name} must be a number, got {v!r}")
-        for name in ("temperature", "temperature_air"):
-            v = getattr(self, name)
-            if name == "temperature_air" and v is None:
-                continue
             # Bounded: 1 / T overflowed float32 for T ~ 1e-40, and 0 * inf made P NaN.
-            if not (np.isfinite(v) and TEMPERATURE_RANGE[0] <= v <= TEMPERATURE_RANGE[1]):
+            if name != "bias" and not (
+                np.isfinite(v) and TEMPERATURE_RANGE[0] <= v <= TEMPERATURE_RANGE[1]
+            ):
                 raise ValueError(
                     f"{name} must be a finite number in [{TEMPERATURE_RANGE[0]:g},"
                     f" {TEMPERATURE_RANGE[1]:g}], got {v!r}"

@@ -152,7 +152,7 @@ def read_log(path: str | os.PathLike) -> tuple[dict[str, np.ndarray], dict]:
             ) from None
         if version > FORMAT_VERSION:
             raise ValueError(
-                f"{str(path)!r} has format_version {int(version)}; this library reads up to"
+                f"{str(path)!r} has format_version {version}; this library reads up to"
                 f" {FORMAT_VERSION}"
             )
 

@@ -376,9 +376,8 @@ def _check_evaluate(args: argparse.Namespace) -> None:
 
 def _check_train(args: argparse.Namespace) -> None:
     check_output_folder("--out", args.out)
-    check_no_repeats(
-        "--variants", args.variants, "variant"
-    )  # the repeat trained twice, or failed late
+    # A repeat trained twice, or failed after the first had trained.
+    check_no_repeats("--variants", args.variants, "variant")
     for variant in args.variants:  # each variant's run folder, before JAX loads
         try:
             check_run_folder(Path(args.out) / variant, args.overwrite)
@@ -415,9 +414,8 @@ def _check_bench(args: argparse.Namespace) -> None:
 
 
 def _check_rates(args: argparse.Namespace) -> None:
-    check_no_repeats(
-        "--scenes", args.scenes, "scene"
-    )  # a repeat ran again, its first result dropped
+    # A repeat ran again, its first result dropped.
+    check_no_repeats("--scenes", args.scenes, "scene")
     check_output_file("--json", args.json)
     check_not_an_input("--json", args.json, params=args.params)
     if args.params is not None:

@@ -263,18 +263,17 @@ def _exists(path) -> bool:
         return False
 
 
-def check_not_a_run_file(arg: str, out, run_dirs, root=None) -> None:
+def check_not_a_run_file(arg: str, out, run_dirs, summary_dirs=()) -> None:
     """Raises ValueError when ``out`` is a file that ``jax-contact train`` keeps in one of
-    ``run_dirs`` (its record, progress, checkpoints) or in the training's ``root`` folder
-    (its summary): replacing it would damage the run."""
+    ``run_dirs`` (its record, progress, checkpoints) or in one of the ``summary_dirs`` it
+    trained into (``--out``: its summary): replacing it would damage the run."""
     from jax_contact.train.run_folder import RUN_FILES, SUMMARY_FILES
 
     if out is None:
         return
     target = Path(out).resolve()
     owned = [(Path(d).resolve(), RUN_FILES) for d in run_dirs]
-    if root is not None:
-        owned.append((Path(root).resolve(), SUMMARY_FILES))
+    owned += [(Path(d).resolve(), SUMMARY_FILES) for d in summary_dirs]
     for folder, names in owned:
         inside_checkpoints = folder / "checkpoints" in target.parents
         if inside_checkpoints or (target.parent == folder and target.name in names):
@@ -404,11 +403,11 @@ def check_transfer(args) -> None:
     if problem := transfer_root_problem(args.root):
         raise ValueError(f"argument root: {problem}")
     check_output_file("--json", args.json)
-    runs = [p.parent for p in Path(args.root).glob("seed*/*/run.json")]
-    seeds = [p for p in Path(args.root).glob("seed*") if p.is_dir()]
-    check_not_a_run_file("--json", args.json, runs, root=args.root)
-    for seed in seeds:  # each seed's own training summary (jax-contact train --out root/seedS)
-        check_not_a_run_file("--json", args.json, [], root=seed)
+    root = Path(args.root)
+    runs = [p.parent for p in root.glob("seed*/*/run.json")]
+    # Each seed's training summary (jax-contact train --out ROOT/seedS), and ROOT's own.
+    trained_into = [root, *(p for p in root.glob("seed*") if p.is_dir())]
+    check_not_a_run_file("--json", args.json, runs, summary_dirs=trained_into)
 
 
 def transfer_root_problem(root: str | os.PathLike) -> str | None:
