@@ -73,9 +73,12 @@ def write_log(path: str | os.PathLike, arrays: Mapping[str, np.ndarray], attrs: 
       The path written.
 
     Raises:
-      ValueError: an array holds objects, an attribute cannot be stored, or ``attrs``
-        sets ``format_version`` to another value than the library's (a file it would refuse
-        to read; the attributes of a log read by :func:`read_log` carry the same value).
+      ValueError: naming the array or attribute, before the file is opened: an array name
+        that is empty or also another array's group, an array that is ragged or not of
+        bool, integer or float dtype, an attribute name that is no str, an attribute that
+        cannot be stored, or ``attrs`` sets ``format_version`` to another value than the
+        library's (a file it would refuse to read; the attributes of a log read by
+        :func:`read_log` carry the same value).
     """
     path = Path(path)
     if attrs.get("format_version", FORMAT_VERSION) != FORMAT_VERSION:
@@ -83,9 +86,7 @@ def write_log(path: str | os.PathLike, arrays: Mapping[str, np.ndarray], attrs: 
             f"attrs: 'format_version' {attrs['format_version']!r} is not this library's"
             f" ({FORMAT_VERSION}), which write_log writes itself: leave it out"
         )
-    for name, arr in arrays.items():
-        if np.asarray(arr).dtype == object:
-            raise ValueError(f"array {name!r} has dtype object and cannot be written")
+    _check_log_contents(arrays, attrs)
 
     def write(tmp: str) -> None:
         with h5py.File(tmp, "w") as f:
@@ -96,6 +97,36 @@ def write_log(path: str | os.PathLike, arrays: Mapping[str, np.ndarray], attrs: 
                 f.attrs[key] = _attr(key, value)
 
     return write_atomic(path, write)
+
+
+def _check_log_contents(arrays: Mapping, attrs: Mapping) -> None:
+    """Names and dtypes HDF5 can store, checked before the file is opened (h5py's own
+    errors name neither the array nor the attribute)."""
+    names = list(arrays)
+    for name in names:
+        if not isinstance(name, str) or not name.strip("/"):
+            raise ValueError(
+                f"array name {name!r}: expected a non-empty str such as 'readings/qpos'"
+            )
+        try:
+            dtype = np.asarray(arrays[name]).dtype
+        except ValueError as err:  # a ragged nested list
+            raise ValueError(f"array {name!r} is not rectangular: {err}") from None
+        if dtype.kind not in "biuf":
+            raise ValueError(
+                f"array {name!r} has dtype {dtype} and cannot be written: expected bool,"
+                " integer or float arrays (strings and metadata go into attrs)"
+            )
+    # "a" and "a/b": a dataset cannot also be a group.
+    groups = {n.strip("/").rsplit("/", 1)[0] for n in names if "/" in n.strip("/")}
+    for name in names:
+        if name.strip("/") in groups or any(g.startswith(name.strip("/") + "/") for g in groups):
+            raise ValueError(
+                f"array {name!r} is also a group of another array's name; rename one of them"
+            )
+    for key in attrs:
+        if not isinstance(key, str) or not key:
+            raise ValueError(f"attribute name {key!r}: expected a non-empty str")
 
 
 def _attr(key: str, value):

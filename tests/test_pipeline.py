@@ -247,6 +247,20 @@ def test_failed_write_leaves_nothing(tmp_path):
     # A version of its own wrote a file read_log then refused (a helper's audit).
     with pytest.raises(ValueError, match=r"attrs: 'format_version' 99 is not this library's"):
         write_log(tmp_path / "z.h5", {"a": np.zeros(3)}, {"format_version": 99})
+    # Names and dtypes h5py would refuse mid-file, with messages naming neither (an audit):
+    # each is now refused before the file is opened, naming the array or attribute.
+    bad = [
+        ({"a": np.ones(2), "a/b": np.ones(2)}, {}, r"array 'a' is also a group"),
+        ({"": np.ones(2)}, {}, r"array name '': expected a non-empty str"),
+        ({"a": np.ones(2)}, {1: "x"}, r"attribute name 1: expected a non-empty str"),
+        ({"s": np.array(["ab", "c"])}, {}, r"array 's' has dtype <U2 and cannot be written"),
+        ({"c": np.ones(2, complex)}, {}, r"array 'c' has dtype complex128"),
+    ]
+    for arrays, attrs, message in bad:
+        with pytest.raises(ValueError, match=message):
+            write_log(tmp_path / "w.h5", arrays, attrs)
+    with pytest.raises(ValueError, match=r"array 'r' is not rectangular"):
+        write_log(tmp_path / "w.h5", {"r": [[1, 2], [3]]}, {})
     assert list(tmp_path.iterdir()) == []
     with pytest.raises(ValueError, match=r"log file '.*' is a folder"):
         read_log(tmp_path)  # it said "does not exist"
