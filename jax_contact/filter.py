@@ -186,6 +186,13 @@ def _check_shapes(
         raise ValueError(
             f"{fn}: meas must be a LegMeasurement or RobotMeasurement, got {type(meas).__name__}"
         )
+    if not isinstance(params, EstimatorParams):  # before params.nv is read
+        _check_params(fn, params)
+    if not isinstance(belief, LegBelief):
+        raise ValueError(
+            f"{fn}: belief must be a LegBelief (init_belief, init_belief_batch), got"
+            f" {type(belief).__name__}"
+        )
     want = time + batch + (params.nv,)
     if tuple(np.shape(meas.qdd)) != want:
         what = "the leading axes of the batch" if time + batch else "unbatched"
@@ -195,11 +202,18 @@ def _check_shapes(
             " batched differently"
         )
     legs = (meas.n_legs,) if robot else ()
-    if tuple(belief.logit.shape) != batch + legs:
+    if tuple(np.shape(belief.logit)) != batch + legs:
         raise ValueError(
-            f"{fn}: belief has shape {tuple(belief.logit.shape)} (its logit); the measurement"
-            f" needs {batch + legs}"
+            f"{fn}: belief has shape {tuple(np.shape(belief.logit))} (its logit); the"
+            f" measurement needs {batch + legs}"
         )
+    for field, tail in (("log_transition", (2, 2)), ("foothold", (3,)), ("foothold_valid", ())):
+        got = tuple(np.shape(getattr(belief, field)))
+        if got != batch + legs + tail:
+            raise ValueError(
+                f"{fn}: belief.{field} has shape {got}; expected {batch + legs + tail} (the"
+                f" logit's {batch + legs}, then {tail}): a belief of init_belief"
+            )
     # Every other field (M, J, qd, ... and the legs' indices where they are known), named.
     try:
         if robot:

@@ -254,6 +254,19 @@ def test_the_update_names_a_measurement_or_belief_that_does_not_fit():
         step_batch(params, TERRAIN, b0, batched, key=key)
     with pytest.raises(ValueError, match="n_envs must be a positive int, got -1"):
         init_belief_batch(params, -1, N_LEGS)
+    # The belief's other leaves and the params' type, before anything reads them (an
+    # audit: an AttributeError on None, XLA broadcasting errors for a (3, 3) transition).
+    for field, value, want in (
+        ("log_transition", np.zeros((3, 3)), r"\(3, 3\); expected \(2, 2\)"),
+        ("foothold", np.zeros(2), r"\(2,\); expected \(3,\)"),
+        ("foothold_valid", np.zeros(2, bool), r"\(2,\); expected \(\)"),
+    ):
+        with pytest.raises(ValueError, match=rf"step: belief\.{field} has shape {want}"):
+            step(params, TERRAIN, b0.replace(**{field: value}), one, key=key)
+    with pytest.raises(ValueError, match=r"step: belief must be a LegBelief .* got NoneType"):
+        step(params, TERRAIN, None, one, key=key)
+    with pytest.raises(ValueError, match=r"step: params must be EstimatorParams .* got dict"):
+        step({}, TERRAIN, b0, one, key=key)
     # Every other field is checked too, named (they gave XLA slice or vmap size errors).
     bad_m = batched.replace(M=batched.M[..., :2, :2])
     with pytest.raises(ValueError, match=r"step_batch: measurement field 'M' has shape \(2, 2, 2"):
