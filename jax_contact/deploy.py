@@ -192,18 +192,41 @@ def load(path: str | os.PathLike, *, compile: bool = True) -> Estimator:
         the file).
     """
     header, payload = read_artefact(path)
-    exported = load_exported(payload)
-    readings = tuple((r["name"], int(r["shape"][0])) for r in header["readings"])
-    outputs = tuple(
-        (f["name"], f["offset"], f["offset"] + f["size"], tuple(f["shape"]))
-        for f in header["outputs"]["layout"]
-    )
+    name = f"exported estimator {str(path)!r}"
+    # A file written before the header had a checksum is read unchecked: a missing or
+    # malformed entry is named here, not as a KeyError or a pytree mismatch of jax.export.
+    try:
+        readings = tuple((r["name"], int(r["shape"][0])) for r in header["readings"])
+        outputs = tuple(
+            (f["name"], int(f["offset"]), int(f["offset"]) + int(f["size"]), tuple(f["shape"]))
+            for f in header["outputs"]["layout"]
+        )
+        avals = (
+            jax.ShapeDtypeStruct((int(header["state"]["size"]),), np.float32),
+            jax.ShapeDtypeStruct(tuple(int(n) for n in header["key"]["shape"]), np.uint32),
+        ) + tuple(jax.ShapeDtypeStruct((n,), np.float32) for _, n in readings)
+    except (KeyError, IndexError, TypeError, ValueError) as err:
+        raise ValueError(
+            f"{name}: its header lacks or garbles {type(err).__name__} {err}; the file is"
+            " corrupt (export it again)"
+        ) from None
+    try:
+        exported = load_exported(payload)
+    except Exception as err:  # flatbuffers' and jax's own errors name no file
+        raise ValueError(
+            f"{name}: its payload is not an exported program ({type(err).__name__}); the file"
+            " is corrupt (export it again)"
+        ) from None
+    if len(exported.in_avals) != len(avals) or any(
+        a.shape != b.shape for a, b in zip(exported.in_avals, avals, strict=False)
+    ):
+        raise ValueError(
+            f"{name}: the header's state, key and readings do not match the program's inputs"
+            f" ({[a.shape for a in avals]} against {[a.shape for a in exported.in_avals]});"
+            " the file is corrupt (export it again)"
+        )
     call = jax.jit(exported.call)
     if compile:
-        avals = (
-            jax.ShapeDtypeStruct((header["state"]["size"],), np.float32),
-            jax.ShapeDtypeStruct(tuple(header["key"]["shape"]), np.uint32),
-        ) + tuple(jax.ShapeDtypeStruct((n,), np.float32) for _, n in readings)
         call = call.lower(*avals).compile()
     return Estimator(
         header=header, path=str(path), _call=call, _readings=readings, _outputs=outputs

@@ -182,13 +182,18 @@ def read_artefact(path: str | os.PathLike) -> tuple[dict, bytes]:
         raise ValueError(f"{name}: the header is not a JSON object; the file is corrupt")
     if header.get("format") != FORMAT:
         raise ValueError(f"{name}: header format is {header.get('format')!r}, not {FORMAT!r}")
-    if int(header.get("format_version", 0)) > FORMAT_VERSION:
-        raise ValueError(
-            f"{name} has format_version {header['format_version']}; this library reads up to"
-            f" {FORMAT_VERSION}"
-        )
+    # The checksum first: an edited field (the version too) reads as an edit.
     if "header_sha256" in header and _header_digest(header) != header["header_sha256"]:
         raise ValueError(f"{name}: the header does not match its checksum (edited or corrupt)")
+    version = header.get("format_version", 0)
+    if isinstance(version, bool) or not isinstance(version, int):
+        raise ValueError(
+            f"{name}: format_version {version!r} is not an integer; the file is corrupt"
+        )
+    if version > FORMAT_VERSION:
+        raise ValueError(
+            f"{name} has format_version {version}; this library reads up to {FORMAT_VERSION}"
+        )
     payload = data[start + n :]
     if len(payload) != header.get("payload_bytes") or (
         hashlib.sha256(payload).hexdigest() != header.get("payload_sha256")

@@ -428,6 +428,58 @@ def test_corrupt_or_foreign_file_is_refused(deployed, tmp_path):
         read_artefact(listed)
 
 
+def test_a_pre_checksum_header_is_checked_by_load(deployed, tmp_path):
+    """A file written before headers had a checksum is read without that check, so
+    ``deploy.load`` checks what it reads from the header (an audit: a missing ``state``
+    was a KeyError, a payload that is no program a ``struct.error``, neither naming the
+    file)."""
+    from jax_contact import deploy
+    from jax_contact.export import FORMAT, MAGIC, read_artefact, write_artefact
+
+    header, payload = read_artefact(deployed["artefact"])
+    old = {k: v for k, v in header.items() if k not in ("header_sha256", "payload_sha256")}
+    old = {k: v for k, v in old.items() if k != "payload_bytes"}
+
+    def rewritten(name, head, body=payload):
+        path = write_artefact(tmp_path / name, head, body)
+        # write_artefact adds a header checksum; an older file has none.
+        data = path.read_bytes()
+        start = len(MAGIC) + 8
+        n = int.from_bytes(data[len(MAGIC) : start], "little")
+        head_json = json.loads(data[start : start + n])
+        del head_json["header_sha256"]
+        text = json.dumps(head_json).encode()
+        path.write_bytes(MAGIC + len(text).to_bytes(8, "little") + text + bytes(body))
+        return path
+
+    no_state = rewritten("no_state.contact", {k: v for k, v in old.items() if k != "state"})
+    with pytest.raises(
+        ValueError, match=r"no_state\.contact': its header lacks or garbles KeyError 'state'"
+    ):
+        deploy.load(no_state, compile=False)
+    fewer = rewritten("fewer.contact", old | {"readings": old["readings"][:2]})
+    with pytest.raises(
+        ValueError, match=r"fewer\.contact': the header's state, key and readings do not"
+    ):
+        deploy.load(fewer, compile=False)
+    not_a_program = rewritten("abc.contact", {"format": FORMAT, "format_version": 1}, b"abc")
+    with pytest.raises(ValueError, match=r"abc\.contact': its header lacks"):
+        deploy.load(not_a_program, compile=False)
+    garbage = rewritten("garbage.contact", old, b"abc")
+    with pytest.raises(
+        ValueError, match=r"garbage\.contact': its payload is not an exported program"
+    ):
+        deploy.load(garbage, compile=False)
+    word = rewritten("word.contact", old | {"format_version": "two"})
+    with pytest.raises(ValueError, match=r"word\.contact': format_version 'two' is not an integer"):
+        deploy.load(word, compile=False)
+    # The file as written, without its header checksum, still loads and runs.
+    assert (
+        deploy.load(rewritten("plain.contact", old), compile=False).header["robot"]
+        == header["robot"]
+    )
+
+
 def test_deploy_check_compares_the_physics_not_the_name(deployed):
     """A log is of the export's robot when their physics' fingerprints agree: an export of
     ``--model PATH`` (its source a path) of Go1 was warned about on Go1's own log."""
