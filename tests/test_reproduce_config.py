@@ -205,7 +205,7 @@ def test_gms_grid_scales_with_the_robot_and_names_a_pick_on_its_edge():
     assert len(grid) == len(R.GM_K_I) * len(R.GM_LOAD_FRACTIONS)
     assert float(grid["gm_K50_F6.25"].threshold) == pytest.approx(0.2 * load, rel=1e-6)
     assert float(grid["gm_K50_F6.25"].K_I) == 50.0
-    assert {float(p.K_I) for p in R.gm_grid(load, 0.005).values()} == {5, 20, 50, 150}
+    assert {float(p.K_I) for p in R.gm_grid(load, 0.005).values()} == {2, 5, 20, 50, 150}
     assert R.grid_edges(grid, "gm_K50_F6.25", ("K_I", "threshold")) == []
     assert R.grid_edges(grid, "gm_K300_F1.56", ("K_I", "threshold")) == [
         "K_I at its largest",
@@ -215,6 +215,61 @@ def test_gms_grid_scales_with_the_robot_and_names_a_pick_on_its_edge():
     assert R.grid_edges(kins, "kin_h8_v0.3", ("height_threshold", "velocity_threshold")) == [
         "height_threshold at its largest"
     ]
+
+
+def test_failure_limited_pick_follows_the_estimators_rule():
+    """The rows ``*_fl`` pick a baseline as the estimator's defaults were picked: among the
+    grid points whose swing phases with a false contact (sw-ph) or the flag on throughout
+    (sw-on) are <= FAILURE_LIMIT on every tuning run, the best mean F1; with none under
+    it, the lowest worst-run share. Hand-made scores (sw-ph + sw-on per run):
+
+    - a: F1 0.98 / 0.97 (mean 0.975), 5 % and 1 %: worst 5 %, over the limit;
+    - b: F1 0.95 / 0.96 (mean 0.955), 1 % / 1 % + 1 %: eligible (2 %);
+    - c: F1 0.94 / 0.94, 0 % and NaN (no swing phase: nothing failed): eligible;
+    - d: F1 0.99 / 0.99, sw-ph 0 % but its flag on through 30 % of the swings: not.
+
+    By F1 alone d wins; under the 2 % limit b (0.955 > 0.94; d is stuck on, which sw-ph
+    alone would have let through); under 0.5 % only c; with every point over the limit
+    the lowest worst share.
+    """
+
+    def cell(f1, rate, failures=0, on=0.0):
+        return {
+            "f1": f1,
+            "swing_phase_failure_rate": rate,
+            "swing_phase_flag_on_rate": on,
+            "failures": failures,
+        }
+
+    nan = float("nan")
+    runs = {
+        "walk": {"a": cell(0.98, 0.05), "b": cell(0.95, 0.01), "c": cell(0.94, 0.0)},
+        "trot": {
+            "a": cell(0.97, 0.01),
+            "b": cell(0.96, 0.01, on=0.01),
+            "c": cell(0.94, nan, on=nan),
+        },
+    }
+    runs["walk"]["d"] = runs["trot"]["d"] = cell(0.99, 0.0, on=0.3)
+    assert R.best_setting(runs) == "d"
+    assert R.swing_share(runs, "d") == pytest.approx(0.3)
+    assert R.swing_share(runs, "b") == pytest.approx(0.02)  # its trot: 1 % + 1 %
+    assert R.swing_share(runs, "c") == 0.0
+    assert R.FAILURE_LIMIT == 0.02
+    assert R.best_setting(runs, R.FAILURE_LIMIT) == "b"
+    assert R.best_setting(runs, 0.005) == "c"
+    over = {
+        "walk": {"a": cell(0.98, 0.04), "b": cell(0.95, 0.03)},
+        "trot": {"a": cell(0.97, 0.05), "b": cell(0.96, 0.06)},
+    }
+    # Both over the limit. Worst runs: a 5 %, b 6 %, so a; on the walk alone (4 %, 3 %) b.
+    assert R.best_setting(over, R.FAILURE_LIMIT) == "a"
+    assert R.best_setting({"walk": over["walk"]}, R.FAILURE_LIMIT) == "b"
+    # A grid with no point under the limit gets no row; the line says so and why.
+    fl = {"limit": 0.02, "gm": {"walk": "w", "trot": "t"}, "kinematic": "a"}
+    line = R.format_failure_limited(fl | {"unmet": {"kinematic_fl": ["a", 0.05]}})
+    assert "gm_walk_fl w; gm_trot_fl t; no row kinematic_fl" in " ".join(line.split())
+    assert "(the fewest: a, 5 % of swings)" in " ".join(line.split())
 
 
 def test_each_seed_walks_its_own_rough_floor():
