@@ -90,6 +90,12 @@ STATISTICS: Mapping[str, Statistic] = {
         "fraction of air phases longer than a bounce with a false contact",
         "sw-ph",
     ),
+    "swing_phase_flag_on_rate": Statistic(
+        "swing_phase_flag_on_rate",
+        False,
+        "fraction of air phases longer than a bounce with the flag on throughout",
+        "sw-on",
+    ),
     "touchdown_delay_ms": Statistic(
         "touchdown_delay_ms", False, "|mean touch-down delay|, ms", "|TD| ms", magnitude=True
     ),
@@ -102,7 +108,8 @@ STATISTICS: Mapping[str, Statistic] = {
 cells and ECE). Delays are compared by the magnitude of their mean (the issue's targets
 bound ``|mean|``). Both failure rates are here: rule 9's counts the truth's bounces as air
 phases without a failure, which flatters every detector (:mod:`jax_contact.metrics`, rule
-9b), and rule 9b's leaves them out."""
+9b), and rule 9b's leaves them out; and rule 9c's swings the flag stays on through, which
+neither counts (since the fiftieth session)."""
 
 
 @dataclasses.dataclass(frozen=True)

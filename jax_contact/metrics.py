@@ -492,14 +492,16 @@ def _match_codes(
 
 def _air_phase_failures(
     kg: np.ndarray,
+    kf: np.ndarray,
     failure_starts: np.ndarray,
     bounce_steps: int = 0,
     kt: np.ndarray | None = None,
-) -> tuple[int, int, int, int]:
-    """(n_air_phases, air_phases_with_failure, n_swing_phases, swing_phases_with_failure)
-    of rules 8-9 and 9b, from flat truth codes (``kg`` over the valid steps, ``kt`` over the
-    steps of known truth, None: ``kg``); swing phases are the air phases of more than
-    ``bounce_steps`` steps.
+) -> tuple[int, int, int, int, int]:
+    """(n_air_phases, air_phases_with_failure, n_swing_phases, swing_phases_with_failure,
+    swing_phases_flag_on) of rules 8-9, 9b and 9c, from flat truth codes (``kg`` over the
+    valid steps, ``kt`` over the steps of known truth, None: ``kg``) and flag codes ``kf``;
+    swing phases are the air phases of more than ``bounce_steps`` steps, and rule 9c's
+    those in which the flag is on at every valid step.
 
     The off-runs of ``kt`` that hold a valid step are the air phases of rule 8: an invalid
     step of known truth does not cut one, a step of unknown truth does.
@@ -513,23 +515,13 @@ def _air_phase_failures(
     hit = np.zeros(ts.shape, bool)
     hit[holder] = True
     valid_before = np.concatenate([[0], np.cumsum(kg != -1)])
-    air = (tv == 0) & (valid_before[te] > valid_before[ts])
-    swing = air & (te - ts > bounce_steps)
-    return int(np.sum(air)), int(np.sum(hit & air)), int(np.sum(swing)), int(np.sum(hit & swing))
-
-
-def _swing_phases_flag_on(
-    kg: np.ndarray, kf: np.ndarray, bounce_steps: int, kt: np.ndarray | None = None
-) -> int:
-    """Rule 9c: the swing phases (rule 9b's runs of ``kt``, None: ``kg``) in which the
-    flag codes ``kf`` are on at every valid step."""
-    kt = kg if kt is None else kt
-    ts, te, tv, _, _ = _runs(kt)
-    valid_before = np.concatenate([[0], np.cumsum(kg != -1)])
     on_before = np.concatenate([[0], np.cumsum(kf == 1)])
     n_valid = valid_before[te] - valid_before[ts]
-    swing = (tv == 0) & (n_valid > 0) & (te - ts > bounce_steps)
-    return int(np.sum(swing & (on_before[te] - on_before[ts] == n_valid)))
+    air = (tv == 0) & (n_valid > 0)
+    swing = air & (te - ts > bounce_steps)
+    stuck_on = swing & (on_before[te] - on_before[ts] == n_valid)
+    counts = (air, hit & air, swing, hit & swing, stuck_on)
+    return tuple(int(np.sum(c)) for c in counts)
 
 
 # ----------------------------------------------------------------------------- per step
@@ -785,8 +777,9 @@ def evaluate(
     persist = (
         ev if persist_steps == min_on else _match_codes(kg, kf, dt, early, persist_steps, kt)[0]
     )
-    n_air, air_failed, n_swing, swing_failed = _air_phase_failures(kg, failure_starts, n_bounce, kt)
-    swing_on = _swing_phases_flag_on(kg, kf, n_bounce, kt)
+    n_air, air_failed, n_swing, swing_failed, swing_on = _air_phase_failures(
+        kg, kf, failure_starts, n_bounce, kt
+    )
     air_steps = val & ~tru
     steps = _step_scores(flag, tru, val)
     td, lo = ev.touchdown, ev.liftoff
@@ -842,6 +835,7 @@ class EnvSums:
         false negatives.
       n_air_phases, air_phases_with_failure: rules 8-9.
       n_swing_phases, swing_phases_with_failure: rule 9b.
+      swing_phases_flag_on: rule 9c.
       touchdown_delay_sum_ms, n_touchdown_delays: sum and number of the matched, evaluated
         touch-down delays (rules 2-6); liftoff_*: the same for lift-offs.
       bin_truth, bin_prob: per ECE bin, the sums of truth and of P(contact).
@@ -856,6 +850,7 @@ class EnvSums:
     air_phases_with_failure: np.ndarray
     n_swing_phases: np.ndarray
     swing_phases_with_failure: np.ndarray
+    swing_phases_flag_on: np.ndarray
     touchdown_delay_sum_ms: np.ndarray
     n_touchdown_delays: np.ndarray
     liftoff_delay_sum_ms: np.ndarray
@@ -871,7 +866,7 @@ class EnvSums:
 
         Returns:
           ``f1``, ``accuracy``, ``air_phase_failure_rate``, ``swing_phase_failure_rate``,
-          ``touchdown_delay_ms`` and
+          ``swing_phase_flag_on_rate``, ``touchdown_delay_ms`` and
           ``liftoff_delay_ms`` (the mean delays), ``ece``: each (...) float64, NaN where
           :func:`evaluate` gives NaN (a ratio 0 / 0).
 
@@ -895,6 +890,7 @@ class EnvSums:
                 "accuracy": s["correct"] / s["n_steps"],
                 "air_phase_failure_rate": s["air_phases_with_failure"] / s["n_air_phases"],
                 "swing_phase_failure_rate": s["swing_phases_with_failure"] / s["n_swing_phases"],
+                "swing_phase_flag_on_rate": s["swing_phases_flag_on"] / s["n_swing_phases"],
                 "touchdown_delay_ms": s["touchdown_delay_sum_ms"] / s["n_touchdown_delays"],
                 "liftoff_delay_ms": s["liftoff_delay_sum_ms"] / s["n_liftoff_delays"],
                 "ece": gap / s["n_steps"],
@@ -932,7 +928,7 @@ def env_sums(
         kg, kf = _flat_codes(g, v), _flat_codes(f, v)
         kt = None if known is val else _flat_codes(g, k)
         ev, failure_starts = _match_codes(kg, kf, dt, early, min_on, kt)
-        phases = _air_phase_failures(kg, failure_starts, n_bounce, kt)
+        phases = _air_phase_failures(kg, kf, failure_starts, n_bounce, kt)
         rows.append(
             (
                 *_step_counts(f, g, v),

@@ -45,6 +45,11 @@ def test_env_sums_pool_to_evaluate_on_the_resampled_envs():
 
     rng = np.random.default_rng(4)
     truth, p, valid = _gait_like(rng, 5)
+    # A flag stuck on through the first half of two sequences' swings (rule 9c), so that
+    # sw-on differs between envs and its pooling is tested on more than zeros.
+    half = np.arange(len(p)) < len(p) // 2
+    for env, leg in ((2, 0), (4, 1)):
+        p[half, env, leg] = 0.9
     valid3 = np.broadcast_to(valid[..., None], truth.shape)
     # bounce_s 30 ms = 12 steps: the air phases of 8-12 steps (periods 20-30) are left out
     # of the swing phases, so the swing rate is a different ratio from the air rate.
@@ -62,6 +67,7 @@ def test_env_sums_pool_to_evaluate_on_the_resampled_envs():
                 "accuracy",
                 "air_phase_failure_rate",
                 "swing_phase_failure_rate",
+                "swing_phase_flag_on_rate",
                 "ece",
             ):
                 assert got[key] == pytest.approx(getattr(want, key), rel=1e-12, abs=1e-15), key
@@ -76,6 +82,7 @@ def test_env_sums_pool_to_evaluate_on_the_resampled_envs():
             sums.pooled(np.ones(4))
     every = evaluate(p, truth, valid3, dt=DT, bounce_s=0.03)
     assert 0 < every.n_swing_phases < every.n_air_phases
+    assert 0 < every.swing_phases_flag_on < every.n_swing_phases  # rule 9c pooled non-trivially
     assert every.swing_phase_failure_rate != every.air_phase_failure_rate
 
 

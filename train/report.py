@@ -15,7 +15,13 @@ import numpy as np
 # The row of the robot's tuned parameter file (a shipped preset or --params).
 TUNED_ROW = "tuned"
 
-VS_GM_STATISTICS = ("f1", "accuracy", "air_phase_failure_rate", "swing_phase_failure_rate")
+VS_GM_STATISTICS = (
+    "f1",
+    "accuracy",
+    "air_phase_failure_rate",
+    "swing_phase_failure_rate",
+    "swing_phase_flag_on_rate",
+)
 
 
 def vs_gm(out: dict, truth, valid, dt: float, n_resamples: int) -> dict | None:
