@@ -565,7 +565,9 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         metavar="LOG",
         help="tune the GM observer and the kinematic detector on this other log"
-        " (jax_contact.train.reproduce's grids, best F1)",
+        " (jax_contact.train.reproduce's grids, best F1), and add each picked by the"
+        " estimator's rule as the rows gm_fl, kinematic_fl (sw-ph + sw-on <= 2 %%, then F1)"
+        " where a point of its grid meets it",
     )
     p.add_argument(
         "--params",

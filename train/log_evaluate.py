@@ -54,18 +54,24 @@ def tune_baselines(path: str | Path) -> dict:
     Every point of :func:`jax_contact.train.reproduce.gm_grid` and
     :func:`jax_contact.train.reproduce.kinematic_grid` runs on the log; the picks follow
     rule the reproduction tunes by (:func:`jax_contact.train.reproduce.best_setting`: best
-    per-step F1, ties: fewer failures).
+    per-step F1, ties: fewer failures). Each grid is also picked by the estimator defaults'
+    rule, as the reproduction's rows ``*_fl`` (``FAILURE_LIMIT``: swing phases with a false
+    contact or the flag on throughout at most 2 %, then F1), where a point meets it.
 
     Returns:
       ``{"gm": (name, GMParams), "kinematic": (name, KinematicParams), "scores": {"gm": GM
       grid name -> scores, "kinematic": kinematic grid name -> scores}, "grid_edges":
-      {"gm": [...], "kinematic": [...]}}`` (:func:`jax_contact.train.reproduce.grid_edges`).
+      {"gm": [...], "kinematic": [...]}, "failure_limited": {"gm": ..., "kinematic": ...}}``
+      (:func:`jax_contact.train.reproduce.grid_edges`); each ``failure_limited`` entry is
+      ``{"pick": name, "params": its params or None where no point meets the limit,
+      "swing_share": the pick's share, "grid_edges": [...]}``.
 
     Raises:
       ValueError: the log has no ground truth, or as :func:`load_log`.
     """
     import jax_contact as jc
     from jax_contact.train.evaluate import replay, score
+    from jax_contact.train.report import FAILURE_LIMIT
     from jax_contact.train.reproduce import (
         TERRAIN_SIGMA,
         best_setting,
@@ -73,6 +79,7 @@ def tune_baselines(path: str | Path) -> dict:
         gm_grid,
         grid_edges,
         kinematic_grid,
+        swing_share,
     )
 
     log = load_log(path)
@@ -92,16 +99,30 @@ def tune_baselines(path: str | Path) -> dict:
         grid: score(out, log.truth, log.valid, dt=log.dt, names=list(names))
         for grid, names in (("gm", gms), ("kinematic", kins))
     }
-    gm, kin = (best_setting({log.name: scores[grid]}) for grid in ("gm", "kinematic"))
+    grids = {"gm": gms, "kinematic": kins}
+    fields = {"gm": ("K_I", "threshold"), "kinematic": ("height_threshold", "velocity_threshold")}
+    gm, kin = (best_setting({log.name: scores[grid]}) for grid in grids)
     edges = {
-        "gm": grid_edges(gms, gm, ("K_I", "threshold")),
-        "kinematic": grid_edges(kins, kin, ("height_threshold", "velocity_threshold")),
+        "gm": grid_edges(gms, gm, fields["gm"]),
+        "kinematic": grid_edges(kins, kin, fields["kinematic"]),
     }
+    limited = {}
+    for grid, points in grids.items():
+        by_run = {log.name: scores[grid]}
+        pick = best_setting(by_run, FAILURE_LIMIT)
+        share = swing_share(by_run, pick)
+        limited[grid] = {
+            "pick": pick,
+            "params": points[pick] if share <= FAILURE_LIMIT else None,
+            "swing_share": share,
+            "grid_edges": grid_edges(points, pick, fields[grid]),
+        }
     return {
         "gm": (gm, gms[gm]),
         "kinematic": (kin, kins[kin]),
         "scores": scores,
         "grid_edges": edges,
+        "failure_limited": limited,
     }
 
 
@@ -110,9 +131,19 @@ def tuned_line(gm_grid_log, tuned: dict) -> str:
     their grid named (the grid may hold them back there)."""
     edges = [f"{k} {', '.join(v)}" for k, v in tuned["grid_edges"].items() if v]
     on_edge = f"; on the grid's edge: {'; '.join(edges)}" if edges else ""
+    limited = []
+    for grid, fl in tuned["failure_limited"].items():
+        if fl["params"] is None:
+            limited.append(
+                f"{grid}_fl none (no point meets it; the fewest: {fl['pick']},"
+                f" {100 * fl['swing_share']:.0f} % of swings)"
+            )
+        else:
+            limited.append(f"{grid}_fl {fl['pick']}")
     return (
         f"GM observer and kinematic detector tuned on {str(gm_grid_log)!r}: {tuned['gm'][0]},"
-        f" {tuned['kinematic'][0]} (best F1 of each grid{on_edge})"
+        f" {tuned['kinematic'][0]} (best F1 of each grid{on_edge}); by the estimator's rule"
+        f" (sw-ph + sw-on <= 2 %, then F1): {', '.join(limited)}"
     )
 
 
@@ -224,9 +255,16 @@ def evaluate_file(
         )[0]
     gm_name, gm = "gm", make_gm_params()
     kinematic = make_kinematic_params()
+    # The baselines picked by the estimator's rule (tune_baselines), rows gm_fl and
+    # kinematic_fl, where a point of the grid meets it.
+    gms_fl, kins_fl, limited = {}, {}, None
     if gm_grid_log is not None and truth is not None:
         tuned = tuned_baselines or tune_baselines(gm_grid_log)
         (gm_name, gm), (_, kinematic) = tuned["gm"], tuned["kinematic"]
+        limited = tuned["failure_limited"]
+        for grid, rows in (("gm", gms_fl), ("kinematic", kins_fl)):
+            if limited[grid]["params"] is not None:
+                rows[f"{grid}_fl"] = limited[grid]["params"]
         if tuned_baselines is None:
             print(tuned_line(gm_grid_log, tuned))
     out = replay(
@@ -235,8 +273,8 @@ def evaluate_file(
         estimators=estimators,
         terrain=terrain,
         # Without ground truth only the estimator's P(contact) is reported.
-        gms={gm_name: gm} if truth is not None else None,
-        kinematic=kinematic if truth is not None else None,
+        gms={gm_name: gm, **gms_fl} if truth is not None else None,
+        kinematic={"kinematic": kinematic, **kins_fl} if truth is not None else None,
         dt=dt,
         # A reading that is not finite leaves its feet to the prediction alone: the
         # estimator's per-foot validity says which, and those steps are not scored.
@@ -269,6 +307,11 @@ def evaluate_file(
             "velocity_threshold": float(kinematic.velocity_threshold),
         },
     }
+    if limited is not None:
+        result["failure_limited"] = {
+            grid: {k: v for k, v in fl.items() if k != "params"} | {"row": fl["params"] is not None}
+            for grid, fl in limited.items()
+        }
     scored = known = None
     if truth is None:
         p = np.asarray(out["probabilistic"])  # (T, E, L)
