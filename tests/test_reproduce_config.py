@@ -265,6 +265,10 @@ def test_failure_limited_pick_follows_the_estimators_rule():
     # Both over the limit. Worst runs: a 5 %, b 6 %, so a; on the walk alone (4 %, 3 %) b.
     assert R.best_setting(over, R.FAILURE_LIMIT) == "a"
     assert R.best_setting({"walk": over["walk"]}, R.FAILURE_LIMIT) == "b"
+    pick, share, met = R.failure_limited_pick(runs)
+    assert (pick, met) == ("b", True) and share == pytest.approx(0.02)
+    pick, share, met = R.failure_limited_pick(over)
+    assert (pick, met) == ("a", False) and share == pytest.approx(0.05)
     # A grid with no point under the limit gets no row; the line says so and why.
     fl = {"limit": 0.02, "gm": {"walk": "w", "trot": "t"}, "kinematic": "a"}
     line = R.format_failure_limited(fl | {"unmet": {"kinematic_fl": ["a", 0.05]}})

@@ -71,15 +71,14 @@ def tune_baselines(path: str | Path) -> dict:
     """
     import jax_contact as jc
     from jax_contact.train.evaluate import replay, score
-    from jax_contact.train.report import FAILURE_LIMIT
     from jax_contact.train.reproduce import (
         TERRAIN_SIGMA,
         best_setting,
+        failure_limited_pick,
         foot_load,
         gm_grid,
         grid_edges,
         kinematic_grid,
-        swing_share,
     )
 
     log = load_log(path)
@@ -108,12 +107,10 @@ def tune_baselines(path: str | Path) -> dict:
     }
     limited = {}
     for grid, points in grids.items():
-        by_run = {log.name: scores[grid]}
-        pick = best_setting(by_run, FAILURE_LIMIT)
-        share = swing_share(by_run, pick)
+        pick, share, met = failure_limited_pick({log.name: scores[grid]})
         limited[grid] = {
             "pick": pick,
-            "params": points[pick] if share <= FAILURE_LIMIT else None,
+            "params": points[pick] if met else None,
             "swing_share": share,
             "grid_edges": grid_edges(points, pick, fields[grid]),
         }
