@@ -110,7 +110,8 @@ step rather than as a bare count:
     matched with ``min_on = 1`` but not with ``persist_steps = 3``).
 
 Per env (:func:`env_sums`): the step, phase, delay and ECE-bin sums behind F1, accuracy,
-the air- and swing-phase failure rates, the mean delays and ECE, one row per env, so that these
+the air- and swing-phase failure rates, the swings the flag stays on through (rule 9c),
+the mean delays and ECE, one row per env, so that these
 metrics of any multiset of envs are weighted sums of rows (the env bootstrap of
 :mod:`jax_contact.bootstrap`).
 """

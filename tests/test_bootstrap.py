@@ -269,8 +269,14 @@ def test_reproduce_compares_the_estimator_with_both_gm_tunings():
         delta, low, high, _ = vs[gm]["f1"]
         assert delta == pytest.approx(est.f1 - ref.f1) and low <= high
         assert set(vs[gm]) == set(report.VS_GM_STATISTICS)
+    assert set(vs) == {"gm_walk", "gm_trot"}
     text = report.format_vs_gm({"vs_gm": {"trot": vs}})
     assert text.count("\n") == 2 and "trot             vs gm_trot" in text
+    # A failure-limited GM row (reproduce's *_fl), where the run has one, is compared too.
+    with_fl = out | {"gm_trot_fl": out["gm_walk"]}
+    vs_fl = report.vs_gm(with_fl, truth, valid, DT, 30)
+    assert set(vs_fl) == {"gm_walk", "gm_trot", "gm_trot_fl"}
+    assert vs_fl["gm_trot_fl"]["f1"][0] == pytest.approx(vs["gm_walk"]["f1"][0])
     assert report.format_vs_gm({}) == ""
     # The row "tuned" (a preset beside the defaults): against both GM tunings and against
     # the defaults in every statistic, each difference tuned - other.

@@ -489,7 +489,7 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         metavar="N",
         help="env resamples of the paired bootstrap that compares the estimator with each GM"
-        " tuning (F1, accuracy, air- and swing-phase failures) and the tuned row with the"
+        " tuning (F1, accuracy, air- and swing-phase failures, sw-on) and the tuned row with the"
         " defaults (every statistic); default 1000, 0: off",
     )
     p.add_argument(

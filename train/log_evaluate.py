@@ -184,7 +184,7 @@ def evaluate_file(
     ``probabilistic`` by a paired bootstrap of that many env resamples
     (:func:`jax_contact.bootstrap.paired_bootstrap`, 95 %, seed 0): ``probabilistic - row``
     of every statistic of :data:`jax_contact.bootstrap.STATISTICS` (F1, accuracy, air- and
-    swing-phase failures, ``|mean|`` delays, ECE), each called better, worse or within
+    swing-phase failures, sw-on, ``|mean|`` delays, ECE), each called better, worse or within
     noise (the log needs at least 2 envs).
 
     A log without ground truth (no ``truth/contact``, e.g. one recorded on a robot) has no

@@ -25,12 +25,14 @@ VS_GM_STATISTICS = (
 
 
 def vs_gm(out: dict, truth, valid, dt: float, n_resamples: int) -> dict | None:
-    """Issue 13's "better than both GM tunings": ``probabilistic - gm_*`` of F1, accuracy and
-    the air- and swing-phase failure rates with their 95 % paired env-bootstrap intervals
+    """Issue 13's "better than both GM tunings": ``probabilistic - gm_*`` (the F1-tuned rows
+    and, where the run has them, the rows ``*_fl``) of F1, accuracy, the air- and
+    swing-phase failure rates and sw-on with their 95 % paired env-bootstrap intervals
     (:func:`jax_contact.bootstrap.paired_bootstrap`, seed 0), or None for ``n_resamples`` 0.
 
     Returns:
-      ``gm_walk`` / ``gm_trot`` -> statistic -> ``[delta, low, high, verdict]``.
+      ``gm_walk`` / ``gm_trot`` (and ``gm_walk_fl`` / ``gm_trot_fl``) -> statistic ->
+      ``[delta, low, high, verdict]``.
     """
     if not n_resamples:
         return None
