@@ -120,12 +120,14 @@ def test_evaluate_prints_every_metric_and_tunes_gm_on_a_grid_log(round_trip):
         )
 
     eligible = {k: v for k, v in grid_scores.items() if share(v) <= 0.02}
-    fl = tuned["failure_limited"]["gm"]
+    fl = tuned["failure_limited"]["gm_fl"]
     assert eligible, "the hop's grid has points under the limit"
     assert fl["pick"] in eligible and f1[fl["pick"]] == max(f1[k] for k in eligible)
-    assert ev["failure_limited"]["gm"]["pick"] == fl["pick"] and ev["failure_limited"]["gm"]["row"]
+    evaluated_fl = ev["failure_limited"]["gm_fl"]
+    assert evaluated_fl["pick"] == fl["pick"] and evaluated_fl["row"]
     assert ev["scores"]["gm_fl"]["f1"] == pytest.approx(grid_scores[fl["pick"]]["f1"])
-    kin_rows = {"kinematic_fl"} if tuned["failure_limited"]["kinematic"]["params"] else set()
+    kin_rows = {"kinematic_fl"} if tuned["failure_limited"]["kinematic_fl"]["row"] else set()
+    assert set(tuned["failure_limited_params"]) == {"gm_fl"} | kin_rows
     assert set(ev["scores"]) == {"probabilistic", best, "kinematic", "gm_fl"} | kin_rows
     text = format_scores(ev["scores"], title="planar_leg_hop.h5")
     lines = text.splitlines()

@@ -269,9 +269,13 @@ def test_failure_limited_pick_follows_the_estimators_rule():
     assert (pick, met) == ("b", True) and share == pytest.approx(0.02)
     pick, share, met = R.failure_limited_pick(over)
     assert (pick, met) == ("a", False) and share == pytest.approx(0.05)
+
     # A grid with no point under the limit gets no row; the line says so and why.
-    fl = {"limit": 0.02, "gm": {"walk": "w", "trot": "t"}, "kinematic": "a"}
-    line = R.format_failure_limited(fl | {"unmet": {"kinematic_fl": ["a", 0.05]}})
+    def record(pick, share):
+        return {"pick": pick, "swing_share": share, "row": share <= 0.02, "grid_edges": []}
+
+    fl = {"gm_walk_fl": record("w", 0.01), "gm_trot_fl": record("t", 0.0)}
+    line = R.format_failure_limited(fl | {"kinematic_fl": record("a", 0.05)})
     assert "gm_walk_fl w; gm_trot_fl t; no row kinematic_fl" in " ".join(line.split())
     assert "(the fewest: a, 5 % of swings)" in " ".join(line.split())
 

@@ -61,10 +61,11 @@ def tune_baselines(path: str | Path) -> dict:
     Returns:
       ``{"gm": (name, GMParams), "kinematic": (name, KinematicParams), "scores": {"gm": GM
       grid name -> scores, "kinematic": kinematic grid name -> scores}, "grid_edges":
-      {"gm": [...], "kinematic": [...]}, "failure_limited": {"gm": ..., "kinematic": ...}}``
-      (:func:`jax_contact.train.reproduce.grid_edges`); each ``failure_limited`` entry is
-      ``{"pick": name, "params": its params or None where no point meets the limit,
-      "swing_share": the pick's share, "grid_edges": [...]}``.
+      {"gm": [...], "kinematic": [...]}, "failure_limited": {"gm_fl": ..., "kinematic_fl":
+      ...}, "failure_limited_params": {row: params}}``
+      (:func:`jax_contact.train.reproduce.grid_edges`); each ``failure_limited`` entry is a
+      :func:`jax_contact.train.reproduce.failure_limited_record`, and
+      ``failure_limited_params`` holds the settings of the rows that meet the limit.
 
     Raises:
       ValueError: the log has no ground truth, or as :func:`load_log`.
@@ -72,9 +73,11 @@ def tune_baselines(path: str | Path) -> dict:
     import jax_contact as jc
     from jax_contact.train.evaluate import replay, score
     from jax_contact.train.reproduce import (
+        GM_FIELDS,
+        KIN_FIELDS,
         TERRAIN_SIGMA,
         best_setting,
-        failure_limited_pick,
+        failure_limited_record,
         foot_load,
         gm_grid,
         grid_edges,
@@ -98,49 +101,37 @@ def tune_baselines(path: str | Path) -> dict:
         grid: score(out, log.truth, log.valid, dt=log.dt, names=list(names))
         for grid, names in (("gm", gms), ("kinematic", kins))
     }
-    grids = {"gm": gms, "kinematic": kins}
-    fields = {"gm": ("K_I", "threshold"), "kinematic": ("height_threshold", "velocity_threshold")}
+    grids = {"gm": (gms, GM_FIELDS), "kinematic": (kins, KIN_FIELDS)}
     gm, kin = (best_setting({log.name: scores[grid]}) for grid in grids)
-    edges = {
-        "gm": grid_edges(gms, gm, fields["gm"]),
-        "kinematic": grid_edges(kins, kin, fields["kinematic"]),
-    }
-    limited = {}
-    for grid, points in grids.items():
-        pick, share, met = failure_limited_pick({log.name: scores[grid]})
-        limited[grid] = {
-            "pick": pick,
-            "params": points[pick] if met else None,
-            "swing_share": share,
-            "grid_edges": grid_edges(points, pick, fields[grid]),
-        }
+    edges = {"gm": grid_edges(gms, gm, GM_FIELDS), "kinematic": grid_edges(kins, kin, KIN_FIELDS)}
+    limited, limited_params = {}, {}
+    for grid, (points, fields) in grids.items():
+        record = failure_limited_record(points, {log.name: scores[grid]}, fields)
+        limited[f"{grid}_fl"] = record
+        if record["row"]:
+            limited_params[f"{grid}_fl"] = points[record["pick"]]
     return {
         "gm": (gm, gms[gm]),
         "kinematic": (kin, kins[kin]),
         "scores": scores,
         "grid_edges": edges,
         "failure_limited": limited,
+        "failure_limited_params": limited_params,
     }
 
 
-def tuned_line(gm_grid_log, tuned: dict) -> str:
+def tuned_line(gm_grid_log, tuned: dict, note: str = "") -> str:
     """What :func:`tune_baselines` chose on ``gm_grid_log``, with the picks on an edge of
-    their grid named (the grid may hold them back there)."""
+    their grid named (the grid may hold them back there), then the rows ``*_fl``
+    (:func:`jax_contact.train.reproduce.format_failure_limited`)."""
+    from jax_contact.train.reproduce import format_failure_limited
+
     edges = [f"{k} {', '.join(v)}" for k, v in tuned["grid_edges"].items() if v]
     on_edge = f"; on the grid's edge: {'; '.join(edges)}" if edges else ""
-    limited = []
-    for grid, fl in tuned["failure_limited"].items():
-        if fl["params"] is None:
-            limited.append(
-                f"{grid}_fl none (no point meets it; the fewest: {fl['pick']},"
-                f" {100 * fl['swing_share']:.0f} % of swings)"
-            )
-        else:
-            limited.append(f"{grid}_fl {fl['pick']}")
     return (
         f"GM observer and kinematic detector tuned on {str(gm_grid_log)!r}: {tuned['gm'][0]},"
-        f" {tuned['kinematic'][0]} (best F1 of each grid{on_edge}); by the estimator's rule"
-        f" (sw-ph + sw-on <= 2 %, then F1): {', '.join(limited)}"
+        f" {tuned['kinematic'][0]} (best F1 of each grid{on_edge}){note}\n"
+        + format_failure_limited(tuned["failure_limited"])
     )
 
 
@@ -259,9 +250,8 @@ def evaluate_file(
         tuned = tuned_baselines or tune_baselines(gm_grid_log)
         (gm_name, gm), (_, kinematic) = tuned["gm"], tuned["kinematic"]
         limited = tuned["failure_limited"]
-        for grid, rows in (("gm", gms_fl), ("kinematic", kins_fl)):
-            if limited[grid]["params"] is not None:
-                rows[f"{grid}_fl"] = limited[grid]["params"]
+        for row, params in tuned["failure_limited_params"].items():
+            (gms_fl if row == "gm_fl" else kins_fl)[row] = params
         if tuned_baselines is None:
             print(tuned_line(gm_grid_log, tuned))
     out = replay(
@@ -305,10 +295,7 @@ def evaluate_file(
         },
     }
     if limited is not None:
-        result["failure_limited"] = {
-            grid: {k: v for k, v in fl.items() if k != "params"} | {"row": fl["params"] is not None}
-            for grid, fl in limited.items()
-        }
+        result["failure_limited"] = limited
     scored = known = None
     if truth is None:
         p = np.asarray(out["probabilistic"])  # (T, E, L)
@@ -424,7 +411,7 @@ def evaluate_files(
         print(UNTUNED_BASELINES + GM_GRID_HINT)
     if gm_grid_log is not None:
         tuned = tune_baselines(gm_grid_log)
-        print(tuned_line(gm_grid_log, tuned) + ", for every log")
+        print(tuned_line(gm_grid_log, tuned, ", for every log"))
     results = []
     for i, p in enumerate(paths):
         results.append(

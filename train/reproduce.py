@@ -57,7 +57,7 @@ from jax_contact.train.evaluate import replay, score
 from jax_contact.train.report import (
     ABLATION_ROWS,
     FAILURE_LIMIT,
-    FAILURE_LIMITED_ROWS,
+    FAILURE_RULE,
     PRINTED_ROWS,
     TUNED_ROW,
     cell,
@@ -96,6 +96,9 @@ GM_LOAD_FRACTIONS = (0.05, 0.1, 0.2, 0.35, 0.5, 0.7, 0.9, 1.2, 1.6)
 KIN_HEIGHTS = (0.01, 0.02, 0.04, 0.06, 0.08)
 KIN_SPEEDS = (0.15, 0.3, 0.6, 1.0)
 TERRAIN_SIGMA = 0.05  # m: flat-terrain height std of the estimator's terrain model
+# The fields of each baseline's grid, for grid_edges.
+GM_FIELDS = ("K_I", "threshold")
+KIN_FIELDS = ("height_threshold", "velocity_threshold")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -429,22 +432,32 @@ def failure_limited_pick(scores_by_run: dict[str, dict[str, dict]]) -> tuple[str
     return pick, share, share <= FAILURE_LIMIT
 
 
-def format_failure_limited(fl: dict) -> str:
-    """The line under Table III's title that names the picks of the rows ``*_fl`` and the
-    rows left out (``table3.json``'s ``failure_limited``)."""
-    picks = {"gm_walk_fl": fl["gm"]["walk"], "gm_trot_fl": fl["gm"]["trot"]}
-    picks["kinematic_fl"] = fl["kinematic"]
-    shown = [f"{row} {pick}" for row, pick in picks.items() if row not in fl["unmet"]]
+def failure_limited_record(points: dict, scores_by_run: dict, fields: tuple[str, ...]) -> dict:
+    """One baseline picked from its grid ``points`` by the estimator's rule
+    (:func:`failure_limited_pick`), as ``table3.json``, ``ablation.json`` and ``jax-contact
+    evaluate --json`` store it: ``{"pick", "swing_share", "row"`` (it meets the limit, so
+    its row is shown), ``"grid_edges"}`` (:func:`grid_edges` over ``fields``)."""
+    pick, share, met = failure_limited_pick(scores_by_run)
+    return {
+        "pick": pick,
+        "swing_share": share,
+        "row": met,
+        "grid_edges": grid_edges(points, pick, fields),
+    }
+
+
+def format_failure_limited(records: dict[str, dict]) -> str:
+    """The line that names the picks of the rows ``*_fl`` (row -> :func:`failure_limited_record`)
+    and the rows left out, with why."""
+    shown = [f"{row} {r['pick']}" for row, r in records.items() if r["row"]]
     missing = [
-        f"{row}: no point of its grid meets it on the tuning run (the fewest: {pick},"
-        f" {100 * share:.0f} % of swings)"
-        for row, (pick, share) in fl["unmet"].items()
+        f"no row {row}: no point of its grid meets it on the tuning run (the fewest:"
+        f" {r['pick']}, {100 * r['swing_share']:.0f} % of swings)"
+        for row, r in records.items()
+        if not r["row"]
     ]
     return textwrap.fill(
-        f"*_fl: the baselines picked by the estimator defaults' rule (sw-ph + sw-on <="
-        f" {100 * fl['limit']:g} % on the tuning run, then F1): "
-        + "; ".join(shown + [f"no row {m}" for m in missing]),
-        100,
+        f"*_fl: the baselines picked by {FAILURE_RULE}: " + "; ".join(shown + missing), 100
     )
 
 
@@ -497,17 +510,15 @@ def section3(cfg: ReproduceConfig, out_dir: Path) -> dict:
     roll, out = run_seed(cfg.seed + 1000)
     tuning = {"hop": score(out, roll.contact, roll.valid, dt=world.dt, names=list(gms))}
     gm = best_setting(tuning)
-    edges = grid_edges(gms, gm, ("K_I", "threshold"))
+    edges = grid_edges(gms, gm, GM_FIELDS)
     _log(f"  GM tuned on seed {cfg.seed + 1000}: {gm}{_edge_note(edges)}")
     # As in Table III, GM also by the estimator's rule, where a point of the grid meets it.
-    gm_fl, fl_share, fl_met = failure_limited_pick(tuning)
-    fl_rows = ["gm_fl"] if fl_met else []
-    edges_fl = grid_edges(gms, gm_fl, ("K_I", "threshold"))
-    _log(f"  GM by the estimator's rule: {gm_fl} ({100 * fl_share:.1f} %){_edge_note(edges_fl)}")
+    fl = failure_limited_record(gms, tuning, GM_FIELDS)
+    _log(f"  gm_fl by the estimator's rule: {fl['pick']}{_edge_note(fl['grid_edges'])}")
+    fl_rows = ["gm_fl"] if fl["row"] else []
     roll, out = run_seed(cfg.seed)
     out["gm"] = out[gm]
-    if fl_rows:
-        out["gm_fl"] = out[gm_fl]
+    out.update({row: out[fl["pick"]] for row in fl_rows})
     scores = score(out, roll.contact, roll.valid, dt=world.dt, names=[*variants, "gm", *fl_rows])
     valid = np.broadcast_to(roll.valid[..., None], roll.contact.shape)
     term_acc = {
@@ -530,13 +541,7 @@ def section3(cfg: ReproduceConfig, out_dir: Path) -> dict:
         "term_accuracy": term_acc,
         "tuned_gm": gm,
         "grid_edges": edges,
-        "failure_limited": {
-            "limit": FAILURE_LIMIT,
-            "gm": gm_fl,
-            "swing_share": fl_share,
-            "grid_edges": edges_fl,
-            "row": bool(fl_rows),
-        },
+        "failure_limited": {"limit": FAILURE_LIMIT, "rows": {"gm_fl": fl}},
     }
 
 
@@ -677,7 +682,8 @@ def table3(cfg: ReproduceConfig, out_dir: Path, tuned_row: dict | None = None) -
         row = tuned_row_for(tuned_row, scenario)
         return estimators if row is None else {**estimators, TUNED_ROW: row["params"]}
 
-    tuned, tuned_fl, kin_scores, edges, unmet = {}, {}, {}, {}, {}
+    # limited: the rows *_fl, row -> failure_limited_record.
+    tuned, kin_scores, edges, limited = {}, {}, {}, {}
     for gait in ("walk", "trot"):
         _log(f"[table III] tuning GM on {gait} (seed {cfg.seed + 1000})")
         world = scenario_world_of(gait, cfg)
@@ -695,21 +701,19 @@ def table3(cfg: ReproduceConfig, out_dir: Path, tuned_row: dict | None = None) -
         )
         gm_scores = score(out, roll.contact, roll.valid, dt=world.dt, names=list(gms))
         tuned[gait] = best_setting({gait: gm_scores})
-        tuned_fl[gait], share, met = failure_limited_pick({gait: gm_scores})
-        if not met:
-            unmet[f"gm_{gait}_fl"] = [tuned_fl[gait], share]
-        for key, pick in ((f"gm_{gait}", tuned[gait]), (f"gm_{gait}_fl", tuned_fl[gait])):
-            edges[key] = grid_edges(gms, pick, ("K_I", "threshold"))
-            _log(f"  GM {key}: {pick}{_edge_note(edges[key])}")
+        edges[f"gm_{gait}"] = grid_edges(gms, tuned[gait], GM_FIELDS)
+        _log(f"  GM tuned for {gait}: {tuned[gait]}{_edge_note(edges[f'gm_{gait}'])}")
+        limited[f"gm_{gait}_fl"] = failure_limited_record(gms, {gait: gm_scores}, GM_FIELDS)
         kin_scores[gait] = score(out, roll.contact, roll.valid, dt=world.dt, names=list(kins))
     tuned_kin = best_setting(kin_scores)
-    tuned_kin_fl, share, met = failure_limited_pick(kin_scores)
-    if not met:
-        unmet["kinematic_fl"] = [tuned_kin_fl, share]
-    kin_fields = ("height_threshold", "velocity_threshold")
-    for key, pick in (("kinematic", tuned_kin), ("kinematic_fl", tuned_kin_fl)):
-        edges[key] = grid_edges(kins, pick, kin_fields)
-        _log(f"  {key} (tuned on both gaits): {pick}{_edge_note(edges[key])}")
+    edges["kinematic"] = grid_edges(kins, tuned_kin, KIN_FIELDS)
+    _log(f"  kinematic detector tuned on both: {tuned_kin}{_edge_note(edges['kinematic'])}")
+    limited["kinematic_fl"] = failure_limited_record(kins, kin_scores, KIN_FIELDS)
+    for row, r in limited.items():
+        _log(f"  {row} by the estimator's rule: {r['pick']}{_edge_note(r['grid_edges'])}")
+    # A failure-limited row only where some point of the grid met the limit: the point
+    # with the fewest failures of a grid that cannot is no tuning, only a corner of it.
+    fl_rows = [row for row, r in limited.items() if r["row"]]
 
     results = {}
     for name in SCENARIOS:
@@ -728,18 +732,13 @@ def table3(cfg: ReproduceConfig, out_dir: Path, tuned_row: dict | None = None) -
         )
         out["gm_walk"], out["gm_trot"] = out[tuned["walk"]], out[tuned["trot"]]
         out["kinematic"] = out[tuned_kin]
-        # A failure-limited row only where some point of the grid met the limit: the point
-        # with the fewest failures of a grid that cannot is no tuning, only a corner of it.
-        picks_fl = {"gm_walk_fl": tuned_fl["walk"], "gm_trot_fl": tuned_fl["trot"]}
-        picks_fl["kinematic_fl"] = tuned_kin_fl
-        out.update({row: out[pick] for row, pick in picks_fl.items() if row not in unmet})
+        out.update({row: out[limited[row]["pick"]] for row in fl_rows})
         row = tuned_row_for(tuned_row, name)
         if row is not None and row["calibration"] is not None:
             from jax_contact.tune import calibrate_probability
 
             out[TUNED_ROW] = calibrate_probability(out[TUNED_ROW], row["calibration"])
-        met = [r for r in FAILURE_LIMITED_ROWS if r not in unmet]
-        names = [*with_tuned(name), "gm_walk", "gm_trot", "kinematic", *met]
+        names = [*with_tuned(name), "gm_walk", "gm_trot", "kinematic", *fl_rows]
         sc = score(out, roll.contact, roll.valid, dt=world.dt, names=names)
         results[name] = {
             "scores": sc,
@@ -784,13 +783,7 @@ def table3(cfg: ReproduceConfig, out_dir: Path, tuned_row: dict | None = None) -
     return {
         "tuned_gm": tuned,
         "tuned_kinematic": tuned_kin,
-        # unmet: row -> [its grid's point with the fewest, that share], rows left out.
-        "failure_limited": {
-            "limit": FAILURE_LIMIT,
-            "gm": tuned_fl,
-            "kinematic": tuned_kin_fl,
-            "unmet": unmet,
-        },
+        "failure_limited": {"limit": FAILURE_LIMIT, "rows": limited},
         "grid_edges": edges,
         "results": results,
         "input_lag_ms": input_lag_ms(world.dt),
@@ -884,7 +877,7 @@ def _run_into(cfg: ReproduceConfig, out_dir: Path) -> dict:
         f" other seeds: walk {t3['tuned_gm']['walk']}, trot {t3['tuned_gm']['trot']};"
         f" kinematic {t3['tuned_kinematic']})"
     )
-    print(format_failure_limited(t3["failure_limited"]))
+    print(format_failure_limited(t3["failure_limited"]["rows"]))
     print(format_table(payload, PRINTED_ROWS))
     if line := format_short_air_phases(payload):
         print(line)
