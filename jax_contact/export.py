@@ -341,9 +341,10 @@ def _diag_dict(diag) -> dict[str, jax.Array]:
 
 def check_rate_hz(rate_hz) -> float:
     """``rate_hz`` as a float: a finite number > 0 (Hz), else a ValueError naming it."""
-    if isinstance(rate_hz, bool) or not isinstance(rate_hz, int | float | np.integer | np.floating):
-        raise ValueError(f"rate_hz must be a finite number > 0 (Hz), got {rate_hz!r}")
-    if not (np.isfinite(rate_hz) and rate_hz > 0):
+    number = not isinstance(rate_hz, bool) and isinstance(
+        rate_hz, int | float | np.integer | np.floating
+    )
+    if not (number and np.isfinite(rate_hz) and rate_hz > 0):
         raise ValueError(f"rate_hz must be a finite number > 0 (Hz), got {rate_hz!r}")
     return float(rate_hz)
 

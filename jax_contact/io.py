@@ -117,10 +117,11 @@ def _check_log_contents(arrays: Mapping, attrs: Mapping) -> None:
                 f"array {name!r} has dtype {dtype} and cannot be written: expected bool,"
                 " integer or float arrays (strings and metadata go into attrs)"
             )
-    # "a" and "a/b": a dataset cannot also be a group.
-    groups = {n.strip("/").rsplit("/", 1)[0] for n in names if "/" in n.strip("/")}
-    for name in names:
-        if name.strip("/") in groups or any(g.startswith(name.strip("/") + "/") for g in groups):
+    # "a" and "a/b" (or "a/b/c"): a dataset cannot also be a group, at any depth.
+    paths = [n.strip("/").split("/") for n in names]
+    groups = {"/".join(p[:i]) for p in paths for i in range(1, len(p))}
+    for name, p in zip(names, paths, strict=True):
+        if "/".join(p) in groups:
             raise ValueError(
                 f"array {name!r} is also a group of another array's name; rename one of them"
             )
