@@ -236,7 +236,9 @@ def test_static_lists_equal_the_librarys():
     assert cli.REPRODUCE_OUTPUTS == reproduce.OUTPUT_FILES + figures + reliability
     import inspect
 
-    from jax_contact.train import cli_args
+    from jax_contact.train import cli_args, report
+
+    assert cli_args.FAILURE_LIMIT == report.FAILURE_LIMIT
 
     assert cli_args._SIMULATE_DT == inspect.signature(simulate.build_world).parameters["dt"].default
     assert cli.ONE_LEGGED == tuple(

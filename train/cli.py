@@ -52,6 +52,7 @@ from jax_contact.train import (  # stdlib-only at import
 from jax_contact.train.cli_args import (  # noqa: F401  (COLUMNS ... SCENES: re-exported)
     BENCH_ENVS,
     COLUMNS,
+    FAILURE_LIMIT,
     GAITS,
     HOP_TASKS,
     LOG_SUFFIXES,
@@ -566,7 +567,8 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="LOG",
         help="tune the GM observer and the kinematic detector on this other log"
         " (jax_contact.train.reproduce's grids, best F1), and add each picked by the"
-        " estimator's rule as the rows gm_fl, kinematic_fl (sw-ph + sw-on <= 2 %%, then F1)"
+        " estimator's rule as the rows gm_fl, kinematic_fl (sw-ph + sw-on"
+        f" <= {100 * FAILURE_LIMIT:g} %%, then F1)"
         " where a point of its grid meets it",
     )
     p.add_argument(

@@ -34,6 +34,7 @@ ROBOT_NAMES = (  # jax_contact.envs.robots.ROBOT_NAMES
     "unitree_go2",
 )
 GAITS = ("trot", "walk", "hop")  # jax_contact.envs.gaits.KINDS
+FAILURE_LIMIT = 0.02  # jax_contact.train.report.FAILURE_LIMIT
 BENCH_ENVS = (1, 64, 256, 1024, 4096, 16384)  # jax_contact.benchmarks.estimator.DEFAULT_ENVS
 # The one shipped robot with one leg (the others have four): the hop is its only gait, and
 # Table III needs a quadruped.
