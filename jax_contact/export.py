@@ -54,6 +54,10 @@ import jax_contact
 from jax_contact.calibration import probability
 
 MAGIC = b"JAX-CONTACT-EXP\n"  # 16 bytes
+# A joint quaternion (the base's free joint, a ball joint) shorter than this is no
+# orientation (a driver's zero fill): the exported update and the offline replay
+# (jax_contact.train.recording_checks.degenerate_quaternion) read it as a lost reading, NaN.
+MIN_QUATERNION_NORM = 0.1
 FORMAT = "jax-contact-deploy"
 FORMAT_VERSION = 1
 # What the state carries from one reading to the next, and which reading fields are paired
@@ -274,8 +278,13 @@ def robot_update_fn(
     n_legs, nq, nv = desc.n_legs, desc.nq, desc.nv
     s_layout, o_layout = state_layout(n_legs, nq, nv), output_layout(n_legs)
 
+    quats = quaternion_slices(mj_model)
+
     def update(state, key, qpos, qvel, qacc, tau):
         s = _unpack(s_layout, state)
+        for a in quats:  # no orientation: a lost reading (MIN_QUATERNION_NORM)
+            lost = jnp.linalg.norm(qpos[a : a + 4]) < MIN_QUATERNION_NORM
+            qpos = qpos.at[a : a + 4].set(jnp.where(lost, jnp.nan, qpos[a : a + 4]))
         has_prev = s["has_prev"] > 0.5
         # Pairing (module docstring): this reading's acceleration and torque with the
         # previous reading's state; the first reading with its own. Entry by entry: a
@@ -458,6 +467,20 @@ def export_robot(
     }
     # As it reads back from the file (tuples become lists).
     return json.loads(json.dumps(header)), bytes(payload)
+
+
+def quaternion_slices(mj_model) -> tuple[int, ...]:
+    """The ``qpos`` address of each joint quaternion (w first): a free joint's at its
+    address + 3, a ball joint's at its address."""
+    import mujoco
+
+    jt = mujoco.mjtJoint
+    kinds = {int(jt.mjJNT_FREE): 3, int(jt.mjJNT_BALL): 0}
+    return tuple(
+        int(mj_model.jnt_qposadr[j]) + kinds[int(mj_model.jnt_type[j])]
+        for j in range(mj_model.njnt)
+        if int(mj_model.jnt_type[j]) in kinds
+    )
 
 
 def readings_header(mj_model) -> list[dict]:

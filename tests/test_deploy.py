@@ -146,8 +146,21 @@ belief, ps_lost = est.init(), []
 for k in range(lost["qpos"].shape[0]):
     belief, p, _ = est.update(belief, {n: lost[n][k] for n in est.reading_names})
     ps_lost.append(p)
+# The base quaternion zeroed on readings 40-42 (a driver's zero fill: no orientation).
+zeroed = {n: log[n][:, 0].copy() for n in est.reading_names}
+zeroed["qpos"][40:43, 3:7] = 0.0
+belief, ps_zero = est.init(), []
+for k in range(zeroed["qpos"].shape[0]):
+    belief, p, _ = est.update(belief, {n: zeroed[n][k] for n in est.reading_names})
+    ps_zero.append(p)
 loaded = sorted(m for m, v in sys.modules.items() if v is not None and m.split(".")[0] in BLOCKED)
-np.savez(sys.argv[3], p=np.stack(ps), valid=np.stack(valid), p_lost=np.stack(ps_lost))
+np.savez(
+    sys.argv[3],
+    p=np.stack(ps),
+    valid=np.stack(valid),
+    p_lost=np.stack(ps_lost),
+    p_zero=np.stack(ps_zero),
+)
 print(json.dumps({"errors": errors, "blocked_modules": loaded, "nan_calls": nan_calls}))
 """
 
@@ -175,7 +188,7 @@ def child(deployed):
     assert proc.returncode == 0, proc.stderr[-3000:]
     report = json.loads(proc.stdout.strip().splitlines()[-1])
     out = np.load(tmp / "child.npz")
-    return {"p": out["p"], "valid": out["valid"], "p_lost": out["p_lost"], **report}
+    return {k: out[k] for k in ("p", "valid", "p_lost", "p_zero")} | report
 
 
 def test_artefact_without_mujoco_matches_replay(child, live):
@@ -211,6 +224,20 @@ def test_the_exported_update_takes_lost_readings_as_replay_does(child, lost_repl
     the lost knee's included (its steps 30-35 invalid in both, and step 36 valid in both:
     the lost entry of the previous state replaced by the reading's own)."""
     np.testing.assert_allclose(child["p_lost"], lost_replay, rtol=0, atol=P_TOL)
+
+
+def test_a_zero_base_quaternion_is_a_lost_reading_as_replay_takes_nan(child, live, deployed):
+    """A base quaternion of zeros (norm < MIN_QUATERNION_NORM: no orientation) on readings
+    40-42 is read by the exported update as lost, NaN: its P is the offline replay's with
+    NaN there (steps 41-42 predicted only, every foot), not a rotation of zeros."""
+    from jax_contact.export import MIN_QUATERNION_NORM
+
+    assert 0.0 < MIN_QUATERNION_NORM < 0.5  # no noisy unit quaternion falls below it
+    readings = {k: v.copy() for k, v in deployed["readings"].items()}
+    readings["qpos"][40:43, 0, 3:7] = np.nan
+    offline = _replay_go1(readings)
+    np.testing.assert_allclose(child["p_zero"], offline, rtol=0, atol=P_TOL)
+    assert np.abs(offline - live).max() > 1e-3  # the lost steps changed the estimate
 
 
 def test_a_non_finite_state_is_the_invalid_step_of_its_own_call(child):

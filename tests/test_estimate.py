@@ -484,6 +484,9 @@ def test_every_foot_in_the_air_is_no_warning_on_a_few_readings():
     assert line.endswith("L 0.00  R 0.00") and warning is None
     assert contact_summary(air, ["L", "R"], seconds=ALL_AIR_MIN_S)[1].startswith("every foot")
     assert contact_summary(np.array([0.0, 0.02]), ["L", "R"], seconds=9.0)[1] is None
+    # A foot with no estimated step (every one predicted only) has no share, and no verdict.
+    line, warning = contact_summary(np.array([0.0, np.nan]), ["L", "R"], seconds=9.0)
+    assert line.endswith("L 0.00  R -") and warning is None
 
 
 def test_torques_of_the_wrong_sign_warn_naming_the_foot(round_trip, tmp_path, capsys):
@@ -692,6 +695,35 @@ def go1_log():
     }
     truth = rng.random((t_len, 1, 4)) > 0.5
     return SimpleNamespace(readings=readings, robot=robot, dt=dt, truth=truth)
+
+
+def test_a_zero_base_quaternion_is_a_lost_reading_and_never_one_is_refused(go1_log):
+    """A base quaternion of zeros (a driver's zero fill) is no orientation: its rows convert
+    as NaN, a lost reading (a note names them; the steps that read them are invalid, as
+    for a NaN), not as a rotation of zeros normalised to NaN with NumPy's warning. Zeros or
+    NaN on every row refuse the recording, naming the columns."""
+    import warnings
+
+    cols = log_to_columns(go1_log)
+    quat = [f"base_quat/{c}" for c in "wxyz"]
+    zeroed, nan = dict(cols), dict(cols)
+    for c in quat:
+        zeroed[c] = np.where(np.arange(40) // 2 == 10, 0.0, cols[c])  # rows 20-21
+        nan[c] = np.where(np.arange(40) // 2 == 10, np.nan, cols[c])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no "invalid value encountered in divide"
+        got = to_readings(Recording(zeroed, "r"), go1_log.robot)
+    want = to_readings(Recording(nan, "r"), go1_log.robot)
+    for key in ("qpos", "qvel", "qacc", "tau"):
+        np.testing.assert_array_equal(got.readings[key], want.readings[key], err_msg=key)
+    np.testing.assert_array_equal(got.valid, want.valid)
+    assert not got.valid[20:22].any() and got.valid[:20].all()
+    lost = [n for n in got.notes if n.startswith(f"columns {quat} have a norm below 0.1")]
+    assert len(lost) == 1 and lost[0].endswith("read as lost: rows 20-21 (0.0525-0.055 s)")
+    for c in quat:
+        zeroed[c] = np.where(np.arange(40) < 5, np.nan, 0.0)
+    with pytest.raises(ValueError, match=r"recording 'r': columns \['base_quat/w', .* every row"):
+        to_readings(Recording(zeroed, "r"), go1_log.robot)
 
 
 @pytest.mark.parametrize("fmt", ["csv", "npz", "h5"])

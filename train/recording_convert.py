@@ -44,6 +44,7 @@ from jax_contact.train.recording import (
 )
 from jax_contact.train.recording_checks import (
     angular_velocity_mismatch,
+    degenerate_quaternion,
     derivative_mismatch,
     force_truth,
     holds_gravity,
@@ -238,7 +239,8 @@ def to_readings(
                 f"names map: {log_name!r} -> {model_name!r}, but the model has no joint or foot"
                 f" {model_name!r}; joints: {[n for n, _ in joints]}, feet: {list(desc.foot_names)}"
             )
-    read_notes = list(rec.notes)
+    rec, lost_quat = _degenerate_quaternion_lost(rec, src)
+    read_notes = list(rec.notes) + lost_quat
     rec, dt, notes = _check_time(rec, resample)
     notes = read_notes + notes
     cols = rec.columns
@@ -541,6 +543,33 @@ def noise_for_differences(params, conv: Converted):
         sigma_qd=jnp.asarray(sqd, jnp.float32), sigma_qdd=jnp.asarray(sqdd, jnp.float32)
     )
     return params.replace(noise=noise)
+
+
+def _degenerate_quaternion_lost(rec: Recording, src: str) -> tuple[Recording, list[str]]:
+    """``rec`` with the base quaternion's rows of no orientation
+    (:func:`jax_contact.train.recording_checks.degenerate_quaternion`, e.g. all zeros) set
+    to NaN, a lost reading, and the note naming them; a ValueError naming the columns if no
+    row is left with an orientation."""
+    cols = rec.columns
+    if not all(q in cols for q in BASE_QUAT):
+        return rec, []
+    quat = np.stack([cols[q] for q in BASE_QUAT], axis=1)
+    bad = degenerate_quaternion(quat)
+    if not bad.any():
+        return rec, []
+    from jax_contact.export import MIN_QUATERNION_NORM
+
+    what = f"a norm below {MIN_QUATERNION_NORM:g} (no orientation)"
+    if not (np.all(np.isfinite(quat), axis=1) & ~bad).any():
+        raise ValueError(
+            f"{src}: columns {list(BASE_QUAT)} have {what} or NaN on every row: the base's"
+            " orientation is a unit quaternion w, x, y, z (base -> world)"
+        )
+    out = dict(cols)
+    for q in BASE_QUAT:
+        out[q] = np.where(bad, np.nan, cols[q])
+    note = f"columns {list(BASE_QUAT)} have {what}, read as lost: {stretches(bad, cols[TIME])}"
+    return dataclasses.replace(rec, columns=out), [note]
 
 
 def stretches(mask: np.ndarray, t: np.ndarray) -> str:

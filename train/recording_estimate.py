@@ -208,9 +208,11 @@ def estimate_recording(
                     )
                 )
         p = np.asarray(out["probabilistic"])[:, 0]
-        line, all_air = contact_summary(
-            np.nanmean(p > 0.5, axis=0), feet_names, seconds=len(p) * conv.dt
-        )
+        # Over the steps each foot was estimated, not predicted only (valid).
+        estimated = np.asarray(out["probabilistic/valid"], bool)[:, 0]
+        with np.errstate(invalid="ignore"):
+            share = np.sum((p > 0.5) & estimated, axis=0) / np.sum(estimated, axis=0)
+        line, all_air = contact_summary(share, feet_names, seconds=len(p) * conv.dt)
         print(f"{len(p)} readings at {conv.dt * 1e3:.4g} ms; {line}")
         if all_air:
             print(f"warning: {all_air}")
@@ -302,13 +304,13 @@ def contact_summary(
     seconds: float | None = None,
 ) -> tuple[str, str | None]:
     """``(line, warning or None)``: each foot's ``share`` (L,) of steps estimated in contact
-    (P > 0.5) as one line, and a warning when every foot reads air on more than 99 % of
-    them: a robot that stood or walked does not, a recording read in the wrong unit,
-    quaternion order or floor height does (``floor_hint``: what to do about a floor that is
-    not at z = 0). No warning for a replay of fewer than :data:`ALL_AIR_MIN_S`
-    ``seconds``."""
+    (P > 0.5) as one line (NaN: the foot has no estimated step, ``-``), and a warning when
+    every foot reads air on more than 99 % of them: a robot that stood or walked does not,
+    a recording read in the wrong unit, quaternion order or floor height does
+    (``floor_hint``: what to do about a floor that is not at z = 0). No warning for a
+    replay of fewer than :data:`ALL_AIR_MIN_S` ``seconds``."""
     line = "share of steps estimated in contact (P > 0.5): " + "  ".join(
-        f"{f} {s:.2f}" for f, s in zip(feet, share, strict=True)
+        f"{f} {s:.2f}" if np.isfinite(s) else f"{f} -" for f, s in zip(feet, share, strict=True)
     )
     if not np.all(share < 0.01) or (seconds is not None and seconds < ALL_AIR_MIN_S):
         return line, None
