@@ -1311,6 +1311,41 @@ def test_a_simulate_log_given_as_a_recording_says_which_command_reads_it():
         read_recording(LOG)
 
 
+def test_a_csv_with_a_byte_order_mark_reads_and_other_separators_are_named(tmp_path):
+    """A spreadsheet's "CSV UTF-8" starts with a byte-order mark, which read as text made
+    the first column '\\ufefftime' ("missing column 'time'"): it reads as the plain file.
+    A header of one field holding ';' or a tab (another separator) says so."""
+    cols = _planar_cols()
+    plain = write_recording_csv(tmp_path / "plain.csv", cols)
+    text = plain.read_text()
+    (tmp_path / "bom.csv").write_text(text, encoding="utf-8-sig")
+    assert (tmp_path / "bom.csv").read_bytes()[:3] == b"\xef\xbb\xbf"
+    got, want = read_recording(tmp_path / "bom.csv"), read_recording(plain)
+    assert list(got.columns) == list(want.columns)
+    for k in want.columns:
+        np.testing.assert_array_equal(got.columns[k], want.columns[k])
+    for sep in (";", "\t"):
+        (tmp_path / "sep.csv").write_text(text.replace(",", sep))
+        with pytest.raises(
+            ValueError, match="sep.csv': the header is one field holding " + re.escape(repr(sep))
+        ):
+            read_recording(tmp_path / "sep.csv")
+
+
+def test_an_estimate_output_given_as_input_is_named(round_trip, tmp_path):
+    """``estimate.h5`` / ``estimate.csv`` given back to ``estimate`` (or ``deploy-check``)
+    was "column 'p_contact' has shape (T, L)"; to ``evaluate`` or ``tune``, "no attribute
+    'robot'". Both now say what the file is."""
+    from jax_contact.train.logs import load_log
+
+    out = round_trip.tmp / "out"
+    for name in ("estimate.h5", "estimate.csv"):
+        with pytest.raises(ValueError, match=r"is an output of `jax-contact estimate`"):
+            read_recording(out / name)
+    with pytest.raises(ValueError, match=r"output of `jax-contact estimate` .*not a log of"):
+        load_log(out / "estimate.h5")
+
+
 def test_a_names_entry_for_a_column_the_recording_lacks_is_refused():
     """A typo in the map (a joint's recording name that no column has) is named, where it
     used to be ignored; a foot's entry may be unused (no ground truth, no foot column)."""

@@ -335,6 +335,11 @@ def to_end_of_step(readings: dict, truth: np.ndarray | None, valid: np.ndarray):
 def _log_attrs(name: str, attrs: dict) -> tuple[str, float]:
     """The robot name and the period of a log, or a ValueError naming the attribute."""
     robot = attrs.get("robot")
+    if robot is None and "recording" in attrs and "terms" in attrs:
+        raise ValueError(
+            f"{name} is an output of `jax-contact estimate` (estimates of the recording"
+            f" {attrs['recording']!r}), not a log of `jax-contact simulate`"
+        )
     if not isinstance(robot, str) or not robot:
         raise ValueError(
             f"{name} has no attribute 'robot' (expected the robot's name, e.g. 'go1', or an"

@@ -167,6 +167,11 @@ def read_recording(path: str | Path) -> Recording:
             f"{src} is a log of `jax-contact simulate` (readings/qpos, ... per env): run"
             " `jax-contact evaluate` on it; `estimate` reads a recording of named columns"
         )
+    if any(n == "p_contact" or n.startswith("p_contact/") for n in columns):
+        raise ValueError(
+            f"{src} is an output of `jax-contact estimate` (its p_contact); give the recording"
+            " it was estimated from"
+        )
     out = {}
     for name, col in columns.items():
         if col.ndim != 1:
@@ -191,12 +196,17 @@ def read_recording(path: str | Path) -> Recording:
 def _read_csv(path: Path, src: str, notes: list[str]) -> dict[str, np.ndarray]:
     """The CSV's columns; an incomplete last line (fewer fields than the header: a logger
     stopped mid-write) is dropped with a line in ``notes``; any other line of the wrong
-    length is refused."""
-    with open(path, newline="") as f:
+    length is refused. A byte-order mark (a spreadsheet's "CSV UTF-8") is read past."""
+    with open(path, newline="", encoding="utf-8-sig") as f:
         rows = list(csv.reader(f))
     if not rows:
         raise ValueError(f"{src} is empty; expected a header row of column names")
     header = [h.strip() for h in rows[0]]
+    if len(header) == 1 and (sep := next((c for c in ";\t|" if c in header[0]), None)):
+        raise ValueError(
+            f"{src}: the header is one field holding {sep!r}; a recording's CSV separates its"
+            " columns by commas"
+        )
     if len(rows) > 2 and len(rows[-1]) < len(header):
         notes.append(
             f"the last line ({len(rows)}) has {len(rows[-1])} of the header's {len(header)}"
