@@ -153,12 +153,27 @@ def read_log(path: str | os.PathLike) -> tuple[dict[str, np.ndarray], dict]:
         unreadable (naming the array that could not be read), not a jax-contact log (no
         ``format_version``) or a newer one.
     """
+    return _read(path, arrays=True)
+
+
+def read_log_attrs(path: str | os.PathLike) -> dict:
+    """The attributes of a log written by :func:`write_log`, without reading its arrays
+    (a check of several logs' robots and rates before any is loaded).
+
+    Raises:
+      FileNotFoundError, ValueError: as :func:`read_log`.
+    """
+    return _read(path, arrays=False)[1]
+
+
+def _read(path: str | os.PathLike, arrays: bool) -> tuple[dict[str, np.ndarray], dict]:
+    """:func:`read_log`, or its attributes alone (``arrays`` False: an empty dict)."""
     path = Path(path)
     if path.is_dir():
         raise ValueError(f"log file {str(path)!r} is a folder")
     if not path.is_file():
         raise FileNotFoundError(f"log file {str(path)!r} does not exist")
-    arrays: dict[str, np.ndarray] = {}
+    out: dict[str, np.ndarray] = {}
     try:
         f = h5py.File(path, "r")
     except OSError as err:  # h5py's messages name neither the file nor what was expected
@@ -191,7 +206,7 @@ def read_log(path: str | os.PathLike) -> tuple[dict[str, np.ndarray], dict]:
         def visit(name, obj):
             if isinstance(obj, h5py.Dataset):
                 try:
-                    arrays[name] = obj[()]
+                    out[name] = obj[()]
                 except (OSError, KeyError, RuntimeError) as err:  # truncated / corrupt data
                     raise ValueError(
                         f"log file {str(path)!r}: array {name!r} cannot be read"
@@ -199,14 +214,15 @@ def read_log(path: str | os.PathLike) -> tuple[dict[str, np.ndarray], dict]:
                     ) from None
 
         try:
-            f.visititems(visit)
+            if arrays:
+                f.visititems(visit)
             attrs = {k: _decode(v) for k, v in f.attrs.items()}
         except (OSError, KeyError, RuntimeError) as err:
             raise ValueError(
                 f"log file {str(path)!r} cannot be read ({_h5_reason(err)}); the file is"
                 " truncated or corrupt"
             ) from None
-    return arrays, attrs
+    return out, attrs
 
 
 def _h5_reason(err: BaseException) -> str:

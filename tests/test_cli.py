@@ -991,6 +991,63 @@ def test_evaluate_pools_several_logs(tmp_path, capsys):
     assert not (tmp_path / "plots").exists()
 
 
+def test_logs_of_different_robots_are_named_as_such_not_by_rate(tmp_path, capsys):
+    """Two logs with truth, one robot each (the planar leg by name and by its MJCF path, so
+    both load): the notes said the first had "no other log at its rate" (both were at 400
+    Hz) and the second that it was not "the pooled logs'" robot, with nothing pooled."""
+    from jax_contact.envs.model_files import PLANAR_LEG_XML
+
+    rng = np.random.default_rng(3)
+    a = _planar_log(
+        tmp_path / "a.h5", n_t=40, n_envs=2, **{"truth/contact": rng.random((40, 2, 1)) < 0.5}
+    )
+    b = _planar_log(
+        tmp_path / "b.h5",
+        n_t=40,
+        n_envs=2,
+        attrs={"robot": str(PLANAR_LEG_XML), "dt": 0.0025},
+        **{"truth/contact": rng.random((40, 2, 1)) < 0.5},
+    )
+    assert cli.main(["evaluate", str(a), str(b)]) == 0
+    out = capsys.readouterr().out
+    assert f"note: {str(a)!r} is not pooled: no other log of robot 'planar_leg' with" in out
+    assert f"note: {str(b)!r} is not pooled: no other log of robot {str(PLANAR_LEG_XML)!r}" in out
+
+
+def test_a_gm_grid_or_validation_log_of_another_robot_or_rate_is_refused_first(
+    tmp_path, capsys, monkeypatch
+):
+    """``evaluate --gm-grid`` took a Barkour log to tune GM for a Go1 log (thresholds in N
+    of Barkour's foot load) without a word, and ``tune`` refused a validation log of
+    another robot only after loading and compiling the first. Both are refused from the
+    logs' attributes now, before any replay or load."""
+    from jax_contact.train import evaluate, tune_inputs
+
+    def boom(*args, **kwargs):
+        raise AssertionError("a log was replayed or loaded before the logs were checked")
+
+    monkeypatch.setattr(evaluate, "replay", boom)
+    monkeypatch.setattr(tune_inputs, "load_tuning_log", boom)
+    a = _planar_log(tmp_path / "a.h5")
+    b = _planar_log(tmp_path / "b.h5")
+    go1 = _planar_log(tmp_path / "go1.h5", attrs={"robot": "go1", "dt": 0.0025})
+    slow = _planar_log(tmp_path / "slow.h5", attrs={"robot": "planar_leg", "dt": 0.005})
+    for logs, grid, want in (
+        ([a], go1, "'go1' at 400 Hz"),
+        ([a, b], go1, "'go1' at 400 Hz"),
+        ([a], slow, "'planar_leg' at 200 Hz"),
+    ):
+        argv = ["evaluate", *map(str, logs), "--gm-grid", str(grid)]
+        assert cli.main(argv) == 2
+        err = capsys.readouterr().err
+        assert f"argument --gm-grid: log {str(grid)!r} is {want}, the evaluated log" in err, err
+    argv = ["tune", str(a), "--validate", str(go1), "--out", str(tmp_path / "t.json")]
+    assert cli.main(argv) == 2
+    err = capsys.readouterr().err
+    assert f"argument --validate: log {str(go1)!r} has robot 'go1'; the first tuning" in err
+    assert not (tmp_path / "t.json").exists()
+
+
 def test_evaluate_plots_writes_the_reliability_diagram_of_every_scored_row(tmp_path, capsys):
     """``evaluate --plots DIR`` (issue 15): one PNG, named after the log, one curve per
     detector; an unwritable folder is refused before anything runs."""

@@ -15,7 +15,7 @@ from jax_contact.io import write_json_atomic
 from jax_contact.metrics import bounce_counts, bounce_steps
 from jax_contact.robot import model_mass
 from jax_contact.train.log_estimator import default_estimator, estimator_for
-from jax_contact.train.logs import TRUTH_CONTACT, LoadedLog, load_log
+from jax_contact.train.logs import TRUTH_CONTACT, LoadedLog, load_log, log_setup
 from jax_contact.train.report import format_scores
 
 
@@ -118,6 +118,26 @@ def tune_baselines(path: str | Path) -> dict:
         "failure_limited": limited,
         "failure_limited_params": limited_params,
     }
+
+
+def check_gm_grid_log(gm_grid_log: str | Path, paths: Sequence[str | Path]) -> None:
+    """Refuses a ``--gm-grid`` log of another robot or rate than an evaluated log, from
+    the logs' attributes, before any replay: the GM grid's thresholds are shares of the
+    tuning robot's foot load (N) and its gains act per step, so its picks are no tuning of
+    another robot or rate. One robot: the same name, or the same physics fingerprint."""
+    from jax_contact.train.cli_args import RATE_TOLERANCE
+
+    robot, dt, sha = log_setup(gm_grid_log)
+    for path in paths:
+        other, other_dt, other_sha = log_setup(path)
+        same_robot = other == robot or (sha is not None and sha == other_sha)
+        if same_robot and abs(other_dt - dt) <= RATE_TOLERANCE * max(dt, other_dt):
+            continue
+        raise ValueError(
+            f"argument --gm-grid: log {str(gm_grid_log)!r} is {robot!r} at {1.0 / dt:.6g} Hz,"
+            f" the evaluated log {str(path)!r} {other!r} at {1.0 / other_dt:.6g} Hz: tune the"
+            " baselines on another seed's log of the same robot and rate"
+        )
 
 
 def tuned_line(gm_grid_log, tuned: dict, note: str = "") -> str:
@@ -225,6 +245,8 @@ def evaluate_file(
     from jax_contact.baselines import make_gm_params, make_kinematic_params
     from jax_contact.train.evaluate import replay, score
 
+    if gm_grid_log is not None and tuned_baselines is None:
+        check_gm_grid_log(gm_grid_log, [path])
     log = loaded or load_log(path, foot_names=foot_names, robot=robot)
     name, truth, desc, dt = log.name, log.truth, log.robot.description, log.dt
     mass = model_mass(log.robot.mj_model)
@@ -401,6 +423,8 @@ def evaluate_files(
             paths[0], json_path=json_path, gm_grid_log=gm_grid_log, bootstrap=bootstrap, **options
         )
     check_distinct_files("log", paths)
+    if gm_grid_log is not None:
+        check_gm_grid_log(gm_grid_log, paths)
     # Every log read and checked before the first replay: a bad last log failed after the
     # others' replays (minutes each), and nothing was written.
     logs = [
@@ -435,6 +459,10 @@ def evaluate_files(
             continue
         if not r["has_truth"]:
             not_pooled[r["log"]] = "no ground truth"
+        elif robots.count(r["robot"]) == 1 and len(set(robots)) > 1:
+            # Logs pool by robot: the only log of its robot has none to pool with, whatever
+            # its rate.
+            not_pooled[r["log"]] = f"no other log of robot {r['robot']!r} with ground truth"
         elif r["robot"] != robot:
             not_pooled[r["log"]] = f"robot {r['robot']!r}; the pooled logs' is {robot!r}"
         else:

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from jax_contact.io import read_log, write_log
+from jax_contact.io import read_log, read_log_attrs, write_log
 from jax_contact.robot import model_fingerprint
 
 
@@ -330,6 +330,15 @@ def to_end_of_step(readings: dict, truth: np.ndarray | None, valid: np.ndarray):
     out["tau"] = readings["tau"][:-1]
     ok = valid[:-1] & valid[1:]
     return out, None if truth is None else truth[:-1], ok
+
+
+def log_setup(path: str | Path) -> tuple[str, float, str | None]:
+    """(robot name, period s, physics fingerprint or None) of a log, from its attributes
+    alone: logs checked against each other before any is loaded (a ValueError or
+    FileNotFoundError as :func:`load_log`'s)."""
+    attrs = read_log_attrs(path)
+    robot, dt = _log_attrs(f"log {str(path)!r}", attrs)
+    return robot, dt, attrs.get("model_sha256")
 
 
 def _log_attrs(name: str, attrs: dict) -> tuple[str, float]:

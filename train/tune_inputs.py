@@ -71,6 +71,25 @@ def _same_setup(arg: str, path, attrs, first: dict) -> None:
             )
 
 
+def _same_setups_first(logs, validate) -> None:
+    """:func:`_same_setup` of every log against the first, from their attributes alone,
+    before any is loaded (a mixed set was refused after the first log's compilation). A
+    log whose attributes do not read is left to its loading, which names what is wrong."""
+    from jax_contact.io import read_log_attrs
+
+    first = None
+    for arg, path in [("LOG", p) for p in logs] + [("--validate", p) for p in validate]:
+        try:
+            attrs = read_log_attrs(path)
+            _setup(attrs)
+        except (OSError, ValueError, KeyError, TypeError):
+            return
+        if first is None:
+            first = {"path": str(path), **attrs}
+        else:
+            _same_setup(arg, path, attrs, first)
+
+
 def _run_key(info: dict) -> tuple:
     """What makes two logs the same run: robot, gait, scenario, terrain, roughness, seed,
     envs, steps (a copy of a tuning log given as a validation log is caught by it; logs without a
@@ -154,6 +173,9 @@ def load_logs(args: argparse.Namespace) -> Inputs:
         except ValueError as err:
             raise ValueError(f"argument {arg}: {err}") from None
 
+    validate = [args.validate] if isinstance(args.validate, str) else list(args.validate)
+    if not getattr(args, "model", None):
+        _same_setups_first(args.logs, validate)
     for path in args.logs:
         data, robot, attrs, params, terr = load_one("LOG", path)
         if not infos:
@@ -184,7 +206,6 @@ def load_logs(args: argparse.Namespace) -> Inputs:
         )
     robot_name = infos[0]["robot"]
     vals, vinfos = [], []
-    validate = [args.validate] if isinstance(args.validate, str) else list(args.validate)
     for path in validate:
         val, _, vattrs, _, _ = load_one("--validate", path)
         _same_setup("--validate", path, vattrs, infos[0])
