@@ -22,7 +22,7 @@ import numpy as np
 import pytest
 
 from jax_contact import io
-from jax_contact.train import cli
+from jax_contact.train import cli, cli_args
 
 ROOT = Path(__file__).resolve().parents[1]
 # The installed entry point, as a user runs it (``python -m jax_contact.train.cli`` where it is
@@ -182,6 +182,24 @@ def test_bad_arguments_are_reported_at_once(argv, names):
     assert not (ROOT / "out.h5").exists() and not (ROOT / "out.txt").exists()
 
 
+def test_a_log_too_large_for_its_robot_is_refused_once_the_robot_is_known(tmp_path):
+    """Before JAX, ``simulate``'s size check can only assume the smallest robot's log (52
+    bytes per step and env: the planar leg's readings): a Go1 log of several times this
+    machine's memory passed it and compiled. Once the robot is loaded its own size is
+    checked, before the physics compiles: Go1's readings (float32 qpos 19, qvel, qacc, tau
+    18 each) and per-foot truth (a flag, a float32 force and height; 4 feet) are
+    4 (19 + 3 x 18) + 9 x 4 = 328 bytes; 100 bytes x envs x steps = the memory lies between
+    the two bounds."""
+    from jax_contact.train.logs import simulate_to_file
+
+    total = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    envs = int(total / (100 * 400)) + 1  # x 400 steps (1 s): 100 bytes each fill the memory
+    cli_args.check_log_size(envs, 1.0)  # the planar leg's bound passes
+    with pytest.raises(ValueError, match=r"arguments --envs and --duration: .* a log of 'go1'"):
+        simulate_to_file(tmp_path / "big.h5", robot="go1", n_envs=envs, duration=1.0)
+    assert not (tmp_path / "big.h5").exists()
+
+
 @pytest.mark.parametrize("command", ["tune", "tune-env"])
 def test_tuning_refuses_an_unwritable_out_before_it_tunes(tmp_path, command):
     """--out is probed before minutes of tuning (it used to fail after them, naming the
@@ -215,6 +233,7 @@ def test_static_lists_equal_the_librarys():
     from jax_contact.train import ppo, rates
 
     assert cli.ROBOT_NAMES == robots.ROBOT_NAMES
+    assert cli.MENAGERIE_NAMES == model_files.MENAGERIE_NAMES
     assert cli.GAITS == gaits.KINDS
     assert cli.NOISES == sensors.PRESETS
     assert cli.TERRAINS == simulate.TERRAINS
@@ -236,7 +255,7 @@ def test_static_lists_equal_the_librarys():
     assert cli.REPRODUCE_OUTPUTS == reproduce.OUTPUT_FILES + figures + reliability
     import inspect
 
-    from jax_contact.train import cli_args, report
+    from jax_contact.train import report
 
     assert cli_args.FAILURE_LIMIT == report.FAILURE_LIMIT
 

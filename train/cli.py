@@ -56,6 +56,7 @@ from jax_contact.train.cli_args import (  # noqa: F401  (COLUMNS ... SCENES: re-
     GAITS,
     HOP_TASKS,
     LOG_SUFFIXES,
+    MENAGERIE_NAMES,
     NOISES,
     ONE_LEGGED,
     PLAYGROUND_TASKS,
@@ -445,7 +446,14 @@ def build_parser() -> argparse.ArgumentParser:
         p.set_defaults(func=func, check=check)
         return p
 
-    robots = f"one of {', '.join(ROBOT_NAMES)}, or a path to an MJCF .xml file"
+    menagerie = (
+        f" ({', '.join(MENAGERIE_NAMES)}: needs $MENAGERIE_ROOT or the mujoco_menagerie package)"
+    )
+    builtin = [r for r in ROBOT_NAMES if r not in MENAGERIE_NAMES]
+    robots = (
+        f"one of {', '.join(builtin)}, or of MuJoCo Menagerie{menagerie}, or a path to an"
+        " MJCF .xml file"
+    )
     p = command(
         "demo",
         "the reproduction at its default size (what `make demo` runs)",
@@ -479,8 +487,8 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         metavar="ROBOT",
         help="quadruped of Table III (default: go1): one of"
-        f" {', '.join(r for r in ROBOT_NAMES if r not in ONE_LEGGED)}, or a path to an MJCF"
-        " .xml file",
+        f" {', '.join(r for r in builtin if r not in ONE_LEGGED)}, or of MuJoCo"
+        f" Menagerie{menagerie}, or a path to an MJCF .xml file",
     )
     p.add_argument("--seed", type=seed_int, default=None, help="evaluation seed (default: 0)")
     p.add_argument("--out", default="out/reproduce", help="output folder")
@@ -565,7 +573,8 @@ def build_parser() -> argparse.ArgumentParser:
         "--gm-grid",
         default=None,
         metavar="LOG",
-        help="tune the GM observer and the kinematic detector on this other log"
+        help="tune the GM observer and the kinematic detector on this other log (another"
+        " seed's, of the same robot and rate)"
         " (jax_contact.train.reproduce's grids, best F1), and add each picked by the"
         " estimator's rule as the rows gm_fl, kinematic_fl (sw-ph + sw-on"
         f" <= {100 * FAILURE_LIMIT:g} %%, then F1)"

@@ -33,6 +33,9 @@ ROBOT_NAMES = (  # jax_contact.envs.robots.ROBOT_NAMES
     "unitree_go1",
     "unitree_go2",
 )
+# jax_contact.envs.model_files.MENAGERIE_NAMES: loaded from $MENAGERIE_ROOT or the
+# mujoco_menagerie package, never bundled.
+MENAGERIE_NAMES = tuple(n for n in ROBOT_NAMES if n not in ("go1", "spot", "barkour", "planar_leg"))
 GAITS = ("trot", "walk", "hop")  # jax_contact.envs.gaits.KINDS
 FAILURE_LIMIT = 0.02  # jax_contact.train.report.FAILURE_LIMIT
 BENCH_ENVS = (1, 64, 256, 1024, 4096, 16384)  # jax_contact.benchmarks.estimator.DEFAULT_ENVS
@@ -180,28 +183,35 @@ _MIN_LOG_BYTES_PER_STEP = 4 * 13
 _SIMULATE_DT = 0.0025  # s: the physics and readings of `simulate` run at 400 Hz
 
 
-def check_log_size(envs: int, duration: float) -> None:
+def check_log_size(
+    envs: int,
+    duration: float,
+    bytes_per_step: int = _MIN_LOG_BYTES_PER_STEP,
+    robot: str | None = None,
+) -> None:
     """Raises ValueError when ``envs`` x ``duration`` of ``simulate`` cannot fit in this
-    machine's memory even at the smallest robot's log size (it was killed by the kernel,
-    exit 137, with no word), or when ``duration`` is under the two readings every log
-    needs (before JAX loads; the simulation's own check says the same after)."""
+    machine's memory (it was killed by the kernel, exit 137, with no word): before JAX
+    loads at the smallest robot's log size, and again once the robot is loaded at its own
+    (``bytes_per_step`` per step and env, ``robot`` named); or when ``duration`` is under
+    the two readings every log needs (the simulation's own check says the same after)."""
     if round(duration / _SIMULATE_DT) < 2:
         raise ValueError(
             f"argument --duration: {duration:g} s is under 2 steps of {_SIMULATE_DT * 1e3:g} ms;"
             f" a log needs at least 2 (--duration >= {2 * _SIMULATE_DT:g})"
         )
     steps = duration / _SIMULATE_DT
-    need = envs * steps * _MIN_LOG_BYTES_PER_STEP
+    need = envs * steps * bytes_per_step
     try:
         total = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
     except (ValueError, OSError, AttributeError):  # not on this OS: no check
         return
     if need > total:
+        of = f" of {robot!r}" if robot else ""
         raise ValueError(
-            f"argument --envs: {envs} envs x {duration:g} s ({steps:.0f} steps of"
-            f" {_SIMULATE_DT * 1e3:g} ms) make a log of at least {need / 2**30:.0f} GiB; this"
-            f" machine has {total / 2**30:.0f} GiB of memory: simulate fewer envs or seconds"
-            " (and several files)"
+            f"arguments --envs and --duration: {envs} envs x {duration:g} s ({steps:.0f} steps"
+            f" of {_SIMULATE_DT * 1e3:g} ms) make a log{of} of at least {need / 2**30:.3g} GiB;"
+            f" this machine has {total / 2**30:.0f} GiB of memory: simulate fewer envs or"
+            " seconds (and several files)"
         )
 
 

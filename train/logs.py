@@ -17,6 +17,7 @@ import numpy as np
 
 from jax_contact.io import read_log, read_log_attrs, write_log
 from jax_contact.robot import model_fingerprint
+from jax_contact.train.cli_args import check_log_size
 
 
 def simulate_to_file(
@@ -57,6 +58,10 @@ def simulate_to_file(
     else:
         settings = settings_of(robot, **dict(gait_settings))
     loaded = load_robot(robot, foot_names=foot_names, gait=settings)
+    # The readings (float32 qpos, qvel, qacc, tau) and per-foot truth (a flag, the normal
+    # force and the sole's height) alone, before the physics compiles.
+    m, n_legs = loaded.mj_model, loaded.description.n_legs
+    check_log_size(n_envs, duration, 4 * (m.nq + 3 * m.nv) + 9 * n_legs, robot=robot)
     # The rough floor of the log's own seed: tuning and evaluation seeds walk other ground.
     world = build_world(loaded, terrain=terrain, roughness=roughness, terrain_seed=seed)
     resolved = world.robot.gait_settings
