@@ -124,13 +124,15 @@ def check_gm_grid_log(gm_grid_log: str | Path, paths: Sequence[str | Path]) -> N
     """Refuses a ``--gm-grid`` log of another robot or rate than an evaluated log, from
     the logs' attributes, before any replay: the GM grid's thresholds are shares of the
     tuning robot's foot load (N) and its gains act per step, so its picks are no tuning of
-    another robot or rate. One robot: the same name, or the same physics fingerprint."""
+    another robot or rate. One robot: the same name, or the same physics fingerprint (or
+    one that cannot be told: a model not on this machine, which its loading names)."""
     from jax_contact.train.cli_args import RATE_TOLERANCE
 
     robot, dt, sha = log_setup(gm_grid_log)
     for path in paths:
         other, other_dt, other_sha = log_setup(path)
-        same_robot = other == robot or (sha is not None and sha == other_sha)
+        prints = {_fingerprint(robot, sha), _fingerprint(other, other_sha)}
+        same_robot = other == robot or None in prints or len(prints) == 1
         if same_robot and abs(other_dt - dt) <= RATE_TOLERANCE * max(dt, other_dt):
             continue
         raise ValueError(
@@ -138,6 +140,20 @@ def check_gm_grid_log(gm_grid_log: str | Path, paths: Sequence[str | Path]) -> N
             f" the evaluated log {str(path)!r} {other!r} at {1.0 / other_dt:.6g} Hz: tune the"
             " baselines on another seed's log of the same robot and rate"
         )
+
+
+def _fingerprint(robot: str, stored: str | None) -> str | None:
+    """A log's physics fingerprint: ``stored`` (its ``model_sha256``), else its robot's
+    model's (logs written before the attribute), else None (a model not on this machine)."""
+    if stored is not None:
+        return stored
+    from jax_contact.envs.robots import load_robot
+    from jax_contact.robot import model_fingerprint
+
+    try:
+        return model_fingerprint(load_robot(robot).mj_model)
+    except Exception:  # noqa: BLE001  (any model that does not load: no fingerprint)
+        return None
 
 
 def tuned_line(gm_grid_log, tuned: dict, note: str = "") -> str:
