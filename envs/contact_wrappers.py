@@ -287,7 +287,9 @@ def wrap_contact(
     """Wraps an (unbatched) env so that its observation holds the estimated foot contact.
 
     Apply it before the training wrappers (``brax.envs.wrappers.training.wrap``,
-    Playground's ``wrapper.wrap_for_brax_training``), which batch and auto-reset it.
+    Playground's ``wrapper.wrap_for_brax_training``), which batch and auto-reset it; with
+    domain randomisation, before :mod:`jax_contact.envs.randomization`'s (the frameworks'
+    own randomisation steps ``env.unwrapped``, skipping this wrapper).
 
     Args:
       env: a Brax ``PipelineEnv`` with ``backend="mjx"`` or a Playground ``MjxEnv``

@@ -18,6 +18,8 @@ sole,
 - :mod:`jax_contact.envs.contact_wrappers`: the Brax and Playground adapters and
 :func:`wrap_contact`;
 - :mod:`jax_contact.envs.legged_env`: :class:`LeggedPipelineEnv`, a minimal Brax env over a robot;
+- :mod:`jax_contact.envs.randomization`: Playground's and Brax's training wrappers with a domain
+  randomisation that steps the contact wrapper (theirs skip it);
 - :mod:`jax_contact.train.rates`: ``compare_rates``, physics against control rate on one rollout.
 
 Per estimator update (truth never reaches the observation): the true ``qpos``, ``qvel``,
@@ -86,6 +88,12 @@ from jax_contact.envs.contact_wrappers import (
 )
 from jax_contact.envs.feet import FootSpec
 from jax_contact.envs.legged_env import LeggedPipelineEnv
+from jax_contact.envs.randomization import (
+    BraxRandomization,
+    PlaygroundRandomization,
+    wrap_for_brax_training,
+    wrap_for_training,
+)
 
 
 def __getattr__(name):
@@ -104,12 +112,14 @@ __all__ = [
     "TERM_NAMES",
     "TRUTH_SOURCES",
     "BraxContactWrapper",
+    "BraxRandomization",
     "ContactEstState",
     "ContactObsConfig",
     "Core",
     "FootSpec",
     "LeggedPipelineEnv",
     "PlaygroundContactWrapper",
+    "PlaygroundRandomization",
     "choose_force_rows",
     "default_estimator_params",
     "default_sensor_params",
@@ -119,4 +129,6 @@ __all__ = [
     "model_of",
     "validate_config",
     "wrap_contact",
+    "wrap_for_brax_training",
+    "wrap_for_training",
 ]

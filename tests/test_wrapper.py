@@ -274,6 +274,43 @@ def test_brax_training_wrap_autoreset_restarts_belief(brax_leg, brax_train):
     assert (reset.traces, step.traces) == (1, 1)
 
 
+def test_domain_randomisation_steps_the_contact_wrapper(brax_leg, pg_leg):
+    """Brax's and Playground's randomisation wrappers set each env's model on
+    ``env.unwrapped`` and step ``env.unwrapped``, skipping the contact wrapper (no contact
+    slot in the observation, no ``contact_est`` metric). ``W.wrap_for_training`` steps the
+    chain it wraps: the leg's bodies 1.0x and 1.5x as heavy in the two envs, same actions,
+    the observation has the slot ``observation_size`` counts, the metric is made, and the
+    heavier leg moves otherwise (the randomised model reached the physics). Playground's
+    counterpart swaps the model where Playground's own does and yields the whole chain
+    (not compiled)."""
+
+    def heavier(sys):
+        masses = sys.body_mass[None] * jnp.array([1.0, 1.5])[:, None]
+        axes = jax.tree.map(lambda _: None, sys).tree_replace({"body_mass": 0})
+        return sys.tree_replace({"body_mass": masses}), axes
+
+    env = W.wrap_contact(brax_leg, **IDEAL)
+    train = W.wrap_for_training(env, episode_length=EPISODE, randomization_fn=heavier)
+    state = jax.jit(train.reset)(jax.random.split(jax.random.PRNGKey(0), N_ENVS))
+    step = jax.jit(train.step)
+    for a in hop_actions(2, float(brax_leg.dt)):
+        state = step(state, _batch(a))
+    assert state.obs.shape == (N_ENVS, env.observation_size)
+    assert "contact_est/accuracy" in state.metrics and "contact_est" in state.info
+    qpos = np.asarray(state.pipeline_state.qpos)
+    assert np.abs(qpos[0] - qpos[1]).max() > 1e-4
+    assert brax_leg.sys.body_mass.shape == (brax_leg.sys.nbody,)  # restored, unbatched
+
+    wrapped = W.wrap_contact(pg_leg, **IDEAL)
+    nominal = pg_leg._mjx_model
+    dr = W.PlaygroundRandomization(wrapped, lambda m: (m, jax.tree.map(lambda _: None, m)))
+    swapped = object()
+    with dr.v_env_fn(swapped) as stepped:
+        assert stepped is wrapped and pg_leg._mjx_model is swapped
+    assert pg_leg._mjx_model is nominal
+    assert isinstance(W.wrap_for_brax_training(wrapped).env.env, brax_training.VmapWrapper)
+
+
 # ------------------------------------------------------------------------- refusals
 
 

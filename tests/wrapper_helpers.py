@@ -50,7 +50,7 @@ class PlaygroundLeg(mjx_env.MjxEnv):
         dt = float(mj_model.opt.timestep)
         super().__init__(config_dict.create(ctrl_dt=dt * n_substeps, sim_dt=dt))
         self._mj = mj_model
-        self._mjx = mjx.put_model(mj_model)
+        self._mjx_model = mjx.put_model(mj_model)
 
     def reset(self, rng):
         # From the model's home keyframe (the planar leg's qpos0 puts the foot 0.52 m
@@ -58,13 +58,13 @@ class PlaygroundLeg(mjx_env.MjxEnv):
         data = mjx_env.make_data(self._mj, impl="jax")
         if self._mj.nkey:
             data = data.replace(qpos=jnp.asarray(self._mj.key_qpos[0], data.qpos.dtype))
-        data = mjx.forward(self._mjx, data)
+        data = mjx.forward(self._mjx_model, data)
         zero = jnp.zeros(())
         obs = {"state": jnp.concatenate([data.qpos, data.qvel])}
         return mjx_env.State(data, obs, zero, zero, {}, {"rng": rng})
 
     def step(self, state, action):
-        data = mjx_env.step(self._mjx, state.data, action, self.n_substeps)
+        data = mjx_env.step(self._mjx_model, state.data, action, self.n_substeps)
         return state.replace(data=data, obs={"state": jnp.concatenate([data.qpos, data.qvel])})
 
     @property
@@ -81,4 +81,4 @@ class PlaygroundLeg(mjx_env.MjxEnv):
 
     @property
     def mjx_model(self):
-        return self._mjx
+        return self._mjx_model
