@@ -351,7 +351,7 @@ def test_refusals(leg_robot, brax_leg, pg_leg):
 
     class NoFloor(PlaygroundLeg):
         def __init__(self):  # only the model matters for the refusal
-            self._mj, self._mjx = no_floor, mjx.put_model(no_floor)
+            self._mj, self._mjx_model = no_floor, mjx.put_model(no_floor)
 
     with pytest.raises(ValueError, match="no floor"):
         W.wrap_contact(NoFloor())
