@@ -57,6 +57,7 @@ fixed one), the wrapper's as the log commands'.
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections import Counter
 
 import mujoco
@@ -100,6 +101,31 @@ class FootSpec:
     offset: tuple[float, float, float] = (0.0, 0.0, 0.0)
     radius: float = 0.0
     geoms: tuple[str, ...] | None = None
+
+    def __post_init__(self):
+        # Each field named (a 2-vector offset was a matmul error at wrap time, a string one
+        # a float() error; a negative radius passed).
+        bad = lambda field, want: ValueError(  # noqa: E731
+            f"FootSpec {self.name!r}: {field} must be {want}, got {getattr(self, field)!r}"
+        )
+        if not isinstance(self.name, str) or not self.name:
+            raise bad("name", "a non-empty str")
+        if self.body is not None and not isinstance(self.body, str):
+            raise bad("body", "a body name or None")
+        try:
+            offset = np.asarray(self.offset, dtype=float)
+        except (TypeError, ValueError):
+            offset = np.zeros(0)
+        if isinstance(self.offset, str) or offset.shape != (3,) or not np.isfinite(offset).all():
+            raise bad("offset", "3 finite numbers (x, y, z) in the body frame, m")
+        object.__setattr__(self, "offset", tuple(float(x) for x in offset))
+        number = isinstance(self.radius, int | float) and not isinstance(self.radius, bool)
+        if not (number and math.isfinite(self.radius) and self.radius >= 0):
+            raise bad("radius", "a finite number >= 0, m")
+        if self.geoms is not None:
+            if isinstance(self.geoms, str) or not all(isinstance(g, str) for g in self.geoms):
+                raise bad("geoms", "a tuple of geom names or None")
+            object.__setattr__(self, "geoms", tuple(self.geoms))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -219,6 +245,16 @@ def _resolve(m, d, spec, floor_ids, colliders) -> Foot:
             geoms = tuple(mujoco.mj_name2id(m, G, n) for n in spec.geoms)
             if min(geoms, default=0) < 0:
                 raise ValueError(f"FootSpec {spec.name!r}: unknown geom in {spec.geoms}")
+            for n, g in zip(spec.geoms, geoms, strict=True):  # another foot's would be its truth
+                up = int(m.geom_bodyid[g])
+                while up not in (b, 0):
+                    up = int(m.body_parentid[up])
+                if up != b:
+                    raise ValueError(
+                        f"FootSpec {spec.name!r}: geom {n!r} is on body"
+                        f" {_name_of(m, B, int(m.geom_bodyid[g]))!r}, not on {spec.body!r} or below"
+                        " it: its contacts would be this foot's ground truth"
+                    )
         else:
             geoms = tuple(g for g in colliders if m.geom_bodyid[g] == b)
         return Foot(spec.name, "body", b, tuple(map(float, spec.offset)), float(spec.radius), geoms)

@@ -76,6 +76,33 @@ def test_box_sole_site_body_and_offset():
     assert (spec.kind, spec.point, spec.radius) == ("body", (-0.07, 0.0, -0.26), 0.005)
     with pytest.raises(ValueError, match="valid names"):
         feet.describe(m, ["nope"])
+    # A geom on the named body (or below it) gives the truth; one elsewhere (here the
+    # floor, on the world body) would give this foot another's, and is refused by name.
+    named = _one(m, [W.FootSpec("heel", body="shank", geoms=("sole",))])
+    assert named.geom_ids == f.geom_ids
+    with pytest.raises(ValueError, match=r"FootSpec 'heel': geom 'floor' is on body 'world'"):
+        feet.describe(m, [W.FootSpec("heel", body="shank", geoms=("floor",))])
+
+
+@pytest.mark.parametrize(
+    "field, value, want",
+    [
+        ("offset", (0.0, 0.0), "3 finite numbers"),
+        ("offset", "0 0 -0.2", "3 finite numbers"),
+        ("offset", (0.0, np.nan, 0.0), "3 finite numbers"),
+        ("radius", -1.0, "a finite number >= 0"),
+        ("radius", "2", "a finite number >= 0"),
+        ("geoms", "sole", "a tuple of geom names"),
+        ("body", 3, "a body name or None"),
+    ],
+)
+def test_a_foot_spec_names_its_bad_field(field, value, want):
+    """A 2-vector offset was a matmul error at wrap time, a string offset a float() error,
+    and a negative radius passed into the report."""
+    with pytest.raises(ValueError, match=rf"FootSpec 'heel': {field} must be {want}"):
+        W.FootSpec("heel", **{"body": "shank", field: value})
+    spec = W.FootSpec("heel", body="shank", offset=np.array([0, 0, -1]), geoms=["sole"])
+    assert spec.offset == (0.0, 0.0, -1.0) and spec.geoms == ("sole",)
 
 
 def test_found_feet_of_an_all_sphere_model_are_the_legs_ends():
