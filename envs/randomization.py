@@ -25,19 +25,25 @@ from brax.envs.wrappers import training as brax_training
 from mujoco_playground._src import wrapper as pg_wrapper
 
 
+@contextlib.contextmanager
+def _set(obj, attr: str, value):
+    """``obj.attr = value`` for the ``with`` block, then restored."""
+    old = getattr(obj, attr)
+    try:
+        setattr(obj, attr, value)
+        yield
+    finally:
+        setattr(obj, attr, old)
+
+
 class PlaygroundRandomization(pg_wrapper.BraxDomainRandomizationVmapWrapper):
     """Playground's domain randomisation, stepping the wrapped chain (module docstring)."""
 
     @contextlib.contextmanager
     def v_env_fn(self, mjx_model):
         # Where Playground's own randomisation puts the model (MjxEnv has no public setter).
-        base = self.env.unwrapped
-        old = base._mjx_model
-        try:
-            base._mjx_model = mjx_model
+        with _set(self.env.unwrapped, "_mjx_model", mjx_model):
             yield self.env
-        finally:
-            base._mjx_model = old
 
 
 class BraxRandomization(brax_training.DomainRandomizationVmapWrapper):
@@ -45,13 +51,8 @@ class BraxRandomization(brax_training.DomainRandomizationVmapWrapper):
 
     @contextlib.contextmanager
     def v_env_fn(self, new_sys):
-        base = self.env.unwrapped
-        old = base.sys
-        try:
-            base.sys = new_sys
+        with _set(self.env.unwrapped, "sys", new_sys):
             yield self.env
-        finally:
-            base.sys = old
 
 
 def wrap_for_brax_training(
