@@ -129,9 +129,12 @@ def check_gm_grid_log(gm_grid_log: str | Path, paths: Sequence[str | Path]) -> N
     from jax_contact.train.cli_args import RATE_TOLERANCE
 
     robot, dt, sha = log_setup(gm_grid_log)
+    grid_print = []  # the tuning log's fingerprint, computed once and only if a name differs
     for path in paths:
         other, other_dt, other_sha = log_setup(path)
-        prints = {_fingerprint(robot, sha), _fingerprint(other, other_sha)}
+        if other != robot and not grid_print:
+            grid_print.append(_fingerprint(robot, sha))
+        prints = {grid_print[0], _fingerprint(other, other_sha)} if other != robot else set()
         same_robot = other == robot or None in prints or len(prints) == 1
         if same_robot and abs(other_dt - dt) <= RATE_TOLERANCE * max(dt, other_dt):
             continue

@@ -167,11 +167,9 @@ def read_recording(path: str | Path) -> Recording:
             f"{src} is a log of `jax-contact simulate` (readings/qpos, ... per env): run"
             " `jax-contact evaluate` on it; `estimate` reads a recording of named columns"
         )
-    if "p_contact" in columns:  # estimate.h5's (T, L) array
-        raise ValueError(
-            f"{src} is an output of `jax-contact estimate` (its p_contact); give the recording"
-            " it was estimated from"
-        )
+    # Before a column's shape is refused: estimate.h5's p_contact is (T, L). (A table of
+    # 1-D columns, estimate.csv's, still reads: to_readings refuses it as input.)
+    refuse_estimate_output(src, [n for n, col in columns.items() if col.ndim != 1])
     out = {}
     for name, col in columns.items():
         if col.ndim != 1:
@@ -191,6 +189,16 @@ def read_recording(path: str | Path) -> Recording:
             + ", ".join(f"{k} {len(v)}" for k, v in out.items() if len(v) != len(out[TIME]))
         )
     return Recording(out, str(path), tuple(notes))
+
+
+def refuse_estimate_output(src: str, names) -> None:
+    """A ValueError if the column ``names`` are an output of ``jax-contact estimate``
+    (``p_contact``, or its CSV's ``p_contact/<foot>``) given where a recording is read."""
+    if any(n == "p_contact" or n.startswith("p_contact/") for n in names):
+        raise ValueError(
+            f"{src} is an output of `jax-contact estimate` (its p_contact); give the recording"
+            " it was estimated from"
+        )
 
 
 def _read_csv(path: Path, src: str, notes: list[str]) -> dict[str, np.ndarray]:

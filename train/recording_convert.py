@@ -41,6 +41,7 @@ from jax_contact.train.recording import (
     TRUTH_PREFIXES,
     UNITS,
     Recording,
+    refuse_estimate_output,
 )
 from jax_contact.train.recording_checks import (
     angular_velocity_mismatch,
@@ -239,11 +240,7 @@ def to_readings(
                 f"names map: {log_name!r} -> {model_name!r}, but the model has no joint or foot"
                 f" {model_name!r}; joints: {[n for n, _ in joints]}, feet: {list(desc.foot_names)}"
             )
-    if any(n == "p_contact" or n.startswith("p_contact/") for n in rec.columns):
-        raise ValueError(
-            f"{src} is an output of `jax-contact estimate` (its p_contact); give the recording"
-            " it was estimated from"
-        )
+    refuse_estimate_output(src, rec.columns)
     rec, lost_quat = _degenerate_quaternion_lost(rec, src)
     read_notes = list(rec.notes) + lost_quat
     rec, dt, notes = _check_time(rec, resample)
