@@ -73,6 +73,7 @@ from jax_contact.robot import (
     model_mass,
     sphere_foot_names,
     split_legs,
+    warn_joints_below,
 )
 
 _T = mujoco.mjtGeom
@@ -386,6 +387,8 @@ def describe(m: mujoco.MjModel, feet=None) -> tuple[RobotDescription, tuple[Foot
         legs.append(tuple(dofs))
         bases.append(base)
     legs, others = split_legs(m, legs, [f.name for f in resolved], actuated)
+    if feet:  # feet found by rule are at the ends of the legs
+        warn_joints_below(m, [f.body_id for f in resolved], [f.name for f in resolved], actuated)
     if len({len(x) for x in legs}) != 1:
         per = ", ".join(f"{f.name}: {len(x)}" for f, x in zip(resolved, legs, strict=True))
         raise ValueError(f"every leg must have the same number of dofs, got {per}")

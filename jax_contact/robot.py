@@ -24,6 +24,7 @@ strings and tuples, so it is hashable and can be a static argument of ``jax.jit`
 from __future__ import annotations
 
 import dataclasses
+import warnings
 from collections.abc import Sequence
 
 import mujoco
@@ -243,6 +244,39 @@ def split_legs(
     return legs, others
 
 
+def warn_joints_below(
+    m: mujoco.MjModel, bodies: Sequence[int], labels: Sequence[str], actuated: set[int]
+) -> None:
+    """Warns, once, naming each foot whose body has actuated joints below it.
+
+    A foot is the end of a leg: the estimator explains the leg's torques by a force at the
+    foot (eq. 6), so a "foot" named on a hip or a thigh leaves the real foot's contact
+    forces in joints it treats as the rest of the body (eq. 4's ``b``), and its estimate
+    means nothing. A joint below the foot can be legitimate (a toe), so this warns instead
+    of refusing, naming the joints.
+    """
+    found = []
+    for body, label in zip(bodies, labels, strict=True):
+        below = [
+            int(m.dof_jntid[d])
+            for c in range(m.nbody)
+            if body in body_chain(m, c)[1:]
+            for d in _body_dofs(m, c)
+            if d in actuated
+        ]
+        if below:
+            names = [m.joint(j).name or f"<joint {j}>" for j in dict.fromkeys(below)]
+            found.append(f"{label!r} (body {m.body(body).name!r}: {', '.join(names)})")
+    if found:
+        warnings.warn(
+            f"feet with actuated joints below them: {'; '.join(found)}. A foot is the end of"
+            " its leg, so these look like hips, thighs or knees; name each foot's geom, site"
+            " or lowest body. The estimate means contact only where the named point is what"
+            " touches the ground",
+            stacklevel=3,
+        )
+
+
 def _distal(spheres: list[int], m: mujoco.MjModel) -> list[int]:
     """The distal sphere of each joint chain among ``spheres``, in geom order."""
     bodies = {int(m.geom_bodyid[g]) for g in spheres}
@@ -357,6 +391,8 @@ def derive_description(
         legs.append(tuple(dofs))
         bases.append(base)
     legs, others = split_legs(m, legs, [_geom_label(m, g) for g in feet], actuated)
+    if foot_names is not None:  # found feet are at the ends of their chains (_distal)
+        warn_joints_below(m, [int(m.geom_bodyid[g]) for g in feet], list(foot_names), actuated)
 
     if len({len(d) for d in legs}) != 1:
         raise ValueError(

@@ -10,6 +10,8 @@ robot's weight.
 
 from __future__ import annotations
 
+import warnings
+
 import jax
 import mujoco
 import numpy as np
@@ -105,6 +107,24 @@ def test_a_foot_spec_names_its_bad_field(field, value, want):
     assert spec.offset == (0.0, 0.0, -1.0) and spec.geoms == ("sole",)
 
 
+def _all_sphere_model() -> mujoco.MjModel:
+    """Two legs (hip, knee) whose thigh and calf carry spheres besides the foot's."""
+    leg = (
+        '<body name="{s}_thigh" pos="{x} 0 0"><joint name="{s}_hip" axis="0 1 0"/>'
+        '<geom type="sphere" size=".03" pos="0 0 -.1"/><body name="{s}_calf" pos="0 0 -.2">'
+        '<joint name="{s}_knee" axis="0 1 0"/><geom type="sphere" size=".025" pos="0 0 -.1"/>'
+        '<geom name="{s}" type="sphere" size=".02" pos="0 0 -.2"/></body></body>'
+    )
+    return mujoco.MjModel.from_xml_string(
+        '<mujoco><worldbody><geom name="floor" type="plane" size="5 5 .1"/>'
+        '<body name="base" pos="0 0 .45"><freejoint/><geom type="box" size=".2 .1 .05"/>'
+        + "".join(leg.format(s=s, x=x) for s, x in (("F", 0.2), ("H", -0.2)))
+        + "</body></worldbody><actuator>"
+        + "".join(f'<motor joint="{s}_{j}"/>' for s in "FH" for j in ("hip", "knee"))
+        + "</actuator></mujoco>"
+    )
+
+
 def test_found_feet_of_an_all_sphere_model_are_the_legs_ends():
     """Menagerie's Go2 MJX model makes every collision geom a sphere: hips, thighs, calves
     and feet. Here two legs whose thigh carries a 3 cm sphere 0.1 m down and whose calf
@@ -114,25 +134,29 @@ def test_found_feet_of_an_all_sphere_model_are_the_legs_ends():
     0.095 m above the foot's at the home pose (qpos0, legs straight), beyond SOLE_SPREAD.
     Before, every body with a sphere was a foot: 'every leg must have the same number of
     dofs' (a thigh's leg has one joint, a calf's two)."""
-    leg = (
-        '<body name="{s}_thigh" pos="{x} 0 0"><joint name="{s}_hip" axis="0 1 0"/>'
-        '<geom type="sphere" size=".03" pos="0 0 -.1"/><body name="{s}_calf" pos="0 0 -.2">'
-        '<joint name="{s}_knee" axis="0 1 0"/><geom type="sphere" size=".025" pos="0 0 -.1"/>'
-        '<geom name="{s}" type="sphere" size=".02" pos="0 0 -.2"/></body></body>'
-    )
-    m = mujoco.MjModel.from_xml_string(
-        '<mujoco><worldbody><geom name="floor" type="plane" size="5 5 .1"/>'
-        '<body name="base" pos="0 0 .45"><freejoint/><geom type="box" size=".2 .1 .05"/>'
-        + "".join(leg.format(s=s, x=x) for s, x in (("F", 0.2), ("H", -0.2)))
-        + "</body></worldbody><actuator>"
-        + "".join(f'<motor joint="{s}_{j}"/>' for s in "FH" for j in ("hip", "knee"))
-        + "</actuator></mujoco>"
-    )
+    m = _all_sphere_model()
     desc, resolved = feet.describe(m)
     assert desc.foot_names == ("F", "H") and [f.kind for f in resolved] == ["sphere"] * 2
     assert desc.foot_offsets == ((0.0, 0.0, -0.2),) * 2 and desc.foot_radii == (0.02, 0.02)
     assert desc.leg_dofs == ((6, 7), (8, 9))
     assert derive_description(m).foot_names == desc.foot_names  # the log commands' rule
+
+
+def test_a_foot_named_above_its_legs_end_is_warned_of():
+    """Feet named on the thighs of the all-sphere model (each thigh body carries a
+    floor-touching sphere, so the name resolves) leave each knee below its "foot": one
+    warning, from both the wrapper's rule and the log commands', names both feet and
+    their knees. The real feet raise none."""
+    m = _all_sphere_model()
+    for describe in (lambda n: feet.describe(m, n), lambda n: derive_description(m, n)):
+        with pytest.warns(UserWarning, match="actuated joints below") as caught:
+            describe(["F_thigh", "H_thigh"])
+        assert len(caught) == 1
+        msg = str(caught[0].message)
+        assert "'F_thigh' (body 'F_thigh': F_knee)" in msg and "'H_thigh'" in msg, msg
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            describe(["F", "H"])
 
 
 def test_rotated_box_takes_its_lowest_face():
