@@ -40,7 +40,7 @@ import numpy as np
 from mujoco import mjx
 
 from jax_contact.robot import RobotDescription
-from jax_contact.types import LegMeasurement, RobotMeasurement
+from jax_contact.types import LegMeasurement, RobotMeasurement, check_real
 
 # Where a foot with a sole touches (contact_points): "rolling" follows the sole's lowest
 # edge or corner, "centre" keeps its fixed point.
@@ -80,7 +80,10 @@ def prepare(mjx_model: mjx.Model, mjx_data: mjx.Data) -> mjx.Data:
         one robot of this model (a batch: ``jax.vmap`` it).
     """
     _check_mjx_inputs(mjx_model, mjx_data)
-    qpos = mjx_data.qpos
+    # NumPy state (a control loop's readings) as JAX arrays: MJX's tree scan over bodies
+    # failed on a NumPy qvel outside jit ("numpy arg elements do not match").
+    qpos, qvel = jnp.asarray(mjx_data.qpos), jnp.asarray(mjx_data.qvel)
+    mjx_data = mjx_data.replace(qvel=qvel)
     d = mjx_data.replace(qpos=jnp.where(jnp.isfinite(qpos), qpos, mjx_model.qpos0))
     d = mjx.kinematics(mjx_model, d)
     d = mjx.com_pos(mjx_model, d)
@@ -195,6 +198,7 @@ def _check_mjx_inputs(mjx_model, mjx_data) -> None:
         raise ValueError(f"mjx_data must be an mjx.Data{hint}, got {type(mjx_data).__name__}")
     # One robot's data: a batch (or another robot's state) failed deep inside MJX's tree scan.
     for name, n in (("qpos", mjx_model.nq), ("qvel", mjx_model.nv)):
+        check_real(f"mjx_data.{name}", getattr(mjx_data, name))
         shape = jnp.shape(getattr(mjx_data, name))
         if shape != (n,):
             hint = (
@@ -259,6 +263,8 @@ def robot_measurement(
     for name, value in (("qdd", qdd), ("tau", tau)):
         if value is not None and jnp.shape(value) != (m.nv,):
             raise ValueError(f"{name} must have shape ({m.nv},) (nv), got {jnp.shape(value)}")
+        if value is not None:
+            check_real(name, value)
     return measurement_at_points(
         m,
         d,

@@ -127,7 +127,7 @@ def step(
         )
     _check_shapes("step", params, belief, meas, ())
     _check_call("step", params, terrain, key)
-    return _step(params, terrain, belief, meas, key)
+    return _step(params, terrain, belief, _as_jax(meas), key)
 
 
 def _check_params(fn: str, params) -> None:
@@ -175,7 +175,13 @@ def _check_call(fn: str, params, terrain, key) -> None:
 
 
 def _check_shapes(
-    fn: str, params, belief, meas, batch: tuple[int, ...], time: tuple[int, ...] = ()
+    fn: str,
+    params,
+    belief,
+    meas,
+    batch: tuple[int, ...],
+    time: tuple[int, ...] = (),
+    arg: str = "meas",
 ) -> None:
     """Trace-time check (static shapes only, no cost in the compiled program) that
     ``meas`` and ``belief`` fit ``params`` and each other: ``batch`` is the leading shape
@@ -184,7 +190,7 @@ def _check_shapes(
     robot = isinstance(meas, RobotMeasurement)
     if not robot and not isinstance(meas, LegMeasurement):
         raise ValueError(
-            f"{fn}: meas must be a LegMeasurement or RobotMeasurement, got {type(meas).__name__}"
+            f"{fn}: {arg} must be a LegMeasurement or RobotMeasurement, got {type(meas).__name__}"
         )
     if not isinstance(params, EstimatorParams):  # before params.nv is read
         _check_params(fn, params)
@@ -195,11 +201,14 @@ def _check_shapes(
         )
     want = time + batch + (params.nv,)
     if tuple(np.shape(meas.qdd)) != want:
-        what = "the leading axes of the batch" if time + batch else "unbatched"
+        if time:
+            what = f"the time axis T = {time[0]}, then the belief's batch {batch}"
+        else:
+            what = "the leading axes of the batch" if batch else "unbatched"
         raise ValueError(
-            f"{fn}: meas.qdd has shape {tuple(np.shape(meas.qdd))}; expected {want} ({what}, then"
-            f" params' nv = {params.nv}): parameters of another robot, or a measurement"
-            " batched differently"
+            f"{fn}: {arg}.qdd has shape {tuple(np.shape(meas.qdd))}; expected {want} ({what},"
+            f" then params' nv = {params.nv}): parameters of another robot, or a measurement"
+            " batched differently" + (" (time first: (T, n_envs, ...))" if time else "")
         )
     legs = (meas.n_legs,) if robot else ()
     if tuple(np.shape(belief.logit)) != batch + legs:
@@ -222,6 +231,12 @@ def _check_shapes(
             validate_measurement(meas, params.nv)
     except ValueError as err:
         raise ValueError(f"{fn}: {err}") from None
+
+
+def _as_jax(meas):
+    """The measurement's arrays as JAX arrays (NumPy float64 readings outside ``jit`` gave
+    a JAX dtype warning from inside the update; inside ``jit`` they already are)."""
+    return jax.tree.map(jnp.asarray, meas)
 
 
 def _batch_of(fn: str, belief: LegBelief) -> tuple[int, int]:
@@ -247,7 +262,8 @@ def _check_sequence(fn: str, params, belief, meas_seq, n_steps: int | None = Non
         )
     time = (shape[0] if n_steps is None else n_steps,) if shape else ()
     # _check_shapes names a meas_seq of another type, and every field's shape.
-    _check_shapes(fn, params, belief, meas_seq, (n_envs,) if robot else (n_envs, n_legs), time)
+    batch = (n_envs,) if robot else (n_envs, n_legs)
+    _check_shapes(fn, params, belief, meas_seq, batch, time, arg="meas_seq")
 
 
 def _step(params, terrain, belief, meas, key, switches=None):
@@ -365,7 +381,8 @@ def step_robot(
         )
     _check_shapes("step_robot", params, belief, meas, ())
     _check_call("step_robot", params, terrain, key)
-    return _step_legs(params, terrain, belief, meas, jax.random.split(key, meas.n_legs))
+    keys = jax.random.split(key, meas.n_legs)
+    return _step_legs(params, terrain, belief, _as_jax(meas), keys)
 
 
 def step_batch(
@@ -394,6 +411,7 @@ def step_batch(
     _check_call("step_batch", params, terrain, key)
     keys = jax.random.split(key, n_envs * n_legs)
     keys = keys.reshape((n_envs, n_legs) + keys.shape[1:])
+    meas = _as_jax(meas)
 
     if isinstance(meas, RobotMeasurement):
         return jax.vmap(lambda b, m, k: _step_legs(params, terrain, b, m, k, switches))(

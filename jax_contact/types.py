@@ -381,15 +381,7 @@ def _check_shapes(meas, expected: dict, batch: tuple[int, ...], what: str) -> No
                 f"measurement field {name!r} must be an array (NumPy or JAX), got"
                 f" {type(value).__name__}"
             )
-        dtype = value.dtype if hasattr(value, "dtype") else np.asarray(value).dtype
-        if not (
-            jnp.issubdtype(dtype, jnp.floating)
-            or jnp.issubdtype(dtype, jnp.integer)
-            or jnp.issubdtype(dtype, jnp.bool_)
-        ):
-            raise ValueError(
-                f"measurement field {name!r} has dtype {dtype}; expected real numbers (float)"
-            )
+        check_real(f"measurement field {name!r}", value)
         shape = np.shape(value)
         if shape != batch + tail:
             raise ValueError(
@@ -399,6 +391,26 @@ def _check_shapes(meas, expected: dict, batch: tuple[int, ...], what: str) -> No
     q = np.shape(meas.q)
     if q[:-1] != batch:
         raise ValueError(f"measurement field 'q' has shape {q}, expected {batch} + (nq,)")
+    try:  # the values, where they are known (not while traced); NaN is a lost reading
+        radius = np.asarray(meas.foot_radius, dtype=float)
+    except jax.errors.TracerArrayConversionError:
+        return
+    if np.any(radius < 0):
+        raise ValueError(
+            f"measurement field 'foot_radius' must be >= 0 (m), got {radius.min()}: the sole"
+            " is p_f's height minus the radius (eq. 13)"
+        )
+
+
+def check_real(what: str, value) -> None:
+    """Raises, naming ``what``, unless ``value`` holds real numbers (float or int).
+
+    A boolean, complex, string or object array is no reading: a bool would be read as 0
+    and 1 (a torque of 1 N m) without a word, as the exported estimator refuses it.
+    """
+    dtype = value.dtype if hasattr(value, "dtype") else np.asarray(value).dtype
+    if not (jnp.issubdtype(dtype, jnp.floating) or jnp.issubdtype(dtype, jnp.integer)):
+        raise ValueError(f"{what} has dtype {dtype}; expected real numbers (float)")
 
 
 def validate_robot_measurement(meas: RobotMeasurement, nv: int | None = None) -> tuple[int, ...]:

@@ -236,6 +236,27 @@ def test_refusals(robots, compiled):
     # The robot where its description belongs (robot.description).
     with pytest.raises(ValueError, match=r"desc must be .*RobotDescription \(robot\.description\)"):
         leg_measurements(mm_go1, d, robots["go1"])
+    # Booleans are no readings (read as torques of 0 and 1 N m, P ~0.5, without a word;
+    # the exported estimator refuses them).
+    with pytest.raises(ValueError, match=r"^mjx_data\.qvel has dtype bool; expected real"):
+        prepare(mm_go1, d.replace(qvel=np.zeros(18, bool)))
+    with pytest.raises(ValueError, match=r"^tau has dtype bool; expected real"):
+        leg_measurements(mm_go1, d, robots["go1"].description, tau=np.ones(18, bool))
+
+
+def test_prepare_takes_numpy_state_outside_jit(robots):
+    """A control loop's NumPy readings put in the data as they are, outside ``jit``: MJX's
+    scan over the bodies failed on a NumPy qvel ("numpy arg elements do not match"). Now
+    the same data as with JAX arrays (both eager, no compilation)."""
+    robot = robots["go1"]
+    mm = mjx.put_model(robot.mj_model, impl="jax")
+    state = _random_states(robot, 1, seed=3)[0]
+    base = mjx.make_data(mm)
+    as_np = prepare(mm, base.replace(qpos=state.qpos.copy(), qvel=state.qvel.copy()))
+    as_jax = prepare(mm, base.replace(qpos=jnp.asarray(state.qpos), qvel=jnp.asarray(state.qvel)))
+    assert isinstance(as_np.qvel, jax.Array)
+    for field in ("qfrc_bias", "cdof_dot", "xpos", "cvel"):
+        np.testing.assert_array_equal(getattr(as_np, field), getattr(as_jax, field))
 
 
 # One reading of each kind lost on Go1's front-left leg (leg 1: dofs 9-11, qpos 10-12),

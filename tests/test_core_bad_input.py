@@ -312,6 +312,14 @@ def test_validate_measurement_other_mistakes():
     fields["leg_dofs"] = fields["leg_dofs"].astype(np.float32)
     with pytest.raises(ValueError, match="leg_dofs"):
         validate_measurement(LegMeasurement(**fields))
+    # A negative radius where the values are known (the sole is p_f,z - r, eq. 13: -0.02
+    # moved P by 0.03, a helper's audit); NaN is a lost reading, not refused.
+    fields = _meas_fields((2,))
+    fields["foot_radius"] = np.array([0.02, -0.02])
+    with pytest.raises(ValueError, match=r"'foot_radius' must be >= 0 \(m\), got -0\.02"):
+        validate_measurement(LegMeasurement(**fields))
+    fields["foot_radius"] = np.array([0.02, np.nan])
+    assert validate_measurement(LegMeasurement(**fields)) == (2,)
     fields = _meas_fields()
     fields["leg_dofs"] = np.zeros((0,), np.int32)
     fields["other_dofs"] = np.arange(3, dtype=np.int32)
@@ -543,7 +551,16 @@ def test_key_terrain_and_params_are_named_before_anything_is_traced():
     with pytest.raises(ValueError, match=r"run: measurement field 'qd' must be an array.*list"):
         run(params, TERRAIN, init_belief_batch(params, 1, 1), _as_meas(seq).replace(
             qd=seq["qd"].tolist()), key=key)  # fmt: skip
-    for dtype in ("U8", np.complex64):
+    # The envs before the time axis: named as the sequence, with the axes it needs (it
+    # said "meas.qdd ... expected (3, 3, 3)" with no word of time).
+    swapped = _as_meas(_meas_fields((2, 5, 1)))  # (n_envs, T, n_legs) for a belief of 2 envs
+    with pytest.raises(
+        ValueError,
+        match=r"run: meas_seq\.qdd has shape \(2, 5, 1, 3\); expected \(2, 2, 1, 3\) \(the"
+        r" time axis T = 2, then the belief's batch \(2, 1\).*time first",
+    ):
+        run(params, TERRAIN, init_belief_batch(params, 2, 1), swapped, key=key)
+    for dtype in ("U8", np.complex64, bool):  # a bool was read as torques of 0 and 1 N m
         bad = _as_meas(seq).replace(tau=np.zeros((3, 1, 1, 3), dtype))
         with pytest.raises(ValueError, match=r"run: measurement field 'tau' has dtype"):
             run(params, TERRAIN, init_belief_batch(params, 1, 1), bad, key=key)
@@ -629,6 +646,26 @@ def test_flat_terrain_can_be_traced_and_differentiated():
         np.testing.assert_allclose(np.asarray(batched), [float(p(h0)), float(p(-h0))], rtol=1e-6)
     with pytest.raises(ValueError, match="sigma must be a finite scalar > 0"):
         flat(0.0, sigma=-1.0)
+
+
+def test_float64_numpy_readings_outside_jit_warn_nothing():
+    """A measurement of float64 NumPy arrays (a control loop's readings), eager: JAX warned
+    from inside the update ("Explicitly requested dtype float64 requested in eye is not
+    available"). Now converted at the entry, the same P as from float32 arrays."""
+    import warnings
+
+    params, key = PARAMS["quadrature"], jax.random.key(0)
+    fields = _meas_fields()
+    f64 = LegMeasurement(
+        **{k: v.astype(np.float64) if v.dtype.kind == "f" else v for k, v in fields.items()}
+    )
+    b0 = jax.tree.map(lambda x: x[0, 0], init_belief_batch(params, 1, 1))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        _, d64 = step(params, TERRAIN, b0, f64, key=key)
+    _, d32 = step(params, TERRAIN, b0, _as_meas(fields), key=key)
+    assert d64.p_contact.dtype == jnp.float32
+    np.testing.assert_array_equal(d64.p_contact, d32.p_contact)
 
 
 def test_float64_params_on_float32_readings_warn_nothing(recwarn):
