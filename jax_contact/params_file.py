@@ -230,7 +230,8 @@ def params_from_dict(payload: Mapping, *, source: str = "params"):
 
 
 def save_params(path: str | os.PathLike, params, provenance: Mapping | None = None) -> Path:
-    """Writes ``params`` as a versioned JSON file (atomically); returns the path.
+    """Writes ``params`` as a versioned JSON file (atomically, its folder created if it does
+    not exist); returns the path.
 
     Raises:
       ValueError: ``params`` fails :func:`jax_contact.validate_params` (the field named;
