@@ -15,8 +15,9 @@ Each sensor slot gives the force in the contact frame ``(f_n, f_t1, f_t2)`` and 
 normal and first tangent, oriented from geom1 (the foot) to geom2 (the floor); the force
 on the foot is ``-(f_n n + f_t1 t1 + f_t2 t2)`` with ``t2 = n x t1`` (checked against
 ``mujoco.mj_contactForce`` in ``tests/test_ground_truth.py``). A plane touches a sphere at
-one point; a height field at up to 4 (MJX's ``hfield_sphere``), so those sensors have 4
-slots and the slots are summed.
+one point, so that sensor has one slot; a capsule sole touches a plane at 2, a box,
+cylinder or mesh sole at up to 4, and a height field any foot at up to 4 (MJX's
+``hfield_sphere``), so those sensors have 4 slots and the slots are summed.
 
 The force of a foot is the floor's force on its body: the foot geom's, plus that of every
 other geom of the foot's body that can collide with the floor (one more sensor each). Read
@@ -58,11 +59,20 @@ _SLOT_SIZE = 9  # force (3) + normal (3) + tangent (3)
 _REDUCE_MINDIST = 1
 _PLANE = int(mujoco.mjtGeom.mjGEOM_PLANE)
 _HFIELD = int(mujoco.mjtGeom.mjGEOM_HFIELD)
-# Contacts MJX generates per geom pair: sphere-plane 1, sphere-hfield 4.
-_SLOTS = {_PLANE: 1, _HFIELD: 4}
-# Slots of the sensors on the foot body's other geoms (capsule-plane 2, box-plane 4; on a
-# height field the 4 deepest are kept).
-_BODY_SLOTS = 4
+# Contacts a geom pair generates: a sphere on a plane 1; a capsule on a plane 2, a box,
+# cylinder or mesh up to 4; on a height field up to 4 (MJX's hfield_sphere; the sensor
+# keeps the 4 deepest). A slot with no contact reads zero force.
+_SPHERE = int(mujoco.mjtGeom.mjGEOM_SPHERE)
+_SLOTS = 4
+# Slots of the sensors on the foot body's other geoms.
+_BODY_SLOTS = _SLOTS
+
+
+def _slots(m: mujoco.MjModel, foot_geom: int, floor_geom: int) -> int:
+    """Slots of a foot geom's sensor: one for a sphere on a plane, else :data:`_SLOTS` (a
+    box or capsule sole on a plane read through one slot lost half its force or more)."""
+    plane = int(m.geom_type[floor_geom]) == _PLANE
+    return 1 if plane and int(m.geom_type[foot_geom]) == _SPHERE else _SLOTS
 
 
 def _sensor_name(foot: int, floor_geom: int) -> str:
@@ -142,11 +152,7 @@ def with_contact_sensors(robot: Robot) -> Robot:
                 objname=foot_name,
                 reftype=mujoco.mjtObj.mjOBJ_GEOM,
                 refname=floor_name,
-                intprm=[
-                    _DATA_FORCE_NORMAL_TANGENT,
-                    _REDUCE_MINDIST,
-                    _SLOTS.get(int(m.geom_type[f]), 4),
-                ],
+                intprm=[_DATA_FORCE_NORMAL_TANGENT, _REDUCE_MINDIST, _slots(m, foot, f)],
             )
             for g in _body_geoms(m, foot, f):
                 spec.add_sensor(
@@ -191,7 +197,8 @@ class TruthLayout:
     Attributes:
       sensor_adr: static, per foot, per floor geom, the sensor's first index in
         ``sensordata``.
-      sensor_slots: static, per floor geom, the number of contact slots of its sensors.
+      sensor_slots: static, per foot, per floor geom, the number of contact slots of its
+        sensor (one for a sphere on a plane, else 4).
       body_sensors: static, per foot, ``(first index, slots)`` of the sensors between the
         floor and the foot body's other geoms (none on most robots).
       foot_geom_ids: static, the foot sphere geoms.
@@ -206,7 +213,7 @@ class TruthLayout:
     """
 
     sensor_adr: tuple[tuple[int, ...], ...] = struct.field(pytree_node=False)
-    sensor_slots: tuple[int, ...] = struct.field(pytree_node=False)
+    sensor_slots: tuple[tuple[int, ...], ...] = struct.field(pytree_node=False)
     body_sensors: tuple[tuple[tuple[int, int], ...], ...] = struct.field(pytree_node=False)
     foot_geom_ids: tuple[int, ...] = struct.field(pytree_node=False)
     foot_radii: tuple[float, ...] = struct.field(pytree_node=False)
@@ -254,9 +261,9 @@ def make_truth_layout(robot: Robot, *, threshold: float = 1.0) -> TruthLayout:
     if not (np.isfinite(threshold) and threshold >= 0):
         raise ValueError(f"threshold must be a finite float >= 0 (N), got {threshold!r}")
     m, desc = robot.mj_model, robot.description
-    adr, body = [], []
+    adr, slots, body = [], [], []
     for i in range(desc.n_legs):
-        row = []
+        row, row_slots = [], []
         for f in desc.floor_geom_ids:
             sid = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SENSOR, _sensor_name(i, f))
             if sid < 0:
@@ -265,7 +272,9 @@ def make_truth_layout(robot: Robot, *, threshold: float = 1.0) -> TruthLayout:
                     f" {desc.foot_names[i]!r}; pass it through with_contact_sensors first"
                 )
             row.append(int(m.sensor_adr[sid]))
+            row_slots.append(int(m.sensor_dim[sid]) // _SLOT_SIZE)
         adr.append(tuple(row))
+        slots.append(tuple(row_slots))
         extra = []
         for f in desc.floor_geom_ids:
             for g in _body_geoms(m, desc.foot_geom_ids[i], f):
@@ -278,13 +287,11 @@ def make_truth_layout(robot: Robot, *, threshold: float = 1.0) -> TruthLayout:
                     )
                 extra.append((int(m.sensor_adr[sid]), int(m.sensor_dim[sid]) // _SLOT_SIZE))
         body.append(tuple(extra))
-    slots, types, sizes, heights = [], [], [], []
+    types, sizes, heights = [], [], []
     for f in desc.floor_geom_ids:
         t = int(m.geom_type[f])
         if t not in (_PLANE, _HFIELD):
             raise ValueError(f"floor geom {f} has type {t}; only plane and height field work")
-        sid = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SENSOR, _sensor_name(0, f))
-        slots.append(int(m.sensor_dim[sid]) // _SLOT_SIZE)
         types.append(t)
         if t == _HFIELD:
             h = int(m.geom_dataid[f])
@@ -350,10 +357,12 @@ def foot_truth(layout: TruthLayout, d: mjx.Data) -> FootTruth:
       The :class:`FootTruth` of this step.
     """
     forces, normals = [], []
-    for row, extra in zip(layout.sensor_adr, layout.body_sensors, strict=True):
+    for row, row_slots, extra in zip(
+        layout.sensor_adr, layout.sensor_slots, layout.body_sensors, strict=True
+    ):
         f_world = jnp.zeros(3)
         f_normal = jnp.zeros(())
-        pairs = list(zip(row, layout.sensor_slots, strict=True)) + list(extra)
+        pairs = list(zip(row, row_slots, strict=True)) + list(extra)
         for adr, n_slots in pairs:
             block = d.sensordata[adr : adr + n_slots * _SLOT_SIZE].reshape(n_slots, _SLOT_SIZE)
             f_c, n, t1 = block[:, 0:3], block[:, 3:6], block[:, 6:9]

@@ -168,10 +168,10 @@ def _rollout(robot, gr, gait, seconds):
         fn = [
             sum(
                 d.sensordata[a + 9 * s]
-                for a, n_s in zip(row, layout.sensor_slots, strict=True)
+                for a, n_s in zip(row, row_slots, strict=True)
                 for s in range(n_s)
             )
-            for row in layout.sensor_adr
+            for row, row_slots in zip(layout.sensor_adr, layout.sensor_slots, strict=True)
         ]
         height = [d.geom_xpos[g][2] - r for g, r in zip(feet, layout.foot_radii, strict=True)]
         if gr.floating_base:

@@ -256,3 +256,62 @@ def test_force_counts_the_foot_bodys_other_geoms():
     # The scenario: the capsules carry most of the weight, the spheres a few newtons.
     assert (np.asarray(truth.normal_force) > 3.0 * on_sphere).all()
     np.testing.assert_allclose(truth.normal_force.sum(), m.body_subtreemass[1] * G, rtol=0.05)
+
+
+def test_box_and_capsule_soles_carry_their_whole_force(tmp_path, go1):
+    """A box sole touches a plane at 4 points and a capsule lying across the leg at 2; read
+    through one slot (the sphere's count) the truth kept one contact: 9 N of a box foot's
+    36 N, the four feet summing to a third of the weight (a helper's audit). A quadruped
+    with two box and two capsule soles, legs straight under position servos, settled in C
+    MuJoCo: the truth against mj_contactForce per foot, and the four normals against the
+    weight. Go1's sphere feet keep one slot."""
+    leg = (
+        '<body name="{s}_thigh" pos="{x} {y} 0"><joint name="{s}_hip" axis="0 1 0"/>'
+        '<geom type="capsule" fromto="0 0 0 0 0 -.2" size=".02" mass=".5"/>'
+        '<body name="{s}_shank" pos="0 0 -.2"><joint name="{s}_knee" axis="0 1 0"/>'
+        '<geom type="capsule" fromto="0 0 0 0 0 -.2" size=".015" mass=".2"/>{foot}</body></body>'
+    )
+    box = '<geom name="{s}" class="sole" type="box" pos="0 0 -.21" size=".03 .02 .01"/>'
+    cap = (
+        '<geom name="{s}" class="sole" type="capsule" fromto="0 -.02 -.21 0 .02 -.21" size=".01"/>'
+    )
+    legs = [("FL", 0.2, 0.12, box), ("FR", 0.2, -0.12, cap)]
+    legs += [("HL", -0.2, 0.12, cap), ("HR", -0.2, -0.12, box)]
+    xml = (
+        '<mujoco><option timestep="0.002"/><default><geom contype="0" conaffinity="0"/>'
+        '<default class="sole"><geom contype="1" conaffinity="1" mass=".05"/></default>'
+        '</default><worldbody><geom name="floor" type="plane" size="5 5 .1" contype="1"'
+        ' conaffinity="1"/><body name="trunk" pos="0 0 .43"><freejoint/>'
+        '<geom type="box" size=".25 .1 .05" mass="8"/>'
+        + "".join(leg.format(s=s, x=x, y=y, foot=f.format(s=s)) for s, x, y, f in legs)
+        + "</body></worldbody><actuator>"
+        + "".join(
+            f'<position joint="{s}_{j}" kp="200"/>' for s, *_ in legs for j in ("hip", "knee")
+        )
+        + "</actuator></mujoco>"
+    )
+    path = tmp_path / "soles.xml"
+    path.write_text(xml)
+    robot = with_contact_sensors(load_robot(str(path), foot_names=["FL", "FR", "HL", "HR"]))
+    layout = make_truth_layout(robot)
+    assert layout.sensor_slots == ((4,),) * 4
+    assert go1[1].sensor_slots == ((1,),) * 4
+    m = robot.mj_model
+    d = mujoco.MjData(m)
+    for _ in range(500):
+        mujoco.mj_step(m, d)
+    feet = list(robot.description.foot_geom_ids)
+    expected, contacts = np.zeros((4, 3)), np.zeros(4, int)
+    for i in range(d.ncon):
+        c = d.contact[i]
+        f6 = np.zeros(6)
+        mujoco.mj_contactForce(m, d, i, f6)
+        world = c.frame.reshape(3, 3).T @ f6[:3]
+        for g, sign in ((c.geom1, -1.0), (c.geom2, 1.0)):
+            if g in feet:
+                expected[feet.index(g)] += sign * world
+                contacts[feet.index(g)] += 1
+    assert contacts.tolist() == [4, 2, 2, 4]  # the scenario: every sole flat on the floor
+    truth = foot_truth(layout, _c_view(m, d))
+    np.testing.assert_allclose(truth.force, expected, rtol=1e-4, atol=1e-3)
+    np.testing.assert_allclose(truth.normal_force.sum(), m.body_subtreemass[1] * G, rtol=0.02)
