@@ -574,7 +574,7 @@ def test_sequence_bce_checks_its_truth():
     with pytest.raises(ValueError, match=r"sequence_bce: truth has shape \(4, 1\); expected"):
         sequence_bce(params, TERRAIN, seq, np.ones((4, 1)), key=key)
     # One step short: the measurement's time axis is named against the truth's.
-    with pytest.raises(ValueError, match=r"sequence_bce: meas\.qdd has shape \(4, 1, 2, 3\);"
+    with pytest.raises(ValueError, match=r"sequence_bce: meas_seq\.qdd has shape \(4, 1, 2, 3\);"
                        r" expected \(3, 1, 2, 3\)"):  # fmt: skip
         sequence_bce(params, TERRAIN, seq, np.ones((3, 1, 2)), key=key)
     # {0, 2} gave a negative cross-entropy.
