@@ -133,6 +133,40 @@ def _leg_chain(m: mujoco.MjModel, foot_body: int, base_body: int) -> list[int]:
     return chain[::-1]
 
 
+def leg_phase_offsets(foot_home: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(trot, walk) phase offsets, each (n_legs,), from the standing feet in the base frame.
+
+    Leg roles: left is +y of the base (above the feet's mean), and along each side the legs
+    are ranked from the front (+x). The trot alternates along each side and across: a
+    quadruped's diagonal pairs (front-left with hind-right, front-right with hind-left half
+    a cycle later), a hexapod's alternating tripods, a biped's alternating legs (before,
+    any leg count but four trotted every leg in phase: a pronk). A quadruped's walk is the
+    lateral sequence: left-hind, left-front, right-hind, right-front lift a quarter cycle
+    apart (a leg whose phase is ahead by x lifts x of a cycle earlier, so the offset is
+    minus the delay); on other leg counts the walk's legs lift one ``1 / n_legs`` of a
+    cycle apart in the order of the feet (``--feet``; found feet: the model's order). One
+    leg: 0.
+    """
+    n = len(foot_home)
+    if n == 1:
+        return np.zeros(1), np.zeros(1)
+    x, y = foot_home[:, 0], foot_home[:, 1]
+    left = y - np.mean(y) > 1e-6  # a leg on the axis (a radial hexapod's front) is right
+    rank = np.zeros(n, int)  # from the front, along each side
+    sequence = []  # a quadruped's walk: the left side hind to front, then the right side
+    for side in (True, False):
+        legs = np.flatnonzero(left == side)
+        front_first = legs[np.argsort(-x[legs], kind="stable")]
+        rank[front_first] = np.arange(len(legs))
+        sequence += list(front_first[::-1])
+    trot = 0.5 * ((rank + left + 1) % 2)
+    if n != 4 or left.sum() != 2:
+        return trot, np.arange(n) / n
+    delay = np.empty(n)
+    delay[sequence] = np.arange(n) / n
+    return trot, (1.0 - delay) % 1.0
+
+
 def make_gait_robot(
     robot: Robot,
     settings: GaitSettings | None = None,
@@ -221,20 +255,7 @@ def make_gait_robot(
     foot_home = feet_in_base(m, desc, home)
     q_home = home[leg_qpos]
 
-    # Leg roles from the standing feet: front is +x, left is +y of the base.
-    front = foot_home[:, 0] > np.mean(foot_home[:, 0])
-    left = foot_home[:, 1] > np.mean(foot_home[:, 1])
-    trot = np.where(front == left, 0.0, 0.5)  # FL & HR together, FR & HL half a cycle later
-    # Lateral sequence: left-hind lifts first, then left-front, right-hind, right-front, a
-    # quarter cycle apart. A leg whose phase is ahead by x lifts x of a cycle earlier, so
-    # the offset is minus the delay.
-    walk_delay = {(False, True): 0.0, (True, True): 0.25, (False, False): 0.5, (True, False): 0.75}
-    walk = np.array(
-        [(1.0 - walk_delay[(bool(f), bool(lf))]) % 1.0 for f, lf in zip(front, left, strict=True)]
-    )
-    if n_legs != 4:
-        trot = np.zeros(n_legs)
-        walk = np.arange(n_legs) / n_legs
+    trot, walk = leg_phase_offsets(foot_home)
     phase_offset = np.stack([trot, walk, np.zeros(n_legs)])
 
     # Actuators: affine force law, no activation dynamics, on one joint each.

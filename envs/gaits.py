@@ -9,9 +9,11 @@ Gaits (``GaitParams.kind``; the trot and the walk differ only in data, the leg p
 offsets and the sway, so one compiled program runs both; the hop is a program of its own):
 
 - ``trot``: diagonal pairs (front-left with hind-right, front-right with hind-left) half a
-  period apart.
+  period apart; on other leg counts, legs alternating along each side and across (a
+  hexapod's tripods; :func:`jax_contact.envs.gait_robot.leg_phase_offsets`).
 - ``walk``: a static lateral-sequence walk, one foot at a time (hind-left, front-left,
-  hind-right, front-right, a quarter period apart) with ``duty >= 0.75``; the body sways
+  hind-right, front-right, a quarter period apart; on other leg counts one leg after
+  another in the feet's order, ``1 / n_legs`` apart) with ``duty >= 0.75``; the body sways
   sideways, away from the side whose feet swing (``sway``), so that the centre of mass
   leaves the diagonal of the two feet beside the lifted one.
 - ``hop``: one leg (the planar leg of the paper's Section III on its vertical rail): the

@@ -16,6 +16,7 @@ import mujoco
 import numpy as np
 import pytest
 
+from jax_contact.envs.gait_robot import leg_phase_offsets
 from jax_contact.envs.gaits import (
     GAIT_SETTINGS,
     GaitSettings,
@@ -305,6 +306,33 @@ def test_trot_and_walk_are_one_program_and_keep_their_own_targets(robots):
     both = jax.tree.map(lambda a, b: jnp.stack([a, b]), trot, walk)
     assert jax.vmap(lambda s: walk.replace(speed=s))(jnp.zeros(3)).kind == "walk"
     assert both.kind == "mixed"
+
+
+def test_phase_offsets_of_any_leg_count():
+    """Legs ranked by their standing feet (front +x, left +y). Hand-derived: Go1's order
+    FR, FL, RR, RL keeps its diagonal pairs (FL & RR at 0, FR & RL at 0.5) and its lateral
+    walk (delays RL 0, FL 1/4, RR 1/2, FR 3/4; offset = 1 - delay). A hexapod L1-L3, R1-R3
+    (front to hind) trots in tripods, {L1, L3, R2} against {L2, R1, R3} half a cycle
+    later (before, any leg count but four trotted every leg in phase: a pronk), and walks
+    one leg after another in the feet's order, one sixth apart, as before. The fixture's
+    radial hexapod (legs L0-L5 every 60 degrees from the front, L0 and L3 on the axis)
+    alternates around the circle: {L0, L2, L4} against {L1, L3, L5}."""
+    quad = np.array([[0.19, -0.13, 0], [0.19, 0.13, 0], [-0.19, -0.13, 0], [-0.19, 0.13, 0]])
+    trot, walk = leg_phase_offsets(quad)
+    np.testing.assert_allclose(trot, [0.5, 0.0, 0.0, 0.5])
+    np.testing.assert_allclose(walk, [0.25, 0.75, 0.5, 0.0])
+    hexa = np.array([[x, y, 0.0] for y in (0.2, -0.2) for x in (0.13, 0.0, -0.13)])
+    trot, walk = leg_phase_offsets(hexa)
+    np.testing.assert_allclose(trot, [0.0, 0.5, 0.0, 0.5, 0.0, 0.5])
+    np.testing.assert_allclose(walk, np.arange(6) / 6)
+    angles = np.radians(60.0 * np.arange(6))
+    radial = np.stack([0.2 * np.cos(angles), 0.2 * np.sin(angles), np.zeros(6)], axis=1)
+    np.testing.assert_allclose(leg_phase_offsets(radial)[0], [0.5, 0, 0.5, 0, 0.5, 0], atol=0)
+    # A biped alternates; one leg has nothing to alternate with.
+    np.testing.assert_allclose(
+        leg_phase_offsets(np.array([[0, 0.1, 0], [0, -0.1, 0]]))[0], [0, 0.5]
+    )
+    assert [o.tolist() for o in leg_phase_offsets(np.zeros((1, 3)))] == [[0.0], [0.0]]
 
 
 def test_make_gait_rejects_bad_arguments():
