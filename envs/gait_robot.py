@@ -22,6 +22,7 @@ from jax_contact.envs.gait_settings import (
     GaitSettings,
     actuator_law,
     feet_in_base,
+    gait_foot_points,
     gait_settings,
     has_free_joint,
     resolve_gait_settings,
@@ -43,12 +44,13 @@ class GaitRobot:
       joint_axis: (n_legs, n_chain, 3) the hinge axis in the body frame (unit).
       joint_slot: (n_legs, n_chain) int32, which of the leg's joints the hinge is (-1: none,
         or a joint above several feet, folded into the link at its standing angle).
-      foot_offset: (n_legs, 3) foot sphere centre in the last chain body, m.
+      foot_offset: (n_legs, 3) the foot point the gait places, in the last chain body
+        (:func:`jax_contact.envs.gait_settings.gait_foot_points`), m.
       leg_qpos: (n_legs, n_l) int32 ``qpos`` index of each leg joint.
       leg_dof: (n_legs, n_l) int32 ``qvel`` index of each leg joint.
       q_home: (n_legs, n_l) joint angles of the standing pose, rad (the IK's start).
       q_low, q_high: (n_legs, n_l) joint ranges, rad (+-inf where unlimited).
-      foot_home: (n_legs, 3) foot centres in the base frame at the standing pose, m.
+      foot_home: (n_legs, 3) those points in the base frame at the standing pose, m.
       phase_offset: (3, n_legs) leg phase offsets for trot, walk, hop (rows in
         :data:`KINDS` order).
       base_height: () standing height of the base origin above the floor, m.
@@ -283,7 +285,7 @@ def make_gait_robot(
         joint_pos=f32(joint_pos),
         joint_axis=f32(joint_axis),
         joint_slot=jnp.asarray(joint_slot),
-        foot_offset=f32(np.array(desc.foot_offsets)),
+        foot_offset=f32(gait_foot_points(m, desc, home)),
         leg_qpos=jnp.asarray(leg_qpos),
         leg_dof=jnp.asarray(leg_dof),
         q_home=f32(q_home),

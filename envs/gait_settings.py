@@ -132,14 +132,49 @@ def has_free_joint(m: mujoco.MjModel, base_body: int) -> bool:
     )
 
 
+# Sole points within this of the lowest at the standing pose are the gait's foot point, m.
+SOLE_LEVEL = 1e-3
+
+
+def gait_foot_points(m: mujoco.MjModel, desc, qpos: np.ndarray) -> np.ndarray:
+    """(n_legs, 3) the point of each foot the scripted gaits place, in its body's frame.
+
+    The description's foot point (``desc.foot_offsets``: a sphere's centre, a sole's
+    centre, a site), except for a foot with a sole (``desc.soles``: a capsule's segment
+    ends, a flat sole's corners): the mean of its sole points within :data:`SOLE_LEVEL` of
+    the lowest at ``qpos``. A capsule shin found as the foot is then placed by its lower
+    end, not by its centre half a shin higher (the robot fell); a flat sole or a capsule
+    lying across the leg keeps its centre.
+    """
+    d = mujoco.MjData(m)
+    d.qpos[:] = qpos
+    mujoco.mj_kinematics(m, d)
+    out = []
+    for body, point, sole in zip(desc.foot_body_ids, desc.foot_offsets, desc.soles, strict=True):
+        if not sole:
+            out.append(np.asarray(point, np.float64))
+            continue
+        local = np.asarray(sole, np.float64)
+        z = (d.xmat[body].reshape(3, 3) @ local.T)[2]
+        out.append(local[z <= z.min() + SOLE_LEVEL].mean(axis=0))
+    return np.stack(out)
+
+
 def feet_in_base(m: mujoco.MjModel, desc, qpos: np.ndarray) -> np.ndarray:
-    """(n_legs, 3) foot sphere centres in the base frame at ``qpos``, from MuJoCo."""
+    """(n_legs, 3) the gaits' foot points (:func:`gait_foot_points`) in the base frame at
+    ``qpos``, from MuJoCo."""
     d = mujoco.MjData(m)
     d.qpos[:] = qpos
     mujoco.mj_kinematics(m, d)
     base_pos = d.xpos[desc.base_body_id]
     base_rot = d.xmat[desc.base_body_id].reshape(3, 3)
-    return np.stack([base_rot.T @ (d.geom_xpos[g] - base_pos) for g in desc.foot_geom_ids])
+    points = gait_foot_points(m, desc, qpos)
+    return np.stack(
+        [
+            base_rot.T @ (d.xpos[b] + d.xmat[b].reshape(3, 3) @ p - base_pos)
+            for b, p in zip(desc.foot_body_ids, points, strict=True)
+        ]
+    )
 
 
 def actuator_law(m: mujoco.MjModel):

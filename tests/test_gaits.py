@@ -335,6 +335,53 @@ def test_phase_offsets_of_any_leg_count():
     assert [o.tolist() for o in leg_phase_offsets(np.zeros((1, 3)))] == [[0.0], [0.0]]
 
 
+def test_the_gaits_place_a_capsule_shin_by_its_lower_end(tmp_path):
+    """A quadruped whose shanks are floor-touching capsules from the knee down 0.2 m, with a
+    site at each tip and no foot geom (a helper's model): the feet found are the shank
+    capsules, whose point is the capsule's centre, 0.1 m above the tip. The gaits placed
+    that centre and both robots fell on the trot; they now place the lowest of the
+    capsule's ends at the standing pose (knees bent 1 rad, hips 0.5 rad: the lower end,
+    (0, 0, -0.2) in the shank frame, is lower than the knee end by 0.2 cos(0.5) m). The
+    sites named as feet are placed where they are, at the same point."""
+    from jax_contact.envs.gait_settings import feet_in_base, gait_foot_points
+
+    leg = (
+        '<body name="{s}_thigh" pos="{x} {y} 0"><joint name="{s}_hip" axis="0 1 0"/>'
+        '<geom type="capsule" fromto="0 0 0 0 0 -.2" size=".02" mass=".6"/>'
+        '<body name="{s}_shank" pos="0 0 -.2"><joint name="{s}_knee" axis="0 1 0"/>'
+        '<geom contype="1" conaffinity="1" type="capsule" fromto="0 0 0 0 0 -.2" size=".015"'
+        ' mass=".2"/><site name="{s}_tip" pos="0 0 -.2"/></body></body>'
+    )
+    sides = [("FL", 0.2, 0.12), ("FR", 0.2, -0.12), ("HL", -0.2, 0.12), ("HR", -0.2, -0.12)]
+    xml = (
+        '<mujoco><default><geom contype="0" conaffinity="0"/></default><worldbody>'
+        '<geom name="floor" type="plane" size="5 5 .1" contype="1" conaffinity="1"/>'
+        '<body name="trunk" pos="0 0 .36"><freejoint/><geom type="box" size=".25 .1 .05"'
+        ' mass="8"/>'
+        + "".join(leg.format(s=s, x=x, y=y) for s, x, y in sides)
+        + "</body></worldbody><actuator>"
+        + "".join(f'<motor joint="{s}_{j}"/>' for s, *_ in sides for j in ("hip", "knee"))
+        + "</actuator></mujoco>"
+    )
+    path = tmp_path / "shins.xml"
+    path.write_text(xml)
+    home = np.array([0, 0, 0.366, 1, 0, 0, 0] + [0.5, -1.0] * 4)
+    found = load_robot(str(path)).description
+    assert found.foot_names == ("FL_shank", "FR_shank", "HL_shank", "HR_shank")
+    np.testing.assert_allclose(found.foot_offsets, [(0, 0, -0.1)] * 4, atol=1e-12)
+    m = load_robot(str(path)).mj_model
+    np.testing.assert_allclose(gait_foot_points(m, found, home), [(0, 0, -0.2)] * 4, atol=1e-12)
+    sites = load_robot(str(path), foot_names=[f"{s}_tip" for s, *_ in sides]).description
+    np.testing.assert_allclose(gait_foot_points(m, sites, home), [(0, 0, -0.2)] * 4, atol=1e-12)
+
+    # In the base frame: hip at (x, y, 0); a hinge about y by a turns (0, 0, -L) into
+    # (-L sin a, 0, -L cos a); thigh at 0.5 rad, shank at 0.5 - 1 = -0.5 rad: the x
+    # shifts cancel, z = -0.4 cos 0.5.
+    expected = [(x, y, -0.4 * np.cos(0.5)) for _, x, y in sides]
+    np.testing.assert_allclose(feet_in_base(m, found, home), expected, atol=1e-9)
+    np.testing.assert_allclose(feet_in_base(m, sites, home), expected, atol=1e-9)
+
+
 def test_make_gait_rejects_bad_arguments():
     with pytest.raises(ValueError, match="kind must be one of"):
         make_gait("gallop")
