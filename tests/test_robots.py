@@ -833,3 +833,21 @@ def test_feet_of_an_all_sphere_model_are_the_distal_spheres():
     assert desc.n_leg_dofs == 3 and desc.foot_radii == (0.02,) * 3
     assert desc.foot_offsets == ((0.0, 0.0, -0.2),) * 3
     assert desc == derive_description(m, ["FR", "FL", "RR"])
+
+
+def test_feet_that_never_lift_are_named():
+    """Sole heights by hand (T 3, 2 envs, 3 feet): foot a swings 4 cm in env 1; foot b
+    never rises above 0.4 mm (a user's "trot" whose knee range, in degrees read as
+    radians, held every foot on the floor); foot c rises 6 cm only on a step after env
+    0's fall, which is not scored, so it is named too, at its 3 mm. A log whose every
+    step is invalid names nothing (no height at all)."""
+    from jax_contact.train.logs import LIFT_M, feet_that_never_lift
+
+    assert LIFT_M == 0.005
+    dist = np.zeros((3, 2, 3))
+    dist[1, 1, 0] = 0.04
+    dist[:, :, 1] = 0.0004
+    dist[2, 0, 2], dist[0, 1, 2] = 0.06, 0.003
+    valid = np.array([[True, True], [True, True], [False, True]])
+    assert feet_that_never_lift(dist, valid, ["a", "b", "c"]) == {"b": 0.4, "c": 3.0}
+    assert feet_that_never_lift(dist, np.zeros((3, 2), bool), ["a", "b", "c"]) == {}

@@ -93,7 +93,8 @@ def simulate_to_file(
             f"note: the model's timestep {loaded.mj_model.opt.timestep:g} s is replaced by"
             f" {world.dt:g} s: the physics runs at the estimator's rate, one reading per step"
         )
-    roll = simulate(world, make_gait(gait), noise, n_envs, duration, seed, speed_range=speeds)
+    gait_params = make_gait(gait)
+    roll = simulate(world, gait_params, noise, n_envs, duration, seed, speed_range=speeds)
     write_log(path, roll.to_arrays(), attrs)
     n_valid = int(roll.valid[-1].sum())
     print(
@@ -105,7 +106,40 @@ def simulate_to_file(
             " on are invalid, not scored): check the gait settings (--kp, --kd, --base-height,"
             " --home-key) and that --feet names every foot"
         )
+    # Judged on a log of a full cycle after the ramp (a 0.3 s walk has no swing yet).
+    full_cycle = duration >= float(gait_params.ramp_time) + float(gait_params.period)
+    still = feet_that_never_lift(roll.distance, roll.valid, loaded.description.foot_names)
+    if still and full_cycle:
+        print(
+            f"warning: feet that never lifted more than {LIFT_M * 1e3:g} mm in this {gait} log"
+            f" (their highest sole, mm): {still}: the gait did not move them, so the log has"
+            " no swing of theirs to score; check the model's joint ranges and angle unit"
+            ' (<compiler angle="radian"/> for ranges in radians) and the gait settings'
+        )
     return path
+
+
+# A foot whose sole never rises this far above the floor in a gait log never swung, m.
+LIFT_M = 0.005
+
+
+def feet_that_never_lift(distance, valid, names) -> dict[str, float]:
+    """Feet whose sole stays within :data:`LIFT_M` of the floor on every valid step of
+    every env (a user's model whose knee range was in degrees read as radians: a "trot"
+    whose largest gap was 0.4 mm, and no word), with their highest sole, mm.
+
+    Args:
+      distance: (T, n_envs, n_legs) the sole's height above the floor, m.
+      valid: (T, n_envs) steps before a fall.
+      names: the feet's names.
+    """
+    d = np.where(np.asarray(valid, bool)[..., None], np.asarray(distance, float), -np.inf)
+    top = d.max(axis=(0, 1))
+    return {
+        n: round(float(h) * 1e3, 1)
+        for n, h in zip(names, top, strict=True)
+        if np.isfinite(h) and h < LIFT_M
+    }
 
 
 # Feet whose soles differ in height by more than this at the home pose, m: one of them is
