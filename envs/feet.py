@@ -64,6 +64,7 @@ import mujoco
 import numpy as np
 
 from jax_contact.robot import (
+    NO_FLOOR,
     RobotDescription,
     actuated_dofs,
     body_chain,
@@ -73,6 +74,7 @@ from jax_contact.robot import (
     model_mass,
     sphere_foot_names,
     split_legs,
+    unactuated_leg,
     warn_joints_below,
 )
 
@@ -329,7 +331,7 @@ def find_feet(m: mujoco.MjModel, feet=None) -> tuple[tuple[Foot, ...], list[int]
     """(the feet, the floor geoms): module docstring for the rules."""
     floor_ids = floors(m)
     if not floor_ids:
-        raise ValueError("mj_model has no floor: no plane or height-field geom in the world body")
+        raise ValueError(NO_FLOOR)
     colliders = [g for g in range(m.ngeom) if m.geom_bodyid[g] != 0 and touches(m, g, floor_ids)]
     if not colliders:
         raise ValueError(
@@ -376,14 +378,14 @@ def describe(m: mujoco.MjModel, feet=None) -> tuple[RobotDescription, tuple[Foot
         ""
         if feet
         else f" (feet found by rule: {[f.name for f in resolved]}; is this a legged robot?"
-        " name its feet with foot_names)"
+        " name its feet: foot_names, or --feet)"
     )
     for f in resolved:
         base, dofs = leg_of(m, f.body_id, actuated)
         if not dofs:
             raise ValueError(f"foot {f.name!r} has no leg: no joint between it and the base{found}")
         if not actuated.intersection(dofs):
-            raise ValueError(f"foot {f.name!r}: none of its leg's joints is actuated{found}")
+            raise unactuated_leg(m, f.name, dofs, actuated, found)
         legs.append(tuple(dofs))
         bases.append(base)
     legs, others = split_legs(m, legs, [f.name for f in resolved], actuated)

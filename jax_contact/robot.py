@@ -37,6 +37,14 @@ _JOINT_DOFS = (6, 3, 1, 1)
 _ROTARY = (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_BALL))
 
 
+# The refusal of a model without a floor (a model converted from URDF has none).
+NO_FLOOR = (
+    "the robot model has no floor: no plane or height-field geom in its world body; add one"
+    ' to <worldbody>, e.g. <geom name="floor" type="plane" size="5 5 .1"/>, at the height'
+    " of the ground the readings stand on (z = 0 for a base estimate relative to the ground)"
+)
+
+
 @dataclasses.dataclass(frozen=True)
 class RobotDescription:
     """Feet, legs and coordinate split of a legged robot. Hashable; all fields static.
@@ -201,6 +209,19 @@ def leg_of(m: mujoco.MjModel, body: int, actuated: set[int]) -> tuple[int, list[
     return base, sorted(d for b in leg_bodies for d in _body_dofs(m, b))
 
 
+def unactuated_leg(
+    m: mujoco.MjModel, label: str, dofs: Sequence[int], actuated: set[int], note: str = ""
+) -> ValueError:
+    """The refusal of a foot whose leg has no joint actuator, naming its joints."""
+    joints = [m.joint(int(m.dof_jntid[d])).name or f"<dof {d}>" for d in dofs]
+    every = "" if actuated else " (the model has no joint actuator at all)"
+    return ValueError(
+        f"foot {label!r}: none of its leg's joints {joints} is driven by a joint"
+        f" actuator{every}; the estimator needs joint torques (add a motor or position"
+        f" actuator per joint){note}"
+    )
+
+
 def split_legs(
     m: mujoco.MjModel,
     chains: Sequence[Sequence[int]],
@@ -336,7 +357,7 @@ def derive_description(
     m = mj_model
     floors, candidates = floor_spheres(m)
     if not floors:
-        raise ValueError("mj_model has no floor: no plane or height-field geom in the world body")
+        raise ValueError(NO_FLOOR)
     if not candidates:
         raise ValueError(
             "mj_model has no floor contact: no sphere geom outside the world body can collide"
@@ -381,13 +402,7 @@ def derive_description(
         if not dofs:
             raise ValueError(f"foot {label!r} has no leg: no joint between it and the base")
         if not actuated.intersection(dofs):
-            joints = [m.joint(int(m.dof_jntid[d])).name or f"<dof {d}>" for d in dofs]
-            every = "" if actuated else " (the model has no joint actuator at all)"
-            raise ValueError(
-                f"foot {label!r}: none of its leg's joints {joints} is driven by a joint"
-                f" actuator{every}; the estimator needs joint torques (add a motor or position"
-                " actuator per joint)"
-            )
+            raise unactuated_leg(m, label, dofs, actuated)
         legs.append(tuple(dofs))
         bases.append(base)
     legs, others = split_legs(m, legs, [_geom_label(m, g) for g in feet], actuated)
