@@ -29,6 +29,19 @@ def _c_view(m: mujoco.MjModel, d: mujoco.MjData):
     )
 
 
+def _forces_on_geoms(m: mujoco.MjModel, d: mujoco.MjData):
+    """Independent reference, C MuJoCo's mj_contactForce: for every contact and each of its
+    two geoms, ``(geom, world force on it (3,), normal force)``. The force in the contact
+    frame (rows: normal, tangents) acts on geom2; geom1 gets minus it."""
+    for i in range(d.ncon):
+        c = d.contact[i]
+        f6 = np.zeros(6)
+        mujoco.mj_contactForce(m, d, i, f6)
+        world = c.frame.reshape(3, 3).T @ f6[:3]
+        yield int(c.geom1), -world, f6[0]
+        yield int(c.geom2), world, f6[0]
+
+
 @pytest.fixture(scope="module")
 def go1():
     robot = with_contact_sensors(load_robot("go1"))
@@ -137,19 +150,11 @@ def test_force_matches_mj_contact_force():
         robot = with_contact_sensors(robot)
         layout = make_truth_layout(robot)
         m, d = _settled(robot)
-        # Independent reference: each contact's force in its frame (rows: normal, tangents),
-        # acting on geom2; the floor's force on a foot is minus that if the foot is geom1.
         expected = np.zeros((4, 3))
         feet = list(robot.description.foot_geom_ids)
-        for i in range(d.ncon):
-            c = d.contact[i]
-            f6 = np.zeros(6)
-            mujoco.mj_contactForce(m, d, i, f6)
-            world = c.frame.reshape(3, 3).T @ f6[:3]
-            if c.geom1 in feet:
-                expected[feet.index(c.geom1)] -= world
-            if c.geom2 in feet:
-                expected[feet.index(c.geom2)] += world
+        for g, force, _ in _forces_on_geoms(m, d):
+            if g in feet:
+                expected[feet.index(g)] += force
         truth = foot_truth(layout, _c_view(m, d))
         np.testing.assert_allclose(truth.force, expected, rtol=1e-4, atol=1e-3)
         assert (np.linalg.norm(expected, axis=1) > 5.0).all()  # every foot is loaded
@@ -240,17 +245,12 @@ def test_force_counts_the_foot_bodys_other_geoms():
     bodies = [int(m.geom_bodyid[g]) for g in feet]
     expected = np.zeros((4, 3))
     on_sphere = np.zeros(4)
-    for i in range(d.ncon):
-        c = d.contact[i]
-        f6 = np.zeros(6)
-        mujoco.mj_contactForce(m, d, i, f6)
-        world = c.frame.reshape(3, 3).T @ f6[:3]
-        for g, sign in ((c.geom1, -1.0), (c.geom2, 1.0)):
-            if int(m.geom_bodyid[g]) in bodies:
-                leg = bodies.index(int(m.geom_bodyid[g]))
-                expected[leg] += sign * world
-                if g in feet:
-                    on_sphere[leg] += f6[0]
+    for g, force, normal in _forces_on_geoms(m, d):
+        if int(m.geom_bodyid[g]) in bodies:
+            leg = bodies.index(int(m.geom_bodyid[g]))
+            expected[leg] += force
+            if g in feet:
+                on_sphere[leg] += normal
     truth = foot_truth(layout, _c_view(m, d))
     np.testing.assert_allclose(truth.force, expected, rtol=1e-4, atol=1e-3)
     # The scenario: the capsules carry most of the weight, the spheres a few newtons.
@@ -302,15 +302,10 @@ def test_box_and_capsule_soles_carry_their_whole_force(tmp_path, go1):
         mujoco.mj_step(m, d)
     feet = list(robot.description.foot_geom_ids)
     expected, contacts = np.zeros((4, 3)), np.zeros(4, int)
-    for i in range(d.ncon):
-        c = d.contact[i]
-        f6 = np.zeros(6)
-        mujoco.mj_contactForce(m, d, i, f6)
-        world = c.frame.reshape(3, 3).T @ f6[:3]
-        for g, sign in ((c.geom1, -1.0), (c.geom2, 1.0)):
-            if g in feet:
-                expected[feet.index(g)] += sign * world
-                contacts[feet.index(g)] += 1
+    for g, force, _ in _forces_on_geoms(m, d):
+        if g in feet:
+            expected[feet.index(g)] += force
+            contacts[feet.index(g)] += 1
     assert contacts.tolist() == [4, 2, 2, 4]  # the scenario: every sole flat on the floor
     truth = foot_truth(layout, _c_view(m, d))
     np.testing.assert_allclose(truth.force, expected, rtol=1e-4, atol=1e-3)
