@@ -108,8 +108,9 @@ def simulate_to_file(
         )
     # Judged on a log of a full cycle after the ramp (a 0.3 s walk has no swing yet).
     full_cycle = duration >= float(gait_params.ramp_time) + float(gait_params.period)
-    still = feet_that_never_lift(roll.distance, roll.valid, loaded.description.foot_names)
-    if still and full_cycle:
+    names = loaded.description.foot_names
+    still = feet_that_never_lift(roll.distance, roll.valid, names) if full_cycle else {}
+    if still:
         print(
             f"warning: feet that never lifted more than {LIFT_M * 1e3:g} mm in this {gait} log"
             f" (their highest sole, mm): {still}: the gait did not move them, so the log has"
