@@ -577,6 +577,52 @@ def test_the_torque_check_counts_only_valid_still_steps():
     assert dynamics_disagrees(p_dyn[:, 1:], p_dk[:, 1:], valid[:, 1:], ["b", "c"]) is None
 
 
+def test_the_torque_check_tells_a_straight_leg_from_wrong_torques():
+    """A user's biped standing straight on flat soles read air (P 0.004 under 95 N) and the
+    warning blamed the torques' sign or unit. A one-legged model on a rail (hip and knee
+    about y) with a box sole whose centre is 1 cm ahead of the shank: straight (qpos0),
+    the sole centre relative to the hip is (0.01, 0, -0.51) and to the knee (0.01, 0,
+    -0.26); a hinge about y moves it by y x r = (r_z, 0, -r_x) per radian, so the Jacobian
+    over (hip, knee) has rows x (-0.51, -0.26) and z (-0.01, -0.01): ratio
+    0.01 sqrt(2) / sqrt(0.51^2 + 0.26^2) = 0.0247, below STRAIGHT_LEG_RATIO. Knees bent
+    (hip 0.5 rad, knee -1 rad) it is not named. The warning then names the straight leg
+    first."""
+    import mujoco
+
+    from jax_contact.envs import feet
+    from jax_contact.train.recording_checks import (
+        MIN_STILL_STEPS,
+        STRAIGHT_LEG_RATIO,
+        dynamics_disagrees,
+        straight_legs,
+    )
+
+    leg = (
+        '<mujoco><worldbody><geom name="floor" type="plane" size="5 5 .1"/>'
+        '<body name="base" pos="0 0 .6"><joint name="rail" type="slide" axis="0 0 1"/>'
+        '<geom type="box" size=".1 .1 .05" contype="0" conaffinity="0" mass="5"/>'
+        '<body name="thigh"><joint name="hip" axis="0 1 0"/>'
+        '<geom type="capsule" fromto="0 0 0 0 0 -.25" size=".02" contype="0" conaffinity="0"/>'
+        '<body name="shank" pos="0 0 -.25"><joint name="knee" axis="0 1 0"/>'
+        '<geom name="sole" type="box" pos="0.01 0 -0.25" size=".08 .03 .01"/></body></body>'
+        '</body></worldbody><actuator><motor joint="hip"/><motor joint="knee"/></actuator>'
+        "</mujoco>"
+    )
+    m = mujoco.MjModel.from_xml_string(leg)
+    desc, _ = feet.describe(m, ["sole"])
+    still = np.ones((MIN_STILL_STEPS, 1), bool)
+    straight = straight_legs(m, desc, np.zeros((MIN_STILL_STEPS, 3)), still)
+    want = 0.01 * np.sqrt(2.0) / np.hypot(0.51, 0.26)
+    assert want < STRAIGHT_LEG_RATIO and straight == {"sole": pytest.approx(want, rel=1e-6)}
+    bent = np.tile([0.0, 0.5, -1.0], (MIN_STILL_STEPS, 1))
+    assert straight_legs(m, desc, bent, still) == {}
+    assert straight_legs(m, desc, bent, still[:-1]) == {}  # too few still steps to judge
+    p_dyn, p_dk = np.full((60, 1), 0.1), np.full((60, 1), 0.65)
+    text = dynamics_disagrees(p_dyn, p_dk, np.ones((60, 1), bool), ["sole"], straight=straight)
+    assert text.startswith("legs nearly straight where their feet stand still (sole: a vertical")
+    assert "2% as much as a horizontal one" in text and "; otherwise, the dynamics term" in text
+
+
 def test_the_torque_check_reads_a_pulling_foot_without_the_sign_test():
     """Where the dynamics term runs without its sign test (a light robot) it reads air on
     few still steps whatever the torques' sign; the push tells. Hand-made: 50 still steps

@@ -491,7 +491,11 @@ def deploy_check(
         seconds=result["steps"] * dt,
     )
     notes = list(conv.notes) if conv is not None else []
-    torque = torque_note(rt, terms, robot.description, conv, notes) if conv is not None else None
+    torque = (
+        torque_note(rt, terms, robot.description, conv, notes, robot.mj_model)
+        if conv is not None
+        else None
+    )
     # Every warning of the run, in the order printed: the recording's, the torque check's
     # and the summary's (every foot reads air).
     result["warnings"] = [

@@ -289,6 +289,49 @@ def holds_gravity(acc: np.ndarray) -> str | None:
 DYNAMICS_AIR_WHEN_STILL, MIN_STILL_STEPS = 0.8, 40
 
 
+# A leg whose joints see a vertical force at the foot through less than this share of the
+# lever a horizontal one has is nearly straight: its torques cannot show the foot's load.
+# Measured by hand: a user's biped standing straight on flat soles 3 cm ahead of its
+# ankles, 0.07 (its estimate read air, P 0.004, under 95 N of true load); bent knees, 0.5.
+STRAIGHT_LEG_RATIO = 0.15
+
+
+def straight_legs(mj_model, desc, qpos: np.ndarray, still: np.ndarray) -> dict[str, float]:
+    """Feet whose leg is nearly straight where they stand still, with their ratio.
+
+    For each foot with :data:`MIN_STILL_STEPS` still steps, at the ``qpos`` of its middle
+    still step: the foot point's translational Jacobian over its leg's joints (C MuJoCo,
+    ``mj_jac``), and the ratio of its vertical row's norm (the joint torques per newton
+    of vertical force, m) to its largest row's. Below :data:`STRAIGHT_LEG_RATIO` the
+    dynamics term cannot read the foot's load, whatever the torques' sign or unit.
+
+    Args:
+      mj_model: the robot's model.
+      desc: its description (feet, bodies, points and legs).
+      qpos: (T, nq) the recording's positions.
+      still: (T, L) the steps each foot stands still.
+    """
+    import mujoco
+
+    d = mujoco.MjData(mj_model)
+    out = {}
+    for i, name in enumerate(desc.foot_names):
+        steps = np.flatnonzero(still[:, i])
+        if len(steps) < MIN_STILL_STEPS or not np.isfinite(qpos[steps[len(steps) // 2]]).all():
+            continue
+        d.qpos[:] = qpos[steps[len(steps) // 2]]
+        mujoco.mj_kinematics(mj_model, d)
+        mujoco.mj_comPos(mj_model, d)
+        body = desc.foot_body_ids[i]
+        point = d.xpos[body] + d.xmat[body].reshape(3, 3) @ np.asarray(desc.foot_offsets[i])
+        jacp = np.zeros((3, mj_model.nv))
+        mujoco.mj_jac(mj_model, d, jacp, None, point, body)
+        rows = np.linalg.norm(jacp[:, list(desc.leg_dofs[i])], axis=1)
+        if rows.max() > 0 and rows[2] / rows.max() < STRAIGHT_LEG_RATIO:
+            out[name] = float(rows[2] / rows.max())
+    return out
+
+
 def dynamics_disagrees(
     p_dynamics: np.ndarray,
     p_diff_kinematics: np.ndarray,
@@ -296,6 +339,7 @@ def dynamics_disagrees(
     foot_names: Sequence[str],
     foot_columns: Sequence[Sequence[str]] | None = None,
     push: np.ndarray | None = None,
+    straight: dict[str, float] | None = None,
 ) -> str | None:
     """A warning naming the feet whose torques look wrong, and their torque columns, else None.
 
@@ -319,6 +363,9 @@ def dynamics_disagrees(
       push: (T, L) the estimated vertical push of each foot on the ground under the
         contact hypothesis (N; ``-force[..., 2]`` of the diagnostics), or None to judge by
         the dynamics term alone.
+      straight: :func:`straight_legs`'s feet: those of them named here are told so first
+        (a straight leg reads air whatever its torques, which are then not the likely
+        cause).
     """
     still = (p_diff_kinematics > 0.5) & valid.astype(bool)
     n_still = still.sum(axis=0)
@@ -339,13 +386,28 @@ def dynamics_disagrees(
             bad.append(told + (f" [{', '.join(cols)}]" if cols else ""))
     if not bad:
         return None
+    flagged = [b.split(" ")[0] for b in bad]
+    nearly = {n: r for n, r in (straight or {}).items() if n in flagged}
+    first = (
+        "legs nearly straight where their feet stand still ("
+        + ", ".join(
+            f"{n}: a vertical force turns its joints {r:.0%} as much as a horizontal one"
+            for n, r in nearly.items()
+        )
+        + "): their joint torques cannot show the feet's load, so the dynamics term reads"
+        " air however the feet are loaded (a point-contact model's limit on a straight"
+        " knee; bent knees read it); otherwise, "
+        if nearly
+        else ""
+    )
     own = (
         "it is well under half"
         if push is None
         else "the term reads air on well under half and the push is positive"
     )
     return (
-        "the dynamics term reads air on most steps where the foot stands still"
+        first
+        + "the dynamics term reads air on most steps where the foot stands still"
         + ("" if push is None else ", or the foot pulls on the ground there")
         + " ("
         + "; ".join(bad)

@@ -21,7 +21,12 @@ from jax_contact.train.recording import (
     read_recording,
     write_recording_csv,
 )
-from jax_contact.train.recording_checks import dynamics_disagrees, plane_floor_note, truth_order
+from jax_contact.train.recording_checks import (
+    dynamics_disagrees,
+    plane_floor_note,
+    straight_legs,
+    truth_order,
+)
 from jax_contact.train.recording_convert import noise_for_differences, stretches, to_readings
 
 
@@ -142,7 +147,7 @@ def estimate_recording(
         notes.append(line)
         print_note(line)
     terms_of = {k: np.asarray(out[f"probabilistic/{k}"])[:, 0] for k in TORQUE_CHECK_INPUTS}
-    if warned := torque_note(terms_of, terms, desc, conv, notes):
+    if warned := torque_note(terms_of, terms, desc, conv, notes, robot.mj_model):
         notes.append(warned)
         print_note(warned)
     if calibration is not None:
@@ -262,6 +267,7 @@ def torque_note(
     desc,
     conv,
     notes: Sequence[str],
+    mj_model=None,
 ):
     """The torque check's note (``"WARNING ..."``) for a recording's estimate, or None
     (also when the estimator ran without the dynamics or differential-kinematics term).
@@ -276,13 +282,20 @@ def torque_note(
       notes: the notes so far: after an earlier warning the torque warning says it may be
         that one's consequence (a wrong quaternion or base acceleration also makes the
         dynamics term read air).
+      mj_model: the robot's model, to tell a nearly straight leg (whose torques cannot
+        show its load) from wrong torques (:func:`recording_checks.straight_legs`); None
+        does not look.
     """
     if not {"dynamics", "diff_kinematics"} <= set(terms):
         return None
     columns = [[conv.tau_columns[d] for d in leg if d in conv.tau_columns] for leg in desc.leg_dofs]
     p_dyn, p_dk, valid, force = (np.asarray(terms_of[k]) for k in TORQUE_CHECK_INPUTS)
+    straight = None
+    if mj_model is not None:
+        still = (p_dk > 0.5) & valid.astype(bool)
+        straight = straight_legs(mj_model, desc, conv.readings["qpos"][:, 0], still)
     disagrees = dynamics_disagrees(
-        p_dyn, p_dk, valid, desc.foot_names, columns, push=-force[..., 2]
+        p_dyn, p_dk, valid, desc.foot_names, columns, push=-force[..., 2], straight=straight
     )
     if not disagrees:
         return None
