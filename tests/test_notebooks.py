@@ -12,7 +12,9 @@ NOTEBOOKS = Path(__file__).resolve().parents[1] / "notebooks"
 
 
 def _run(name: str, folder: Path) -> str:
-    """Runs notebook ``name`` in ``folder``; returns its printed text."""
+    """Runs notebook ``name`` in ``folder``; returns its printed text. Every cell that
+    calls ``plt.show()`` must show a figure (the library's figure functions switched the
+    backend to Agg, and the Section III notebook's Fig. 5 cell showed nothing)."""
     src = NOTEBOOKS / name
     nb = nbformat.read(src, as_version=4)
     assert all(not c.get("outputs") for c in nb.cells if c.cell_type == "code"), (
@@ -23,6 +25,10 @@ def _run(name: str, folder: Path) -> str:
         nb, timeout=900, kernel_name="python3", resources={"metadata": {"path": str(folder)}}
     )
     client.execute()  # raises CellExecutionError on any failing cell, e.g. its final assert
+    for i, cell in enumerate(nb.cells):
+        if cell.cell_type == "code" and "plt.show()" in cell.source:
+            shown = [o for o in cell.get("outputs", []) if "image/png" in o.get("data", {})]
+            assert shown, f"{name}: cell {i} calls plt.show() and shows no figure"
     return "".join(
         o.get("text", "") for c in nb.cells if c.cell_type == "code" for o in c.get("outputs", [])
     )

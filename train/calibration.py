@@ -88,19 +88,17 @@ def reliability_diagram(
       The path written. A lower panel shows the share of steps per bin (log scale), since
       a bin's gap matters in proportion to how often it is used.
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure
 
     from jax_contact.io import write_atomic
 
     truth = np.asarray(truth, bool)
     valid = _mask_like(valid, truth.shape)
     names = names or [k for k in outputs if "/" not in k]
-    fig, (ax, hist) = plt.subplots(
-        2, 1, figsize=(5.5, 6.5), sharex=True, gridspec_kw={"height_ratios": [3, 1]}
-    )
+    # matplotlib's object API, no pyplot: the caller's backend is left as it is
+    # (jax_contact.train.figures._save says why).
+    fig = Figure(figsize=(5.5, 6.5))
+    ax, hist = fig.subplots(2, 1, sharex=True, gridspec_kw={"height_ratios": [3, 1]})
     ax.plot([0, 1], [0, 1], color="0.6", lw=1, ls="--", label="perfect calibration")
     centres = (np.arange(n_bins) + 0.5) / n_bins
     width = 0.8 / (n_bins * max(len(names), 1))
@@ -128,5 +126,4 @@ def reliability_diagram(
     fig.tight_layout()
     path = Path(path)
     write_atomic(path, lambda tmp: fig.savefig(tmp, dpi=110, format="png"))
-    plt.close(fig)
     return path

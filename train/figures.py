@@ -1,4 +1,4 @@
-"""Figures in the style of the paper's Fig. 5, 7 and 10 (PNG, matplotlib's Agg backend)."""
+"""Figures in the style of the paper's Fig. 5, 7 and 10 (PNG, matplotlib's object API)."""
 
 from __future__ import annotations
 
@@ -34,16 +34,14 @@ def plot_estimate(
     Returns:
       The path written.
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure
 
     t = np.asarray(rollout.time)
     sl = slice(0, int(min(len(t), max(2, round(seconds / max(t[1] - t[0], 1e-9))))))
     t = t[sl]
     truth = np.asarray(rollout.contact)[sl, env, leg].astype(float)
-    fig, ax = plt.subplots(5, 1, figsize=(10, 9), sharex=True)
+    fig = Figure(figsize=(10, 9))
+    ax = fig.subplots(5, 1, sharex=True)
     ax[0].plot(t, outputs[name][sl, env, leg], label="fused P(contact)")
     ax[0].plot(t, truth, "k--", lw=1, label="ground truth")
     if gm is not None:
@@ -78,15 +76,14 @@ def plot_estimate(
 
 
 def _save(fig, path: str | Path) -> Path:
-    """Writes ``fig`` as PNG atomically and closes it."""
-    import matplotlib.pyplot as plt
+    """Writes ``fig`` (a ``matplotlib.figure.Figure``) as PNG atomically.
 
+    The figures are built with matplotlib's object API, never pyplot: no backend is
+    switched (switching to Agg here turned off a notebook's inline figures, so the
+    Section III notebook showed none), and no figure is left open in pyplot."""
     from jax_contact.io import write_atomic
 
-    try:
-        return write_atomic(path, lambda tmp: fig.savefig(tmp, format="png", dpi=80))
-    finally:
-        plt.close(fig)
+    return write_atomic(path, lambda tmp: fig.savefig(tmp, format="png", dpi=80))
 
 
 def plot_reward_curves(
@@ -106,13 +103,11 @@ def plot_reward_curves(
     Returns:
       The path written.
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure
 
     n = 2 if training else 1
-    fig, axes = plt.subplots(1, n, figsize=(6 * n, 4), squeeze=False)
+    fig = Figure(figsize=(6 * n, 4))
+    axes = fig.subplots(1, n, squeeze=False)
     ax = axes[0, 0]
     for name, rows in curves.items():
         x = np.array([r["step"] for r in rows], dtype=float)
