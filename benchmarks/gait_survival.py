@@ -253,7 +253,8 @@ def main(argv=None) -> None:
         "--duration",
         type=positive_float,
         default=20.0,
-        help="simulated seconds, rounded up to whole --chunk scans",
+        help="simulated seconds, rounded up to whole --chunk scans; more than the gaits'"
+        " speed ramp (1 s)",
     )
     parser.add_argument("--chunk", type=positive_float, default=2.0, help="seconds per jitted scan")
     parser.add_argument("--min-air", type=nonnegative_float, default=0.02, help="s off the ground")
@@ -266,6 +267,15 @@ def main(argv=None) -> None:
     if args.duration < args.chunk:  # it ran no step at all, and divided by the 0 s simulated
         parser.error(
             f"argument --duration: {args.duration:g} s is shorter than --chunk {args.chunk:g} s"
+        )
+    # The speed is measured after each gait's ramp: refused here, before any model loads
+    # (run_one's own check came after loading the first robot, with a traceback).
+    ramp = max(float(make_gait(kind).ramp_time) for kind in args.gaits)
+    simulated = -(-args.duration // args.chunk) * args.chunk  # whole chunks, as run_one
+    if simulated <= ramp:
+        parser.error(
+            f"argument --duration: {simulated:g} s simulated (whole --chunk scans) is not past"
+            f" the gaits' {ramp:g} s speed ramp: nothing to measure the speed on"
         )
 
     result = {"machine": machine(), "rows": []}

@@ -23,7 +23,7 @@ from jax_contact.benchmarks.common import (
     json_of_what_finished,
     run_main,
 )
-from jax_contact.train.cli_args import positive_int  # the CLI's argument type: one rule for sizes
+from jax_contact.train.cli_args import BENCH_HELP, positive_int  # the CLI's: one rule, one help
 
 
 def main(argv=None) -> dict:
@@ -31,11 +31,12 @@ def main(argv=None) -> dict:
     (then with an ``"error"`` key saying what stopped it)."""
     parser = bench_parser(__doc__)  # every default shown in --help
     # Sizes are checked here, before minutes of benchmarks run on them.
-    parser.add_argument(
-        "--envs", type=positive_int, nargs="+", default=list(estimator.DEFAULT_ENVS)
-    )
-    parser.add_argument("--versus-envs", type=positive_int, nargs="+", default=[1024, 4096])
-    parser.add_argument("--latency-calls", type=positive_int, default=10_000)
+    for flag, kwargs in (
+        ("--envs", {"nargs": "+", "default": list(estimator.DEFAULT_ENVS)}),
+        ("--versus-envs", {"nargs": "+", "default": [1024, 4096]}),
+        ("--latency-calls", {"default": 10_000}),
+    ):
+        parser.add_argument(flag, type=positive_int, help=BENCH_HELP[flag], **kwargs)
     parser.add_argument("--json", default=None, help="write all results as one JSON here")
     args = parser.parse_args(argv)
     check_json_arg(parser, args.json)
@@ -54,6 +55,9 @@ def main(argv=None) -> dict:
             # Both measured on the same machine in this process; the estimator's description
             # stands.
             result.update({k: v for k, v in vs.items() if k != "machine"})
+            # The suite's own arguments, not the estimator's part of them (which had
+            # "json": null and no --versus-envs).
+            result["args"] = vars(args)
     return result
 
 

@@ -281,6 +281,13 @@ def main(argv=None) -> int:
             parser.error(f"argument --envs: {entry!r}: {err}")
     if args.sole not in ("rolling", "centre"):
         parser.error(f"argument --sole: must be rolling or centre, got {args.sole!r}")
+    if args.params is not None:  # read once here: a bad file was a traceback after loading
+        from jax_contact.params_file import load_params
+
+        try:
+            load_params(args.params)
+        except (OSError, ValueError) as err:
+            parser.error(f"argument --params: {err}")
     check_json_arg(parser, args.json)
     result = {"machine": machine(), "args": vars(args), "rows": []}
     with json_of_what_finished(args.json, result):

@@ -618,6 +618,13 @@ INT_ERR = "must be an int >= 1"
         ("gait_survival", ["--min-air", "-0.1"], "argument --min-air"),
         # No step ran (the chunk is 2 s): a ZeroDivisionError after the compile.
         ("gait_survival", ["--duration", "0.0005"], "argument --duration: 0.0005 s is shorter"),
+        # Not past the 1 s speed ramp: a traceback after loading the robot, and a JSON file.
+        (
+            "gait_survival",
+            ["--duration", "0.5", "--chunk", "0.5"],
+            "argument --duration: 0.5 s simulated (whole --chunk scans) is not past the gaits'"
+            " 1 s speed ramp",
+        ),
         ("wrapper_throughput", ["--calls", "0"], INT_ERR),
         ("wrapper_throughput", ["--env", "Go1Bogus"], "argument --env: unknown env 'Go1Bogus'"),
         ("wrapper_throughput", ["--json", "/proc"], "argument --json: '/proc' is a folder"),
@@ -625,6 +632,11 @@ INT_ERR = "must be an int >= 1"
         ("wrapper_accuracy", ["--envs", "Go1Getup:skate"], "policy must be one of walk"),
         ("wrapper_accuracy", ["--rollouts", "0"], INT_ERR),
         ("wrapper_accuracy", ["--envs"], "argument --envs: expected at least one argument"),
+        (
+            "wrapper_accuracy",
+            ["--params", "nosuch"],  # a traceback after loading the env
+            "argument --params: parameter file 'nosuch' does not exist and is no preset name",
+        ),
         ("brax_ant", ["--rollouts", "0"], INT_ERR),
         ("brax_ant", ["--policy", "hop"], "argument --policy: invalid choice: 'hop'"),
         ("brax_ant", ["--env", "hopper", "--policy", "trot"], "trot drives the ant only"),
@@ -774,6 +786,8 @@ def test_bench_writes_what_finished_when_a_part_fails(tmp_path, monkeypatch):
     assert got["throughput"] == [1] and got["ratio_vs_mjx_step"]["4"]["q"] == 1.0
     assert got["ratio_vs_mjx_step"]["4"]["first_call_s"] == {"q": 4.0}  # compile apart
     assert "numpy part broke" in got["error"] and "sharding" not in got
+    # The suite's own arguments (the estimator's part had "json": null, no --versus-envs).
+    assert got["args"]["json"] == str(tmp_path / "bench.json") and got["args"]["versus_envs"] == [4]
 
 
 # ------------------------------------------------------------------------- file modes

@@ -51,6 +51,7 @@ from jax_contact.train import (  # stdlib-only at import
 )
 from jax_contact.train.cli_args import (  # noqa: F401  (COLUMNS ... SCENES: re-exported)
     BENCH_ENVS,
+    BENCH_HELP,
     COLUMNS,
     FAILURE_LIMIT,
     GAITS,
@@ -755,21 +756,20 @@ def build_parser() -> argparse.ArgumentParser:
         type=positive_int,
         nargs="+",
         default=None,
-        help=f"throughput batch sizes (default: {' '.join(map(str, BENCH_ENVS))})",
+        help=f"{BENCH_HELP['--envs']} (default: {' '.join(map(str, BENCH_ENVS))})",
     )
     p.add_argument(
         "--versus-envs",
         type=positive_int,
         nargs="+",
         default=None,
-        help="batch sizes vs mjx.step; the largest, rounded up to a multiple of 8, is also"
-        " the sharding check's (default: 1024 4096)",
+        help=f"{BENCH_HELP['--versus-envs']} (default: 1024 4096)",
     )
     p.add_argument(
         "--latency-calls",
         type=positive_int,
         default=None,
-        help="timed calls per single-robot latency row (default: 10000)",
+        help=f"{BENCH_HELP['--latency-calls']} (default: 10000)",
     )
     for p in sub.choices.values():  # main() reports an unknown option with its command's usage
         p.set_defaults(command_parser=p)

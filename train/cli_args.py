@@ -39,6 +39,13 @@ MENAGERIE_NAMES = tuple(n for n in ROBOT_NAMES if n not in ("go1", "spot", "bark
 GAITS = ("trot", "walk", "hop")  # jax_contact.envs.gaits.KINDS
 FAILURE_LIMIT = 0.02  # jax_contact.train.report.FAILURE_LIMIT
 BENCH_ENVS = (1, 64, 256, 1024, 4096, 16384)  # jax_contact.benchmarks.estimator.DEFAULT_ENVS
+# The help of `jax-contact bench`'s sizes, shared with `python -m jax_contact.benchmarks.suite`.
+BENCH_HELP = {
+    "--envs": "throughput batch sizes",
+    "--versus-envs": "batch sizes vs mjx.step; the largest, rounded up to a multiple of 8, is"
+    " also the sharding check's",
+    "--latency-calls": "timed calls per single-robot latency row",
+}
 # The one shipped robot with one leg (the others have four): the hop is its only gait, and
 # Table III needs a quadruped.
 ONE_LEGGED = ("planar_leg",)
