@@ -103,7 +103,12 @@ def main(argv=None) -> int:
     parser.add_argument(
         "--fit", type=nonnegative_int, default=0, help="CEM iterations (0: check only)"
     )
-    parser.add_argument("--start", default=None, help="JSON of HopGains fields to start from")
+    parser.add_argument(
+        "--start",
+        default=None,
+        help="a JSON string (not a file) of HopGains fields to start from, e.g."
+        """ '{"freq": 2.0}'""",
+    )
     parser.add_argument("--json", default=None, help="write the gains and rows here")
     args = parser.parse_args(argv)
     check_json_arg(parser, args.json)

@@ -138,7 +138,8 @@ def main(argv=None) -> int:
         "--policy",
         default=None,
         choices=POLICIES,
-        help="what drives it (default: trot for the ant, random for the others; trot is the ant's)",
+        help="what drives it (none given: trot for the ant, random for the others; trot is"
+        " the ant's only)",
     )
     parser.add_argument("--steps", type=positive_int, default=150, help="env steps per rollout")
     parser.add_argument("--rollouts", type=positive_int, default=8, help="rollouts")

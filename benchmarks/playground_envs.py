@@ -110,7 +110,7 @@ def main(argv=None) -> int:
 
     parser = bench_parser(__doc__)
     parser.add_argument("--json", default=None, help="write the results here")
-    parser.add_argument("--names", nargs="*", default=None, help="registry names (default all)")
+    parser.add_argument("--names", nargs="*", default=None, help="registry names (none given: all)")
     parser.add_argument("--steps", type=positive_int, default=50, help="env steps per env")
     args = parser.parse_args(argv)
     unknown = [n for n in args.names or () if n not in playground_offline.ENV_NAMES]

@@ -41,6 +41,7 @@ from jax_contact.benchmarks.common import (
     run_main,
     synthetic_measurements,
 )
+from jax_contact.train.cli_args import positive_int
 
 # The folder that holds the jax_contact package (the checkout, or site-packages once
 # installed from a wheel): the sharding subprocess imports the library from there, and
@@ -343,11 +344,12 @@ def run(envs, numpy_robots: int = 8, *, into: dict | None = None) -> dict:
 
 def main(argv=None) -> dict:
     parser = bench_parser(__doc__)
+    # The CLI's size type: "argument --envs: must be an int >= 1", as every script says it.
     parser.add_argument(
-        "--envs", type=int, nargs="+", default=[1024, 4096], help="batch sizes (envs)"
+        "--envs", type=positive_int, nargs="+", default=[1024, 4096], help="batch sizes (envs)"
     )
     parser.add_argument(
-        "--numpy-robots", type=int, default=8, help="robots the float64 NumPy oracle runs"
+        "--numpy-robots", type=positive_int, default=8, help="robots the float64 NumPy oracle runs"
     )
     parser.add_argument("--json", default=None, help="write the results here")
     args = parser.parse_args(argv)
