@@ -81,6 +81,7 @@ def _time(name: str, fn, args, n_legs: int, repeats: int) -> dict:
     }
     print(
         f"{name:24s} {row['median_ms']:8.2f} ms (min {row['min_ms']:7.2f})"
+        f"  compile {compile_s:6.2f} s"
         f"  flops/leg {row['flops_per_leg']:8.0f}  transc/leg {row['transcendentals_per_leg']:6.0f}"
         f"  bytes/leg {row['bytes_per_leg']:7.0f}",
         flush=True,
@@ -244,6 +245,12 @@ def _profile(args, rows: list[dict]) -> None:
         return terrain.query(m.p_f, jnp.zeros(3), jnp.array(False))
 
     keys = jax.random.split(jax.random.key(0), legs).reshape(n, N_LEGS)
+    print(
+        f"# {n} envs x {N_LEGS} legs; per piece: median (min) of {args.repeats} timed calls,"
+        " its compile time apart, and XLA's cost analysis per leg"
+        + (" (under 5 calls: their median is noise)" if args.repeats < 5 else ""),
+        flush=True,
+    )
     for mode in args.modes:
         mode_params = jc.make_params(jc.make_noise(NV), touchdown=mode)
         belief = jc.init_belief_batch(mode_params, n, N_LEGS)
