@@ -146,9 +146,18 @@ def gait_foot_points(m: mujoco.MjModel, desc, qpos: np.ndarray) -> np.ndarray:
     end, not by its centre half a shin higher (the robot fell); a flat sole or a capsule
     lying across the leg keeps its centre.
     """
+    return _gait_points(desc, _kinematics(m, qpos))
+
+
+def _kinematics(m: mujoco.MjModel, qpos: np.ndarray) -> mujoco.MjData:
     d = mujoco.MjData(m)
     d.qpos[:] = qpos
     mujoco.mj_kinematics(m, d)
+    return d
+
+
+def _gait_points(desc, d: mujoco.MjData) -> np.ndarray:
+    """:func:`gait_foot_points` on data whose kinematics are computed."""
     out = []
     for body, point, sole in zip(desc.foot_body_ids, desc.foot_offsets, desc.soles, strict=True):
         if not sole:
@@ -163,12 +172,10 @@ def gait_foot_points(m: mujoco.MjModel, desc, qpos: np.ndarray) -> np.ndarray:
 def feet_in_base(m: mujoco.MjModel, desc, qpos: np.ndarray) -> np.ndarray:
     """(n_legs, 3) the gaits' foot points (:func:`gait_foot_points`) in the base frame at
     ``qpos``, from MuJoCo."""
-    d = mujoco.MjData(m)
-    d.qpos[:] = qpos
-    mujoco.mj_kinematics(m, d)
+    d = _kinematics(m, qpos)
     base_pos = d.xpos[desc.base_body_id]
     base_rot = d.xmat[desc.base_body_id].reshape(3, 3)
-    points = gait_foot_points(m, desc, qpos)
+    points = _gait_points(desc, d)
     return np.stack(
         [
             base_rot.T @ (d.xpos[b] + d.xmat[b].reshape(3, 3) @ p - base_pos)

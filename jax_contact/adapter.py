@@ -82,9 +82,10 @@ def prepare(mjx_model: mjx.Model, mjx_data: mjx.Data) -> mjx.Data:
     _check_mjx_inputs(mjx_model, mjx_data)
     # NumPy state (a control loop's readings) as JAX arrays: MJX's tree scan over bodies
     # failed on a NumPy qvel outside jit ("numpy arg elements do not match").
-    qpos, qvel = jnp.asarray(mjx_data.qpos), jnp.asarray(mjx_data.qvel)
-    mjx_data = mjx_data.replace(qvel=qvel)
-    d = mjx_data.replace(qpos=jnp.where(jnp.isfinite(qpos), qpos, mjx_model.qpos0))
+    qpos = jnp.asarray(mjx_data.qpos)
+    d = mjx_data.replace(
+        qpos=jnp.where(jnp.isfinite(qpos), qpos, mjx_model.qpos0), qvel=jnp.asarray(mjx_data.qvel)
+    )
     d = mjx.kinematics(mjx_model, d)
     d = mjx.com_pos(mjx_model, d)
     d = mjx.crb(mjx_model, d)

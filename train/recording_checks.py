@@ -317,9 +317,12 @@ def straight_legs(mj_model, desc, qpos: np.ndarray, still: np.ndarray) -> dict[s
     out = {}
     for i, name in enumerate(desc.foot_names):
         steps = np.flatnonzero(still[:, i])
-        if len(steps) < MIN_STILL_STEPS or not np.isfinite(qpos[steps[len(steps) // 2]]).all():
+        if len(steps) < MIN_STILL_STEPS:
             continue
-        d.qpos[:] = qpos[steps[len(steps) // 2]]
+        middle = qpos[steps[len(steps) // 2]]
+        if not np.isfinite(middle).all():
+            continue
+        d.qpos[:] = middle
         mujoco.mj_kinematics(mj_model, d)
         mujoco.mj_comPos(mj_model, d)
         body = desc.foot_body_ids[i]
@@ -372,7 +375,7 @@ def dynamics_disagrees(
     share = ((p_dynamics < 0.5) & still).sum(axis=0) / np.maximum(n_still, 1)
     columns = foot_columns if foot_columns is not None else [()] * len(foot_names)
     push = None if push is None else np.asarray(push)
-    bad = []
+    bad, flagged = [], []
     for i, (name, s, n, cols) in enumerate(zip(foot_names, share, n_still, columns, strict=True)):
         if n < MIN_STILL_STEPS:
             continue
@@ -384,9 +387,9 @@ def dynamics_disagrees(
                 else f"{name} {s:.0%} air, median push {median:.3g} N"
             )
             bad.append(told + (f" [{', '.join(cols)}]" if cols else ""))
+            flagged.append(name)
     if not bad:
         return None
-    flagged = [b.split(" ")[0] for b in bad]
     nearly = {n: r for n, r in (straight or {}).items() if n in flagged}
     first = (
         "legs nearly straight where their feet stand still ("
