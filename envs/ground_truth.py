@@ -64,15 +64,14 @@ _HFIELD = int(mujoco.mjtGeom.mjGEOM_HFIELD)
 # keeps the 4 deepest). A slot with no contact reads zero force.
 _SPHERE = int(mujoco.mjtGeom.mjGEOM_SPHERE)
 _SLOTS = 4
-# Slots of the sensors on the foot body's other geoms.
-_BODY_SLOTS = _SLOTS
 
 
-def _slots(m: mujoco.MjModel, foot_geom: int, floor_geom: int) -> int:
-    """Slots of a foot geom's sensor: one for a sphere on a plane, else :data:`_SLOTS` (a
-    box or capsule sole on a plane read through one slot lost half its force or more)."""
+def _slots(m: mujoco.MjModel, geom: int, floor_geom: int) -> int:
+    """Slots of the sensor between a foot's geom (the foot geom or another of its body's)
+    and a floor geom: one for a sphere on a plane, else :data:`_SLOTS` (a box or capsule
+    sole on a plane read through one slot lost half its force or more)."""
     plane = int(m.geom_type[floor_geom]) == _PLANE
-    return 1 if plane and int(m.geom_type[foot_geom]) == _SPHERE else _SLOTS
+    return 1 if plane and int(m.geom_type[geom]) == _SPHERE else _SLOTS
 
 
 def _sensor_name(foot: int, floor_geom: int) -> str:
@@ -162,7 +161,7 @@ def with_contact_sensors(robot: Robot) -> Robot:
                     objname=name_of(g, f"gt_foot{i}_body{g}"),
                     reftype=mujoco.mjtObj.mjOBJ_GEOM,
                     refname=floor_name,
-                    intprm=[_DATA_FORCE_NORMAL_TANGENT, _REDUCE_MINDIST, _BODY_SLOTS],
+                    intprm=[_DATA_FORCE_NORMAL_TANGENT, _REDUCE_MINDIST, _slots(m, g, f)],
                 )
     mj_model = spec.compile()
     # Keep the caller's physics options (e.g. a changed timestep or solver iterations).
