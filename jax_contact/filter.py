@@ -340,7 +340,15 @@ def _update(
         force=jnp.where(valid, terms.force, jnp.full(3, nan)),
         valid=valid,
     )
-    return new_belief, diag
+    # Every entry point returns the belief in the type it was given: float32 parameters
+    # fed float64 readings under ``jax_enable_x64`` compute in float64, and a loop that
+    # fed the result back would trace a second program (a scan's carry must not change).
+    return _like(new_belief, belief), diag
+
+
+def _like(new: LegBelief, old: LegBelief) -> LegBelief:
+    """``new`` in ``old``'s dtypes."""
+    return jax.tree.map(lambda n, o: n.astype(o.dtype), new, old)
 
 
 def _step_legs(params, terrain, belief, meas: RobotMeasurement, keys, switches=None):
@@ -424,13 +432,6 @@ def step_batch(
     return jax.vmap(jax.vmap(one))(belief, meas, keys)
 
 
-def _like(new: LegBelief, old: LegBelief) -> LegBelief:
-    """``new`` in ``old``'s dtypes: a scan's carry keeps the initial belief's type (float32
-    parameters fed float64 measurements under ``jax_enable_x64`` compute in float64, and
-    the carry must not change type)."""
-    return jax.tree.map(lambda n, o: n.astype(o.dtype), new, old)
-
-
 def run(
     params: EstimatorParams,
     terrain,
@@ -461,7 +462,7 @@ def run(
         b, k = carry
         k, sub = jax.random.split(k)
         new, diag = step_batch(params, terrain, b, meas, key=sub)
-        return (_like(new, b), k), diag
+        return (new, k), diag
 
     (belief, _), diags = jax.lax.scan(body, (belief, key), meas_seq)
     return belief, diags
@@ -512,7 +513,7 @@ def sequence_bce(
         b, k = carry
         meas, y = inputs
         k, sub = jax.random.split(k)
-        b = _like(step_batch(params, terrain, b, meas, key=sub)[0], b)
+        b = step_batch(params, terrain, b, meas, key=sub)[0]
         y = y.astype(b.logit.dtype)
         nll = -(y * jax.nn.log_sigmoid(b.logit) + (1.0 - y) * jax.nn.log_sigmoid(-b.logit))
         return (b, k), nll

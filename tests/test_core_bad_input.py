@@ -684,3 +684,28 @@ def test_float64_params_on_float32_readings_warn_nothing(recwarn):
             warnings.simplefilter("error")
             _, d = step(params, TERRAIN, b0, one, key=jax.random.key(0))
         assert d.force.dtype == jnp.float64 and bool(d.valid)
+
+
+def test_the_belief_keeps_its_type_under_x64():
+    """Under x64, float32 parameters and belief fed float64 readings computed the new
+    belief in float64, so a hand-written loop of ``step`` traced a second program after
+    its first step (``run`` cast its carry back; ``step`` did not). Every entry point now
+    returns the belief in the type it was given, the P as before."""
+    params, key = PARAMS["quadrature"], jax.random.key(0)
+    fields = _meas_fields()
+    b0 = jax.tree.map(lambda x: x[0, 0], init_belief_batch(params, 1, 1))
+    with jax.enable_x64(True):
+        f64 = LegMeasurement(
+            **{
+                k: jnp.asarray(v, jnp.float64) if v.dtype.kind == "f" else jnp.asarray(v)
+                for k, v in fields.items()
+            }  # fmt: skip
+        )
+        b1, _ = step(params, TERRAIN, b0, f64, key=key)
+        for got, was in zip(jax.tree.leaves(b1), jax.tree.leaves(b0), strict=True):
+            assert got.dtype == was.dtype
+        # The same update in float64 throughout, cast: the same belief to float32 rounding.
+        b0_64 = jax.tree.map(lambda x: x.astype(jnp.float64) if x.dtype == jnp.float32 else x, b0)
+        ref, _ = step(params, TERRAIN, b0_64, f64, key=key)
+        assert ref.logit.dtype == jnp.float64
+        np.testing.assert_allclose(float(b1.logit), float(ref.logit), rtol=1e-6)
