@@ -144,10 +144,10 @@ def pin_to_cpu(cpu: int) -> None:
 
 def bench_parser(doc: str) -> argparse.ArgumentParser:
     """A benchmark script's parser: its docstring's first line as the description, every
-    default in ``--help``."""
-    return argparse.ArgumentParser(
-        description=doc.splitlines()[0], formatter_class=argparse.ArgumentDefaultsHelpFormatter
-    )
+    default in ``--help`` but None and False (the CLI's formatter)."""
+    from jax_contact.train.cli_args import HelpFormatter
+
+    return argparse.ArgumentParser(description=doc.splitlines()[0], formatter_class=HelpFormatter)
 
 
 def check_json_arg(parser, path: str | None, arg: str = "--json") -> None:

@@ -169,6 +169,7 @@ def linearity(rows: list[dict]) -> dict:
 _THROUGHPUT_COLUMNS = [
     ("envs", "envs", "{:d}"),
     ("mode", "mode", "{}"),
+    ("n_samples", "draws|nodes", "{:d}"),
     ("compile_s", "compile s", "{:.2f}"),
     ("update_ms", "update ms", "{:.3f}"),
     ("leg_updates_per_s", "leg-updates/s", "{:.3g}"),

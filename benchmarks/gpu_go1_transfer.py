@@ -50,6 +50,7 @@ from pathlib import Path
 
 # The CLI's argument types (the module imports only the standard library).
 from jax_contact.train.cli_args import (
+    HelpFormatter,
     check_no_repeats,
     check_output_folder,
     positive_float,
@@ -415,11 +416,32 @@ def run(args: argparse.Namespace) -> dict:
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="role")
-    p = sub.add_parser("run", help="train and evaluate (the default)")
-    p.add_argument("--out", default=os.environ.get("OUT", "out/gpu_go1_transfer"))
+    p = sub.add_parser(
+        "run",
+        help="train and evaluate (the default)",
+        description="Trains every variant, then evaluates the latest checkpoints in every"
+        " column (module docstring); writes at most 8 files into --out.",
+        formatter_class=HelpFormatter,
+    )
+    p.add_argument(
+        "--out",
+        default=os.environ.get("OUT", "out/gpu_go1_transfer"),
+        help="folder of transfer.json and the logs (the device tool's $OUT)",
+    )
     p.add_argument("--runs", default="/tmp/go1_runs", help="run folders (not copied to --out)")
-    p.add_argument("--config", default="full", choices=("full", "small", "tiny"))
-    p.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=VARIANTS)
+    p.add_argument(
+        "--config",
+        default="full",
+        choices=("full", "small", "tiny"),
+        help="PPO configuration: Playground's Go1 (full), a smaller one, or tiny (a CPU check)",
+    )
+    p.add_argument(
+        "--variants",
+        nargs="+",
+        default=list(VARIANTS),
+        choices=VARIANTS,
+        help="what the policy observes in training (one run per variant and seed)",
+    )
     p.add_argument(
         "--seeds", nargs="+", type=seed_int, default=[0], help="one run per variant each"
     )
@@ -439,13 +461,41 @@ def build_parser() -> argparse.ArgumentParser:
         default=1e5,
         help="env steps/s per variant while all train together: an estimate (module docstring)",
     )
-    p.add_argument("--train-deadline-s", type=positive_float, default=360.0)
-    p.add_argument("--matrix-deadline-s", type=positive_float, default=555.0)
-    p.add_argument("--columns", nargs="+", default=list(COLUMNS), choices=COLUMNS)
+    p.add_argument(
+        "--train-deadline-s",
+        type=positive_float,
+        default=360.0,
+        help="seconds after the start at which a training run stops at its next evaluation"
+        " (its latest checkpoint is kept)",
+    )
+    p.add_argument(
+        "--matrix-deadline-s",
+        type=positive_float,
+        default=555.0,
+        help="seconds after the start at which matrix processes still running are killed"
+        " (their cells missing)",
+    )
+    p.add_argument(
+        "--columns",
+        nargs="+",
+        default=list(COLUMNS),
+        choices=COLUMNS,
+        help="the contact signals each policy is evaluated observing",
+    )
     p.add_argument("--eval-envs", type=positive_int, default=128, help="episodes per cell")
-    p.add_argument("--episode-length", type=positive_int, default=None)
-    p.add_argument("--eval-seed", type=seed_int, default=12345)
-    p.add_argument("--no-checkpoints", dest="keep_checkpoints", action="store_false")
+    p.add_argument(
+        "--episode-length",
+        type=positive_int,
+        default=None,
+        help="env steps per evaluation episode; default: the configuration's",
+    )
+    p.add_argument("--eval-seed", type=seed_int, default=12345, help="seeds the episodes")
+    p.add_argument(
+        "--no-checkpoints",
+        dest="keep_checkpoints",
+        action="store_false",
+        help="write no runs.tar.gz of the runs' latest checkpoints",
+    )
     p.add_argument("--started-at", type=float, default=None, help="time.time() of the start")
 
     t = sub.add_parser("train", help="(internal) one training run")

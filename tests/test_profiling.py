@@ -39,3 +39,18 @@ def test_scope_is_the_innermost_library_function():
     assert _scope("jit(f)/vmap(diff_kinematics_llr)/dot_general") == "diff_kinematics_llr"
     assert _scope("jit(f)/log_touchdown/kinematics_llr/x") == "kinematics_llr"
     assert _scope("jit(f)/vmap()/concatenate").startswith("other")
+
+
+def test_bench_help_shows_defaults_but_not_none(capsys):
+    """The benchmarks' ``--help`` appended "(default: None)" to options whose help says
+    what leaving them out does (``--json``); they share the CLI's formatter now."""
+    from jax_contact.benchmarks.common import bench_parser
+
+    parser = bench_parser("A benchmark.\n\nMore.")
+    parser.add_argument("--envs", type=int, default=16, help="batch size")
+    parser.add_argument("--json", default=None, help="write the rows here")
+    with pytest.raises(SystemExit):
+        parser.parse_args(["--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    assert "batch size (default: 16)" in text
+    assert "write the rows here" in text and "(default: None)" not in text

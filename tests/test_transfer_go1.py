@@ -395,6 +395,22 @@ def test_gpu_script_refuses_bad_numbers_before_anything_runs(argv, capsys):
     assert f"argument {argv[0]}" in capsys.readouterr().err
 
 
+def test_gpu_script_run_help_explains_every_option(capsys):
+    """``run --help`` listed ten options with no word of what they do; each now has a help,
+    and a default is shown where there is one (not "(default: None)")."""
+    import argparse
+
+    parser = G.build_parser()
+    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    run = sub.choices["run"]
+    for action in run._actions:
+        assert action.help, action.option_strings
+    with pytest.raises(SystemExit):
+        parser.parse_args(["run", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    assert "(default: 555.0)" in text and "(default: None)" not in text
+
+
 def test_gpu_script_refuses_what_would_mix_runs_before_anything_runs(tmp_path, capsys):
     """Run folders of an earlier run in --runs made every training child refuse to start
     while the matrix evaluated the earlier checkpoints as this run's; a repeated seed,
