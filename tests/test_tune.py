@@ -384,6 +384,19 @@ def test_select_epoch_passes_over_lower_losses_the_rule_refuses():
     assert jt.select_epoch(history[:2], jt.TuneConfig(min_delta=0.25)) == 0
 
 
+def test_select_spread_refuses_validation_logs_too_small_for_a_call():
+    """select="spread" on validation logs of fewer than bootstrap.MIN_ENVS envs kept the
+    lowest loss as if no cell were worse: the bootstrap makes no call there ("too few
+    envs"). Refused before anything compiles, naming the log and its envs."""
+    from jax_contact.bootstrap import MIN_ENVS
+
+    train, val = _synthetic(1, n_t=50, n_envs=8), _synthetic(2, n_t=50, n_envs=MIN_ENVS - 1)
+    config = jt.TuneConfig(max_epochs=1, chunk=50, select="spread")
+    space, params = jt.make_space(4, fields=("sigma_J",)), _synthetic_params(SIGMA_J_WRONG)
+    with pytest.raises(ValueError, match=rf"no call below {MIN_ENVS}.*log 2 of 2 has 4"):
+        jt.tune(params, flat(0.0, 0.05), [train], [train, val], space, config)
+
+
 def test_select_spread_records_the_cells_worse_beyond_the_bootstrap_spread():
     """select="spread" on the recovery problem: every epoch records the validation cells
     worse than epoch 0's beyond a paired env bootstrap (recomputed here for the epoch kept
@@ -1256,6 +1269,9 @@ def test_feasible_rejects_epochs_that_worsen_the_tuning_cells():
         assert row["rejected"] == (not jt.no_worse(row["train_cells"], first)), row["epoch"]
     assert res.best_epoch == 0 or not hist[res.best_epoch]["rejected"]
     assert jt.no_worse(hist[res.best_epoch]["train_cells"], first)
+    # A validation log of 4 envs (< bootstrap.MIN_ENVS): the bootstrap makes no call, so
+    # no count of cells worse beyond the spread (a 0 there read as "none worse").
+    assert all("val_worse" not in row for row in hist)
     # The halving: the optimiser's learning rate in the state.
     opt = jt.fit._optimizer(config)
     state = opt.init(jt.init_theta(space, base))

@@ -449,6 +449,16 @@ def fit_and_write(args: argparse.Namespace, inputs: Inputs) -> int:
         feasible=getattr(args, "feasible", False),
     )
 
+    from jax_contact.bootstrap import MIN_ENVS
+
+    fewest = min(v.truth.shape[1] for v in vals)
+    if config.select == "spread" and fewest < MIN_ENVS:
+        raise ValueError(
+            f"argument --select: spread resamples the validation logs' envs and makes no call"
+            f" below {MIN_ENVS}; a validation log has {fewest} (simulate it with --envs"
+            f" {MIN_ENVS} or more), or use loss, bce or cells"
+        )
+
     def progress(row: dict) -> None:
         e = row["epoch"]
         loss = "  (untuned)" if e == 0 else f"  loss {row['train_loss']:.4f}"

@@ -156,7 +156,8 @@ def worse_beyond_spread(
     Args:
       logits, reference_logits: per validation log, (T, E, L) fused logits.
       datas: the logs' :class:`TuningData` (``truth``, ``mask`` and ``known``, as in
-        :func:`jax_contact.tune.fit.score_logs`' cells); each needs 2 envs.
+        :func:`jax_contact.tune.fit.score_logs`' cells); below
+        :data:`jax_contact.bootstrap.MIN_ENVS` envs no cell is called worse.
       dt: period, s.
 
     Returns:

@@ -12,6 +12,7 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
+from jax_contact.bootstrap import MIN_ENVS
 from jax_contact.filter import init_belief_batch
 from jax_contact.params import EstimatorParams, validate_params
 from jax_contact.tune.calibration import sigmoid_np
@@ -218,8 +219,9 @@ class TuneResult:
         (mean over the epoch's windows of the loss, NaN for epoch 0), ``train_bce``,
         ``val_bce``, ``val_event``, ``val_loss``, ``val_f1``, ``val_ece``, ``val_fail``
         (:func:`score_logs`), ``val_worse`` (the validation cells worse than epoch 0's
-        beyond the rollouts' spread, :func:`worse_beyond_spread`; absent for a validation
-        log of one env), ``grad_norm``, ``wall_s``; with ``config.feasible`` also
+        beyond the rollouts' spread, :func:`worse_beyond_spread`; absent when a validation
+        log has fewer than :data:`jax_contact.bootstrap.MIN_ENVS` envs, where the bootstrap
+        makes no call), ``grad_norm``, ``wall_s``; with ``config.feasible`` also
         ``train_cells`` (the tuning logs' cells) and ``rejected``.
       best_epoch: the epoch whose parameters are returned (lowest ``val_loss``, or
         ``val_bce`` with ``config.select == "bce"``, or the lowest ``val_loss`` among the
@@ -343,18 +345,26 @@ def tune(
 
     def validate(th) -> dict:
         # score_logs on the validation logs, and the cells worse than epoch 0's beyond the
-        # rollouts' spread (a paired env bootstrap; needs 2 envs per log).
+        # rollouts' spread (a paired env bootstrap).
         nonlocal val_logits0
         logits = logits_of(th, vals, val_key)
         out = score_logs(logits, vals, dt=dt, config=config)
         if val_logits0 is None:
             val_logits0 = logits
-        if all(v.truth.shape[1] >= 2 for v in vals):
+        # Below MIN_ENVS envs the bootstrap makes no call: no count rather than a 0 that
+        # reads as "no cell worse".
+        if all(v.truth.shape[1] >= MIN_ENVS for v in vals):
             out["worse"] = worse_beyond_spread(logits, val_logits0, vals, dt=dt)
         return out
 
-    if config.select == "spread" and any(v.truth.shape[1] < 2 for v in vals):
-        raise ValueError("select='spread' resamples the validation logs' envs: each needs 2")
+    few = [(i, v.truth.shape[1]) for i, v in enumerate(vals) if v.truth.shape[1] < MIN_ENVS]
+    if config.select == "spread" and few:
+        i, n = few[0]
+        raise ValueError(
+            f"select='spread' resamples the validation logs' envs and makes no call below"
+            f" {MIN_ENVS} (jax_contact.bootstrap.MIN_ENVS); validation log {i + 1} of"
+            f" {len(vals)} has {n}"
+        )
     history = []
     first = dict(epoch=0, train_loss=float("nan"), train_bce=float("nan"), grad_norm=float("nan"))
     first.update({f"val_{k}": v for k, v in validate(theta).items()})
