@@ -1360,3 +1360,19 @@ def test_a_staged_output_folder_needs_a_writable_parent_and_says_so(tmp_path, mo
     assert list(out.parent.iterdir()) == [out]
     with pytest.raises(ValueError, match="argument --out: an empty name"):
         check_output_folder("--out", "")  # it meant the working folder
+
+
+def test_tune_names_the_stance_time_bounds_that_leave_out_the_start(tmp_path, capsys):
+    """--stance-time-bounds that do not contain the starting T_s were refused as "pass
+    stance_time_bounds that contain it", the Python name; now the option and the value."""
+    csv = ROOT / "tests/fixtures/planar_leg_hop.csv"
+    lines = csv.read_text().splitlines(keepends=True)
+    other = tmp_path / "v.csv"  # another run: the same recording less its last 40 rows
+    other.write_text("".join(lines[:-40]))
+    out = tmp_path / "p.json"
+    argv = ["tune", str(csv), "--validate", str(other), "--model", "planar_leg"]
+    argv += ["--stance-time-bounds", "1.5", "2.0", "--out", str(out)]
+    assert cli.main(argv) == 2
+    err = capsys.readouterr().err
+    assert "argument --stance-time-bounds: 1.5 2 s must contain the starting T_s," in err, err
+    assert "--freeze stance_time" in err and not out.exists()

@@ -74,6 +74,8 @@ def test_tune_env_writes_a_file_the_wrapper_loads(recorded, tmp_path, capsys):
     assert cli.main(["tune-env", *argv]) == 0
     err = capsys.readouterr().err
     assert "recorded planar_leg seed 3" in err and "epoch  1/1" in err
+    # A rates scene replays one motion at every seed: validating on one is noted.
+    assert "planar_leg: a `jax-contact rates` scene plays the same motion at every seed" in err
     params, prov = jc.load_params(out, with_provenance=True)
     rec = recorded[0]
     assert params.nv == rec.core.params.nv and float(params.dt) == pytest.approx(rec.dt)
@@ -225,6 +227,10 @@ def test_an_unknown_scene_or_policy_is_named():
     with pytest.raises(ValueError, match="policy must be one of walk, trot.*got 'gallop'"):
         tune_env.check_scene("Go1JoystickFlatTerrain:gallop")
     tune_env.check_scene("go1_trot")
+    # A rates scene with a policy was called an unknown scene, its name in the list given.
+    with pytest.raises(ValueError, match=r"^argument SCENE: 'go1_trot:walk': the `jax-contact"
+                       r" rates` scene 'go1_trot' plays its own .* takes no :POLICY"):  # fmt: skip
+        tune_env.check_scene("go1_trot:walk")
     tune_env.check_scene("SpotFlatTerrainJoystick:trot")
     # A scripted gait on a robot it was not written for (a user trial's T1 walk ended in
     # a StopIteration traceback after loading the env); random drives any env.

@@ -430,6 +430,13 @@ def fit_and_write(args: argparse.Namespace, inputs: Inputs) -> int:
     fields = [f for f in jt.DEFAULT_FIELDS if f not in frozen] + also
     bounds = tuple(getattr(args, "stance_time_bounds", None) or jt.STANCE_TIME_BOUNDS)
     space = jt.robot_space(inputs.desc, fields, stance_time_bounds=bounds)
+    t_s = float(base.stance_time)
+    if "stance_time" in fields and not bounds[0] < t_s < bounds[1]:
+        raise ValueError(
+            f"argument --stance-time-bounds: {bounds[0]:g} {bounds[1]:g} s must contain the"
+            f" starting T_s, {t_s:g} s (the defaults' or --params' stance_time); widen them,"
+            " or --freeze stance_time"
+        )
     config = jt.TuneConfig(
         learning_rate=args.lr,
         clip_norm=args.clip,

@@ -31,8 +31,9 @@ Scenes (``SCENE``):
   rollouts' frequencies and phases (or random actions), the resets and the sensor noise.
   Scored from 0.5 s (the drop at reset) to each rollout's first ``done``.
 - a scene of ``jax-contact rates`` (:data:`jax_contact.train.rates.SCENES`). Its actions
-  are fixed by rollout index; a seed draws the resets and the sensor noise. Scored from
-  0.2 s.
+  are fixed by rollout index and it starts from its home pose, so every seed plays the same
+  motion; a seed draws only the sensor noise (the command says so when it validates on
+  one: held-out motion needs a Playground scene). Scored from 0.2 s.
 
 Tune on some seeds, validate on another, report on a third that neither saw (the
 reports of docs/training.md use seed 1 for Playground scenes, seed 0 for the rates scenes;
@@ -99,7 +100,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         "--steps",
         type=positive_int,
         default=STEPS,
-        help=f"env steps per rollout (default {STEPS}); the first {PLAYGROUND_SKIP_S} s"
+        help=f"env steps per rollout; the first {PLAYGROUND_SKIP_S} s"
         f" ({RATES_SKIP_S} s on a rates scene) after the reset are not scored",
     )
     tune_cmd.add_tuning_options(p)
@@ -147,6 +148,11 @@ def check_scene(scene: str) -> None:
     from jax_contact.envs.playground_offline import ENV_NAMES
 
     name, _, policy = scene.partition(":")
+    if name in SCENES:
+        raise ValueError(
+            f"argument SCENE: {scene!r}: the `jax-contact rates` scene {name!r} plays its own"
+            f" scripted actions and takes no :POLICY; pass {name!r} alone"
+        )
     if name not in ENV_NAMES:
         raise ValueError(
             f"argument SCENE: unknown scene {name!r}; valid: a `jax-contact rates` scene"
@@ -196,6 +202,17 @@ def run(args: argparse.Namespace) -> int:
     ]
     for scene, record_seed in zip(args.scenes, recorders, strict=True):
         _same_estimator(recorders[0], record_seed, scene)
+    from jax_contact.train.rates import SCENES
+
+    fixed = [scene for scene in args.scenes if scene in SCENES]
+    if fixed and args.validate_seed:
+        print(
+            f"note: {', '.join(fixed)}: a `jax-contact rates` scene plays the same motion at"
+            " every seed (fixed actions, home start); its validation seed draws only other"
+            " sensor noise, so early stopping sees no held-out motion (a Playground scene's"
+            " seed draws the gait too)",
+            file=sys.stderr,
+        )
 
     def recordings():
         for scene, sc, record_seed in zip(args.scenes, scenes, recorders, strict=True):
