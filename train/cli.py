@@ -545,7 +545,9 @@ def build_parser() -> argparse.ArgumentParser:
         " without ground truth (no truth/contact) has no metrics: then the estimator's mean"
         " P(contact) per foot is printed, and --json gets it per step and env. Given several"
         " logs, each is evaluated as it would be alone, and the metrics of those with ground"
-        " truth of one robot and rate are pooled (every env of every log one sequence).",
+        " truth of one robot and rate are pooled (every env of every log one sequence). The"
+        " estimator's defaults are derived for the log's sensor preset (simulate --noise),"
+        " as tune's start is.",
     )
     p.add_argument(
         "log",

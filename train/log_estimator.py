@@ -136,6 +136,7 @@ def estimator_for(
     mj_model=None,
     period: str = "the log's",
     robot: str | None = None,
+    noise: str | None = None,
 ):
     """The :class:`EstimatorSetup` of ``evaluate``, ``estimate`` and ``export``: the
     defaults (:func:`default_estimator`) or ``params_path`` checked against the robot
@@ -143,9 +144,13 @@ def estimator_for(
     the terrain model given, else the file's own (:func:`resolve_terrain_model`), which
     is then printed. The file is read once: its parameters, map and recorded hash come
     from the same bytes. ``period`` names ``dt`` in the warning of a file of another
-    period (e.g. ``"the export's"``)."""
+    period (e.g. ``"the export's"``). ``noise``: the readings' sensor preset where known
+    (a simulated log's, :func:`jax_contact.train.logs.log_noise`): the defaults are
+    derived with it, and a file tuned on logs of other sensors is warned of; None (a
+    recording's, unknown): the defaults' ``anymal_like``, no warning."""
     from jax_contact.calibration import file_calibration
     from jax_contact.params_file import read_params
+    from jax_contact.train.logs import DEFAULT_LOG_NOISE
 
     provenance, calibration, record = None, None, None
     if params_path is not None:
@@ -156,13 +161,38 @@ def estimator_for(
         )  # fmt: skip
         calibration = file_calibration(provenance, params_path)
         record = params_record(read)
+        warn_other_sensors(provenance, noise, params_path)
     model = resolve_terrain_model(terrain_model, params_path, provenance)
     if terrain_model is None and model != "flat":
         print(f"terrain model {model!r}: the one {str(params_path)!r} was tuned with")
-    params, terrain = default_estimator(desc, dt, model, mj_model=mj_model)
+    params, terrain = default_estimator(
+        desc, dt, model, mj_model=mj_model, noise=noise or DEFAULT_LOG_NOISE
+    )
     if params_path is not None:
         params = file_params
     return EstimatorSetup(params, model, terrain, calibration, record)
+
+
+def warn_other_sensors(provenance: dict, noise: str | None, source) -> None:
+    """A ``UserWarning`` when a parameter file was tuned on logs of sensor presets (its
+    provenance's ``logs[*].noise``) that do not include ``noise``, the readings' own (None:
+    unknown, no warning): its noise values are another sensor model's."""
+    import warnings
+
+    logs = provenance.get("logs")
+    tuned = sorted(
+        {str(e["noise"]) for e in logs if isinstance(e, dict) and "noise" in e}
+        if isinstance(logs, list)
+        else set()
+    )
+    if noise is None or not tuned or noise in tuned:
+        return
+    warnings.warn(
+        f"{str(source)!r} was tuned on readings of sensors {', '.join(map(repr, tuned))};"
+        f" these are {noise!r}: its noise values are another sensor model's (tune on logs"
+        " with these sensors: jax-contact tune)",
+        stacklevel=2,
+    )
 
 
 def load_params_for(

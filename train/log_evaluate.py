@@ -15,7 +15,7 @@ from jax_contact.io import write_json_atomic
 from jax_contact.metrics import bounce_counts, bounce_steps
 from jax_contact.robot import model_mass
 from jax_contact.train.log_estimator import default_estimator, estimator_for
-from jax_contact.train.logs import TRUTH_CONTACT, LoadedLog, load_log, log_setup
+from jax_contact.train.logs import TRUTH_CONTACT, LoadedLog, load_log, log_noise, log_setup
 from jax_contact.train.report import format_scores
 
 
@@ -269,9 +269,10 @@ def evaluate_file(
     log = loaded or load_log(path, foot_names=foot_names, robot=robot)
     name, truth, desc, dt = log.name, log.truth, log.robot.description, log.dt
     mass = model_mass(log.robot.mj_model)
+    noise = log_noise(log.attrs)  # the defaults are the log's sensors', as tune's
     params, terrain_model, terrain, calibration, params_record = estimator_for(
         desc, dt, params_path, terrain_model, mass, mj_model=log.robot.mj_model,
-        robot=log.robot.name,
+        robot=log.robot.name, noise=noise,
     )  # fmt: skip
     if bootstrap and truth is not None and truth.shape[1] < 2:
         raise ValueError(
@@ -280,7 +281,7 @@ def evaluate_file(
     estimators = {"probabilistic": params}
     if params_path is not None:
         estimators["defaults"] = default_estimator(
-            desc, dt, terrain_model, mj_model=log.robot.mj_model
+            desc, dt, terrain_model, mj_model=log.robot.mj_model, noise=noise
         )[0]
     gm_name, gm = "gm", make_gm_params()
     kinematic = make_kinematic_params()

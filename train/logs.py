@@ -372,6 +372,17 @@ def to_end_of_step(readings: dict, truth: np.ndarray | None, valid: np.ndarray):
     return out, None if truth is None else truth[:-1], ok
 
 
+# The sensor model of a log that does not name one: the reproduction's.
+DEFAULT_LOG_NOISE = "anymal_like"
+
+
+def log_noise(attrs) -> str:
+    """A log's sensor model: ``simulate``'s ``noise`` attribute, else
+    :data:`DEFAULT_LOG_NOISE`. The estimator's defaults for the log are derived with it
+    (``evaluate``, ``tune``), as the reproduction's are with its own."""
+    return str(attrs.get("noise", DEFAULT_LOG_NOISE))
+
+
 def log_setup(path: str | Path) -> tuple[str, float, str | None]:
     """(robot name, period s, physics fingerprint or None) of a log, from its attributes
     alone: logs checked against each other before any is loaded (a ValueError or

@@ -116,11 +116,12 @@ def load_tuning_log(path: str | Path, terrain_model: str = "flat"):
     import numpy as np
 
     from jax_contact.train.log_estimator import terrain_for
+    from jax_contact.train.logs import log_noise
     from jax_contact.tune import TuningData
 
     readings, truth, valid, attrs, robot = read_truth_log(path)
     dt = float(attrs["dt"])
-    params, plane = default_params(robot, dt, str(attrs.get("noise", "anymal_like")))
+    params, plane = default_params(robot, dt, log_noise(attrs))
     terrain = terrain_for(plane, terrain_model)
     meas = measure_readings(robot, readings)
     mask = np.broadcast_to(valid[..., None], truth.shape) & feet_read(params, readings, meas)

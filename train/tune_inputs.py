@@ -17,18 +17,14 @@ import time
 from pathlib import Path
 
 from jax_contact.train.cli_args import RATE_TOLERANCE
+from jax_contact.train.logs import log_noise
 from jax_contact.train.tune_data import load_tuning_log, sensor_floor
-
-
-def _noise_of(attrs) -> str:
-    """A log's sensor model (``simulate``'s ``noise`` attribute; ``anymal_like`` if unset)."""
-    return str(attrs.get("noise", "anymal_like"))
 
 
 def _setup(d) -> dict:
     """What the fit starts from, of a log's attributes or its :func:`_log_info` (a
     recording's also the measurement terms its columns support)."""
-    out = {"robot": str(d["robot"]), "period dt": float(d["dt"]), "sensor noise": _noise_of(d)}
+    out = {"robot": str(d["robot"]), "period dt": float(d["dt"]), "sensor noise": log_noise(d)}
     if "terms" in d:
         out["measurement terms"] = list(d["terms"])
     return out
@@ -184,7 +180,7 @@ def load_logs(args: argparse.Namespace) -> Inputs:
             # others must share its robot, period and sensors (_same_setup).
             base, terrain = params, terr
             if getattr(args, "noise_floor", "sensor") == "sensor":
-                floor = sensor_floor(robot, float(attrs["dt"]), _noise_of(attrs))
+                floor = sensor_floor(robot, float(attrs["dt"]), log_noise(attrs))
         else:
             _same_setup("LOG", path, attrs, infos[0])
         info = _log_info(path, attrs, data)

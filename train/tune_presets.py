@@ -290,6 +290,7 @@ def compare(
     from jax_contact.train.calibration import reliability_diagram
     from jax_contact.train.evaluate import replay, score
     from jax_contact.train.log_estimator import file_terrain_model, load_params_for, terrain_for
+    from jax_contact.train.logs import log_noise
 
     def terrain_model_of(source) -> tuple[object, str]:
         if isinstance(source, tuple):
@@ -307,7 +308,7 @@ def compare(
             simulate_log(path, robot, scenario, seed, n_envs=n_envs, duration=duration)
         readings, truth, valid, attrs, robo = read_truth_log(path)
         dt = float(attrs["dt"])
-        base, plane = default_params(robo, dt, attrs.get("noise", "anymal_like"))
+        base, plane = default_params(robo, dt, log_noise(attrs))
         out, cals = {}, {}
         # One replay per terrain model (the replay runs every estimator on one terrain).
         for model in dict.fromkeys(m for _, m in sources.values()):
