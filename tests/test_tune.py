@@ -812,9 +812,28 @@ def test_reliability_bins_agree_with_metrics_ece_and_the_png_is_written(np_rng, 
     assert np.array_equal(b2["count"], b["count"]) and float(b2["ece"]) == float(b["ece"])
     with pytest.raises(ValueError, match=r"valid has shape \(50, 3\); expected \(50, 2, 4\)"):
         reliability_bins(p, truth, np.ones((50, 3), bool))
+    # The diagram's points give the same number: sum_b n_b |freq_b - mean_p_b| / N.
+    keep = b["count"] > 0
+    gaps = b["count"][keep] * np.abs(b["freq"][keep] - b["mean_p"][keep])
+    assert float(b["ece"]) == pytest.approx(gaps.sum() / v3.sum(), abs=1e-12)
     out = reliability_diagram({"a": p, "b": np.sqrt(p), "a/diag": p}, truth, valid,
                               tmp_path / "fig" / "rel.png", title="test")  # fmt: skip
     assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    # Bad outputs are named, nothing drawn (a NaN failed inside NumPy's bincount, a P of 3
+    # was drawn, a short array blamed valid's shape).
+    bad = tmp_path / "bad.png"
+    reliability_diagram({"a": np.where(v3, p, np.nan)}, truth, valid, bad)  # NaN where invalid
+    bad.unlink()
+    nan = p.copy()
+    nan.reshape(-1)[np.flatnonzero(v3)[0]] = np.nan  # one NaN on a valid step
+    for outputs, match in (
+        ({"a": nan}, r"^outputs\['a'\]: estimate holds NaN or inf at valid"),
+        ({"b": 3 * p}, r"^outputs\['b'\]: estimate must lie in \[0, 1\]"),
+        ({"c": p[:10]}, r"^outputs\['c'\]: truth has shape \(50, 2, 4\), but prob has shape"),
+    ):
+        with pytest.raises(ValueError, match=match):
+            reliability_diagram(outputs, truth, valid, bad)
+        assert not bad.exists()
 
 
 @pytest.mark.parametrize(

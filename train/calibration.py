@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from jax_contact.metrics import ece_bins
+from jax_contact.metrics import as_bool, ece_bins, expected_calibration_error
 
 
 def reliability_bins(prob, truth, valid=None, *, n_bins: int = 10) -> dict[str, np.ndarray]:
@@ -37,15 +37,23 @@ def reliability_bins(prob, truth, valid=None, *, n_bins: int = 10) -> dict[str, 
       ``count`` (n_bins,) steps per bin, ``mean_p`` mean prediction and ``freq`` observed
       contact frequency per bin (NaN for an empty bin), and ``ece`` (a () array), equal to
       :func:`jax_contact.metrics.expected_calibration_error`.
+
+    Raises:
+      ValueError: as :func:`jax_contact.metrics.expected_calibration_error` (a NaN, inf or
+        value outside [0, 1] of ``prob`` at a valid step, a ``truth`` other than 0 / 1), or
+        ``truth`` or ``valid`` of another shape than ``prob``.
     """
-    p = np.asarray(prob, np.float64)
-    g = np.asarray(truth, bool)
+    p, g = np.asarray(prob), np.asarray(truth)
+    if g.shape != p.shape:
+        raise ValueError(f"truth has shape {g.shape}, but prob has shape {p.shape}")
     v = np.ones(p.shape, bool) if valid is None else _mask_like(valid, p.shape)
+    # The metric's own checks (values in [0, 1] where valid, truth 0 / 1), and its number.
+    ece = expected_calibration_error(p, g, v, n_bins=n_bins)
+    p, g = p.astype(np.float64), as_bool("truth", g, v)
     count, sum_g, sum_p = ece_bins(p, g, v, n_bins)
     with np.errstate(invalid="ignore", divide="ignore"):
         mean_p = np.where(count > 0, sum_p / count, np.nan)
         freq = np.where(count > 0, sum_g / count, np.nan)
-    ece = np.sum(np.abs(sum_g - sum_p)) / max(int(np.sum(v)), 1)
     return {"count": count, "mean_p": mean_p, "freq": freq, "ece": np.asarray(ece)}
 
 
@@ -92,8 +100,6 @@ def reliability_diagram(
 
     from jax_contact.io import write_atomic
 
-    truth = np.asarray(truth, bool)
-    valid = _mask_like(valid, truth.shape)
     names = names or [k for k in outputs if "/" not in k]
     # matplotlib's object API, no pyplot: the caller's backend is left as it is
     # (jax_contact.train.figures._save says why).
@@ -103,7 +109,10 @@ def reliability_diagram(
     centres = (np.arange(n_bins) + 0.5) / n_bins
     width = 0.8 / (n_bins * max(len(names), 1))
     for i, name in enumerate(names):
-        b = reliability_bins(outputs[name], truth, valid, n_bins=n_bins)
+        try:
+            b = reliability_bins(outputs[name], truth, valid, n_bins=n_bins)
+        except ValueError as err:
+            raise ValueError(f"outputs[{name!r}]: {err}") from None
         keep = b["count"] > 0
         line = ax.plot(
             b["mean_p"][keep], b["freq"][keep], marker="o", ms=4,
