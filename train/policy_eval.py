@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import sys
 import time
 import warnings
 from collections.abc import Callable, Sequence
@@ -33,6 +34,25 @@ from jax_contact.train.ppo import (
     unfinished_run,
 )
 from jax_contact.train.tasks import is_playground_task
+
+
+def _closed_loop_quiet(previous):
+    """``sys.unraisablehook`` that drops tensorstore's late reports to a closed event loop.
+
+    When orbax's restore fails, the reads still in flight report to the asyncio loop it has
+    already closed: each report raises ``RuntimeError("Event loop is closed")`` in a
+    tensorstore thread, which Python prints through ``sys.unraisablehook``, 14-17 tracebacks
+    around the one-line error of a damaged checkpoint. Only those are dropped; anything
+    else goes to ``previous``."""
+
+    def hook(unraisable):
+        err = unraisable.exc_value
+        if isinstance(err, RuntimeError) and str(err) == "Event loop is closed":
+            return
+        previous(unraisable)
+
+    hook.drops_closed_loop = True
+    return hook
 
 
 @contextlib.contextmanager
@@ -109,13 +129,18 @@ def load_policy(ckpt: str | Path, *, deterministic: bool = True, parts: bool = F
         ),
         **kwargs,
     )
+    previous = sys.unraisablehook
+    if not getattr(previous, "drops_closed_loop", False):
+        sys.unraisablehook = _closed_loop_quiet(previous)
     try:
         with warnings.catch_warnings(), _absl_quiet():
             # Orbax's note on every restore without shardings (it reads them from the
             # checkpoint): nothing a user can act on; the parameters land on the default device.
             warnings.filterwarnings("ignore", message="Sharding info not provided")
             params = ppo_checkpoint.load(ckpt)
+        sys.unraisablehook = previous
     except Exception as err:  # orbax / tensorstore: a wall of JSON specs; one line instead
+        # The hook stays: the failed restore's reads report after this (_closed_loop_quiet).
         first = " ".join(str(err).split())
         short = first if len(first) <= 240 else first[:240] + " ..."
         raise ValueError(
