@@ -147,6 +147,11 @@ def test_evaluate_policy_dispatches_hop_runs_with_the_column(tmp_path, monkeypat
         policy_eval.evaluate_policy(run, observe="truth", column="estimate")
     with pytest.raises(ValueError, match="observe must be one of"):
         policy_eval.evaluate_policy(run, observe="estimate_harsh")
+    # An interrupted hop run is evaluated with the warning a Go1 run gets (it had none).
+    info = json.loads((run / "run.json").read_text()) | {"finished": False}
+    (run / "run.json").write_text(json.dumps(info))
+    with pytest.warns(UserWarning, match=r"training did not finish .* checkpoint, 000000000100"):
+        assert policy_eval.evaluate_policy(run, n_envs=3) == {"ok": 1}
     # No task in run.json is a Go1 run: it needs a checkpoint, not the hop evaluation.
     go1 = _run_folder(tmp_path / "old" / "truth", "truth", None, checkpoint=False)
     with pytest.raises(FileNotFoundError, match="no checkpoint"):

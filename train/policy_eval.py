@@ -420,6 +420,13 @@ def evaluate_policy(
         raise ValueError(f"observe must be one of {VARIANTS}, got {observe!r}")
     run_dir = Path(run_dir)
     run = read_run(run_dir)
+    ckpt = latest_checkpoint(run_dir)  # before building envs: FileNotFoundError without one
+    if run.get("finished") is False:  # every task's run (a hop's was evaluated silently)
+        warnings.warn(
+            f"{run_dir}'s training did not finish (run.json: finished false; interrupted, or"
+            f" still training): evaluating its latest checkpoint, {ckpt.name}",
+            stacklevel=2,
+        )
     if not is_playground_task(run.get("task", "go1")):  # a hop: its own evaluation
         from jax_contact.train import transfer
 
@@ -430,13 +437,6 @@ def evaluate_policy(
             n_envs=n_envs,
             episode_length=episode_length,
             seed=seed,
-        )
-    ckpt = latest_checkpoint(run_dir)  # before building envs: FileNotFoundError without one
-    if run.get("finished") is False:
-        warnings.warn(
-            f"{run_dir}'s training did not finish (run.json: finished false; interrupted, or"
-            f" still training): evaluating its latest checkpoint, {ckpt.name}",
-            stacklevel=2,
         )
     ev = ColumnEvaluator(config_of(run), n_envs, episode_length, run.get("env", ENV_NAME))
     return ev.evaluate(run_dir, column or observe or run["variant"], seed)

@@ -234,12 +234,15 @@ def evaluate_run(
     )
     return {
         "contact": contact.as_dict(),
-        "run": str(run_dir),
+        **m,
+        # The keys and paths of a Playground run's evaluation (policy_eval.ColumnEvaluator).
+        "run": str(run_dir.absolute()),
+        "checkpoint": str(Path(m["checkpoint"]).absolute()),
         "trained_with": run["variant"],
+        "run_finished": run.get("finished", True),
         "observed": column,
         "n_episodes": n_envs,
         "return_mean": m["return"],
-        **m,
     }
 
 
