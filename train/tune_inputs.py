@@ -17,13 +17,14 @@ import time
 from pathlib import Path
 
 from jax_contact.train.cli_args import RATE_TOLERANCE
-from jax_contact.train.logs import log_noise
 from jax_contact.train.tune_data import load_tuning_log, sensor_floor
 
 
 def _setup(d) -> dict:
     """What the fit starts from, of a log's attributes or its :func:`_log_info` (a
     recording's also the measurement terms its columns support)."""
+    from jax_contact.train.logs import log_noise  # imports JAX: not at the CLI's import
+
     out = {"robot": str(d["robot"]), "period dt": float(d["dt"]), "sensor noise": log_noise(d)}
     if "terms" in d:
         out["measurement terms"] = list(d["terms"])
@@ -150,6 +151,7 @@ def load_logs(args: argparse.Namespace) -> Inputs:
     """The :class:`Inputs` of ``jax-contact tune``'s logs (one robot for all), or of its
     recordings with ``args.model``."""
     from jax_contact.robot import model_mass
+    from jax_contact.train.logs import log_noise
     from jax_contact.tune import check_scored_steps
 
     t0 = time.perf_counter()
