@@ -434,6 +434,14 @@ def test_a_second_train_into_the_same_folder_keeps_the_first(tmp_path, monkeypat
     with pytest.raises(ValueError, match=r"run folder .*none exists and is not empty"):
         ppo.train_variants(TINY, tmp_path, variants=["estimate", "none"], seed=1, eval_envs=0)
     assert calls == ["estimate", "none", "truth"]
+    # The summary figure is titled by the task's env (it read "Go1 joystick" for the hop).
+    from jax_contact.train import figures
+
+    titles = []
+    monkeypatch.setattr(figures, "plot_reward_curves", lambda *a, title, **k: titles.append(title))
+    ppo.train_variants(TINY, tmp_path / "hop", variants=["none"], eval_envs=0, task="hop")
+    ppo.train_variants(TINY, tmp_path / "go1", variants=["none"], eval_envs=0)
+    assert titles == ["PlanarLegHop, PPO", "Go1JoystickFlatTerrain, PPO"]
     other = tmp_path / "other"
     other.mkdir()
     (other / "summary.json").write_text("{")

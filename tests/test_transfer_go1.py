@@ -216,8 +216,36 @@ def test_transfer_matrix_dispatches_on_the_runs_task(tmp_path, fake_cells):
     none = res["cells"]["none"]
     assert [none[c]["return"]["per_seed"] for c in transfer.COLUMNS] == [[5.0, 25.0]] * 5
     lat2 = res["cells"]["estimate"]["estimate_lat2"]["return"]
-    assert lat2 == {"mean": 14.0, "std": 10.0, "per_seed": [4.0, 24.0]}
-    assert res["cells"]["truth"]["truth"]["fell"] == {"mean": 0.5, "std": 0.5, "per_seed": [0, 1]}
+    assert lat2 == {"mean": 14.0, "std": 10.0, "n_seeds": 2, "per_seed": [4.0, 24.0]}
+    fell = res["cells"]["truth"]["truth"]["fell"]
+    assert fell == {"mean": 0.5, "std": 0.5, "n_seeds": 2, "per_seed": [0, 1]}
+
+
+def test_a_seed_without_a_value_is_left_out_of_its_cell():
+    """A hop seed whose policy never left the ground has no apex (apex_error NaN): the
+    cell's mean and std were NaN for every seed. Now over the seeds with a value, counted;
+    one seed has no std ("± 0.000" before)."""
+    nan = float("nan")
+    cell = transfer.over_seeds([0.2, nan, 0.4])
+    assert cell["mean"] == pytest.approx(0.3) and cell["std"] == pytest.approx(0.1)
+    assert cell["n_seeds"] == 2 and len(cell["per_seed"]) == 3
+    one, none = transfer.over_seeds([0.25]), transfer.over_seeds([nan])
+    assert one["mean"] == 0.25 and np.isnan(one["std"]) and np.isnan(none["mean"])
+    res = {
+        "columns": ["truth", "estimate"],
+        "cells": {
+            "none": {"truth": {"accuracy": one}, "estimate": {"accuracy": one}},
+            "truth": {"truth": {"accuracy": cell}, "estimate": {"accuracy": none}},
+        },
+    }
+    table = transfer.format_matrix(res, "accuracy").splitlines()
+    assert table[2] == "| none | 0.250 | 0.250 |"
+    assert table[3] == "| truth | 0.300 ± 0.100 (2 of 3 seeds) | n/a |"
+    assert table[4].startswith("row none: its policy sees no contact, so one evaluation")
+    for row in res["cells"].values():  # the return: the same for the none row in every column
+        for c in row:
+            row[c]["return"] = one
+    assert len(transfer.format_matrix(res, "return").splitlines()) == 4  # no note
 
 
 def test_transfer_matrix_hop_runs_and_mixed_tasks(tmp_path, fake_cells):
@@ -239,8 +267,11 @@ def test_transfer_main_prints_the_go1_metrics(tmp_path, fake_cells, monkeypatch,
     res = transfer.main([str(tmp_path), "--envs", "3", "--json", str(tmp_path / "m.json")])
     out = capsys.readouterr().out
     assert "\nreturn\n| trained with | truth | estimate | estimate_harsh" in out
-    assert "| truth | 0.000 ± 0.000 | 1.000 ± 0.000 | 2.000 ± 0.000 |" in out
-    assert json.loads((tmp_path / "m.json").read_text())["cells"] == res["cells"]
+    assert "| truth | 0.000 | 1.000 | 2.000 |" in out  # one seed: no spread to show
+    saved = json.loads((tmp_path / "m.json").read_text())["cells"]
+    cell = saved["truth"]["estimate"]["return"]
+    assert cell == {"mean": 1.0, "std": None, "n_seeds": 1, "per_seed": [1.0]}  # NaN: null
+    assert np.isnan(res["cells"]["truth"]["estimate"]["return"]["std"])
     # A run stopped before its first checkpoint is named before any cell is evaluated
     # (it failed after every earlier run's cells, and nothing was written).
     _run_folder(tmp_path / "seed1" / "estimate", "estimate", None, checkpoint=False)

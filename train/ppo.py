@@ -652,7 +652,7 @@ def train_variants(
     only the kept runs' evaluations).
     """
     from jax_contact.io import write_json_atomic, write_text_atomic
-    from jax_contact.train import figures
+    from jax_contact.train import figures, tasks
 
     out_dir = Path(out_dir)
     env_name = ENV_NAME if task == "go1" else task
@@ -681,7 +681,10 @@ def train_variants(
                 lines += [v + "," + ",".join(str(r[k]) for k in fields) for r in rows]
             write_text_atomic(out_dir / name, "\n".join(lines) + "\n")
         figures.plot_reward_curves(
-            curves, out_dir / "reward_curves.png", title="Go1 joystick, PPO", training=training
+            curves,
+            out_dir / "reward_curves.png",
+            title=f"{tasks.get_task(task).env_name}, PPO",  # was "Go1 joystick" for every task
+            training=training,
         )
 
     def write_summary(evaluation: list, final: str) -> dict:

@@ -349,8 +349,8 @@ def transfer_matrix(
     Returns:
       ``{"task", "metrics", "cells": {variant: {column: {metric: {"mean", "std",
       "per_seed"}}}}, "columns", "n_envs", "seed", "wall_s"}``; the metrics are the
-      task's (:data:`METRICS`, :data:`GO1_METRICS`), ``std`` is the population std over
-      seeds (0 with one seed).
+      task's (:data:`METRICS`, :data:`GO1_METRICS`); each cell is :func:`over_seeds` (a
+      seed without a value left out, ``std`` NaN below 2 seeds, ``n_seeds``).
 
     Raises:
       ValueError: runs of several tasks, an unknown task or column, or none at all.
@@ -401,14 +401,7 @@ def transfer_matrix(
                     f"  ({time.perf_counter() - t0:.0f} s)"
                 )
         for c, ms in per_col.items():
-            cells[variant][c] = {
-                k: {
-                    "mean": float(np.mean([m[k] for m in ms])),
-                    "std": float(np.std([m[k] for m in ms])),
-                    "per_seed": [m[k] for m in ms],
-                }
-                for k in cells_of.metrics
-            }
+            cells[variant][c] = {k: over_seeds([m[k] for m in ms]) for k in cells_of.metrics}
     return {
         "task": task,
         "metrics": list(cells_of.metrics),
@@ -420,13 +413,49 @@ def transfer_matrix(
     }
 
 
+def over_seeds(values) -> dict:
+    """One cell's metric over seeds: ``mean`` and ``std`` (population) over the seeds whose
+    value is a number, ``n_seeds`` of them, and every seed's value in ``per_seed``.
+
+    A seed without a value (a hop policy that never left the ground has no apex, so its
+    ``apex_error`` is NaN) is left out rather than turning the cell NaN; ``std`` is NaN
+    below 2 such seeds (one seed has no spread), ``mean`` NaN with none.
+    """
+    v = np.asarray(values, np.float64)
+    ok = v[np.isfinite(v)]
+    return {
+        "mean": float(ok.mean()) if ok.size else float("nan"),
+        "std": float(ok.std()) if ok.size >= 2 else float("nan"),
+        "n_seeds": int(ok.size),
+        "per_seed": list(values),
+    }
+
+
+def _cell_text(cell: dict) -> str:
+    """``mean ± std``; ``n/a`` without a value, no ``±`` for one seed, ``(k of n seeds)``
+    when some seeds had no value."""
+    mean, std, per = cell["mean"], cell["std"], cell["per_seed"]
+    if not np.isfinite(mean):
+        return "n/a"
+    n = cell.get("n_seeds", len(per))
+    text = f"{mean:.3f}" + (f" ± {std:.3f}" if np.isfinite(std) and n >= 2 else "")
+    return text + (f" ({n} of {len(per)} seeds)" if n < len(per) else "")
+
+
 def format_matrix(result: dict, metric: str = "return") -> str:
-    """A markdown table of one metric, ``mean +- std`` over seeds."""
+    """A markdown table of one metric, ``mean ± std`` over seeds (:func:`over_seeds`); a
+    note under it where the row ``none`` stands for every column with one evaluation."""
     cols = result["columns"]
     lines = ["| trained with | " + " | ".join(cols) + " |", "|---" * (len(cols) + 1) + "|"]
     for variant, row in result["cells"].items():
-        vals = [f"{row[c][metric]['mean']:.3f} ± {row[c][metric]['std']:.3f}" for c in cols]
+        vals = [_cell_text(row[c][metric]) for c in cols]
         lines.append(f"| {variant} | " + " | ".join(vals) + " |")
+    if metric in ("accuracy", "f1") and "none" in result["cells"]:
+        lines.append(
+            "row none: its policy sees no contact, so one evaluation (the estimator on the"
+            " training sensors) stands for every column; the estimator's columns are the"
+            " other rows'"
+        )
     return "\n".join(lines)
 
 
