@@ -222,6 +222,14 @@ def test_policy_eval_checks_the_run_record_before_jax(saved, tmp_path):
     with pytest.raises(ValueError, match=r"policy sees no contact, so it can observe only none"):
         check_run_record("run", tmp_path, "estimate_lat1")
     check_run_record("run", tmp_path, "none")
+    # A hop run the same (only Go1's was checked: a user waited for JAX to be told that
+    # "an observation of size 7" does not fit "(6,)").
+    (tmp_path / "run.json").write_text(json.dumps(record | {"variant": "none", "task": "hop"}))
+    with pytest.raises(ValueError, match=r"policy sees no contact, so it can observe only none"):
+        check_run_record("run", tmp_path, "estimate_harsh")
+    (tmp_path / "run.json").write_text(json.dumps(record | {"task": "hop_blind"}))
+    with pytest.raises(ValueError, match=r"sees a contact observation, .* not 'none'"):
+        check_run_record("run", tmp_path, "none")
 
 
 def test_a_damaged_run_folder_is_named_in_one_line(saved, tmp_path, monkeypatch):

@@ -359,8 +359,9 @@ def check_run_record(arg: str, run_dir: str | os.PathLike, observe: str | None) 
     """Raises ValueError, naming ``run.json``, when what ``policy-eval`` would build from a
     run folder's record cannot be built (a parameter file or sensor preset that is not
     there), or when ``observe`` (a variant or a transfer column; None: the run's own) gives
-    a Go1 policy an observation other than the one it was trained on (a run trained
-    without contact takes only ``none``, the others only a contact column). Anything else
+    a policy an observation other than the one it was trained on (a run trained without
+    contact takes only ``none``, the others only a contact column; every task's, the
+    hop's included). Anything else
     wrong with the record is left to the full check after JAX loads. Standard library only.
     """
     import json
@@ -389,7 +390,7 @@ def check_run_record(arg: str, run_dir: str | os.PathLike, observe: str | None) 
             f"argument {arg}: {str(path)!r}: config.sensor {sensor!r} is not one of {NOISES}"
         )
     variant = run.get("variant")
-    if observe is None or run.get("task", "go1") != "go1" or variant not in VARIANTS:
+    if observe is None or variant not in VARIANTS:
         return
     if (variant == "none") != (observe == "none"):
         sees = "no contact" if variant == "none" else "a contact observation"
