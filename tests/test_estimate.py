@@ -519,7 +519,7 @@ def test_torques_of_the_wrong_sign_warn_naming_the_foot(round_trip, tmp_path, ca
     assert warned[1].endswith("or a consequence of the warnings above (fix those first)")
 
 
-def test_truth_columns_in_another_foot_order_are_named():
+def test_truth_columns_in_another_foot_order_are_named(monkeypatch):
     """A trot's pattern over 400 steps: feet a and d in phase, b and c in the other phase
     (contact on 60 % of each 40-step cycle, so opposite feet share 20 % of the steps in
     contact). The estimate is the truth with every 25th step flipped (96 % agreement).
@@ -533,6 +533,11 @@ def test_truth_columns_in_another_foot_order_are_named():
       margin), with both feet and nothing about c or d.
     - Columns a and d exchanged (in phase): the same agreement either way: quiet.
     - 150 steps only (under 200 per pair): quiet.
+    - An estimate that fits no order well (a new user's negated torques: the best order
+      0.52 against the own 0.30): every 4th step flipped, 75 % agreement. The exchanged
+      columns as above give (2 x (0.2 x 0.75 + 0.8 x 0.25) + 2 x 0.75) / 4 = 0.55 against
+      0.75 in the order that undoes it: a gain above the margin, but an order that agrees
+      on under 0.8 itself: quiet.
     """
     from jax_contact.train.recording_checks import truth_order
 
@@ -551,6 +556,14 @@ def test_truth_columns_in_another_foot_order_are_named():
     assert "c's" not in text and "d's" not in text
     assert truth_order(p, truth[:, [3, 1, 2, 0]], scored, feet) is None
     assert truth_order(p[:150], truth[:150, [1, 0, 2, 3]], scored[:150], feet) is None
+    noisy = np.where(truth ^ (t % 4 == 0)[:, None], 0.9, 0.1)
+    assert truth_order(noisy, truth[:, [1, 0, 2, 3]], scored, feet) is None
+    # Without the agreement floor it would be named, with these numbers:
+    from jax_contact.train import recording_checks
+
+    monkeypatch.setattr(recording_checks, "MIN_ORDER_AGREEMENT", 0.7)
+    text = truth_order(noisy, truth[:, [1, 0, 2, 3]], scored, feet)
+    assert "(75% of steps agree against 55%)" in text
 
 
 def test_the_torque_check_counts_only_valid_still_steps():

@@ -428,6 +428,11 @@ def dynamics_disagrees(
 # that undoes it (F1 0.625); the front legs' joint columns swapped, 0.55 against 0.97; the
 # diagonal partners' truth swapped (the same pattern in a trot, F1 0.958): not named.
 ORDER_MARGIN = 0.1
+# ... and only an order that itself agrees on this share of the steps: a swap undone agrees
+# as a right recording does (0.97 above), while estimates that fit no order (every tau/
+# negated: F1 0.008, the best order 0.52 against the own 0.30; a new user's trial) say
+# nothing about the columns' order.
+MIN_ORDER_AGREEMENT = 0.8
 # Fewer scored steps than this per pair of feet: no comparison.
 MIN_ORDER_STEPS = 200
 
@@ -442,7 +447,8 @@ def truth_order(
     feet's estimates then follows the other foot's truth. Every assignment of the truth
     columns to the feet (up to 6 feet: 720) is scored by the share of steps where
     ``p > 0.5`` equals the column, averaged over the feet; the best one is named when it
-    beats the recording's own order by more than :data:`ORDER_MARGIN`.
+    beats the recording's own order by more than :data:`ORDER_MARGIN` and agrees on at
+    least :data:`MIN_ORDER_AGREEMENT` of the steps itself.
 
     Args:
       p: (T, L) the estimator's P(contact).
@@ -463,7 +469,7 @@ def truth_order(
     own = float(np.mean(np.diag(agree)))
     best = max(itertools.permutations(range(n)), key=lambda o: agree[range(n), o].sum())
     better = float(np.mean(agree[range(n), best]))
-    if better - own <= ORDER_MARGIN:
+    if better - own <= ORDER_MARGIN or better < MIN_ORDER_AGREEMENT:
         return None
     moved = [
         f"{foot_names[i]}'s estimate agrees with the column given as {foot_names[j]}'s on"

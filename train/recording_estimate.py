@@ -230,6 +230,8 @@ def estimate_recording(
             scored = np.asarray(out["probabilistic/valid"], bool) & conv.truth_known
             scores = score(out, conv.truth, scored, dt=conv.dt, truth_known=conv.truth_known)
             if swapped := truth_order(p, conv.truth[:, 0], scored[:, 0], feet_names):
+                if any(n.startswith("WARNING") for n in notes):
+                    swapped += "; or a consequence of the warnings above (fix those first)"
                 notes.append(swapped)
                 print_note(swapped)
             if legend and ("gm" in scores or "kinematic" in scores):  # once for several
