@@ -390,6 +390,16 @@ def dynamics_disagrees(
             flagged.append(name)
     if not bad:
         return None
+    # The other feet that read air on more than half their still steps (0.10-0.37 with a
+    # recording's own torques): a scale error (the motor side of a gearbox) reaches every
+    # leg, and naming one foot sent a user to that leg's columns alone.
+    also = [
+        f"{name} {s:.0%}"
+        for name, s, n in zip(foot_names, share, n_still, strict=True)
+        if name not in flagged and n >= MIN_STILL_STEPS and s > 0.5
+    ]
+    if also:
+        bad.append("also above half: " + ", ".join(also))
     nearly = {n: r for n, r in (straight or {}).items() if n in flagged}
     first = (
         "legs nearly straight where their feet stand still ("
