@@ -365,10 +365,7 @@ def staged_folder(folder: str | os.PathLike, stale: Callable[[Path], Iterable[st
                     f"cannot write {blocked[0]!r}: it is a folder (the output folder"
                     f" {str(folder)!r} is as it was)"
                 )
-            for name in sorted(old - set(names)):
-                (folder / name).unlink(missing_ok=True)
-            for name in names:
-                os.replace(os.path.join(tmp, name), folder / name)
+            _swap_in(folder, Path(tmp), names, sorted(old - set(names)))
             os.rmdir(tmp)
             _PENDING.discard(tmp)
             _DONE.extend(str(folder / name) for name in names)
@@ -377,6 +374,39 @@ def staged_folder(folder: str | os.PathLike, stale: Callable[[Path], Iterable[st
         with _LOCK:
             _PENDING.discard(tmp)
         raise
+
+
+def _swap_in(folder: Path, tmp: Path, names: list[str], stale: list[str]) -> None:
+    """Moves ``tmp``'s files ``names`` into ``folder`` and removes its files ``stale``, all
+    or nothing: the files they replace are first moved aside (a folder beside ``folder``),
+    and a rename that fails midway (a file that cannot be replaced, Ctrl-C) puts every
+    file back where it was before the error is raised. A move one by one left a user's
+    folder half this run's, half the earlier run's, when its 11th file could not be
+    replaced. Called under ``_LOCK``."""
+    aside = Path(tempfile.mkdtemp(dir=folder.parent, prefix=f".{folder.name}.", suffix=".old"))
+    moved_aside, moved_in = [], []
+    try:
+        for name in [n for n in names if (folder / n).exists()] + stale:
+            if (folder / name).exists():
+                os.replace(folder / name, aside / name)
+                moved_aside.append(name)
+        for name in names:
+            os.replace(tmp / name, folder / name)
+            moved_in.append(name)
+    except BaseException as err:
+        for name in reversed(moved_in):  # back into the staged folder, which is then removed
+            os.replace(folder / name, tmp / name)
+        for name in reversed(moved_aside):
+            os.replace(aside / name, folder / name)
+        os.rmdir(aside)
+        if isinstance(err, OSError):
+            raise OSError(
+                err.errno,
+                f"cannot replace the files of {str(folder)!r} ({err.strerror or err}:"
+                f" {err.filename!r}); the output folder is as it was",
+            ) from None
+        raise
+    shutil.rmtree(aside)
 
 
 def _umask() -> int:

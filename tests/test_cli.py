@@ -482,6 +482,46 @@ def test_a_staged_folder_replaces_the_earlier_run_and_keeps_other_files(tmp_path
     assert sorted(p.name for p in tmp_path.iterdir()) == ["est", "new"]
 
 
+@pytest.mark.parametrize("fails", ["aside b.json", "in c.json", "aside old.png"])
+def test_a_staged_folder_that_cannot_replace_one_file_leaves_the_earlier_run(
+    tmp_path, monkeypatch, fails
+):
+    """reproduce's outputs moved in one by one: a file that could not be replaced (one
+    locked in a shared folder) stopped the moves after the earlier ones, and a user's
+    folder held seed 2's ablation.json and figures beside seed 0's table3.json. Now the
+    files replaced are moved aside first and every move is undone on a failure: the folder
+    holds the earlier run's files only, named in the error, and nothing is left beside it."""
+    import os
+
+    from jax_contact import io
+    from jax_contact.io import staged_folder, write_text_atomic
+
+    out = tmp_path / "out"
+    out.mkdir()
+    earlier = {"a.json": "0", "b.json": "0", "c.json": "0", "old.png": "0", "notes.txt": "x"}
+    for name, text in earlier.items():
+        (out / name).write_text(text)
+    where, name = fails.split()
+    real = os.replace
+
+    def replace(src, dst):
+        src, dst = Path(src), Path(dst)
+        moving_aside = src.parent == out and dst.parent != out
+        moving_in = src.parent.name.endswith(".tmp") and dst.parent == out  # from the stage
+        if src.name == name and (moving_aside if where == "aside" else moving_in):
+            raise PermissionError(1, "Operation not permitted", str(src))
+        real(src, dst)
+
+    monkeypatch.setattr(io.os, "replace", replace)
+    stale = lambda folder: ["a.json", "b.json", "c.json", "old.png"]  # noqa: E731
+    with pytest.raises(OSError, match=rf"cannot replace the files of .*{name}.*as it was"):
+        with staged_folder(out, stale=stale) as stage:
+            for new in ("a.json", "b.json", "c.json"):
+                write_text_atomic(stage / new, "2")
+    assert {p.name: p.read_text() for p in out.iterdir()} == earlier
+    assert [p.name for p in tmp_path.iterdir()] == ["out"]
+
+
 def test_a_library_warning_prints_as_one_line_while_a_command_runs(capsys):
     """UserWarnings print as '<prog>: warning: <message>' (they printed the raising file,
     line and source line); other categories and the handler after the command are as
