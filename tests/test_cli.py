@@ -253,6 +253,10 @@ def test_static_lists_equal_the_librarys():
     figures = ("section3_fig5.png", "table3_trot_fig7.png")
     reliability = tuple(f"reliability_{n}.png" for n in reproduce.SCENARIOS)
     assert cli.REPRODUCE_OUTPUTS == reproduce.OUTPUT_FILES + figures + reliability
+    # --out's help names the figures an earlier run's outputs are replaced by.
+    sub = next(a for a in cli.build_parser()._actions if isinstance(a, argparse._SubParsersAction))
+    out_help = next(a.help for a in sub.choices["reproduce"]._actions if a.dest == "out")
+    assert all(f"{prefix}*" in out_help for prefix in reproduce.FIGURE_PREFIXES), out_help
     import inspect
 
     from jax_contact.train import report

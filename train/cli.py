@@ -492,7 +492,13 @@ def build_parser() -> argparse.ArgumentParser:
         f" Menagerie{menagerie}, or a path to an MJCF .xml file",
     )
     p.add_argument("--seed", type=seed_int, default=None, help="evaluation seed (default: 0)")
-    p.add_argument("--out", default="out/reproduce", help="output folder")
+    p.add_argument(
+        "--out",
+        default="out/reproduce",
+        help="output folder; an earlier run's outputs there are replaced as a set: its JSON"
+        " files and every section3_*, table3_* and reliability_*.png, those this run does"
+        " not write removed (other files are kept)",
+    )
     p.add_argument(
         "--bootstrap",
         type=bootstrap_int,
