@@ -494,7 +494,9 @@ def test_table3_says_what_its_missed_liftoffs_count():
     assert short_air_phase_counts(truth, np.ones((12, 1), bool), 0.0025) == [1, 2]
     line = format_short_air_phases({"short_air_phases": {"walk": [1, 2]}, "dt": 0.0025})
     assert line.startswith("short air phases: true air phases of at most 4 steps (10 ms)")
-    assert " ".join(line.split()).endswith("walk 1 of 2 air phases")  # wrapped at 100
+    # wrapped at 100; the count is of complete air phases, not air-ph's (a user read
+    # "walk 16 of 16" as contradicting sw-ph's share of longer swings, cut by the end)
+    assert " walk 1 of 2 complete air phases (contact before and after;" in " ".join(line.split())
     assert format_short_air_phases({"short_air_phases": {}, "dt": 0.0025}) is None
     # The legend follows a table unless asked not to (reproduce prints it once).
     text = format_table({"scenarios": {}}, legend=False)

@@ -168,7 +168,9 @@ def short_air_phase_counts(truth, valid, dt: float) -> list[int]:
 def format_short_air_phases(payload: dict) -> str | None:
     """The line after Table III that says how many of the scenarios' true air phases last a
     few steps (a resting foot's load dropping for a step), where most of each detector's
-    mLO falls. None when the payload has no counts."""
+    mLO falls. Counted over the complete air phases (:func:`jax_contact.metrics.
+    short_air_phases`), not the ``n_air_phases`` of ``air-ph``, which also holds those the
+    log's start or end cuts. None when the payload has no counts."""
     from jax_contact.metrics import bounce_steps
 
     counts, dt = payload.get("short_air_phases") or {}, payload.get("dt")
@@ -181,7 +183,8 @@ def format_short_air_phases(payload: dict) -> str | None:
         f" ms), most often a resting foot's load dropping for a step, a lift-off a"
         f" detector misses if its flag stays on through them (mLO; a flag that stays on"
         f" through a longer swing is no failure in air-ph or sw-ph, only an mLO): {listed}"
-        " air phases",
+        " complete air phases (contact before and after; air-ph and sw-ph also count those"
+        " the log's start or end cuts)",
         100,
     )
 
