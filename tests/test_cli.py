@@ -1452,3 +1452,13 @@ def test_evaluate_derives_its_defaults_for_the_logs_sensors(tmp_path):
     with pytest.warns(UserWarning, match=r"tuned on readings of sensors 'anymal_like'; these"
                       r" are 'harsh'"):  # fmt: skip
         evaluate_file(harsh, params_path=other)
+
+
+def test_reproduce_lists_only_the_robots_it_takes(tmp_path, capsys):
+    """An unknown --robot listed planar_leg among the valid names, which reproduce then
+    refuses (Table III needs a quadruped)."""
+    argv = ["reproduce", "--robot", "nosuch", "--size", "tiny", "--out", str(tmp_path / "r")]
+    assert cli.main(argv) == 2
+    err = capsys.readouterr().err
+    assert "unknown robot 'nosuch'; valid names: go1, spot, barkour, " in err
+    assert "planar_leg" not in err

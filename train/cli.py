@@ -308,7 +308,8 @@ def _check_demo(args: argparse.Namespace) -> None:
 
 
 def _check_reproduce(args: argparse.Namespace) -> None:
-    check_robot("--robot", args.robot)
+    # The names a quadruped's Table III takes: not the one-legged ones (refused below).
+    check_robot("--robot", args.robot, [n for n in ROBOT_NAMES if n not in ONE_LEGGED])
     if args.robot in ONE_LEGGED:
         raise ValueError(
             f"argument --robot: Table III needs a quadruped; {args.robot!r} has one leg (its"

@@ -15,6 +15,7 @@ import argparse
 import math
 import os
 import tempfile
+from collections.abc import Sequence
 from pathlib import Path
 
 # Copies of the library's lists (importing those modules imports JAX); tests/test_cli.py
@@ -151,8 +152,9 @@ positive_float = float_above_zero(or_zero=False)
 nonnegative_float = float_above_zero(or_zero=True)
 
 
-def check_robot(arg: str, name: str | None) -> None:
-    """Raises ValueError unless ``name`` is a known robot or an existing MJCF file."""
+def check_robot(arg: str, name: str | None, names: Sequence[str] = ROBOT_NAMES) -> None:
+    """Raises ValueError unless ``name`` is a known robot or an existing MJCF file;
+    ``names``: the robot names the command takes (its message lists them)."""
     if name is None or name in ROBOT_NAMES:
         return
     if name.endswith((".xml", ".urdf")) or os.sep in name or "/" in name:  # robots' rule
@@ -163,7 +165,7 @@ def check_robot(arg: str, name: str | None) -> None:
             raise ValueError(f"argument {arg}: MJCF file {name!r} does not exist")
         return
     raise ValueError(
-        f"argument {arg}: unknown robot {name!r}; valid names: {', '.join(ROBOT_NAMES)}, or a"
+        f"argument {arg}: unknown robot {name!r}; valid names: {', '.join(names)}, or a"
         " path to an MJCF .xml file"
     )
 
