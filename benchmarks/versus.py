@@ -311,11 +311,17 @@ def run(envs, numpy_robots: int = 8, *, into: dict | None = None) -> dict:
                 ("first", "first call s", "{:.2f}"),
             ],
         )
-        print(
-            "  ratio to mjx.step:",
-            {k: round(v, 3) for k, v in r["ratio"].items()},
-            " with adapter:",
-            {k: round(v, 3) for k, v in r["ratio_with_adapter"].items()},
+        print(f"# {n} envs, the update's time over one mjx.step's:")
+        print_table(
+            [
+                {"what": k, "alone": v, "adapter": r["ratio_with_adapter"][k]}
+                for k, v in r["ratio"].items()
+            ],
+            [
+                ("what", "update", "{}"),
+                ("alone", "x mjx.step", "{:.3f}"),
+                ("adapter", "with adapter", "{:.3f}"),
+            ],
         )
     try:
         sp = numpy_speedup(max(envs), numpy_robots)
