@@ -242,7 +242,16 @@ def _measure(args, result: dict) -> None:
     if not args.latency_only:
         throughput(args.envs, n_samples=args.samples, layout=args.layout, rows=rows)
     lat = latency(args.latency_calls)
-    print("\n# single-robot latency (4 legs; Monte-Carlo 500 and per-foot unless named)")
+    print(
+        f"\n# single-robot latency (4 legs; Monte-Carlo 500 and per-foot unless named;"
+        f" {args.latency_calls} calls each"
+        + (
+            "; under 100 calls the p99 is about the slowest call, not a tail percentile"
+            if args.latency_calls < 100
+            else ""
+        )
+        + ")"
+    )
     print_table(
         [{"how": k, **v} for k, v in lat.items()],
         [
