@@ -58,6 +58,18 @@ _PENDING: set[str] = set()
 _LOCK = threading.Lock()
 # The files written completely so far (completed_writes).
 _DONE: list[str] = []
+# Output folders a staged_folder in progress made, deepest first: removed if still empty
+# when the set is not written (an exception, or abort_writes).
+_MADE_DIRS: list[Path] = []
+
+
+def _remove_empty(dirs) -> None:
+    """Removes each folder of ``dirs`` (deepest first) while it is empty."""
+    for made in dirs:
+        try:
+            made.rmdir()
+        except OSError:  # not empty (another output went there meanwhile), or gone
+            break
 
 
 def write_log(path: str | os.PathLike, arrays: Mapping[str, np.ndarray], attrs: Mapping) -> Path:
@@ -318,6 +330,8 @@ def abort_writes() -> list[str]:
         except OSError:
             pass
     _PENDING.clear()
+    _remove_empty(list(_MADE_DIRS))
+    _MADE_DIRS.clear()
     return removed
 
 
@@ -341,12 +355,19 @@ def staged_folder(folder: str | os.PathLike, stale: Callable[[Path], Iterable[st
       The temporary folder (a :class:`~pathlib.Path`).
     """
     folder = Path(folder)
+    # The folders above ``folder`` made here, deepest first: removed again (when empty) if
+    # nothing is written, so a stopped run leaves no empty output folder behind.
+    created = [p for p in [folder.parent, *folder.parent.parents] if not p.exists()]
     try:
-        folder.parent.mkdir(parents=True, exist_ok=True)
         with _LOCK:
+            folder.parent.mkdir(parents=True, exist_ok=True)
+            _MADE_DIRS[:0] = created
             tmp = tempfile.mkdtemp(dir=folder.parent, prefix=f".{folder.name}.", suffix=".tmp")
             _PENDING.add(tmp)
     except OSError as err:  # named, not the temporary folder's errno
+        with _LOCK:
+            _forget_made(created)
+        _remove_empty(created)
         raise OSError(
             f"cannot write into {str(folder)!r}: its files are staged beside it, in"
             f" {str(folder.parent)!r}, which takes no new folders ({err.strerror or err})"
@@ -369,11 +390,21 @@ def staged_folder(folder: str | os.PathLike, stale: Callable[[Path], Iterable[st
             os.rmdir(tmp)
             _PENDING.discard(tmp)
             _DONE.extend(str(folder / name) for name in names)
+            _forget_made(created)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         with _LOCK:
             _PENDING.discard(tmp)
+            _forget_made(created)
+        _remove_empty(created)
         raise
+
+
+def _forget_made(dirs) -> None:
+    """Drops ``dirs`` from :data:`_MADE_DIRS` (under ``_LOCK``)."""
+    for made in dirs:
+        if made in _MADE_DIRS:
+            _MADE_DIRS.remove(made)
 
 
 def _swap_in(folder: Path, tmp: Path, names: list[str], stale: list[str]) -> None:

@@ -447,6 +447,11 @@ def test_a_signal_during_a_staged_folder_leaves_the_earlier_run(tmp_path, sig, c
     assert sorted(p.name for p in tmp_path.iterdir()) == ["est"]
     assert (out / "estimate.csv").read_text() == "earlier"
     assert sorted(p.name for p in out.iterdir()) == ["estimate.csv", "metrics.json"]
+    # Into folders that did not exist (several recordings' OUT/<name>): the folders made
+    # for it are gone too (an empty OUT was left after a Ctrl-C in the first recording).
+    res = _run([sys.executable, "-c", script, str(tmp_path / "new" / "out" / "rec")])
+    assert res.returncode == code, res.stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["est"]
 
 
 def test_a_staged_folder_replaces_the_earlier_run_and_keeps_other_files(tmp_path):
