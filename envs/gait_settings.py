@@ -169,6 +169,23 @@ def _gait_points(desc, d: mujoco.MjData) -> np.ndarray:
     return np.stack(out)
 
 
+def foot_bottoms(desc, d: mujoco.MjData) -> np.ndarray:
+    """(n_legs,) the height of each foot's lowest point, m, on data whose kinematics are
+    computed: a sphere's centre less its radius; a foot with a sole (``desc.soles``) its
+    lowest sole point less its radius (a box's bottom corners, radius 0; a capsule's
+    segment ends less its radius). A box foot measured from its centre (radius 0) stood
+    27 mm "above the floor" on its corners, and a settled robot was refused."""
+    out = []
+    for i, (body, sole) in enumerate(zip(desc.foot_body_ids, desc.soles, strict=True)):
+        if sole:
+            local = np.asarray(sole, np.float64)
+            z = d.xpos[body][2] + (d.xmat[body].reshape(3, 3) @ local.T)[2]
+            out.append(float(z.min()))
+        else:
+            out.append(float(d.geom_xpos[desc.foot_geom_ids[i], 2]))
+    return np.asarray(out) - np.asarray(desc.foot_radii, np.float64)
+
+
 def feet_in_base(m: mujoco.MjModel, desc, qpos: np.ndarray) -> np.ndarray:
     """(n_legs, 3) the gaits' foot points (:func:`gait_foot_points`) in the base frame at
     ``qpos``, from MuJoCo."""
@@ -326,8 +343,7 @@ def settle(robot: Robot, settings: GaitSettings | None = None, seconds: float = 
     q = _crouch(m, desc, q, d)
     d.qpos[:] = q
     mujoco.mj_kinematics(m, d)
-    radii = np.array(desc.foot_radii)
-    low = float(np.min(d.geom_xpos[list(desc.foot_geom_ids), 2] - radii))
+    low = float(np.min(foot_bottoms(desc, d)))
     floor = max(float(d.geom_xpos[f, 2]) for f in desc.floor_geom_ids)
     height = float(d.xpos[desc.base_body_id, 2]) - low
     if floating:
@@ -357,7 +373,7 @@ def settle(robot: Robot, settings: GaitSettings | None = None, seconds: float = 
         mujoco.mj_step(m, d)
     out = np.array(d.qpos)
     mujoco.mj_kinematics(m, d)
-    gap = d.geom_xpos[list(desc.foot_geom_ids), 2] - radii - floor
+    gap = foot_bottoms(desc, d) - floor
     upright = not floating or 1.0 - 2.0 * (out[4] ** 2 + out[5] ** 2) > 0.9
     if not (np.all(np.isfinite(out)) and upright and np.all(gap < 0.01)):
         raise ValueError(

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import copy
+import dataclasses
 
 import jax
 import jax.numpy as jnp
@@ -59,7 +60,13 @@ class LeggedPipelineEnv(brax_base.PipelineEnv):
         sys = brax_mjcf.load_model(copy.deepcopy(mj_model))
         super().__init__(sys, backend="mjx", n_frames=n_frames)
         self._robot_mj_model = mj_model
-        self._home = jnp.asarray(Robot(robot.name, mj_model, robot.description, None).home_qpos)
+        # The robot's own standing pose (load_robot(..., gait=GaitSettings(home_qpos=...))):
+        # rebuilding the Robot from the model alone dropped its gait settings, and a user's
+        # pose gave way to the keyframe or a settle. The servo's model settles the same way.
+        home = (
+            robot if mj_model is robot.mj_model else dataclasses.replace(robot, mj_model=mj_model)
+        )
+        self._home = jnp.asarray(home.home_qpos)
         self._n_base_q = 7 if floating_base(mj_model) else len(robot.description.base_dofs)
         self._base_z = 2 if floating_base(mj_model) else 0
         self._min_base_height = min_base_height

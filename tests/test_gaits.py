@@ -382,6 +382,52 @@ def test_the_gaits_place_a_capsule_shin_by_its_lower_end(tmp_path):
     np.testing.assert_allclose(feet_in_base(m, sites, home), expected, atol=1e-9)
 
 
+def test_a_box_foot_is_measured_from_its_lowest_corner(tmp_path):
+    """The settle measured each foot as its centre less its radius, 0 for a box: a user's
+    quadruped with box feet stood on their corners 27 mm "above the floor" and was refused
+    ("did not settle standing"). Hand derivation: a box foot of half-sizes (a, b, c) =
+    (0.03, 0.02, 0.01) 0.2 m below a hinge about y, 0.1 m below the base at height 0.5;
+    turned by t its centre is at z = 0.5 - 0.1 - 0.2 cos t and its bottom face's lowest
+    corner c cos t + a |sin t| lower. A sphere foot (radius 0.02) is its centre less 0.02,
+    whatever the angle."""
+    import mujoco
+
+    from jax_contact.envs.gait_settings import foot_bottoms
+
+    xml = (
+        '<mujoco><worldbody><geom name="floor" type="plane" size="5 5 .1"/>'
+        '<body name="base" pos="0 0 .5"><freejoint/><geom type="box" size=".1 .1 .05"/>'
+        '<body name="leg" pos="0 0 -.1"><joint name="hinge" axis="0 1 0"/>'
+        '<geom type="capsule" fromto="0 0 0 0 0 -.15" size=".01" contype="0" conaffinity="0"/>'
+        '<geom name="foot" type="box" pos="0 0 -.2" size=".03 .02 .01"/></body>'
+        '<body name="leg2" pos="0 .2 -.1"><joint name="hinge2" axis="0 1 0"/>'
+        '<geom type="capsule" fromto="0 0 0 0 0 -.15" size=".01" contype="0" conaffinity="0"/>'
+        '<geom name="ball" type="sphere" pos="0 0 -.2" size=".02"/></body>'
+        '</body></worldbody><actuator><motor joint="hinge"/><motor joint="hinge2"/></actuator>'
+        "</mujoco>"
+    )
+    path = tmp_path / "box_foot.xml"
+    path.write_text(xml)
+    robot = load_robot(str(path), foot_names=["foot", "ball"])
+    m, desc = robot.mj_model, robot.description
+    d = mujoco.MjData(m)
+    for t in (0.0, 0.3, -0.5):
+        d.qpos[:] = [0, 0, 0.5, 1, 0, 0, 0, t, t]
+        mujoco.mj_kinematics(m, d)
+        centre = 0.5 - 0.1 - 0.2 * np.cos(t)
+        expected = [centre - 0.01 * np.cos(t) - 0.03 * abs(np.sin(t)), centre - 0.02]
+        np.testing.assert_allclose(foot_bottoms(desc, d), expected, atol=1e-12)
+    # The minimal RL env starts where the user's gait settings stand the robot (it
+    # rebuilt the robot from its model and stood it at the keyframe or a settle instead;
+    # its reset starts from _home, read here rather than compiling a reset).
+    from jax_contact.envs.gaits import GaitSettings
+    from jax_contact.envs.legged_env import LeggedPipelineEnv
+
+    home = (0.0, 0.0, 0.43, 1.0, 0.0, 0.0, 0.0, 0.2, -0.2)
+    posed = load_robot(str(path), foot_names=["foot", "ball"], gait=GaitSettings(home_qpos=home))
+    np.testing.assert_allclose(np.asarray(LeggedPipelineEnv(posed)._home), home, atol=1e-6)
+
+
 def test_make_gait_rejects_bad_arguments():
     with pytest.raises(ValueError, match="kind must be one of"):
         make_gait("gallop")
