@@ -346,11 +346,15 @@ def make_core(env, cfg: ContactObsConfig) -> Core:
         )
     else:
         jc.validate_params(params)
-        if params.nv != desc.nv or not np.isclose(float(params.dt), dt, rtol=1e-5):
-            raise ValueError(
-                f"params has nv={params.nv}, dt={float(params.dt)}; rate={rate!r} needs"
-                f" nv={desc.nv}, dt={dt}"
+        # Named: only what differs, dt as the float32 it is stored in rounds it.
+        wrong = [f"nv={params.nv} where the robot has nv={desc.nv}"] * (params.nv != desc.nv)
+        if not np.isclose(float(params.dt), dt, rtol=1e-5):
+            wrong.append(
+                f"dt={float(params.dt):.6g} s where rate={rate!r} runs the estimator every"
+                f" {dt:.6g} s (make them at that period: jax_contact.params_for(..., dt))"
             )
+        if wrong:
+            raise ValueError(f"params has {'; and '.join(wrong)}")
     terrain = cfg.terrain
     if terrain is None:
         # The floor's plane, or the model a parameter file was tuned with over it (as the

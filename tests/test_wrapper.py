@@ -521,6 +521,24 @@ def test_default_estimator_params_follow_the_sensor_model(leg_robot):
         W.default_sensor_params(wrong, leg_robot, dt)
 
 
+def test_params_of_another_robot_or_period_name_what_differs(brax_leg, leg_robot):
+    """Another robot's EstimatorParams read "params has nv=24, dt=0.0020000000949949026;
+    rate='substep' needs nv=18, dt=0.002": the dt part looked wrong too, though only the
+    float32 rounding differed. Now only what differs is named."""
+    import jax_contact as jc
+
+    dt = float(brax_leg.sys.opt.timestep)
+    sp = sensors.sensor_preset("anymal_like", 18, dt=dt)
+    go1 = jc.params_for(load_robot("go1").description, sp, dt)
+    with pytest.raises(ValueError, match=r"^params has nv=18 where the robot has nv=3$"):
+        W.wrap_contact(brax_leg, W.ContactObsConfig(params=go1))
+    slow = W.default_estimator_params(
+        leg_robot, 0.01, W.default_sensor_params("anymal_like", leg_robot, 0.01)
+    )
+    with pytest.raises(ValueError, match=r"^params has dt=0.01 s where rate='substep' runs"):
+        W.wrap_contact(brax_leg, W.ContactObsConfig(params=slow))
+
+
 # -------------------------------------------------- tracking and the two rates compared
 
 
