@@ -393,6 +393,23 @@ def make_core(env, cfg: ContactObsConfig) -> Core:
     )
 
 
+def _terrain_summary(terrain) -> dict | str:
+    """A terrain model as plain values: its kind and each field (nested terrains as dicts),
+    e.g. ``{"kind": "FlatTerrain", "height": 0.025, "sigma": 0.05}``."""
+    if not dataclasses.is_dataclass(terrain):
+        return type(terrain).__name__
+    out: dict = {"kind": type(terrain).__name__}
+    for f in dataclasses.fields(terrain):
+        v = getattr(terrain, f.name)
+        if dataclasses.is_dataclass(v):
+            out[f.name] = _terrain_summary(v)
+        elif np.ndim(v) == 0:
+            out[f.name] = round(float(v), 6)
+        else:
+            out[f.name] = f"array of shape {np.shape(v)}"
+    return out
+
+
 def report(core: Core) -> dict:
     """What the wrapper chose, for the user to read (nothing is chosen silently)."""
     return {
@@ -408,9 +425,12 @@ def report(core: Core) -> dict:
             }
             for f in core.feet
         ],
+        "sole": core.cfg.sole,  # a flat foot's contact point: rolling, or its centre
         "leg_dofs": len(core.desc.leg_dofs[0]),
         "force_rows": tuple(int(i) for i in core.params.force_rows),
         "sign_test": bool(core.params.unilateral),
+        # The ground the estimator assumes (a height field's plane at its mean height).
+        "terrain": _terrain_summary(core.terrain),
         "truth": core.truth_source,
         "truth_gap_m": float(core.cfg.truth_gap) if core.truth_raw is not None else 0.0,
         "observe": core.cfg.observe,

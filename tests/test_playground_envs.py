@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
+import mujoco
 import numpy as np
 import pytest
 from mujoco_playground._src import locomotion
@@ -83,6 +84,18 @@ def test_load_and_wrap(name):
     assert report["dt"] == pytest.approx(float(env.mj_model.opt.timestep))
     assert report["truth"] == "found_sensors"  # every one of these scenes has them
     assert report["force_rows"] == (0, 1, 2)  # legs of >= 3 joints
+    # The ground the estimator assumes and the sole rule are reported too (a user found the
+    # rough envs' plane only in contact_core.terrain): a plane at the floor's height; on a
+    # height field, between its lowest and highest point.
+    assert report["sole"] == "rolling" and report["terrain"]["kind"] == "FlatTerrain"
+    m = env.mj_model
+    hfield = int(mujoco.mjtGeom.mjGEOM_HFIELD)
+    fields = [g for g in range(m.ngeom) if m.geom_type[g] == hfield and m.geom_bodyid[g] == 0]
+    if fields:
+        top = float(m.geom_pos[fields[0], 2] + m.hfield_size[m.geom_dataid[fields[0]], 2])
+        assert 0.0 < report["terrain"]["height"] < top
+    else:
+        assert report["terrain"]["height"] == 0.0
     # One abstract trace of the env's reset (wrapped.observation_size would trace it
     # again): the wrapped size is the env's plus one p_contact per foot in "state".
     inner = env.observation_size
