@@ -298,8 +298,8 @@ def _resolve(m, d, spec, floor_ids, colliders) -> Foot:
     }
     valid = sorted(named - {""})  # _name_of gives "" for an unnamed geom or body
     raise ValueError(
-        f"foot {name!r} is no geom, site or body of the model; the floor-touching geoms and"
-        f" their bodies are {valid} (any site or body of the model also names a foot)"
+        f"foot {name!r} is no geom, site or body of the model; valid names: any site or body"
+        f" of the model, or a floor-touching geom or its body, which are {valid}"
     )
 
 
