@@ -85,6 +85,8 @@ class Core:
         (``cfg.calibration`` resolved).
       params_source: where ``params`` came from: ``"default"``, ``"given"`` or the file or
         preset name.
+      sign_test_margin: :func:`jax_contact.envs.contact_params.sign_test_margin` of
+        ``params`` (the defaults run the sign test at 1 or more), None without a mass.
     """
 
     mjx_model: object
@@ -100,6 +102,7 @@ class Core:
     truth_raw: object = None
     calibration: Calibration | None = None
     params_source: str = "given"
+    sign_test_margin: float | None = None
 
     def moved(self, est: ContactEstState, data) -> jax.Array:
         """() bool: ``data`` is not the state the wrapper last returned (an auto-reset)."""
@@ -390,6 +393,7 @@ def make_core(env, cfg: ContactObsConfig) -> Core:
         truth_raw=truth_raw,
         calibration=calibration,
         params_source=params_source,
+        sign_test_margin=contact_params.sign_test_margin(mj_model, desc, params),
     )
 
 
@@ -429,6 +433,10 @@ def report(core: Core) -> dict:
         "leg_dofs": len(core.desc.leg_dofs[0]),
         "force_rows": tuple(int(i) for i in core.params.force_rows),
         "sign_test": bool(core.params.unilateral),
+        # Why: a foot's share of the weight over its estimated push's error (>= 1: on).
+        "sign_test_margin": None
+        if core.sign_test_margin is None
+        else round(float(core.sign_test_margin), 3),
         # The ground the estimator assumes (a height field's plane at its mean height).
         "terrain": _terrain_summary(core.terrain),
         "truth": core.truth_source,

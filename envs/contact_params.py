@@ -167,13 +167,22 @@ def choose_unilateral(mj_model: mujoco.MjModel, desc: RobotDescription, params) 
     0.61, T1 0.73, G1 0.57, Apollo 0.54 do not (the 17 Playground envs: docs/training.md).
     A description without a mass keeps it.
     """
+    margin = sign_test_margin(mj_model, desc, params)
+    return margin is None or margin >= 1.0
+
+
+def sign_test_margin(mj_model: mujoco.MjModel, desc: RobotDescription, params) -> float | None:
+    """A foot's share of the weight over the largest of the legs' push errors
+    (:func:`choose_unilateral`'s rule: the test runs at 1 or more), None for a description
+    without a mass. Reported by the wrapper (``contact_report()["sign_test_margin"]``) so a
+    user sees why the test is off."""
     if desc.mass_kg is None:
-        return True
+        return None
     load = float(desc.mass_kg) * float(np.linalg.norm(mj_model.opt.gravity)) / desc.n_legs
     gains = _push_gains(mj_model, desc, params)  # the home pose's Jacobians and M, once
     moment = _moment_push_of(gains, desc)
     noise = np.hypot(_push_noise_of(gains, params), load * moment)
-    return bool(load >= float(np.max(noise)))
+    return load / float(np.max(noise))
 
 
 def default_sensor_params(

@@ -88,6 +88,9 @@ def test_load_and_wrap(name):
     # rough envs' plane only in contact_core.terrain): a plane at the floor's height; on a
     # height field, between its lowest and highest point.
     assert report["sole"] == "rolling" and report["terrain"]["kind"] == "FlatTerrain"
+    # The defaults' sign test runs where the reported margin is 1 or more (T1, G1, Apollo
+    # below it: a sole's moment; docs/training.md).
+    assert (report["sign_test_margin"] >= 1.0) is report["sign_test"]
     m = env.mj_model
     hfield = int(mujoco.mjtGeom.mjGEOM_HFIELD)
     fields = [g for g in range(m.ngeom) if m.geom_type[g] == hfield and m.geom_bodyid[g] == 0]
