@@ -173,16 +173,17 @@ def choose_unilateral(mj_model: mujoco.MjModel, desc: RobotDescription, params) 
 
 def sign_test_margin(mj_model: mujoco.MjModel, desc: RobotDescription, params) -> float | None:
     """A foot's share of the weight over the largest of the legs' push errors
-    (:func:`choose_unilateral`'s rule: the test runs at 1 or more), None for a description
-    without a mass. Reported by the wrapper (``contact_report()["sign_test_margin"]``) so a
-    user sees why the test is off."""
+    (:func:`choose_unilateral`'s rule: the test runs at 1 or more; ``inf`` where the push
+    has no error), None for a description without a mass. The wrapper reports it
+    (``contact_report()["sign_test_margin"]``), so a user sees why the test is off."""
     if desc.mass_kg is None:
         return None
     load = float(desc.mass_kg) * float(np.linalg.norm(mj_model.opt.gravity)) / desc.n_legs
     gains = _push_gains(mj_model, desc, params)  # the home pose's Jacobians and M, once
     moment = _moment_push_of(gains, desc)
-    noise = np.hypot(_push_noise_of(gains, params), load * moment)
-    return load / float(np.max(noise))
+    noise = float(np.max(np.hypot(_push_noise_of(gains, params), load * moment)))
+    # No error at all (a leg fixed to the world reads its push exactly): any load is read.
+    return load / noise if noise > 0 else float("inf")
 
 
 def default_sensor_params(
