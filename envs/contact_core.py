@@ -350,7 +350,9 @@ def make_core(env, cfg: ContactObsConfig) -> Core:
     else:
         jc.validate_params(params)
         # Named: only what differs, dt as the float32 it is stored in rounds it.
-        wrong = [f"nv={params.nv} where the robot has nv={desc.nv}"] * (params.nv != desc.nv)
+        wrong = []
+        if params.nv != desc.nv:
+            wrong.append(f"nv={params.nv} where the robot has nv={desc.nv}")
         if not np.isclose(float(params.dt), dt, rtol=1e-5):
             wrong.append(
                 f"dt={float(params.dt):.6g} s where rate={rate!r} runs the estimator every"

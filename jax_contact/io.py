@@ -417,7 +417,7 @@ def _swap_in(folder: Path, tmp: Path, names: list[str], stale: list[str]) -> Non
     aside = Path(tempfile.mkdtemp(dir=folder.parent, prefix=f".{folder.name}.", suffix=".old"))
     moved_aside, moved_in = [], []
     try:
-        for name in [n for n in names if (folder / n).exists()] + stale:
+        for name in names + stale:
             if (folder / name).exists():
                 os.replace(folder / name, aside / name)
                 moved_aside.append(name)

@@ -230,8 +230,7 @@ def estimate_recording(
             scored = np.asarray(out["probabilistic/valid"], bool) & conv.truth_known
             scores = score(out, conv.truth, scored, dt=conv.dt, truth_known=conv.truth_known)
             if swapped := truth_order(p, conv.truth[:, 0], scored[:, 0], feet_names):
-                if any(n.startswith("WARNING") for n in notes):
-                    swapped += "; or a consequence of the warnings above (fix those first)"
+                swapped = after_warnings(swapped, notes)
                 notes.append(swapped)
                 print_note(swapped)
             if legend and ("gm" in scores or "kinematic" in scores):  # once for several
@@ -301,9 +300,16 @@ def torque_note(
     )
     if not disagrees:
         return None
+    return f"WARNING {after_warnings(disagrees, notes)}"
+
+
+def after_warnings(text: str, notes: Sequence[str]) -> str:
+    """``text``, a warning's, with "or a consequence of the warnings above" when ``notes``
+    already hold one (``"WARNING ..."``): a wrong quaternion or base acceleration also makes
+    the torques and the truth's foot order look wrong."""
     if any(n.startswith("WARNING") for n in notes):
-        disagrees += "; or a consequence of the warnings above (fix those first)"
-    return f"WARNING {disagrees}"
+        return text + "; or a consequence of the warnings above (fix those first)"
+    return text
 
 
 # The shortest replay (s) whose "every foot reads air" is a warning: the belief starts at

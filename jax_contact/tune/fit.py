@@ -342,6 +342,8 @@ def tune(
         return score_logs(logits_of(th, logs, log_key), logs, dt=dt, config=config)
 
     val_logits0 = None  # epoch 0's validation logits, the reference of val_worse
+    # The validation logs too small for the bootstrap to make a call (below MIN_ENVS envs).
+    few = [(i, v.truth.shape[1]) for i, v in enumerate(vals) if v.truth.shape[1] < MIN_ENVS]
 
     def validate(th) -> dict:
         # score_logs on the validation logs, and the cells worse than epoch 0's beyond the
@@ -353,11 +355,10 @@ def tune(
             val_logits0 = logits
         # Below MIN_ENVS envs the bootstrap makes no call: no count rather than a 0 that
         # reads as "no cell worse".
-        if all(v.truth.shape[1] >= MIN_ENVS for v in vals):
+        if not few:
             out["worse"] = worse_beyond_spread(logits, val_logits0, vals, dt=dt)
         return out
 
-    few = [(i, v.truth.shape[1]) for i, v in enumerate(vals) if v.truth.shape[1] < MIN_ENVS]
     if config.select == "spread" and few:
         i, n = few[0]
         raise ValueError(
