@@ -125,9 +125,10 @@ import numpy as np
 # ----------------------------------------------------------------------------- inputs
 
 
-def as_bool(name: str, x, valid: np.ndarray | None) -> np.ndarray:
+def as_bool(name: str, x, valid: np.ndarray | None, where: str = "valid") -> np.ndarray:
     """``x`` as a bool array: bool, or numbers that are 0 or 1 where ``valid`` (None: all);
-    ValueError naming ``name`` otherwise (a NaN or a 0.3 is no truth value)."""
+    ValueError naming ``name`` and the mask ``where`` otherwise (a NaN or a 0.3 is no truth
+    value)."""
     arr = np.asarray(x)
     if arr.dtype == bool:
         return arr
@@ -135,7 +136,7 @@ def as_bool(name: str, x, valid: np.ndarray | None) -> np.ndarray:
         raise ValueError(f"{name} must be bool or 0/1 numbers, got dtype {arr.dtype}")
     checked = arr if valid is None else arr[valid]
     if not np.all((checked == 0) | (checked == 1)):
-        raise ValueError(f"{name} must be bool or hold only 0 and 1 (where valid)")
+        raise ValueError(f"{name} must be bool or hold only 0 and 1 (where {where})")
     return arr == 1
 
 
@@ -197,7 +198,7 @@ def _known(truth_known, truth, val: np.ndarray) -> np.ndarray:
             "truth_known is False at valid steps: a step can be scored only where its truth is"
             " known (pass valid=valid & truth_known)"
         )
-    as_bool("truth", truth, known)
+    as_bool("truth", truth, known, where="truth_known")
     return known
 
 
@@ -620,7 +621,9 @@ def ece_bins(prob, tru, val, n_bins: int) -> tuple[np.ndarray, np.ndarray, np.nd
       (count, sum of truth, sum of P) per bin over the valid steps, each (n_bins,).
     """
     p, g = prob[val], tru[val].astype(np.float64)
-    idx = np.minimum((p * n_bins).astype(np.int64), n_bins - 1)
+    # Compared with the edges themselves: int(p * n_bins) rounds a p one ulp below an edge
+    # (0.8999999999999999 * 10) into the bin above, and 15/22 * 22 into the bin below.
+    idx = np.searchsorted(np.arange(1, n_bins) / n_bins, p, side="right")
     count = np.bincount(idx, minlength=n_bins).astype(np.float64)
     return count, np.bincount(idx, g, n_bins), np.bincount(idx, p, n_bins)
 

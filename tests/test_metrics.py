@@ -8,6 +8,7 @@ import pytest
 from jax_contact.metrics import (
     bounce_steps,
     brier_score,
+    ece_bins,
     evaluate,
     expected_calibration_error,
     match_events,
@@ -810,6 +811,36 @@ def test_brier_ece_and_scores_match_loop_oracle():
     p = np.full(8, 0.25)
     y = np.array([1, 0, 0, 0, 0, 1, 0, 0], bool)
     assert expected_calibration_error(p, y) == pytest.approx(0.0, abs=1e-15)
+
+
+def test_ece_bins_each_p_by_the_edges_themselves():
+    # The docstring's bin b holds b/n <= p < (b+1)/n. int(p * n) rounded across an edge: the
+    # float one ulp below 0.9 times 10 is 9.0 (bin 9, not 8), and 15/22 * 22 is
+    # 14.999999999999998 (bin 14, not 15). A helper's metrics oracle found both.
+    below = np.nextafter(0.9, 0.0)
+    p = np.array([below, 0.91])
+    g = np.array([True, False])
+    count, _, _ = ece_bins(p, g, np.ones(2, bool), 10)
+    assert count[8] == 1 and count[9] == 1
+    # Each step alone in its bin: ECE = (|1 - below| + |0 - 0.91|) / 2 = 0.505 (0.405 with
+    # both in bin 9: |1 - (below + 0.91)| / 2).
+    assert expected_calibration_error(p, g, n_bins=10) == pytest.approx(
+        (1 - below + 0.91) / 2, rel=1e-12
+    )
+    count, _, _ = ece_bins(np.array([15 / 22, 1.0, 0.0]), np.ones(3, bool), np.ones(3, bool), 22)
+    assert count[15] == 1 and count[21] == 1 and count[0] == 1  # 1.0 in the last bin
+
+
+def test_a_truth_not_0_or_1_where_known_names_truth_known():
+    # Step 2 is invalid but its truth known: the message names the mask that was checked.
+    with pytest.raises(ValueError, match=r"truth must be bool .* \(where truth_known\)"):
+        evaluate(
+            np.array([0.1, 0.9, 0.3, 0.9]),
+            np.array([0, 1, np.nan, 1.0]),
+            np.array([1, 1, 0, 1], bool),
+            dt=0.0025,
+            truth_known=np.ones(4, bool),
+        )
 
 
 def test_bad_input_raises():

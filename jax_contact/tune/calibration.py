@@ -68,7 +68,7 @@ def fit_calibration(
     # A NaN, 2 or 0.3 read as True moved the map applied to every env (a helper's audit).
     m = as_bool("mask", mask, None)
     x = np.asarray(logits, np.float64)[m]
-    y = as_bool("truth", truth, m)[m].astype(np.float64)
+    y = as_bool("truth", truth, m, where="mask")[m].astype(np.float64)
     if x.size == 0 or y.min() == y.max():
         raise ValueError("fit_calibration needs masked steps of both classes")
     if not np.all(np.isfinite(x)):
