@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -242,8 +244,11 @@ def log_mean_exp(x: jax.Array, axis=None) -> jax.Array:
 # (degrees 9, 9, 7; fit errors 6.5e-9, 1.3e-8, 4.9e-9 relative), then written as monomials
 # in the piece's variable mapped onto [-1, 1]; stored highest degree first, for _horner.
 _NDTRI_PIECES = (0.0, 5.0, 17.0, 52.0)  # the pieces' bounds in w
+# Python floats, not NumPy ones: a NumPy float64 constant is not weakly typed, and with
+# float64 enabled it turned every float32 quantile into float64 (then ndtr_ratio_pair took
+# float64's deep-tail switch for float32 erfc values, which underflowed).
 _NDTRI_COEFFS = tuple(
-    np.array(c[::-1])
+    tuple(float(v) for v in c[::-1])
     for c in (
         (
             2.1233134789945147,
@@ -331,8 +336,8 @@ def ndtri(p: jax.Array) -> jax.Array:
             _NDTRI_COEFFS,
             (
                 scaled(w, w0, w1),
-                scaled(r, np.sqrt(w1), np.sqrt(w2)),
-                scaled(r, np.sqrt(w2), np.sqrt(w3)),
+                scaled(r, math.sqrt(w1), math.sqrt(w2)),
+                scaled(r, math.sqrt(w2), math.sqrt(w3)),
             ),
             strict=True,
         )

@@ -126,7 +126,11 @@ def log_touchdown_monte_carlo(
 
     The ``n_samples`` pairs of uniforms behind the draws are a rank-1 lattice shifted by
     one uniform random vector from ``key`` (randomised quasi-Monte-Carlo): every draw has
-    exactly Algorithm 1's distribution and the estimate is unbiased, but the points fill
+    exactly Algorithm 1's distribution and the estimate is unbiased (except where the
+    terrain's truncation point is more than 8 ``sigma_pi`` below its mean: there
+    ``_math.upper_truncated_normal_icdf``'s exponential tail stands in for the normal's and
+    P(C | A) comes out about 1 % low, e.g. 0.2018 against 0.2041 at a sole 9 ``sigma_pi``
+    below the terrain's mean), but the points fill
     the square evenly, so its error is far below that of independent draws at the same
     ``n_samples``, and two random numbers per foot replace ``2 n_samples``.
 
@@ -167,16 +171,17 @@ def log_touchdown_monte_carlo(
     )
 
 
-def _gauss_hermite(n: int) -> tuple[np.ndarray, np.ndarray]:
-    """Nodes and weights of the probabilists' Gauss-Hermite rule, E[f(Z)] ~ sum w f(x)."""
+def _gauss_hermite(n: int, dtype) -> tuple[jax.Array, jax.Array]:
+    """Nodes and weights of the probabilists' Gauss-Hermite rule, E[f(Z)] ~ sum w f(x), in
+    ``dtype`` (float32 nodes in a float64 run left the rows' sum 4.5e-8 from 1)."""
     x, w = np.polynomial.hermite_e.hermegauss(n)
-    return x.astype(np.float32), (w / np.sqrt(2.0 * np.pi)).astype(np.float32)
+    return jnp.asarray(x, dtype), jnp.asarray(w / np.sqrt(2.0 * np.pi), dtype)
 
 
-def _gauss_legendre01(n: int) -> tuple[np.ndarray, np.ndarray]:
-    """Nodes and weights of the Gauss-Legendre rule on (0, 1)."""
+def _gauss_legendre01(n: int, dtype) -> tuple[jax.Array, jax.Array]:
+    """Nodes and weights of the Gauss-Legendre rule on (0, 1), in ``dtype``."""
     x, w = np.polynomial.legendre.leggauss(n)
-    return (0.5 * (x + 1.0)).astype(np.float32), (0.5 * w).astype(np.float32)
+    return jnp.asarray(0.5 * (x + 1.0), dtype), jnp.asarray(0.5 * w, dtype)
 
 
 def log_touchdown_quadrature(
@@ -199,8 +204,9 @@ def log_touchdown_quadrature(
     upper-truncated normal, smooth there); the foot position integral is Gauss-Hermite.
     ``n_quad`` nodes per dimension, ``n_quad^2`` evaluations.
     """
-    xh, wh = _gauss_hermite(n_quad)
-    xl, wl = _gauss_legendre01(n_quad)
+    dtype = jnp.result_type(gap, sigma_pf, sigma_pi, u, sigma_u, dt)
+    xh, wh = _gauss_hermite(n_quad, dtype)
+    xl, wl = _gauss_legendre01(n_quad, dtype)
     z_f = (gap + sigma_pf * xh) / sigma_pi  # (n,)
     # Mass of u' < 0 and the nodes of u' given u' < 0, standardised then mapped back.
     z0 = -u / sigma_u

@@ -441,8 +441,10 @@ def test_touchdown_quadrature_float32():
 def test_touchdown_quadrature_default_nodes():
     """The default rule (n_quad = 8, 64 evaluations) on the same sweep, float32.
 
-    Measured: max |P(C|A) error| 1.1e-5 (4 nodes 2.0e-4, 16 nodes 2.9e-6); relative error
-    below 0.3 % wherever P > 1e-4. Stated tolerance: 3e-5 absolute plus 1 % relative.
+    Measured on this sweep: max |P(C|A) error| 1.1e-5 (4 nodes 2.0e-4, 16 nodes 2.9e-6);
+    relative error below 0.3 % wherever P > 1e-4. (A wider float64 sweep of 150 cases,
+    sigma_pf <= sigma_pi, reached 1.2e-4 and 0.52 %: a helper's oracle, fifty-fourth
+    session.) Stated tolerance: 3e-5 absolute plus 1 % relative.
     """
     assert make_params(make_noise(3)).n_quad == 8
     args = _td_sweep(11, 24, ratio_max=1.0)
@@ -453,6 +455,32 @@ def test_touchdown_quadrature_default_nodes():
 def test_touchdown_quadrature_float64(x64):
     """The same in float64: the error left is the rule's truncation error."""
     _compare_quadrature("float64", TOL64["touchdown"], TOL64["touchdown_log"])
+
+
+def test_touchdown_quadrature_keeps_float32_with_float64_enabled():
+    """float32 readings in a process with float64 enabled get the float32 result.
+
+    ``_math.ndtri``'s NumPy float64 constants (not weakly typed) turned its float32 quantiles
+    into float64, so ``ndtr_ratio_pair`` took float64's deep-tail switch (-20) for float32
+    ``erfc`` values, which underflow below about -13: P(C|A) 0.1715 instead of 0.2660 at
+    (gap 0, sigma_pf 8 cm, sigma_pi 1 cm, u -0.5 m/s, sigma_u 0.05 m/s), the case a
+    helper's oracle found (0.2541 by the nested integral; the 8-node rule's error there is
+    the wide-sigma_pf one recorded below). Also: float64 inputs get float64 nodes, so the
+    two entries sum to 1 to float64 round-off (float32 nodes left 4.5e-8).
+    """
+    from jax_contact._math import ndtri
+
+    case = (0.0, 0.08, 0.01, -0.5, 0.05, 0.0025)
+    fn = functools.partial(log_touchdown_quadrature, n_quad=8)
+    want = np.exp(np.asarray(fn(*(jnp.asarray(v, jnp.float32) for v in case))))
+    with jax.enable_x64(True):
+        got = fn(*(jnp.asarray(v, jnp.float32) for v in case))
+        assert got.dtype == jnp.float32
+        assert ndtri(jnp.asarray([0.3, 1e-20], jnp.float32)).dtype == jnp.float32
+        np.testing.assert_allclose(np.exp(np.asarray(got)), want, rtol=1e-6)
+        p64 = np.exp(np.asarray(fn(*(jnp.asarray(v, jnp.float64) for v in case))))
+        assert abs(p64.sum() - 1.0) < 1e-12
+    assert abs(want[0] - oracle.touchdown(*case)[0]) < 2e-2  # the 8-node rule, sigma_pf = 8 sigma_pi
 
 
 def test_touchdown_quadrature_wide_foot_sigma():
