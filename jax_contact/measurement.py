@@ -139,10 +139,13 @@ def dynamics_llr(
     (damped) operational-space matrix.
 
     With ``params.unilateral`` the contact hypothesis is weighted by ``P(-e . F > f_min)``
-    under ``F ~ N(F_hat, Sigma_f)``, ``f_min = params.min_push`` (0 by default: ``P(e . F <
-    0)``): a foot that the ground would have to *pull*, or with ``f_min > 0`` a foot that
-    bears almost no load, is evidence for air (a documented choice, docs/model.md "Sign";
-    docs/model_choices.md, "A loaded contact").
+    under ``F ~ N(F_hat, diag(sigma_f^2))``, ``f_min = params.min_push`` (0 by default:
+    ``P(e . F < 0)``): a foot that the ground would have to *pull*, or with ``f_min > 0`` a
+    foot that bears almost no load, is evidence for air (a documented choice, docs/model.md
+    "Sign"; docs/model_choices.md, "A loaded contact"). The sign test's variance is the
+    force's own, without the stabilising term's velocity noise that the contact
+    hypothesis's covariance carries (measured: docs/model_choices.md, "Stabilised
+    contact").
 
     Args:
       params: estimator parameters.

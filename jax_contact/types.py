@@ -398,7 +398,7 @@ def _check_shapes(meas, expected: dict, batch: tuple[int, ...], what: str) -> No
     if np.any(radius < 0):
         raise ValueError(
             f"measurement field 'foot_radius' must be >= 0 (m), got {radius.min()}: the sole"
-            " is p_f's height minus the radius (eq. 13)"
+            " is p_f's height minus the radius (eq. 10)"
         )
 
 
