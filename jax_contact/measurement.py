@@ -171,7 +171,7 @@ def dynamics_llr(
     # contact_damping, J_f qdd + Jdot qd = -b min(e . v_f, 0) e (0: the paper's rigid form).
     e_rows = normal[rows]
     approach = jnp.minimum(jnp.dot(normal, leg.v_f), 0.0)
-    lam_inv = J_fl @ M_inv @ J_fl.T + params.inv_damping * jnp.eye(J_fl.shape[0])
+    lam_inv = J_fl @ M_inv @ J_fl.T + params.inv_damping * jnp.eye(J_fl.shape[0], dtype=J_fl.dtype)
     stop = params.contact_damping * approach * e_rows
     force_rows = spd_solve(lam_inv, J_fl @ qdd_air + J_fb @ qdd_b + leg.Jdot_qd[rows] + stop)
     qdd_contact = M_inv @ (residual - J_fl.T @ force_rows)

@@ -480,7 +480,8 @@ def test_touchdown_quadrature_keeps_float32_with_float64_enabled():
         np.testing.assert_allclose(np.exp(np.asarray(got)), want, rtol=1e-6)
         p64 = np.exp(np.asarray(fn(*(jnp.asarray(v, jnp.float64) for v in case))))
         assert abs(p64.sum() - 1.0) < 1e-12
-    assert abs(want[0] - oracle.touchdown(*case)[0]) < 2e-2  # the 8-node rule, sigma_pf = 8 sigma_pi
+    # The 8-node rule where sigma_pf = 8 sigma_pi (its recorded coarse case, below).
+    assert abs(want[0] - oracle.touchdown(*case)[0]) < 2e-2
 
 
 def test_touchdown_quadrature_wide_foot_sigma():

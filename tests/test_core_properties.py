@@ -322,6 +322,34 @@ def test_float32_params_run_on_float64_measurements_under_x64(x64):
     assert np.isfinite(float(bce))
 
 
+@pytest.mark.parametrize("mode", MODES)
+def test_float32_inputs_stay_float32_under_x64(x64, mode):
+    """With float64 enabled, float32 params and readings trace the whole filter without one
+    implicit promotion (JAX's "strict" promotion raises at the first). Regressions: the
+    dynamics term's damping ``eye`` was float64 and turned the operational-space matrix
+    float64; ``_math.ndtri``'s NumPy constants turned the touch-down quantiles float64
+    (where the float64 deep-tail switch then met float32 ``erfc`` values)."""
+    from jax_contact.filter import run
+
+    fields = oracle.planar_measurement(*oracle.planar_stance())
+    meas = LegMeasurement(
+        **{
+            k: jnp.asarray(np.broadcast_to(v, (4, 1, 1) + np.shape(v)), jnp.float32)
+            if np.asarray(v).dtype.kind == "f"
+            else jnp.asarray(np.broadcast_to(v, (4, 1, 1) + np.shape(v)))
+            for k, v in fields.items()
+        }
+    )
+    params = PARAMS[mode]
+    b0 = init_belief_batch(params, 1, 1)
+    with jax.numpy_dtype_promotion("strict"):
+        belief, diag = jax.eval_shape(
+            lambda m: run(params, TERRAIN, b0, m, key=jax.random.key(0)), meas
+        )
+    assert belief.logit.dtype == jnp.float32 and diag.p_contact.dtype == jnp.float32
+    assert diag.force.dtype == jnp.float32
+
+
 def test_stabilised_contact_reads_a_sinking_foot_as_contact():
     """A foot that still moves into the ground at 0.3 m/s and decelerates as the
     stabilised contact predicts (``J qdd + Jdot qd = -b u e``, b = 100 1/s) is contact
