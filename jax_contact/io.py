@@ -264,13 +264,24 @@ def write_atomic(path: str | os.PathLike, write) -> Path:
     The file gets mode ``0o666 & ~umask`` (what ``open(path, "w")`` gives a new file),
     also when it replaces an existing file.
 
+    A symbolic link is written through: its target is replaced and the link kept. A path
+    that is no regular file (a device such as ``/dev/null``, a FIFO, a socket) is refused:
+    the rename would replace the device itself with a file.
+
     Args:
       path: the file to create or replace (its folder is created).
       write: callable taking the temporary file's path (a ``str``).
+
+    Raises:
+      OSError: ``path`` is a folder or no regular file (named), or cannot be created.
     """
     path = Path(path)
+    if path.is_symlink():
+        path = path.resolve()
     if path.is_dir():  # refused before any write (os.replace would name the temporary file)
         raise IsADirectoryError(errno.EISDIR, f"cannot create {str(path)!r}: it is a folder")
+    if (kind := not_a_file(path)) is not None:
+        raise OSError(errno.EEXIST, f"cannot replace {str(path)!r}: it is {kind}, not a file")
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         with _LOCK:
@@ -295,6 +306,27 @@ def write_atomic(path: str | os.PathLike, write) -> Path:
             _PENDING.discard(tmp)
         raise
     return path
+
+
+def not_a_file(path: str | os.PathLike) -> str | None:
+    """What ``path`` is when it exists and is neither a regular file nor a folder (links
+    followed): ``"a character device"``, ``"a block device"``, ``"a FIFO"``, ``"a socket"``;
+    None otherwise."""
+    import stat
+
+    try:
+        mode = os.stat(path).st_mode
+    except OSError:
+        return None
+    for test, kind in (
+        (stat.S_ISCHR, "a character device"),
+        (stat.S_ISBLK, "a block device"),
+        (stat.S_ISFIFO, "a FIFO"),
+        (stat.S_ISSOCK, "a socket"),
+    ):
+        if test(mode):
+            return kind
+    return None
 
 
 def completed_writes() -> list[str]:

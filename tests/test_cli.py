@@ -1370,6 +1370,42 @@ def test_an_output_that_is_an_input_or_a_runs_file_is_refused_at_once(tmp_path, 
     assert names.read_text() == '{"a": "b"}'
 
 
+def test_json_output_that_is_a_device_fifo_or_log_is_refused_and_a_link_written_through(
+    tmp_path, capsys
+):
+    """A helper's audit: --json onto a FIFO (or, as root, /dev/null) was replaced by a
+    5 KB file, as was a symbolic link (its target untouched), and --json naming another
+    log overwrote it. Now the FIFO and the log are refused before JAX loads, and the
+    library's atomic write refuses a FIFO and writes through a link (the link kept)."""
+    from jax_contact.io import write_text_atomic
+
+    log = str(ROOT / "tests/fixtures/planar_leg_hop.h5")
+    fifo = tmp_path / "fifo"
+    os.mkfifo(fifo)
+    other = tmp_path / "other.h5"
+    other.write_bytes(Path(log).read_bytes())
+    for path, says in ((fifo, "is a FIFO, not a file"), (other, "holds no JSON")):
+        assert cli.main(["evaluate", log, "--json", str(path)]) == 2
+        err = capsys.readouterr().err
+        assert f"argument --json: {str(path)!r} " in err and says in err, err
+    assert fifo.is_fifo() and other.read_bytes() == Path(log).read_bytes()
+    with pytest.raises(OSError, match=r"cannot replace '.*fifo': it is a FIFO, not a file"):
+        write_text_atomic(fifo, "{}")
+    assert fifo.is_fifo()
+    target = tmp_path / "target.json"
+    target.write_text("[]")
+    link = tmp_path / "link.json"
+    link.symlink_to(target)
+    write_text_atomic(link, '{"a": 1}')
+    assert link.is_symlink() and target.read_text() == '{"a": 1}'
+    assert sorted(p.name for p in tmp_path.iterdir()) == [
+        "fifo",
+        "link.json",
+        "other.h5",
+        "target.json",
+    ]
+
+
 def test_a_staged_output_folder_needs_a_writable_parent_and_says_so(tmp_path, monkeypatch, capsys):
     """demo, reproduce and estimate stage their files in a folder beside --out: with --out
     writable and its parent not (a shared project folder), estimate replayed the whole

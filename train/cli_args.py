@@ -531,7 +531,12 @@ def check_output_folder(arg: str, folder: str | os.PathLike, *, staged: bool = F
 
 def check_output_file(arg: str, path: str | None, suffixes: tuple[str, ...] = ()) -> None:
     """Raises ValueError unless ``path`` (None: none) can be written: the suffix, not a
-    folder, a writable folder."""
+    folder, no device, FIFO or socket (the atomic write would replace it with a file), a
+    writable folder; for a JSON output (``--json``, or ``suffixes`` ``(".json",)``) an
+    existing file is replaced only if it holds JSON (``--json`` naming a log destroyed it).
+    A symbolic link is checked, and written, as its target."""
+    from jax_contact.io import not_a_file
+
     if path is None:
         return
     if not str(path).strip():
@@ -541,7 +546,25 @@ def check_output_file(arg: str, path: str | None, suffixes: tuple[str, ...] = ()
         raise ValueError(f"argument {arg}: {path!r} is a folder; expected a file name")
     if suffixes and p.suffix not in suffixes:
         raise ValueError(f"argument {arg}: {path!r} must end in {' or '.join(suffixes)}")
-    check_output_folder(arg, p.parent)
+    if (kind := not_a_file(p)) is not None:
+        raise ValueError(f"argument {arg}: {path!r} is {kind}, not a file; pass a file name")
+    if (arg == "--json" or suffixes == (".json",)) and p.is_file() and not _holds_json(p):
+        raise ValueError(
+            f"argument {arg}: {path!r} exists and holds no JSON (a log or another file);"
+            " writing it would replace it: pass a new name or a JSON file to replace"
+        )
+    check_output_folder(arg, p.resolve().parent if p.is_symlink() else p.parent)
+
+
+def _holds_json(path: Path) -> bool:
+    """Whether ``path``'s first non-blank byte opens JSON (``{``, ``[``, ``"``, a digit,
+    ``-``, ``t``, ``f``, ``n``) or the file is empty: a cheap test, not a parse."""
+    try:
+        with open(path, "rb") as f:
+            head = f.read(64).lstrip()
+    except OSError:
+        return True  # unreadable: the write's own error names it
+    return not head or head[:1] in b'{["-0123456789tfn'
 
 
 class HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
