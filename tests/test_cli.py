@@ -1096,6 +1096,39 @@ def test_logs_of_different_robots_are_named_as_such_not_by_rate(tmp_path, capsys
     assert f"note: {str(b)!r} is not pooled: no other log of robot {str(PLANAR_LEG_XML)!r}" in out
 
 
+def test_the_largest_set_of_one_robot_and_rate_is_pooled_whatever_the_order(tmp_path, capsys):
+    """A helper's case: two logs of robot A at two rates and two of robot B at one rate
+    pooled nothing ("fewer than two logs ... of one robot and rate"): the robot with the
+    most logs was taken first, then its logs split by rate. Now the largest (robot, rate)
+    set is pooled, B's two logs, named first or last."""
+    from jax_contact.envs.model_files import PLANAR_LEG_XML
+
+    rng = np.random.default_rng(4)
+
+    def log(name, robot, dt):
+        return _planar_log(
+            tmp_path / name,
+            n_t=40,
+            n_envs=2,
+            attrs={"robot": robot, "dt": dt},
+            time=np.arange(40, dtype=np.float32) * dt,
+            **{"truth/contact": rng.random((40, 2, 1)) < 0.5},
+        )
+
+    a400, a200 = log("a400.h5", "planar_leg", 0.0025), log("a200.h5", "planar_leg", 0.005)
+    b1, b2 = log("b1.h5", str(PLANAR_LEG_XML), 0.0025), log("b2.h5", str(PLANAR_LEG_XML), 0.0025)
+    for order in ([a400, a200, b1, b2], [b1, b2, a400, a200]):
+        out_json = tmp_path / "r.json"
+        assert cli.main(["evaluate", *map(str, order), "--json", str(out_json)]) == 0
+        out = capsys.readouterr().out
+        got = json.loads(out_json.read_text())
+        assert got["pooled_logs"] == [str(b1), str(b2)], order
+        for a in (a400, a200):
+            want = f"robot 'planar_leg'; the pooled ones' is {str(PLANAR_LEG_XML)!r}"
+            assert got["not_pooled"][str(a)] == want
+            assert f"note: {str(a)!r} is not pooled: {want}" in out
+
+
 def test_a_gm_grid_or_validation_log_of_another_robot_or_rate_is_refused_first(
     tmp_path, capsys, monkeypatch
 ):

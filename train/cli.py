@@ -561,8 +561,8 @@ def build_parser() -> argparse.ArgumentParser:
         nargs="+",
         metavar="LOG",
         help="an .h5 log written by `jax-contact simulate`; several: each evaluated, then"
-        " those with ground truth of one robot and rate pooled (each env of each log one"
-        " sequence)",
+        " those with ground truth of one robot and rate pooled, the largest such set (ties:"
+        " the set of the earliest log; each env of each log one sequence)",
     )
     p.add_argument("--json", default=None, help="write the metrics (or P(contact)) here")
     p.add_argument(

@@ -467,27 +467,15 @@ def evaluate_files(
         logs[i] = None  # its readings are not needed again
     keys = [str(i) for i in range(len(paths))]
     dts = {k: r["dt"] if r["has_truth"] else None for k, r in zip(keys, results, strict=True)}
-    robots = [r["robot"] for r in results if r["has_truth"]]
-    robot = max(robots, key=robots.count) if robots else None  # the most logs' robot
-    for k, r in zip(keys, results, strict=True):
-        if r["has_truth"] and r["robot"] != robot:
-            dts[k] = None  # pooled with its own robot's logs only
-    pooled_keys, why = pool_groups(dts)
-    not_pooled = {}
-    for k, r in zip(keys, results, strict=True):
-        if k in pooled_keys:
-            continue
-        if not r["has_truth"]:
-            not_pooled[r["log"]] = "no ground truth"
-        elif robots.count(r["robot"]) == 1 and len(set(robots)) > 1:
-            # Logs pool by robot: the only log of its robot has none to pool with, whatever
-            # its rate.
-            not_pooled[r["log"]] = f"no other log of robot {r['robot']!r} with ground truth"
-        elif r["robot"] != robot:
-            not_pooled[r["log"]] = f"robot {r['robot']!r}; the pooled logs' is {robot!r}"
-        else:
-            reason = why.get(k, "fewer than two logs to pool")
-            not_pooled[r["log"]] = reason.replace("recording", "log")
+    robots = {k: r["robot"] for k, r in zip(keys, results, strict=True) if r["has_truth"]}
+    # The largest set of one robot and rate, whichever robot has the most logs (ties: the
+    # set of the earliest log).
+    pooled_keys, why = pool_groups(dts, robots)
+    not_pooled = {
+        r["log"]: why[k].replace("recording", "log")
+        for k, r in zip(keys, results, strict=True)
+        if k not in pooled_keys
+    }
     for path, reason in not_pooled.items():
         print(f"note: {path!r} is not pooled: {reason}")
     summary = {"pooled": None, "pooled_logs": [], "not_pooled": not_pooled}

@@ -53,21 +53,27 @@ def recording_folders(paths: Sequence[str | Path]) -> list[str]:
     return list(seen)
 
 
-def pool_groups(dts: dict[str, float | None]) -> tuple[list[str], dict[str, str]]:
+def pool_groups(
+    dts: dict[str, float | None], kinds: dict[str, str] | None = None
+) -> tuple[list[str], dict[str, str]]:
     """Which recordings are pooled: ``(pooled stems, stem -> why not)``.
 
-    ``dts``: stem -> the recording's period, s, or None without ground truth. The pooled
-    ones are the largest set of recordings with ground truth whose periods lie within
-    :data:`POOL_RATE_TOLERANCE` of each other's first (ties: the set of the earliest
-    recording); fewer than two pool nothing.
+    ``dts``: stem -> the recording's period, s, or None without ground truth. ``kinds``:
+    stem -> what else must agree (``evaluate``'s logs: the robot); None: nothing. The
+    pooled ones are the largest set of recordings with ground truth of one kind whose
+    periods lie within :data:`POOL_RATE_TOLERANCE` of each other's first (ties: the set of
+    the earliest recording); fewer than two pool nothing.
     """
+    kinds = kinds or {}
     why: dict[str, str] = {s: "no ground truth" for s, d in dts.items() if d is None}
     groups: list[list[str]] = []
     for stem, dt in dts.items():
         if dt is None:
             continue
         for g in groups:
-            if abs(dt - dts[g[0]]) <= POOL_RATE_TOLERANCE * dts[g[0]]:
+            first = g[0]
+            same_kind = kinds.get(stem) == kinds.get(first)
+            if same_kind and abs(dt - dts[first]) <= POOL_RATE_TOLERANCE * dts[first]:
                 g.append(stem)
                 break
         else:
@@ -75,11 +81,17 @@ def pool_groups(dts: dict[str, float | None]) -> tuple[list[str], dict[str, str]
     best = max(groups, key=len, default=[])  # max keeps the first of equal lengths
     if len(best) < 2:
         for g in groups:
-            why[g[0]] = "no other recording with ground truth at its rate"
+            of = f" of robot {kinds[g[0]]!r}" if g[0] in kinds else ""
+            why[g[0]] = f"no other recording{of} with ground truth at its rate"
         return [], why
     for g in groups:
         for stem in g if g is not best else ():
-            why[stem] = f"at {1 / dts[stem]:.6g} Hz, the pooled ones at {1 / dts[best[0]]:.6g} Hz"
+            if kinds.get(stem) != kinds.get(best[0]):
+                why[stem] = f"robot {kinds[stem]!r}; the pooled ones' is {kinds[best[0]]!r}"
+            else:
+                why[stem] = (
+                    f"at {1 / dts[stem]:.6g} Hz, the pooled ones at {1 / dts[best[0]]:.6g} Hz"
+                )
     return best, why
 
 
