@@ -1065,6 +1065,16 @@ def test_evaluate_pools_several_logs(tmp_path, capsys):
     # The same log twice would count twice; two logs of one name would draw one PNG.
     assert cli.main(["evaluate", str(a), str(tmp_path / "." / "a.h5")]) == 2
     assert "given twice" in capsys.readouterr().err
+    # A hard link or a copy is the same log too (a helper's audit: pooled twice, its envs
+    # gave the bootstrap calls that one log's 3 envs could not).
+    os.link(a, tmp_path / "hard.h5")
+    assert cli.main(["evaluate", str(a), str(tmp_path / "hard.h5")]) == 2
+    assert f"{str(tmp_path / 'hard.h5')!r} is given twice (as {str(a)!r}" in capsys.readouterr().err
+    (tmp_path / "copy.h5").write_bytes(a.read_bytes())
+    assert cli.main(["evaluate", str(a), str(tmp_path / "copy.h5")]) == 2
+    assert "holds the same bytes as" in capsys.readouterr().err
+    (tmp_path / "hard.h5").unlink()
+    (tmp_path / "copy.h5").unlink()
     (tmp_path / "other").mkdir()
     a2 = _planar_log(tmp_path / "other" / "a.h5")
     assert cli.main(["evaluate", str(a), str(a2), "--plots", str(tmp_path / "plots")]) == 2

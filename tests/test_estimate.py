@@ -1896,6 +1896,11 @@ def test_several_recordings_are_all_read_before_any_is_estimated(round_trip, tmp
     (tmp_path / "again").mkdir()
     twin = str(tmp_path / "again" / "first.csv")
     Path(twin).write_bytes(Path(first).read_bytes())
+    # A copy is one recording twice (pooled, its envs would count twice).
+    assert estimate_cmd.main([first, twin, "--model", "planar_leg", "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert f"argument recording: {twin!r} holds the same bytes as {first!r}" in err, err
+    Path(twin).write_bytes(Path(first).read_bytes() + b"\n")  # another recording, one name
     assert estimate_cmd.main([first, twin, "--model", "planar_leg", "--out", str(out)]) == 2
     err = capsys.readouterr().err
     assert f"{first!r} and {twin!r} would both write to the folder 'first'" in err, err

@@ -451,15 +451,41 @@ def check_input_file(arg: str, path: str) -> None:
 
 
 def check_distinct_files(arg: str, paths) -> None:
-    """Raises ValueError naming the first of ``paths`` that is given twice (the same file
-    under two names counts: pooled, it would count twice)."""
-    seen: set[str] = set()
+    """Raises ValueError naming the first of ``paths`` that is given twice: the same file
+    under two names (a link, symbolic or hard) or another file of the same bytes (a copy):
+    pooled, it would count twice. Files that do not exist are left to the existence check."""
+    import hashlib
+
+    seen: dict[str, str] = {}
+    same_size: dict[int, list[str]] = {}
     for path in paths:
-        if (key := str(Path(path).resolve())) in seen:
+        p = Path(path)
+        try:
+            st = p.stat()
+        except OSError:
+            st = None
+        key = f"{st.st_dev}:{st.st_ino}" if st is not None else str(p.resolve())
+        if key in seen:
             raise ValueError(
-                f"argument {arg}: {str(path)!r} is given twice (pooled, it would count twice)"
+                f"argument {arg}: {str(path)!r} is given twice (as {seen[key]!r}; pooled, it"
+                " would count twice)"
             )
-        seen.add(key)
+        seen[key] = str(path)
+        if st is not None and p.is_file():
+            same_size.setdefault(st.st_size, []).append(str(path))
+    for group in same_size.values():
+        digests: dict[bytes, str] = {}
+        for path in group if len(group) > 1 else ():
+            digest = hashlib.sha256()
+            with open(path, "rb") as f:
+                for block in iter(lambda f=f: f.read(1 << 20), b""):
+                    digest.update(block)
+            if (d := digest.digest()) in digests:
+                raise ValueError(
+                    f"argument {arg}: {path!r} holds the same bytes as {digests[d]!r}, one"
+                    " log twice (pooled, it would count twice)"
+                )
+            digests[d] = path
 
 
 def check_params_source(arg: str, source: str) -> None:
