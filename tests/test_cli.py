@@ -1204,6 +1204,46 @@ def test_evaluate_plots_writes_the_reliability_diagram_of_every_scored_row(tmp_p
     assert got["sha256"] == hashlib.sha256(params.read_bytes()).hexdigest()
 
 
+def test_several_logs_plots_appear_together_or_not_at_all(tmp_path, capsys, monkeypatch):
+    """A helper's Ctrl-C after two of three logs left their two PNGs in a new --plots
+    folder: the PNGs are now staged and moved in when every log is done. Also: a log
+    without truth among several said "pass --json FILE" although --json was given."""
+    from jax_contact.train import log_evaluate, recording_batch
+
+    rng = np.random.default_rng(5)
+    a, b = (
+        _planar_log(
+            tmp_path / f"{n}.h5",
+            n_t=40,
+            n_envs=2,
+            **{"truth/contact": rng.random((40, 2, 1)) < 0.5},
+        )
+        for n in ("a", "b")
+    )
+    c = _planar_log(tmp_path / "c.h5", n_t=30, n_envs=2, truth=False)
+    plots = tmp_path / "new" / "plots"
+
+    def stop(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    with monkeypatch.context() as m:  # the stop after every log's plot was drawn
+        m.setattr(recording_batch, "pooled_arrays", stop)
+        with pytest.raises(KeyboardInterrupt):
+            log_evaluate.evaluate_files([a, b], plots_dir=plots)
+    assert not plots.exists() and not (tmp_path / "new").exists()
+    capsys.readouterr()
+    out_json = tmp_path / "r.json"
+    argv = ["evaluate", str(a), str(b), str(c), "--plots", str(plots), "--json", str(out_json)]
+    assert cli.main(argv) == 0
+    out = capsys.readouterr().out
+    assert sorted(os.listdir(plots)) == ["reliability_a.png", "reliability_b.png"]
+    assert f"wrote 2 reliability diagram(s) into {plots}" in out
+    assert f"P(contact) per foot, step and env goes into {out_json} with the other logs'" in out
+    assert "pass --json FILE" not in out
+    got = json.loads(out_json.read_text())
+    assert got["logs"][0]["plots"] == [str(plots / "reliability_a.png")]
+
+
 def test_tune_refuses_mixed_copied_and_unscoreable_logs(tmp_path):
     """``jax-contact tune``'s logs (tune_inputs.load_logs) are refused before any fit when they
     mix sensor models or periods (the fit would start from whichever came first), when a

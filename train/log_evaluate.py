@@ -5,13 +5,14 @@ logs, their metrics pooled too (:func:`evaluate_files`).
 
 from __future__ import annotations
 
+import contextlib
 import json
 from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
 
-from jax_contact.io import write_json_atomic
+from jax_contact.io import staged_folder, write_json_atomic
 from jax_contact.metrics import bounce_counts, bounce_steps
 from jax_contact.robot import model_mass
 from jax_contact.train.log_estimator import default_estimator, estimator_for
@@ -196,6 +197,8 @@ def evaluate_file(
     tuned_baselines: dict | None = None,
     legend: bool = True,
     loaded: LoadedLog | None = None,
+    plots_to: str | Path | None = None,
+    json_later: str | Path | None = None,
 ) -> dict:
     """Runs the estimator, GM observer and kinematic detector on a log; prints the metrics.
 
@@ -244,6 +247,11 @@ def evaluate_file(
         logs tuned on one: :func:`evaluate_files`); None tunes here when ``gm_grid_log``
         is given.
       legend: print the table's legend under it (:func:`evaluate_files` prints it once).
+      plots_to: where ``plots_dir``'s files end up when ``plots_dir`` stages them
+        (:func:`evaluate_files`: all of a run's plots or none); the printed and returned
+        paths are there. None: ``plots_dir`` itself.
+      json_later: the file the caller writes this result into (:func:`evaluate_files`),
+        named in what is printed; None: ``json_path``.
 
     Returns:
       ``log``, ``attrs``, ``scores`` (detector -> metrics; empty without ground truth),
@@ -353,11 +361,12 @@ def evaluate_file(
             f"{name} has no ground truth ({TRUTH_CONTACT!r}): no metrics can be computed."
             f"\nmean P(contact) per foot over {p.shape[0]} steps x {p.shape[1]} envs: {means}"
         )
-        print(
-            f"P(contact) per foot, step and env written to {json_path}"
-            if json_path
-            else "pass --json FILE to write P(contact) per foot, step and env"
-        )
+        if json_path:
+            print(f"P(contact) per foot, step and env written to {json_path}")
+        elif json_later:
+            print(f"P(contact) per foot, step and env goes into {json_later} with the other logs'")
+        else:
+            print("pass --json FILE to write P(contact) per foot, step and env")
         if bootstrap:
             print("--bootstrap: no ground truth, so there is nothing to compare")
         if plots_dir is not None:
@@ -388,7 +397,9 @@ def evaluate_file(
                 names=list(scores),
                 title=f"{Path(path).name}: reliability of P(contact)",
             )
-            print(f"wrote {png}")
+            if plots_to is not None:
+                png = Path(plots_to) / Path(png).name
+            print(f"wrote {png}" if plots_to is None else f"drew {png}")
             result["plots"] = [str(png)]
     if json_path:
         written = write_json_atomic(json_path, json.loads(json.dumps(result, default=_plain)))
@@ -456,52 +467,60 @@ def evaluate_files(
     if gm_grid_log is not None:
         tuned = tune_baselines(gm_grid_log)
         print(tuned_line(gm_grid_log, tuned, ", for every log"))
-    results = []
-    for i, p in enumerate(paths):
-        results.append(
-            evaluate_file(
-                p, gm_grid_log=gm_grid_log, tuned_baselines=tuned, legend=False, loaded=logs[i],
-                **options,
-            )
-        )  # fmt: skip
-        logs[i] = None  # its readings are not needed again
-    keys = [str(i) for i in range(len(paths))]
-    dts = {k: r["dt"] if r["has_truth"] else None for k, r in zip(keys, results, strict=True)}
-    robots = {k: r["robot"] for k, r in zip(keys, results, strict=True) if r["has_truth"]}
-    # The largest set of one robot and rate, whichever robot has the most logs (ties: the
-    # set of the earliest log).
-    pooled_keys, why = pool_groups(dts, robots)
-    not_pooled = {
-        r["log"]: why[k].replace("recording", "log")
-        for k, r in zip(keys, results, strict=True)
-        if k not in pooled_keys
-    }
-    for path, reason in not_pooled.items():
-        print(f"note: {path!r} is not pooled: {reason}")
-    summary = {"pooled": None, "pooled_logs": [], "not_pooled": not_pooled}
-    if pooled_keys:
-        group = {k: results[int(k)] for k in pooled_keys}
-        outputs, truth, valid, known, dt = pooled_arrays(group)
-        from jax_contact.train.evaluate import score
+    # A run's plots appear together or not at all: staged, and moved in when every log is
+    # done (a stop after two of three logs left their two PNGs).
+    plots_dir = options.pop("plots_dir", None)
+    staging = staged_folder(plots_dir) if plots_dir is not None else contextlib.nullcontext()
+    with staging as stage:
+        results = []
+        for i, p in enumerate(paths):
+            results.append(
+                evaluate_file(
+                    p, gm_grid_log=gm_grid_log, tuned_baselines=tuned, legend=False, loaded=logs[i],
+                    plots_dir=stage, plots_to=plots_dir, json_later=json_path, **options,
+                )
+            )  # fmt: skip
+            logs[i] = None  # its readings are not needed again
+        keys = [str(i) for i in range(len(paths))]
+        dts = {k: r["dt"] if r["has_truth"] else None for k, r in zip(keys, results, strict=True)}
+        robots = {k: r["robot"] for k, r in zip(keys, results, strict=True) if r["has_truth"]}
+        # The largest set of one robot and rate, whichever robot has the most logs (ties: the
+        # set of the earliest log).
+        pooled_keys, why = pool_groups(dts, robots)
+        not_pooled = {
+            r["log"]: why[k].replace("recording", "log")
+            for k, r in zip(keys, results, strict=True)
+            if k not in pooled_keys
+        }
+        for path, reason in not_pooled.items():
+            print(f"note: {path!r} is not pooled: {reason}")
+        summary = {"pooled": None, "pooled_logs": [], "not_pooled": not_pooled}
+        if pooled_keys:
+            group = {k: results[int(k)] for k in pooled_keys}
+            outputs, truth, valid, known, dt = pooled_arrays(group)
+            from jax_contact.train.evaluate import score
 
-        pooled = score(outputs, truth, valid, dt=dt, names=list(outputs), truth_known=known)
-        summary["pooled"] = pooled
-        summary["pooled_logs"] = [g["log"] for g in group.values()]
-        print(format_scores(pooled, title=f"{len(group)} logs pooled"))
-        if bootstrap:
-            summary["vs_probabilistic"] = _vs_probabilistic(
-                outputs, pooled, truth, valid, dt, bootstrap, truth_known=known
-            )
-    else:
-        print("no pooled metrics: fewer than two logs with ground truth of one robot and rate")
-        if bootstrap:
-            print("--bootstrap: nothing pooled, so nothing to compare")
-    arrays = ("outputs", "truth", "scored", "truth_known", "dt", "robot")
-    logs = [{k: v for k, v in r.items() if k not in arrays} for r in results]
-    if json_path:
-        payload = {"logs": logs, **summary}
-        written = write_json_atomic(json_path, json.loads(json.dumps(payload, default=_plain)))
-        print(f"wrote {written}")
+            pooled = score(outputs, truth, valid, dt=dt, names=list(outputs), truth_known=known)
+            summary["pooled"] = pooled
+            summary["pooled_logs"] = [g["log"] for g in group.values()]
+            print(format_scores(pooled, title=f"{len(group)} logs pooled"))
+            if bootstrap:
+                summary["vs_probabilistic"] = _vs_probabilistic(
+                    outputs, pooled, truth, valid, dt, bootstrap, truth_known=known
+                )
+        else:
+            print("no pooled metrics: fewer than two logs with ground truth of one robot and rate")
+            if bootstrap:
+                print("--bootstrap: nothing pooled, so nothing to compare")
+        arrays = ("outputs", "truth", "scored", "truth_known", "dt", "robot")
+        logs = [{k: v for k, v in r.items() if k not in arrays} for r in results]
+        if json_path:
+            payload = {"logs": logs, **summary}
+            written = write_json_atomic(json_path, json.loads(json.dumps(payload, default=_plain)))
+            print(f"wrote {written}")
+    if plots_dir is not None:
+        drawn = [png for r in results for png in r.get("plots", [])]
+        print(f"wrote {len(drawn)} reliability diagram(s) into {plots_dir}")
     return {"logs": results, **summary}
 
 
