@@ -970,11 +970,14 @@ def test_a_log_without_ground_truth_gives_p_contact(tmp_path, capsys):
         "9",
         "--plots",
         str(plots),
+        "--gm-grid",
+        str(_planar_log(tmp_path / "grid.h5", n_t=40, n_envs=2)),
     ]
     assert cli.main(argv) == 0
     out = capsys.readouterr().out
     assert "no ground truth" in out and "no metrics" in out and "P(contact)" in out
     assert "--bootstrap: no ground truth, so there is nothing to compare" in out
+    assert "--gm-grid: no ground truth, so no baseline is scored on this log" in out
     assert "--plots: no ground truth, so no reliability diagram" in out and not plots.exists()
     got = json.loads(out_json.read_text())
     assert got["has_truth"] is False and got["scores"] == {}
@@ -1242,6 +1245,36 @@ def test_several_logs_plots_appear_together_or_not_at_all(tmp_path, capsys, monk
     assert "pass --json FILE" not in out
     got = json.loads(out_json.read_text())
     assert got["logs"][0]["plots"] == [str(plots / "reliability_a.png")]
+
+
+def test_logs_of_one_file_name_are_titled_by_their_paths(tmp_path, capsys):
+    """Two tables both titled 'log.h5' (a helper's audit) could not be told apart."""
+    rng = np.random.default_rng(6)
+    paths = []
+    for d in ("dA", "dB"):
+        (tmp_path / d).mkdir()
+        truth = {"truth/contact": rng.random((40, 2, 1)) < 0.5}
+        paths.append(str(_planar_log(tmp_path / d / "log.h5", n_t=40, n_envs=2, **truth)))
+    assert cli.main(["evaluate", *paths]) == 0
+    out = capsys.readouterr().out
+    assert all(f"{p} " in out or f"{p}\n" in out for p in paths), out
+    assert "sensor presets" not in out  # one preset (the logs name none: anymal_like)
+    # Logs of two sensor presets pool with a note: each ran its own preset's defaults.
+    third = tmp_path / "ideal.h5"
+    truth = {"truth/contact": rng.random((40, 2, 1)) < 0.5}
+    _planar_log(
+        third,
+        n_t=40,
+        n_envs=2,
+        attrs={"robot": "planar_leg", "dt": 0.0025, "noise": "ideal"},
+        **truth,
+    )
+    assert cli.main(["evaluate", paths[0], str(third)]) == 0
+    out = capsys.readouterr().out
+    assert (
+        "note: the pooled logs were simulated with the sensor presets ['anymal_like', 'ideal']"
+        in out
+    )
 
 
 def test_tune_refuses_mixed_copied_and_unscoreable_logs(tmp_path):

@@ -199,6 +199,7 @@ def evaluate_file(
     loaded: LoadedLog | None = None,
     plots_to: str | Path | None = None,
     json_later: str | Path | None = None,
+    title: str | None = None,
 ) -> dict:
     """Runs the estimator, GM observer and kinematic detector on a log; prints the metrics.
 
@@ -252,6 +253,7 @@ def evaluate_file(
         paths are there. None: ``plots_dir`` itself.
       json_later: the file the caller writes this result into (:func:`evaluate_files`),
         named in what is printed; None: ``json_path``.
+      title: the table's title; None: the log's file name.
 
     Returns:
       ``log``, ``attrs``, ``scores`` (detector -> metrics; empty without ground truth),
@@ -369,6 +371,8 @@ def evaluate_file(
             print("pass --json FILE to write P(contact) per foot, step and env")
         if bootstrap:
             print("--bootstrap: no ground truth, so there is nothing to compare")
+        if gm_grid_log is not None:
+            print("--gm-grid: no ground truth, so no baseline is scored on this log")
         if plots_dir is not None:
             print("--plots: no ground truth, so no reliability diagram")
         result["scores"] = {}
@@ -376,7 +380,7 @@ def evaluate_file(
     else:
         scored, known = scored_steps(out, truth, log.valid)
         scores = score(out, truth, scored, dt=dt, truth_known=known)
-        print(format_scores(scores, title=Path(path).name, legend=legend))
+        print(format_scores(scores, title=title or Path(path).name, legend=legend))
         if note := weaker_than_kinematic(scores):
             print(note)
         if note := bounce_note(truth, log.valid, dt):
@@ -471,13 +475,16 @@ def evaluate_files(
     # done (a stop after two of three logs left their two PNGs).
     plots_dir = options.pop("plots_dir", None)
     staging = staged_folder(plots_dir) if plots_dir is not None else contextlib.nullcontext()
+    # Two logs of one file name (in two folders) get their paths as titles.
+    names = [Path(p).name for p in paths]
     with staging as stage:
         results = []
         for i, p in enumerate(paths):
             results.append(
                 evaluate_file(
                     p, gm_grid_log=gm_grid_log, tuned_baselines=tuned, legend=False, loaded=logs[i],
-                    plots_dir=stage, plots_to=plots_dir, json_later=json_path, **options,
+                    plots_dir=stage, plots_to=plots_dir, json_later=json_path,
+                    title=p if names.count(names[i]) > 1 else None, **options,
                 )
             )  # fmt: skip
             logs[i] = None  # its readings are not needed again
@@ -504,6 +511,20 @@ def evaluate_files(
             summary["pooled"] = pooled
             summary["pooled_logs"] = [g["log"] for g in group.values()]
             print(format_scores(pooled, title=f"{len(group)} logs pooled"))
+            noises = sorted({log_noise(g["attrs"]) for g in group.values()})
+            params_path = options.get("params_path")
+            if len(noises) > 1 and params_path is None:
+                print(
+                    f"note: the pooled logs were simulated with the sensor presets {noises}:"
+                    " each log's estimator ran with the defaults derived for its own, so the"
+                    " pooled row 'probabilistic' mixes those estimators (pool one preset's"
+                    " logs, or pass --params for one estimator on all)"
+                )
+            elif len(noises) > 1:
+                print(
+                    f"note: the pooled logs were simulated with the sensor presets {noises};"
+                    f" one estimator ({str(params_path)!r}) ran on all of them"
+                )
             if bootstrap:
                 summary["vs_probabilistic"] = _vs_probabilistic(
                     outputs, pooled, truth, valid, dt, bootstrap, truth_known=known
