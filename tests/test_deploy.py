@@ -21,7 +21,7 @@ import numpy as np
 import pytest
 
 import jax_contact as jc
-from jax_contact.io import read_log
+from jax_contact.io import read_log, write_log
 
 ROOT = Path(__file__).resolve().parents[1]
 # Both sides run the same float32 program from different compilations (the export is one
@@ -238,6 +238,27 @@ def test_a_zero_base_quaternion_is_a_lost_reading_as_replay_takes_nan(child, liv
     offline = _replay_go1(readings)
     np.testing.assert_allclose(child["p_zero"], offline, rtol=0, atol=P_TOL)
     assert np.abs(offline - live).max() > 1e-3  # the lost steps changed the estimate
+
+
+def test_a_log_with_a_zero_base_quaternion_reads_it_as_lost(deployed, child, capsys):
+    """A helper's audit: the same zeros in an .h5 log were read by evaluate (and by
+    deploy-check's offline reference) as an orientation, P up to 0.54 from the clean log's,
+    while the exported file and ``estimate`` read them as lost. load_log now reads them as
+    the exported update does, with a note."""
+    from jax_contact.train.logs import load_log
+
+    arrays, attrs = read_log(deployed["log"])
+    arrays["readings/qpos"] = np.array(arrays["readings/qpos"])
+    arrays["readings/qpos"][40:43, 0, 3:7] = 0.0
+    path = write_log(deployed["tmp"] / "zeroed.h5", arrays, attrs)
+    log = load_log(path)
+    assert "qpos[3:7] on 3 step-env rows" in capsys.readouterr().err
+    qpos = log.readings["qpos"]
+    assert (
+        np.isnan(qpos[40:43, 0, 3:7]).all() and np.isfinite(np.delete(qpos, [40, 41, 42], 0)).all()
+    )
+    readings = {k: np.asarray(v, np.float32) for k, v in log.readings.items()}
+    np.testing.assert_allclose(child["p_zero"], _replay_go1(readings), rtol=0, atol=P_TOL)
 
 
 def test_a_non_finite_state_is_the_invalid_step_of_its_own_call(child):

@@ -331,9 +331,35 @@ def load_log(
             else f"robot {robot_name!r} has {desc.n_legs}"
         )
         raise ValueError(f"{name}: array {TRUTH_CONTACT!r} has {truth.shape[-1]} feet but {whose}")
+    if note := degenerate_quaternions_lost(name, readings["qpos"], valid, robot.mj_model):
+        print(note, file=sys.stderr)
     if note := non_finite_note(name, readings, valid):
         print(note, file=sys.stderr)
     return LoadedLog(name, robot, readings, truth, valid, dt, attrs, lost=note is not None)
+
+
+def degenerate_quaternions_lost(name: str, qpos: np.ndarray, valid: np.ndarray, mj_model):
+    """Sets, in place, every joint quaternion of ``qpos`` ((T, E, nq)) whose norm is below
+    :data:`jax_contact.export.MIN_QUATERNION_NORM` (no orientation: a driver's zero fill)
+    to NaN, a lost reading, as the exported estimator and ``estimate`` read it; returns a
+    note naming them on valid steps, else None. (A log's replay read the zeros as an
+    orientation, and deploy-check's offline reference disagreed with the exported file by
+    up to 0.99 in P.)"""
+    from jax_contact.export import MIN_QUATERNION_NORM, quaternion_slices
+
+    counts = []
+    for a in quaternion_slices(mj_model):
+        norm = np.linalg.norm(qpos[..., a : a + 4], axis=-1)
+        bad = np.isfinite(norm) & (norm < MIN_QUATERNION_NORM)
+        qpos[..., a : a + 4][bad] = np.nan
+        if n := int((bad & valid).sum()):
+            counts.append(f"qpos[{a}:{a + 4}] on {n}")
+    if not counts:
+        return None
+    return (
+        f"note: {name}: joint quaternions with a norm below {MIN_QUATERNION_NORM:g} (no"
+        f" orientation), read as lost readings: {', '.join(counts)} step-env rows"
+    )
 
 
 def non_finite_note(name: str, readings: dict, valid: np.ndarray) -> str | None:
