@@ -551,6 +551,18 @@ def test_deploy_check_compares_the_physics_not_the_name(deployed):
     assert "robot 'spot'" in _other_robot("log", "x.contact", old, spot)
 
 
+def test_deploy_check_says_recording_options_do_nothing_on_a_log(deployed, capsys):
+    """--units deg on a simulate log ran as if not given, without a word (a helper's audit)."""
+    from jax_contact.train import deploy_cmd
+
+    deploy_cmd.deploy_check(
+        deployed["artefact"], deployed["log"], steps=3, pace=False, units="deg", resample=True
+    )
+    out = capsys.readouterr().out
+    assert "note: --units and --resample read a recording's columns;" in out
+    assert "is a `jax-contact simulate` log" in out
+
+
 def test_deploy_check_reports_latency_and_agreement(deployed, live, tmp_path, monkeypatch):
     from jax_contact.train import deploy_cmd
 
@@ -678,6 +690,11 @@ def test_deploy_check_reads_a_recording_and_warns_as_estimate(deployed, live, tm
     write_recording_csv(tmp_path / "no_tau.csv", no_tau)
     with pytest.raises(ValueError, match=r"no_tau.csv' has no tau/ column .* dynamics term"):
         deploy_check(deployed["artefact"], tmp_path / "no_tau.csv", pace=False)
+    # One column missing: the message names that joint (it said "some actuated joint").
+    one_gone = {k: v for k, v in cols.items() if k != "tau/RL_calf_joint"}
+    write_recording_csv(tmp_path / "one_gone.csv", one_gone)
+    with pytest.raises(ValueError, match=r"for the actuated joint\(s\) \['RL_calf_joint'\]"):
+        deploy_check(deployed["artefact"], tmp_path / "one_gone.csv", pace=False)
     with pytest.raises(ValueError, match="argument --env: a recording holds one robot"):
         deploy_check(deployed["artefact"], tmp_path / "rec.csv", env=1)
     # Epoch timestamps: float64 rounds 1.7e9 + k 2.5 ms to 2.4e-7 s, so the median step

@@ -437,6 +437,17 @@ def deploy_check(
         other_robot = None  # a recording is read with the export's own robot model
     else:
         conv, robot = None, None
+        given = [
+            f"--{opt}"
+            for opt, on in (("names", names), ("units", units != "rad"), ("resample", resample))
+            if on
+        ]
+        if given:  # a simulate log stores readings in the model's own names, units, rate
+            print(
+                f"note: {' and '.join(given)} read a recording's columns; {str(log)!r} is a"
+                " `jax-contact simulate` log (its readings in the model's order, radians,"
+                " one per step), so they do nothing here"
+            )
         # Checked, and re-aligned to end-of-step readings if older (what the export pairs).
         loaded = load_log(log)
         name, dt, readings = loaded.name, loaded.dt, loaded.readings
@@ -608,8 +619,9 @@ def _recording_readings(robot, log, terms, names, units: str, resample: bool):
     name = f"recording {str(log)!r}"
     if not conv.has_torque and "dynamics" in terms:
         raise ValueError(
-            f"{name} has no tau/ column for some actuated joint, but the exported estimator's"
-            " dynamics term reads every joint torque (the readings would hold zeros): record"
+            f"{name} has no tau/ column for the actuated joint(s)"
+            f" {list(conv.missing_torques)}, but the exported estimator's dynamics term reads"
+            " every joint torque (the readings would hold zeros): record"
             " the torques, or run `jax-contact estimate`, which leaves the term out"
         )
     for note in conv.notes:

@@ -77,6 +77,8 @@ class Converted:
       acceleration_from_position: dofs whose acceleration is a second difference of
         positions.
       tau_columns: dof -> the recording's ``tau/`` column that filled it (for messages).
+      missing_torques: the actuated joints with no ``tau/`` column (empty when
+        ``has_torque``).
     """
 
     readings: dict
@@ -92,6 +94,7 @@ class Converted:
     velocity_from_position: tuple[int, ...] = ()
     acceleration_from_position: tuple[int, ...] = ()
     tau_columns: Mapping[int, str] = dataclasses.field(default_factory=dict)
+    missing_torques: tuple[str, ...] = ()
 
 
 def model_joints(mj_model: mujoco.MjModel, base_body: int):
@@ -343,12 +346,12 @@ def to_readings(
     actuated = sorted(
         {n for n, j in joints if any(int(m.actuator_trnid[a, 0]) == j for a in range(m.nu))}
     )
-    has_torque = not any(n in missing_tau for n in actuated)
+    gone = [n for n in actuated if n in missing_tau]
+    has_torque = not gone
     terms = ["dynamics", "diff_kinematics", "kinematics"]
     if not has_torque:
         terms.remove("dynamics")
         tau[:] = 0.0
-        gone = [n for n in actuated if n in missing_tau]
         notes.append(f"no joint torques for {gone}: the dynamics term is off (and the GM observer)")
     if free is not None:
         qa, va = int(m.jnt_qposadr[free]), int(m.jnt_dofadr[free])
@@ -519,6 +522,7 @@ def to_readings(
         velocity_from_position=tuple(sorted(vel_from_pos)),
         acceleration_from_position=tuple(sorted(acc_from_pos)),
         tau_columns=tau_columns,
+        missing_torques=tuple(gone),
     )
 
 
