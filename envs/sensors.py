@@ -220,11 +220,12 @@ def sensor_preset(
       outliers with probability 1e-3 per sample and a 10 rad/s spike (the paper
       mentions velocity outliers on ANYmal without numbers; a choice).
     - base of the planar leg (``floating_base=False``, its rail): Table II as printed,
-      position 0.04 m, velocity 0.2 m/s, acceleration 2 m/s^2 (an accelerometer on the
-      base, as the floating base's IMU below). Not a difference of the rail velocity:
-      that would carry ``sqrt(2) 0.2 / 0.0025`` = 113 m/s^2 of noise, with which the
-      dynamics term reads a still, loaded foot as air (docs/model_choices.md, "A base
-      acceleration read by differencing").
+      position 0.04 m, velocity 0.2 m/s, plus the floating base's bias random walks
+      below, 0.01 m/sqrt(s) and 0.02 m/s/sqrt(s) (a choice), acceleration 2 m/s^2 (an
+      accelerometer on the base, as the floating base's IMU below). Not a difference of
+      the rail velocity: that would carry ``sqrt(2) 0.2 / 0.0025`` = 113 m/s^2 of noise,
+      with which the dynamics term reads a still, loaded foot as air
+      (docs/model_choices.md, "A base acceleration read by differencing").
     - floating base, linear: a quadruped's base state comes from a filter fusing an IMU
       with leg kinematics (Bloesch et al. 2013), not from a raw sensor, so its white
       jitter is far below Table II's rail figures while it drifts: position 0.01 m and

@@ -11,8 +11,8 @@ from jax.scipy.special import log_ndtr
 LOG_2PI = 1.8378770664093453
 
 # Below this standardised truncation point the inverse CDF of the truncated normal is taken
-# from its exponential tail: Phi(-8) ~ 6e-16, and ndtri of its products with a uniform draw
-# would lose all precision in float32.
+# from the Mills-ratio tail rule of upper_truncated_normal_icdf: Phi(-8) ~ 6e-16, and
+# ndtri of its products with a uniform draw would lose all precision in float32.
 _TAIL_SWITCH = -8.0
 _SQRT_HALF = 0.7071067811865476
 

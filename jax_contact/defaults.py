@@ -117,7 +117,8 @@ class GaitPrior:
 
     Attributes:
       stance_time: ``T_s``, mean stance duration of the gait prior (eq. 12), s.
-      swing_time: mean swing duration, s (the prior out of the air on invalid steps).
+      swing_time: mean swing duration, s (the prior out of the air: first step, invalid
+        steps, ``transition_model=False``).
       swing_joint_speed: std of a swinging leg's joint velocities, the air prior of the
         differential-kinematics term (eq. 8), rad/s (m/s for prismatic joints).
       takeoff_accel: ``a_F``, the largest take-off acceleration of the foot along the

@@ -67,8 +67,9 @@ class EstimatorParams:
       noise: the Gaussian noise model.
       dt: () time step between estimator updates, s.
       stance_time: () mean stance duration ``T_s`` of the gait prior (eq. 12), s.
-      swing_time: () mean swing duration, s; used only for the prior transition out of
-        the air when a step's measurement is invalid (NaN) and at initialisation.
+      swing_time: () mean swing duration, s; the gait prior's transition out of the air
+        (``dt / swing_time``, not in the paper), used at initialisation, on a step whose
+        measurement is invalid (NaN) and on every step with ``transition_model=False``.
       takeoff_accel: () ``a_F``, the largest take-off acceleration of the foot along the
         terrain normal, m/s^2; ``u_max = a_F dt`` (eq. 15).
       cap_dynamics, cap_diff_kinematics, cap_kinematics: () confidence caps in (0.5, 1]:
@@ -79,9 +80,10 @@ class EstimatorParams:
         (docs/model_choices.md, "Robust likelihoods"); equal to ``cap_diff_kinematics``
         for the paper's symmetric cap.
       cap_transition: () cap in (0.5, 1] on each transition's log-odds against staying,
-        ``log P(A|C) / P(C|C)`` and ``log P(C|A) / P(A|A)`` clipped to ``+-logit(cap)``:
-        one velocity sample alone never moves a confident belief past this
-        probability (1: unbounded, the paper's transitions).
+        ``log P(A|C) / P(C|C)`` and ``log P(C|A) / P(A|A)`` clipped from above to
+        ``logit(cap)`` (staying is bounded only by ``transition.LOG_FLOOR``): one velocity
+        sample alone never moves a confident belief past this probability (1: unbounded,
+        the paper's transitions).
       outlier_prob: () probability ``eps`` of the broad outlier component that the
         contact and the air hypotheses share, in the dynamics and differential-kinematics
         terms and in the take-off velocity model: each hypothesis' density is

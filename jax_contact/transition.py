@@ -256,7 +256,21 @@ def log_transition_matrix(
     *,
     key: jax.Array,
 ) -> jax.Array:
-    """(2, 2) log transition matrix for the next step, rows from (C, A), floored."""
+    """(2, 2) log transition matrix of eq. 1 for the next step, rows from (C, A).
+
+    Row C from eq. 11-15 (:func:`log_takeoff`), row A from eq. 16-17 / Algorithm 1
+    (:func:`log_touchdown`), each leaving probability capped at ``params.cap_transition``
+    (:func:`cap_leaving`) and every entry floored at :data:`LOG_FLOOR`.
+
+    Args:
+      params: estimator parameters.
+      meas: one foot's measurement, or its ``LegBlocks``.
+      terrain: the terrain at the foot (height, its std, normal).
+      key: PRNG key of the Monte-Carlo touch-down draws (unused by the quadrature).
+
+    Returns:
+      (2, 2) log probabilities, ``[[log P(C|C), log P(A|C)], [log P(C|A), log P(A|A)]]``.
+    """
     u, sigma_v = normal_velocity(params, meas, terrain.normal)
     from_contact = cap_leaving(log_takeoff(params, u, sigma_v), 1, params.cap_transition)
     from_air = cap_leaving(log_touchdown(params, meas, terrain, key=key), 0, params.cap_transition)
@@ -264,7 +278,10 @@ def log_transition_matrix(
 
 
 def log_prior_transition(params: EstimatorParams) -> jax.Array:
-    """(2, 2) log transition matrix of the gait prior alone (eq. 12; swing analogue)."""
+    """(2, 2) log transition matrix of the gait prior alone: eq. 12's ``P(A|C) = dt / T_s``
+    and its swing analogue ``P(C|A) = dt / swing_time``, which the paper does not have
+    (docs/model_choices.md, "gait prior on the air side"); the first transition, the
+    transition of an invalid step, and every transition with ``transition_model=False``."""
     p_off = params.dt / params.stance_time
     p_on = params.dt / params.swing_time
     return jnp.log(jnp.array([[1.0 - p_off, p_off], [p_on, 1.0 - p_on]]))

@@ -30,11 +30,12 @@ class LegMeasurement:
       qd: (nv,) generalised velocities, m/s and rad/s.
       qdd: (nv,) generalised accelerations, m/s^2 and rad/s^2 (on a robot: the numerical
         derivative of ``qd``).
-      tau: (nv,) generalised actuation forces (joint torques as the torque sensors give
-        them, zero on unactuated coordinates), N and N m.
-      M: (nv, nv) joint-space mass matrix M(q).
+      tau: (nv,) generalised actuation forces, the paper's ``S^T tau`` (joint torques as
+        the torque sensors give them, zero on unactuated coordinates), N and N m.
+      M: (nv, nv) joint-space mass matrix M(q), kg, kg m and kg m^2 by coordinate pair.
       h: (nv,) bias forces h(q, qd): Coriolis, centrifugal and gravity, N and N m.
-      J: (3, nv) translational Jacobian of the foot point, world frame.
+      J: (3, nv) translational Jacobian of the foot point, world frame; m/m on a linear
+        coordinate, m/rad on an angular one.
       Jdot_qd: (3,) bias acceleration of the foot point, d/dt(J) qd, m/s^2.
       p_f: (3,) foot point (centre of the foot sphere), world frame, m.
       v_f: (3,) foot point velocity, ``J @ qd``, m/s.

@@ -54,9 +54,9 @@ by default): every tuned std stays within ``[1/r, r]`` of its derived value,
 bound of the fit, so a run can no longer end on a value that check refuses (Barkour's
 normal force noise at x0.016, docs/tuning.md rule 12).
 
-Not tuned: ``dt``, the swing time (used only on invalid steps), the outlier model (from the
-sensors' outlier rate), the foothold threshold, the static switches, and
-``contact_damping`` unless asked for.
+Not tuned: ``dt``, the swing time (the prior out of the air: first and invalid steps),
+the outlier model (from the sensors' outlier rate), the foothold threshold, the static
+switches, and ``contact_damping`` unless asked for.
 
 Loss (minimised with ``optax``: Adam after clipping the gradient's global norm)::
 
