@@ -184,6 +184,14 @@ def cap_llr(llr: jax.Array, cap: jax.Array, cap_contact: jax.Array | None = None
 
     With ``cap_contact`` the contact side (positive ratios) is clipped to
     ``logit(cap_contact)`` instead. A cap of exactly 1 leaves that side unbounded.
+
+    Args:
+      llr: log-likelihood ratio ``log L(C) - log L(A)``, nats, any shape.
+      cap: () cap in (0.5, 1] of the air side (and of both without ``cap_contact``).
+      cap_contact: () cap of the contact side, or None.
+
+    Returns:
+      The clipped ratio, the shape of ``llr``.
     """
     upper = cap_bound(cap if cap_contact is None else cap_contact)
     return jnp.clip(llr, -cap_bound(cap), upper)

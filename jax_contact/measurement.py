@@ -285,6 +285,14 @@ def end_of_interval(params: EstimatorParams, leg: LegBlocks) -> LegBlocks:
     O(dt)). The kinematic terms and the transitions read this state, one step newer than
     the dynamics term's (docs/model_choices.md); ``kinematics_lead`` 0 returns the
     blocks' values unchanged.
+
+    Args:
+      params: estimator parameters (``kinematics_lead``, ``dt`` s).
+      leg: one foot's blocks (:func:`leg_blocks`).
+
+    Returns:
+      The blocks with ``v_f`` (3,) m/s, ``p_f`` (3,) m and ``qd_b`` moved to the end of
+      the interval; everything else as given.
     """
     dt = params.kinematics_lead * params.dt
     a_f = leg.J_l @ leg.qdd_l + leg.J_b @ leg.qdd_b + leg.Jdot_qd
@@ -301,6 +309,11 @@ def sole_gap(
     is the one below the foot centre at the queried height, so
     ``e . (p_f - r e - p_i) = e_z (z_f - height) - r``: the sole's distance from the
     terrain's tangent plane. ``sigma_pf^2 = e^T J Sigma_q J^T e``.
+
+    Args:
+      params: estimator parameters (``noise.sigma_q``, (nv,) m and rad).
+      meas: one foot's measurement, or its ``LegBlocks`` (``p_f`` (3,) m, ``J`` (3, nv)).
+      terrain: the terrain at the foot (``height`` m, ``normal`` (3,)).
 
     Returns:
       (mean gap (), foot-position std along e sigma_pf ()), both in m.

@@ -170,7 +170,8 @@ def _positive(name: str, value) -> jax.Array:
 
 
 def flat(height: float = 0.0, sigma: float = 0.2) -> FlatTerrain:
-    """A validated :class:`FlatTerrain` (``sigma`` in m; 0.2 m as in the paper's Section III).
+    """A validated :class:`FlatTerrain`: the plane ``z = height`` (m, world frame) with height
+    std ``sigma`` (m; 0.2 m as in the paper's Section III).
 
     A traced value (``height`` or ``sigma`` under ``jit``, ``vmap`` or ``grad``) is taken as
     it is, unchecked, so the terrain can be batched or differentiated; a concrete one is

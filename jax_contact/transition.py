@@ -36,6 +36,11 @@ LOG_FLOOR = -30.0
 def normal_velocity(params: EstimatorParams, meas: LegMeasurement | LegBlocks, normal: jax.Array):
     """Foot velocity along the impact axis and its std (eq. 13).
 
+    Args:
+      params: estimator parameters (``noise.sigma_qd``, (nv,) m/s and rad/s).
+      meas: one foot's measurement, or its ``LegBlocks`` (``J`` (3, nv), ``v_f`` (3,) m/s).
+      normal: (3,) unit impact axis ``e``, world frame.
+
     Returns:
       (u = e . v_f in m/s (), sigma_v = sqrt(e^T J Sigma_qd J^T e) in m/s ()); u > 0 is
       moving away from the ground.
@@ -54,6 +59,15 @@ def log_takeoff(params: EstimatorParams, u: jax.Array, sigma_v: jax.Array) -> ja
     ``u_max = a_F dt``, blurred by the velocity noise (eq. 14, ``v_f + w_v``; eq. 15 with
     the ``1 / u_max`` of the uniform density that the printed equation omits). Bayes'
     rule, normalised over the next state (eq. 11).
+
+    Args:
+      params: estimator parameters (``dt`` s, ``stance_time`` s, ``takeoff_accel`` m/s^2,
+        the outlier model).
+      u: () measured foot velocity along the impact axis, m/s (> 0: away from the ground).
+      sigma_v: () its std, m/s (:func:`normal_velocity`).
+
+    Returns:
+      (2,) log probabilities of the next state from contact, normalised.
     """
     u_max = params.takeoff_accel * params.dt
     p_off = params.dt / params.stance_time
@@ -201,6 +215,16 @@ def log_touchdown_quadrature(
     velocity integral runs over the lower half-line only (Gauss-Legendre in the CDF of the
     upper-truncated normal, smooth there); the foot position integral is Gauss-Hermite.
     ``n_quad`` nodes per dimension, ``n_quad^2`` evaluations.
+
+    Args:
+      gap, sigma_pf: () mean and std of the sole's height above the terrain mean, m.
+      sigma_pi: () std of the terrain height, m.
+      u, sigma_u: () mean and std of the foot velocity along the impact axis, m/s.
+      dt: () step, s.
+      n_quad: nodes per dimension (static).
+
+    Returns:
+      (2,) log [P(C | A), P(A | A)], in the inputs' dtype.
     """
     dtype = jnp.result_type(gap, sigma_pf, sigma_pi, u, sigma_u, dt)
     xh, wh = _gauss_hermite(n_quad, dtype)
@@ -237,6 +261,15 @@ def log_touchdown(
 
     Uses Monte-Carlo (Algorithm 1, ``params.n_samples`` draws from ``key``) or the
     quadrature (``params.n_quad``), as ``params.touchdown`` selects.
+
+    Args:
+      params: estimator parameters.
+      meas: one foot's measurement, or its ``LegBlocks``.
+      terrain: the terrain at the foot (height and std in m, normal).
+      key: PRNG key of the draws (unused by the quadrature).
+
+    Returns:
+      (2,) log probabilities of the next state from air.
     """
     gap, sigma_pf = sole_gap(params, meas, terrain)
     u, sigma_v = normal_velocity(params, meas, terrain.normal)
