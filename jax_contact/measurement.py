@@ -20,7 +20,8 @@ from jax_contact.types import LegBlocks, LegMeasurement, RobotMeasurement, Terra
 
 @struct.dataclass
 class MeasurementTerms:
-    """Capped log-likelihood ratios of the three terms, and the eq. 6 contact force.
+    """Capped log-likelihood ratios ``log L(C) - log L(A)`` (nats) of the three terms, and
+    the eq. 6 contact force.
 
     Attributes:
       dynamics: () eq. 4-7.

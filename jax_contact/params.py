@@ -181,6 +181,7 @@ class EstimatorParams:
 
     @property
     def nv(self) -> int:
+        """The model's number of generalised velocities, from the noise model's size."""
         return int(np.shape(self.noise.sigma_qd)[0])
 
 

@@ -93,6 +93,7 @@ class RobotDescription:
 
     @property
     def n_legs(self) -> int:
+        """Number of feet (L)."""
         return len(self.foot_names)
 
     @property

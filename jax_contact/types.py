@@ -100,6 +100,7 @@ class RobotMeasurement:
 
     @property
     def n_legs(self) -> int:
+        """Number of feet (L)."""
         return len(self.leg_dofs)
 
     def other_dofs(self, leg: int) -> tuple[int, ...]:
