@@ -1157,7 +1157,7 @@ def test_a_gm_grid_or_validation_log_of_another_robot_or_rate_is_refused_first(
     monkeypatch.setattr(evaluate, "replay", boom)
     monkeypatch.setattr(tune_inputs, "load_tuning_log", boom)
     a = _planar_log(tmp_path / "a.h5")
-    b = _planar_log(tmp_path / "b.h5")
+    b = _planar_log(tmp_path / "b.h5", n_t=13)  # another log (a copy is refused as a's)
     go1 = _planar_log(tmp_path / "go1.h5", attrs={"robot": "go1", "dt": 0.0025})
     slow = _planar_log(tmp_path / "slow.h5", attrs={"robot": "planar_leg", "dt": 0.005})
     for logs, grid, want in (

@@ -349,9 +349,10 @@ def _check_evaluate(args: argparse.Namespace) -> None:
         check_input_file("log", log)
     check_distinct_files("log", args.log)
     check_robot("--robot", args.robot)
-    check_output_file("--json", args.json)
     logs = {f"log {log!r}": log for log in args.log}
+    # An input named as the output: said as such, before the file's own checks.
     check_not_an_input("--json", args.json, **logs, gm_grid_log=args.gm_grid, params=args.params)
+    check_output_file("--json", args.json)
     if args.plots is not None:
         check_output_folder("--plots", args.plots)
         stems: dict[str, str] = {}
@@ -420,8 +421,8 @@ def _check_bench(args: argparse.Namespace) -> None:
 def _check_rates(args: argparse.Namespace) -> None:
     # A repeat ran again, its first result dropped.
     check_no_repeats("--scenes", args.scenes, "scene")
-    check_output_file("--json", args.json)
     check_not_an_input("--json", args.json, params=args.params)
+    check_output_file("--json", args.json)
     if args.params is not None:
         check_params_source("--params", args.params)
 

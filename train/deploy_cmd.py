@@ -178,8 +178,8 @@ def check_deploy_check(args: argparse.Namespace) -> None:
             raise ValueError(
                 f"argument --cpu: {args.cpu} is not one of this process's CPUs {allowed}"
             )
-    check_output_file("--json", args.json)
     check_not_an_input("--json", args.json, artefact=args.artefact, log=args.log, names=args.names)
+    check_output_file("--json", args.json)
 
 
 # -------------------------------------------------------------------------------- export

@@ -349,8 +349,8 @@ def check_tuning_options(args: argparse.Namespace) -> None:
     # atomic write will): checked before minutes of tuning, not after.
     from jax_contact.train.cli_args import check_not_an_input, check_output_file
 
-    check_output_file("--out", args.out, (".json",))
     check_not_an_input("--out", args.out, names=getattr(args, "names", None))
+    check_output_file("--out", args.out, (".json",))
 
 
 # ---------------------------------------------------------------------------------- run
