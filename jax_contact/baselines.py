@@ -280,8 +280,11 @@ def gm_step(
 
     A measurement with a NaN or inf in what this foot's observer reads (the leg's rows of
     ``M``, ``tau`` and ``h``, the velocities those rows involve, the leg's Jacobian
-    columns; not another leg's joints) leaves the state unchanged and repeats the last
-    force.
+    columns, and ``normal``; not another leg's joints) leaves the state unchanged and
+    repeats the last force. The next finite one catches up over the ``n`` steps since the
+    last update as ``n`` steps of the observer would with the readings held constant: the
+    residual moves by ``1 - (1 - K_I dt)^n`` of the way to the gap's external torque, not by
+    one step's ``K_I n dt`` of it (which overshoots once it exceeds 1).
 
     Args:
       params: the observer's knobs.
@@ -305,9 +308,19 @@ def gm_step(
     # the integral advances over as long (the readings held constant), not one step, which
     # left a spike of K_I times the gap's momentum change (22 N after 3 lost readings of a
     # swinging leg, a helper's audit; 0.2 N this way).
-    elapsed = (state.held + 1).astype(rows.dtype) * dt
-    integral = state.integral + (meas.tau[l] - meas.h[l] + state.residual) * elapsed + mdot_qd_dt
+    n = (state.held + 1).astype(rows.dtype)
+    integral = state.integral + (meas.tau[l] - meas.h[l] + state.residual) * n * dt + mdot_qd_dt
     residual = params.K_I * (p - state.p0 - integral)
+    # That is r_prev + K_I n dt (tau_ext - r_prev): one step's gain over the whole gap,
+    # which overshoots once K_I n dt > 1 (173 N for 60 N after 30 lost readings at K_I 40,
+    # a helper's audit). n steps of the observer with the gap's readings held give the gain
+    # 1 - (1 - K_I dt)^n; the integral is set to match the residual it gives.
+    a = jnp.asarray(params.K_I, rows.dtype) * jnp.asarray(dt, rows.dtype)  # the readings' precision
+    gain = -jnp.expm1(n * jnp.log1p(-jnp.minimum(a, 1.0))) / (a * n)
+    caught_up = state.residual + gain * (residual - state.residual)
+    after_gap = state.held > 0
+    residual = jnp.where(after_gap, caught_up, residual)
+    integral = jnp.where(after_gap, p - state.p0 - residual / params.K_I, integral)
     force = _foot_force(J_l, residual, params.damping)
     force_normal = -jnp.dot(normal, force)
 
