@@ -1247,6 +1247,34 @@ def test_several_logs_plots_appear_together_or_not_at_all(tmp_path, capsys, monk
     assert got["logs"][0]["plots"] == [str(plots / "reliability_a.png")]
 
 
+def test_a_slow_log_gets_a_gm_observer_that_does_not_diverge(tmp_path, capsys):
+    """evaluate's default K_I (50 1/s) on a 20 Hz log has K_I dt = 2.5, where the discrete
+    observer diverges (1e8 N, a helper's audit). The default is lowered to 1 / dt with a
+    note, and replay refuses a GM with K_I dt > 1, naming it."""
+    from jax_contact.baselines import make_gm_params
+    from jax_contact.envs.robots import load_robot
+    from jax_contact.train.evaluate import replay
+    from jax_contact.train.log_evaluate import evaluate_file
+
+    rng = np.random.default_rng(7)
+    n_t, dt = 40, 0.05
+    path = _planar_log(
+        tmp_path / "slow.h5", n_t=n_t, n_envs=2, attrs={"robot": "planar_leg", "dt": dt},
+        time=np.arange(n_t, dtype=np.float32) * dt,
+        **{"truth/contact": rng.random((n_t, 2, 1)) < 0.5},
+    )  # fmt: skip
+    result = evaluate_file(path)
+    assert "GM observer's default K_I is lowered to 1 / dt = 20 1/s" in capsys.readouterr().out
+    assert result["gm"]["K_I"] == pytest.approx(20.0)
+    assert np.isfinite(result["outputs"]["gm_force/gm"]).all()
+    readings = {k: np.zeros((3, 1, 3), np.float32) for k in ("qpos", "qvel", "qacc", "tau")}
+    with pytest.raises(ValueError, match=r"gms\['fast'\] has K_I = 50 1/s, and K_I dt = 2.5 > 1"):
+        replay(
+            load_robot("planar_leg"), readings, estimators={}, terrain=None,
+            gms={"fast": make_gm_params(K_I=50.0)}, dt=dt, progress=False,
+        )  # fmt: skip
+
+
 def test_logs_of_one_file_name_are_titled_by_their_paths(tmp_path, capsys):
     """Two tables both titled 'log.h5' (a helper's audit) could not be told apart."""
     rng = np.random.default_rng(6)

@@ -294,6 +294,12 @@ def evaluate_file(
             desc, dt, terrain_model, mj_model=log.robot.mj_model, noise=noise
         )[0]
     gm_name, gm = "gm", make_gm_params()
+    if float(gm.K_I) * dt > 1.0:  # a slow log: the default's pole would leave (0, 1]
+        gm = make_gm_params(K_I=1.0 / dt)
+        print(
+            f"note: the GM observer's default K_I is lowered to 1 / dt = {1.0 / dt:g} 1/s at"
+            f" this log's {1.0 / dt:g} Hz (K_I dt <= 1: above, the discrete observer overshoots)"
+        )
     kinematic = make_kinematic_params()
     # The baselines picked by the estimator's rule (tune_baselines), rows gm_fl and
     # kinematic_fl, where a point of the grid meets it.
