@@ -23,17 +23,25 @@ The procedure (paired: both detectors always see the same resample):
    equal to :func:`jax_contact.metrics.evaluate` on the resampled batch (a test checks
    this); 10 000 resamples cost milliseconds.
 2. For each statistic, the difference ``candidate - reference`` on that resample.
-3. The interval is the percentile interval of the ``B`` differences at ``level``
-   (``(1 - level) / 2`` and ``(1 + level) / 2`` quantiles, NaN resamples left out), and
-   the point estimate is the difference on the log itself.
+3. The interval is ``delta -+ h sd``: ``delta`` the difference on the log itself, ``sd``
+   the standard deviation of the ``B`` differences (NaN resamples left out), and
+   ``h = t_{E-1}((1 + level) / 2) sqrt(E / (E - 1))`` (:func:`student_half_width`): the
+   bootstrap's variance of a mean of ``E`` clusters is ``(E - 1) / E`` of the unbiased
+   one, and a mean of ``E`` clusters has ``E - 1`` degrees of freedom. Until the
+   fifty-fourth session the interval was the plain percentile one (the ``(1 -+ level) /
+   2`` quantiles of the differences), which is too narrow for few clusters: in a helper's
+   simulation (two equally good detectors, 1000 null batches each, F1) it called 7.6 % of
+   them better or worse at 16 envs, 13 % at 8 and 16 % at 5, against the 5 % a 95 %
+   interval promises; this interval calls 4.7 %, 5.6 % and 4.3 %, and still finds a true
+   F1 difference of 0.019 in 97 % of the batches at 8 envs and in all at 16.
 
 A statistic is *worse* when the whole interval lies on the worse side of 0, *better*
-when it lies on the better side, and *within noise* otherwise. With ``level = 0.95`` one
-cell in twenty is called better or worse by chance when two detectors are the same, so a
-table of 24 cells x 6 statistics will show a few such calls for identical detectors: read
-a lone call with that in mind. With ``E = 16`` envs the interval is itself rough (the
-bootstrap of a 16-sample cluster mean); it says whether a difference is of the size that
-re-running the rollouts produces, not more. Below :data:`MIN_ENVS` envs no call is made
+when it lies on the better side, and *within noise* otherwise. With ``level = 0.95`` about
+one cell in twenty is called better or worse by chance when two detectors are the same, so
+a table of 24 cells x 6 statistics will show a few such calls for identical detectors:
+read a lone call with that in mind. With ``E = 16`` envs the interval is itself rough;
+it says whether a difference is of the size that re-running the rollouts produces, not
+more. Below :data:`MIN_ENVS` envs no call is made
 (``too few envs``): 2 envs have 3 distinct resamples, 4 have 35, and the quantiles of so
 coarse a distribution are no 95 % interval (a 2-env log called differences "better" on
 intervals like [-0.20, -0.20]).
@@ -179,6 +187,23 @@ def _env_axis_inputs(reference, candidate, truth, valid):
     return ref, cand, tru, val
 
 
+def student_half_width(level: float, n_envs: int) -> float:
+    """The interval's half-width in bootstrap standard deviations (module docstring, step
+    3): ``t_{n-1}((1 + level) / 2) sqrt(n / (n - 1))``, e.g. 2.2013 for 0.95 at 16 envs
+    (``t_15(0.975)`` = 2.1314 times ``sqrt(16 / 15)`` = 1.0328).
+
+    Args:
+      level: the nominal coverage, in (0, 1).
+      n_envs: the number of envs resampled, >= 2.
+    """
+    import math
+
+    from scipy.stats import t as student_t
+
+    t = float(student_t.ppf((1.0 + level) / 2.0, n_envs - 1))
+    return t * math.sqrt(n_envs / (n_envs - 1.0))
+
+
 def paired_bootstrap(
     reference,
     candidate,
@@ -203,7 +228,7 @@ def paired_bootstrap(
       dt: time step, s.
       statistics: names in :data:`STATISTICS`.
       n_resamples: ``B``, the number of env resamples (>= 1).
-      level: the interval's coverage, in (0, 1).
+      level: the interval's coverage, in (0, 1) (:func:`student_half_width`).
       seed: the resampling generator's seed (same seed, same intervals).
       **evaluate_kwargs: passed to :func:`jax_contact.metrics.env_sums` (threshold,
         early_window_s, min_on, n_bins), as to :func:`jax_contact.metrics.evaluate`.
@@ -253,16 +278,18 @@ def paired_bootstrap(
     )
     full_ref, full_cand = sums_ref.pooled(np.ones(n_envs)), sums_cand.pooled(np.ones(n_envs))
     boot_ref, boot_cand = sums_ref.pooled(counts), sums_cand.pooled(counts)
-    q = ((1.0 - level) / 2.0, (1.0 + level) / 2.0)
+    half = student_half_width(level, n_envs)
     out = {}
     for s in statistics:
         st = STATISTICS[s]
         deltas = st.of(boot_cand) - st.of(boot_ref)
         d = deltas[np.isfinite(deltas)]
-        low, high = np.quantile(d, q) if d.size else (np.nan, np.nan)
+        ref_value, cand_value = float(st.of(full_ref)), float(st.of(full_cand))
+        spread = half * float(np.std(d)) if d.size > 1 else np.nan
+        low, high = cand_value - ref_value - spread, cand_value - ref_value + spread
         out[s] = Difference(
-            reference=float(st.of(full_ref)),
-            candidate=float(st.of(full_cand)),
+            reference=ref_value,
+            candidate=cand_value,
             low=float(low),
             high=float(high),
             higher_is_better=st.higher_is_better,

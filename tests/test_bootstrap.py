@@ -99,21 +99,25 @@ def test_identical_detectors_differ_by_exactly_nothing():
             assert dataclasses.replace(d, n_envs=None).verdict == "within noise", name
 
 
+# t_2(0.95) (scipy.stats.t.ppf(0.95, 2)): the 90 % interval's quantile for 3 envs.
+T2_95 = 2.9199855803537242
+
+
 @pytest.mark.parametrize(
-    "counts, low_c, high_c, verdict",
+    "counts, delta_m, verdict",
     [
         # Envs wrong on (0, 0, 3m) steps: a resample holds env 3 c ~ Binomial(3, 1/3) times,
-        # so the accuracy difference is -m c / T. P(c <= 2) = 26/27 = 0.963 >= 0.95 and
-        # P(c = 0) = 8/27 = 0.296 >= 0.05: the 90 % interval is c in [0, 2], i.e.
-        # [-2m/T, 0] -- one bad env of three is within noise.
-        ((0, 0, 3), 2, 0, "within noise"),
-        # Envs wrong on (m, m, 4m): the difference is -(m (3 - c) + 4m c) / (3T) =
-        # -m (1 + c) / T, interval c in [0, 2] -> [-3m/T, -m/T]: every env is worse, and
-        # the interval excludes 0.
-        ((1, 1, 4), 3, 1, "worse"),
+        # so the accuracy difference is -m c / T, delta (c = 1) -m / T. The bootstrap's sd
+        # is m / T sqrt(2/3) (Var c = 3 (1/3)(2/3)), and the half-width
+        # t_2(0.95) sqrt(3/2) sd = t_2(0.95) m / T: [-3.92, 1.92] m / T, within noise.
+        ((0, 0, 3), -3.0, "within noise"),
+        # Envs wrong on (2m, 2m, 3m): the difference is -m (2 (3 - c) + 3c) / (3T) =
+        # -m (6 + c) / (3T), delta -7m / (3T), half-width t_2(0.95) m / (3T):
+        # [-9.92, -4.08] m / (3T), worse.
+        ((2, 2, 3), -7.0, "worse"),
     ],
 )
-def test_accuracy_interval_matches_the_binomial_derivation(counts, low_c, high_c, verdict):
+def test_accuracy_interval_matches_the_binomial_derivation(counts, delta_m, verdict):
     m = 5
     truth = _always_on_truth(3)
     reference = _wrong_steps((0, 0, 0))
@@ -124,9 +128,10 @@ def test_accuracy_interval_matches_the_binomial_derivation(counts, low_c, high_c
     )  # fmt: skip
     d = out["accuracy"]
     assert d.reference == 1.0
-    assert d.delta == pytest.approx(-m * sum(counts) / (3 * T))
-    assert d.low == pytest.approx(-low_c * m / T)
-    assert d.high == pytest.approx(-high_c * m / T)
+    assert d.delta == pytest.approx(delta_m * m / (3 * T))
+    half = T2_95 * m / (T if counts[0] == 0 else 3 * T)
+    # The bootstrap's sd from 20000 resamples: within 2 % of the binomial one.
+    assert (d.low, d.high) == pytest.approx((d.delta - half, d.delta + half), rel=2e-2)
     # Three envs (10 distinct resamples) get no verdict from the table; the interval's own
     # reading is the derivation's.
     assert d.verdict == "too few envs" and verdicts(out) == {"better": [], "worse": []}
@@ -138,9 +143,19 @@ def test_accuracy_interval_matches_the_binomial_derivation(counts, low_c, high_c
     }
 
 
+def test_the_half_width_is_students_with_the_bootstrap_variance_unbiased():
+    from jax_contact.bootstrap import student_half_width
+
+    # t_15(0.975) = 2.131450 (tables) times sqrt(16 / 15) = 1.032796: 2.201354.
+    assert student_half_width(0.95, 16) == pytest.approx(2.131450 * 1.032796, rel=1e-6)
+    assert student_half_width(0.9, 3) == pytest.approx(T2_95 * (1.5**0.5), rel=1e-12)
+
+
 def test_swapping_the_detectors_mirrors_the_interval_and_the_verdict():
     truth = _always_on_truth(3)
-    a, b = _wrong_steps((0, 0, 0)), _wrong_steps((5, 5, 20))
+    # Wrong on (10, 10, 15) steps: the difference -(30 + 5c) / (3T), delta -35 / (3T),
+    # half-width t_2(0.95) 5 / (3T) = 14.6 / (3T): worse one way, better the other.
+    a, b = _wrong_steps((0, 0, 0)), _wrong_steps((10, 10, 15))
     kw = dict(dt=DT, statistics=("accuracy",), n_resamples=500, level=0.9, seed=7)
     ab = paired_bootstrap(a, b, truth, **kw)["accuracy"]
     ba = paired_bootstrap(b, a, truth, **kw)["accuracy"]

@@ -160,8 +160,9 @@ def add_terrain_model_flag(p: argparse.ArgumentParser) -> None:
         help="the estimator's ground: flat, a plane at z = 0 of the log's world frame (std"
         " 5 cm, 0.2 m for the planar leg: the reproduction's); memory, where each foot last"
         " stood, averaged over its stance: for a base position that drifts"
-        " (docs/model_choices.md). Default: the one the --params file was tuned with (its"
-        " provenance), else flat",
+        " (docs/model_choices.md; the kinematic detector keeps no memory and always reads the"
+        " flat plane, which a drifting base costs it). Default: the one the --params file was"
+        " tuned with (its provenance), else flat",
     )
 
 
