@@ -42,9 +42,10 @@ a table of 24 cells x 6 statistics will show a few such calls for identical dete
 read a lone call with that in mind. With ``E = 16`` envs the interval is itself rough;
 it says whether a difference is of the size that re-running the rollouts produces, not
 more. Below :data:`MIN_ENVS` envs no call is made
-(``too few envs``): 2 envs have 3 distinct resamples, 4 have 35, and the quantiles of so
-coarse a distribution are no 95 % interval (a 2-env log called differences "better" on
-intervals like [-0.20, -0.20]).
+(``too few envs``): 2 envs have 3 distinct resamples, 4 have 35, and so coarse a
+distribution's spread says little about the rollouts' (with the percentile interval used
+before, a 2-env log called differences "better" on intervals like [-0.20, -0.20]; the
+Student interval's own null rate was measured from 5 envs up).
 
 Evaluation code, NumPy in float64, like :mod:`jax_contact.metrics`.
 """
@@ -195,10 +196,18 @@ def student_half_width(level: float, n_envs: int) -> float:
     Args:
       level: the nominal coverage, in (0, 1).
       n_envs: the number of envs resampled, >= 2.
+
+    Raises:
+      ValueError: ``n_envs`` below 2 (no spread to scale) or ``level`` outside (0, 1).
     """
     import math
 
     from scipy.stats import t as student_t
+
+    if isinstance(n_envs, bool) or not isinstance(n_envs, int | np.integer) or n_envs < 2:
+        raise ValueError(f"n_envs must be an integer >= 2, got {n_envs!r}")
+    if not 0.0 < level < 1.0:
+        raise ValueError(f"level must lie in (0, 1), got {level!r}")
 
     t = float(student_t.ppf((1.0 + level) / 2.0, n_envs - 1))
     return t * math.sqrt(n_envs / (n_envs - 1.0))

@@ -149,6 +149,8 @@ def test_the_half_width_is_students_with_the_bootstrap_variance_unbiased():
     # t_15(0.975) = 2.131450 (tables) times sqrt(16 / 15) = 1.032796: 2.201354.
     assert student_half_width(0.95, 16) == pytest.approx(2.131450 * 1.032796, rel=1e-6)
     assert student_half_width(0.9, 3) == pytest.approx(T2_95 * (1.5**0.5), rel=1e-12)
+    with pytest.raises(ValueError, match="n_envs must be an integer >= 2, got 1"):
+        student_half_width(0.95, 1)
 
 
 def test_swapping_the_detectors_mirrors_the_interval_and_the_verdict():

@@ -1528,11 +1528,21 @@ def test_json_output_that_is_a_device_fifo_or_log_is_refused_and_a_link_written_
     os.mkfifo(fifo)
     other = tmp_path / "other.h5"
     other.write_bytes(Path(log).read_bytes())
-    for path, says in ((fifo, "is a FIFO, not a file"), (other, "holds no JSON")):
+    # A CSV recording whose header starts "time," passed a first-byte test (a second
+    # helper's check): now the file must parse as JSON to be replaced.
+    csv = tmp_path / "rec.csv"
+    csv.write_text("time,q/FR_hip\n0,0\n")
+    for path, says in (
+        (fifo, "is a FIFO, not a file"),
+        (other, "holds no JSON"),
+        (csv, "holds no JSON"),
+    ):
         assert cli.main(["evaluate", log, "--json", str(path)]) == 2
         err = capsys.readouterr().err
         assert f"argument --json: {str(path)!r} " in err and says in err, err
     assert fifo.is_fifo() and other.read_bytes() == Path(log).read_bytes()
+    assert csv.read_text() == "time,q/FR_hip\n0,0\n"
+    csv.unlink()
     with pytest.raises(OSError, match=r"cannot replace '.*fifo': it is a FIFO, not a file"):
         write_text_atomic(fifo, "{}")
     assert fifo.is_fifo()

@@ -582,15 +582,29 @@ def check_output_file(arg: str, path: str | None, suffixes: tuple[str, ...] = ()
     check_output_folder(arg, p.resolve().parent if p.is_symlink() else p.parent)
 
 
+# The largest existing file a JSON output may replace after parsing it (this library's
+# JSON outputs are far smaller; a larger file is refused unread).
+JSON_REPLACE_MAX_BYTES = 64 << 20
+
+
 def _holds_json(path: Path) -> bool:
-    """Whether ``path``'s first non-blank byte opens JSON (``{``, ``[``, ``"``, a digit,
-    ``-``, ``t``, ``f``, ``n``) or the file is empty: a cheap test, not a parse."""
+    """Whether ``path`` is empty or parses as JSON (a CSV whose header starts ``time,``
+    passed a first-byte test and was replaced)."""
+    import json
+
     try:
-        with open(path, "rb") as f:
-            head = f.read(64).lstrip()
+        if path.stat().st_size > JSON_REPLACE_MAX_BYTES:
+            return False
+        text = path.read_bytes()
     except OSError:
         return True  # unreadable: the write's own error names it
-    return not head or head[:1] in b'{["-0123456789tfn'
+    if not text.strip():
+        return True
+    try:
+        json.loads(text)
+    except ValueError:  # JSONDecodeError, UnicodeDecodeError
+        return False
+    return True
 
 
 class HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):

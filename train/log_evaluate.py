@@ -42,8 +42,8 @@ def scored_steps(out: dict, truth: np.ndarray, valid: np.ndarray):
 
 
 UNTUNED_BASELINES = (
-    "gm and kinematic: the baselines at their untuned defaults (K_I 50 1/s, 20 N; 2 cm,"
-    " 0.3 m/s), not tuned for this robot"
+    "gm and kinematic: the baselines at their untuned defaults (K_I 50 1/s, or 1/dt on a"
+    " log slower than 50 Hz, 20 N; 2 cm, 0.3 m/s), not tuned for this robot"
 )
 GM_GRID_HINT = "; --gm-grid LOG tunes them on another seed's log, as the reproduction does"
 

@@ -357,8 +357,9 @@ def degenerate_quaternions_lost(name: str, qpos: np.ndarray, valid: np.ndarray, 
     if not counts:
         return None
     return (
-        f"note: {name}: joint quaternions with a norm below {MIN_QUATERNION_NORM:g} (no"
-        f" orientation), read as lost readings: {', '.join(counts)} step-env rows"
+        f"note: {name}: quaternions (the base's, a ball joint's) with a norm below"
+        f" {MIN_QUATERNION_NORM:g} (no orientation), read as lost readings (NaN):"
+        f" {', '.join(counts)} step-env rows"
     )
 
 
