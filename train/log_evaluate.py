@@ -294,7 +294,9 @@ def evaluate_file(
             desc, dt, terrain_model, mj_model=log.robot.mj_model, noise=noise
         )[0]
     gm_name, gm = "gm", make_gm_params()
-    if float(gm.K_I) * dt > 1.0:  # a slow log: the default's pole would leave (0, 1]
+    # A slow log: the default's pole would leave (0, 1]. (With --gm-grid the tuned GM runs
+    # instead, and without truth no GM runs: no note then.)
+    if float(gm.K_I) * dt > 1.0 and gm_grid_log is None and truth is not None:
         gm = make_gm_params(K_I=1.0 / dt)
         print(
             f"note: the GM observer's default K_I is lowered to 1 / dt = {1.0 / dt:g} 1/s at"
