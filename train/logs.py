@@ -346,11 +346,11 @@ def degenerate_quaternions_lost(name: str, qpos: np.ndarray, valid: np.ndarray, 
     orientation, and deploy-check's offline reference disagreed with the exported file by
     up to 0.99 in P.)"""
     from jax_contact.export import MIN_QUATERNION_NORM, quaternion_slices
+    from jax_contact.train.recording_checks import degenerate_quaternion
 
     counts = []
     for a in quaternion_slices(mj_model):
-        norm = np.linalg.norm(qpos[..., a : a + 4], axis=-1)
-        bad = np.isfinite(norm) & (norm < MIN_QUATERNION_NORM)
+        bad = degenerate_quaternion(qpos[..., a : a + 4])
         qpos[..., a : a + 4][bad] = np.nan
         if n := int((bad & valid).sum()):
             counts.append(f"qpos[{a}:{a + 4}] on {n}")

@@ -47,13 +47,14 @@ def outside_range(m, j: int, q: np.ndarray, *, name: str, hinge: bool, units: st
 
 
 def degenerate_quaternion(quat: np.ndarray) -> np.ndarray:
-    """(T,) bool: the rows of ``quat`` ((T, 4), w, x, y, z) whose norm is finite and below
+    """(...) bool: the quaternions of ``quat`` ((..., 4), w, x, y, z; a recording's (T, 4),
+    a log's (T, E, 4)) whose norm is finite and below
     :data:`jax_contact.export.MIN_QUATERNION_NORM`: no orientation (a driver's zero fill),
     read as lost (NaN) like a dropped packet, by the offline replay and the exported
     estimator alike (docs/deploy.md)."""
     from jax_contact.export import MIN_QUATERNION_NORM
 
-    norm = np.linalg.norm(quat, axis=1)
+    norm = np.linalg.norm(quat, axis=-1)
     return np.isfinite(norm) & (norm < MIN_QUATERNION_NORM)
 
 
