@@ -42,18 +42,38 @@ def _concrete_float(x) -> float | None:
     return float(np.asarray(x))
 
 
+def check_gain(K_I, dt, owner: str = "params") -> None:
+    """Refuses a GM gain the discrete observer cannot run at the period ``dt``.
+
+    The observer's pole is ``1 - K_I dt`` (:func:`gm_step`): above ``K_I dt = 1`` it
+    overshoots, above 2 it diverges (a K_I of 50 1/s on a 20 Hz log ran to 1e8 N). Does
+    nothing when either value is traced.
+
+    Args:
+      K_I: () observer gain, 1/s.
+      dt: () time step, s.
+      owner: what holds ``K_I``, for the message (e.g. ``"gms['fast']"``).
+
+    Raises:
+      ValueError: ``K_I * dt > 1``, naming ``owner``.
+    """
+    k_val, dt_val = _concrete_float(K_I), _concrete_float(dt)
+    if k_val is not None and dt_val is not None and k_val * dt_val > 1.0:
+        raise ValueError(
+            f"{owner} has K_I = {k_val:g} 1/s, and K_I dt = {k_val * dt_val:.3g} > 1 at the"
+            f" readings' dt = {dt_val:g} s: the discrete observer overshoots above 1 and"
+            f" diverges above 2; use K_I <= {1.0 / dt_val:g}"
+        )
+
+
 def _check_dt(dt, K_I=None) -> None:
     dt_val = _concrete_float(dt)
     if dt_val is None:
         return
     if np.shape(dt) != () or not np.isfinite(dt_val) or dt_val <= 0:
         raise ValueError(f"dt must be a finite scalar > 0, got {dt!r}")
-    k_val = None if K_I is None else _concrete_float(K_I)
-    if k_val is not None and k_val * dt_val > 1.0:
-        raise ValueError(
-            f"K_I * dt must be <= 1 (K_I = {k_val} 1/s, dt = {dt_val} s): the discrete "
-            "observer overshoots above 1 and diverges above 2"
-        )
+    if K_I is not None:
+        check_gain(K_I, dt_val)
 
 
 def _check_meas(meas: LegMeasurement, lead: tuple[int, ...], name: str = "meas") -> None:

@@ -323,7 +323,8 @@ def test_gm_bad_input_raises():
         gm_run(params, good.replace(other_dofs=good.other_dofs[:, :2]), DT, jnp.ones(3))
     with pytest.raises(ValueError, match="normal"):
         gm_run(params, good, DT, jnp.ones(2))
-    with pytest.raises(ValueError, match=r"K_I \* dt"):
+    # K_I dt = 40 * 0.1 = 4 > 1: the pole 1 - K_I dt = -3 diverges.
+    with pytest.raises(ValueError, match=r"params has K_I = 40 1/s, and K_I dt = 4 > 1"):
         gm_run(params, good, 0.1, jnp.ones(3))
     with pytest.raises(ValueError, match="dt"):
         gm_run(params, good, -DT, jnp.ones(3))
