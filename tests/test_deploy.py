@@ -252,7 +252,11 @@ def test_a_log_with_a_zero_base_quaternion_reads_it_as_lost(deployed, child, cap
     arrays["readings/qpos"][40:43, 0, 3:7] = 0.0
     path = write_log(deployed["tmp"] / "zeroed.h5", arrays, attrs)
     log = load_log(path)
-    assert "qpos[3:7] on 3 step-env rows" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "qpos[3:7] on 3 step-env rows" in err
+    # The file held zeros, not NaN: the second note calls them lost, not "not finite".
+    assert "readings that are lost (not finite, or the quaternions above) on valid steps" in err
+    assert "not finite on valid steps" not in err
     qpos = log.readings["qpos"]
     assert (
         np.isnan(qpos[40:43, 0, 3:7]).all() and np.isfinite(np.delete(qpos, [40, 41, 42], 0)).all()

@@ -331,9 +331,9 @@ def load_log(
             else f"robot {robot_name!r} has {desc.n_legs}"
         )
         raise ValueError(f"{name}: array {TRUTH_CONTACT!r} has {truth.shape[-1]} feet but {whose}")
-    if note := degenerate_quaternions_lost(name, readings["qpos"], valid, robot.mj_model):
-        print(note, file=sys.stderr)
-    if note := non_finite_note(name, readings, valid):
+    if zeroed := degenerate_quaternions_lost(name, readings["qpos"], valid, robot.mj_model):
+        print(zeroed, file=sys.stderr)
+    if note := non_finite_note(name, readings, valid, zeroed_quaternions=zeroed is not None):
         print(note, file=sys.stderr)
     return LoadedLog(name, robot, readings, truth, valid, dt, attrs, lost=note is not None)
 
@@ -363,11 +363,15 @@ def degenerate_quaternions_lost(name: str, qpos: np.ndarray, valid: np.ndarray, 
     )
 
 
-def non_finite_note(name: str, readings: dict, valid: np.ndarray) -> str | None:
+def non_finite_note(
+    name: str, readings: dict, valid: np.ndarray, zeroed_quaternions: bool = False
+) -> str | None:
     """A note naming the readings arrays that hold a NaN or inf on valid steps, with the
     number of (step, env) rows each: the estimator skips those steps on the feet whose
     terms read the lost entry (its prediction alone, ``valid`` False in its diagnostics),
-    and the metrics leave those foot-steps out (:func:`scored_steps`)."""
+    and the metrics leave those foot-steps out (:func:`scored_steps`).
+    ``zeroed_quaternions``: :func:`degenerate_quaternions_lost` set some to NaN, so the
+    note calls the entries lost, not "not finite" (the file held zeros there)."""
     counts = {
         key: int((~np.isfinite(a).all(axis=-1) & valid).sum())
         for key, a in readings.items()
@@ -378,8 +382,9 @@ def non_finite_note(name: str, readings: dict, valid: np.ndarray) -> str | None:
         return None
     total = int(valid.sum())
     listed = ", ".join(f"readings/{k} {n}" for k, n in bad.items())
+    what = "lost (not finite, or the quaternions above)" if zeroed_quaternions else "not finite"
     return (
-        f"note: {name}: readings that are not finite on valid steps ({listed}, of {total}"
+        f"note: {name}: readings that are {what} on valid steps ({listed}, of {total}"
         " step-env rows): the feet whose terms read them get the estimator's prediction"
         " alone there, and those foot-steps are left out of the metrics"
     )
