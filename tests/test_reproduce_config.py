@@ -278,6 +278,15 @@ def test_failure_limited_pick_follows_the_estimators_rule():
     line = R.format_failure_limited(fl | {"kinematic_fl": record("a", 0.05)})
     assert "gm_walk_fl w; gm_trot_fl t; no row kinematic_fl" in " ".join(line.split())
     assert "(the fewest: a, 5 % of swings)" in " ".join(line.split())
+    # The run's log line too: the corner it printed read as a pick (on the grid's edge).
+    record_a = record("a", 0.05) | {"grid_edges": ["height_threshold at its smallest"]}
+    assert R._limited_line("kinematic_fl", record_a) == (
+        "  kinematic_fl by the estimator's rule: no row, no point of its grid meets it (the"
+        " fewest: a, 5 % of swings)"
+    )
+    assert R._limited_line("gm_walk_fl", fl["gm_walk_fl"]) == (
+        "  gm_walk_fl by the estimator's rule: w"
+    )
 
 
 def test_each_seed_walks_its_own_rough_floor():

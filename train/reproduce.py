@@ -476,6 +476,17 @@ def _edge_note(edges: list[str]) -> str:
     return f" (on the grid's edge: {', '.join(edges)})" if edges else ""
 
 
+def _limited_line(row: str, record: dict) -> str:
+    """The log line of one :func:`failure_limited_record`; where no point of the grid meets
+    :data:`FAILURE_LIMIT` it says so (the point printed is the one with the fewest, no row)."""
+    if not record["row"]:
+        return (
+            f"  {row} by the estimator's rule: no row, no point of its grid meets it (the"
+            f" fewest: {record['pick']}, {100 * record['swing_share']:.0f} % of swings)"
+        )
+    return f"  {row} by the estimator's rule: {record['pick']}" + _edge_note(record["grid_edges"])
+
+
 # Section III's printed rows: the ablation's, GM tuned for F1 and GM by the estimator's rule.
 SECTION3_ROWS = (*ABLATION_ROWS, "gm", "gm_fl")
 
@@ -514,7 +525,7 @@ def section3(cfg: ReproduceConfig, out_dir: Path) -> dict:
     _log(f"  GM tuned on seed {cfg.seed + 1000}: {gm}{_edge_note(edges)}")
     # As in Table III, GM also by the estimator's rule, where a point of the grid meets it.
     fl = failure_limited_record(gms, tuning, GM_FIELDS)
-    _log(f"  gm_fl by the estimator's rule: {fl['pick']}{_edge_note(fl['grid_edges'])}")
+    _log(_limited_line("gm_fl", fl))
     fl_rows = ["gm_fl"] if fl["row"] else []
     roll, out = run_seed(cfg.seed)
     out["gm"] = out[gm]
@@ -710,7 +721,7 @@ def table3(cfg: ReproduceConfig, out_dir: Path, tuned_row: dict | None = None) -
     _log(f"  kinematic detector tuned on both: {tuned_kin}{_edge_note(edges['kinematic'])}")
     limited["kinematic_fl"] = failure_limited_record(kins, kin_scores, KIN_FIELDS)
     for row, r in limited.items():
-        _log(f"  {row} by the estimator's rule: {r['pick']}{_edge_note(r['grid_edges'])}")
+        _log(_limited_line(row, r))
     # A failure-limited row only where some point of the grid met the limit: the point
     # with the fewest failures of a grid that cannot is no tuning, only a corner of it.
     fl_rows = [row for row, r in limited.items() if r["row"]]
