@@ -90,13 +90,14 @@ SLIP_PROB = 0.3
 SLIP_SPEED = 1.0
 
 
-def still_cap(dt: float) -> float:
+def still_cap(dt: float, air_cap: float = CAP_DIFF_KINEMATICS) -> float:
     """The still-side cap of the differential-kinematics term at period ``dt`` (s):
-    ``sigmoid(STILL_EVIDENCE_PER_S dt)``, at most :data:`CAP_DIFF_KINEMATICS`."""
-    logit = min(
-        STILL_EVIDENCE_PER_S * float(dt),
-        float(np.log(CAP_DIFF_KINEMATICS / (1 - CAP_DIFF_KINEMATICS))),
-    )
+    ``sigmoid(STILL_EVIDENCE_PER_S dt)``, at most the air side's cap ``air_cap``
+    (:data:`CAP_DIFF_KINEMATICS` unless the parameters set another)."""
+    air = float(air_cap)
+    logit = STILL_EVIDENCE_PER_S * float(dt)
+    if air < 1.0:
+        logit = min(logit, float(np.log(air / (1.0 - air))))
     return float(1.0 / (1.0 + np.exp(-logit)))
 
 
@@ -320,7 +321,10 @@ def params_for(
         touchdown="quadrature",
         cap_dynamics=0.99,
         cap_diff_kinematics=CAP_DIFF_KINEMATICS,
-        cap_diff_kinematics_still=still_cap(dt),
+        # At most the air side's cap, the one given in overrides where there is one.
+        cap_diff_kinematics_still=still_cap(
+            dt, overrides.get("cap_diff_kinematics", CAP_DIFF_KINEMATICS)
+        ),
         cap_kinematics=0.99,
         cap_transition=0.9,
         outlier_prob=float(np.clip(2 * n_l * float(s["outlier_prob"]), 0.01, 0.5)),
@@ -344,7 +348,8 @@ def change_period(params: EstimatorParams, derived_old, derived_new) -> Estimato
     logit(new) / logit(old)``). So what the rules scale with the period moves with it
     (``sigma_qdd`` ~ 1 / dt for a differenced velocity, the still-side cap's log-odds ~ dt,
     the outlier width ~ 1 / dt) and every other value is the file's: where ``old`` equals
-    ``new`` it is kept, as is a value whose ``old`` is 0 (or a cap's 0.5 or 1).
+    ``new`` it is kept, as is a value whose ``old`` is 0 (or a cap's 0.5 or 1). The still
+    side's cap grows to at most the (moved) air side's, as :func:`still_cap`'s.
 
     Args:
       params: the parameters to move (e.g. a tuned file), at ``derived_old.dt``.
@@ -388,6 +393,13 @@ def change_period(params: EstimatorParams, derived_old, derived_new) -> Estimato
         n: moved(n, getattr(params, n), getattr(derived_old, n), getattr(derived_new, n))
         for n in fields(params, skip=("noise", "dt"))
     }
+    # The still side's log-odds grow with the period; as params_for's, they grow to at most
+    # the air side's cap (Spot's tuned 0.876 was passed by a still cap moved from 0.66 at
+    # 400 Hz to 0.91 at 100 Hz). A file's own still cap above its air cap is its own.
+    values["cap_diff_kinematics_still"] = jnp.minimum(
+        values["cap_diff_kinematics_still"],
+        jnp.maximum(values["cap_diff_kinematics"], params.cap_diff_kinematics_still),
+    )
     return params.replace(
         noise=params.noise.replace(**noise), dt=jnp.float32(derived_new.dt), **values
     )

@@ -327,6 +327,38 @@ def test_still_side_cap_is_a_rate_of_evidence(go1):
         assert got == pytest.approx(want, abs=1e-6)
 
 
+def test_the_still_side_cap_stays_at_most_the_air_sides_at_any_period(go1):
+    """A helper's float64 oracle: an air cap set below the still side's was passed by it
+    (params_for's override, the still cap clamped to the constant 0.9), and a tuned file
+    moved to a slower rate got a still cap above its own air cap. By hand, Spot's preset
+    (air 0.876, still 0.660 at 400 Hz) moved to 100 Hz, where the rules' still cap goes
+    0.65 -> 0.9: logit 0.663 x 2.197 / 0.619 = 2.35, a cap of 0.913 > 0.876."""
+    from jax_contact.defaults import change_period
+
+    for dt, want in ((0.0025, 0.6), (0.01, 0.6)):  # 0.65 and 0.9 without the override
+        sp = sensor_preset("anymal_like", go1.nv, dt=dt)
+        p = jc.params_for(go1, sp, dt, cap_diff_kinematics=0.6)
+        assert float(p.cap_diff_kinematics_still) == pytest.approx(want, abs=1e-6)
+    spot = load_robot("spot").description
+    tuned = jc.load_params("spot")
+    air = float(tuned.cap_diff_kinematics)
+    assert float(tuned.cap_diff_kinematics_still) < 0.7 < air < 0.9
+
+    def derived(dt):
+        return jc.params_for(spot, sensor_preset("anymal_like", spot.nv, dt=dt), dt)
+
+    moved = change_period(tuned, derived(0.0025), derived(0.01))
+    assert float(moved.cap_diff_kinematics) == pytest.approx(air, abs=1e-6)  # 0.9 both
+    assert float(moved.cap_diff_kinematics_still) == pytest.approx(air, abs=1e-6)
+    # At its own period, and a little slower, the file's value moves as the rules' do.
+    same = change_period(tuned, derived(0.0025), derived(0.0025))
+    assert float(same.cap_diff_kinematics_still) == float(tuned.cap_diff_kinematics_still)
+    odds = float(tuned.cap_diff_kinematics_still) / (1 - float(tuned.cap_diff_kinematics_still))
+    want = odds**2 / (1 + odds**2)  # 5 ms: the rules' log-odds double, so the file's do
+    slower = change_period(tuned, derived(0.0025), derived(0.005))
+    assert float(slower.cap_diff_kinematics_still) == pytest.approx(want, abs=1e-5)
+
+
 def test_load_params_of_a_folder_or_of_no_path_is_one_clear_error(tmp_path, monkeypatch):
     with pytest.raises(ValueError, match=r"parameter file '.*' is a folder"):
         jc.load_params(tmp_path)
