@@ -22,9 +22,10 @@ import numpy as np
 
 
 def sigmoid_np(logit) -> np.ndarray:
-    """P = sigmoid(logit) in float64 NumPy (no overflow)."""
+    """P = sigmoid(logit) in float64 NumPy (no overflow; NaN stays NaN, silently)."""
     x = np.asarray(logit, np.float64)
-    return np.exp(-np.logaddexp(0.0, -x))
+    with np.errstate(invalid="ignore"):  # logaddexp of a NaN warns; the NaN is the answer
+        return np.exp(-np.logaddexp(0.0, -x))
 
 
 CALIBRATION_KINDS = ("sign", "affine")

@@ -33,8 +33,9 @@ Robustness (docs/model_choices.md, "Robust likelihoods"): the outlier component'
 ``eps = clip(2 n_l p, 0.01, 0.5)`` from the sensors' per-sample outlier probability ``p``
 (an outlier of any of the leg's ``n_l`` joints spikes two differenced accelerations),
 never below 1 % because a real robot's outliers are never known exactly; its widths from
-the outlier spike (``2 size / dt`` for accelerations, 8000 rad/s^2 when the sensors model
-none) and 4 m/s for foot velocities. Caps: 0.99 dynamics, 0.9 differential kinematics on
+the outlier spike (``2 size / dt`` for accelerations, with ``size`` the largest spike of
+any coordinate, base included; 8000 rad/s^2 when every spike size is 0, whatever the
+probability) and 4 m/s for foot velocities. Caps: 0.99 dynamics, 0.9 differential kinematics on
 the air side, 0.99 kinematics, 0.9 transitions. The still side of differential kinematics
 is a rate of evidence, not a per-step value: :data:`STILL_EVIDENCE_PER_S` log-odds per
 second (0.65 per step at 400 Hz, where it was chosen), so ``logit(cap) = rate x dt``, at

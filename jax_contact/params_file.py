@@ -292,7 +292,10 @@ def load_params(path: str | os.PathLike, *, with_provenance: bool = False):
         see :class:`jax_contact.tune.Calibration`).
 
     Returns:
-      The validated :class:`~jax_contact.EstimatorParams`, or ``(params, provenance)``.
+      The validated :class:`~jax_contact.EstimatorParams`, or ``(params, provenance)``;
+      every value float32, as :func:`jax_contact.make_params` makes them, whatever the
+      precision the file was written at (a float64 value saved and read back is its
+      float32 rounding).
 
     Raises:
       ValueError: the file is missing (or the name is no preset), is not JSON, or a field

@@ -11,6 +11,7 @@ import functools
 import json
 import subprocess
 import sys
+import warnings
 
 import jax
 import jax.flatten_util
@@ -673,6 +674,10 @@ def test_fit_calibration_per_side_recovers_both_temperatures_and_keeps_every_sig
     np.testing.assert_allclose(
         p, 1 / (1 + np.exp(-np.array([l_03 / cal.temperature_air, 0.0, l_09 / cal.temperature])))
     )
+    with warnings.catch_warnings():  # a lost P stays NaN, without a RuntimeWarning
+        warnings.simplefilter("error")
+        lost = jt.calibrate_probability(np.array([np.nan, 0.3]), cal)
+    assert np.isnan(lost[0]) and lost[1] == pytest.approx(p[0])
     # Round trip, files of the affine map before (no kind, no temperature_air), errors.
     assert jt.Calibration.from_dict(cal.as_dict()) == cal
     old = jt.Calibration.from_dict({"temperature": 2.0, "bias": 0.7})

@@ -219,7 +219,7 @@ def scored_air_steps(logits: jax.Array, window: TuningData) -> jax.Array:
       (``jax_contact.metrics`` rule 7 needs a rise of the flag in the air);
     - minus the run into the touch-down: going back from the true touch-down ``t0`` over
       the early window (``AirPhases.td_window``), a flagged step followed by a flagged
-      step, or an unflagged one below the next logit (the rise toward the detection);
+      step, or an unflagged one at or below the next logit (the rise toward the detection);
       the detection itself (rule 4) and the approach to it are not false contacts. A
       blip (on, then off) before the detection breaks the run and is scored.
     """
