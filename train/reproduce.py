@@ -85,9 +85,10 @@ ADDED_MASS_SHARES = (0.24, 0.016)  # of the robot's total mass: base body, first
 # its trot at K_I 150, Spot's trot at 150 and 60 N): a baseline held back by its grid. The
 # slowest gain (2 1/s) and the thresholds above a foot's share (1.2, 1.6: a trot's stance
 # foot carries about two shares) since the fiftieth session, where the picks of the rows
-# *_fl (FAILURE_LIMIT) sat on the grid's slow, high corner.
+# *_fl (FAILURE_LIMIT) sat on the grid's slow, high corner. 2.0 and 2.5 shares since the
+# fifty-fifth session: Spot's gm_trot_fl had sat at 1.6, the largest threshold.
 GM_K_I = (2.0, 5.0, 20.0, 50.0, 150.0, 300.0)
-GM_LOAD_FRACTIONS = (0.05, 0.1, 0.2, 0.35, 0.5, 0.7, 0.9, 1.2, 1.6)
+GM_LOAD_FRACTIONS = (0.05, 0.1, 0.2, 0.35, 0.5, 0.7, 0.9, 1.2, 1.6, 2.0, 2.5)
 # The kinematic detector's grid (sole height m, foot speed m/s), tuned like GM's: its fixed
 # defaults (2 cm, 0.3 m/s) suit a small robot's feet, whose speed noise from the joints'
 # velocity noise is low; on ANYmal C they called 37 % of stance steps air (recall 0.63,
