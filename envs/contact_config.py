@@ -18,7 +18,12 @@ from jax_contact.adapter import SOLES
 from jax_contact.calibration import Calibration
 from jax_contact.defaults import is_number
 from jax_contact.envs.feet import FootSpec
-from jax_contact.terrain import FlatTerrain, FootholdMemory, HeightFieldTerrain
+from jax_contact.terrain import (
+    FlatTerrain,
+    FootholdMemory,
+    HeightFieldTerrain,
+    validate_terrain,
+)
 
 # What config.terrain may be (None: the default plane).
 TERRAIN_MODELS = (FlatTerrain, HeightFieldTerrain, FootholdMemory)
@@ -184,6 +189,8 @@ def validate_config(cfg: ContactObsConfig) -> None:
             "config.terrain must be None or a jax_contact.terrain model (jc.flat,"
             f" jc.height_field, jc.foothold_memory), got {cfg.terrain!r}"
         )
+    if cfg.terrain is not None:
+        validate_terrain(cfg.terrain, "config.terrain")
     if not (cfg.calibration in ("auto", None) or isinstance(cfg.calibration, Calibration)):
         raise ValueError(
             "config.calibration must be 'auto', None or a jax_contact.Calibration, got"

@@ -54,6 +54,9 @@ class ContactEstState:
       qvel: (nv,) the true ``qvel`` the wrapper last returned.
       prev: the previous sensor readings (delayed pairing; at reset the initial reading).
       n_updates: () int32, estimator updates since the belief last (re)started.
+      n_skipped: () int32, foot-updates since then whose readings held a NaN or inf: the
+        foot kept the estimator's prediction alone (``diag.valid`` False) and the running
+        score leaves it out, as ``jax_contact.metrics`` leaves out a log's lost readings.
     """
 
     belief: jc.LegBelief
@@ -64,6 +67,7 @@ class ContactEstState:
     qvel: jax.Array
     prev: sensors.Readings
     n_updates: jax.Array
+    n_skipped: jax.Array
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -105,8 +109,16 @@ class Core:
     sign_test_margin: float | None = None
 
     def moved(self, est: ContactEstState, data) -> jax.Array:
-        """() bool: ``data`` is not the state the wrapper last returned (an auto-reset)."""
-        return jnp.any(data.qpos != est.qpos) | jnp.any(data.qvel != est.qvel)
+        """() bool: ``data`` is not the state the wrapper last returned (an auto-reset).
+
+        A NaN equals a NaN here: an env whose state went NaN is not restarted on every step
+        (NaN != NaN read as an auto-reset each step, so its belief showed a fresh prior and
+        its score was wiped)."""
+
+        def differs(a, b):
+            return jnp.any((a != b) & ~(jnp.isnan(a) & jnp.isnan(b)))
+
+        return differs(data.qpos, est.qpos) | differs(data.qvel, est.qvel)
 
     def restart(self, est: ContactEstState, data, moved: jax.Array) -> ContactEstState:
         """Restarts belief and sensors where ``moved``."""
@@ -122,6 +134,7 @@ class Core:
         if self.truth is not None:
             rec["truth"] = self.truth(data)
             rec["hit"] = (est.diag.p_contact > 0.5) == rec["truth"]
+            rec["scored"] = est.diag.valid  # a skipped foot-update is not scored
             if self.cfg.record_substeps and self.truth_raw is not None:
                 rec["truth_raw"] = self.truth_raw(data)
         return rec
@@ -154,6 +167,7 @@ class Core:
             qvel=data.qvel,
             prev=jax.tree.map(lambda b: b[sensor.head], sensor.buffer),
             n_updates=jnp.int32(0),
+            n_skipped=jnp.int32(0),
         )
 
     def measure(self, data, prev: sensors.Readings, r: sensors.Readings):
@@ -200,6 +214,7 @@ class Core:
             qvel=data.qvel,
             prev=r,
             n_updates=est.n_updates + 1,
+            n_skipped=est.n_skipped + jnp.sum(~diag.valid).astype(jnp.int32),
         )
 
     def features(self, est: ContactEstState, data) -> jax.Array:
@@ -373,6 +388,20 @@ def make_core(env, cfg: ContactObsConfig) -> Core:
     truth = contact_truth.with_gap(truth_raw, mj_model, resolved, floors, cfg.truth_gap)
     if truth is None or truth is truth_raw:
         truth_raw = None
+    if cfg.truth == "auto" and truth is None and cfg.observe != "truth":
+        # A foot without a floor-touching geom lost the score without a word (a named geom
+        # that cannot touch the floor is refused by feet.resolve_feet; a site's, a body's
+        # or a FootSpec's body with none was not).
+        bare = [f.name for f in resolved if not f.geom_ids]
+        warnings.warn(
+            f"no ground-truth contact: feet {bare} have no geom that touches the floor, nor"
+            " contact sensors, so the wrapper"
+            " reports no contact_est score or accuracy metric; name each foot's floor geoms"
+            " (FootSpec(name, body=..., geoms=(...))) or add sensors"
+            " (jax_contact.envs.ground_truth.with_contact_sensors); config.truth='none'"
+            " silences this",
+            stacklevel=3,
+        )
     if cfg.observe == "truth" and truth is None:
         raise ValueError(
             f"config.observe='truth' needs ground-truth contact, but config.truth={cfg.truth!r}"

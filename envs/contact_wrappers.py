@@ -117,7 +117,7 @@ class _ContactMixin:
         if core.truth is not None:
             info[self._truth_key] = core.truth(data)
             n, hits = score["n"], score["hits"]
-            mean = jnp.where(n > 0, hits / jnp.maximum(n, 1.0), 0.0)
+            mean = jnp.where(n > 0, hits / jnp.where(n > 0, n, 1.0), 0.0)
             info[self._score_key] = {**score, "mean": mean}
             # Brax's EpisodeWrapper and EvalWrapper sum every metric over the episode, once
             # per training-wrapper step (of action_repeat env steps): the increment of the
@@ -156,6 +156,7 @@ class _ContactMixin:
                 lambda x: jnp.broadcast_to(x, (n,) + x.shape), self._core.record(est, data)
             )
             rec.pop("hit", None)
+            rec.pop("scored", None)
         return self._finish(state, est, score, rec)
 
     def _n_substeps(self) -> int:
@@ -164,6 +165,11 @@ class _ContactMixin:
     def step(self, state, action: jax.Array):
         core = self._core
         data = getattr(state, self._DATA)
+        if core.cfg.info_key not in state.info:  # a bare KeyError, raised while tracing
+            raise ValueError(
+                f"state.info has no {core.cfg.info_key!r}: step takes the state of this"
+                " wrapper's reset (or of its last step), not the wrapped env's own"
+            )
         est = state.info[core.cfg.info_key]
         moved = core.moved(est, data)
         est = core.restart(est, data, moved)
@@ -188,8 +194,11 @@ class _ContactMixin:
             est = chain.est
             rec = jax.tree.map(lambda *x: jnp.concatenate(x), *chain.records)
         if score is not None:
-            hits = jnp.sum(jnp.mean(rec.pop("hit").astype(jnp.float32), axis=-1))
-            n_new = jnp.float32(rec["p_contact"].shape[0])
+            # Each update counts the share of its feet that were scored (all of them, but
+            # where a reading was lost): n is the number of updates when nothing was lost.
+            scored = rec.pop("scored").astype(jnp.float32)
+            hits = jnp.sum(jnp.mean(rec.pop("hit").astype(jnp.float32) * scored, axis=-1))
+            n_new = jnp.sum(jnp.mean(scored, axis=-1))
             score = {**score, "n": score["n"] + n_new, "hits": score["hits"] + hits}
         if core.cfg.record_substeps:
             rec = jax.tree.map(lambda x: x[-self._n_substeps() :], rec)

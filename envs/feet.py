@@ -91,12 +91,15 @@ class FootSpec:
     """A foot given as a body and a point in its frame (or any name, with options).
 
     Attributes:
-      name: the foot's label; also looked up as a geom, site or body when ``body`` is None.
+      name: the foot's label; when ``body`` is None, the foot is the geom, else the site,
+        else the body of this name, in that order (a site that shares its name with a
+        geom, as Go1's ``FR`` and T1's ``left_foot`` do, is reached as ``body`` and
+        ``offset``).
       body: a body name: the foot is ``offset`` in this body's frame.
-      offset: (x, y, z) point in the body frame, m.
-      radius: the foot's radius, m.
+      offset: (x, y, z) point in the body frame, m; only with ``body``.
+      radius: the foot's radius, m; only with ``body``.
       geoms: geom names whose contact is this foot's ground truth; default: the body's
-        floor-touching geoms.
+        floor-touching geoms; only with ``body``.
     """
 
     name: str
@@ -122,13 +125,34 @@ class FootSpec:
         if isinstance(self.offset, str) or offset.shape != (3,) or not np.isfinite(offset).all():
             raise bad("offset", "3 finite numbers (x, y, z) in the body frame, m")
         object.__setattr__(self, "offset", tuple(float(x) for x in offset))
-        number = isinstance(self.radius, int | float) and not isinstance(self.radius, bool)
-        if not (number and math.isfinite(self.radius) and self.radius >= 0):
+        # Any real scalar (NumPy's and JAX's float32 were refused by an isinstance test).
+        radius = np.asarray(self.radius) if not isinstance(self.radius, str | bool) else None
+        real = radius is not None and radius.shape == () and radius.dtype.kind in "iuf"
+        if not (real and math.isfinite(float(radius)) and float(radius) >= 0):
             raise bad("radius", "a finite number >= 0, m")
+        object.__setattr__(self, "radius", float(radius))
         if self.geoms is not None:
             if isinstance(self.geoms, str) or not all(isinstance(g, str) for g in self.geoms):
                 raise bad("geoms", "a tuple of geom names or None")
             object.__setattr__(self, "geoms", tuple(self.geoms))
+        if self.body is None:
+            # Without a body the foot is the geom, site or body called name, as it is: these
+            # options were ignored without a word (even a geom name that does not exist).
+            given = [
+                f
+                for f, unset in (
+                    ("offset", self.offset == (0.0, 0.0, 0.0)),
+                    ("radius", self.radius == 0.0),
+                    ("geoms", self.geoms is None),
+                )
+                if not unset
+            ]
+            if given:
+                raise ValueError(
+                    f"FootSpec {self.name!r}: {', '.join(given)} apply to a foot given by its"
+                    f" body (FootSpec({self.name!r}, body=..., ...)); without body the foot is"
+                    f" the geom, site or body named {self.name!r} as it is"
+                )
 
 
 @dataclasses.dataclass(frozen=True)

@@ -37,9 +37,12 @@ wrapped ``step`` (:mod:`jax_contact.envs.substeps`); ``"control"``: one update p
 
 State, all in ``state.info`` (the env's own keys, ``info["rng"]`` included, are never
 touched): ``info[info_key]`` is a :class:`ContactEstState` (belief, sensor state, PRNG key,
-last diagnostics, last readings ``prev``); with truth, ``info[info_key + "_truth"]`` holds
-each foot's true contact and ``info[info_key + "_score"]`` the episode's running score
-(``n`` updates scored, ``hits``, ``mean`` = accuracy so far).
+last diagnostics, last readings ``prev``, ``n_skipped`` foot-updates whose readings held a
+NaN or inf); with truth, ``info[info_key + "_truth"]`` holds each foot's true contact and
+``info[info_key + "_score"]`` the episode's running score (``n`` updates scored, each
+counting the share of its feet whose readings were finite, ``hits``, ``mean`` = accuracy
+so far; a skipped foot-update is not scored, as ``jax_contact.metrics`` leaves out a log's
+lost readings).
 
 Metrics. ``metrics[info_key + "/accuracy"]`` is the *increment* of the episode's running
 accuracy (over every estimator update: every physics step at the substep rate, feet

@@ -27,6 +27,7 @@ from jax_contact.measurement import (
     robot_leg_blocks,
 )
 from jax_contact.params import TERMS, EstimatorParams, Switches, switches_of, validate_params
+from jax_contact.terrain import validate_terrain
 from jax_contact.transition import log_prior_transition, log_transition_matrix
 from jax_contact.types import (
     Diagnostics,
@@ -156,6 +157,10 @@ def _check_call(fn: str, params, terrain, key) -> None:
             f"{fn}: terrain must be a terrain model of jax_contact.terrain (e.g. flat()), got"
             f" {type(terrain).__name__}"
         )
+    try:
+        validate_terrain(terrain)
+    except ValueError as err:
+        raise ValueError(f"{fn}: terrain: {err}") from None
     dtype = getattr(key, "dtype", None)
     if dtype is None or not (
         jnp.issubdtype(dtype, jax.dtypes.prng_key) or (dtype == jnp.uint32 and np.ndim(key) >= 1)

@@ -243,6 +243,37 @@ def foothold_memory(
     )
 
 
+def validate_terrain(terrain, name: str | None = None) -> None:
+    """Checks a terrain model's concrete values as its constructor does (:func:`flat`,
+    :func:`height_field`, :func:`foothold_memory`): a model built directly from its class
+    (``jc.FlatTerrain(height=nan, sigma=-1)``) skipped them, and every update of a NaN
+    plane was skipped while the wrapper's score read 1.0. Traced values are not read.
+
+    Args:
+      terrain: a terrain model.
+      name: how the message names it (default: its class, e.g. ``FlatTerrain``).
+
+    Raises:
+      ValueError: naming the field, e.g. ``"FlatTerrain.height must be a finite scalar"``.
+    """
+    if any(isinstance(x, jax.core.Tracer) for x in jax.tree.leaves(terrain)):
+        return
+    name = type(terrain).__name__ if name is None else name
+    if isinstance(terrain, FootholdMemory):
+        validate_terrain(terrain.fallback, f"{name}.fallback")
+    try:
+        if isinstance(terrain, FlatTerrain):
+            flat(terrain.height, terrain.sigma)
+        elif isinstance(terrain, HeightFieldTerrain):
+            height_field(terrain.heights, terrain.origin, terrain.spacing, terrain.sigma)
+        elif isinstance(terrain, FootholdMemory):
+            foothold_memory(
+                terrain.fallback, terrain.sigma_foothold, terrain.growth, terrain.smoothing
+            )
+    except ValueError as err:
+        raise ValueError(f"{name}.{err}") from None
+
+
 # ------------------------------------------------------------------------ named models
 
 # The terrain models a parameter file can name (``provenance["terrain_model"]``, written by

@@ -13,6 +13,7 @@ from __future__ import annotations
 import warnings
 
 import jax
+import jax.numpy as jnp
 import mujoco
 import numpy as np
 import pytest
@@ -105,6 +106,23 @@ def test_a_foot_spec_names_its_bad_field(field, value, want):
         W.FootSpec("heel", **{"body": "shank", field: value})
     spec = W.FootSpec("heel", body="shank", offset=np.array([0, 0, -1]), geoms=["sole"])
     assert spec.offset == (0.0, 0.0, -1.0) and spec.geoms == ("sole",)
+
+
+def test_a_foot_spec_takes_any_real_radius_and_refuses_options_without_a_body():
+    """A helper's audit: NumPy's and JAX's float32 radius were refused ("must be a finite
+    number >= 0, ..., got np.float32(0.02)"), and without ``body`` the offset, radius and
+    geoms were ignored without a word, even a geom name that does not exist."""
+    for r in (np.float32(0.02), jnp.float32(0.02), np.int64(0), 1):
+        spec = W.FootSpec("heel", body="shank", radius=r)
+        assert type(spec.radius) is float and spec.radius == pytest.approx(float(r))
+    for bad in (np.array([0.02, 0.03]), True):
+        with pytest.raises(ValueError, match="radius must be a finite number >= 0"):
+            W.FootSpec("heel", body="shank", radius=bad)
+    with pytest.raises(ValueError, match=r"FootSpec 'FR_calf': offset, radius apply to a foot"):
+        W.FootSpec("FR_calf", offset=(0, 0, -0.1), radius=0.05)
+    with pytest.raises(ValueError, match=r"FootSpec 'FR': geoms apply to a foot given by its body"):
+        W.FootSpec("FR", geoms=("nonexistent",))
+    assert W.FootSpec("FR").body is None  # the name alone is still a foot
 
 
 def _all_sphere_model() -> mujoco.MjModel:

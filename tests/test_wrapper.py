@@ -11,6 +11,7 @@ Playground's Go1 joystick env, offline, is in tests/test_wrapper_go1.py.
 from __future__ import annotations
 
 import json
+import warnings
 from pathlib import Path
 
 import jax
@@ -274,6 +275,46 @@ def test_brax_training_wrap_autoreset_restarts_belief(brax_leg, brax_train):
     assert (reset.traces, step.traces) == (1, 1)
 
 
+def test_a_nan_state_is_not_an_auto_reset_and_its_updates_are_skipped_unscored(brax_leg):
+    """A helper's audit (Go1 handstand, whose termination does not catch NaN): an env
+    whose state went NaN was 'moved' on every step (NaN != NaN read as an auto-reset), so
+    its belief restarted each step, looking like a fresh prior, and its score was wiped.
+    A state equal to the last one NaN for NaN is not moved now; an update from NaN
+    readings is skipped (the prediction alone), counted in ``n_skipped`` and not scored."""
+    env = W.wrap_contact(brax_leg, **IDEAL)
+    core = env.contact_core
+    data = brax_leg.reset(jax.random.PRNGKey(0)).pipeline_state
+    est = core.init(data, jax.random.PRNGKey(1))
+    nan = data.replace(qpos=data.qpos.at[0].set(jnp.nan), qvel=data.qvel * jnp.nan)
+    assert not bool(core.moved(est, data)) and bool(core.moved(est, nan))
+    assert not bool(core.moved(est.replace(qpos=nan.qpos, qvel=nan.qvel), nan))
+    after = jax.jit(core.update)(est, nan)
+    assert not bool(after.diag.valid[0]) and int(after.n_skipped) == 1
+    assert int(after.n_updates) == 1 and int(est.n_skipped) == 0
+    # The one-step prediction alone: finite, a step of the gait prior from the prior's 0.
+    assert np.isfinite(np.asarray(after.belief.logit)).all()
+    assert float(jnp.abs(after.belief.logit - est.belief.logit).max()) < 0.05
+    rec = core.record(after, nan)
+    assert rec["scored"].shape == (1,) and not bool(rec["scored"][0])
+
+
+def test_step_of_a_bare_state_and_a_foot_without_truth_say_so(leg_robot, brax_leg):
+    """A helper's audit: ``step`` given the wrapped env's own state raised a bare KeyError
+    while tracing; a foot given by a body with no floor-touching geom lost its ground
+    truth, and with it the score and metric, without a word."""
+    env = W.wrap_contact(brax_leg, **IDEAL)
+    act = jnp.zeros(brax_leg.action_size)
+    with pytest.raises(ValueError, match="state.info has no 'contact_est': step takes the state"):
+        jax.eval_shape(lambda k: env.step(brax_leg.reset(k), act), jax.random.key(0))
+    bare = W.ContactObsConfig(feet=(W.FootSpec("foot", body="shank", geoms=()),))
+    with pytest.warns(UserWarning, match=r"no ground-truth contact: feet \['foot'\] have no geom"):
+        silent = W.wrap_contact(brax_leg, bare, **IDEAL)
+    assert silent.contact_report()["truth"] == "none"
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", UserWarning)  # asked for: no warning
+        W.wrap_contact(brax_leg, bare.replace(truth="none"), **IDEAL)
+
+
 def test_domain_randomisation_steps_the_contact_wrapper(brax_leg, pg_leg):
     """Brax's and Playground's randomisation wrappers set each env's model on
     ``env.unwrapped`` and step ``env.unwrapped``, skipping the contact wrapper (no contact
@@ -384,6 +425,12 @@ def test_refusals(leg_robot, brax_leg, pg_leg):
         (dict(truth_threshold="1"), r"config.truth_threshold must be a number >= 0 \(N\)"),
         (dict(logit_clip=None), "config.logit_clip must be a number > 0, got None"),
         (dict(terrain="flat"), "config.terrain must be None or a jax_contact.terrain model"),
+        # Built from its class, jc.flat's checks skipped: every update was skipped and the
+        # standing robot's score read 1.0 (a helper's audit).
+        (
+            dict(terrain=jc.FlatTerrain(height=jnp.float32(jnp.nan), sigma=jnp.float32(1.0))),
+            r"config.terrain.height must be a finite scalar, got Array\(nan",
+        ),
         (dict(force_rows=2), "config.force_rows must be a sequence of axes, got 2"),
         # force_rows was silently dropped beside a parameter file.
         (dict(force_rows=(2,), params="go1"), "config.force_rows .* give one of them"),
