@@ -14,6 +14,7 @@ import numpy as np
 import oracle
 import pytest
 
+import jax_contact as jc
 from jax_contact import (
     LegMeasurement,
     flat,
@@ -524,6 +525,13 @@ def test_key_terrain_and_params_are_named_before_anything_is_traced():
             step(params, TERRAIN, b0, one, key=bad)
     with pytest.raises(ValueError, match=r"step: terrain must be a terrain model.*NoneType"):
         step(params, None, b0, one, key=key)
+    # Built from its class, jc.flat's checks skipped: a NaN plane skipped every update.
+    nan_plane = jc.FlatTerrain(height=jnp.float32(jnp.nan), sigma=jnp.float32(0.05))
+    with pytest.raises(ValueError, match=r"step: terrain: FlatTerrain\.height must be a finite"):
+        step(params, nan_plane, b0, one, key=key)
+    no_growth = jc.foothold_memory(TERRAIN).replace(growth=jnp.float32(-1.0))
+    with pytest.raises(ValueError, match=r"step: terrain: FootholdMemory\.growth must be"):
+        step(params, no_growth, b0, one, key=key)
     for field, value in (("cap_dynamics", 2.0), ("dt", 0.0)):
         with pytest.raises(ValueError, match=rf"step: params: {field} "):
             step(params.replace(**{field: jnp.float32(value)}), TERRAIN, b0, one, key=key)
