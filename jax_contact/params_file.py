@@ -229,6 +229,29 @@ def params_from_dict(payload: Mapping, *, source: str = "params"):
     return params
 
 
+def robot_provenance(mj_model, desc, name: str | None = None) -> dict:
+    """What a parameter file records of the robot it was made for, as ``jax-contact tune``
+    writes it: ``{"robot_mass_kg", "groups"}`` and ``"robot"`` if ``name`` is given.
+
+    Pass it to :func:`save_params` (``provenance=robot_provenance(...) | {...}``): the
+    wrapper, the CLI and :func:`load_params_for` then warn when the file is loaded for a
+    robot 1.5x heavier or lighter, of another name, or whose joints group otherwise. A
+    file saved without it loads on any robot of the same ``nv`` without a word (Go1's
+    parameters on Berkeley Humanoid, both ``nv`` 18: 4 legs of 3 joints against 2 of 6).
+
+    Args:
+      mj_model: the robot's ``mujoco.MjModel`` (its mass,
+        :func:`jax_contact.robot.model_mass`).
+      desc: its :class:`jax_contact.robot.RobotDescription`.
+      name: the name it is loaded by (e.g. ``"go1"``), or None.
+    """
+    from jax_contact.robot import model_mass
+    from jax_contact.tune.space import robot_space
+
+    out = {"robot_mass_kg": model_mass(mj_model), "groups": robot_space(desc).named_groups()}
+    return out if name is None else {"robot": str(name), **out}
+
+
 def save_params(path: str | os.PathLike, params, provenance: Mapping | None = None) -> Path:
     """Writes ``params`` as a versioned JSON file (atomically, its folder created if it does
     not exist); returns the path.

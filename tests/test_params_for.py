@@ -359,6 +359,30 @@ def test_the_still_side_cap_stays_at_most_the_air_sides_at_any_period(go1):
     assert float(slower.cap_diff_kinematics_still) == pytest.approx(want, abs=1e-5)
 
 
+def test_a_saved_file_with_its_robot_provenance_warns_on_another_robot(tmp_path):
+    """A helper's audit: Go1's parameters saved with ``jc.save_params`` loaded on Berkeley
+    Humanoid (both nv 18) without a word, since only tuned files recorded the robot.
+    ``robot_provenance`` records what ``jax-contact tune`` records: Go1's 12.74 kg (its
+    moving bodies) and its joints grouped as four legs of three."""
+    from jax_contact.params_file import load_params_for, robot_provenance
+    from jax_contact.robot import model_mass
+    from jax_contact.tune.space import robot_space
+
+    go1, spot = load_robot("go1"), load_robot("spot")
+    prov = robot_provenance(go1.mj_model, go1.description, "go1")
+    assert prov["robot"] == "go1" and prov["robot_mass_kg"] == pytest.approx(12.743, abs=1e-3)
+    assert prov["groups"] == robot_space(go1.description).named_groups()
+    assert "robot" not in robot_provenance(go1.mj_model, go1.description)
+    p = jc.params_for(go1.description, sensor_preset("anymal_like", go1.description.nv, dt=DT), DT)
+    path = jc.save_params(tmp_path / "go1.json", p, provenance=prov)
+    with pytest.warns(
+        UserWarning, match=r"tuned on a robot of 12\.7 kg \('go1'\); this one weighs 50"
+    ):
+        load_params_for(
+            path, nv=spot.description.nv, dt=DT, mass_kg=model_mass(spot.mj_model), robot="spot"
+        )
+
+
 def test_load_params_of_a_folder_or_of_no_path_is_one_clear_error(tmp_path, monkeypatch):
     with pytest.raises(ValueError, match=r"parameter file '.*' is a folder"):
         jc.load_params(tmp_path)
