@@ -87,6 +87,8 @@ class ContactObsConfig:
         refused for it (where the observation size is first read, or at reset).
       info_key: ``state.info`` key of the estimator state (:class:`ContactEstState`); the
         truth goes under ``info_key + "_truth"``, metrics under ``info_key + "/..."``.
+        A key the env's own ``info`` already holds is refused at ``reset``, where the
+        env's keys are first known.
       truth: ground-truth source, one of :data:`TRUTH_SOURCES`
         (:mod:`jax_contact.envs.contact_truth`).
       truth_threshold: normal force above which a foot is in contact, N.
