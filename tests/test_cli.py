@@ -150,6 +150,19 @@ _MAIN_THEN_HEAVY = (
         (["rates", "--scenes", "go1", "go1"], ["argument --scenes", "repeated scene"]),
         (["evaluate", "README.md", "--bootstrap", "99999999999"], ["argument --bootstrap"]),
         (["tune", "README.md", "--validate", "x.h5", "--out", "t.json"], ["argument LOG"]),
+        # The same tuning log twice: refused after JAX loaded and the first log was measured.
+        (
+            [
+                "tune",
+                "tests/fixtures/planar_leg_hop.h5",
+                "tests/fixtures/planar_leg_hop.h5",
+                "--validate",
+                "x.h5",
+                "--out",
+                "t.json",
+            ],
+            ["argument LOG", "is given twice"],
+        ),
         (["evaluate", "README.md", "--params", "pyproject.toml"], ["argument --params", "JSON"]),
         # An unknown option: the command's usage and prog (it used to be the top level's).
         (["train", "--contact", "estimate"], ["unrecognized arguments: --contact estimate"]),
@@ -1512,6 +1525,29 @@ def test_an_output_that_is_an_input_or_a_runs_file_is_refused_at_once(tmp_path, 
     assert cli.main([*argv, "--names", str(names), "--out", str(names)]) == 2
     assert "argument --out: " in capsys.readouterr().err
     assert names.read_text() == '{"a": "b"}'
+
+
+def test_tune_out_replaces_a_parameter_file_but_no_other_json(tmp_path, capsys):
+    """A helper's audit: ``tune --out results.json`` replaced an ``evaluate --json`` report
+    with a parameter file, saying only 'wrote results.json'. Now another JSON is refused
+    before JAX loads, unchanged; a parameter file (or an empty file) is replaced."""
+    import jax_contact as jc
+    from jax_contact.train.tune_cmd import check_replaces_a_parameter_file
+
+    log = str(ROOT / "tests/fixtures/planar_leg_hop.h5")
+    val = tmp_path / "val.h5"
+    val.write_bytes(Path(log).read_bytes())
+    report = tmp_path / "results.json"
+    report.write_text('{"my": "evaluation results I want to keep"}')
+    assert cli.main(["tune", log, "--validate", str(val), "--out", str(report)]) == 2
+    err = capsys.readouterr().err
+    assert f"argument --out: {str(report)!r} exists and holds JSON that is no parameter" in err
+    assert report.read_text() == '{"my": "evaluation results I want to keep"}'
+    params = tmp_path / "params.json"
+    jc.save_params(params, jc.load_params("go1"))
+    check_replaces_a_parameter_file("--out", str(params))
+    (tmp_path / "empty.json").write_text("")
+    check_replaces_a_parameter_file("--out", str(tmp_path / "empty.json"))
 
 
 def test_json_output_that_is_a_device_fifo_or_log_is_refused_and_a_link_written_through(

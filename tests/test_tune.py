@@ -280,6 +280,26 @@ def test_tuning_recovers_a_mis_set_noise_std():
     assert abs(hist[res.best_epoch]["val_bce"] - truth["bce"]) < 0.05 * truth["bce"]
 
 
+def test_a_diverging_fit_stops_and_returns_the_best_epoch_before_it():
+    """A helper's audit: at ``--lr 5`` on a small log an update sent a std to NaN, and the
+    next window's ``init_belief`` raised it as bad input ("params: noise.sigma_q must be
+    finite"): the run died, every finished epoch lost. Adam's first steps move theta by
+    about the learning rate, so at 1e3 the first update takes log(sigma_J) ~1000 away:
+    sigma_J leaves (0, inf) in window 1, and the fit stops there with epoch 0's values."""
+    train, val = _synthetic(1), _synthetic(2)
+    space = jt.make_space(4, fields=("sigma_J",))
+    config = jt.TuneConfig(
+        learning_rate=1e3, max_epochs=3, patience=5, chunk=300, prior_noise=0.0, seed=0,
+        event_weight=0.0, select="bce",
+    )  # fmt: skip
+    wrong = _synthetic_params(SIGMA_J_WRONG)
+    res = jt.tune(wrong, flat(0.0, 0.05), [train], val, space, config)
+    assert res.diverged.startswith("epoch 1, tuning log 1, window 1: noise.sigma_J must be")
+    assert (res.best_epoch, len(res.history), res.stopped_early) == (0, 1, True)
+    np.testing.assert_array_equal(res.params.noise.sigma_J, wrong.noise.sigma_J)
+    assert _recovery_run("bce")[0].diverged is None  # the converging run: no note
+
+
 def test_tuning_stops_at_the_noise_floor():
     """The recovery problem with a floor above the truth: sigma_J would fall to 0.05 m/s
     (test above) but may not go below 0.1; projected onto the bound, it ends on it (the

@@ -163,7 +163,11 @@ def add_tuning_options(p: argparse.ArgumentParser) -> None:
     # The CLI's argument types (one rule); imported here, once jax_contact.train.cli is loaded.
     from jax_contact.train.cli_args import nonnegative_float, positive_float, positive_int, seed_int
 
-    p.add_argument("--out", required=True, help="parameter file to write (.json)")
+    p.add_argument(
+        "--out",
+        required=True,
+        help="parameter file to write (.json); an existing file is replaced only if it is one",
+    )
     p.add_argument("--epochs", type=positive_int, default=12, help="passes over the logs at most")
     p.add_argument("--patience", type=positive_int, default=3, help="epochs without improvement")
     p.add_argument("--lr", type=positive_float, default=0.05, help="Adam step size")
@@ -178,7 +182,14 @@ def add_tuning_options(p: argparse.ArgumentParser) -> None:
         default=1e-3,
         help="weight of the prior on caps, T_s, a_F",
     )
-    p.add_argument("--seed", type=seed_int, default=0, help="the run's key")
+    p.add_argument(
+        "--seed",
+        type=seed_int,
+        default=0,
+        help="the run's key (recorded in the file), drawn only by a Monte-Carlo touch-down:"
+        " the parameters tuned here use the quadrature, so the fit does not depend on it;"
+        " rerun on other logs, not other seeds, to see how robust it is",
+    )
     p.add_argument(
         "--air-penalty",
         type=nonnegative_float,
@@ -287,8 +298,13 @@ def add_tuning_options(p: argparse.ArgumentParser) -> None:
 def check(args: argparse.Namespace) -> None:
     """Raises ValueError naming the argument unless the inputs exist and --out can be
     written (no JAX imported)."""
+    from jax_contact.train.cli_args import check_distinct_files
+
     validate = [args.validate] if isinstance(args.validate, str) else list(args.validate)
     model = getattr(args, "model", None)
+    # The same file twice (a path, a link or a copy), refused before JAX loads; the same
+    # run under other bytes is tune_inputs' check, after the logs are read.
+    check_distinct_files("LOG", args.logs)
     for arg, path in [("LOG", p) for p in args.logs] + [("--validate", v) for v in validate]:
         p = Path(path)
         if not p.is_file():
@@ -351,6 +367,29 @@ def check_tuning_options(args: argparse.Namespace) -> None:
 
     check_not_an_input("--out", args.out, names=getattr(args, "names", None))
     check_output_file("--out", args.out, (".json",))
+    check_replaces_a_parameter_file("--out", args.out)
+
+
+def check_replaces_a_parameter_file(arg: str, path: str) -> None:
+    """Raises ValueError when ``path`` exists and holds JSON that is no parameter file (an
+    ``evaluate --json`` report was replaced by a tuned file without a word); an empty file
+    or a parameter file is replaced."""
+    import json
+
+    from jax_contact.params_file import PARAMS_FORMAT
+
+    p = Path(path)
+    if not p.is_file() or not p.read_bytes().strip():
+        return
+    try:
+        held = json.loads(p.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError):
+        return  # check_output_file refuses a file that holds no JSON
+    if not (isinstance(held, dict) and held.get("format") == PARAMS_FORMAT):
+        raise ValueError(
+            f"argument {arg}: {path!r} exists and holds JSON that is no parameter file (no"
+            f" 'format': {PARAMS_FORMAT!r}); writing it would replace it: pass a new name"
+        )
 
 
 # ---------------------------------------------------------------------------------- run
@@ -488,9 +527,18 @@ def fit_and_write(args: argparse.Namespace, inputs: Inputs) -> int:
         f" tuning {result.wall_s:.1f} s, total {time.perf_counter() - t0:.1f} s",
         file=sys.stderr,
     )
+    if result.diverged:
+        print(
+            f"warning: the fit diverged, {result.diverged}: lower --lr (now"
+            f" {config.learning_rate:g}); the file holds epoch {result.best_epoch}'s parameters,"
+            " the best before it",
+            file=sys.stderr,
+        )
     if result.best_epoch == 0:
         tried = result.history[1:]
-        if config.feasible and tried and all(row["rejected"] for row in tried):
+        if result.diverged and not tried:
+            why = "the fit diverged in its first epoch"
+        elif config.feasible and tried and all(row["rejected"] for row in tried):
             why = "every epoch made a tuning log's cell worse than the defaults' (--feasible)"
         elif config.select == "cells":
             why = "no epoch was no worse than the defaults in every validation cell"
@@ -570,6 +618,7 @@ def fit_and_write(args: argparse.Namespace, inputs: Inputs) -> int:
         "epochs": len(result.history) - 1,
         "best_epoch": result.best_epoch,
         "stopped_early": result.stopped_early,
+        "diverged": result.diverged,
         "history": list(result.history),
         "final": dict(result.history[result.best_epoch]),
         "tuned_vs_default": table,

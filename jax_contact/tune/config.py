@@ -31,7 +31,9 @@ class TuneConfig:
       chunk: steps per truncated-BPTT window (one optimizer update each).
       prior_noise: ``lambda_sigma``, weight of the prior on the noise log multipliers.
       prior_other: ``lambda_other``, weight of the prior on caps, ``T_s``, ``a_F``.
-      seed: the run's key, ``jax.random.key(seed)``.
+      seed: the run's key, ``jax.random.key(seed)``, drawn only by a Monte-Carlo
+        touch-down (``touchdown="monte_carlo"``): with the quadrature of
+        :func:`jax_contact.params_for` the fit does not depend on it.
       air_penalty: ``mu``, weight of the per-step false-contact hinge (0: off, the
         default; a diagnostic of the previous session, superseded by ``event_weight``).
       air_margin: ``m``, the logit below which a true air step costs nothing in the hinge.

@@ -122,8 +122,10 @@ def check_scored_steps(logs: Sequence[TuningData], what: str, names=None) -> Non
         mask, truth = np.asarray(d.mask, bool), np.asarray(d.truth, bool)  # one shape
         if not mask.any():
             raise ValueError(
-                f"{what} {name} has no step that counts (its valid mask is false everywhere:"
-                " a robot that fell at once, or a log no longer than the skipped start)"
+                f"{what} {name} has no step that counts (valid and read: its valid mask, or"
+                " the finiteness of the readings each foot reads, is false everywhere: a"
+                " robot that fell at once, readings that are all NaN, or a log no longer"
+                " than the skipped start)"
             )
         n_contact += int(np.sum(truth & mask))
         n_air += int(np.sum(~truth & mask))

@@ -227,8 +227,11 @@ class TuneResult:
         ``val_bce`` with ``config.select == "bce"``, or the lowest ``val_loss`` among the
         epochs :func:`no_worse` than epoch 0 with ``"cells"``, or among those with no
         ``val_worse`` with ``"spread"``).
-      stopped_early: whether patience ran out before ``max_epochs``.
+      stopped_early: whether patience ran out before ``max_epochs``, or the fit diverged.
       wall_s: total wall time, s (compilation included).
+      diverged: None, or what stopped a fit whose update left the parameters' valid range
+        (a NaN or inf std, a cap at 0.5: too large a learning rate), naming the epoch and
+        the field; that epoch has no row, and the best epoch before it is returned.
     """
 
     params: EstimatorParams
@@ -237,6 +240,18 @@ class TuneResult:
     best_epoch: int
     stopped_early: bool
     wall_s: float
+    diverged: str | None = None
+
+
+def _out_of_range(space: ParamSpace, base: EstimatorParams, theta: dict) -> str | None:
+    """None, or :func:`jax_contact.validate_params`' message for the parameters of
+    ``theta`` (an update that left their range: the next window's ``init_belief`` raised
+    it as if it were bad input, and every finished epoch was lost)."""
+    try:
+        validate_params(to_params(space, base, theta))
+    except ValueError as err:
+        return str(err)
+    return None
 
 
 def select_epoch(history: Sequence[dict], config: TuneConfig) -> int:
@@ -404,10 +419,12 @@ def tune(
             for i, d in enumerate(train)
         ]  # fmt: skip
 
-    stopped = False
+    stopped, diverged = False, None
     for epoch in range(1, config.max_epochs + 1):
         losses, bces, norms, counts = [], [], [], []
         for i, data in enumerate(train):
+            if diverged:
+                break
             n_envs, n_legs = data.truth.shape[1:]
             belief = init_belief_batch(to_params(space, base, theta), n_envs, n_legs)
             for w, start in enumerate(range(0, data.n_steps, config.chunk)):
@@ -424,6 +441,15 @@ def tune(
                 bces.append(float(bce))
                 counts.append(float(n))
                 norms.append(float(gn))
+                if why := _out_of_range(space, base, theta):
+                    diverged = (
+                        f"epoch {epoch}, tuning log {i + 1}, window {w + 1}: {why} (loss"
+                        f" {float(loss):.4g}, gradient norm {float(gn):.4g})"
+                    )
+                    break
+        if diverged:
+            stopped = True
+            break
         w = np.asarray(counts) / max(sum(counts), 1.0)
         row = dict(
             epoch=epoch,
@@ -461,6 +487,7 @@ def tune(
         best_epoch=best_epoch,
         stopped_early=stopped,
         wall_s=time.perf_counter() - t_start,
+        diverged=diverged,
     )
 
 
