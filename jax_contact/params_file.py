@@ -491,7 +491,9 @@ def _params_bytes(path) -> tuple[bytes, str, dict]:
     try:
         raw = p.read_bytes()
     except FileNotFoundError:
-        raise ValueError(f"parameter file {str(p)!r} does not exist") from None
+        # "go1.json" for the preset "go1": name the preset the stem is.
+        hint = f" (the preset is named {p.stem!r})" if p.stem in preset_names() else ""
+        raise ValueError(f"parameter file {str(p)!r} does not exist{hint}") from None
     except IsADirectoryError:
         raise ValueError(f"parameter file {str(p)!r} is a folder") from None
     return raw, f"parameter file {str(p)!r}", {"source": "file", "path": str(p.resolve())}

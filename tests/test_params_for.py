@@ -228,8 +228,13 @@ def test_bad_params_file_names_the_field(go1, tmp_path):
     (tmp_path / "not.json").write_text("{")
     with pytest.raises(ValueError, match="is not JSON"):
         jc.load_params(tmp_path / "not.json")
-    with pytest.raises(ValueError, match="does not exist"):
+    with pytest.raises(ValueError, match=r"does not exist$"):
         jc.load_params(tmp_path / "absent.json")
+    # The preset's name with a suffix (a helper's audit: no hint that "go1" is one).
+    with pytest.raises(
+        ValueError, match=r"'.*go1.json' does not exist \(the preset is named 'go1'\)"
+    ):
+        jc.load_params(tmp_path / "go1.json")
 
 
 def test_contact_force_std_is_at_most_a_share_of_a_foots_load(go1):
