@@ -422,6 +422,13 @@ def test_estimate_says_when_a_file_runs_fewer_terms_than_the_recording_supports(
     assert f"the parameters {str(path)!r} run no dynamics term, which this recording's" in (
         "\n".join(got["notes"])
     )
+    # The term it ran without is blank in estimate.csv (its diagnostics, computed anyway,
+    # held probabilities nothing used: a helper's audit), the others are not.
+    out = read_recording(tmp_path / "out" / "estimate.csv").columns
+    assert np.isnan(out["p_dynamics/foot"]).all()
+    assert np.isfinite(out["p_kinematics/foot"]).any() and np.isfinite(out["p_contact/foot"]).all()
+    with h5py.File(tmp_path / "out" / "estimate.h5", "r") as f:
+        assert np.isnan(f["p_dynamics"][:]).all() and np.isfinite(f["p_contact"][:]).all()
 
 
 def test_tune_checks_recording_flags_without_jax(tmp_path):
@@ -863,6 +870,29 @@ def test_positions_alone_switch_the_dynamics_term_off(go1_log):
     assert "dynamics" in to_readings(Recording(with_qd, "r"), go1_log.robot).terms
 
 
+def test_one_missing_torque_or_velocity_column_is_a_warning_naming_it(go1_log):
+    """A helper's audit: one tau/ column named otherwise ('torque/...') or one qd/ column
+    missing switched the dynamics term off on all four legs with only a note, the qd/ one
+    naming a dof index. With the other joints' columns present it is a warning now, and
+    the qd/ note names the column."""
+    cols = log_to_columns(go1_log)
+    tau = dict(cols)
+    tau["torque/FL_thigh_joint"] = tau.pop("tau/FL_thigh_joint")
+    conv = to_readings(Recording(tau, "r"), go1_log.robot)
+    assert "dynamics" not in conv.terms
+    (note,) = [n for n in conv.notes if "no joint torques for" in n]
+    assert note.startswith("WARNING no joint torques for ['FL_thigh_joint']: the dynamics")
+    assert "though 11 of the 12 actuated joints have a tau/ column" in note
+    qd = {k: v for k, v in cols.items() if k not in ("qd/RR_calf_joint", "qdd/RR_calf_joint")}
+    conv = to_readings(Recording(qd, "r"), go1_log.robot)
+    (note,) = [n for n in conv.notes if "second differences of positions" in n]
+    assert note.startswith("WARNING ") and "qd/RR_calf_joint" in note
+    # All torques absent (a robot without torque sensing): a note, as before.
+    none = {k: v for k, v in cols.items() if not k.startswith("tau/")}
+    (note,) = [n for n in to_readings(Recording(none, "r"), go1_log.robot).notes if "torques" in n]
+    assert note.startswith("no joint torques for")
+
+
 def test_without_base_position_and_velocity_only_the_dynamics_run(go1_log):
     cols = log_to_columns(go1_log)
     for k in [c for c in cols if c.startswith(("base_pos/", "base_linvel/"))]:
@@ -995,6 +1025,18 @@ def test_a_joint_velocity_of_another_sign_or_unit_warns():
     assert re.search(r"changes by 0\.017\d times", warned["qd/knee"])
     assert "degrees against radians" in warned["qd/knee"]
     assert "another unit" in warned["qd/rail"] and "degrees" not in warned["qd/rail"]
+    # The other way (a helper's audit): qd/knee in rad/s read as degrees per second (what
+    # --units deg does to a rate recorded in rad/s), 57.3 times too small. Its integral
+    # never moved past 0.02 rad, so nothing was judged; q/knee's own change (well above
+    # 0.1 rad RMS over 0.1 s on the hop) now is: 57.3 times its integral, named.
+    small = dict(rec.columns, **{"qd/knee": np.radians(rec.columns["qd/knee"])})
+    warned = {n.split("'")[1]: n for n in to_readings(Recording(small, "r"), robot).notes
+              if n.startswith("WARNING")}  # fmt: skip
+    assert re.search(r"'q/knee' changes by 5[67]\.\d times its integral", warned["qd/knee"])
+    assert "degrees against radians" in warned["qd/knee"]
+    zero = dict(rec.columns, **{"qd/knee": np.zeros_like(rec.columns["qd/knee"])})
+    warned = [n for n in to_readings(Recording(zero, "r"), robot).notes if "qd/knee" in n]
+    assert any("while its derivative's column stays 0" in n for n in warned), warned
 
 
 def test_a_gyroscope_rate_in_degrees_or_world_axes_warns():
@@ -1019,6 +1061,17 @@ def test_a_gyroscope_rate_in_degrees_or_world_axes_warns():
     deg = angular_velocity_mismatch(quat, np.degrees(body), dt)
     assert re.search(r"turns by 0\.0175 times the integral", deg)
     assert "convert base_angvel to rad/s (--units deg would read every angle" in deg
+    # 57.3 times too small (rad/s read as degrees per second), rolling at 2 rad/s: the
+    # integral moves 0.0035 rad over a window, the turn 0.2 rad (> 0.1, CHANGE_MOVES);
+    # judged on the turn now, named as degrees.
+    u = t  # the same turn at twice the rate: angle 2t, half-angle t
+    quat2 = np.stack([c * np.cos(u), c * np.sin(u), s * np.sin(u), s * np.cos(u)], axis=1)
+    assert angular_velocity_mismatch(quat2, 2 * body, dt) is None
+    small = angular_velocity_mismatch(quat2, np.radians(2 * body), dt)
+    assert re.search(r"turns by 57\.\d times the integral", small)
+    assert "degrees per second against radians" in small
+    still = np.zeros((t_len, 3))
+    assert "while base_angvel stays 0" in angular_velocity_mismatch(quat2, still, dt)
     text = angular_velocity_mismatch(quat, world, dt)
     assert text.startswith("base_quat turns as base_angvel says about world axes")
 
@@ -1319,6 +1372,12 @@ def _planar_cols():
             lambda c: c["time"].__setitem__(5, c["time"][4]),
             r"does not increase at row 5 .*a repeated row \(drop duplicates\)\?",
         ),
+        # Epoch seconds stored as float32 (steps of 128 s at 1.7e9 s): nearly every row
+        # repeats; "drop duplicates" would have deleted them (a helper's audit).
+        (
+            lambda c: c.update({"time": np.float32(1.7e9) + np.float32(c["time"])}),
+            r"does not increase at row 1 .*100% of the rows repeat .*float32 epoch seconds",
+        ),
         (
             lambda c: c.update({"time": c["time"] * 1e9}),
             r"'time' steps by 2\.5e\+06 \(median\): time must be in seconds.*nanoseconds",
@@ -1338,6 +1397,17 @@ def test_bad_input_is_one_line_naming_it(change, match):
     with pytest.raises(ValueError, match=match) as err:
         to_readings(Recording(cols, "rec.csv"), load_robot("planar_leg"))
     assert "\n" not in str(err.value) and "rec.csv" in str(err.value)
+
+
+def test_two_columns_named_onto_one_joint_are_refused():
+    """A helper's audit: ``--names knee_copy=knee`` beside a ``q/knee`` column replaced the
+    real column by the copy (the later one won), calling q/knee 'not in the schema'."""
+    cols = _planar_cols()
+    cols["q/knee_copy"] = cols["q/knee"] + 1.0
+    with pytest.raises(ValueError, match=r"columns 'q/knee' and 'q/knee_copy' both give q/knee"):
+        to_readings(
+            Recording(cols, "rec.csv"), load_robot("planar_leg"), names={"knee_copy": "knee"}
+        )
 
 
 def test_irregular_steps_are_resampled_by_the_stated_rule():
@@ -1396,6 +1466,16 @@ def test_a_csv_with_a_byte_order_mark_reads_and_other_separators_are_named(tmp_p
             ValueError, match="sep.csv': the header is one field holding " + re.escape(repr(sep))
         ):
             read_recording(tmp_path / "sep.csv")
+    # A binary file named .csv and a Latin-1 export (a helper's audit: "'utf-8' codec
+    # can't decode byte ...", naming no file among several); a CSV named .npz ("allow_pickle").
+    (tmp_path / "latin.csv").write_bytes("time,temp \u00b0C\n0,1\n".encode("latin-1"))
+    (tmp_path / "h5.csv").write_bytes(LOG.read_bytes())
+    for name in ("latin.csv", "h5.csv"):
+        with pytest.raises(ValueError, match=rf"recording '.*{name}' is not UTF-8 text \(byte"):
+            read_recording(tmp_path / name)
+    (tmp_path / "csv.npz").write_text(text)
+    with pytest.raises(ValueError, match=r"'.*csv.npz' is not an NPZ archive"):
+        read_recording(tmp_path / "csv.npz")
 
 
 def test_an_estimate_output_given_as_input_is_named(round_trip, tmp_path):

@@ -140,6 +140,10 @@ def read_recording(path: str | Path) -> Recording:
     if suffix == ".csv":
         columns = _read_csv(path, src, notes)
     elif suffix == ".npz":
+        import zipfile
+
+        if not zipfile.is_zipfile(path):  # numpy's own message spoke of allow_pickle
+            raise ValueError(f"{src} is not an NPZ archive (another file renamed .npz?)")
         try:
             with np.load(path, allow_pickle=False) as z:
                 columns = {k: np.asarray(z[k]) for k in z.files}
@@ -205,8 +209,15 @@ def _read_csv(path: Path, src: str, notes: list[str]) -> dict[str, np.ndarray]:
     """The CSV's columns; an incomplete last line (fewer fields than the header: a logger
     stopped mid-write) is dropped with a line in ``notes``; any other line of the wrong
     length is refused. A byte-order mark (a spreadsheet's "CSV UTF-8") is read past."""
-    with open(path, newline="", encoding="utf-8-sig") as f:
-        rows = list(csv.reader(f))
+    try:
+        with open(path, newline="", encoding="utf-8-sig") as f:
+            rows = list(csv.reader(f))
+    except UnicodeDecodeError as err:  # a binary file named .csv, or a Latin-1 export
+        raise ValueError(
+            f"{src} is not UTF-8 text (byte {err.start}: {err.reason}); a recording's CSV is"
+            " UTF-8 (another file renamed .csv? a spreadsheet's Latin-1 export: save it as"
+            ' "CSV UTF-8")'
+        ) from None
     if not rows:
         raise ValueError(f"{src} is empty; expected a header row of column names")
     header = [h.strip() for h in rows[0]]

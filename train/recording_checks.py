@@ -144,8 +144,13 @@ def window_changes(
 
 # A recorded derivative whose integral follows its reading's change with a slope outside
 # this range is another unit, sign or column; judged only where the integral moves by more
-# than the second value (rad or m; rad/s or m/s for accelerations) at its RMS.
+# than the second value (rad or m; rad/s or m/s for accelerations) at its RMS, or where
+# the reading itself changes by more than the third: a derivative 57 times too small (a
+# rate in rad/s read with --units deg) never moved its integral past the second, and went
+# unnamed. The third is far above a reading's noise over the window (0.02 rad of position
+# noise changes by 0.028 rad RMS; 0.3 rad/s of velocity noise by 0.42 rad/s).
 SLOPE_RANGE, MOVES = (0.5, 2.0), {"qd/": 0.02, "qdd/": 0.5}
+CHANGE_MOVES = {"qd/": 0.1, "qdd/": 2.0}
 
 
 def _looks_like_degrees(slope: float) -> bool:
@@ -162,8 +167,16 @@ def derivative_mismatch(
     ``"qd/"`` or ``"qdd/"``; ``hinge``: the joint turns (a factor of 57.3 is then named
     as degrees against radians)."""
     change, integral = window_changes(x, rate, dt)
-    if len(change) < 10 or np.sqrt(np.mean(integral**2)) < MOVES[kind]:
+    if len(change) < 10:
         return None
+    moves = np.sqrt(np.mean(integral**2)) >= MOVES[kind]
+    if not moves and np.sqrt(np.mean(change**2)) < CHANGE_MOVES[kind]:
+        return None
+    if not np.any(integral):
+        return (
+            f"over {FRAME_WINDOW_S:g} s windows {of!r} changes by"
+            f" {np.sqrt(np.mean(change**2)):.3g} (RMS) while its derivative's column stays 0"
+        )
     slope = float(np.sum(change * integral) / np.sum(integral**2))
     if SLOPE_RANGE[0] <= slope <= SLOPE_RANGE[1]:
         return None
@@ -223,7 +236,8 @@ def angular_velocity_mismatch(quat: np.ndarray, angvel: np.ndarray, dt: float) -
     schema's base frame). Named: a least-squares slope of the turn on the integral outside
     :data:`SLOPE_RANGE` (degrees per second, a sign), or a world-frame rate (the turn
     ``q_{k+n} q_k^-1``, world axes, fits with under half the error). Judged only where the
-    integral's RMS exceeds 0.02 rad (0.2 rad/s).
+    integral's RMS exceeds 0.02 rad (0.2 rad/s) or the turn's 0.1 rad
+    (:data:`CHANGE_MOVES`).
     """
     ok = _valid_quaternions(quat)
 
@@ -234,8 +248,16 @@ def angular_velocity_mismatch(quat: np.ndarray, angvel: np.ndarray, dt: float) -
         return (_rotation(q1) * _rotation(q0).inv()).as_rotvec()
 
     turn, integral = window_changes(quat, angvel, dt, ok, change=body)
-    if len(turn) < 10 or np.sqrt(np.mean(np.sum(integral**2, axis=1))) < 0.02:
+    if len(turn) < 10:
         return None
+    moves = np.sqrt(np.mean(np.sum(integral**2, axis=1))) >= MOVES["qd/"]
+    if not moves and np.sqrt(np.mean(np.sum(turn**2, axis=1))) < CHANGE_MOVES["qd/"]:
+        return None  # as derivative_mismatch: a rate 57 times too small is judged too
+    if not np.any(integral):
+        return (
+            f"over {FRAME_WINDOW_S:g} s windows the base turns (RMS"
+            f" {np.sqrt(np.mean(np.sum(turn**2, axis=1))):.3g} rad) while base_angvel stays 0"
+        )
     slope = float(np.sum(turn * integral) / np.sum(integral**2))
     if not SLOPE_RANGE[0] <= slope <= SLOPE_RANGE[1]:
         hint = (

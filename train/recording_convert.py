@@ -144,7 +144,18 @@ def _check_time(rec: Recording, resample: bool) -> tuple[Recording, float, list[
     bad = np.flatnonzero(step <= 0)
     if bad.size:
         i = int(bad[0]) + 1
-        again = "; a repeated row (drop duplicates)?" if t[i] == t[i - 1] else ""
+        again = ""
+        if t[i] == t[i - 1]:
+            # A single repeat is a duplicated row; times that repeat everywhere are times
+            # stored too coarsely (float32 epoch seconds step by 128 s at 1.7e9 s).
+            repeats = int(np.sum(step == 0))
+            again = (
+                f"; {repeats / len(step):.0%} of the rows repeat the time before them: times"
+                " stored at too low a precision (float32 epoch seconds?): store them as"
+                " float64, or relative to the first"
+                if repeats >= 3 and repeats > 0.01 * len(step)
+                else "; a repeated row (drop duplicates)?"
+            )
         raise ValueError(
             f"{src}: column 'time' does not increase at row {i} (0-based): {float(t[i]):.9g} s"
             f" after {float(t[i - 1]):.9g} s{again}"
@@ -274,6 +285,14 @@ def to_readings(
                         f" map it to one (--names {col[len(prefix) :]}=<model {what}>) or drop"
                         f" it (--names {col[len(prefix) :]}=)"
                     )
+                if (first := by_model[prefix].get(target)) is not None:
+                    # The later column replaced the first without a word (a names map
+                    # that sends an extra column onto a joint that has its own).
+                    raise ValueError(
+                        f"{src}: columns {first!r} and {col!r} both give {prefix}{target}"
+                        " (through the names map): map one to another name, or drop it"
+                        f" (--names {col[len(prefix) :]}=)"
+                    )
                 by_model[prefix][target] = col
     # A joint's entry must name a column (every joint has one): a typo would otherwise pass
     # unnoticed. A foot's may not: a recording without ground truth has no foot columns.
@@ -352,7 +371,17 @@ def to_readings(
     if not has_torque:
         terms.remove("dynamics")
         tau[:] = 0.0
-        notes.append(f"no joint torques for {gone}: the dynamics term is off (and the GM observer)")
+        text = f"no joint torques for {gone}: the dynamics term is off (and the GM observer)"
+        if len(gone) < len(actuated):
+            # Some joints have theirs: a column named otherwise, more likely than a robot
+            # without torque sensing on a few joints, and the whole term is lost for it.
+            have = [f"tau/{n}" for n in actuated if n not in gone]
+            text = (
+                f"WARNING {text}, on every leg, though {len(have)} of the {len(actuated)}"
+                f" actuated joints have a tau/ column ({', '.join(have[:3])}"
+                f"{', ...' if len(have) > 3 else ''}): is the missing one named otherwise?"
+            )
+        notes.append(text)
     if free is not None:
         qa, va = int(m.jnt_qposadr[free]), int(m.jnt_dofadr[free])
         missing = [c for c in BASE_QUAT + BASE["base_angvel"] if c not in cols]
@@ -418,10 +447,17 @@ def to_readings(
         # dynamics term only added its noise (the planar leg's sample: F1 0.014 with it,
         # 0.673 without; docs/own_robot.md).
         terms.remove("dynamics")
-        notes.append(
+        dof_joint = {int(m.jnt_dofadr[j]): n for n, j in joints}
+        named = [f"qd/{dof_joint[d]}" for d in legs_twice if d in dof_joint]
+        n_leg = len({d for leg in desc.leg_dofs for d in leg})
+        text = (
             "leg joint accelerations would be second differences of positions (no qd/ or"
-            f" qdd/ columns for dofs {legs_twice}): the dynamics term is off"
+            f" qdd/ columns for dofs {legs_twice}: {', '.join(named)}): the dynamics term is"
+            " off"
         )
+        if len(legs_twice) < n_leg:  # the others have theirs: one named otherwise?
+            text = f"WARNING {text}, on every leg; the other leg joints have their qd/ column"
+        notes.append(text)
     if not terms:
         raise ValueError(f"{src}: no measurement term can run on this recording")
     truth = truth_known = force = None

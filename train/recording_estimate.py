@@ -165,6 +165,12 @@ def estimate_recording(
         fields = {"p_contact": out["probabilistic"]} | {
             f: out[f"probabilistic/{f}"] for f in DIAGNOSTICS
         }
+        # A term the estimator ran without (e.g. the dynamics without torques) is still
+        # computed in the diagnostics, from zeros: its column is NaN (blank in the CSV),
+        # not a probability that nothing used.
+        for term in ("dynamics", "diff_kinematics", "kinematics"):
+            if term not in terms and f"p_{term}" in fields:
+                fields[f"p_{term}"] = np.full(np.shape(fields[f"p_{term}"]), np.nan)
         fields["valid"] = out["probabilistic/valid"].astype(np.float64)
         arrays = {"time": conv.time} | {
             k: np.asarray(v[:, 0], np.float32) for k, v in fields.items()
