@@ -64,7 +64,8 @@ def estimate_recording(
     :data:`DIAGNOSTICS` and ``valid`` as (T, L) arrays, ``truth/contact`` and
     ``truth/known`` with ground truth; attributes ``model``, ``recording``,
     ``terrain_model``, ``foot_names``, ``terms``, ``dt``, ``notes``, ``reading_timing``,
-    ``calibration``), ``estimate.csv``
+    ``calibration``, ``format_version``; docs/own_robot.md, "The output files"),
+    ``estimate.csv``
     (``time`` and ``<field>/<foot>`` columns), ``<foot>.png`` per foot, and with ground
     truth ``metrics.json``. Prints the notes (derived columns, terms off), a summary per
     foot and, with ground truth, the metrics table of ``jax-contact evaluate``.
