@@ -1476,6 +1476,10 @@ def test_a_csv_with_a_byte_order_mark_reads_and_other_separators_are_named(tmp_p
     (tmp_path / "csv.npz").write_text(text)
     with pytest.raises(ValueError, match=r"'.*csv.npz' is not an NPZ archive"):
         read_recording(tmp_path / "csv.npz")
+    # A matrix of every joint's positions: the layout expected is said.
+    np.savez(tmp_path / "matrix.npz", time=cols["time"], q=np.zeros((10, 3)))
+    with pytest.raises(ValueError, match=r"column 'q' has shape \(10, 3\); expected \(N,\): one"):
+        read_recording(tmp_path / "matrix.npz")
 
 
 def test_an_estimate_output_given_as_input_is_named(round_trip, tmp_path):

@@ -177,7 +177,11 @@ def read_recording(path: str | Path) -> Recording:
     out = {}
     for name, col in columns.items():
         if col.ndim != 1:
-            raise ValueError(f"{src}: column {name!r} has shape {col.shape}; expected (N,)")
+            raise ValueError(
+                f"{src}: column {name!r} has shape {col.shape}; expected (N,): one 1-D array"
+                " per column, named as a CSV header's (q/<joint>, tau/<joint>, base_quat/w,"
+                " ...), not a matrix of several"
+            )
         try:
             out[name] = col.astype(np.float64)
         except (TypeError, ValueError):
