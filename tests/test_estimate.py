@@ -716,6 +716,27 @@ def test_a_rerun_says_which_earlier_outputs_it_removed(round_trip, tmp_path, cap
     assert sorted(p.name for p in out.iterdir()) == ["estimate.csv", "estimate.h5", "notes.txt"]
 
 
+def test_baselines_are_tuned_on_the_foot_steps_they_are_scored_on(tmp_path):
+    """evaluate leaves out of every detector's score the foot-steps where the estimator
+    skipped a foot for a lost reading (scored_steps); tune_baselines scored the grid on
+    every valid step, so the rows it picked were tuned on more steps than they are
+    scored on. The knee's velocity lost on readings 200-219 of the hop: the grid's scores
+    of the pick now count the steps evaluate's row counts, and give its F1."""
+    from jax_contact.io import write_log
+    from jax_contact.train.log_evaluate import evaluate_file, tune_baselines
+
+    arrays, attrs = read_log(LOG)
+    arrays = {k: np.array(v) for k, v in arrays.items()}
+    arrays["readings/qvel"][200:220, 0, 2] = np.nan
+    lost = write_log(tmp_path / "lost.h5", arrays, attrs)
+    tuned = tune_baselines(lost)
+    name = tuned["gm"][0]
+    got = evaluate_file(lost, gm_grid_log=lost, tuned_baselines=tuned)["scores"][name]
+    grid = tuned["scores"]["gm"][name]
+    assert got["n_steps"] < 800 and grid["n_steps"] == got["n_steps"]
+    assert grid["f1"] == pytest.approx(got["f1"], abs=1e-12)
+
+
 def test_evaluate_on_a_recording_points_to_estimate():
     from jax_contact.io import read_log
 

@@ -48,6 +48,22 @@ UNTUNED_BASELINES = (
 GM_GRID_HINT = "; --gm-grid LOG tunes them on another seed's log, as the reproduction does"
 
 
+def _estimator_read(log: LoadedLog) -> np.ndarray:
+    """The foot-steps a log's baselines are scored on when they are tuned: its valid steps
+    less those where the default estimator skips a foot for a lost reading, the steps
+    :func:`scored_steps` leaves out of every detector's score (the grid was scored on all
+    valid steps, the rows it picked then on fewer)."""
+    from jax_contact.train.logs import log_noise
+    from jax_contact.train.tune_data import default_params, feet_read, measure_readings
+
+    known = np.broadcast_to(np.asarray(log.valid, bool)[..., None], np.shape(log.truth))
+    if all(np.isfinite(np.asarray(x)).all() for x in log.readings.values()):
+        return known
+    params, _ = default_params(log.robot, log.dt, log_noise(log.attrs))
+    read = feet_read(params, log.readings, measure_readings(log.robot, log.readings))
+    return known & np.asarray(read, bool)
+
+
 def tune_baselines(path: str | Path) -> dict:
     """The GM observer's and the kinematic detector's settings of
     ``jax_contact.train.reproduce``'s grids with the best F1 on a log, from one replay.
@@ -98,8 +114,9 @@ def tune_baselines(path: str | Path) -> dict:
         kinematic=kins,
         dt=log.dt,
     )
+    scored = _estimator_read(log)
     scores = {
-        grid: score(out, log.truth, log.valid, dt=log.dt, names=list(names))
+        grid: score(out, log.truth, scored, dt=log.dt, names=list(names))
         for grid, names in (("gm", gms), ("kinematic", kins))
     }
     grids = {"gm": (gms, GM_FIELDS), "kinematic": (kins, KIN_FIELDS)}
