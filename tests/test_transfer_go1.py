@@ -266,6 +266,9 @@ def test_transfer_main_prints_the_go1_metrics(tmp_path, fake_cells, monkeypatch,
         _run_folder(tmp_path / "seed0" / v, v, None)
     res = transfer.main([str(tmp_path), "--envs", "3", "--json", str(tmp_path / "m.json")])
     out = capsys.readouterr().out
+    assert f"wrote {tmp_path / 'm.json'}" in out
+    saved = json.loads((tmp_path / "m.json").read_text())
+    assert saved["episode_length"] is None and saved["config"]["num_timesteps"] > 0
     assert "\nreturn\n| trained with | truth | estimate | estimate_harsh" in out
     assert "| truth | 0.000 | 1.000 | 2.000 |" in out  # one seed: no spread to show
     saved = json.loads((tmp_path / "m.json").read_text())["cells"]
@@ -285,6 +288,33 @@ def test_transfer_main_prints_the_go1_metrics(tmp_path, fake_cells, monkeypatch,
     with pytest.raises(SystemExit):
         transfer.main([str(tmp_path)])
     assert "argument root:" in capsys.readouterr().err
+
+
+def test_runs_that_cannot_share_a_matrix_are_refused_and_uneven_ones_named(tmp_path):
+    """A helper's audit ran each of these into a matrix without a word: a truth run copied
+    into the estimate row's folder (the row was the truth policy's), runs of two training
+    configurations, rows over different seeds, an unfinished run."""
+    runs = {v: [_run_folder(tmp_path / "seed0" / v, v, "go1")] for v in ("none", "truth")}
+    assert transfer.check_runs(runs) == []
+    copied = _run_folder(tmp_path / "seed0" / "estimate", "truth", "go1")
+    with pytest.raises(ValueError, match=r"estimate: its run.json says variant 'truth', but it"):
+        transfer.check_runs(dict(runs, estimate=[copied]))
+    other = _run_folder(tmp_path / "seed1" / "truth", "truth", "go1")
+    info = json.loads((other / "run.json").read_text())
+    info["config"]["num_timesteps"] = 320
+    info["finished"] = False
+    (other / "run.json").write_text(json.dumps(info))
+    uneven = {"none": runs["none"], "truth": [*runs["truth"], other]}
+    with pytest.raises(ValueError, match=r"other configurations \(num_timesteps \d+ vs 320\)"):
+        transfer.check_runs(uneven)
+    info["config"]["num_timesteps"] = ppo.SMALL.num_timesteps
+    (other / "run.json").write_text(json.dumps(info))
+    notes = transfer.check_runs(uneven)
+    assert notes[0] == (
+        "the rows are over different seeds (none: seed0; truth: seed0, seed1): their means"
+        " are not over the same training runs"
+    )
+    assert notes[1].startswith("training did not finish for [") and "seed1/truth" in notes[1]
 
 
 # ----------------------------------------------------------------------------- CLI

@@ -34,6 +34,8 @@ deviation and the per-seed values over seeds.
 from __future__ import annotations
 
 import dataclasses
+import json
+import sys
 import time
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -459,6 +461,55 @@ def format_matrix(result: dict, metric: str = "return") -> str:
     return "\n".join(lines)
 
 
+def check_runs(runs: Mapping[str, Sequence[str | Path]]) -> list[str]:
+    """Refuses runs that cannot share a matrix; returns warnings for those that can, but
+    differ in what the matrix does not show.
+
+    Refused (a helper's audit found each run into a matrix without a word): a run whose
+    ``run.json`` names another variant than its row (a truth run copied into
+    ``seed0/estimate`` filled the estimate row with the truth policy), and runs whose
+    training configurations differ (``run.json``'s ``config``; the episode length came
+    from the first). Warned: rows over different seeds (each cell's ``n_seeds`` says so,
+    the table does not), and runs whose training did not finish (``finished`` false).
+
+    Raises:
+      ValueError: naming the run folder and the field.
+    """
+    infos = {}
+    for variant, dirs in runs.items():
+        for d in dirs:
+            d = Path(d)
+            info = json.loads((d / "run.json").read_text())
+            if info.get("variant", variant) != variant:
+                raise ValueError(
+                    f"{d}: its run.json says variant {info['variant']!r}, but it is a run of"
+                    f" the {variant!r} row (a copied or moved run folder?)"
+                )
+            infos[d] = info
+    first, *rest = infos
+    for d in rest:
+        a, b = infos[first].get("config", {}), infos[d].get("config", {})
+        if differ := sorted(k for k in set(a) | set(b) if a.get(k) != b.get(k)):
+            shown = ", ".join(f"{k} {a.get(k)!r} vs {b.get(k)!r}" for k in differ[:4])
+            raise ValueError(
+                f"{first} and {d} were trained with other configurations ({shown}"
+                f"{', ...' if len(differ) > 4 else ''}): one matrix per configuration"
+            )
+    notes = []
+    seeds = {v: sorted(Path(d).parent.name for d in dirs) for v, dirs in runs.items()}
+    if len({tuple(s) for s in seeds.values()}) > 1:
+        notes.append(
+            "the rows are over different seeds ("
+            + "; ".join(f"{v}: {', '.join(s)}" for v, s in seeds.items())
+            + "): their means are not over the same training runs"
+        )
+    if unfinished := [str(d) for d, info in infos.items() if not info.get("finished", True)]:
+        notes.append(
+            f"training did not finish for {unfinished}: their latest checkpoints are evaluated"
+        )
+    return notes
+
+
 def runs_under(root: str | Path, variants: Sequence[str] | None = None) -> dict[str, list[Path]]:
     """``root/seed*/<variant>`` run folders (the layout of ``jax-contact train --task TASK
     --seed S --out root/seedS``), per variant, in seed order.
@@ -524,10 +575,13 @@ def run_transfer(args, error) -> dict:
         for dirs in runs.values():
             for d in dirs:
                 latest_checkpoint(d)
+        notes = check_runs(runs)
     except (FileNotFoundError, ValueError) as err:  # ValueError: a damaged run.json
         error(f"argument root: {err}")
     if len(tasks) > 1:
         error(f"argument root: {args.root} holds runs of several tasks {sorted(tasks)}")
+    for note in notes:
+        print(f"warning: {note}", file=sys.stderr)
     enable_compilation_cache()
     res = transfer_matrix(
         runs, n_envs=args.envs, episode_length=args.episode_length, seed=args.seed
@@ -535,8 +589,14 @@ def run_transfer(args, error) -> dict:
     res["runs"] = {v: [str(d) for d in dirs] for v, dirs in runs.items()}
     for metric in res["metrics"]:
         print(f"\n{metric}\n{format_matrix(res, metric)}")
+    res["episode_length"] = args.episode_length  # None: each run's own
+    res["config"] = json.loads((next(iter(runs.values()))[0] / "run.json").read_text()).get(
+        "config"
+    )
+    res["warnings"] = notes
     if args.json:
         write_json_atomic(args.json, res)
+        print(f"wrote {args.json}")
     return res
 
 
