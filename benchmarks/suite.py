@@ -43,20 +43,21 @@ def main(argv=None) -> dict:
 
     result: dict = {}
     with json_of_what_finished(args.json, result):
-        estimator.main(  # fills result as it measures: what finished stays on Ctrl-C
-            ["--envs", *map(str, args.envs), "--latency-calls", str(args.latency_calls)],
-            into=result,
-        )
-        print()
         vs: dict = {}
         try:
+            estimator.main(  # fills result as it measures: what finished stays on an error
+                # (Ctrl-C writes nothing, as everywhere)
+                ["--envs", *map(str, args.envs), "--latency-calls", str(args.latency_calls)],
+                into=result,
+            )
+            print()
             versus.run(args.versus_envs, into=vs)
         finally:
             # Both measured on the same machine in this process; the estimator's description
             # stands.
             result.update({k: v for k, v in vs.items() if k != "machine"})
             # The suite's own arguments, not the estimator's part of them (which had
-            # "json": null and no --versus-envs).
+            # "json": null and no --versus-envs), also in a file an error cut short.
             result["args"] = vars(args)
     return result
 

@@ -148,6 +148,10 @@ _MAIN_THEN_HEAVY = (
         # A repeat trained twice (or failed after the first had trained); ran a scene again.
         (["train", "--variants", "truth", "truth"], ["argument --variants", "repeated variant"]),
         (["rates", "--scenes", "go1", "go1"], ["argument --scenes", "repeated scene"]),
+        # bench: a repeat was measured twice; 10^9 envs died on a 9.4 TiB allocation after
+        # the other sections had run.
+        (["bench", "--envs", "8", "8"], ["argument --envs", "repeated batch size"]),
+        (["bench", "--versus-envs", "1000000000"], ["argument --versus-envs", "GiB"]),
         (["evaluate", "README.md", "--bootstrap", "99999999999"], ["argument --bootstrap"]),
         (["tune", "README.md", "--validate", "x.h5", "--out", "t.json"], ["argument LOG"]),
         # The same tuning log twice: refused after JAX loaded and the first log was measured.

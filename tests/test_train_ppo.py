@@ -428,9 +428,18 @@ def test_a_second_train_into_the_same_folder_keeps_the_first(tmp_path, monkeypat
     # Another seed: refused before training, nothing changed; --overwrite replaces it.
     before = (tmp_path / "summary.json").read_text()
     with pytest.raises(
-        ValueError, match=r"summary.json holds the runs \['estimate', 'none'\] of another seed"
+        ValueError,
+        match=r"holds the runs \['estimate', 'none'\] of another seed \(seed 0, not 1\)",
     ):
         ppo.train_variants(TINY, tmp_path, variants=["truth"], seed=1, eval_envs=0, log=log.append)
+    # Another configuration: the fields that differ are named (it said "; see its config").
+    other = dataclasses.replace(TINY, num_timesteps=TINY.num_timesteps * 2)
+    with pytest.raises(
+        ValueError,
+        match=rf"of another config \(config: num_timesteps {TINY.num_timesteps}, not"
+        rf" {2 * TINY.num_timesteps}\)",
+    ):
+        ppo.train_variants(other, tmp_path, variants=["truth"], eval_envs=0, log=log.append)
     assert calls == ["estimate", "none"] and (tmp_path / "summary.json").read_text() == before
     summary = ppo.train_variants(
         TINY, tmp_path, variants=["truth"], seed=1, overwrite=True, eval_envs=0, log=log.append

@@ -414,8 +414,29 @@ def _check_policy_eval(args: argparse.Namespace) -> None:
     check_not_a_run_file("--json", args.json, [run])
 
 
+# The least memory one env of the benchmark's estimator holds (Go1, quadrature touch-down:
+# 14.5 kB measured, `bytes_per_env` in bench's JSON; Monte-Carlo 56 kB): a batch whose
+# lower bound exceeds the machine's memory is refused before JAX loads (10^9 envs ran the
+# other sections first, then died on a 9.4 TiB allocation with a traceback).
+BENCH_MIN_BYTES_PER_ENV = 14_000
+
+
 def _check_bench(args: argparse.Namespace) -> None:
     check_output_file("--json", args.json, (".json",))  # the suite's own rule, before JAX loads
+    try:
+        total = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (ValueError, OSError, AttributeError):  # not on this OS: no check
+        total = None
+    for arg in ("--envs", "--versus-envs"):
+        sizes = getattr(args, arg[2:].replace("-", "_")) or ()
+        check_no_repeats(arg, sizes, "batch size")  # a repeat was measured twice
+        if total and sizes and max(sizes) * BENCH_MIN_BYTES_PER_ENV > total:
+            raise ValueError(
+                f"argument {arg}: {max(sizes)} envs need at least"
+                f" {max(sizes) * BENCH_MIN_BYTES_PER_ENV / 2**30:.3g} GiB (the estimator's"
+                f" {BENCH_MIN_BYTES_PER_ENV / 1e3:g} kB per env); this machine has"
+                f" {total / 2**30:.0f} GiB of memory"
+            )
 
 
 def _check_rates(args: argparse.Namespace) -> None:

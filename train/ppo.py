@@ -770,11 +770,19 @@ def earlier_runs(
     if differs and others:
         if overwrite:
             return {}, []
+        shown = [f"{k} {earlier.get(k)!r}, not {ours[k]!r}" for k in differs if k != "config"]
+        if "config" in differs:  # which fields (tiny against small: num_timesteps, ...)
+            theirs = earlier.get("config") if isinstance(earlier.get("config"), dict) else {}
+            fields = sorted(k for k in set(theirs) | set(config) if theirs.get(k) != config.get(k))
+            shown.append(
+                "config: "
+                + ", ".join(f"{k} {theirs.get(k)!r}, not {config.get(k)!r}" for k in fields[:3])
+                + (", ..." if len(fields) > 3 else "")
+            )
         raise ValueError(
             f"{path} holds the runs {others} of another {' and '.join(differs)}"
-            f" ({', '.join(f'{k} {earlier.get(k)!r}' for k in differs if k != 'config')}"
-            f"{'; see its config' if 'config' in differs else ''}): pass another --out, or"
-            " --overwrite to replace that summary (their run folders stay)"
+            f" ({'; '.join(shown)}): pass another --out, or --overwrite to replace that"
+            " summary (their run folders stay)"
         )
     kept = {v: earlier["runs"][v] for v in others if (out_dir / v / "run.json").is_file()}
     evals = [e for e in earlier.get("evaluation", []) if e.get("trained_with") in kept]
