@@ -254,6 +254,9 @@ def test_a_damaged_run_folder_is_named_in_one_line(saved, tmp_path, monkeypatch)
         FileNotFoundError, match=f"checkpoint folder: pass its run folder, '{copy}'"
     ):
         policy_eval.evaluate_policy(ckpt)
+    # train's --out, one level above its run folders (a helper's audit: "no run.json" only).
+    with pytest.raises(FileNotFoundError, match=r"it holds the run folders \['truth'\]: pass one"):
+        policy_eval.evaluate_policy(copy.parent, n_envs=2)
     config = ckpt / "ppo_network_config.json"
     config.write_text("{")
     with pytest.raises(ValueError, match=r"ppo_network_config.json is not JSON .*--overwrite"):

@@ -354,6 +354,9 @@ def not_a_run_folder(path: str | os.PathLike) -> str:
     hint = ""
     if path.parent.name == "checkpoints":
         hint = f"; it is a checkpoint folder: pass its run folder, {str(path.parent.parent)!r}"
+    elif runs := sorted(p.parent.name for p in path.glob("*/run.json")):
+        # train's --out: its run folders are one level down.
+        hint = f"; it holds the run folders {runs}: pass one, e.g. {str(path / runs[0])!r}"
     return f"{str(path)!r} is not a run folder of jax-contact train (no run.json){hint}"
 
 
