@@ -1531,6 +1531,19 @@ def test_an_output_that_is_an_input_or_a_runs_file_is_refused_at_once(tmp_path, 
     assert names.read_text() == '{"a": "b"}'
 
 
+def test_rates_says_where_it_wrote_its_json(tmp_path, monkeypatch, capsys):
+    """A helper's audit: ``rates --json`` wrote its file without a word, where ``bench``
+    and ``policy-eval`` say so. The scene's run is stood in for (its minute is not what
+    is tested)."""
+    from jax_contact.train import rates
+
+    monkeypatch.setattr(rates, "run", lambda scenes, **kw: {scenes[0]: {"accuracy": 0.9}})
+    out = tmp_path / "rates.json"
+    assert cli.main(["rates", "--scenes", "planar_leg", "--json", str(out)]) == 0
+    assert f"wrote {out}" in capsys.readouterr().out
+    assert json.loads(out.read_text()) == {"planar_leg": {"accuracy": 0.9}}
+
+
 def test_tune_out_replaces_a_parameter_file_but_no_other_json(tmp_path, capsys):
     """A helper's audit: ``tune --out results.json`` replaced an ``evaluate --json`` report
     with a parameter file, saying only 'wrote results.json'. Now another JSON is refused

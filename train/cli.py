@@ -298,7 +298,7 @@ def _cmd_rates(args: argparse.Namespace) -> int:
     for scene in progress.bar(args.scenes, desc="rates", unit="scene"):
         out.update(rates.run([scene], seed=args.seed, pairing=args.pairing, params=args.params))
     if args.json:
-        write_json_atomic(args.json, out)
+        print(f"wrote {write_json_atomic(args.json, out)}")  # as bench and policy-eval say
     return 0
 
 
