@@ -244,6 +244,8 @@ def test_a_damaged_run_folder_is_named_in_one_line(saved, tmp_path, monkeypatch)
         ("[1]", "run.json holds no JSON object"),
         (good.replace('"truth"', '"bogus"'), r"variant 'bogus' is not one of \('none'"),
         (good.replace('"num_envs"', '"n_envs"'), r"config is not a PPOConfig .*'n_envs'"),
+        # A hand-edited task read as "unknown env 'PlanarLegHop'" (a helper's audit).
+        (good.replace("{", '{"task": "go2", ', 1), r"run.json: task 'go2' is not one of \("),
     ):
         (copy / "run.json").write_text(text)
         with pytest.raises(ValueError, match=match):

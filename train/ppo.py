@@ -596,6 +596,10 @@ def read_run(run_dir: str | Path) -> dict:
         raise ValueError(
             f"{path}: variant {run.get('variant')!r} is not one of {VARIANTS}: {damaged}"
         )
+    from jax_contact.train.cli_args import TASKS
+
+    if run.get("task", "go1") not in TASKS:  # an unknown one read as "unknown env ..."
+        raise ValueError(f"{path}: task {run.get('task')!r} is not one of {TASKS}: {damaged}")
     fields = {f.name for f in dataclasses.fields(PPOConfig)}
     config = run.get("config")
     if not isinstance(config, dict) or not set(config) <= fields:
