@@ -317,6 +317,16 @@ def test_runs_that_cannot_share_a_matrix_are_refused_and_uneven_ones_named(tmp_p
     assert notes[1].startswith("training did not finish for [") and "seed1/truth" in notes[1]
 
 
+def test_a_seed_folder_given_as_root_names_its_parent(tmp_path):
+    """A helper's audit: ``transfer ROOT/seed0`` suggested training into
+    ``ROOT/seed0/seedS``, a level deeper; it names the folder to pass."""
+    for v in ("none", "truth", "estimate"):
+        _run_folder(tmp_path / "seed0" / v, v, "go1")
+    with pytest.raises(FileNotFoundError, match=r"it is one seed's folder; pass the folder of"):
+        transfer.runs_under(tmp_path / "seed0")
+    assert set(transfer.runs_under(tmp_path)) == {"none", "truth", "estimate"}
+
+
 # ----------------------------------------------------------------------------- CLI
 
 

@@ -531,6 +531,13 @@ def runs_under(root: str | Path, variants: Sequence[str] | None = None) -> dict[
         for v in (variants or ppo.VARIANTS)
     }
     empty = [v for v, dirs in found.items() if not dirs]
+    own = [v for v in found if (root / v / "run.json").is_file()]
+    if empty and own:
+        # A seed folder given as root: its runs are one level up from where they are sought.
+        raise FileNotFoundError(
+            f"{root} holds run folders itself ({', '.join(own)}): it is one seed's folder;"
+            f" pass the folder of seed*/ folders, {str(root.parent)!r}"
+        )
     if empty:
         raise FileNotFoundError(
             f"no run folder {root}/seed*/{empty[0]} (with a run.json): the matrix has a row per"
