@@ -153,6 +153,17 @@ SLOPE_RANGE, MOVES = (0.5, 2.0), {"qd/": 0.02, "qdd/": 0.5}
 CHANGE_MOVES = {"qd/": 0.1, "qdd/": 2.0}
 
 
+def _rms(x: np.ndarray) -> float:
+    """The RMS over windows of a change (T,) or of a vector change's norm (T, 3)."""
+    return float(np.sqrt(np.sum(x**2) / len(x)))
+
+
+def _too_still(change: np.ndarray, integral: np.ndarray, kind: str) -> bool:
+    """Whether neither a reading's change nor its derivative's integral moves enough to
+    judge their slope (:data:`MOVES`, :data:`CHANGE_MOVES`), or too few windows."""
+    return len(change) < 10 or (_rms(integral) < MOVES[kind] and _rms(change) < CHANGE_MOVES[kind])
+
+
 def _looks_like_degrees(slope: float) -> bool:
     """A slope near 180 / pi = 57.3 or its inverse: one column in degrees, one in radians."""
     return 40 < abs(slope) < 80 or 1 / 80 < abs(slope) < 1 / 40
@@ -167,15 +178,12 @@ def derivative_mismatch(
     ``"qd/"`` or ``"qdd/"``; ``hinge``: the joint turns (a factor of 57.3 is then named
     as degrees against radians)."""
     change, integral = window_changes(x, rate, dt)
-    if len(change) < 10:
-        return None
-    moves = np.sqrt(np.mean(integral**2)) >= MOVES[kind]
-    if not moves and np.sqrt(np.mean(change**2)) < CHANGE_MOVES[kind]:
+    if _too_still(change, integral, kind):
         return None
     if not np.any(integral):
         return (
-            f"over {FRAME_WINDOW_S:g} s windows {of!r} changes by"
-            f" {np.sqrt(np.mean(change**2)):.3g} (RMS) while its derivative's column stays 0"
+            f"over {FRAME_WINDOW_S:g} s windows {of!r} changes by {_rms(change):.3g} (RMS)"
+            " while its derivative's column stays 0"
         )
     slope = float(np.sum(change * integral) / np.sum(integral**2))
     if SLOPE_RANGE[0] <= slope <= SLOPE_RANGE[1]:
@@ -248,15 +256,12 @@ def angular_velocity_mismatch(quat: np.ndarray, angvel: np.ndarray, dt: float) -
         return (_rotation(q1) * _rotation(q0).inv()).as_rotvec()
 
     turn, integral = window_changes(quat, angvel, dt, ok, change=body)
-    if len(turn) < 10:
+    if _too_still(turn, integral, "qd/"):  # a rate 57 times too small is judged too
         return None
-    moves = np.sqrt(np.mean(np.sum(integral**2, axis=1))) >= MOVES["qd/"]
-    if not moves and np.sqrt(np.mean(np.sum(turn**2, axis=1))) < CHANGE_MOVES["qd/"]:
-        return None  # as derivative_mismatch: a rate 57 times too small is judged too
     if not np.any(integral):
         return (
-            f"over {FRAME_WINDOW_S:g} s windows the base turns (RMS"
-            f" {np.sqrt(np.mean(np.sum(turn**2, axis=1))):.3g} rad) while base_angvel stays 0"
+            f"over {FRAME_WINDOW_S:g} s windows the base turns (RMS {_rms(turn):.3g} rad)"
+            " while base_angvel stays 0"
         )
     slope = float(np.sum(turn * integral) / np.sum(integral**2))
     if not SLOPE_RANGE[0] <= slope <= SLOPE_RANGE[1]:
