@@ -85,6 +85,7 @@ from jax_contact.train.cli_args import (  # noqa: F401  (COLUMNS ... SCENES: re-
     check_run_folder,
     check_run_record,
     check_transfer,
+    machine_memory_bytes,
     nonnegative_int,
     not_a_run_folder,
     positive_float,
@@ -423,10 +424,7 @@ BENCH_MIN_BYTES_PER_ENV = 14_000
 
 def _check_bench(args: argparse.Namespace) -> None:
     check_output_file("--json", args.json, (".json",))  # the suite's own rule, before JAX loads
-    try:
-        total = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
-    except (ValueError, OSError, AttributeError):  # not on this OS: no check
-        total = None
+    total = machine_memory_bytes()
     for arg in ("--envs", "--versus-envs"):
         sizes = getattr(args, arg[2:].replace("-", "_")) or ()
         check_no_repeats(arg, sizes, "batch size")  # a repeat was measured twice

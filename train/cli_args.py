@@ -192,6 +192,14 @@ _MIN_LOG_BYTES_PER_STEP = 4 * 13
 _SIMULATE_DT = 0.0025  # s: the physics and readings of `simulate` run at 400 Hz
 
 
+def machine_memory_bytes() -> int | None:
+    """This machine's physical memory, bytes; None where the OS does not say."""
+    try:
+        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (ValueError, OSError, AttributeError):  # not on this OS
+        return None
+
+
 def check_log_size(
     envs: int,
     duration: float,
@@ -210,11 +218,8 @@ def check_log_size(
         )
     steps = duration / _SIMULATE_DT
     need = envs * steps * bytes_per_step
-    try:
-        total = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
-    except (ValueError, OSError, AttributeError):  # not on this OS: no check
-        return
-    if need > total:
+    total = machine_memory_bytes()
+    if total is not None and need > total:
         of = f" of {robot!r}" if robot else ""
         raise ValueError(
             f"arguments --envs and --duration: {envs} envs x {duration:g} s ({steps:.0f} steps"
