@@ -34,7 +34,6 @@ deviation and the per-seed values over seeds.
 from __future__ import annotations
 
 import dataclasses
-import json
 import sys
 import time
 from collections.abc import Mapping, Sequence
@@ -475,12 +474,14 @@ def check_runs(runs: Mapping[str, Sequence[str | Path]]) -> list[str]:
     Raises:
       ValueError: naming the run folder and the field.
     """
+    from jax_contact.train.ppo import read_run
+
     infos = {}
     for variant, dirs in runs.items():
         for d in dirs:
             d = Path(d)
-            info = json.loads((d / "run.json").read_text())
-            if info.get("variant", variant) != variant:
+            info = read_run(d)  # checked: a damaged run.json is named
+            if info["variant"] != variant:
                 raise ValueError(
                     f"{d}: its run.json says variant {info['variant']!r}, but it is a run of"
                     f" the {variant!r} row (a copied or moved run folder?)"
@@ -573,6 +574,7 @@ def run_transfer(args, error) -> dict:
     from jax_contact.io import write_json_atomic
     from jax_contact.train.compile_cache import enable_compilation_cache
     from jax_contact.train.policy_eval import latest_checkpoint
+    from jax_contact.train.ppo import read_run
 
     try:
         runs = runs_under(args.root)
@@ -597,9 +599,7 @@ def run_transfer(args, error) -> dict:
     for metric in res["metrics"]:
         print(f"\n{metric}\n{format_matrix(res, metric)}")
     res["episode_length"] = args.episode_length  # None: each run's own
-    res["config"] = json.loads((next(iter(runs.values()))[0] / "run.json").read_text()).get(
-        "config"
-    )
+    res["config"] = read_run(next(iter(runs.values()))[0])["config"]
     res["warnings"] = notes
     if args.json:
         write_json_atomic(args.json, res)
