@@ -379,11 +379,12 @@ def check_replaces_a_parameter_file(arg: str, path: str) -> None:
     from jax_contact.params_file import PARAMS_FORMAT
 
     p = Path(path)
-    if not p.is_file() or not p.read_bytes().strip():
-        return
     try:
-        held = json.loads(p.read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError):
+        text = p.read_bytes() if p.is_file() else b""
+        if not text.strip():
+            return  # no file, or an empty one
+        held = json.loads(text)
+    except (OSError, ValueError):  # JSONDecodeError, UnicodeDecodeError
         return  # check_output_file refuses a file that holds no JSON
     if not (isinstance(held, dict) and held.get("format") == PARAMS_FORMAT):
         raise ValueError(
