@@ -138,15 +138,12 @@ class FootSpec:
         if self.body is None:
             # Without a body the foot is the geom, site or body called name, as it is: these
             # options were ignored without a word (even a geom name that does not exist).
-            given = [
-                f
-                for f, unset in (
-                    ("offset", self.offset == (0.0, 0.0, 0.0)),
-                    ("radius", self.radius == 0.0),
-                    ("geoms", self.geoms is None),
-                )
-                if not unset
-            ]
+            set_ = {
+                "offset": self.offset != (0.0, 0.0, 0.0),
+                "radius": self.radius != 0.0,
+                "geoms": self.geoms is not None,
+            }
+            given = [f for f, is_set in set_.items() if is_set]
             if given:
                 raise ValueError(
                     f"FootSpec {self.name!r}: {', '.join(given)} apply to a foot given by its"

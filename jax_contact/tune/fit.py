@@ -423,8 +423,6 @@ def tune(
     for epoch in range(1, config.max_epochs + 1):
         losses, bces, norms, counts = [], [], [], []
         for i, data in enumerate(train):
-            if diverged:
-                break
             n_envs, n_legs = data.truth.shape[1:]
             belief = init_belief_batch(to_params(space, base, theta), n_envs, n_legs)
             for w, start in enumerate(range(0, data.n_steps, config.chunk)):
@@ -447,6 +445,8 @@ def tune(
                         f" {float(loss):.4g}, gradient norm {float(gn):.4g})"
                     )
                     break
+            if diverged:
+                break
         if diverged:
             stopped = True
             break
