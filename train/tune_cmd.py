@@ -397,8 +397,10 @@ def check_replaces_a_parameter_file(arg: str, path: str) -> None:
 
 
 def code_version() -> dict:
-    """The git commit of the library's checkout and whether it had changes (None outside a
-    git checkout): the parameters' provenance names the model they were tuned for."""
+    """The git commit of the library's checkout and the files of its code folders that
+    differ from it, modified or untracked (a new module or preset the checkout's code may
+    load; ignored files, e.g. ``__pycache__``, are not listed), None outside a git
+    checkout: the parameters' provenance names the model they were tuned for."""
     import subprocess
 
     root = Path(__file__).resolve().parents[1]
@@ -416,7 +418,7 @@ def code_version() -> dict:
     if not commit:
         return {"commit": None, "dirty": None}
     status = git(
-        "status", "--porcelain", "--untracked-files=no", "--", "jax_contact", "envs", "train"
+        "status", "--porcelain", "--untracked-files=all", "--", "jax_contact", "envs", "train"
     )
     return {"commit": commit, "dirty": sorted(line[3:] for line in (status or "").splitlines())}
 
