@@ -1290,6 +1290,45 @@ def test_a_torque_no_actuator_can_apply_is_named(go1_log):
     assert notes[0].endswith("another unit or sensor?")
 
 
+def test_a_recording_in_degrees_says_so_once(go1_log):
+    """A helper's trial: Go1's joints in degrees read as radians put "are they degrees?"
+    on every leg joint's warning. Each joint outside its range still has its line; the
+    suggestion comes once, naming the columns beyond 2 pi (recomputed here from the columns
+    and the model's ranges, not read from the checks)."""
+    import mujoco
+
+    from jax_contact.train.recording_checks import DEGREES_HINT, RANGE_SHARE, RANGE_SLACK
+
+    m = go1_log.robot.mj_model
+    cols = log_to_columns(go1_log, units="deg")
+    notes = to_readings(Recording(cols, "r"), go1_log.robot).notes
+    outside, beyond_2pi = [], []
+    for j in range(m.njnt):
+        if m.jnt_type[j] != mujoco.mjtJoint.mjJNT_HINGE or not m.jnt_limited[j]:
+            continue
+        col = f"q/{mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_JOINT, j)}"
+        lo, hi = m.jnt_range[j]
+        if np.mean((cols[col] < lo - RANGE_SLACK) | (cols[col] > hi + RANGE_SLACK)) > RANGE_SHARE:
+            outside.append(col)
+            if np.abs(cols[col]).max() > 2 * np.pi:
+                beyond_2pi.append(col)
+    assert len(beyond_2pi) >= 8  # thighs and calves: tens of degrees
+    lines = [n for n in notes if "outside the range of joint" in n]
+    assert [n.split("'")[1] for n in lines] == outside
+    assert not [n for n in lines if "degrees" in n]
+    hinted = [n for n in notes if "are they degrees" in n]
+    assert hinted == [
+        f"WARNING columns {beyond_2pi}: beyond 2 pi, outside their joints' ranges:"
+        + DEGREES_HINT.removeprefix(";")
+    ]
+    # Read as degrees, nothing is outside.
+    assert not [
+        n
+        for n in to_readings(Recording(cols, "r"), go1_log.robot, units="deg").notes
+        if "range" in n
+    ]
+
+
 def mujoco_joint(m, name: str) -> int:
     import mujoco
 

@@ -23,10 +23,15 @@ from scipy.spatial.transform import Rotation
 RANGE_SLACK, RANGE_SHARE = 0.1, 0.05
 
 
+# What a hinge read in radians beyond 2 pi adds to its range warning.
+DEGREES_HINT = "; are they degrees? pass --units deg (names=..., units='deg' in Python)"
+
+
 def outside_range(m, j: int, q: np.ndarray, *, name: str, hinge: bool, units: str) -> str | None:
     """A warning if ``q`` leaves limited joint ``j`` (``name``)'s range by more than
     :data:`RANGE_SLACK` on more than :data:`RANGE_SHARE` of its finite rows, else None; on
-    a ``hinge`` read in radians that exceeds 2 pi it suggests degrees."""
+    a ``hinge`` read in radians that exceeds 2 pi it suggests degrees
+    (:data:`DEGREES_HINT`)."""
     if not m.jnt_limited[j]:
         return None
     q = q[np.isfinite(q)]
@@ -35,15 +40,27 @@ def outside_range(m, j: int, q: np.ndarray, *, name: str, hinge: bool, units: st
     if q.size == 0 or out.mean() <= RANGE_SHARE:
         return None
     largest = float(np.abs(q).max())
-    hint = (
-        "; are they degrees? pass --units deg (names=..., units='deg' in Python)"
-        if hinge and units == "rad" and largest > 2 * np.pi
-        else ""
-    )
+    hint = DEGREES_HINT if hinge and units == "rad" and largest > 2 * np.pi else ""
     return (
         f"outside the range of joint {name!r}, [{lo:.4g}, {hi:.4g}] {'rad' if hinge else 'm'}"
         f" on {out.mean():.0%} of rows (largest {largest:.4g}){hint}"
     )
+
+
+def range_warnings(found: Sequence[tuple[str, str]]) -> list[str]:
+    """The warning lines of ``found``, (column, :func:`outside_range`'s text) pairs in the
+    joints' order: one line per column, and where more than one column suggests degrees the
+    suggestion once, after them, naming them all (a recording in degrees read as radians
+    put it on every leg joint's line, twelve times on a quadruped)."""
+    hinted = [c for c, text in found if text.endswith(DEGREES_HINT)]
+    if len(hinted) < 2:
+        return [f"WARNING column {c!r}: {text}" for c, text in found]
+    lines = [f"WARNING column {c!r}: {text.removesuffix(DEGREES_HINT)}" for c, text in found]
+    return [
+        *lines,
+        f"WARNING columns {hinted}: beyond 2 pi, outside their joints' ranges"
+        + DEGREES_HINT.replace("; are they", ": are they", 1),
+    ]
 
 
 def degenerate_quaternion(quat: np.ndarray) -> np.ndarray:

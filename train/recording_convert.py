@@ -50,6 +50,7 @@ from jax_contact.train.recording_checks import (
     force_truth,
     holds_gravity,
     outside_range,
+    range_warnings,
     torque_beyond_limit,
     truth_columns_disagree,
     upside_down,
@@ -310,6 +311,7 @@ def to_readings(
     tau_columns = {}
     dof_of = {}  # joint column -> the dof it reads (a lost one reaches that dof's feet only)
     vel_from_pos, acc_from_pos = [], []
+    out_of_range = []  # (column, text) of joints read outside their range
     for name, j in joints:
         col = by_model["q/"].get(name)
         if col is None:
@@ -324,7 +326,7 @@ def to_readings(
             if prefix in by_model and name in by_model[prefix]:
                 dof_of[by_model[prefix][name]] = va
         if outside := outside_range(m, j, qpos[:, qa], name=name, hinge=hinge, units=units):
-            notes.append(f"WARNING column {col!r}: {outside}")
+            out_of_range.append((col, outside))
         vcol, vcol_named = by_model["qd/"].get(name), False
         if vcol is None:
             qvel[:, va] = _backward_diff(qpos[:, qa], dt)
@@ -360,6 +362,7 @@ def to_readings(
             if beyond := torque_beyond_limit(m, j, tau[:, va]):
                 text = beyond.removeprefix("WARNING ")
                 notes.append(f"{'WARNING ' if text != beyond else ''}column {tcol!r}: {text}")
+    notes.extend(range_warnings(out_of_range))
     if missing_qd:
         notes.append(f"joint velocities differentiated from positions: {missing_qd}")
     actuated = sorted(
