@@ -979,17 +979,42 @@ def test_the_predicted_only_note_names_each_foots_steps():
 def test_angles_outside_the_joint_range_are_flagged_with_the_unit_hint(go1_log):
     """Go1's home pose near its joints' ranges in radians passes quietly; the same log in
     degrees read as radians leaves the hinges' ranges (Go1's calf joint: -2.818 to -0.888
-    rad, home -1.8 rad, i.e. -103 in degrees), and each such column gets a warning that
-    names it and suggests --units deg."""
+    rad, home -1.8 rad, i.e. -103 in degrees): each such column gets a warning that names
+    it, and the suggestion of --units deg comes once, naming the columns beyond 2 pi (a
+    helper's trial had it on each of twelve lines). Which columns are outside, and which
+    beyond 2 pi, is recomputed here from the columns and the model's ranges."""
+    import mujoco
+
+    from jax_contact.train.recording_checks import DEGREES_HINT, RANGE_SHARE, RANGE_SLACK
+
     cols = log_to_columns(go1_log)
     conv = to_readings(Recording(cols, "r"), go1_log.robot)
     assert not [n for n in conv.notes if n.startswith("WARNING")]
-    deg = {
-        k: v * (180 / np.pi) if k.startswith(("q/", "qd/", "qdd/")) else v for k, v in cols.items()
-    }
+    deg = log_to_columns(go1_log, units="deg")
+    m = go1_log.robot.mj_model
     notes = to_readings(Recording(deg, "r"), go1_log.robot).notes
-    warned = [n for n in notes if n.startswith("WARNING column 'q/FL_calf_joint'")]
-    assert len(warned) == 1 and "100% of rows" in warned[0] and "--units deg" in warned[0]
+    outside, beyond_2pi = [], []
+    for j in range(m.njnt):
+        if m.jnt_type[j] != mujoco.mjtJoint.mjJNT_HINGE or not m.jnt_limited[j]:
+            continue
+        col = f"q/{mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_JOINT, j)}"
+        lo, hi = m.jnt_range[j]
+        if np.mean((deg[col] < lo - RANGE_SLACK) | (deg[col] > hi + RANGE_SLACK)) > RANGE_SHARE:
+            outside.append(col)
+            if np.abs(deg[col]).max() > 2 * np.pi:
+                beyond_2pi.append(col)
+    assert "q/FL_calf_joint" in beyond_2pi and len(beyond_2pi) >= 8  # thighs and calves
+    lines = [n for n in notes if "outside the range of joint" in n]
+    assert [n.split("'")[1] for n in lines] == outside
+    calf = next(n for n in lines if "'q/FL_calf_joint'" in n)
+    assert "100% of rows" in calf and "degrees" not in calf
+    assert [n for n in notes if "--units deg" in n] == [
+        f"WARNING columns {beyond_2pi}: beyond 2 pi, outside their joints' ranges:"
+        + DEGREES_HINT.removeprefix(";")
+    ]
+    # Read as degrees, nothing is outside.
+    notes = to_readings(Recording(deg, "r"), go1_log.robot, units="deg").notes
+    assert not [n for n in notes if "range" in n]
 
 
 def test_a_quaternion_in_x_y_z_w_order_warns_with_the_order_hint(go1_log):
@@ -1288,45 +1313,6 @@ def test_a_torque_no_actuator_can_apply_is_named(go1_log):
     notes = [n for n in to_readings(Recording(unit, "r"), go1_log.robot).notes if "x the" in n]
     assert len(notes) == 1 and notes[0].startswith("WARNING column 'tau/RL_calf_joint'")
     assert notes[0].endswith("another unit or sensor?")
-
-
-def test_a_recording_in_degrees_says_so_once(go1_log):
-    """A helper's trial: Go1's joints in degrees read as radians put "are they degrees?"
-    on every leg joint's warning. Each joint outside its range still has its line; the
-    suggestion comes once, naming the columns beyond 2 pi (recomputed here from the columns
-    and the model's ranges, not read from the checks)."""
-    import mujoco
-
-    from jax_contact.train.recording_checks import DEGREES_HINT, RANGE_SHARE, RANGE_SLACK
-
-    m = go1_log.robot.mj_model
-    cols = log_to_columns(go1_log, units="deg")
-    notes = to_readings(Recording(cols, "r"), go1_log.robot).notes
-    outside, beyond_2pi = [], []
-    for j in range(m.njnt):
-        if m.jnt_type[j] != mujoco.mjtJoint.mjJNT_HINGE or not m.jnt_limited[j]:
-            continue
-        col = f"q/{mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_JOINT, j)}"
-        lo, hi = m.jnt_range[j]
-        if np.mean((cols[col] < lo - RANGE_SLACK) | (cols[col] > hi + RANGE_SLACK)) > RANGE_SHARE:
-            outside.append(col)
-            if np.abs(cols[col]).max() > 2 * np.pi:
-                beyond_2pi.append(col)
-    assert len(beyond_2pi) >= 8  # thighs and calves: tens of degrees
-    lines = [n for n in notes if "outside the range of joint" in n]
-    assert [n.split("'")[1] for n in lines] == outside
-    assert not [n for n in lines if "degrees" in n]
-    hinted = [n for n in notes if "are they degrees" in n]
-    assert hinted == [
-        f"WARNING columns {beyond_2pi}: beyond 2 pi, outside their joints' ranges:"
-        + DEGREES_HINT.removeprefix(";")
-    ]
-    # Read as degrees, nothing is outside.
-    assert not [
-        n
-        for n in to_readings(Recording(cols, "r"), go1_log.robot, units="deg").notes
-        if "range" in n
-    ]
 
 
 def mujoco_joint(m, name: str) -> int:
