@@ -177,10 +177,16 @@ def calibration_of(provenance) -> Calibration | None:
 def file_calibration(provenance, source) -> Calibration | None:
     """:func:`calibration_of` a provenance read from the file or preset ``source``, a
     malformed map raised as a ValueError that names ``source`` and the field."""
+    return checked_calibration(provenance, repr(str(source)))
+
+
+def checked_calibration(provenance, where: str) -> Calibration | None:
+    """:func:`calibration_of`, a malformed map raised as a ValueError that starts with
+    ``where`` (a file's description, e.g. ``"parameter file '...'"``) and names the field."""
     try:
         return calibration_of(provenance)
     except (KeyError, TypeError, ValueError) as err:
-        raise ValueError(f"{str(source)!r}: provenance field 'calibration': {err}") from None
+        raise ValueError(f"{where}: provenance field 'calibration': {err}") from None
 
 
 def load_calibration(path: str | os.PathLike) -> Calibration | None:

@@ -96,9 +96,9 @@ def _is_number(x) -> bool:
 
 def check_params_header(payload, source: str) -> None:
     """The checks of :func:`params_from_dict` that need no JAX: the format, version,
-    top-level keys, sections, the numeric fields' types and the provenance's type (the
-    command line runs them before JAX loads). Raises ValueError naming ``source`` and the
-    field."""
+    top-level keys, sections, the numeric fields' types, the provenance's type, its robot
+    mass and its calibration map (the command line runs them before JAX loads). Raises
+    ValueError naming ``source`` and the field."""
     if not isinstance(payload, Mapping) or payload.get("format") != PARAMS_FORMAT:
         raise ValueError(
             f"{source}: not a jax-contact parameter file (no format {PARAMS_FORMAT!r})"
@@ -146,6 +146,11 @@ def check_params_header(payload, source: str) -> None:
             f"{source}: provenance field 'robot_mass_kg' must be a positive number of kg"
             f" (or absent), got {mass!r}"
         )
+    # A malformed calibration map is refused on reading, as save_params refuses to write
+    # one: the wrapper warned of the file's dt first and only then refused its map.
+    from jax_contact.calibration import checked_calibration
+
+    checked_calibration(provenance, source)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -197,8 +202,10 @@ def params_from_dict(payload: Mapping, *, source: str = "params"):
         a value that :func:`jax_contact.make_params` / ``make_noise`` rejects.
     """
     from jax_contact.params import make_noise, make_params
+    from jax_contact.terrain import checked_terrain_model
 
     check_params_header(payload, source)
+    checked_terrain_model(payload.get("provenance"), source)
     want = {section: set(names) for section, names in _param_sections().items()}
     payload = dict(payload)
     for section, added in LATER_FIELDS.items():
@@ -297,9 +304,9 @@ def save_params(path: str | os.PathLike, params, provenance: Mapping | None = No
     # The file as load_params will read it back, checked before it is written.
     payload = json.loads(text)
     source = str(path)
-    check_params_header(payload, source)
     file_calibration(payload["provenance"], source)
     terrain_model_of(payload["provenance"], source)
+    check_params_header(payload, source)
     return write_text_atomic(path, text)
 
 

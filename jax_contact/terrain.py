@@ -312,10 +312,16 @@ def terrain_model_of(provenance: dict, source) -> str | None:
     Raises:
       ValueError: naming ``source`` and the field, for a name not in :data:`TERRAIN_MODELS`.
     """
+    return checked_terrain_model(provenance, f"parameter file {str(source)!r}")
+
+
+def checked_terrain_model(provenance: dict, where: str) -> str | None:
+    """:func:`terrain_model_of`, a name not in :data:`TERRAIN_MODELS` raised as a ValueError
+    that starts with ``where`` (a file's description) and names the field."""
     model = (provenance or {}).get("terrain_model")
     if model is not None and model not in TERRAIN_MODELS:
         raise ValueError(
-            f"parameter file {str(source)!r}: provenance field 'terrain_model' must be one of"
-            f" {TERRAIN_MODELS}, got {model!r}"
+            f"{where}: provenance field 'terrain_model' must be one of {TERRAIN_MODELS}, got"
+            f" {model!r}"
         )
     return model

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import warnings
 from pathlib import Path
 
 import jax
@@ -216,6 +217,16 @@ def test_bad_params_file_names_the_field(go1, tmp_path):
             lambda d: d["provenance"].update(robot_mass_kg="heavy"),
             "'robot_mass_kg' must be a positive number of kg.*'heavy'",
         ),
+        # Refused on reading as save_params refuses to write them (the wrapper and the
+        # commands refused them only after using the file: a dt warning came first).
+        "calibration": (
+            lambda d: d["provenance"].update(calibration={"kind": "sign"}),
+            "provenance field 'calibration'",
+        ),
+        "terrain model": (
+            lambda d: d["provenance"].update(terrain_model="stairs"),
+            r"provenance field 'terrain_model' must be one of \(.*\), got 'stairs'",
+        ),
     }
     for name, (mutate, pattern) in cases.items():
         d = json.loads(json.dumps(payload))
@@ -225,6 +236,14 @@ def test_bad_params_file_names_the_field(go1, tmp_path):
         with pytest.raises(ValueError, match=pattern) as err:
             jc.load_params(path)
         assert str(path) in str(err.value), name
+    # Checked against a robot at another period: refused before any warning about it.
+    d = json.loads(json.dumps(payload))
+    d["provenance"]["calibration"] = {"kind": "sign"}
+    (tmp_path / "cal.json").write_text(json.dumps(d))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with pytest.raises(ValueError, match="cal.json'?: provenance field 'calibration'"):
+            jc.params_file.load_params_for(tmp_path / "cal.json", nv=go1.nv, dt=2 * DT)
     (tmp_path / "not.json").write_text("{")
     with pytest.raises(ValueError, match="is not JSON"):
         jc.load_params(tmp_path / "not.json")
