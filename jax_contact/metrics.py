@@ -30,8 +30,9 @@ rules applied to the complements (``not truth``, ``not flag``):
    valid). Let ``a0`` be the first step of the air phase before it and ``t1`` the next
    true lift-off (or the end of the valid stretch). Its window is ``[w0, t1)`` with
    ``w0 = max(t0 - early, a0)`` and ``early = round(early_window_s / dt)`` steps (default
-   50 ms): detections may lead the truth by up to ``early`` steps, never into the previous
-   contact phase, and may lag until the next true lift-off.
+   50 ms; Python's ``round``, half to even: 12.5 steps at 250 Hz give 12, 48 ms, and 2.5
+   at 50 Hz give 2, 40 ms): detections may lead the truth by up to ``early`` steps, never
+   into the previous contact phase, and may lag until the next true lift-off.
 3. *Already on*: if the estimate is on at ``w0`` in a solid run that began before ``w0``
    (or at the start of the valid stretch) and lasts past ``t0``, the touch-down has no
    edge to time; it is counted as ``already_on``, neither matched nor missed. (The run
@@ -39,9 +40,12 @@ rules applied to the complements (``not truth``, ``not flag``):
    lift-off if it never ended.)
 4. Otherwise the touch-down is *matched* to the first solid run that starts in
    ``[w0, t1)`` and is still on at ``t0`` (it ends after ``t0``); its delay is
-   ``(start - t0) * dt``, between ``-early * dt`` and the stance duration. A run that
-   starts and ends within the early window, before the true touch-down, is a false
-   contact in the air, not the detection.
+   ``(start - t0) * dt``, between ``-early * dt`` and the stance duration, timed from the
+   run's first step whatever ``min_on`` is (a controller that waits for ``min_on`` steps
+   before it acts learns of the contact ``(min_on - 1) * dt`` later than this delay). A
+   run that starts and ends within the early window, before the true touch-down, is a
+   false contact in the air, not the detection. The mean delay is signed: early
+   detections (negative) and late ones cancel in it, the standard deviation shows both.
 5. Otherwise it is *missed*, if the true lift-off ``t1`` lies in the valid stretch; if the
    true contact lasts to the end of the valid stretch without a detection, it is not
    evaluated at all (the detection may come after the data ends).
@@ -104,8 +108,9 @@ step rather than as a bare count:
     (1 - specificity), independent of ``min_on`` and of the event matching.
 11. *Persistent* delays are the delays of the same rules with ``min_on = persist_steps``
     (default 3): the touch-down is timed by the first run of the flag that lasts
-    ``persist_steps`` steps, the lift-off by the first such run of its complement. They
-    are pooled over the events matched and evaluated under that debounce, which may be a
+    ``persist_steps`` steps, the lift-off by the first such run of its complement, each
+    from the run's first step (rule 4: a debounce that confirms the run acts
+    ``(persist_steps - 1) * dt`` later, 5 ms at 400 Hz for 3 steps). They are pooled over the events matched and evaluated under that debounce, which may be a
     different set from the ``min_on`` one (a touch-down seen only by a 2-step run is
     matched with ``min_on = 1`` but not with ``persist_steps = 3``).
 
