@@ -263,6 +263,11 @@ def test_a_log_with_a_zero_base_quaternion_reads_it_as_lost(deployed, child, cap
     )
     readings = {k: np.asarray(v, np.float32) for k, v in log.readings.items()}
     np.testing.assert_allclose(child["p_zero"], _replay_go1(readings), rtol=0, atol=P_TOL)
+    # replay itself, given the zeros (a Python user's readings, not a loaded log), reads
+    # them as lost too (it read them as an orientation: P up to 0.75 from the export's).
+    raw = {k: np.asarray(arrays[f"readings/{k}"], np.float32) for k in readings}
+    assert (raw["qpos"][40:43, 0, 3:7] == 0).all()
+    np.testing.assert_allclose(child["p_zero"], _replay_go1(raw), rtol=0, atol=P_TOL)
 
 
 def test_a_non_finite_state_is_the_invalid_step_of_its_own_call(child):
@@ -555,6 +560,28 @@ def test_deploy_check_compares_the_physics_not_the_name(deployed):
     assert "robot 'spot'" in _other_robot("log", "x.contact", old, spot)
 
 
+def test_deploy_check_of_an_export_whose_model_moved_says_so(deployed, tmp_path):
+    """An export of ``--model PATH`` names that path; moved, deploy-check's log loader
+    suggested --robot, which deploy-check has not (a helper's trial). The export's model is
+    loaded first and its failure named as such."""
+    from jax_contact.export import read_artefact, write_artefact
+    from jax_contact.train.deploy_cmd import deploy_check
+
+    header, payload = read_artefact(deployed["artefact"])
+    head = {k: v for k, v in header.items() if k not in ("header_sha256", "payload_sha256")}
+    head = {k: v for k, v in head.items() if k != "payload_bytes"}
+    gone = tmp_path / "robots" / "hexa.xml"
+    moved = write_artefact(
+        tmp_path / "moved.contact", head | {"robot": head["robot"] | {"source": str(gone)}}, payload
+    )
+    with pytest.raises(
+        ValueError,
+        match=r"moved\.contact' was exported for the model '.*hexa\.xml', which cannot be"
+        r" loaded \(.*\): deploy-check replays",
+    ):
+        deploy_check(moved, deployed["log"], pace=False, steps=3)
+
+
 def test_deploy_check_says_recording_options_do_nothing_on_a_log(deployed, capsys):
     """--units deg on a simulate log ran as if not given, without a word (a helper's audit)."""
     from jax_contact.train import deploy_cmd
@@ -699,6 +726,20 @@ def test_deploy_check_reads_a_recording_and_warns_as_estimate(deployed, live, tm
     write_recording_csv(tmp_path / "one_gone.csv", one_gone)
     with pytest.raises(ValueError, match=r"for the actuated joint\(s\) \['RL_calf_joint'\]"):
         deploy_check(deployed["artefact"], tmp_path / "one_gone.csv", pace=False)
+    # Columns whose absence `estimate` meets by leaving a term out: the export runs every
+    # term, so deploy-check refuses them, naming the term and the reason (it ran the
+    # dynamics on positions differenced twice and "agreed" at 0.40 accuracy).
+    for dropped, term, why in (
+        (("qd/", "qdd/"), "dynamics", "second differences of positions"),
+        (("base_pos/",), "kinematics", "no base position"),
+    ):
+        part = {k: v for k, v in cols.items() if not k.startswith(dropped)}
+        write_recording_csv(tmp_path / "part.csv", part)
+        with pytest.raises(
+            ValueError,
+            match=rf"part.csv' cannot feed the exported estimator's {term} term \(.*{why}",
+        ):
+            deploy_check(deployed["artefact"], tmp_path / "part.csv", pace=False)
     with pytest.raises(ValueError, match="argument --env: a recording holds one robot"):
         deploy_check(deployed["artefact"], tmp_path / "rec.csv", env=1)
     # Epoch timestamps: float64 rounds 1.7e9 + k 2.5 ms to 2.4e-7 s, so the median step

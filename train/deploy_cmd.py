@@ -428,15 +428,24 @@ def deploy_check(
 
     header, _ = read_artefact(artefact)
     terms = params_and_terrain(header)[0].terms
+    try:
+        robot = export_robot(header)
+    except ValueError as err:
+        # An export of --model PATH names that path; moved, the log's loader suggested
+        # --robot, which deploy-check has not (a helper's trial).
+        raise ValueError(
+            f"{str(artefact)!r} was exported for the model {header['robot']['source']!r},"
+            f" which cannot be loaded ({err}): deploy-check replays the readings offline with"
+            " that model; put it back there, or export again from where it is now"
+        ) from None
     if is_recording(log):
         if env != 0:
             raise ValueError(f"argument --env: a recording holds one robot (env 0), got {env}")
-        robot = export_robot(header)
         name, conv = _recording_readings(robot, log, terms, names, units, resample)
         dt, readings, robot_name = conv.dt, conv.readings, header["robot"]["source"]
         other_robot = None  # a recording is read with the export's own robot model
     else:
-        conv, robot = None, None
+        conv = None
         given = [
             f"--{opt}"
             for opt, on in (("names", names), ("units", units != "rad"), ("resample", resample))
@@ -609,7 +618,11 @@ def _recording_readings(robot, log, terms, names, units: str, resample: bool):
 
     Raises:
       ValueError: as :func:`jax_contact.train.recording_convert.to_readings`, or the
-        recording lacks torques that the exported estimator's dynamics term reads.
+        recording cannot feed a term the exported estimator runs (torques for the
+        dynamics; joint velocities or accelerations for the dynamics; a base position
+        for the kinematics; a base velocity or position for the differential
+        kinematics): an export runs every term it was made with, on whatever the
+        readings hold.
     """
     from jax_contact.train.recording import read_recording
     from jax_contact.train.recording_convert import to_readings
@@ -623,6 +636,17 @@ def _recording_readings(robot, log, terms, names, units: str, resample: bool):
             f" {list(conv.missing_torques)}, but the exported estimator's dynamics term reads"
             " every joint torque (the readings would hold zeros): record"
             " the torques, or run `jax-contact estimate`, which leaves the term out"
+        )
+    if off := [t for t in terms if t not in conv.terms]:
+        # to_readings leaves these out for `estimate` (it says so in a note); the export
+        # would run them on zeros or on positions differenced twice (a helper's trial
+        # without qd/ columns: every foot read air, 0.40 accuracy, the check "agreed").
+        why = [n.removeprefix("WARNING ") for n in conv.notes if "term is off" in n]
+        raise ValueError(
+            f"{name} cannot feed the exported estimator's {' and '.join(off)} term"
+            f"{'s' if len(off) > 1 else ''} ({'; '.join(why)}); an export runs every term it"
+            " was made with: record the missing columns, or run `jax-contact estimate`,"
+            " which leaves the term out"
         )
     for note in conv.notes:
         print_note(note)
