@@ -657,8 +657,10 @@ def run_deploy_check(args: argparse.Namespace) -> int:
     from jax_contact.train.estimate_cmd import parse_names
 
     if args.cpu is not None:
-        if "jax" in sys.modules:  # the CPU client sizes its thread pool when it starts
-            print("jax-contact deploy-check: --cpu after jax was imported", file=sys.stderr)
+        # Before the first computation: XLA's CPU client sizes its thread pool from the
+        # process's CPUs when it starts (at the first array, not at `import jax`, which the
+        # command line does before every command; a warning said "--cpu after jax was
+        # imported" on every run, a helper's trial).
         os.sched_setaffinity(0, {args.cpu})
     deploy_check(
         args.artefact,
