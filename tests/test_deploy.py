@@ -439,6 +439,10 @@ def test_export_checks_a_params_file_as_evaluate_does(tmp_path):
     # The command's argument is named (it said "foot_names name the same foot twice").
     with pytest.raises(ValueError, match=r"^argument --feet: name the same foot twice"):
         export_to_file(tmp_path / "f.contact", robot="go1", feet=["FR", "FR", "FL", "RL"])
+    # A name the model has not (a helper's trial: the message lacked the argument).
+    with pytest.raises(ValueError, match=r"^argument --feet: foot 'XX' is no geom, site or"):
+        export_to_file(tmp_path / "f.contact", robot="go1", feet=["FR", "FL", "RR", "XX"])
+    assert not (tmp_path / "f.contact").exists()
 
 
 def _planar_file(tmp_path) -> str:

@@ -225,8 +225,8 @@ def export_to_file(
     try:
         loaded = load_robot(robot, foot_names=feet)
     except ValueError as err:  # the library's argument is foot_names, the command's --feet
-        if feet is None or "foot_names" not in str(err):
-            raise
+        if feet is None or not ("foot_names" in str(err) or str(err).startswith("foot ")):
+            raise  # the robot's own error (unknown name, unreadable MJCF)
         said = str(err).replace("foot_names: ", "", 1).replace("foot_names ", "", 1)
         raise ValueError(f"argument --feet: {said}") from None
     desc = loaded.description
