@@ -124,7 +124,8 @@ class Estimator:
                 raise ValueError(
                     f"readings[{name!r}] must hold real numbers (float or int), got dtype {x.dtype}"
                 )
-            x = x.astype(np.float32, copy=False)
+            with np.errstate(over="ignore"):  # beyond float32: inf, a lost reading
+                x = x.astype(np.float32, copy=False)
             if x.shape != (n,):
                 raise ValueError(
                     f"readings[{name!r}] has shape {x.shape}, expected ({n},): "

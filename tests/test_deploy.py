@@ -133,6 +133,15 @@ b2, p_nan, d_nan = est.update(belief, bad)
 b2, p_next, d_next = est.update(b2, {n: log[n][6, 0] for n in est.reading_names})
 nan_calls = [np.asarray(d_nan["valid"]).tolist(), np.asarray(d_next["valid"]).tolist(),
              bool(np.isfinite(p_nan).all() and np.isfinite(p_next).all())]
+# A float64 reading beyond float32 (1e300) is an inf, a lost reading, without NumPy's
+# "overflow encountered in cast" warning on every such call (a helper's trial).
+import warnings
+big = {n: log[n][5, 0].astype(np.float64) for n in est.reading_names}
+big["qvel"][0] = 1e300
+with warnings.catch_warnings(record=True) as caught:
+    warnings.simplefilter("always")
+    _, p_big, d_big = est.update(belief, big)
+nan_calls.append([len(caught), np.asarray(d_big["valid"]).tolist()])
 # A lost joint velocity (front-left knee, qvel 11) is that foot's invalid step only.
 bad = {n: log[n][5, 0].copy() for n in est.reading_names}
 bad["qvel"][11] = np.nan
@@ -271,8 +280,9 @@ def test_a_log_with_a_zero_base_quaternion_reads_it_as_lost(deployed, child, cap
 
 
 def test_a_non_finite_state_is_the_invalid_step_of_its_own_call(child):
-    invalid, after, finite, leg, leg_after = child["nan_calls"]
+    invalid, after, finite, overflow, leg, leg_after = child["nan_calls"]
     assert invalid == [False] * 4 and after == [True] * 4 and finite
+    assert overflow == [0, [False] * 4]  # no warning; lost like the NaN of the same entry
     # A base velocity reaches every foot; a knee's only its own (Go1's feet FR, FL, RR, RL).
     assert leg == [True, False, True, True] and leg_after == [True] * 4
 
