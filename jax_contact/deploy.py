@@ -206,11 +206,21 @@ def load(path: str | os.PathLike, *, compile: bool = True) -> Estimator:
             jax.ShapeDtypeStruct((int(header["state"]["size"]),), np.float32),
             jax.ShapeDtypeStruct(tuple(int(n) for n in header["key"]["shape"]), np.uint32),
         ) + tuple(jax.ShapeDtypeStruct((n,), np.float32) for _, n in readings)
+        # The period three ways: rate_hz, dt and the parameters' dt (float32), which the
+        # export wrote equal. A rate edited in a header without a checksum ran the program
+        # at its own period while rate_hz said another (a helper's trial).
+        rate, periods = float(header["rate_hz"]), (header["dt"], header["params"]["values"]["dt"])
     except (KeyError, IndexError, TypeError, ValueError) as err:
         raise ValueError(
             f"{name}: its header lacks or garbles {type(err).__name__} {err}; the file is"
             " corrupt (export it again)"
         ) from None
+    if not all(isinstance(d, int | float) and abs(d * rate - 1.0) < 1e-5 for d in periods):
+        raise ValueError(
+            f"{name}: its header's rate_hz ({rate:g}) disagrees with its dt and its"
+            f" parameters' dt ({', '.join(repr(d) for d in periods)} s): edited or corrupt"
+            " (export it again)"
+        )
     try:
         exported = load_exported(payload)
     except Exception as err:  # flatbuffers' and jax's own errors name no file

@@ -528,6 +528,10 @@ def test_a_pre_checksum_header_is_checked_by_load(deployed, tmp_path):
         ValueError, match=r"no_state\.contact': its header lacks or garbles KeyError 'state'"
     ):
         deploy.load(no_state, compile=False)
+    # The rate edited (a helper's trial): it loaded and said 250 Hz, the program 400.
+    edited = rewritten("rate.contact", old | {"rate_hz": 250.0})
+    with pytest.raises(ValueError, match=r"rate\.contact': its header's rate_hz \(250\) disagrees"):
+        deploy.load(edited, compile=False)
     fewer = rewritten("fewer.contact", old | {"readings": old["readings"][:2]})
     with pytest.raises(
         ValueError, match=r"fewer\.contact': the header's state, key and readings do not"
