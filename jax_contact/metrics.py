@@ -110,9 +110,10 @@ step rather than as a bare count:
     (default 3): the touch-down is timed by the first run of the flag that lasts
     ``persist_steps`` steps, the lift-off by the first such run of its complement, each
     from the run's first step (rule 4: a debounce that confirms the run acts
-    ``(persist_steps - 1) * dt`` later, 5 ms at 400 Hz for 3 steps). They are pooled over the events matched and evaluated under that debounce, which may be a
-    different set from the ``min_on`` one (a touch-down seen only by a 2-step run is
-    matched with ``min_on = 1`` but not with ``persist_steps = 3``).
+    ``(persist_steps - 1) * dt`` later, 5 ms at 400 Hz for 3 steps). They are pooled over
+    the events matched and evaluated under that debounce, which may be a different set from
+    the ``min_on`` one (a touch-down seen only by a 2-step run is matched with
+    ``min_on = 1`` but not with ``persist_steps = 3``).
 
 Per env (:func:`env_sums`): the step, phase, delay and ECE-bin sums behind F1, accuracy,
 the air- and swing-phase failure rates, the swings the flag stays on through (rule 9c),

@@ -618,11 +618,10 @@ def _recording_readings(robot, log, terms, names, units: str, resample: bool):
 
     Raises:
       ValueError: as :func:`jax_contact.train.recording_convert.to_readings`, or the
-        recording cannot feed a term the exported estimator runs (torques for the
-        dynamics; joint velocities or accelerations for the dynamics; a base position
-        for the kinematics; a base velocity or position for the differential
-        kinematics): an export runs every term it was made with, on whatever the
-        readings hold.
+        recording cannot feed a term the exported estimator runs (the dynamics: joint
+        torques, and joint velocities or accelerations; the kinematics: a base position;
+        the differential kinematics: a base velocity or position): an export runs every
+        term it was made with, on whatever the readings hold.
     """
     from jax_contact.train.recording import read_recording
     from jax_contact.train.recording_convert import to_readings
