@@ -1104,43 +1104,53 @@ def test_evaluate_pools_several_logs(tmp_path, capsys):
 
 
 def test_logs_of_different_robots_are_named_as_such_not_by_rate(tmp_path, capsys):
-    """Two logs with truth, one robot each (the planar leg by name and by its MJCF path, so
-    both load): the notes said the first had "no other log at its rate" (both were at 400
-    Hz) and the second that it was not "the pooled logs'" robot, with nothing pooled."""
+    """Two logs with truth, one robot each (the planar leg by name, and by its MJCF path
+    with another physics' fingerprint, so both load): the notes said the first had "no
+    other log at its rate" (both were at 400 Hz) and the second that it was not "the
+    pooled logs'" robot, with nothing pooled. The same model by name and by path is one
+    robot, pooled, as --gm-grid takes it (a helper's trial: it was not pooled)."""
     from jax_contact.envs.model_files import PLANAR_LEG_XML
 
     rng = np.random.default_rng(3)
     a = _planar_log(
         tmp_path / "a.h5", n_t=40, n_envs=2, **{"truth/contact": rng.random((40, 2, 1)) < 0.5}
     )
+    other = {"robot": str(PLANAR_LEG_XML), "dt": 0.0025, "model_sha256": "0" * 64}
     b = _planar_log(
-        tmp_path / "b.h5",
-        n_t=40,
-        n_envs=2,
-        attrs={"robot": str(PLANAR_LEG_XML), "dt": 0.0025},
+        tmp_path / "b.h5", n_t=40, n_envs=2, attrs=other,
         **{"truth/contact": rng.random((40, 2, 1)) < 0.5},
-    )
+    )  # fmt: skip
     assert cli.main(["evaluate", str(a), str(b)]) == 0
     out = capsys.readouterr().out
     assert f"note: {str(a)!r} is not pooled: no other log of robot 'planar_leg' with" in out
     assert f"note: {str(b)!r} is not pooled: no other log of robot {str(PLANAR_LEG_XML)!r}" in out
+    same = {"robot": str(PLANAR_LEG_XML), "dt": 0.0025}
+    c = _planar_log(
+        tmp_path / "c.h5", n_t=40, n_envs=2, attrs=same,
+        **{"truth/contact": rng.random((40, 2, 1)) < 0.5},
+    )  # fmt: skip
+    assert cli.main(["evaluate", str(a), str(c)]) == 0
+    out = capsys.readouterr().out
+    assert "2 logs pooled" in out and "not pooled" not in out
 
 
 def test_the_largest_set_of_one_robot_and_rate_is_pooled_whatever_the_order(tmp_path, capsys):
     """A helper's case: two logs of robot A at two rates and two of robot B at one rate
     pooled nothing ("fewer than two logs ... of one robot and rate"): the robot with the
     most logs was taken first, then its logs split by rate. Now the largest (robot, rate)
-    set is pooled, B's two logs, named first or last."""
+    set is pooled, B's two logs, named first or last. (B is the planar leg's MJCF with
+    another physics' fingerprint: by its path alone it is A, and pooled with it.)"""
     from jax_contact.envs.model_files import PLANAR_LEG_XML
 
     rng = np.random.default_rng(4)
 
     def log(name, robot, dt):
+        other = {"model_sha256": "0" * 64} if robot == str(PLANAR_LEG_XML) else {}
         return _planar_log(
             tmp_path / name,
             n_t=40,
             n_envs=2,
-            attrs={"robot": robot, "dt": dt},
+            attrs={"robot": robot, "dt": dt, **other},
             time=np.arange(40, dtype=np.float32) * dt,
             **{"truth/contact": rng.random((40, 2, 1)) < 0.5},
         )

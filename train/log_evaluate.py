@@ -177,6 +177,14 @@ def _fingerprint(robot: str, stored: str | None) -> str | None:
         return None
 
 
+def _fingerprint_of(log) -> str:
+    """A loaded log's physics fingerprint: the one it stores (``model_sha256``), else its
+    robot's model's."""
+    from jax_contact.robot import model_fingerprint
+
+    return log.attrs.get("model_sha256") or model_fingerprint(log.robot.mj_model)
+
+
 def tuned_line(gm_grid_log, tuned: dict, note: str = "") -> str:
     """What :func:`tune_baselines` chose on ``gm_grid_log``, with the picks on an edge of
     their grid named (the grid may hold them back there), then the rows ``*_fl``
@@ -502,6 +510,11 @@ def evaluate_files(
     staging = staged_folder(plots_dir) if plots_dir is not None else contextlib.nullcontext()
     # Two logs of one file name (in two folders) get their paths as titles.
     names = [Path(p).name for p in paths]
+    # One robot to the pooling as to --gm-grid: the same name or the same physics (a log
+    # simulated from an MJCF path and one from the shipped model of the same robot were not
+    # pooled, a helper's trial), named after the first log of that physics.
+    same_physics: dict[str, str] = {}
+    robot_of = [same_physics.setdefault(_fingerprint_of(log), log.robot.name) for log in logs]
     with staging as stage:
         results = []
         for i, p in enumerate(paths):
@@ -515,7 +528,7 @@ def evaluate_files(
             logs[i] = None  # its readings are not needed again
         keys = [str(i) for i in range(len(paths))]
         dts = {k: r["dt"] if r["has_truth"] else None for k, r in zip(keys, results, strict=True)}
-        robots = {k: r["robot"] for k, r in zip(keys, results, strict=True) if r["has_truth"]}
+        robots = {k: robot_of[int(k)] for k, r in zip(keys, results, strict=True) if r["has_truth"]}
         # The largest set of one robot and rate, whichever robot has the most logs (ties: the
         # set of the earliest log).
         pooled_keys, why = pool_groups(dts, robots)
