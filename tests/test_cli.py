@@ -1720,3 +1720,16 @@ def test_reproduce_lists_only_the_robots_it_takes(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "unknown robot 'nosuch'; valid names: go1, spot, barkour, " in err
     assert "planar_leg" not in err
+
+
+def test_a_parameter_file_of_another_robot_is_named_as_the_option(capsys):
+    """evaluate --params of another robot's preset said "preset 'barkour' is for nv = 18;
+    the robot has nv = 3" without the option it came from (a helper's trial); the planar
+    leg's log (nv = 3 by its MJCF: a rail, a hip and a knee) against Barkour's 18."""
+    argv = ["evaluate", "tests/fixtures/planar_leg_hop.h5", "--params", "barkour"]
+    assert cli.main(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert err == (
+        "jax-contact evaluate: error: argument --params: preset 'barkour' is for nv = 18;"
+        " the robot has nv = 3"
+    )

@@ -243,7 +243,7 @@ def export_to_file(
             robot=loaded.name,
         )
     except ValueError as err:
-        if params_path is None:
+        if params_path is None or str(err).startswith("argument "):
             raise
         raise ValueError(f"argument --params: {err}") from None
     provenance = params_record or {**DEFAULTS_PROVENANCE, "dt": dt}
