@@ -1733,3 +1733,29 @@ def test_a_parameter_file_of_another_robot_is_named_as_the_option(capsys):
         "jax-contact evaluate: error: argument --params: preset 'barkour' is for nv = 18;"
         " the robot has nv = 3"
     )
+
+
+@pytest.mark.parametrize(
+    "extra, said",
+    [
+        # An MJCF robot's legs are counted when it loads (the check before JAX knows the
+        # shipped robots'): one leg, no trot.
+        (
+            ["--robot", "envs/assets/planar_leg.xml", "--gait", "trot"],
+            "argument --gait: gait 'trot' needs two or more legs;",
+        ),
+        (
+            ["--robot", "barkour", "--home-qpos", "1", "2"],
+            "argument --home-qpos: home_qpos has 2 values; robot 'barkour' has nq = 19",
+        ),
+    ],
+)
+def test_simulate_names_the_option_of_a_library_error(tmp_path, capsys, extra, said):
+    """A helper's trial: these came as "error: gait 'trot' needs ..." and "error: home_qpos
+    has 2 values ...", without the option; nothing is written."""
+    out = tmp_path / "x.h5"
+    argv = ["simulate", str(out), *extra, "--envs", "1", "--duration", "0.5"]
+    assert cli.main(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert err.startswith(f"jax-contact simulate: error: {said}"), err
+    assert not out.exists()

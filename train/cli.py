@@ -173,21 +173,35 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
     return 0
 
 
+# The library's errors that are about one option of `simulate`, by how they start: named
+# as that option, as the checks before JAX name the shipped robots' (the gait's of an
+# MJCF robot and --home-qpos came without it, a helper's trial).
+_SIMULATE_OPTION_ERRORS = {"gait ": "--gait", "home_qpos ": "--home-qpos"}
+
+
 def _cmd_simulate(args: argparse.Namespace) -> int:
     from jax_contact.train import logs
 
-    logs.simulate_to_file(
-        args.output,
-        robot=args.robot,
-        gait=args.gait,
-        noise=args.noise,
-        terrain=args.terrain,
-        n_envs=args.envs,
-        duration=args.duration,
-        seed=args.seed,
-        foot_names=args.feet,
-        gait_settings=estimate_cmd.gait_overrides(args) or None,
-    )
+    try:
+        logs.simulate_to_file(
+            args.output,
+            robot=args.robot,
+            gait=args.gait,
+            noise=args.noise,
+            terrain=args.terrain,
+            n_envs=args.envs,
+            duration=args.duration,
+            seed=args.seed,
+            foot_names=args.feet,
+            gait_settings=estimate_cmd.gait_overrides(args) or None,
+        )
+    except ValueError as err:
+        option = next(
+            (o for s, o in _SIMULATE_OPTION_ERRORS.items() if str(err).startswith(s)), None
+        )
+        if option is None:
+            raise
+        raise ValueError(f"argument {option}: {err}") from None
     return 0
 
 
