@@ -149,7 +149,14 @@ def replay(
         check_gain(gp.K_I, dt, owner=f"gms[{name!r}]")
     _check_readings(readings, robot)
     qpos, qvel, qacc, tau = (np.asarray(readings[k]) for k in ("qpos", "qvel", "qacc", "tau"))
-    qpos = _degenerate_quaternions_as_nan(qpos, robot.mj_model)
+    # A quaternion of norm near zero (a driver's zero fill) is lost, NaN, as the exported
+    # estimator reads it; replay read it as an orientation, P up to 0.75 from the export's
+    # for 15 steps (a helper's audit; the log and recording loaders set it already). In a
+    # copy: the caller's readings stay as they were.
+    from jax_contact.train.recording_checks import lose_degenerate_quaternions
+
+    qpos = qpos.copy()
+    lose_degenerate_quaternions(qpos, robot.mj_model)
     # The baselines read no differenced acceleration, so they get each reading when it
     # arrives (no delayed pairing): scored on what they would use on the robot.
     raw = (qpos, qvel, qacc, tau)
@@ -187,25 +194,6 @@ def replay(
         carry, out = _replay_chunk(*models, carry, xs, **kw)
         pieces.append({k: np.asarray(v)[: stop - start] for k, v in out.items()})
     return {k: np.concatenate([p[k] for p in pieces], axis=0) for k in pieces[0]}
-
-
-def _degenerate_quaternions_as_nan(qpos: np.ndarray, mj_model) -> np.ndarray:
-    """``qpos`` ((T, E, nq)) with every joint quaternion whose norm is below
-    :data:`jax_contact.export.MIN_QUATERNION_NORM` (no orientation: a driver's zero fill)
-    set to NaN, a lost reading, in a copy (``qpos`` itself when there is none), as the
-    exported estimator reads it (a helper's audit: ``replay`` read a zero base quaternion
-    as an orientation, P up to 0.75 from the exported file's for 15 steps; the log and
-    recording loaders already set it to NaN)."""
-    from jax_contact.export import quaternion_slices
-    from jax_contact.train.recording_checks import degenerate_quaternion
-
-    out = qpos
-    for a in quaternion_slices(mj_model):
-        bad = degenerate_quaternion(qpos[..., a : a + 4])
-        if bad.any():
-            out = out.copy() if out is qpos else out
-            out[..., a : a + 4][bad] = np.nan
-    return out
 
 
 def _check_readings(readings: Mapping, robot) -> None:

@@ -163,26 +163,19 @@ def check_gm_grid_log(gm_grid_log: str | Path, paths: Sequence[str | Path]) -> N
         )
 
 
-def _fingerprint(robot: str, stored: str | None) -> str | None:
+def _fingerprint(robot: str, stored: str | None, mj_model=None) -> str | None:
     """A log's physics fingerprint: ``stored`` (its ``model_sha256``), else its robot's
-    model's (logs written before the attribute), else None (a model not on this machine)."""
+    model's (logs written before the attribute; ``mj_model`` if already loaded, else
+    loaded by name), else None (a model not on this machine)."""
     if stored is not None:
         return stored
     from jax_contact.envs.robots import load_robot
     from jax_contact.robot import model_fingerprint
 
     try:
-        return model_fingerprint(load_robot(robot).mj_model)
+        return model_fingerprint(mj_model if mj_model is not None else load_robot(robot).mj_model)
     except Exception:  # noqa: BLE001  (any model that does not load: no fingerprint)
         return None
-
-
-def _fingerprint_of(log) -> str:
-    """A loaded log's physics fingerprint: the one it stores (``model_sha256``), else its
-    robot's model's."""
-    from jax_contact.robot import model_fingerprint
-
-    return log.attrs.get("model_sha256") or model_fingerprint(log.robot.mj_model)
 
 
 def tuned_line(gm_grid_log, tuned: dict, note: str = "") -> str:
@@ -514,7 +507,13 @@ def evaluate_files(
     # simulated from an MJCF path and one from the shipped model of the same robot were not
     # pooled, a helper's trial), named after the first log of that physics.
     same_physics: dict[str, str] = {}
-    robot_of = [same_physics.setdefault(_fingerprint_of(log), log.robot.name) for log in logs]
+    robot_of = [
+        same_physics.setdefault(
+            _fingerprint(log.robot.name, log.attrs.get("model_sha256"), log.robot.mj_model),
+            log.robot.name,
+        )
+        for log in logs
+    ]
     with staging as stage:
         results = []
         for i, p in enumerate(paths):

@@ -345,13 +345,11 @@ def degenerate_quaternions_lost(name: str, qpos: np.ndarray, valid: np.ndarray, 
     note naming them on valid steps, else None. (A log's replay read the zeros as an
     orientation, and deploy-check's offline reference disagreed with the exported file by
     up to 0.99 in P.)"""
-    from jax_contact.export import MIN_QUATERNION_NORM, quaternion_slices
-    from jax_contact.train.recording_checks import degenerate_quaternion
+    from jax_contact.export import MIN_QUATERNION_NORM
+    from jax_contact.train.recording_checks import lose_degenerate_quaternions
 
     counts = []
-    for a in quaternion_slices(mj_model):
-        bad = degenerate_quaternion(qpos[..., a : a + 4])
-        qpos[..., a : a + 4][bad] = np.nan
+    for a, bad in lose_degenerate_quaternions(qpos, mj_model).items():
         if n := int((bad & valid).sum()):
             counts.append(f"qpos[{a}:{a + 4}] on {n}")
     if not counts:

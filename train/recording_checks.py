@@ -75,6 +75,22 @@ def degenerate_quaternion(quat: np.ndarray) -> np.ndarray:
     return np.isfinite(norm) & (norm < MIN_QUATERNION_NORM)
 
 
+def lose_degenerate_quaternions(qpos: np.ndarray, mj_model) -> dict[int, np.ndarray]:
+    """Sets to NaN, in ``qpos`` ((..., nq)) itself, every joint quaternion (the base's, a
+    ball joint's) that :func:`degenerate_quaternion` finds: a lost reading, as the exported
+    estimator reads it. Returns each such quaternion's ``qpos`` address -> its (...) mask,
+    only those with one set (empty: none)."""
+    from jax_contact.export import quaternion_slices
+
+    lost = {}
+    for a in quaternion_slices(mj_model):
+        bad = degenerate_quaternion(qpos[..., a : a + 4])
+        if bad.any():
+            qpos[..., a : a + 4][bad] = np.nan
+            lost[a] = bad
+    return lost
+
+
 # Above this share of rows with the base's z axis pointing down, a recording of a robot
 # that stood or walked has its quaternion in another order or frame.
 UPSIDE_DOWN_SHARE = 0.5
