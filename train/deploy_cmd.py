@@ -231,21 +231,17 @@ def export_to_file(
         raise ValueError(f"argument --feet: {said}") from None
     desc = loaded.description
     dt = 1.0 / float(rate_hz)
-    try:
-        params, _, terrain, calibration, params_record = estimator_for(
-            desc,
-            dt,
-            params_path,
-            None,
-            model_mass(loaded.mj_model),
-            mj_model=loaded.mj_model,
-            period="the export's",
-            robot=loaded.name,
-        )
-    except ValueError as err:
-        if params_path is None or str(err).startswith("argument "):
-            raise
-        raise ValueError(f"argument --params: {err}") from None
+    # A file that does not fit the robot is named as --params by estimator_for.
+    params, _, terrain, calibration, params_record = estimator_for(
+        desc,
+        dt,
+        params_path,
+        None,
+        model_mass(loaded.mj_model),
+        mj_model=loaded.mj_model,
+        period="the export's",
+        robot=loaded.name,
+    )
     provenance = params_record or {**DEFAULTS_PROVENANCE, "dt": dt}
     source = robot if robot in _robot_names() else str(Path(robot).resolve())
     header, payload = export.export_robot(
