@@ -640,6 +640,58 @@ def test_deploy_check_reports_latency_and_agreement(deployed, live, tmp_path, mo
     assert saved["cpus"] == sorted(os.sched_getaffinity(0))  # what --cpu pins is recorded
 
 
+def test_deploy_check_fails_with_exit_1_when_the_programs_disagree(deployed, tmp_path, monkeypatch):
+    """The check passes by default (round-off ~1e-6 against --max-diff 1e-2) and exits 1,
+    naming the pass mark, when the offline estimate is moved by 0.05 on one output or set to
+    NaN on another (the exported file's own output is left as it is)."""
+    from jax_contact.train import cli, deploy_cmd
+
+    argv = ["deploy-check", str(deployed["artefact"]), str(deployed["log"]), "--no-pace"]
+    out = tmp_path / "check.json"
+    assert cli.main([*argv, "--steps", "20", "--json", str(out)]) == 0
+    saved = json.loads(out.read_text())
+    assert saved["passed"] and saved["failed"] == [] and saved["nan_mismatches"] == 0
+    assert saved["max_diff_allowed"] == deploy_cmd.MAX_DIFF == 1e-2
+    assert saved["max_misses_allowed"] is None
+
+    real = deploy_cmd.offline_estimate
+
+    def moved(*args, **kwargs):
+        p = np.array(real(*args, **kwargs))
+        p[5, 1] += 0.05 if p[5, 1] < 0.5 else -0.05
+        p[7, 2] = np.nan
+        return p
+
+    monkeypatch.setattr(deploy_cmd, "offline_estimate", moved)
+    assert cli.main([*argv, "--steps", "20", "--json", str(out)]) == deploy_cmd.EXIT_CHECK_FAILED
+    saved = json.loads(out.read_text())
+    assert not saved["passed"]
+    assert saved["max_abs_diff"] == pytest.approx(0.05, abs=P_TOL)
+    assert saved["nan_mismatches"] == 1
+    assert [f.split(" (")[0] for f in saved["failed"]] == [
+        f"max |P(contact) - offline estimate| {saved['max_abs_diff']:.2e} > 0.01",
+        "1 outputs are NaN in one program and a number in the other",
+    ]
+    # A wider pass mark takes the 0.05 (the NaN still fails).
+    assert cli.main([*argv, "--steps", "20", "--max-diff", "0.1"]) == 1
+
+
+def test_deploy_check_pass_marks_by_hand():
+    """:func:`_check_failures` on hand-made results: deadline misses only when asked; NaN
+    (nothing compared) fails."""
+    from jax_contact.train.deploy_cmd import _check_failures
+
+    base = {"max_abs_diff": 3e-4, "nan_mismatches": 0, "deadline_misses": 7, "rate_hz": 400.0}
+    assert _check_failures(base, 1e-3, None) == []
+    assert _check_failures(base, 1e-3, 7) == []
+    (why,) = _check_failures(base, 1e-3, 6)
+    assert why == "7 deadline misses > 6 (--max-misses) at 400 Hz"
+    (why,) = _check_failures(base, 1e-4, None)
+    assert why.startswith("max |P(contact) - offline estimate| 3.00e-04 > 0.0001 (--max-diff)")
+    (why,) = _check_failures({**base, "max_abs_diff": float("nan")}, 1e-3, None)
+    assert why == "no reading gave both programs a P(contact) to compare"
+
+
 class _TimedEstimator:
     """An estimator whose k-th call after its latest ``init`` takes ``durations[k]`` s of a
     fake clock; calls before that ``init`` (the warm-up) take none. Its P(contact) is the
@@ -842,6 +894,13 @@ def test_cli_arguments_are_checked_without_jax(tmp_path, capsys):
     )
     with pytest.raises(ValueError, match="--cpu"):
         args.check(args)
+    args = parser.parse_args(["deploy-check", art, str(log), "--no-pace", "--max-misses", "0"])
+    with pytest.raises(ValueError, match="argument --max-misses: --no-pace calls back to back"):
+        args.check(args)
+    for flag, value in (("--max-diff", "0"), ("--max-diff", "nan"), ("--max-misses", "-1")):
+        with pytest.raises(SystemExit):
+            parser.parse_args(["deploy-check", art, str(log), flag, value])
+        assert f"argument {flag}: must be" in capsys.readouterr().err
     code = "import jax_contact.train.deploy_cmd, sys; print('jax' in sys.modules)"
     proc = subprocess.run(
         [sys.executable, "-c", code],

@@ -9,7 +9,8 @@
   (:mod:`jax_contact.deploy`), one reading per call as a control loop would, and reports
   the per-call latency (median, p99, p99.9, max), the deadline misses at the rate and the
   largest |P(contact)| difference from the offline estimator (``jax_contact.train.evaluate.replay``
-  with the file's own parameters on the same readings).
+  with the file's own parameters on the same readings); it exits 1 when that difference
+  exceeds ``--max-diff`` (or the misses ``--max-misses``, where given).
 
 Like :mod:`jax_contact.train.cli`, this module imports only the standard library: arguments are
 checked before JAX is imported, and the library is imported inside the run functions.
@@ -24,6 +25,12 @@ import sys
 from pathlib import Path
 
 ARTEFACT_SUFFIX = ".contact"
+# deploy-check's default pass mark for |P(contact) - offline estimate|: the two programs
+# are compiled apart and round float32 differently, 2e-6 (Go1, Spot, the planar leg) to
+# 5.8e-4 (a six-legged MJCF) measured; another parameter file, terrain model or robot
+# gives differences of 0.1-1.
+MAX_DIFF = 1e-2
+EXIT_CHECK_FAILED = 1
 
 
 def add_parsers(subparsers) -> None:
@@ -35,6 +42,7 @@ def add_parsers(subparsers) -> None:
     from jax_contact.train.cli_args import (
         ROBOT_NAMES,
         HelpFormatter,
+        nonnegative_int,
         positive_float,
         positive_int,
         seed_int,
@@ -90,7 +98,9 @@ def add_parsers(subparsers) -> None:
         description="Feeds a log at its rate through the exported estimator, one reading per"
         " call as a control loop would, and reports the per-call latency (median, p99, p99.9,"
         " max in us), the deadline misses at the rate and the largest |P(contact)| difference"
-        " from the offline estimator on the same readings.",
+        " from the offline estimator on the same readings. Exits 1 when that difference"
+        " exceeds --max-diff (or the two disagree on which readings give no estimate), or"
+        " the deadline misses exceed --max-misses where given; the JSON says which.",
         formatter_class=HelpFormatter,
     )
     p.set_defaults(func=run_deploy_check, check=check_deploy_check)
@@ -117,6 +127,20 @@ def add_parsers(subparsers) -> None:
         "--no-pace",
         action="store_true",
         help="call back to back instead of once per period (latency only, no deadlines)",
+    )
+    p.add_argument(
+        "--max-diff",
+        type=positive_float,
+        default=MAX_DIFF,
+        help="the largest |P(contact) - offline estimate| that passes: float32 round-off"
+        " measured 2e-6 to 6e-4 (docs/deploy.md); above it, exit 1",
+    )
+    p.add_argument(
+        "--max-misses",
+        type=nonnegative_int,
+        default=None,
+        help="the most missed deadlines that pass (paced replays only); default: reported,"
+        " not checked (they depend on the host and its load)",
     )
     p.add_argument("--json", default=None, help="write the results here")
 
@@ -178,6 +202,11 @@ def check_deploy_check(args: argparse.Namespace) -> None:
             raise ValueError(
                 f"argument --cpu: {args.cpu} is not one of this process's CPUs {allowed}"
             )
+    if args.max_misses is not None and args.no_pace:
+        raise ValueError(
+            "argument --max-misses: --no-pace calls back to back, so there are no deadlines"
+            " to miss; pace the replay, or leave --max-misses out"
+        )
     check_not_an_input("--json", args.json, artefact=args.artefact, log=args.log, names=args.names)
     check_output_file("--json", args.json)
 
@@ -407,12 +436,20 @@ def deploy_check(
     names: dict[str, str] | None = None,
     units: str = "rad",
     resample: bool = False,
+    max_diff: float = MAX_DIFF,
+    max_misses: int | None = None,
 ) -> dict:
     """The ``deploy-check`` command as a function; returns its JSON payload.
 
     ``log`` is a ``jax-contact simulate`` log, or a recording of the robot
     (:func:`is_recording`), read with ``names``, ``units`` and ``resample`` as ``jax-contact
     estimate`` reads it, its convention checks printed as there.
+
+    The payload's ``passed`` is False, and ``failed`` says why, when the largest
+    |P(contact) - offline estimate| exceeds ``max_diff``, when the exported file and the
+    offline estimator disagree on which readings give no estimate (NaN in one, a number in
+    the other), or when a paced replay missed more than ``max_misses`` deadlines (None:
+    not checked).
     """
     import numpy as np
 
@@ -477,6 +514,8 @@ def deploy_check(
     rt = realtime_replay(est, one, period_s=dt, pace=pace)
     offline = offline_estimate(header, one, dt=dt, robot=robot)
     diff = np.abs(rt["p_contact"] - offline)
+    # Readings that give P in one program and NaN in the other: nanmax would skip them.
+    nan_mismatch = int(np.sum(np.isnan(rt["p_contact"]) != np.isnan(offline)))
     lat_us = 1e6 * rt["latency_s"]
     result = {
         "artefact": str(artefact),
@@ -495,6 +534,7 @@ def deploy_check(
         },
         "deadline_misses": int(rt["deadline_misses"]),
         "max_abs_diff": float(np.nanmax(diff)) if np.isfinite(diff).any() else float("nan"),
+        "nan_mismatches": nan_mismatch,
         "contact_share": {
             foot: float(np.nanmean(rt["p_contact"][:, i] > 0.5))
             for i, foot in enumerate(header["robot"]["feet"])
@@ -520,6 +560,10 @@ def deploy_check(
         *([torque.removeprefix("WARNING ")] if torque else []),
         *([all_air] if all_air else []),
     ]
+    result["max_diff_allowed"] = float(max_diff)
+    result["max_misses_allowed"] = None if max_misses is None else int(max_misses)
+    result["failed"] = _check_failures(result, max_diff, max_misses)
+    result["passed"] = not result["failed"]
     if json_path:  # before the printing, which a closed pipe (| head) can interrupt
         write_json_atomic(json_path, result)
     lat = result["latency_us"]
@@ -536,7 +580,46 @@ def deploy_check(
         print(f"warning: {all_air}")
     if torque:
         print_note(torque)
+    if result["passed"]:
+        print(
+            f"passed: max |P(contact) - offline estimate| {result['max_abs_diff']:.2e} <="
+            f" {max_diff:g} (--max-diff)"
+            + (f", {result['deadline_misses']} <= {max_misses} deadline misses (--max-misses)"
+               if max_misses is not None else "")
+        )  # fmt: skip
+    else:
+        print("FAILED: " + "; ".join(result["failed"]))
     return result
+
+
+def _check_failures(result: dict, max_diff: float, max_misses: int | None) -> list[str]:
+    """Why a deploy-check ``result`` fails its pass marks, one sentence each; [] passes."""
+    failed = []
+    diff = result["max_abs_diff"]
+    if not diff <= max_diff:  # NaN too: no reading gave a number to compare
+        failed.append(
+            f"max |P(contact) - offline estimate| {diff:.2e} > {max_diff:g} (--max-diff)"
+            + (
+                ": more than float32 round-off, the exported file and the library disagree"
+                " (another parameter file, terrain model or robot than the log's, or"
+                " library versions apart)"
+                if diff >= MAX_DIFF
+                else ""
+            )
+            if diff == diff
+            else "no reading gave both programs a P(contact) to compare"
+        )
+    if result["nan_mismatches"]:
+        failed.append(
+            f"{result['nan_mismatches']} outputs are NaN in one program and a number in the"
+            " other (the two take lost readings differently)"
+        )
+    if max_misses is not None and result["deadline_misses"] > max_misses:
+        failed.append(
+            f"{result['deadline_misses']} deadline misses > {max_misses} (--max-misses) at"
+            f" {result['rate_hz']:g} Hz"
+        )
+    return failed
 
 
 def _other_robot(name: str, artefact, robot: dict, attrs: dict) -> str | None:
@@ -657,7 +740,7 @@ def run_deploy_check(args: argparse.Namespace) -> int:
         # command line does before every command; a warning said "--cpu after jax was
         # imported" on every run, a helper's trial).
         os.sched_setaffinity(0, {args.cpu})
-    deploy_check(
+    result = deploy_check(
         args.artefact,
         args.log,
         env=args.env,
@@ -667,8 +750,10 @@ def run_deploy_check(args: argparse.Namespace) -> int:
         names=parse_names(args.names),
         units=args.units,
         resample=args.resample,
+        max_diff=args.max_diff,
+        max_misses=args.max_misses,
     )
-    return 0
+    return 0 if result["passed"] else EXIT_CHECK_FAILED
 
 
 if __name__ == "__main__":  # python -m jax_contact.train.deploy_cmd {export,deploy-check} ...
