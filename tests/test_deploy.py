@@ -855,6 +855,18 @@ def test_cli_arguments_are_checked_without_jax(tmp_path, capsys):
         with pytest.raises(ValueError, match=r"rate_hz must be a finite number > 0 \(Hz\)"):
             export_to_file(tmp_path / "x.contact", robot="planar_leg", rate_hz=rate)
     assert not (tmp_path / "x.contact").exists()
+    # An existing --out is replaced only if it is an export (or empty): another program's
+    # .contact file was replaced without a word.
+    from jax_contact.export import MAGIC
+
+    assert deploy_cmd.ARTEFACT_MAGIC == MAGIC
+    (tmp_path / "other.contact").write_text("contact list of another tool\n")
+    args = parser.parse_args(["export", "--robot", "go1", "--out", str(tmp_path / "other.contact")])
+    with pytest.raises(ValueError, match=r"--out: '.*other.contact' exists and is no file of"):
+        args.check(args)
+    for held in (b"", MAGIC + b"\0" * 8):
+        (tmp_path / "other.contact").write_bytes(held)
+        args.check(args)
     args = parser.parse_args(["export", "--robot", "go1", "--out", ""])
     with pytest.raises(ValueError, match=r"argument --out: an empty name"):
         args.check(args)  # it said "'' is a folder"

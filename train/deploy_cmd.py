@@ -25,6 +25,7 @@ import sys
 from pathlib import Path
 
 ARTEFACT_SUFFIX = ".contact"
+ARTEFACT_MAGIC = b"JAX-CONTACT-EXP\n"  # jax_contact.export.MAGIC (that module imports JAX)
 # deploy-check's default pass mark for |P(contact) - offline estimate|: the two programs
 # are compiled apart and round float32 differently, 2e-6 (Go1, Spot, the planar leg) to
 # 5.8e-4 (a six-legged MJCF) measured; another parameter file, terrain model or robot
@@ -90,7 +91,12 @@ def add_parsers(subparsers) -> None:
     p.add_argument(
         "--seed", type=seed_int, default=0, help="PRNG seed (Monte-Carlo touch-down only)"
     )
-    p.add_argument("--out", required=True, help=f"the {ARTEFACT_SUFFIX} file to write")
+    p.add_argument(
+        "--out",
+        required=True,
+        help=f"the {ARTEFACT_SUFFIX} file to write; an existing file is replaced only if it is"
+        " an earlier export",
+    )
 
     p = subparsers.add_parser(
         "deploy-check",
@@ -178,6 +184,27 @@ def check_export(args: argparse.Namespace) -> None:
     if args.params is not None:
         check_params_source("--params", args.params)
     check_output_file("--out", args.out, (ARTEFACT_SUFFIX,))
+    check_replaces_an_export("--out", args.out)
+
+
+def check_replaces_an_export(arg: str, path: str) -> None:
+    """Raises ValueError when ``path`` exists and is neither empty nor an exported
+    estimator (its first bytes are not :data:`ARTEFACT_MAGIC`): another program's
+    ``.contact`` file would be replaced. An earlier export is replaced (``export`` says
+    so when it writes)."""
+    p = Path(path)
+    if not p.is_file():
+        return
+    try:
+        with p.open("rb") as f:
+            head = f.read(len(ARTEFACT_MAGIC))
+    except OSError:
+        return  # unreadable: the write's own error names it
+    if head and head != ARTEFACT_MAGIC:
+        raise ValueError(
+            f"argument {arg}: {path!r} exists and is no file of `jax-contact export`;"
+            " writing it would replace it: pass a new name"
+        )
 
 
 def check_deploy_check(args: argparse.Namespace) -> None:
@@ -295,6 +322,7 @@ def _robot_names() -> tuple[str, ...]:
 
 
 def run_export(args: argparse.Namespace) -> int:
+    replaces = Path(args.out).is_file() and Path(args.out).stat().st_size > 0
     header = export_to_file(
         args.out,
         robot=args.robot or args.model,
@@ -305,7 +333,8 @@ def run_export(args: argparse.Namespace) -> int:
     )
     r = header["robot"]
     print(
-        f"wrote {args.out}: {r['source']} (nq {r['nq']}, nv {r['nv']}, feet"
+        f"wrote {args.out}{' (replaced an earlier export)' if replaces else ''}:"
+        f" {r['source']} (nq {r['nq']}, nv {r['nv']}, feet"
         f" {', '.join(r['feet'])}) at {header['rate_hz']:g} Hz, {header['payload_bytes']} bytes"
         f" of StableHLO; parameters: {header['params']['provenance'].get('source')}"
     )
