@@ -351,8 +351,19 @@ def verdicts(differences: Mapping[str, Difference]) -> dict[str, list[str]]:
 def format_intervals(intervals: Mapping[str, Sequence]) -> str:
     """One line, ``"F1 +0.0040 [+0.0010, +0.0070] better; ..."``, from statistic ->
     ``[delta, low, high, verdict]`` (:meth:`Difference.as_list`, as the JSON outputs store
-    it), each statistic by its :attr:`Statistic.label`."""
-    return "; ".join(
-        f"{STATISTICS[k].label if k in STATISTICS else k} {d:+.4f} [{lo:+.4f}, {hi:+.4f}] {v}"
-        for k, (d, lo, hi, v) in intervals.items()
-    )
+    it), each statistic by its :attr:`Statistic.label`. A difference of too few envs is
+    printed without its interval (the JSON keeps it): from 2-4 envs the interval is no
+    measure of the rollouts' spread, and a rate's could reach past +-1 (a helper's trial on 2
+    envs, ``sw-ph -0.06 [-0.85, +0.73]``)."""
+    parts, few = [], False
+    for k, (d, lo, hi, v) in intervals.items():
+        label = STATISTICS[k].label if k in STATISTICS else k
+        if v == "too few envs":
+            parts.append(f"{label} {d:+.4f}")
+            few = True
+        else:
+            parts.append(f"{label} {d:+.4f} [{lo:+.4f}, {hi:+.4f}] {v}")
+    line = "; ".join(parts)
+    if few:
+        line += f" (no interval: fewer than {MIN_ENVS} envs to resample)"
+    return line

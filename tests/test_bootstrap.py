@@ -191,6 +191,17 @@ def test_few_envs_get_no_verdict_from_a_real_bootstrap():
     assert paired_bootstrap(a8, b8, truth8, **kw)["accuracy"].verdict == "worse"
     two = paired_bootstrap(a8[:, :2], b8[:, :2], truth8[:, :2], **kw)["accuracy"]
     assert two.high < 0.0 and two.verdict == "too few envs"
+    # Printed without that interval, saying why; 8 envs' with it.
+    from jax_contact.bootstrap import format_intervals
+
+    assert format_intervals({"accuracy": two.as_list()}) == (
+        f"acc {two.delta:+.4f} (no interval: fewer than 5 envs to resample)"
+    )
+    d8 = paired_bootstrap(a8, b8, truth8, **kw)["accuracy"]
+    assert format_intervals({"accuracy": d8.as_list(), "f1": [0.5, 0.25, 0.75, "better"]}) == (
+        f"acc {d8.delta:+.4f} [{d8.low:+.4f}, {d8.high:+.4f}] worse;"
+        " F1 +0.5000 [+0.2500, +0.7500] better"
+    )
 
 
 def test_same_seed_same_interval_and_a_t_e_validity_broadcasts():
