@@ -58,8 +58,8 @@ _PENDING: set[str] = set()
 _LOCK = threading.Lock()
 # The files written completely so far (completed_writes).
 _DONE: list[str] = []
-# Output folders a staged_folder in progress made, deepest first: removed if still empty
-# when the set is not written (an exception, or abort_writes).
+# Output folders a staged_folder or write_atomic in progress made, deepest first: removed if
+# still empty when the output is not written (an exception, or abort_writes).
 _MADE_DIRS: list[Path] = []
 
 
@@ -269,7 +269,8 @@ def write_atomic(path: str | os.PathLike, write) -> Path:
     the rename would replace the device itself with a file.
 
     Args:
-      path: the file to create or replace (its folder is created).
+      path: the file to create or replace (its folder is created, and removed again,
+        if still empty, when the write fails or is stopped).
       write: callable taking the temporary file's path (a ``str``).
 
     Raises:
@@ -282,12 +283,19 @@ def write_atomic(path: str | os.PathLike, write) -> Path:
         raise IsADirectoryError(errno.EISDIR, f"cannot create {str(path)!r}: it is a folder")
     if (kind := not_a_file(path)) is not None:
         raise OSError(errno.EEXIST, f"cannot replace {str(path)!r}: it is {kind}, not a file")
+    # The folders made here, deepest first: removed again (when empty) if the write fails
+    # or is stopped, as staged_folder does, so a failed run leaves no empty folder behind.
+    created = [p for p in [path.parent, *path.parent.parents] if not p.exists()]
     try:
-        path.parent.mkdir(parents=True, exist_ok=True)
         with _LOCK:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            _MADE_DIRS[:0] = created
             fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
             _PENDING.add(tmp)
     except OSError as err:  # name the file asked for, not the temporary one
+        with _LOCK:
+            _forget_made(created)
+        _remove_empty(created)
         raise OSError(err.errno, f"cannot create {str(path)!r} ({err.strerror})") from None
     os.close(fd)
     try:
@@ -297,6 +305,7 @@ def write_atomic(path: str | os.PathLike, write) -> Path:
         with _LOCK:
             os.replace(tmp, path)
             _PENDING.discard(tmp)
+            _forget_made(created)
             # Inside a staged folder still being written, it is not there yet.
             if not any(path.is_relative_to(p) for p in _PENDING):
                 _DONE.append(str(path))
@@ -304,6 +313,8 @@ def write_atomic(path: str | os.PathLike, write) -> Path:
         Path(tmp).unlink(missing_ok=True)
         with _LOCK:
             _PENDING.discard(tmp)
+            _forget_made(created)
+        _remove_empty(created)
         raise
     return path
 

@@ -471,6 +471,43 @@ def test_a_signal_during_a_staged_folder_leaves_the_earlier_run(tmp_path, sig, c
     assert sorted(p.name for p in tmp_path.iterdir()) == ["est"]
 
 
+def test_a_single_file_that_fails_or_is_stopped_leaves_no_folder_it_made(tmp_path):
+    """``write_atomic`` made the missing folders of its path and left them, empty, when the
+    write failed or a signal stopped it (``simulate new/dir/log.h5`` then Ctrl-C), where
+    a staged folder removed its own; a folder that existed, or got another file meanwhile,
+    stays; a write that succeeds keeps its folders."""
+    from jax_contact import io
+
+    def fails(tmp):
+        Path(tmp).write_text("half")
+        raise RuntimeError("the writer's error")
+
+    with pytest.raises(RuntimeError, match="the writer's error"):
+        io.write_atomic(tmp_path / "a" / "b" / "x.json", fails)
+    assert list(tmp_path.iterdir()) == []
+    (tmp_path / "a").mkdir()
+    (tmp_path / "a" / "kept.txt").write_text("x")
+    with pytest.raises(RuntimeError):
+        io.write_atomic(tmp_path / "a" / "b" / "x.json", fails)
+    assert sorted(p.name for p in (tmp_path / "a").iterdir()) == ["kept.txt"]
+    io.write_atomic(tmp_path / "c" / "d" / "x.json", lambda t: Path(t).write_text("{}"))
+    assert (tmp_path / "c" / "d" / "x.json").read_text() == "{}"
+    script = (
+        "import os, signal, sys, time\n"
+        "from jax_contact.train import cli\n"
+        "from jax_contact.io import write_atomic\n"
+        "def slow(tmp):\n"
+        "    os.kill(os.getpid(), signal.SIGINT)\n"
+        "    time.sleep(20)\n"
+        "with cli.StopOnInterrupt('jax-contact test'):\n"
+        "    write_atomic(sys.argv[1], slow)\n"
+        "print('not reached')\n"
+    )
+    res = _run([sys.executable, "-c", script, str(tmp_path / "new" / "dir" / "log.h5")])
+    assert res.returncode == 130, res.stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a", "c"]
+
+
 def test_a_staged_folder_replaces_the_earlier_run_and_keeps_other_files(tmp_path):
     """On success the new files replace their namesakes, the earlier run's files that this
     run did not write are removed (``stale``), anything else in the folder stays; on an
