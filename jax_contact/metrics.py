@@ -45,7 +45,8 @@ rules applied to the complements (``not truth``, ``not flag``):
    before it acts learns of the contact ``(min_on - 1) * dt`` later than this delay). A
    run that starts and ends within the early window, before the true touch-down, is a
    false contact in the air, not the detection. The mean delay is signed: early
-   detections (negative) and late ones cancel in it, the standard deviation shows both.
+   detections (negative) and late ones cancel in it, the standard deviation shows both,
+   and the mean of ``|delay|`` (``touchdown_abs_delay_ms``) is reported beside it.
 5. Otherwise it is *missed*, if the true lift-off ``t1`` lies in the valid stretch; if the
    true contact lasts to the end of the valid stretch without a detection, it is not
    evaluated at all (the detection may come after the data ends).
@@ -342,6 +343,14 @@ class EdgeEvents:
         if self.delays_ms.size == 0:
             return (float("nan"), float("nan"))
         return (float(np.mean(self.delays_ms)), float(np.std(self.delays_ms)))
+
+    @property
+    def delay_abs_mean_ms(self) -> float:
+        """Mean of the delays' magnitudes, ms (early and late detections do not cancel);
+        NaN for no matched event."""
+        if self.delays_ms.size == 0:
+            return float("nan")
+        return float(np.mean(np.abs(self.delays_ms)))
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -657,6 +666,9 @@ class ContactMetrics:
       touchdown_delay_persist_ms, liftoff_delay_persist_ms: (mean, std) in ms of the
         delays under the debounce ``min_on = persist_steps`` (rule 11): the first run that
         lasts ``persist_steps`` steps; over the events matched under that debounce.
+      touchdown_abs_delay_ms, liftoff_abs_delay_ms: mean of ``|delay|`` over the matched
+        events, ms: the signed mean lets early (negative) and late detections cancel
+        (rule 4), this one does not.
       n_touchdowns: evaluated true touch-downs (matched + missed + already on).
       missed: missed touch-downs.
       touchdown_already_on: evaluated touch-downs the estimate was on for since before the
@@ -690,6 +702,8 @@ class ContactMetrics:
     liftoff_delay_ms: tuple[float, float]
     touchdown_delay_persist_ms: tuple[float, float]
     liftoff_delay_persist_ms: tuple[float, float]
+    touchdown_abs_delay_ms: float
+    liftoff_abs_delay_ms: float
     n_touchdowns: int
     missed: int
     touchdown_already_on: int
@@ -798,6 +812,8 @@ def evaluate(
         liftoff_delay_ms=lo.delay_mean_std_ms,
         touchdown_delay_persist_ms=persist.touchdown.delay_mean_std_ms,
         liftoff_delay_persist_ms=persist.liftoff.delay_mean_std_ms,
+        touchdown_abs_delay_ms=td.delay_abs_mean_ms,
+        liftoff_abs_delay_ms=lo.delay_abs_mean_ms,
         n_touchdowns=td.n_events,
         missed=td.missed,
         touchdown_already_on=td.already,

@@ -453,6 +453,25 @@ def test_persistent_delays_by_hand():
     assert np.isnan(short.touchdown_delay_persist_ms[0])
 
 
+def test_absolute_delays_do_not_cancel_by_hand():
+    # Truth on [30, 50) in both sequences. Estimate on [28, 52): its run starts 2 steps
+    # before t0 = 30, inside the early window, and is still on at 30, so it is the match
+    # (rule 4): -5 ms; it falls at 52: +5 ms. Estimate on [32, 52): +5 ms and +5 ms.
+    # Touch-downs: signed mean 0, std 5, mean |delay| 5; lift-offs: 5, 0, 5.
+    g = _truth([(30, 50)])
+    est = np.stack([_seq([(28, 52)]), _seq([(32, 52)])], -1)
+    m = evaluate(est, np.stack([g, g], -1), dt=DT)
+    assert m.touchdown_delay_ms == pytest.approx((0.0, 5.0))
+    assert m.touchdown_abs_delay_ms == pytest.approx(5.0)
+    assert m.liftoff_delay_ms == pytest.approx((5.0, 0.0))
+    assert m.liftoff_abs_delay_ms == pytest.approx(5.0)
+    assert m.failures == 0
+    # No match: NaN, like the signed mean.
+    none = evaluate(_seq([]), g, dt=DT)
+    assert np.isnan(none.touchdown_abs_delay_ms) and np.isnan(none.touchdown_delay_ms[0])
+    assert "touchdown_abs_delay_ms" in m.as_dict()
+
+
 def test_summary_holds_the_new_and_the_kept_fields():
     d = evaluate(_seq([(33, 52)]), _truth([(30, 50)]), dt=DT).as_dict()
     for key in (
@@ -591,6 +610,10 @@ def test_event_matching_matches_loop_oracle(min_on):
             assert ref["n"] > 20
             np.testing.assert_allclose(
                 np.sort(got.delays_ms), np.sort(np.array(ref["delays"]) * DT * 1e3)
+            )
+            # The mean |delay| of the oracle's delays (lags of -3..5 steps: both signs).
+            assert got.delay_abs_mean_ms == pytest.approx(
+                np.mean(np.abs(ref["delays"])) * DT * 1e3, rel=1e-12
             )
             assert (got.n_events, got.missed, got.already, got.false_edges, got.chatter) == (
                 ref["n"],

@@ -100,6 +100,8 @@ def cell(s: dict) -> dict:
         "liftoff_delay_ms": _pair(s["liftoff_delay_ms"]),
         "touchdown_delay_persist_ms": _pair(s["touchdown_delay_persist_ms"]),
         "liftoff_delay_persist_ms": _pair(s["liftoff_delay_persist_ms"]),
+        "touchdown_abs_delay_ms": float(s.get("touchdown_abs_delay_ms", np.nan)),
+        "liftoff_abs_delay_ms": float(s.get("liftoff_abs_delay_ms", np.nan)),
         "failures": int(s["failures"]),
         "air_phase_failure_rate": float(s["air_phase_failure_rate"]),
         "swing_phase_failure_rate": float(s.get("swing_phase_failure_rate", np.nan)),
