@@ -1184,6 +1184,10 @@ def test_padded_window_holds_no_phase_or_touch_down():
     assert np.asarray(w.mask)[:, 0, 0].tolist() == [True] * 3 + [False] * 2
     assert np.asarray(w.events.td_step)[:, 0, 0].tolist() == [False, True, False, False, False]
     assert not np.asarray(w.events.start)[3:].any()
+    # A window longer than the log is the whole log, not 10**8 padded steps.
+    whole = jt.loss._window(d, 0, 10**8)
+    assert np.asarray(whole.mask).shape == (7, 1, 1) and np.asarray(whole.mask).all()
+    assert np.array_equal(np.asarray(whole.events.td_step), np.asarray(d.events.td_step))
 
 
 # ------------------------------------------------------------ the cells in the objective

@@ -26,7 +26,10 @@ def prior_penalty(space: ParamSpace, theta: dict, theta0: dict, config: TuneConf
 
 def _window(data: TuningData, start: int, length: int) -> TuningData:
     """Steps [start, start + length) as device arrays, padded with masked copies of the
-    last step so every window has one shape (one compilation)."""
+    last step so every window has one shape (one compilation). A window longer than the
+    log is the log: padded to ``length``, ``tune --chunk 100000000`` on an 800-step log
+    filled the host's 23 GB with masked copies (a helper's trial)."""
+    length = min(length, data.n_steps)
     stop = min(start + length, data.n_steps)
     pad = length - (stop - start)
 
