@@ -1643,6 +1643,18 @@ def test_json_output_that_is_a_device_fifo_or_log_is_refused_and_a_link_written_
     assert fifo.is_fifo() and other.read_bytes() == Path(log).read_bytes()
     assert csv.read_text() == "time,q/FR_hip\n0,0\n"
     csv.unlink()
+    # A tuned parameter file is JSON, but a report over it loses minutes of tuning (a
+    # helper's trial: evaluate --json replaced a second tuned file without a word).
+    import jax_contact as jc
+
+    tuned = tmp_path / "tuned.json"
+    jc.save_params(tuned, jc.load_params("go1"))
+    held = tuned.read_bytes()
+    assert cli.main(["evaluate", log, "--json", str(tuned)]) == 2
+    err = capsys.readouterr().err
+    assert f"argument --json: {str(tuned)!r} holds a parameter file" in err, err
+    assert tuned.read_bytes() == held
+    tuned.unlink()
     with pytest.raises(OSError, match=r"cannot replace '.*fifo': it is a FIFO, not a file"):
         write_text_atomic(fifo, "{}")
     assert fifo.is_fifo()

@@ -567,7 +567,8 @@ def check_output_file(arg: str, path: str | None, suffixes: tuple[str, ...] = ()
     """Raises ValueError unless ``path`` (None: none) can be written: the suffix, not a
     folder, no device, FIFO or socket (the atomic write would replace it with a file), a
     writable folder; for a JSON output (``--json``, or ``suffixes`` ``(".json",)``) an
-    existing file is replaced only if it holds JSON (``--json`` naming a log destroyed it).
+    existing file is replaced only if it holds JSON (``--json`` naming a log destroyed it),
+    and a ``--json`` report never replaces a parameter file (:func:`_holds_parameter_file`).
     A symbolic link is checked, and written, as its target."""
     from jax_contact.io import not_a_file
 
@@ -587,12 +588,35 @@ def check_output_file(arg: str, path: str | None, suffixes: tuple[str, ...] = ()
             f"argument {arg}: {path!r} exists and holds no JSON (a log or another file);"
             " writing it would replace it: pass a new name or a JSON file to replace"
         )
+    if arg == "--json" and p.is_file() and _holds_parameter_file(p):
+        # A report over a tuned file (minutes of tuning) was written without a word, a
+        # helper's trial; `tune --out` replaces parameter files, and only those.
+        raise ValueError(
+            f"argument {arg}: {path!r} holds a parameter file (jax_contact.save_params);"
+            " writing this command's results would replace it: pass a new name"
+        )
     check_output_folder(arg, p.resolve().parent if p.is_symlink() else p.parent)
 
 
 # The largest existing file a JSON output may replace after parsing it (this library's
 # JSON outputs are far smaller; a larger file is refused unread).
 JSON_REPLACE_MAX_BYTES = 64 << 20
+
+
+def _holds_parameter_file(path: Path) -> bool:
+    """Whether ``path`` holds a parameter file of :func:`jax_contact.save_params` (JSON
+    whose ``format`` is :data:`jax_contact.params_file.PARAMS_FORMAT`)."""
+    import json
+
+    from jax_contact.params_file import PARAMS_FORMAT
+
+    try:
+        if path.stat().st_size > JSON_REPLACE_MAX_BYTES:
+            return False
+        held = json.loads(path.read_bytes())
+    except (OSError, ValueError):  # unreadable, or no JSON: the other checks name it
+        return False
+    return isinstance(held, dict) and held.get("format") == PARAMS_FORMAT
 
 
 def _holds_json(path: Path) -> bool:
