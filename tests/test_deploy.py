@@ -676,6 +676,24 @@ def test_deploy_check_fails_with_exit_1_when_the_programs_disagree(deployed, tmp
     assert cli.main([*argv, "--steps", "20", "--max-diff", "0.1"]) == 1
 
 
+def test_deploy_check_of_another_robots_log_fails(deployed, tmp_path, capsys):
+    """A log of other physics (here Go1's log with another fingerprint) was warned about
+    and then "passed", exit 0 (a helper's trial on a Barkour export and a Go1 log): the
+    agreement holds, but nothing was checked on the export's robot."""
+    from jax_contact.train import cli
+
+    arrays, attrs = read_log(deployed["log"])
+    other = write_log(tmp_path / "other.h5", arrays, {**attrs, "model_sha256": "0" * 64})
+    out = tmp_path / "check.json"
+    argv = ["deploy-check", str(deployed["artefact"]), str(other), "--no-pace", "--steps", "20"]
+    assert cli.main([*argv, "--json", str(out)]) == 1
+    saved = json.loads(out.read_text())
+    assert saved["max_abs_diff"] <= P_TOL and not saved["passed"]
+    assert saved["failed"][0].startswith("the log is not of the export's robot")
+    assert "of other physics" in saved["warnings"][0]
+    assert "FAILED: the log is not of the export's robot" in capsys.readouterr().out
+
+
 def test_deploy_check_pass_marks_by_hand():
     """:func:`_check_failures` on hand-made results: deadline misses only when asked; NaN
     (nothing compared) fails."""

@@ -105,8 +105,9 @@ def add_parsers(subparsers) -> None:
         " call as a control loop would, and reports the per-call latency (median, p99, p99.9,"
         " max in us), the deadline misses at the rate and the largest |P(contact)| difference"
         " from the offline estimator on the same readings. Exits 1 when that difference"
-        " exceeds --max-diff (or the two disagree on which readings give no estimate), or"
-        " the deadline misses exceed --max-misses where given; the JSON says which.",
+        " exceeds --max-diff (or the two disagree on which readings give no estimate), when"
+        " the log is of another robot than the export, or when the deadline misses exceed"
+        " --max-misses where given; the JSON says which.",
         formatter_class=HelpFormatter,
     )
     p.set_defaults(func=run_deploy_check, check=check_deploy_check)
@@ -474,7 +475,8 @@ def deploy_check(
     (:func:`is_recording`), read with ``names``, ``units`` and ``resample`` as ``jax-contact
     estimate`` reads it, its convention checks printed as there.
 
-    The payload's ``passed`` is False, and ``failed`` says why, when the largest
+    The payload's ``passed`` is False, and ``failed`` says why, when a simulate log is of
+    another robot's physics than the export's, when the largest
     |P(contact) - offline estimate| exceeds ``max_diff``, when the exported file and the
     offline estimator disagree on which readings give no estimate (NaN in one, a number in
     the other), or when a paced replay missed more than ``max_misses`` deadlines (None:
@@ -592,6 +594,12 @@ def deploy_check(
     result["max_diff_allowed"] = float(max_diff)
     result["max_misses_allowed"] = None if max_misses is None else int(max_misses)
     result["failed"] = _check_failures(result, max_diff, max_misses)
+    if other_robot:  # the agreement holds, but the export was checked on no log of its robot
+        result["failed"].insert(
+            0,
+            "the log is not of the export's robot (the warning above): the check says nothing"
+            " of the estimate on this robot's readings",
+        )
     result["passed"] = not result["failed"]
     if json_path:  # before the printing, which a closed pipe (| head) can interrupt
         write_json_atomic(json_path, result)
