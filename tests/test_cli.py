@@ -170,6 +170,11 @@ _MAIN_THEN_HEAVY = (
         (["evaluate", "README.md", "--params", "pyproject.toml"], ["argument --params", "JSON"]),
         # An unknown option: the command's usage and prog (it used to be the top level's).
         (["train", "--contact", "estimate"], ["unrecognized arguments: --contact estimate"]),
+        # A value argparse's type refuses (its message came after the command's usage).
+        (
+            ["tune", "x.h5", "--validate", "y.h5", "--out", "t.json", "--epochs", "0"],
+            ["argument --epochs: must be an int >= 1, got '0'"],
+        ),
         (["policy-eval", "README.md"], ["argument run", "'README.md' is a file"]),
         # An output that is the command's input: the log was overwritten with JSON.
         (
@@ -196,6 +201,12 @@ def test_bad_arguments_are_reported_at_once(argv, names):
     for name in names:
         assert name in errors[0], (name, errors[0])
     assert "Traceback" not in res.stderr
+    # One line and a pointer to --help, not argparse's whole usage first (18 lines for
+    # tune, burying the message: a helper's audit).
+    assert "usage:" not in res.stderr, res.stderr
+    assert res.stderr.splitlines()[-1] == f"(jax-contact {argv[0]} --help lists the options)" or (
+        len(res.stderr.splitlines()) == 1
+    ), res.stderr
     assert not (ROOT / "out.h5").exists() and not (ROOT / "out.txt").exists()
 
 

@@ -68,6 +68,7 @@ from jax_contact.train.cli_args import (  # noqa: F401  (COLUMNS ... SCENES: re-
     TERRAINS,
     VARIANTS,
     HelpFormatter,
+    Parser,
     add_transfer_arguments,
     bootstrap_int,
     check_distinct_files,
@@ -465,7 +466,7 @@ def _check_rates(args: argparse.Namespace) -> None:
 
 def build_parser() -> argparse.ArgumentParser:
     """The ``jax-contact`` parser; each command has ``func`` (run) and ``check`` (validate)."""
-    parser = argparse.ArgumentParser(
+    parser = Parser(
         prog="jax-contact",
         description="Probabilistic foot contact estimation (Hwangbo et al., IROS 2016) in JAX.",
         formatter_class=HelpFormatter,
