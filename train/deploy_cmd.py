@@ -338,6 +338,7 @@ def run_export(args: argparse.Namespace) -> int:
         f" {r['source']} (nq {r['nq']}, nv {r['nv']}, feet"
         f" {', '.join(r['feet'])}) at {header['rate_hz']:g} Hz, {header['payload_bytes']} bytes"
         f" of StableHLO; parameters: {header['params']['provenance'].get('source')}"
+        + (f" {args.params!r}" if args.params is not None else "")
     )
     if (cal := header.get("calibration")) is not None:
         from jax_contact.calibration import Calibration
