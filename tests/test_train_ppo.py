@@ -471,6 +471,34 @@ def test_a_second_train_into_the_same_folder_keeps_the_first(tmp_path, monkeypat
         ppo.train_variants(TINY, other, variants=["truth"], eval_envs=0)
 
 
+def test_a_stopped_overwrite_leaves_no_summary_of_the_replaced_run(tmp_path, monkeypatch):
+    """`train --variants estimate --overwrite` into a folder whose summary lists a finished
+    `estimate`, stopped during the new run (after its first checkpoint): the summary still
+    said the replaced run had finished, with its wall time and returns, beside the new
+    unfinished folder (a helper's trial). It is rewritten before the first run, without
+    the replaced run, and keeps the other variant's."""
+    calls = []
+    monkeypatch.setattr(ppo, "train", _fake_train(calls))
+    ppo.train_variants(TINY, tmp_path, variants=["estimate", "none"], eval_envs=0, log=print)
+    assert list(json.loads((tmp_path / "summary.json").read_text())["runs"]) == [
+        "estimate",
+        "none",
+    ]
+
+    def stopped(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(ppo, "train", stopped)
+    with pytest.raises(KeyboardInterrupt):
+        ppo.train_variants(
+            TINY, tmp_path, variants=["estimate"], overwrite=True, eval_envs=0, log=print
+        )
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert list(summary["runs"]) == ["none"] and summary["final_evaluation"] == "pending"
+    csv_rows = (tmp_path / "reward_curves.csv").read_text().splitlines()[1:]
+    assert [r.split(",")[0] for r in csv_rows] == ["none"]
+
+
 def test_a_stop_in_the_final_evaluation_keeps_the_finished_runs(tmp_path, monkeypatch):
     """A user trial stopped `train --variants estimate` (Ctrl-C) during its final
     evaluation: the run had finished, but no summary.json was written, so the next `train

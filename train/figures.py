@@ -127,7 +127,8 @@ def plot_reward_curves(
     for ax in axes[0]:
         ax.set_xlabel("environment steps")
         ax.grid(alpha=0.3)
-        ax.legend(title="contact observation")
+        if ax.get_legend_handles_labels()[0]:  # none: a summary of no run yet (matplotlib warns)
+            ax.legend(title="contact observation")
     fig.suptitle(title)
     fig.tight_layout()
     return _save(fig, path)

@@ -651,9 +651,10 @@ def train_variants(
     column) and ``out_dir/reward_curves.png``, after each run and again after the final
     evaluation (``summary["final_evaluation"]``: ``"pending"`` until it is done, then
     ``"done"``, or ``"skipped"``): a stop leaves the summary of the runs that finished,
-    which a later call into ``out_dir`` keeps. ``task``: as :func:`train`. ``eval_envs``:
-    episodes of each final evaluation; 0 skips them (``summary["evaluation"]`` then holds
-    only the kept runs' evaluations).
+    which a later call into ``out_dir`` keeps. An earlier call's summary is rewritten
+    before the first run, without the runs this call replaces. ``task``: as
+    :func:`train`. ``eval_envs``: episodes of each final evaluation; 0 skips them
+    (``summary["evaluation"]`` then holds only the kept runs' evaluations).
     """
     from jax_contact.io import write_json_atomic, write_text_atomic
     from jax_contact.train import figures, tasks
@@ -707,6 +708,13 @@ def train_variants(
         write_json_atomic(out_dir / "summary.json", summary)
         return summary
 
+    if (out_dir / "summary.json").is_file():
+        # Now, before any training: an earlier summary listing a run this call replaces
+        # (--overwrite) went on describing it (finished, its wall time and returns, beside
+        # the new run's unfinished folder) when the new run was stopped after its first
+        # checkpoint (a helper's trial). It holds the kept runs until this call's finish.
+        write_curves()
+        write_summary([], "pending")
     for v in variants:
         r = results[v] = train(v, cfg, out_dir, seed=seed, overwrite=overwrite, log=log, task=task)
         runs[v] = {
