@@ -343,8 +343,10 @@ def not_a_file(path: str | os.PathLike) -> str | None:
 def completed_writes() -> list[str]:
     """The files this process has written completely through :func:`write_atomic` and
     :func:`staged_folder`, in order (the CLI's Ctrl-C handler names them: they are whole).
-    Read without the lock, which :func:`abort_writes` holds by then."""
-    return list(_DONE)
+    Read without the lock, which :func:`abort_writes` holds by then. A file written
+    more than once (``train``'s ``progress.csv`` after each evaluation) is named once, at
+    its latest write."""
+    return list(reversed(dict.fromkeys(reversed(_DONE))))
 
 
 def abort_writes() -> list[str]:
