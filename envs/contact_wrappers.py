@@ -30,7 +30,9 @@ _KEY_TAG = 0x6A78_636E
 
 
 def _merge(config, foot_names, sensor, params, terrain) -> ContactObsConfig:
-    """The config with the older keyword arguments folded in (they override it)."""
+    """The config with the older keyword arguments folded in (they fill what it leaves at
+    its default; one that says otherwise than the config is refused: ``foot_names``
+    silently replaced ``config.feet``, reordering the features, a helper's trial)."""
     cfg = ContactObsConfig() if config is None else config
     if not isinstance(cfg, ContactObsConfig):
         raise ValueError(f"config must be a ContactObsConfig, got {type(cfg).__name__}")
@@ -43,6 +45,16 @@ def _merge(config, foot_names, sensor, params, terrain) -> ContactObsConfig:
         over["params"] = params
     if terrain is not None:
         over["terrain"] = terrain
+    default = ContactObsConfig()
+    for field, value in over.items():
+        given = getattr(cfg, field)
+        same = given is value or (isinstance(given, str | tuple) and given == value)
+        if not same and given is not getattr(default, field) and given != getattr(default, field):
+            arg = "foot_names" if field == "feet" else field
+            raise ValueError(
+                f"{arg}={value!r} and config.{field}={given!r} disagree: give it once, in the"
+                " config (the keyword arguments are kept for older callers)"
+            )
     return dataclasses.replace(cfg, **over) if over else cfg
 
 
@@ -304,10 +316,11 @@ def wrap_contact(
       env: a Brax ``PipelineEnv`` with ``backend="mjx"`` or a Playground ``MjxEnv``
         (``impl="jax"``), possibly already wrapped by unbatched wrappers.
       config: a :class:`ContactObsConfig`, which holds every option; None: the defaults.
-      foot_names, sensor, params, terrain: override ``config.feet``, ``config.sensor``,
-        ``config.params``, ``config.terrain`` (kept for older callers). ``params`` may be
-        a parameter file or preset name (``"go1"``): its calibration map is then applied
-        (``ContactObsConfig.calibration``).
+      foot_names, sensor, params, terrain: set ``config.feet``, ``config.sensor``,
+        ``config.params``, ``config.terrain`` where the config leaves them at their
+        defaults (kept for older callers; a value the config sets otherwise is
+        refused). ``params`` may be a parameter file or preset name (``"go1"``): its
+        calibration map is then applied (``ContactObsConfig.calibration``).
 
     Returns:
       A :class:`BraxContactWrapper` or :class:`PlaygroundContactWrapper`.

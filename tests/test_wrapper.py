@@ -360,6 +360,21 @@ def test_refusals(leg_robot, brax_leg, pg_leg):
         W.wrap_contact(brax_leg, foot_names=["nope"])
     with pytest.raises(ValueError, match="config.rate must be one of"):
         W.wrap_contact(brax_leg, W.ContactObsConfig(rate="fast"))
+    # A keyword argument that says otherwise than the config: foot_names silently replaced
+    # config.feet (reordering the features, a helper's trial). Equal, or filling a default
+    # the config leaves, it is taken.
+    from jax_contact.envs.contact_wrappers import _merge
+
+    cfg = W.ContactObsConfig(feet=("foot",), sensor="ideal")
+    with pytest.raises(
+        ValueError, match=r"foot_names=\('toe',\) and config.feet=\('foot',\) disagree"
+    ):
+        _merge(cfg, ["toe"], None, None, None)
+    with pytest.raises(ValueError, match=r"sensor='harsh' and config.sensor='ideal' disagree"):
+        _merge(cfg, None, "harsh", None, None)
+    assert _merge(cfg, ["foot"], "ideal", None, None) == cfg
+    assert _merge(W.ContactObsConfig(), ["toe"], "harsh", None, None).feet == ("toe",)
+    assert _merge(W.ContactObsConfig(), ["toe"], "harsh", None, None).sensor == "harsh"
     with pytest.raises(ValueError, match="record_substeps needs rate='substep'"):
         W.wrap_contact(pg_leg, W.ContactObsConfig(rate="control", record_substeps=True))
     with pytest.raises(ValueError, match="config.obs_keys"):
