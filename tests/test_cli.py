@@ -152,6 +152,12 @@ _MAIN_THEN_HEAVY = (
         # the other sections had run.
         (["bench", "--envs", "8", "8"], ["argument --envs", "repeated batch size"]),
         (["bench", "--versus-envs", "1000000000"], ["argument --versus-envs", "GiB"]),
+        # The final evaluation's episodes: 10^11 trained first, then died (policy-eval's
+        # --envs and transfer's take the same check).
+        (
+            ["train", "--config", "tiny", "--eval-envs", "100000000000", "--out", "out_never"],
+            ["argument --eval-envs: 100000000000 envs need at least", "GiB"],
+        ),
         (["evaluate", "README.md", "--bootstrap", "99999999999"], ["argument --bootstrap"]),
         (["tune", "README.md", "--validate", "x.h5", "--out", "t.json"], ["argument LOG"]),
         # The same tuning log twice: refused after JAX loaded and the first log was measured.

@@ -72,6 +72,7 @@ from jax_contact.train.cli_args import (  # noqa: F401  (COLUMNS ... SCENES: re-
     add_transfer_arguments,
     bootstrap_int,
     check_distinct_files,
+    check_env_memory,
     check_gait_for_robot,
     check_input_file,
     check_log_size,
@@ -417,6 +418,7 @@ def _check_train(args: argparse.Namespace) -> None:
                 " --params is for the Playground tasks (go1, ...)"
             )
         check_params_source("--params", args.params)
+    check_env_memory("--eval-envs", args.eval_envs)
 
 
 def _check_policy_eval(args: argparse.Namespace) -> None:
@@ -426,30 +428,18 @@ def _check_policy_eval(args: argparse.Namespace) -> None:
     if not (run / "run.json").is_file():
         raise ValueError(f"argument run: {not_a_run_folder(run)}")
     check_run_record("run", run, args.column or args.observe)
+    check_env_memory("--envs", args.envs)
     check_output_file("--json", args.json)
     check_not_a_run_file("--json", args.json, [run])
 
 
-# The least memory one env of the benchmark's estimator holds (Go1, quadrature touch-down:
-# 14.5 kB measured, `bytes_per_env` in bench's JSON; Monte-Carlo 56 kB): a batch whose
-# lower bound exceeds the machine's memory is refused before JAX loads (10^9 envs ran the
-# other sections first, then died on a 9.4 TiB allocation with a traceback).
-BENCH_MIN_BYTES_PER_ENV = 14_000
-
-
 def _check_bench(args: argparse.Namespace) -> None:
     check_output_file("--json", args.json, (".json",))  # the suite's own rule, before JAX loads
-    total = machine_memory_bytes()
     for arg in ("--envs", "--versus-envs"):
         sizes = getattr(args, arg[2:].replace("-", "_")) or ()
         check_no_repeats(arg, sizes, "batch size")  # a repeat was measured twice
-        if total and sizes and max(sizes) * BENCH_MIN_BYTES_PER_ENV > total:
-            raise ValueError(
-                f"argument {arg}: {max(sizes)} envs need at least"
-                f" {max(sizes) * BENCH_MIN_BYTES_PER_ENV / 2**30:.3g} GiB (the estimator's"
-                f" {BENCH_MIN_BYTES_PER_ENV / 1e3:g} kB per env); this machine has"
-                f" {total / 2**30:.0f} GiB of memory"
-            )
+        if sizes:
+            check_env_memory(arg, max(sizes))
 
 
 def _check_rates(args: argparse.Namespace) -> None:

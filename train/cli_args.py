@@ -200,6 +200,28 @@ def machine_memory_bytes() -> int | None:
         return None
 
 
+# The least memory one env holds: the benchmark's estimator alone (Go1, quadrature
+# touch-down: 14.5 kB measured, `bytes_per_env` in bench's JSON; Monte-Carlo 56 kB), less
+# than any simulated env with it. A batch whose lower bound exceeds the machine's memory is
+# refused before JAX loads (10^9 envs in bench ran the other sections first, then died on
+# a 9.4 TiB allocation; 10^11 in policy-eval compiled for a minute, its count truncated
+# to int32 with a warning).
+MIN_BYTES_PER_ENV = 14_000
+
+
+def check_env_memory(arg: str, n_envs: int) -> None:
+    """Raises ValueError when ``n_envs`` envs cannot fit the machine's memory at
+    :data:`MIN_BYTES_PER_ENV` each (0 envs, or an unknown memory size, pass)."""
+    total = machine_memory_bytes()
+    if total and n_envs * MIN_BYTES_PER_ENV > total:
+        raise ValueError(
+            f"argument {arg}: {n_envs} envs need at least"
+            f" {n_envs * MIN_BYTES_PER_ENV / 2**30:.3g} GiB (the estimator's"
+            f" {MIN_BYTES_PER_ENV / 1e3:g} kB per env alone); this machine has"
+            f" {total / 2**30:.0f} GiB of memory"
+        )
+
+
 def check_log_size(
     envs: int,
     duration: float,
@@ -431,6 +453,7 @@ def check_transfer(args) -> None:
     be written (the run folders under ``root`` are checked once JAX has loaded)."""
     if problem := transfer_root_problem(args.root):
         raise ValueError(f"argument root: {problem}")
+    check_env_memory("--envs", args.envs)
     check_output_file("--json", args.json)
     root = Path(args.root)
     runs = [p.parent for p in root.glob("seed*/*/run.json")]
