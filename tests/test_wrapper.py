@@ -687,5 +687,11 @@ def test_rates_refuses_a_file_for_another_robot_before_any_scene_runs():
 
     rates.check_params(["go1_walk", "go1"], "go1")
     rates.check_params(["planar_leg"], None)
-    with pytest.raises(ValueError, match="scene 'planar_leg' \\(planar_leg\\) has nv = 3"):
+    # The option named, and a preset called one (it said "parameter file 'go1_playground'"
+    # and named no option, a helper's trial).
+    with pytest.raises(
+        ValueError,
+        match="argument --params: preset 'go1' is for nv = 18; scene 'planar_leg'"
+        " \\(planar_leg\\) has nv = 3",
+    ):
         rates.check_params(["go1_walk", "planar_leg"], "go1")

@@ -93,9 +93,13 @@ def check_params(scenes, params) -> None:
         robot = robot_of(name)
         have = load_robot(robot).description.nv
         if have != nv:
+            from jax_contact.params_file import preset_names
+
+            what = "preset" if str(params) in preset_names() else "parameter file"
             raise ValueError(
-                f"parameter file {str(params)!r} is for nv = {nv}; scene {name!r} ({robot}) has"
-                f" nv = {have}: --params applies to every scene, so pass --scenes of one robot"
+                f"argument --params: {what} {str(params)!r} is for nv = {nv}; scene {name!r}"
+                f" ({robot}) has nv = {have}: --params applies to every scene, so pass"
+                " --scenes of one robot"
             )
 
 
