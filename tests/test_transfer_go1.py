@@ -325,6 +325,15 @@ def test_a_seed_folder_given_as_root_names_its_parent(tmp_path):
     with pytest.raises(FileNotFoundError, match=r"it is one seed's folder; pass the folder of"):
         transfer.runs_under(tmp_path / "seed0")
     assert set(transfer.runs_under(tmp_path)) == {"none", "truth", "estimate"}
+    # A folder not named seed*: its parent holds no seed*/ either, so passing it led to
+    # "no run folder ./seed*/none" (a second helper's trial); the hint says to move it.
+    for v in ("none", "truth", "estimate"):
+        _run_folder(tmp_path / "other" / "runs" / v, v, "go1")
+    with pytest.raises(FileNotFoundError, match=r"one seed's folder; the matrix reads ROOT/seed"):
+        transfer.runs_under(tmp_path / "other" / "runs")
+    (tmp_path / "other" / "seeds").mkdir()
+    (tmp_path / "other" / "runs").rename(tmp_path / "other" / "seeds" / "seed0")  # as it says
+    assert set(transfer.runs_under(tmp_path / "other" / "seeds")) == {"none", "truth", "estimate"}
 
 
 # ----------------------------------------------------------------------------- CLI

@@ -535,9 +535,15 @@ def runs_under(root: str | Path, variants: Sequence[str] | None = None) -> dict[
     own = [v for v in found if (root / v / "run.json").is_file()]
     if empty and own:
         # A seed folder given as root: its runs are one level up from where they are sought.
+        if root.name.startswith("seed"):
+            hint = f"pass the folder of seed*/ folders, {str(root.parent)!r}"
+        else:  # not named seed*: its parent holds no seed*/ either (a helper's dead end)
+            hint = (
+                f"the matrix reads ROOT/seed*/<variant>: move it to ROOT/seed0 (e.g. mv"
+                f" {str(root)!r} {str(root.parent / 'seeds' / 'seed0')!r}) and pass ROOT"
+            )
         raise FileNotFoundError(
-            f"{root} holds run folders itself ({', '.join(own)}): it is one seed's folder;"
-            f" pass the folder of seed*/ folders, {str(root.parent)!r}"
+            f"{root} holds run folders itself ({', '.join(own)}): it is one seed's folder; {hint}"
         )
     if empty:
         raise FileNotFoundError(
