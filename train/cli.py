@@ -284,12 +284,17 @@ def _cmd_policy_eval(args: argparse.Namespace) -> int:
     c = res["contact"]
     print(
         f"contact estimator: touch-down delay {c['touchdown_delay_ms'][0]:.1f} +- "
-        f"{c['touchdown_delay_ms'][1]:.1f} ms, failures {c['failures']}, Brier {c['brier']:.3f}"
+        f"{c['touchdown_delay_ms'][1]:.1f} ms, failures {c['failures']}, sw-ph"
+        f" {100 * c['swing_phase_failure_rate']:.1f} %, sw-on"
+        f" {100 * c['swing_phase_flag_on_rate']:.1f} %, Brier {c['brier']:.3f}"
     )
     print(
         "estimator acc, F1, delay, failures, Brier: the contact estimator run beside the policy"
         " (whatever the policy observes), per step against the simulator's contact, over the"
-        " steps alive; failures: false contacts in the air"
+        " steps alive; failures: false contacts in the air (runs of the flag that start in an"
+        " air phase); sw-ph: share of swing phases with one; sw-on: share of swing phases"
+        " with the flag on throughout (no failure, a missed lift-off; Table III's columns,"
+        " jax_contact/metrics.py)"
     )
     if args.json:
         print(f"wrote {write_json_atomic(args.json, res)}")
