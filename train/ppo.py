@@ -552,6 +552,12 @@ def _train_into(run_dir: Path, variant, cfg, spec, earlier, *, seed: int, log) -
     wall = time.perf_counter() - t0
     if not train_rows:  # Brax reports them every two training steps: none in a shorter run
         write_text_atomic(run_dir / "training.csv", _csv_text(train_rows, TRAIN_FIELDS))
+        every = 2 * cfg.steps_per_training_step
+        log(
+            f"[{variant}] training.csv holds its header only: Brax reports the training"
+            f" episodes every {every:,d} env steps (two training steps)"
+            + (f" and this run had {total:,d}" if total < every else ", and reported none")
+        )
     figures.plot_reward_curves(
         {variant: rows},
         run_dir / "reward.png",
