@@ -1503,9 +1503,15 @@ def test_train_checks_its_run_folders_before_anything_runs(tmp_path, capsys):
     (run / "run.json").write_text('{"finished": false}')
     assert cli.main(["train", "--variants", "truth", "--out", str(tmp_path / "runs")]) == 2
     assert "holds an unfinished run" in capsys.readouterr().err
-    assert "with no checkpoint yet: train it again" in EarlierRun(run, False).note()
+    # Stopped before its first checkpoint, a run holds nothing to evaluate: its folder goes
+    # (it was kept, and the next train into it asked for --overwrite: a helper's trial).
+    note = EarlierRun(run, False).note()
+    assert "nothing of the run is kept" in note and not run.exists(), note
+    run.mkdir()
+    (run / "run.json").write_text('{"finished": false}')
     (run / "checkpoints" / "000").mkdir(parents=True)  # a save stopped midway: no checkpoint
-    assert "with no checkpoint yet: train it again" in EarlierRun(run, False).note()
+    assert "nothing of the run is kept" in EarlierRun(run, False).note() and not run.exists()
+    (run / "checkpoints" / "000").mkdir(parents=True)
     (run / "checkpoints" / "000" / "ppo_network_config.json").write_text("{}")  # Brax's last
     note = EarlierRun(run, False).note()
     assert "with the checkpoints saved so far:" in note and "policy-eval" in note

@@ -394,7 +394,23 @@ def test_overwrite_keeps_the_earlier_run_until_the_new_ones_first_checkpoint(tmp
     aside.mkdir()
     with pytest.raises(ValueError, match=r"estimate.earlier holds the run that an --overwrite"):
         ppo.check_run_folder(run, True)
-    assert "with no checkpoint yet" in EarlierRun(run, False).note()
+    # A new run into a free folder that stops (an error, or Ctrl-C's note) before its first
+    # checkpoint leaves nothing: its folder held a run.json only, and blocked the next train.
+    shutil.rmtree(aside)
+    shutil.rmtree(run)
+
+    def stops(run_dir, *args, **kwargs):
+        run_dir.mkdir()
+        (run_dir / "run.json").write_text('{"finished": false}')
+        raise RuntimeError("stopped")
+
+    monkeypatch.setattr(ppo, "_train_into", stops)
+    with pytest.raises(RuntimeError, match="stopped"):
+        ppo.train("estimate", TINY, tmp_path)
+    assert not run.exists() and ppo.check_run_folder(run, False) is False
+    run.mkdir()
+    (run / "run.json").write_text('{"finished": false}')
+    assert "nothing of the run is kept" in EarlierRun(run, False).note() and not run.exists()
 
 
 def _fake_train(calls):

@@ -458,7 +458,7 @@ def train(
     try:
         return _train_into(run_dir, variant, cfg, spec, earlier, seed=seed, log=log)
     except BaseException:
-        earlier.restore()
+        earlier.restore() or earlier.remove_unsaved()
         raise
 
 

@@ -11,6 +11,9 @@ same file system) and:
 - moved back if the new run stops before that (:meth:`EarlierRun.restore`: on an error, and
   as the note of a Ctrl-C, :func:`jax_contact.train.interrupt.set_kept`).
 
+A new run into a free folder that stops before its first checkpoint is removed
+(:meth:`EarlierRun.remove_unsaved`): it holds nothing to evaluate.
+
 A ``<run>.earlier`` left by a process that was killed outright (SIGKILL, power loss) is not
 touched: :func:`jax_contact.train.cli_args.check_run_folder` refuses to train into
 ``<run>`` until the user has moved it back or deleted it.
@@ -133,7 +136,25 @@ class EarlierRun:
                 f"stopped before the first checkpoint: the earlier run is in {self.path}; move"
                 f" it back to {self.run_dir} or delete it before training again"
             )
+        if self.remove_unsaved():
+            return (
+                f"stopped before the first checkpoint: nothing of the run is kept"
+                f" ({self.run_dir} removed; train again as before)"
+            )
         return (
             f"kept {self.run_dir} (run.json: finished false) with no checkpoint yet: train it"
             " again with --overwrite"
         )
+
+    def remove_unsaved(self) -> bool:
+        """Removes the new run's folder if it holds no checkpoint and no earlier run is
+        set aside; True if it did. Brax saves a checkpoint before each evaluation's
+        report, so such a folder holds a ``run.json`` and no progress row: kept, it only
+        made the next ``train`` into it ask for ``--overwrite`` (a helper's trial)."""
+        if self.kept or has_checkpoint(self.run_dir) or not self.run_dir.is_dir():
+            return False
+        shutil.rmtree(self.run_dir, ignore_errors=True)
+        if self.run_dir.exists():  # a file still being written: leave it
+            return False
+        interrupt.discarded(self.run_dir)  # its files: not "written" any more
+        return True
