@@ -362,6 +362,7 @@ def test_policy_eval_passes_the_column(tmp_path, monkeypatch, capsys):
     run = _run_folder(tmp_path / "truth", "truth", None)
     seen = {}
     contact = {"accuracy": 0.9, "f1": 0.8, "touchdown_delay_ms": [1.0, 2.0], "failures": 3}
+    contact |= {"swing_phase_failure_rate": 0.125, "swing_phase_flag_on_rate": 0.25}
 
     def fake(run_dir, **kw):
         seen.update(kw, run_dir=run_dir)
@@ -385,7 +386,10 @@ def test_policy_eval_passes_the_column(tmp_path, monkeypatch, capsys):
         "n_envs": 2,
         "seed": 12345,
     }
-    assert "truth  estimate_lat2     1.50 +-  0.50       20.0  0.25" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "truth  estimate_lat2     1.50 +-  0.50       20.0  0.25" in out
+    # Table III's swing columns beside the failures (a flag on through a swing is none).
+    assert "failures 3, sw-ph 12.5 %, sw-on 25.0 %, Brier 0.100" in out
 
 
 # ------------------------------------------------------------------- the GPU script
