@@ -176,6 +176,11 @@ _MAIN_THEN_HEAVY = (
         (["evaluate", "README.md", "--params", "pyproject.toml"], ["argument --params", "JSON"]),
         # An unknown option: the command's usage and prog (it used to be the top level's).
         (["train", "--contact", "estimate"], ["unrecognized arguments: --contact estimate"]),
+        # More steps than an int64 holds: training started (a helper's trial).
+        (
+            ["train", "--timesteps", "100000000000000000000", "--out", "out_never"],
+            ["argument --timesteps: must be an int from 1 to 9223372036854775807"],
+        ),
         # A value argparse's type refuses (its message came after the command's usage).
         (
             ["tune", "x.h5", "--validate", "y.h5", "--out", "t.json", "--epochs", "0"],

@@ -87,6 +87,7 @@ from jax_contact.train.cli_args import (  # noqa: F401  (COLUMNS ... SCENES: re-
     check_run_folder,
     check_run_record,
     check_transfer,
+    int_between,
     machine_memory_bytes,
     nonnegative_int,
     not_a_run_folder,
@@ -678,7 +679,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--timesteps",
-        type=positive_int,
+        type=int_between(1, 2**63 - 1),  # Brax's step counters are int64: 1e20 started training
         default=None,
         help="env steps to train (default: the configuration's); trained exactly, with fewer"
         " evaluations if needed, or rounded up to a whole training step (a message says so)",
