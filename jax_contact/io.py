@@ -283,19 +283,16 @@ def write_atomic(path: str | os.PathLike, write) -> Path:
         raise IsADirectoryError(errno.EISDIR, f"cannot create {str(path)!r}: it is a folder")
     if (kind := not_a_file(path)) is not None:
         raise OSError(errno.EEXIST, f"cannot replace {str(path)!r}: it is {kind}, not a file")
-    # The folders made here, deepest first: removed again (when empty) if the write fails
-    # or is stopped, as staged_folder does, so a failed run leaves no empty folder behind.
-    created = [p for p in [path.parent, *path.parent.parents] if not p.exists()]
+    # Removed again (when empty) if the write fails or is stopped, as staged_folder's, so a
+    # failed run leaves no empty folder behind.
+    created = _missing_folders(path.parent)
     try:
         with _LOCK:
-            path.parent.mkdir(parents=True, exist_ok=True)
-            _MADE_DIRS[:0] = created
+            _make_folders(path.parent, created)
             fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
             _PENDING.add(tmp)
     except OSError as err:  # name the file asked for, not the temporary one
-        with _LOCK:
-            _forget_made(created)
-        _remove_empty(created)
+        _unmake(created)
         raise OSError(err.errno, f"cannot create {str(path)!r} ({err.strerror})") from None
     os.close(fd)
     try:
@@ -311,10 +308,7 @@ def write_atomic(path: str | os.PathLike, write) -> Path:
                 _DONE.append(str(path))
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
-        with _LOCK:
-            _PENDING.discard(tmp)
-            _forget_made(created)
-        _remove_empty(created)
+        _unmake(created, tmp)
         raise
     return path
 
@@ -400,19 +394,16 @@ def staged_folder(folder: str | os.PathLike, stale: Callable[[Path], Iterable[st
       The temporary folder (a :class:`~pathlib.Path`).
     """
     folder = Path(folder)
-    # The folders above ``folder`` made here, deepest first: removed again (when empty) if
-    # nothing is written, so a stopped run leaves no empty output folder behind.
-    created = [p for p in [folder.parent, *folder.parent.parents] if not p.exists()]
+    # The folders above ``folder`` made here: removed again (when empty) if nothing is
+    # written, so a stopped run leaves no empty output folder behind.
+    created = _missing_folders(folder.parent)
     try:
         with _LOCK:
-            folder.parent.mkdir(parents=True, exist_ok=True)
-            _MADE_DIRS[:0] = created
+            _make_folders(folder.parent, created)
             tmp = tempfile.mkdtemp(dir=folder.parent, prefix=f".{folder.name}.", suffix=".tmp")
             _PENDING.add(tmp)
     except OSError as err:  # named, not the temporary folder's errno
-        with _LOCK:
-            _forget_made(created)
-        _remove_empty(created)
+        _unmake(created)
         raise OSError(
             f"cannot write into {str(folder)!r}: its files are staged beside it, in"
             f" {str(folder.parent)!r}, which takes no new folders ({err.strerror or err})"
@@ -438,11 +429,29 @@ def staged_folder(folder: str | os.PathLike, stale: Callable[[Path], Iterable[st
             _forget_made(created)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
-        with _LOCK:
-            _PENDING.discard(tmp)
-            _forget_made(created)
-        _remove_empty(created)
+        _unmake(created, tmp)
         raise
+
+
+def _missing_folders(folder: Path) -> list[Path]:
+    """``folder`` and the folders above it that do not exist yet, deepest first."""
+    return [p for p in [folder, *folder.parents] if not p.exists()]
+
+
+def _make_folders(folder: Path, created: list[Path]) -> None:
+    """Creates ``folder`` and registers ``created`` (:func:`_missing_folders`) in
+    :data:`_MADE_DIRS`, for :func:`abort_writes` (under ``_LOCK``)."""
+    folder.mkdir(parents=True, exist_ok=True)
+    _MADE_DIRS[:0] = created
+
+
+def _unmake(created: list[Path], tmp: str | None = None) -> None:
+    """After an output failed or was stopped: forgets the temporary ``tmp`` (already
+    removed) and ``created``, and removes those folders while empty."""
+    with _LOCK:
+        _PENDING.discard(tmp)
+        _forget_made(created)
+    _remove_empty(created)
 
 
 def _forget_made(dirs) -> None:
