@@ -591,7 +591,7 @@ def check_output_file(arg: str, path: str | None, suffixes: tuple[str, ...] = ()
     folder, no device, FIFO or socket (the atomic write would replace it with a file), a
     writable folder; for a JSON output (``--json``, or ``suffixes`` ``(".json",)``) an
     existing file is replaced only if it holds JSON (``--json`` naming a log destroyed it),
-    and a ``--json`` report never replaces a parameter file (:func:`_holds_parameter_file`).
+    and a ``--json`` report never replaces a parameter file (:func:`is_parameter_file`).
     A symbolic link is checked, and written, as its target."""
     from jax_contact.io import not_a_file
 
@@ -611,7 +611,7 @@ def check_output_file(arg: str, path: str | None, suffixes: tuple[str, ...] = ()
             f"argument {arg}: {path!r} exists and holds no JSON (a log or another file);"
             " writing it would replace it: pass a new name or a JSON file to replace"
         )
-    if arg == "--json" and p.is_file() and _holds_parameter_file(p):
+    if arg == "--json" and is_parameter_file(json_in_file(p)):
         # A report over a tuned file (minutes of tuning) was written without a word, a
         # helper's trial; `tune --out` replaces parameter files, and only those.
         raise ValueError(
@@ -626,19 +626,32 @@ def check_output_file(arg: str, path: str | None, suffixes: tuple[str, ...] = ()
 JSON_REPLACE_MAX_BYTES = 64 << 20
 
 
-def _holds_parameter_file(path: Path) -> bool:
-    """Whether ``path`` holds a parameter file of :func:`jax_contact.save_params` (JSON
-    whose ``format`` is :data:`jax_contact.params_file.PARAMS_FORMAT`)."""
+# What :func:`json_in_file` returns for a file that holds no JSON value to read.
+NO_JSON = object()
+
+
+def json_in_file(path: str | os.PathLike) -> object:
+    """The JSON value the file ``path`` holds, or :data:`NO_JSON`: no file, an empty one,
+    one larger than :data:`JSON_REPLACE_MAX_BYTES`, unreadable, or not JSON (the other
+    checks name those)."""
     import json
 
+    p = Path(path)
+    try:
+        if not p.is_file() or p.stat().st_size > JSON_REPLACE_MAX_BYTES:
+            return NO_JSON
+        text = p.read_bytes()
+        return json.loads(text) if text.strip() else NO_JSON
+    except (OSError, ValueError):  # JSONDecodeError, UnicodeDecodeError
+        return NO_JSON
+
+
+def is_parameter_file(held: object) -> bool:
+    """Whether a JSON value (:func:`json_in_file`) is a parameter file of
+    :func:`jax_contact.save_params`: an object whose ``format`` is
+    :data:`jax_contact.params_file.PARAMS_FORMAT`."""
     from jax_contact.params_file import PARAMS_FORMAT
 
-    try:
-        if path.stat().st_size > JSON_REPLACE_MAX_BYTES:
-            return False
-        held = json.loads(path.read_bytes())
-    except (OSError, ValueError):  # unreadable, or no JSON: the other checks name it
-        return False
     return isinstance(held, dict) and held.get("format") == PARAMS_FORMAT
 
 

@@ -373,20 +373,12 @@ def check_tuning_options(args: argparse.Namespace) -> None:
 def check_replaces_a_parameter_file(arg: str, path: str) -> None:
     """Raises ValueError when ``path`` exists and holds JSON that is no parameter file (an
     ``evaluate --json`` report was replaced by a tuned file without a word); an empty file
-    or a parameter file is replaced."""
-    import json
-
+    or a parameter file is replaced (one that holds no JSON: check_output_file's)."""
     from jax_contact.params_file import PARAMS_FORMAT
+    from jax_contact.train.cli_args import NO_JSON, is_parameter_file, json_in_file
 
-    p = Path(path)
-    try:
-        text = p.read_bytes() if p.is_file() else b""
-        if not text.strip():
-            return  # no file, or an empty one
-        held = json.loads(text)
-    except (OSError, ValueError):  # JSONDecodeError, UnicodeDecodeError
-        return  # check_output_file refuses a file that holds no JSON
-    if not (isinstance(held, dict) and held.get("format") == PARAMS_FORMAT):
+    held = json_in_file(path)
+    if held is not NO_JSON and not is_parameter_file(held):
         raise ValueError(
             f"argument {arg}: {path!r} exists and holds JSON that is no parameter file (no"
             f" 'format': {PARAMS_FORMAT!r}); writing it would replace it: pass a new name"
