@@ -88,7 +88,6 @@ from jax_contact.train.cli_args import (  # noqa: F401  (COLUMNS ... SCENES: re-
     check_run_record,
     check_transfer,
     int_between,
-    machine_memory_bytes,
     nonnegative_int,
     not_a_run_folder,
     positive_float,

@@ -594,13 +594,7 @@ def deploy_check(
     ]
     result["max_diff_allowed"] = float(max_diff)
     result["max_misses_allowed"] = None if max_misses is None else int(max_misses)
-    result["failed"] = _check_failures(result, max_diff, max_misses)
-    if other_robot:  # the agreement holds, but the export was checked on no log of its robot
-        result["failed"].insert(
-            0,
-            "the log is not of the export's robot (the warning above): the check says nothing"
-            " of the estimate on this robot's readings",
-        )
+    result["failed"] = _check_failures(result, max_diff, max_misses, bool(other_robot))
     result["passed"] = not result["failed"]
     if json_path:  # before the printing, which a closed pipe (| head) can interrupt
         write_json_atomic(json_path, result)
@@ -630,23 +624,29 @@ def deploy_check(
     return result
 
 
-def _check_failures(result: dict, max_diff: float, max_misses: int | None) -> list[str]:
-    """Why a deploy-check ``result`` fails its pass marks, one sentence each; [] passes."""
+def _check_failures(
+    result: dict, max_diff: float, max_misses: int | None, other_robot: bool = False
+) -> list[str]:
+    """Why a deploy-check ``result`` fails its pass marks, one sentence each; [] passes.
+    ``other_robot``: the log is of another robot's physics than the export's."""
     failed = []
-    diff = result["max_abs_diff"]
-    if not diff <= max_diff:  # NaN too: no reading gave a number to compare
+    if other_robot:  # the agreement holds, but the export was checked on no log of its robot
         failed.append(
-            f"max |P(contact) - offline estimate| {diff:.2e} > {max_diff:g} (--max-diff)"
-            + (
+            "the log is not of the export's robot (the warning above): the check says nothing"
+            " of the estimate on this robot's readings"
+        )
+    diff = result["max_abs_diff"]
+    if diff != diff:  # NaN: no reading gave a number to compare
+        failed.append("no reading gave both programs a P(contact) to compare")
+    elif diff > max_diff:
+        why = f"max |P(contact) - offline estimate| {diff:.2e} > {max_diff:g} (--max-diff)"
+        if diff >= MAX_DIFF:
+            why += (
                 ": more than float32 round-off, the exported file and the library disagree"
                 " (another parameter file, terrain model or robot than the log's, or"
                 " library versions apart)"
-                if diff >= MAX_DIFF
-                else ""
             )
-            if diff == diff
-            else "no reading gave both programs a P(contact) to compare"
-        )
+        failed.append(why)
     if result["nan_mismatches"]:
         failed.append(
             f"{result['nan_mismatches']} outputs are NaN in one program and a number in the"

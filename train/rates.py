@@ -87,15 +87,13 @@ def check_params(scenes, params) -> None:
     if params is None:
         return
     from jax_contact.envs.robots import load_robot
-    from jax_contact.params_file import load_params
+    from jax_contact.params_file import load_params, preset_names
 
     nv = load_params(params).nv
     for name in scenes:
         robot = robot_of(name)
         have = load_robot(robot).description.nv
         if have != nv:
-            from jax_contact.params_file import preset_names
-
             what = "preset" if str(params) in preset_names() else "parameter file"
             raise ValueError(
                 f"argument --params: {what} {str(params)!r} is for nv = {nv}; scene {name!r}"
